@@ -1,0 +1,199 @@
+"""OrganizedCloud: an (H, W) grid of 3-D points that keeps the sensor's image structure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .kinematics import (
+    NoddingGeometry,
+    PinholeGeometry,
+    nodding_points,
+    pinhole_points,
+)
+
+__all__ = ["OrganizedCloud"]
+
+
+def _check_grid(name: str, value, shape: tuple[int, int]) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape} to match xyz; got {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be numeric; got dtype {arr.dtype}")
+    return arr
+
+
+class OrganizedCloud:
+    """An organized point cloud: ``xyz[i, j]`` is the point seen by pixel (row i, column j).
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) array of float
+        Points in metres; NaN (all three coordinates) where the sensor had no return.
+        A pixel with any NaN coordinate counts as invalid and is stored all-NaN.
+    ranges, intensity : (H, W) arrays, optional
+        Per-pixel range (metres) and return intensity, when the sensor gives them.
+    geometry : NoddingGeometry or PinholeGeometry, optional
+        How the grid was produced, when known.
+    timestamps : (H,) array, optional
+        Acquisition time of each row, seconds.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-numeric dtype, infinite coordinates or an empty grid.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cloud = OrganizedCloud(np.zeros((2, 3, 3)))
+    >>> cloud.shape, cloud.n_valid
+    ((2, 3), 6)
+    """
+
+    def __init__(self, xyz, *, ranges=None, intensity=None, geometry=None, timestamps=None):
+        arr = np.asarray(xyz)
+        if arr.ndim != 3 or arr.shape[2] != 3:
+            raise ValueError(f"xyz must have shape (H, W, 3); got {arr.shape}")
+        if arr.shape[0] == 0 or arr.shape[1] == 0:
+            raise ValueError(f"xyz must have at least one row and one column; got {arr.shape}")
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"xyz must be a float array; got dtype {arr.dtype}")
+        arr = arr.astype(np.float64, copy=True)
+        if np.isinf(arr).any():
+            raise ValueError(
+                f"xyz contains {int(np.isinf(arr).any(axis=2).sum())} points with infinite "
+                "coordinates; mark missing returns with NaN instead"
+            )
+        arr[np.isnan(arr).any(axis=2)] = np.nan
+        arr.setflags(write=False)
+        self._xyz = arr
+        shape = arr.shape[:2]
+        self.ranges = _check_grid("ranges", ranges, shape)
+        self.intensity = _check_grid("intensity", intensity, shape)
+        if geometry is not None and not isinstance(geometry, (NoddingGeometry, PinholeGeometry)):
+            raise TypeError(
+                f"geometry must be NoddingGeometry or PinholeGeometry; got {type(geometry).__name__}"
+            )
+        if isinstance(geometry, NoddingGeometry) and geometry.shape != shape:
+            raise ValueError(
+                f"geometry describes a {geometry.shape} grid but xyz is {shape}"
+            )
+        self.geometry = geometry
+        if timestamps is not None:
+            timestamps = np.asarray(timestamps, dtype=float)
+            if timestamps.shape != (shape[0],):
+                raise ValueError(
+                    f"timestamps must have shape ({shape[0]},), one per row; got {timestamps.shape}"
+                )
+        self.timestamps = timestamps
+
+    # -- constructors -------------------------------------------------------------
+    @classmethod
+    def from_ranges(
+        cls,
+        ranges,
+        beam_angles,
+        tilt_angles,
+        *,
+        mount_offset=(0.0, 0.0, 0.0),
+        tilt_sign: float = 1.0,
+        intensity=None,
+        timestamps=None,
+    ) -> "OrganizedCloud":
+        """Build a cloud from a nodding laser's ranges (metres; NaN, inf or <= 0 = no return).
+
+        ``ranges[i, j]`` is beam ``beam_angles[j]`` at tilt ``tilt_angles[i]`` (radians);
+        the kinematics are those of :mod:`rangeseg_o3d.kinematics`.
+        """
+        geometry = NoddingGeometry(
+            beam_angles=beam_angles,
+            tilt_angles=tilt_angles,
+            mount_offset=mount_offset,
+            tilt_sign=tilt_sign,
+        )
+        ranges = np.asarray(ranges, dtype=float)
+        xyz = nodding_points(ranges, geometry)
+        clean = np.where(np.isfinite(ranges) & (ranges > 0), ranges, np.nan)
+        return cls(xyz, ranges=clean, intensity=intensity, geometry=geometry, timestamps=timestamps)
+
+    @classmethod
+    def from_depth(cls, depth, fx, fy, cx, cy, *, depth_scale: float = 1.0) -> "OrganizedCloud":
+        """Build a cloud from a depth image and pinhole intrinsics.
+
+        ``depth * depth_scale`` must be metres (e.g. ``depth_scale=0.001`` for mm);
+        0 and NaN mark invalid pixels.
+        """
+        if not depth_scale > 0:
+            raise ValueError(f"depth_scale must be positive; got {depth_scale}")
+        geometry = PinholeGeometry(float(fx), float(fy), float(cx), float(cy))
+        depth_m = np.asarray(depth, dtype=float) * depth_scale
+        xyz = pinhole_points(depth_m, geometry)
+        return cls(xyz, ranges=np.linalg.norm(xyz, axis=2), geometry=geometry)
+
+    # -- views ----------------------------------------------------------------------
+    @property
+    def xyz(self) -> np.ndarray:
+        """(H, W, 3) read-only float64 points, NaN where invalid."""
+        return self._xyz
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._xyz.shape[:2]
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(H, W) bool mask of pixels with a return."""
+        return ~np.isnan(self._xyz[..., 2])
+
+    @property
+    def n_valid(self) -> int:
+        return int(self.valid.sum())
+
+    def range_image(self) -> np.ndarray:
+        """Ranges if the sensor gave them, else the distance of each point from the origin."""
+        if self.ranges is not None:
+            return np.asarray(self.ranges, dtype=float)
+        return np.linalg.norm(self._xyz, axis=2)
+
+    def __repr__(self) -> str:
+        h, w = self.shape
+        geo = type(self.geometry).__name__ if self.geometry is not None else "None"
+        return f"OrganizedCloud({h}x{w}, valid={self.n_valid}, geometry={geo})"
+
+    # -- I/O and Open3D (the heavy imports live in rangeseg_o3d.io) --------------
+    def save(self, path) -> Path:
+        """Write to ``.npz`` (everything) or organized ``.pcd`` (points, WIDTH/HEIGHT kept); atomic."""
+        from .io import save_cloud
+
+        return save_cloud(self, path)
+
+    @classmethod
+    def load(cls, path) -> "OrganizedCloud":
+        """Read a cloud written by :meth:`save`, or any organized PCD file (ascii, binary, binary_compressed)."""
+        from .io import load_cloud
+
+        return load_cloud(path)
+
+    def to_open3d(self):
+        """``open3d.t.geometry.PointCloud`` of the valid points with int32 ``row``/``col`` attributes."""
+        from .io.open3d_conv import to_open3d
+
+        return to_open3d(self)
+
+    def to_legacy(self):
+        """Legacy ``open3d.geometry.PointCloud`` of the valid points (grid order, row-major)."""
+        from .io.open3d_conv import to_legacy
+
+        return to_legacy(self)
+
+    @classmethod
+    def from_open3d(cls, pcd, shape: tuple[int, int] | None = None) -> "OrganizedCloud":
+        """Rebuild the grid from a tensor point cloud carrying ``row``/``col`` attributes."""
+        from .io.open3d_conv import from_open3d
+
+        return from_open3d(pcd, shape=shape)

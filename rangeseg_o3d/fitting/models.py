@@ -1,0 +1,101 @@
+"""Immutable fitted models and the failure value returned instead of NaN parameters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Union
+
+import numpy as np
+
+__all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model"]
+
+
+def _vec(value) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(3)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Plane:
+    """Plane ``normal . p = d`` (unit normal); rms of orthogonal distances; inlier count."""
+
+    normal: np.ndarray
+    d: float
+    rms: float
+    inliers: int
+    kind: ClassVar[str] = "plane"
+
+    def __post_init__(self):
+        object.__setattr__(self, "normal", _vec(self.normal))
+
+    def distances(self, points: np.ndarray) -> np.ndarray:
+        """Signed orthogonal distances of ``(N, 3)`` points."""
+        return np.asarray(points, dtype=float) @ self.normal - self.d
+
+    def params(self) -> dict:
+        return {"normal": self.normal.tolist(), "d": float(self.d)}
+
+
+@dataclass(frozen=True, eq=False)
+class Sphere:
+    """Sphere with ``center`` and ``radius``."""
+
+    center: np.ndarray
+    radius: float
+    rms: float
+    inliers: int
+    kind: ClassVar[str] = "sphere"
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _vec(self.center))
+
+    def distances(self, points: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.asarray(points, dtype=float) - self.center, axis=1) - self.radius
+
+    def params(self) -> dict:
+        return {"center": self.center.tolist(), "radius": float(self.radius)}
+
+
+@dataclass(frozen=True, eq=False)
+class Cylinder:
+    """Infinite cylinder: unit ``axis`` through ``point`` (the point nearest the inliers' centroid)."""
+
+    axis: np.ndarray
+    point: np.ndarray
+    radius: float
+    rms: float
+    inliers: int
+    kind: ClassVar[str] = "cylinder"
+
+    def __post_init__(self):
+        object.__setattr__(self, "axis", _vec(self.axis))
+        object.__setattr__(self, "point", _vec(self.point))
+
+    def distances(self, points: np.ndarray) -> np.ndarray:
+        rel = np.asarray(points, dtype=float) - self.point
+        radial = rel - np.outer(rel @ self.axis, self.axis)
+        return np.linalg.norm(radial, axis=1) - self.radius
+
+    def params(self) -> dict:
+        return {
+            "axis": self.axis.tolist(),
+            "point": self.point.tolist(),
+            "radius": float(self.radius),
+        }
+
+
+@dataclass(frozen=True)
+class FitFailure:
+    """A fit that could not be made; falsy, with the reason."""
+
+    kind: str
+    reason: str
+    inliers: int = 0
+    rms: float = field(default=float("nan"))
+
+    def __bool__(self) -> bool:
+        return False
+
+
+Model = Union[Plane, Sphere, Cylinder]

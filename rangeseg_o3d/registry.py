@@ -1,0 +1,148 @@
+"""Registry of segmenters and fitters, open to third-party plugins.
+
+Built-ins are listed by import path so that importing the package stays cheap;
+third parties add theirs through ``importlib.metadata`` entry points in the groups
+``rangeseg_o3d.segmenters`` and ``rangeseg_o3d.fitters``. An entry point must load
+to a :class:`Plugin` (or a zero-argument callable returning one). A plugin that
+fails to load is skipped with a warning, never a crash.
+
+Contracts
+---------
+segmenter ``run(cloud: OrganizedCloud, **params) -> Segmentation``
+fitter    ``run(points: (N, 3) ndarray, **params) -> Plane | Sphere | Cylinder | FitFailure``
+
+``params`` are the fields of the plugin's pydantic ``config`` model.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import warnings
+from dataclasses import dataclass, field
+from importlib.metadata import EntryPoint, entry_points
+from typing import Callable, Iterable
+
+import numpy as np
+from pydantic import BaseModel
+
+__all__ = [
+    "Plugin",
+    "Segmentation",
+    "register",
+    "get",
+    "available",
+    "load_entry_points",
+    "GROUPS",
+]
+
+log = logging.getLogger(__name__)
+
+GROUPS = {"segmenter": "rangeseg_o3d.segmenters", "fitter": "rangeseg_o3d.fitters"}
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """What a segmenter returns.
+
+    labels : (H, W) int32, 0 = in no region, regions numbered 1..n.
+    stages : intermediate (H, W) images worth inspecting, e.g. ``residual``, ``closed``, ``edges``.
+    timings : seconds per internal stage.
+    """
+
+    labels: np.ndarray
+    stages: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Plugin:
+    """A named segmenter or fitter: its parameter model and the function that runs it."""
+
+    name: str
+    config: type[BaseModel]
+    run: Callable
+    description: str = ""
+
+
+_BUILTIN: dict[str, dict[str, str]] = {
+    "segmenter": {
+        "residual_edges": "rangeseg_o3d.segmenters.residual_edges:PLUGIN",
+        "region_growing": "rangeseg_o3d.segmenters.region_growing:PLUGIN",
+        "o3d_planar_patches": "rangeseg_o3d.segmenters.open3d_planes:PLANAR_PATCHES",
+        "o3d_ransac_planes": "rangeseg_o3d.segmenters.open3d_planes:RANSAC_PLANES",
+    },
+    "fitter": {
+        "primitives": "rangeseg_o3d.fitting.classify:PLUGIN",
+    },
+}
+_REGISTERED: dict[str, dict[str, Plugin]] = {"segmenter": {}, "fitter": {}}
+_ENTRY_POINTS_LOADED: set[str] = set()
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in GROUPS:
+        raise ValueError(f"kind must be one of {sorted(GROUPS)}; got {kind!r}")
+
+
+def register(kind: str, plugin: Plugin, *, overwrite: bool = False) -> None:
+    """Register ``plugin`` as a ``kind`` ('segmenter' or 'fitter')."""
+    _check_kind(kind)
+    if not isinstance(plugin, Plugin):
+        raise TypeError(f"plugin must be a Plugin; got {type(plugin).__name__}")
+    if not overwrite and (plugin.name in _REGISTERED[kind] or plugin.name in _BUILTIN[kind]):
+        raise ValueError(f"a {kind} named {plugin.name!r} is already registered")
+    _REGISTERED[kind][plugin.name] = plugin
+
+
+def load_entry_points(kind: str, eps: Iterable[EntryPoint] | None = None) -> list[str]:
+    """Register the plugins advertised in ``kind``'s entry-point group; returns their names.
+
+    ``eps`` replaces the installed entry points (tests build EntryPoint objects directly).
+    """
+    _check_kind(kind)
+    if eps is None:
+        eps = entry_points(group=GROUPS[kind])
+    names = []
+    for ep in eps:
+        try:
+            obj = ep.load()
+            plugin = obj if isinstance(obj, Plugin) else obj()
+            if not isinstance(plugin, Plugin):
+                raise TypeError(f"loaded {type(plugin).__name__}, expected Plugin")
+            register(kind, plugin, overwrite=True)
+            names.append(plugin.name)
+        except Exception as exc:  # a broken third-party plugin must not break us
+            warnings.warn(
+                f"{kind} plugin {ep.name!r} ({ep.value}) failed to load and is skipped: {exc}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    return names
+
+
+def _ensure_entry_points(kind: str) -> None:
+    if kind not in _ENTRY_POINTS_LOADED:
+        _ENTRY_POINTS_LOADED.add(kind)
+        load_entry_points(kind)
+
+
+def available(kind: str) -> list[str]:
+    """Sorted names of every ``kind`` known: built-ins, registered and entry points."""
+    _check_kind(kind)
+    _ensure_entry_points(kind)
+    return sorted(set(_BUILTIN[kind]) | set(_REGISTERED[kind]))
+
+
+def get(kind: str, name: str) -> Plugin:
+    """The plugin called ``name``; ValueError listing the known names if there is none."""
+    _check_kind(kind)
+    if name in _REGISTERED[kind]:
+        return _REGISTERED[kind][name]
+    if name in _BUILTIN[kind]:
+        module, attr = _BUILTIN[kind][name].split(":")
+        return getattr(importlib.import_module(module), attr)
+    _ensure_entry_points(kind)
+    if name in _REGISTERED[kind]:
+        return _REGISTERED[kind][name]
+    raise ValueError(f"unknown {kind} {name!r}; known: {', '.join(available(kind))}")
