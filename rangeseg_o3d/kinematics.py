@@ -9,7 +9,7 @@ sits at ``mount_offset`` from the tilt axis in the tilting frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,7 +36,7 @@ class NoddingGeometry:
 
     beam_angles: np.ndarray
     tilt_angles: np.ndarray
-    mount_offset: np.ndarray = np.zeros(3)
+    mount_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     tilt_sign: float = 1.0
 
     def __post_init__(self):
