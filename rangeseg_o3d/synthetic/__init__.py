@@ -1,5 +1,7 @@
 """Synthetic scenes, exact ray casting and simulated sensors with ground truth."""
 
+from .depth_camera import camera_pose_scene, simulate_depth_camera
+from .lms200 import lms200_row_ranges, nodding_ranges, simulate_lms200
 from .raycast import cast
 from .scene import (
     CylinderSide,
@@ -7,6 +9,7 @@ from .scene import (
     Rectangle,
     Scene,
     SphereSurface,
+    SyntheticScan,
     box,
     cylinder,
     patch,
@@ -18,6 +21,12 @@ from .scene import (
 
 __all__ = [
     "cast",
+    "simulate_lms200",
+    "lms200_row_ranges",
+    "nodding_ranges",
+    "simulate_depth_camera",
+    "camera_pose_scene",
+    "SyntheticScan",
     "Scene",
     "Rectangle",
     "Disk",

@@ -38,6 +38,7 @@ __all__ = [
     "CylinderSide",
     "SphereSurface",
     "Scene",
+    "SyntheticScan",
     "room",
     "box",
     "cylinder",
@@ -261,9 +262,15 @@ class Scene:
         """The smallest id greater than every id in use (1 for an empty scene)."""
         return max(self.ids, default=0) + 1
 
-    def truth(self) -> dict:
-        """``{id: Plane | Sphere | Cylinder}`` with ``rms=0`` and ``inliers=0``."""
-        return {s.id: s.truth() for s in self.surfaces}
+    def truth(self, seen=None) -> dict:
+        """``{id: Plane | Sphere | Cylinder}`` with ``rms=0`` and ``inliers=0``.
+
+        With ``seen`` (an array of ids, e.g. a truth image), only the surfaces it contains.
+        """
+        if seen is None:
+            return {s.id: s.truth() for s in self.surfaces}
+        present = set(np.unique(np.asarray(seen)).tolist())
+        return {s.id: s.truth() for s in self.surfaces if s.id in present}
 
     def transformed(self, rotation, translation) -> "Scene":
         """The scene moved by ``p -> rotation @ p + translation`` (ids kept)."""
@@ -380,3 +387,30 @@ def cylinder(base, axis, radius: float, length: float, *, caps: bool = True, fir
 def sphere(center, radius: float, *, first_id: int) -> list[SphereSurface]:
     """A sphere, one id."""
     return [SphereSurface(first_id, center, radius)]
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticScan:
+    """A simulated scan with its ground truth.
+
+    Attributes
+    ----------
+    cloud : OrganizedCloud
+        The simulated scan, carrying its sensor geometry.
+    truth_ids : (H, W) int32
+        Id of the surface each pixel saw; 0 = no return, mixed pixel or beyond max range.
+    truth : dict[int, Plane | Sphere | Cylinder]
+        True model of every surface that appears in ``truth_ids``.
+    scene : Scene or None
+        The scene that was scanned.
+    """
+
+    cloud: object
+    truth_ids: np.ndarray
+    truth: dict
+    scene: Scene | None = None
+
+    def visible_truth(self, min_pixels: int = 1) -> dict:
+        """``truth`` restricted to surfaces covering at least ``min_pixels`` pixels."""
+        counts = np.bincount(self.truth_ids.ravel(), minlength=max(self.truth, default=0) + 1)
+        return {k: m for k, m in self.truth.items() if k < counts.size and counts[k] >= min_pixels}
