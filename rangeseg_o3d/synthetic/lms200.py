@@ -201,8 +201,8 @@ def simulate_lms200(
     --------
     >>> from rangeseg_o3d.synthetic.scene import Scene, room
     >>> scan = simulate_lms200(Scene(room(first_id=1)), noise_sigma=0.0)
-    >>> scan.cloud.shape, sorted(scan.truth)
-    ((70, 131), [1, 2, 3, 4, 5, 6])
+    >>> scan.cloud.shape, sorted(scan.truth)  # the wall behind (id 3) is not seen
+    ((70, 131), [1, 2, 4, 5, 6])
     """
     beams = lms200_beam_angles(beam_start_deg, beam_stop_deg, beam_step_deg)
     tilts = lms200_tilt_angles(rows, tilt_start, tilt_stop)
