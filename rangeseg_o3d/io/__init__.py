@@ -1,0 +1,78 @@
+"""Reading and writing organized clouds: ``.npz``, organized PCD, Open3D, real data sets.
+
+Importing this package is cheap: Open3D, OpenCV and SciPy load only inside the
+functions that need them (:mod:`.open3d_conv`, :mod:`.datasets`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .atomic import atomic_write
+from .npz import load_npz, save_npz
+from .pcd import read_pcd, write_pcd
+
+__all__ = [
+    "atomic_write",
+    "save_cloud",
+    "load_cloud",
+    "save_npz",
+    "load_npz",
+    "read_pcd",
+    "write_pcd",
+]
+
+_SUFFIXES = (".npz", ".pcd")
+
+
+def _suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in _SUFFIXES:
+        raise ValueError(
+            f"cannot tell the format of {path}: the suffix must be one of {_SUFFIXES}; "
+            f"got {path.suffix!r}"
+        )
+    return suffix
+
+
+def save_cloud(cloud, path) -> Path:
+    """Write ``cloud`` atomically to ``.npz`` (every field) or ``.pcd`` (points and intensity).
+
+    Parameters
+    ----------
+    cloud : OrganizedCloud
+    path : str or os.PathLike
+        Its suffix picks the format.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ValueError
+        If the suffix is neither ``.npz`` nor ``.pcd``.
+    """
+    path = Path(path)
+    if _suffix(path) == ".npz":
+        return save_npz(cloud, path)
+    return write_pcd(cloud, path)
+
+
+def load_cloud(path):
+    """Read an :class:`~rangeseg_o3d.cloud.OrganizedCloud` from ``.npz`` or ``.pcd``.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is unknown or the file's content is malformed.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    if suffix == ".npz":
+        return load_npz(path)
+    return read_pcd(path)

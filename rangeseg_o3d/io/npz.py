@@ -1,0 +1,152 @@
+"""``.npz`` storage of an OrganizedCloud: every field, bit for bit."""
+
+from __future__ import annotations
+
+import logging
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..cloud import OrganizedCloud
+from ..kinematics import NoddingGeometry, PinholeGeometry
+from .atomic import atomic_write
+
+__all__ = ["save_npz", "load_npz", "NPZ_FORMAT_VERSION"]
+
+log = logging.getLogger(__name__)
+
+#: Written as ``format_version``; bump when the key layout changes incompatibly.
+NPZ_FORMAT_VERSION = 1
+
+_OPTIONAL_GRIDS = ("ranges", "intensity")
+
+
+def save_npz(cloud: OrganizedCloud, path, *, compress: bool = True) -> Path:
+    """Write ``cloud`` to a ``.npz`` file atomically.
+
+    Keys: ``format_version``, ``xyz`` (H, W, 3) float64, and when present
+    ``ranges``, ``intensity`` (dtype kept), ``timestamps``, ``geometry_kind``
+    (``"nodding"`` or ``"pinhole"``) with ``beam_angles``, ``tilt_angles``,
+    ``mount_offset``, ``tilt_sign`` or ``fx``, ``fy``, ``cx``, ``cy``.
+
+    Parameters
+    ----------
+    cloud : OrganizedCloud
+    path : str or os.PathLike
+        Written exactly as given (no ``.npz`` is appended).
+    compress : bool
+        Deflate the arrays (smaller files, slower writes).
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+    """
+    if not isinstance(cloud, OrganizedCloud):
+        raise TypeError(f"cloud must be an OrganizedCloud; got {type(cloud).__name__}")
+    arrays: dict[str, np.ndarray] = {
+        "format_version": np.asarray(NPZ_FORMAT_VERSION),
+        "xyz": np.asarray(cloud.xyz),
+    }
+    for name in _OPTIONAL_GRIDS:
+        value = getattr(cloud, name)
+        if value is not None:
+            arrays[name] = np.asarray(value)
+    if cloud.timestamps is not None:
+        arrays["timestamps"] = np.asarray(cloud.timestamps)
+    geometry = cloud.geometry
+    if isinstance(geometry, NoddingGeometry):
+        arrays.update(
+            geometry_kind=np.asarray("nodding"),
+            beam_angles=geometry.beam_angles,
+            tilt_angles=geometry.tilt_angles,
+            mount_offset=geometry.mount_offset,
+            tilt_sign=np.asarray(float(geometry.tilt_sign)),
+        )
+    elif isinstance(geometry, PinholeGeometry):
+        arrays.update(
+            geometry_kind=np.asarray("pinhole"),
+            fx=np.asarray(geometry.fx),
+            fy=np.asarray(geometry.fy),
+            cx=np.asarray(geometry.cx),
+            cy=np.asarray(geometry.cy),
+        )
+    path = Path(path)
+    writer = np.savez_compressed if compress else np.savez
+    with atomic_write(path, "wb") as handle:
+        writer(handle, **arrays)
+    return path
+
+
+def _scalar(data, key: str, path) -> float:
+    if key not in data:
+        raise ValueError(f"{path}: geometry needs key {key!r}, which is missing")
+    value = np.asarray(data[key])
+    if value.shape != () or not np.isfinite(value):
+        raise ValueError(f"{path}: {key} must be one finite number; got {value!r}")
+    return float(value)
+
+
+def _geometry(data, path):
+    if "geometry_kind" not in data:
+        return None
+    kind = str(data["geometry_kind"])
+    if kind == "pinhole":
+        return PinholeGeometry(*(_scalar(data, key, path) for key in ("fx", "fy", "cx", "cy")))
+    if kind == "nodding":
+        for key in ("beam_angles", "tilt_angles", "mount_offset"):
+            if key not in data:
+                raise ValueError(f"{path}: nodding geometry needs key {key!r}, which is missing")
+        return NoddingGeometry(
+            beam_angles=data["beam_angles"],
+            tilt_angles=data["tilt_angles"],
+            mount_offset=data["mount_offset"],
+            tilt_sign=_scalar(data, "tilt_sign", path),
+        )
+    raise ValueError(f"{path}: geometry_kind must be 'nodding' or 'pinhole'; got {kind!r}")
+
+
+def load_npz(path) -> OrganizedCloud:
+    """Read a cloud written by :func:`save_npz`.
+
+    A file without ``format_version`` is accepted if it holds a valid ``xyz``
+    (e.g. ``np.savez(path, xyz=points)``).
+
+    Raises
+    ------
+    ValueError
+        If the file is not an npz archive, lacks ``xyz``, has arrays of the wrong
+        shape, or comes from a newer format version.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
+    path = Path(path)
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, OSError, ValueError) as err:
+        if not path.exists():
+            raise FileNotFoundError(f"no such file: {path}") from err
+        raise ValueError(f"{path} is not a readable .npz archive: {err}") from err
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path} holds a single array, not an .npz archive with key 'xyz'")
+    with archive as data:
+        if "format_version" in data:
+            version = int(data["format_version"])
+            if version > NPZ_FORMAT_VERSION:
+                raise ValueError(
+                    f"{path} has format_version {version}; this reader knows up to "
+                    f"{NPZ_FORMAT_VERSION}"
+                )
+        if "xyz" not in data:
+            raise ValueError(f"{path} has no 'xyz' array; keys are {sorted(data.files)}")
+        xyz = data["xyz"]
+        if xyz.ndim != 3 or xyz.shape[2] != 3:
+            raise ValueError(f"{path}: xyz must have shape (H, W, 3); got {xyz.shape}")
+        grids = {name: data[name] for name in _OPTIONAL_GRIDS if name in data}
+        timestamps = data["timestamps"] if "timestamps" in data else None
+        geometry = _geometry(data, path)
+    try:
+        return OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, **grids)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{path}: {err}") from err

@@ -1,0 +1,200 @@
+import struct
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d import OrganizedCloud
+from rangeseg_o3d.io import load_cloud, read_pcd, save_cloud, write_pcd
+from rangeseg_o3d.io.lzf import lzf_compress
+from rangeseg_o3d.io.pcd import parse_pcd_header, read_pcd_fields
+
+
+def _header(fields="x y z", size="4 4 4", type_="F F F", count="1 1 1", width=3, height=2,
+            points=None, data="binary", version="0.7", extra=""):
+    points = width * height if points is None else points
+    return (
+        f"# .PCD v{version} - Point Cloud Data file format\nVERSION {version}\nFIELDS {fields}\n"
+        f"SIZE {size}\nTYPE {type_}\nCOUNT {count}\nWIDTH {width}\nHEIGHT {height}\n{extra}"
+        f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {points}\nDATA {data}\n"
+    ).encode()
+
+
+def _grid(h=2, w=3):
+    xyz = np.arange(h * w * 3, dtype=np.float32).reshape(h, w, 3) / 4
+    xyz[0, 1] = np.nan
+    return xyz
+
+
+def _compressed_payload(columns: list[np.ndarray]) -> bytes:
+    raw = b"".join(np.ascontiguousarray(c).tobytes() for c in columns)
+    packed = lzf_compress(raw)
+    return struct.pack("<II", len(packed), len(raw)) + packed
+
+
+# -- round trips ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("data", ["binary", "ascii"])
+def test_round_trip_organized_with_nan(tmp_path, random_xyz, data):
+    xyz = random_xyz(5, 7, nan_pixels=((0, 0), (4, 6), (2, 2))).astype(np.float32)
+    cloud = OrganizedCloud(xyz, intensity=np.arange(35, dtype=np.float32).reshape(5, 7))
+    path = write_pcd(cloud, tmp_path / "scan.pcd", data=data)
+    back = read_pcd(path)
+    assert back.shape == (5, 7)
+    assert back.n_valid == 35 - 3
+    np.testing.assert_array_equal(back.xyz, cloud.xyz)  # float32 values survive exactly
+    np.testing.assert_array_equal(back.intensity, cloud.intensity)
+    header, _ = read_pcd_fields(path)
+    assert (header.width, header.height, header.points) == (7, 5, 35)
+
+
+def test_round_trip_float64_through_save_load(tmp_path, random_xyz):
+    cloud = OrganizedCloud(random_xyz(3, 4))
+    cloud.save(tmp_path / "a.pcd")  # default: float32
+    np.testing.assert_allclose(OrganizedCloud.load(tmp_path / "a.pcd").xyz, cloud.xyz, rtol=1e-6)
+    write_pcd(cloud, tmp_path / "b.pcd", precision="float64")
+    np.testing.assert_array_equal(load_cloud(tmp_path / "b.pcd").xyz, cloud.xyz)
+
+
+def test_writer_rejects_bad_options(tmp_path, random_xyz):
+    cloud = OrganizedCloud(random_xyz(2, 2, nan_pixels=()))
+    with pytest.raises(ValueError, match="data must be"):
+        write_pcd(cloud, tmp_path / "x.pcd", data="binary_compressed")
+    with pytest.raises(ValueError, match="precision"):
+        write_pcd(cloud, tmp_path / "x.pcd", precision="float16")
+    assert not (tmp_path / "x.pcd").exists()
+
+
+# -- reading the three layouts ------------------------------------------------------
+
+def test_binary_compressed_field_major_with_extras(tmp_path):
+    """x y z rgba normal_x(COUNT 3, float64) intensity(uint16): only xyz + intensity kept."""
+    xyz = _grid()
+    n = xyz.shape[0] * xyz.shape[1]
+    flat = xyz.reshape(n, 3)
+    rgba = np.arange(n, dtype=np.uint32)
+    normals = np.ones((n, 3), dtype=np.float64)
+    intensity = np.arange(n, dtype=np.uint16) * 10
+    header = _header("x y z rgba normal intensity", "4 4 4 4 8 2", "F F F U F U", "1 1 1 1 3 1",
+                     data="binary_compressed")
+    payload = _compressed_payload([flat[:, 0], flat[:, 1], flat[:, 2], rgba, normals, intensity])
+    (tmp_path / "c.pcd").write_bytes(header + payload)
+    cloud = read_pcd(tmp_path / "c.pcd")
+    np.testing.assert_array_equal(cloud.xyz, xyz.astype(np.float64))
+    np.testing.assert_array_equal(cloud.intensity, intensity.reshape(2, 3))
+    _, fields = read_pcd_fields(tmp_path / "c.pcd")
+    np.testing.assert_array_equal(fields["normal"], normals)
+    np.testing.assert_array_equal(fields["rgba"], rgba)
+
+
+def test_binary_interleaved_with_padding_and_mixed_types(tmp_path):
+    n = 6
+    record = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("_", "u1", (3,)), ("_1", "<i2")])
+    table = np.zeros(n, dtype=record)
+    table["x"], table["y"], table["z"] = np.arange(n), -np.arange(n), 2.0
+    table["z"][5] = np.inf  # non-finite coordinate = invalid pixel
+    header = _header("x y z _ _", "8 8 8 1 2", "F F F U I", "1 1 1 3 1", width=6, height=1,
+                     version=".7")
+    (tmp_path / "b.pcd").write_bytes(header + table.tobytes())
+    cloud = read_pcd(tmp_path / "b.pcd")
+    assert cloud.shape == (1, 6)  # unorganized -> one row
+    assert cloud.n_valid == 5
+    np.testing.assert_array_equal(cloud.xyz[0, :5, 0], np.arange(5))
+    assert np.isnan(cloud.xyz[0, 5]).all()
+
+
+def test_ascii_v06_without_count_and_with_nan(tmp_path):
+    header = (b"VERSION .6\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nWIDTH 2\n"
+              b"HEIGHT 2\nPOINTS 4\nDATA ascii\n")
+    body = b"0 0 1 5\nnan nan nan 0\n1 2 3 7\n  4 5 6 8  \n"
+    (tmp_path / "a.pcd").write_bytes(header + body)
+    cloud = read_pcd(tmp_path / "a.pcd")
+    assert cloud.shape == (2, 2) and cloud.n_valid == 3
+    np.testing.assert_array_equal(cloud.intensity, [[5, 0], [7, 8]])
+    np.testing.assert_array_equal(cloud.xyz[1, 1], [4, 5, 6])
+
+
+# -- headers that lie and truncated data ---------------------------------------------
+
+_GOOD_BINARY = _grid().tobytes()
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (_header(points=7) + _GOOD_BINARY, r"POINTS is 7 but WIDTH x HEIGHT is 3 x 2 = 6"),
+        (_header() + _GOOD_BINARY[:-5], "data shorter than declared"),
+        (_header(data="binary_lzma") + _GOOD_BINARY, "DATA must be one of"),
+        (_header(fields="x y intensity") + _GOOD_BINARY, "must include x, y and z"),
+        (_header(size="4 4") + _GOOD_BINARY, "SIZE has 2 entries but FIELDS has 3"),
+        (_header(type_="F F Q") + _GOOD_BINARY, "TYPE Q with SIZE 4"),
+        (_header(size="4 4 3") + _GOOD_BINARY, "TYPE F with SIZE 3"),
+        (_header(count="1 1 2") + _GOOD_BINARY, "field z must have COUNT 1"),
+        (_header(width=0, height=1, points=0), "WIDTH and HEIGHT must be >= 1"),
+        (_header(width="three"), "WIDTH must be integers"),
+        (_header().replace(b"DATA binary\n", b""), "no DATA line|before a DATA line"),
+        (_header(data="ascii") + b"1 2 3\n" * 5, "holds 15 values but 6 points x 3 values = 18"),
+        (_header(data="ascii") + b"1 2 3\n" * 7, "more than the declared"),
+        (_header(data="ascii") + b"1 2 x\n" * 6, "not a number"),
+        (_header(data="binary_compressed") + b"\x01\x00", "no size words"),
+        (_header(data="binary_compressed") + struct.pack("<II", 10, 72) + b"\x00" * 4,
+         "declares 10 compressed bytes but only 4 follow"),
+        (_header(data="binary_compressed") + struct.pack("<II", 4, 80) + b"\x00" * 4,
+         "declares 80 decompressed bytes but 6 points x 12 bytes = 72"),
+        (_header(data="binary_compressed") + _compressed_payload([_GOOD_BINARY[:-12]]),
+         "declares 60 decompressed bytes"),
+    ],
+)
+def test_lying_headers_raise(tmp_path, content, message):
+    path = tmp_path / "bad.pcd"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message):
+        read_pcd(path)
+
+
+def test_corrupt_compressed_stream_raises(tmp_path):
+    packed = lzf_compress(_GOOD_BINARY)[:-3]  # stream cut short, sizes say otherwise
+    payload = struct.pack("<II", len(packed), len(_GOOD_BINARY)) + packed
+    (tmp_path / "bad.pcd").write_bytes(_header(data="binary_compressed") + payload)
+    with pytest.raises(ValueError, match="corrupt binary_compressed data"):
+        read_pcd(tmp_path / "bad.pcd")
+
+
+def test_header_parser_reports_offset():
+    header = parse_pcd_header(_header() + b"rest")
+    assert header.data_offset == len(_header())
+    assert header.record_size == 12 and header.data == "binary"
+
+
+# -- the shared PCL / PEAC files -----------------------------------------------------
+
+@pytest.mark.parametrize(
+    "name, shape, n_nan",
+    [
+        ("pcl/table_scene_mug_stereo_textured.pcd", (480, 640), 97920),
+        ("pcl/milk_cartoon_all_small_clorox.pcd", (480, 640), 65793),
+        ("pcl/office1.pcd", (480, 640), 52744),
+        ("pcl/frame_20121214T142255.814212.pcd", (480, 640), 35625),
+        ("pcl/sac_plane_test.pcd", (1, 3283), 0),
+        ("peac/andreashaus_scan000.pcd", (633, 513), 13996),
+    ],
+)
+def test_shared_pcd_files(shared_file, name, shape, n_nan):
+    cloud = load_cloud(shared_file(name))
+    assert cloud.shape == shape
+    assert cloud.shape[0] * cloud.shape[1] - cloud.n_valid == n_nan
+    # An invalid pixel is all-NaN; valid ones are finite.
+    assert np.isfinite(cloud.xyz[cloud.valid]).all()
+
+
+@pytest.mark.parametrize(
+    "name, f, c",
+    [("pcl/milk_cartoon_all_small_clorox.pcd", 525.0, (319.5, 239.5)),
+     ("pcl/office1.pcd", 525.0, (320.0, 240.0))],
+)
+def test_shared_kinect_files_back_project_exactly(shared_file, name, f, c):
+    """SOURCES.md: u = fx x / z + cx, v = fy y / z + cy; checks the row/column order."""
+    cloud = load_cloud(shared_file(name))
+    rows, cols = np.nonzero(cloud.valid)
+    x, y, z = cloud.xyz[rows, cols].T
+    assert np.abs(f * x / z + c[0] - cols).max() < 0.05
+    assert np.abs(f * y / z + c[1] - rows).max() < 0.05
