@@ -3,6 +3,7 @@
 from .depth_camera import camera_pose_scene, simulate_depth_camera
 from .lms200 import lms200_row_ranges, nodding_ranges, simulate_lms200
 from .raycast import cast
+from .suite import default_scene, lms200_suite, rgbd_suite
 from .scene import (
     CylinderSide,
     Disk,
@@ -21,6 +22,9 @@ from .scene import (
 
 __all__ = [
     "cast",
+    "default_scene",
+    "lms200_suite",
+    "rgbd_suite",
     "simulate_lms200",
     "lms200_row_ranges",
     "nodding_ranges",
