@@ -67,6 +67,14 @@ class Pipeline:
             # A region the fitter rejects is reported, the rest of the scan goes on.
             return FitFailure(kind="any", reason=str(exc))
 
+    def _refit(self, points: np.ndarray, model):
+        if self.fitter.refit is None:
+            return self._fit(points)
+        try:
+            return self.fitter.refit(points, model, **self.config.fitter.params)
+        except ValueError as exc:
+            return FitFailure(kind=model.kind, reason=str(exc))
+
     def run(self, cloud: OrganizedCloud, *, recording=None, scan_index: int = 0) -> Result:
         """Segment ``cloud`` and fit every region.
 
@@ -150,7 +158,7 @@ class Pipeline:
             if changed.size:
                 regions = _region_indices(labels)
                 for k in changed:
-                    refit = self._fit(xyz_flat[regions[int(k)]])
+                    refit = self._refit(xyz_flat[regions[int(k)]], fits[int(k)])
                     # Keep the refit only if it stays the same kind of surface.
                     if refit and refit.kind == fits[int(k)].kind:
                         fits[int(k)] = refit
@@ -179,7 +187,7 @@ class Pipeline:
             if ra == rb or not fits[ra] or not fits[rb]:
                 continue
             union_idx = np.concatenate([regions[ra], regions[rb]])
-            union = self._fit(xyz_flat[union_idx])
+            union = self._refit(xyz_flat[union_idx], fits[ra])
             limit = ref.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
             if union and union.kind == fits[ra].kind and union.rms <= limit:
                 root[rb] = ra

@@ -9,7 +9,7 @@ __all__ = ["label_regions", "relabel_sequential"]
 
 
 def relabel_sequential(labels: np.ndarray) -> np.ndarray:
-    """Renumber the positive labels 1..n in order of first appearance; 0 stays 0."""
+    """Renumber the positive labels 1..n, keeping their order; 0 (and negatives) become 0."""
     labels = np.asarray(labels)
     present = np.unique(labels[labels > 0])
     lut = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.int32)

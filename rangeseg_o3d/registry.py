@@ -63,6 +63,9 @@ class Plugin:
     config: type[BaseModel]
     run: Callable
     description: str = ""
+    refit: Callable | None = None
+    """Optional, fitters only: ``refit(points, model, **params)`` fits a model of ``model``'s
+    kind (used after a region grew or merged); without it the pipeline calls ``run`` again."""
 
 
 _BUILTIN: dict[str, dict[str, str]] = {

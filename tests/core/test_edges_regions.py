@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+
+from rangeseg_o3d.edges import close_residual, edge_mask, jump_edges
+from rangeseg_o3d.regions import label_regions, relabel_sequential
+
+
+def test_jump_edges_mark_both_sides_and_scale_with_range():
+    r = np.full((4, 8), 2.0)
+    r[:, 4:] = 2.5
+    mask = jump_edges(r, jump_ratio=0.08, jump_min=0.05)
+    assert mask[:, 3].all() and mask[:, 4].all()
+    assert not mask[:, :3].any() and not mask[:, 5:].any()
+    # The same 0.5 m step far away (8 m) is within 8 % of the range: not a jump.
+    far = r + 6.0
+    assert not jump_edges(far, jump_ratio=0.08, jump_min=0.05).any()
+
+
+def test_jump_edges_ignore_nan():
+    r = np.full((3, 3), 1.0)
+    r[1, 1] = np.nan
+    assert not jump_edges(r).any()
+
+
+def test_closing_bridges_a_gap_in_an_edge_line():
+    res = np.zeros((7, 7))
+    res[:, 3] = 100.0
+    res[3, 3] = 0.0  # a one-pixel break in the line
+    closed = close_residual(res, iterations=2)
+    assert closed[3, 3] == pytest.approx(100.0)
+    assert closed[3, 0] == 0.0
+
+
+def test_closing_clips_infinite_residuals():
+    res = np.full((3, 3), np.inf)
+    assert np.isfinite(close_residual(res)).all()
+
+
+def test_edge_mask_and_regions():
+    closed = np.zeros((6, 9), dtype=np.float32)
+    closed[:, 4] = 50.0
+    valid = np.ones((6, 9), bool)
+    valid[0, 0] = False
+    edges = edge_mask(closed, threshold=4.0, valid=valid)
+    labels = label_regions(edges, min_size=5)
+    assert labels.dtype == np.int32
+    assert labels.max() == 2
+    assert (labels[:, 4] == 0).all() and labels[0, 0] == 0
+    assert np.unique(labels[:, :4][valid[:, :4]]).tolist() == [1]
+    assert np.unique(labels[:, 5:]).tolist() == [2]
+
+
+def test_min_size_drops_small_regions_and_diagonal_line_separates():
+    edges = np.zeros((5, 5), bool)
+    edges[np.arange(5), np.arange(5)] = True  # a diagonal line
+    labels = label_regions(edges, min_size=1, connectivity=4)
+    assert labels.max() == 2
+    labels = label_regions(edges, min_size=20)
+    assert labels.max() == 0
+
+
+def test_label_regions_validates():
+    with pytest.raises(ValueError, match="connectivity"):
+        label_regions(np.zeros((3, 3), bool), connectivity=6)
+    with pytest.raises(ValueError, match="shape"):
+        label_regions(np.zeros(9, bool))
+
+
+def test_relabel_sequential():
+    out = relabel_sequential(np.array([[0, 7, 7], [3, 0, 9]]))
+    assert out.tolist() == [[0, 2, 2], [1, 0, 3]]

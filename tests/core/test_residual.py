@@ -1,0 +1,117 @@
+import numpy as np
+import pytest
+
+from rangeseg_o3d.residual import (
+    neighbourhood_moments,
+    noise_sigma,
+    residual_image,
+    smallest_eigenpairs,
+)
+
+
+def _pack(m):
+    return np.stack([m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], m[..., 0, 1], m[..., 0, 2], m[..., 1, 2]])
+
+
+def test_closed_form_eigenpairs_match_eigh():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(2000, 3, 3))
+    sym = a @ np.swapaxes(a, 1, 2)
+    value, vector = smallest_eigenpairs(_pack(sym))
+    w, v = np.linalg.eigh(sym)
+    assert np.allclose(value, w[:, 0], atol=1e-6 * w[:, 2].max())
+    assert np.allclose(np.abs(np.einsum("in,ni->n", vector, v[:, :, 0])), 1.0, atol=1e-6)
+
+
+def test_closed_form_handles_degenerate_matrices():
+    zero = np.zeros((6, 1))
+    value, vector = smallest_eigenpairs(zero)
+    assert value[0] == 0.0 and np.isnan(vector).all()
+    # Rank-2 scatter of a perfect plane z = 0: eigenvalue 0, normal +-z.
+    plane = np.array([[2.0], [1.0], [0.0], [0.3], [0.0], [0.0]])
+    value, vector = smallest_eigenpairs(plane)
+    assert value[0] == pytest.approx(0.0, abs=1e-12)
+    assert abs(vector[2, 0]) == pytest.approx(1.0)
+
+
+def _grid(h=20, w=30, spacing=0.05):
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    return u * spacing, v * spacing
+
+
+def test_moments_match_brute_force_with_invalid_points():
+    rng = np.random.default_rng(2)
+    xyz = rng.normal(size=(6, 7, 3)) + 5.0
+    xyz[2, 3] = np.nan
+    xyz[0, 0] = np.nan
+    count, centroid, scatter = neighbourhood_moments(xyz)
+    for i, j in [(1, 1), (2, 3), (0, 0), (5, 6), (3, 4)]:
+        win = xyz[max(i - 1, 0):i + 2, max(j - 1, 0):j + 2].reshape(-1, 3)
+        win = win[~np.isnan(win[:, 0])]
+        assert count[i, j] == len(win)
+        c = win - win.mean(axis=0)
+        a = c.T @ c
+        assert np.allclose(centroid[:, i, j], win.mean(axis=0))
+        assert np.allclose(scatter[:, i, j], [a[0, 0], a[1, 1], a[2, 2], a[0, 1], a[0, 2], a[1, 2]], atol=1e-9)
+
+
+def test_plane_residual_is_noise_level_at_every_range():
+    rng = np.random.default_rng(3)
+    sigma = 0.005
+    for distance in (1.0, 7.0):
+        x, y = _grid(spacing=0.0175 * distance)  # 1 deg steps at that range
+        z = np.full_like(x, distance) + rng.normal(0, sigma, x.shape)
+        xyz = np.dstack([x, y, z])
+        res, _ = residual_image(xyz, ranges=np.full(x.shape, distance), sigma0=sigma)
+        inner = res[1:-1, 1:-1]
+        # chi-square / dof with 6 dof: mean 1, 99.9th percentile about 3.7.
+        assert 0.7 < inner.mean() < 1.3
+        assert np.percentile(inner, 99) < 4.0
+
+
+def test_crease_and_jump_have_high_residual():
+    x, y = _grid(h=10, w=20, spacing=0.02)
+    z = np.where(x < 0.2, 1.0, 1.0 + (x - 0.2))  # 45 degree crease at x = 0.2
+    res, normals = residual_image(np.dstack([x, y, z]), ranges=z, sigma0=0.001)
+    crease_cols = res[5, 9:12]
+    assert crease_cols.max() > 20
+    # float32 trigonometry leaves ~1e-7 of q: far below 1 noise unit.
+    assert res[5, 3] < 1e-3 and res[5, 16] < 1e-3
+    assert abs(normals[5, 3, 2]) == pytest.approx(1.0)
+    z = np.where(x < 0.2, 1.0, 1.5)
+    res, _ = residual_image(np.dstack([x, y, z]), ranges=z, sigma0=0.001)
+    assert res[5, 9:11].min() > 50
+
+
+def test_invalid_and_sparse_windows_are_infinite():
+    x, y = _grid(h=5, w=5)
+    xyz = np.dstack([x, y, np.ones_like(x)])
+    xyz[2, 2] = np.nan
+    xyz[0, :] = np.nan
+    res, _ = residual_image(xyz, min_valid=6)
+    assert np.isinf(res[2, 2])
+    assert np.isinf(res[0]).all()
+    assert np.isinf(res[1, 0])  # corner-ish window with 4 valid points
+    assert np.isfinite(res[3, 2])
+
+
+def test_all_nan_gives_all_infinite():
+    res, _ = residual_image(np.full((4, 4, 3), np.nan))
+    assert np.isinf(res).all()
+
+
+@pytest.mark.parametrize("shape", [(10, 3), (4, 4, 2), (2, 2, 3, 1)])
+def test_bad_shapes_raise(shape):
+    with pytest.raises(ValueError, match=r"shape \(H, W, 3\)"):
+        residual_image(np.zeros(shape))
+
+
+def test_bad_window_and_min_valid_raise():
+    with pytest.raises(ValueError, match="window"):
+        residual_image(np.zeros((4, 4, 3)), window=4)
+    with pytest.raises(ValueError, match="min_valid"):
+        residual_image(np.zeros((4, 4, 3)), min_valid=10)
+
+
+def test_noise_sigma_model():
+    assert noise_sigma(np.array([2.0]), sigma0=0.001, sigma_quadratic=0.001425)[0] == pytest.approx(0.0067)
