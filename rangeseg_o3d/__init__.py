@@ -4,14 +4,24 @@ Importing this package does not import open3d, rerun or serial; they load where 
 """
 
 from .cloud import OrganizedCloud
+from .config import PipelineConfig, load_config
+from .fitting import fit_cylinder, fit_plane, fit_sphere
 from .fitting.models import Cylinder, FitFailure, Plane, Sphere
 from .kinematics import NoddingGeometry, PinholeGeometry
+from .pipeline import Pipeline
+from .registry import Plugin, Segmentation
 from .result import Feature, Result, Unfitted
 
 __all__ = [
     "OrganizedCloud",
     "NoddingGeometry",
     "PinholeGeometry",
+    "Pipeline",
+    "PipelineConfig",
+    "load_config",
+    "fit_plane",
+    "fit_sphere",
+    "fit_cylinder",
     "Plane",
     "Sphere",
     "Cylinder",
@@ -19,5 +29,7 @@ __all__ = [
     "Feature",
     "Unfitted",
     "Result",
+    "Plugin",
+    "Segmentation",
 ]
 __version__ = "0.1.0"

@@ -1,0 +1,15 @@
+import subprocess
+import sys
+
+
+def test_import_does_not_pull_heavy_or_device_modules():
+    code = (
+        "import sys, numpy as np, rangeseg_o3d as rs\n"
+        "from rangeseg_o3d.synthetic.lms200 import simulate_lms200\n"
+        "from rangeseg_o3d.synthetic.suite import default_scene\n"
+        "r = rs.Pipeline('lms200').run(simulate_lms200(default_scene(), seed=0).cloud)\n"
+        "assert r.features\n"
+        "print(sorted(m for m in ('open3d', 'rerun', 'serial') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
