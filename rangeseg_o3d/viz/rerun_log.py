@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import re
+import weakref
 
 import numpy as np
 
@@ -45,6 +46,8 @@ from ..cloud import OrganizedCloud
 from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_rays
 from ..result import Result
 from .colors import KIND_HUES, region_colors, region_names
+# Re-exported: the CLI imports its rerun helpers from this module.
+from .rerun_cli import add_rerun_arguments, finish_recording, recording_from_args
 from .shapes import (
     cylinder_span,
     model_inliers,
@@ -64,6 +67,9 @@ __all__ = [
     "log_timings",
     "log_static_context",
     "annotation_context",
+    "add_rerun_arguments",
+    "recording_from_args",
+    "finish_recording",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,6 +80,9 @@ STAGE_IMAGES = ("residual", "closed", "edges")
 MAX_LABEL = np.iinfo(np.uint16).max
 #: Length (metres) of the rays drawn for a nodding scanner's field of view.
 SENSOR_RAY_LENGTH = 1.0
+
+# recording -> fingerprint of the sensor geometry whose static context it holds.
+_STATIC_LOGGED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def _rerun(recording):
@@ -458,6 +467,16 @@ def _legend_markdown() -> str:
     )
 
 
+def _geometry_fingerprint(cloud: OrganizedCloud) -> tuple:
+    geometry = cloud.geometry
+    if isinstance(geometry, NoddingGeometry):
+        arrays = (geometry.beam_angles, geometry.tilt_angles, geometry.mount_offset)
+        return ("nodding", float(geometry.tilt_sign)) + tuple(a.tobytes() for a in arrays)
+    if isinstance(geometry, PinholeGeometry):
+        return ("pinhole", geometry.fx, geometry.fy, geometry.cx, geometry.cy, cloud.shape)
+    return ("none",)
+
+
 def log_static_context(recording, cloud: OrganizedCloud) -> None:
     """Log, as static data, the world's view coordinates, the sensor and a colour legend.
 
@@ -494,6 +513,7 @@ def log_static_context(recording, cloud: OrganizedCloud) -> None:
     recording.log(
         "legend", rr.TextDocument(_legend_markdown(), media_type="text/markdown"), static=True
     )
+    _STATIC_LOGGED[recording] = _geometry_fingerprint(cloud)
 
 
 # -- everything for one scan ----------------------------------------------------------
@@ -525,8 +545,9 @@ def log_scan(
     timeline : str
         Name of the sequence timeline.
     log_static : bool
-        Also log the static context (:func:`log_static_context`); pass True for the
-        first scan of a recording only.
+        Also log the static context (:func:`log_static_context`) unless this recording
+        already holds it for the same sensor geometry, so it is logged once per
+        recording however often log_scan is called.
 
     Raises
     ------
@@ -542,7 +563,7 @@ def log_scan(
     _check_result(result, cloud.shape)
     if isinstance(scan_index, bool) or not isinstance(scan_index, (int, np.integer)) or scan_index < 0:
         raise ValueError(f"scan_index must be an integer >= 0; got {scan_index!r}")
-    if log_static:
+    if log_static and _STATIC_LOGGED.get(recording) != _geometry_fingerprint(cloud):
         log_static_context(recording, cloud)
     recording.set_time(timeline, sequence=int(scan_index))
     colors = region_colors(result)

@@ -248,3 +248,42 @@ def test_nonfinite_timings_are_skipped(tmp_path):
     rec.memory_recording()
     logged = log_timings(rec, {"good": 0.1, "nan": float("nan"), "neg": -1.0, "odd name/x": 0.2})
     assert logged == ["timings/good", "timings/odd_name_x"]
+
+
+def test_static_context_is_logged_once_per_recording(tmp_path):
+    cloud = OrganizedCloud.from_ranges(np.full((5, 7), 2.0), np.linspace(0.5, 2.5, 7), np.linspace(-0.3, 0.3, 5))
+    result = Result(np.zeros((5, 7), np.int32), [])
+    path = tmp_path / "static.rrd"
+    rec = rr.RecordingStream("rangeseg_test")
+    rec.save(path)
+    for index in range(3):  # the pipeline calls log_scan with the default log_static=True
+        log_scan(rec, cloud, result, scan_index=index)
+    rec.flush()
+    rec.disconnect()
+    entities = read_rrd(path)
+    assert len(column_values(entities["/legend"], "TextDocument:text")) == 1
+    assert len(column_values(entities["/world/sensor"], "LineStrips3D:strips")) == 1
+    assert len(column_values(entities["/world/points"], "Points3D:positions")) == 3
+
+
+def test_pipeline_run_with_a_recording_logs_every_stage(tmp_path):
+    pipeline_mod = pytest.importorskip("rangeseg_o3d.pipeline")
+    synthetic = pytest.importorskip("rangeseg_o3d.synthetic.lms200")
+    suite = pytest.importorskip("rangeseg_o3d.synthetic.suite")
+    cloud = synthetic.simulate_lms200(suite.default_scene(), seed=0).cloud
+    path = tmp_path / "pipeline.rrd"
+    rec = rr.RecordingStream("rangeseg_test")
+    rec.save(path)
+    result = pipeline_mod.Pipeline("lms200").run(cloud, recording=rec, scan_index=2)
+    rec.flush()
+    rec.disconnect()
+    entities = read_rrd(path)
+    for stage in ("range", "residual", "closed", "edges", "labels"):
+        assert f"/scan/{stage}" in entities
+    (positions,) = column_values(entities["/world/points"], "Points3D:positions")
+    assert len(positions) == cloud.n_valid
+    features = [e for e in entities if e.startswith("/world/features/")]
+    assert sorted(features) == sorted(f"/world/features/{f.label}" for f in result.features)
+    assert {f"/timings/{stage}" for stage in result.timings} <= set(entities)
+    steps = {v for batch in entities["/scan/labels"] for v in batch.column("scan").to_pylist()}
+    assert steps == {2}
