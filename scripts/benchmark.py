@@ -1,0 +1,289 @@
+"""Benchmark the pipeline: Hoover figures, parameter errors, Table 1 columns and stage timings.
+
+Runs ``Pipeline(load_config("configs/lms200.yaml"))`` over the synthetic LMS200 suite, the
+``rgbd_vga`` preset over the synthetic RGB-D suite, and each real cloud found in
+``<repo>/../shared/data`` with the preset its loader names. Timings are medians of
+``--repeats`` runs per scan on one thread (OpenMP/BLAS/numba env vars and OpenCV set to 1
+before anything heavy is imported). Hoover figures at T = 0.8 over ground-truth regions of
+at least 60 pixels.
+
+Run: python scripts/benchmark.py [--repeats 20] [--quick] [--no-real] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
+             "NUMBA_NUM_THREADS", "VECLIB_MAXIMUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from rangeseg_o3d.config import load_config  # noqa: E402
+from rangeseg_o3d.evaluation import evaluate  # noqa: E402
+from rangeseg_o3d.pipeline import Pipeline  # noqa: E402
+from rangeseg_o3d.synthetic.suite import lms200_suite, rgbd_suite  # noqa: E402
+
+TOLERANCE = 0.8
+MIN_REGION = 60
+TARGETS = {
+    "percent_correct_min": 90.0,
+    "false_fittings_max": 0,
+    "normal_error_deg_max": 0.5,
+    "radius_error_cm_max": 1.0,
+    "lms200_ms_max": 5.0,
+    "vga_ms_max": 50.0,
+}
+
+
+def _single_thread() -> None:
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:
+        pass
+
+
+def timed_runs(pipeline: Pipeline, cloud, repeats: int):
+    """Run once to warm up (its result is returned), then ``repeats`` times.
+
+    Returns
+    -------
+    result, {stage: median seconds}, median wall seconds per run.
+    """
+    result = pipeline.run(cloud)
+    per_stage: dict[str, list[float]] = {}
+    wall = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        res = pipeline.run(cloud)
+        wall.append(time.perf_counter() - start)
+        for stage, seconds in res.timings.items():
+            per_stage.setdefault(stage, []).append(seconds)
+    return result, {k: statistics.median(v) for k, v in per_stage.items()}, statistics.median(wall)
+
+
+def _median(values) -> float | None:
+    values = np.asarray(values, dtype=float)
+    return float(np.median(values)) if values.size else None
+
+
+def synthetic_rows(suite, pipeline: Pipeline, repeats: int) -> list[dict]:
+    rows = []
+    for name, scan in suite:
+        result, stages, wall = timed_runs(pipeline, scan.cloud, repeats)
+        ev = evaluate(scan, result, tolerance=TOLERANCE, min_region=MIN_REGION)
+        rows.append({
+            "name": name,
+            "shape": list(scan.cloud.shape),
+            "hoover": ev.hoover.counts() | {"percent_correct": ev.hoover.percent_correct},
+            "table1": ev.table1(),
+            "unfitted_correct": len(ev.unfitted_correct),
+            "missed_kinds": sorted(scan.truth[k].kind for k in ev.hoover.missed),
+            "errors": {
+                "normal_error_deg": ev.errors("normal_error_deg", "plane").tolist(),
+                "offset_error_m": ev.errors("offset_error", "plane").tolist(),
+                "sphere_radius_error_m": ev.errors("radius_error", "sphere").tolist(),
+                "cylinder_radius_error_m": ev.errors("radius_error", "cylinder").tolist(),
+                "cylinder_axis_error_deg": ev.errors("axis_error_deg", "cylinder").tolist(),
+                "center_error_m": ev.errors("center_error").tolist(),
+            },
+            "stage_ms": {k: 1000 * v for k, v in stages.items()},
+            "wall_ms": 1000 * wall,
+        })
+    return rows
+
+
+def summarise(rows: list[dict], time_target_ms: float) -> dict:
+    """Totals over a suite and whether each target is met."""
+    counts = {k: sum(r["hoover"][k] for r in rows)
+              for k in ("n_truth", "n_machine", "correct", "over", "under", "missed", "noise")}
+    errs = {k: [v for r in rows for v in r["errors"][k]] for k in rows[0]["errors"]} if rows else {}
+    radius = errs.get("sphere_radius_error_m", []) + errs.get("cylinder_radius_error_m", [])
+    features = sum(r["table1"]["features"] for r in rows)
+    false_fittings = sum(r["table1"]["false_fittings"] for r in rows)
+    pct = 100.0 * counts["correct"] / counts["n_truth"] if counts["n_truth"] else float("nan")
+    normal = _median(errs.get("normal_error_deg", []))
+    radius_cm = _median(np.asarray(radius) * 100)
+    worst_ms = max((r["stage_ms"].get("total", r["wall_ms"]) for r in rows), default=float("nan"))
+    summary = {
+        "scans": len(rows),
+        "hoover": counts | {"percent_correct": pct},
+        "table1": {
+            "features": features,
+            "under": counts["under"],
+            "under_pct": 100.0 * counts["under"] / features if features else 0.0,
+            "over": counts["over"],
+            "over_pct": 100.0 * counts["over"] / features if features else 0.0,
+            "false_fittings": false_fittings,
+        },
+        "median_normal_error_deg": normal,
+        "median_offset_error_cm": None if not errs.get("offset_error_m") else 100 * _median(errs["offset_error_m"]),
+        "median_sphere_radius_error_cm": None if not errs.get("sphere_radius_error_m") else 100 * _median(errs["sphere_radius_error_m"]),
+        "median_cylinder_radius_error_cm": None if not errs.get("cylinder_radius_error_m") else 100 * _median(errs["cylinder_radius_error_m"]),
+        "median_radius_error_cm": radius_cm,
+        "median_cylinder_axis_error_deg": _median(errs.get("cylinder_axis_error_deg", [])),
+        "median_scan_ms": _median([r["stage_ms"].get("total", r["wall_ms"]) for r in rows]),
+        "worst_scan_ms": worst_ms,
+    }
+    summary["targets"] = {
+        "percent_correct>=90": pct >= TARGETS["percent_correct_min"],
+        "false_fittings==0": false_fittings <= TARGETS["false_fittings_max"],
+        "median_normal_error<=0.5deg": normal is not None and normal <= TARGETS["normal_error_deg_max"],
+        "median_radius_error<=1cm": radius_cm is not None and radius_cm <= TARGETS["radius_error_cm_max"],
+        f"every_scan<={time_target_ms:g}ms": worst_ms <= time_target_ms,
+    }
+    return summary
+
+
+def real_rows(repeats: int, limit: int | None) -> list[dict]:
+    try:
+        from rangeseg_o3d.io.datasets import real_clouds
+    except ImportError as exc:
+        print(f"real data: skipped (rangeseg_o3d.io.datasets unavailable: {exc})")
+        return []
+    clouds = real_clouds()
+    if limit is not None:
+        clouds = clouds[:limit]
+    rows, pipelines = [], {}
+    for item in clouds:
+        try:
+            if item.preset not in pipelines:
+                pipelines[item.preset] = Pipeline(load_config(item.preset))
+            cloud = item.load()
+        except Exception as exc:  # report and go on: one bad file must not stop the benchmark
+            rows.append({"name": item.name, "preset": item.preset, "error": f"{type(exc).__name__}: {exc}"})
+            continue
+        result, stages, wall = timed_runs(pipelines[item.preset], cloud, repeats)
+        rows.append({
+            "name": item.name,
+            "preset": item.preset,
+            "shape": list(cloud.shape),
+            "counts": result.counts(),
+            "largest": [
+                {"kind": f.kind, "n_pixels": f.n_pixels, "rms_mm": 1000 * f.rms,
+                 **({"radius_m": float(f.radius)} if f.kind != "plane" else {})}
+                for f in sorted(result.features, key=lambda f: -f.n_pixels)[:6]
+            ],
+            "stage_ms": {k: 1000 * v for k, v in stages.items()},
+            "wall_ms": 1000 * wall,
+        })
+    return rows
+
+
+# -- printing ---------------------------------------------------------------------------
+def _fmt(value, spec=".2f") -> str:
+    return "-" if value is None or (isinstance(value, float) and np.isnan(value)) else format(value, spec)
+
+
+def print_synthetic(title: str, rows: list[dict], summary: dict) -> None:
+    print(f"\n== {title}: Hoover T={TOLERANCE}, regions >= {MIN_REGION} px; times = median of runs, ms ==")
+    head = (f"{'scene':<20}{'GT':>4}{'cor':>5}{'over':>5}{'undr':>5}{'miss':>5}{'nois':>5}{'%cor':>7}"
+            f"{'feat':>5}{'FF':>4}{'n_err°':>8}{'r_err cm':>9}{'total':>8}  stages")
+    print(head)
+    for r in rows:
+        h, t = r["hoover"], r["table1"]
+        e = r["errors"]
+        radius = e["sphere_radius_error_m"] + e["cylinder_radius_error_m"]
+        stages = " ".join(f"{k}={v:.1f}" for k, v in r["stage_ms"].items() if k != "total")
+        print(f"{r['name']:<20}{h['n_truth']:>4}{h['correct']:>5}{h['over']:>5}{h['under']:>5}{h['missed']:>5}"
+              f"{h['noise']:>5}{_fmt(h['percent_correct'], '.1f'):>7}{t['features']:>5}{t['false_fittings']:>4}"
+              f"{_fmt(_median(e['normal_error_deg']), '.3f'):>8}"
+              f"{_fmt(None if not radius else 100 * _median(radius), '.2f'):>9}"
+              f"{_fmt(r['stage_ms'].get('total', r['wall_ms']), '.1f'):>8}  {stages}")
+        if r["missed_kinds"] or r["unfitted_correct"]:
+            print(f"{'':<20}missed: {', '.join(r['missed_kinds']) or '-'}; correct but unfitted: {r['unfitted_correct']}")
+    s, h, t = summary, summary["hoover"], summary["table1"]
+    print(f"{'TOTAL':<20}{h['n_truth']:>4}{h['correct']:>5}{h['over']:>5}{h['under']:>5}{h['missed']:>5}"
+          f"{h['noise']:>5}{_fmt(h['percent_correct'], '.1f'):>7}{t['features']:>5}{t['false_fittings']:>4}"
+          f"{_fmt(s['median_normal_error_deg'], '.3f'):>8}{_fmt(s['median_radius_error_cm'], '.2f'):>9}"
+          f"{_fmt(s['median_scan_ms'], '.1f'):>8}  (worst scan {_fmt(s['worst_scan_ms'], '.1f')} ms)")
+    print(f"Table 1: features {t['features']}, under-segmentation {t['under']} ({t['under_pct']:.1f} %), "
+          f"over-segmentation {t['over']} ({t['over_pct']:.1f} %), false fittings {t['false_fittings']}")
+    print(f"medians: plane normal {_fmt(s['median_normal_error_deg'], '.3f')} deg, plane offset "
+          f"{_fmt(s['median_offset_error_cm'])} cm, sphere radius {_fmt(s['median_sphere_radius_error_cm'])} cm, "
+          f"cylinder radius {_fmt(s['median_cylinder_radius_error_cm'])} cm, cylinder axis "
+          f"{_fmt(s['median_cylinder_axis_error_deg'], '.2f')} deg")
+    print("targets: " + ", ".join(f"{k} {'MET' if ok else 'NOT MET'}" for k, ok in s["targets"].items()))
+
+
+def print_real(rows: list[dict]) -> None:
+    print("\n== real clouds (no ground truth): features per kind, median times in ms ==")
+    for r in rows:
+        if "error" in r:
+            print(f"{r['name']:<22}{r['preset']:<16}ERROR {r['error']}")
+            continue
+        c = r["counts"]
+        largest = ", ".join(
+            f"{f['kind']}({f['n_pixels']}px{', r=%.3f m' % f['radius_m'] if 'radius_m' in f else ''})"
+            for f in r["largest"])
+        stages = " ".join(f"{k}={v:.1f}" for k, v in r["stage_ms"].items() if k != "total")
+        print(f"{r['name']:<22}{r['preset']:<16}{'x'.join(map(str, r['shape'])):>9} planes {c['plane']:>3} "
+              f"cyl {c['cylinder']:>2} sph {c['sphere']:>2} unfitted {c['unfitted']:>3} "
+              f"total {r['stage_ms'].get('total', r['wall_ms']):.1f}  {stages}")
+        print(f"{'':<22}largest: {largest}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=20, help="timed runs per scan (median); default 20")
+    parser.add_argument("--quick", action="store_true",
+                        help="3 repeats, 3 LMS200 scenes, 1 RGB-D scene, 2 real clouds")
+    parser.add_argument("--no-real", action="store_true", help="skip the real clouds in ../shared/data")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, help="write every figure to this JSON file")
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1; got {args.repeats}")
+    repeats = 3 if args.quick else args.repeats
+    _single_thread()
+    warnings.simplefilter("ignore", RuntimeWarning)
+
+    lms = lms200_suite(seed=args.seed)
+    rgbd = rgbd_suite(seed=args.seed)
+    if args.quick:
+        lms, rgbd = lms[:3], rgbd[:1]
+    print(f"benchmark: {len(lms)} LMS200 scans, {len(rgbd)} RGB-D frames, {repeats} timed runs each, one thread")
+    lms_rows = synthetic_rows(lms, Pipeline(load_config(REPO / "configs" / "lms200.yaml")), repeats)
+    lms_summary = summarise(lms_rows, TARGETS["lms200_ms_max"])
+    print_synthetic("synthetic LMS200 70x131 (configs/lms200.yaml)", lms_rows, lms_summary)
+    rgbd_rows = synthetic_rows(rgbd, Pipeline(load_config(REPO / "configs" / "rgbd_vga.yaml")), repeats)
+    rgbd_summary = summarise(rgbd_rows, TARGETS["vga_ms_max"])
+    print_synthetic("synthetic RGB-D 640x480 (configs/rgbd_vga.yaml)", rgbd_rows, rgbd_summary)
+    real = [] if args.no_real else real_rows(repeats, 2 if args.quick else None)
+    if real:
+        print_real(real)
+
+    if args.json:
+        from rangeseg_o3d.io.atomic import atomic_write
+
+        report = {
+            "repeats": repeats,
+            "tolerance": TOLERANCE,
+            "min_region": MIN_REGION,
+            "targets": TARGETS,
+            "lms200": {"scenes": lms_rows, "summary": lms_summary},
+            "rgbd": {"scenes": rgbd_rows, "summary": rgbd_summary},
+            "real": real,
+        }
+        with atomic_write(args.json, "w", encoding="utf-8") as fh:
+            json.dump(report, fh, indent=1, default=float)
+        print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
