@@ -1,0 +1,174 @@
+"""Input checks and small numeric helpers shared by the plane, sphere and cylinder fits."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .models import FitFailure
+
+# Relative size below which a spread is treated as exactly zero. Centred float64 data
+# keeps ~1e-16 relative precision and float32 input ~1e-7 of the coordinates, so a
+# thickness below 1e-6 of the extent is numerical noise, never a real dimension.
+DEGENERATE_RATIO = 1e-6
+
+
+def as_points(points, name: str = "points") -> np.ndarray:
+    """Return ``points`` as a float64 ``(N, 3)`` array; TypeError/ValueError otherwise."""
+    if isinstance(points, (str, bytes)) or points is None:
+        raise TypeError(f"{name} must be an (N, 3) array of numbers; got {type(points).__name__}")
+    try:
+        arr = np.asarray(points, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(
+            f"{name} must be an (N, 3) array of numbers; got {type(points).__name__}"
+        ) from exc
+    if arr.ndim == 1 and arr.size == 0:
+        arr = arr.reshape(0, 3)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3); got {arr.shape}")
+    return arr
+
+
+def check_points(points: np.ndarray, kind: str, minimum: int) -> FitFailure | None:
+    """A FitFailure if there are too few points or any is NaN/inf, else None."""
+    n = len(points)
+    if n < minimum:
+        return FitFailure(kind, f"a {kind} fit needs at least {minimum} points; got {n}")
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        return FitFailure(
+            kind,
+            f"{int(bad.sum())} of {n} points are NaN or infinite; drop invalid points before fitting",
+        )
+    return None
+
+
+def centre_and_scale(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """``(centroid, scale, q)`` with ``q = (points - centroid) / scale`` of unit rms spread.
+
+    Working on ``q`` keeps every normal-equation matrix near unit size, whatever the
+    units or the distance of the patch from the origin.
+    """
+    centroid = points.mean(axis=0)
+    rel = points - centroid
+    scale = float(np.sqrt((rel * rel).sum() / len(points)))
+    if scale == 0.0:
+        scale = 1.0
+    return centroid, scale, rel / scale
+
+
+def scatter_eig(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ascending eigenvalues and eigenvectors (columns) of the scatter ``q^T q`` of centred ``q``."""
+    return np.linalg.eigh(q.T @ q)
+
+
+def flatness_failure(eigvals: np.ndarray, kind: str) -> FitFailure | None:
+    """FitFailure when the points are collinear or coplanar (a curved surface needs 3-D spread)."""
+    largest = eigvals[2]
+    if largest <= 0.0 or eigvals[1] <= (DEGENERATE_RATIO**2) * largest:
+        return FitFailure(kind, "points are coincident or collinear")
+    if eigvals[0] <= (DEGENERATE_RATIO**2) * largest:
+        return FitFailure(kind, "points are coplanar: no curvature to fit")
+    return None
+
+
+def count_within(distances: np.ndarray, tolerance: float | None) -> int:
+    """Number of ``|distances| <= tolerance``; all of them when ``tolerance`` is None."""
+    if tolerance is None:
+        return int(len(distances))
+    return int(np.count_nonzero(np.abs(distances) <= tolerance))
+
+
+def check_tolerance(value, name: str) -> float | None:
+    """Validate an optional positive tolerance keyword."""
+    if value is None:
+        return None
+    value = float(value)
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive number or None; got {value!r}")
+    return value
+
+
+def levenberg_marquardt(state, evaluate, apply, max_iterations: int):
+    """Minimise ``sum(res**2)`` by Levenberg-Marquardt; returns ``(state, res, converged)``.
+
+    ``evaluate(state) -> (res (N,), jac (N, k))`` and ``apply(state, step) -> state``
+    let each model choose its own parametrisation (the cylinder re-linearises in a
+    frame aligned with its current axis). Converged means the step or the relative cost
+    decrease fell to rounding level.
+    """
+    res, jac = evaluate(state)
+    cost = float(res @ res)
+    damping = 1e-3
+    for _ in range(max_iterations):
+        jtj = jac.T @ jac
+        grad = jac.T @ res
+        diagonal = jtj.reshape(-1)[:: jtj.shape[0] + 1]  # a view: jtj is contiguous
+        diagonal += damping * (diagonal + 1e-12)  # Marquardt's scaled damping, in place
+        try:
+            step = np.linalg.solve(jtj, -grad)
+        except np.linalg.LinAlgError:
+            return state, res, False
+        if np.abs(step).max() <= 1e-10:
+            return state, res, True
+        trial = apply(state, step)
+        t_res, t_jac = evaluate(trial)
+        t_cost = float(t_res @ t_res)
+        if not np.isfinite(t_cost):
+            damping *= 10.0
+            continue
+        if t_cost <= cost:
+            decrease = cost - t_cost
+            state, res, jac, cost = trial, t_res, t_jac, t_cost
+            damping = max(damping * 0.1, 1e-9)
+            if decrease <= 1e-12 * cost + 1e-30:
+                return state, res, True
+        elif t_cost - cost <= 1e-12 * cost + 1e-30:
+            # no better point within rounding: at the minimum
+            return state, res, True
+        else:
+            damping *= 10.0
+    return state, res, False
+
+
+class Prepared:
+    """Validated input of a fit: points, centred/scaled copy and scatter eigenvalues, or the failure."""
+
+    __slots__ = ("points", "inlier_distance", "failure", "centroid", "scale", "q", "eigvals", "eigvecs")
+
+    def __init__(self, points, kind: str, minimum: int, inlier_distance, curved: bool):
+        self.points = as_points(points)
+        self.inlier_distance = check_tolerance(inlier_distance, "inlier_distance")
+        self.failure = check_points(self.points, kind, minimum)
+        if self.failure is not None:
+            return
+        self.centroid, self.scale, self.q = centre_and_scale(self.points)
+        self.eigvals, self.eigvecs = scatter_eig(self.q)
+        if curved:
+            self.failure = flatness_failure(self.eigvals, kind)
+
+
+def refinement_failure(kind: str, converged: bool, max_iterations: int, params, radius: float) -> FitFailure | None:
+    """FitFailure when Levenberg-Marquardt did not converge or left non-finite/negative values."""
+    if not converged:
+        return FitFailure(kind, f"geometric refinement did not converge in {max_iterations} iterations")
+    if not (np.all(np.isfinite(params)) and np.isfinite(radius)) or radius <= 0:
+        return FitFailure(kind, "geometric refinement diverged")
+    return None
+
+
+def curvature_failure(kind: str, radius: float, arc: float, rms: float, scale: float) -> FitFailure | None:
+    """FitFailure when the curvature over the covered ``arc`` is within the noise.
+
+    The sagitta ``r (1 - cos(arc / 2))`` (arc capped at pi) is how far the surface bends
+    away from a plane across the patch; if it is not above the rms, a plane explains the
+    points as well, and a curved model would be a false fitting.
+    """
+    sagitta = radius * (1.0 - np.cos(min(arc, np.pi) / 2.0))
+    if sagitta > rms:
+        return None
+    return FitFailure(
+        kind,
+        f"curvature not significant: sagitta {sagitta * scale:.3g} <= rms {rms * scale:.3g} "
+        f"(radius {radius * scale:.3g}); a plane explains the points as well",
+    )

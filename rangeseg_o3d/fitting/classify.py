@@ -1,0 +1,195 @@
+"""The plane -> cylinder -> sphere decision of the paper's Fig. 2, guarded against false fittings.
+
+Rule (:func:`fit_primitive`):
+
+1. Fewer than ``min_points`` points, NaN/inf, or collinear points: FitFailure.
+2. Fit a plane. If its rms is within ``plane_rms`` and the patch shows no significant
+   curvature (a quadratic height field over the plane does not lower the rms by
+   ``curvature_gain``), it is a plane.
+3. Otherwise fit a cylinder and a sphere. A curved model is acceptable when its rms is
+   within its threshold, its radius is at most ``max_radius``, the points cover an arc
+   (cylinder cross-section) or cap (sphere) of at least ``min_arc_deg`` -- which bounds
+   the radius relative to the patch extent -- and it lowers the plane's rms by at least
+   ``curvature_gain``. Of the acceptable ones the lower rms wins.
+4. No acceptable curved model: the plane if it passed step 2's rms test, else a
+   FitFailure listing why each model was refused.
+
+Thresholds are rms distances in metres. The defaults suit the nodding SICK LMS200
+(range noise sigma about 5 mm, independent of range): ``plane_rms = 0.01`` is twice the
+noise. Sensors whose noise grows with range (RGB-D: sigma about 1.4e-3 z^2 m, CAPE's
+model with z in m) add ``rms_per_range2 * R^2`` to every threshold, R being the
+distance of the patch centroid from the sensor origin.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from ..registry import Plugin
+from ._common import as_points, check_points
+from .cylinder import cylinder_arc, fit_cylinder
+from .models import Cylinder, FitFailure, Plane, Sphere
+from .plane import fit_plane
+from .sphere import fit_sphere, sphere_cap_angle
+
+__all__ = ["fit_primitive", "PrimitiveFitterConfig", "PLUGIN", "curvature_gain_of"]
+
+INLIER_FACTOR = 3.0
+"""Points within INLIER_FACTOR x the kind's rms threshold count as inliers."""
+
+
+def curvature_gain_of(points: np.ndarray, plane: Plane) -> float:
+    """How much a quadratic height field over ``plane`` lowers the rms (plane rms / quadric rms).
+
+    About 1 for a flat patch whatever its noise; clearly above 1 for a curved one. inf
+    when the quadric explains the points exactly but the plane does not.
+    """
+    pts = np.asarray(points, float)
+    centred = pts - pts.mean(axis=0)
+    height = centred @ plane.normal
+    # in-plane coordinates: any orthonormal pair perpendicular to the normal
+    helper = np.eye(3)[int(np.argmin(np.abs(plane.normal)))]
+    e1 = np.cross(plane.normal, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(plane.normal, e1)
+    x, y = centred @ e1, centred @ e2
+    design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+    coef, *_ = np.linalg.lstsq(design, height, rcond=None)
+    residual = height - design @ coef
+    quad_ms = float(residual @ residual) / len(pts)
+    plane_ms = float(height @ height) / len(pts)
+    if quad_ms <= 0.0:
+        return np.inf if plane_ms > 0.0 else 1.0
+    return float(np.sqrt(plane_ms / quad_ms))
+
+
+def _judge_curved(model, points, plane, tolerance, max_radius, min_arc, curvature_gain):
+    """None if the curved ``model`` is acceptable, else the reason it is refused."""
+    if not model:
+        return f"{model.kind}: {model.reason}"
+    if model.rms > tolerance:
+        return f"{model.kind} rms {model.rms:.3g} > {tolerance:.3g}"
+    if model.radius > max_radius:
+        return f"{model.kind} radius {model.radius:.3g} > max_radius {max_radius:.3g}"
+    if isinstance(model, Cylinder):
+        arc = cylinder_arc(points, model.axis, model.point)
+    else:
+        arc = sphere_cap_angle(points, model.center)
+    if arc < min_arc:
+        return f"{model.kind} arc {np.degrees(arc):.0f} deg < min_arc_deg {np.degrees(min_arc):.0f}"
+    if model.rms > 0 and plane.rms < curvature_gain * model.rms:
+        return (
+            f"{model.kind} rms {model.rms:.3g} is not {curvature_gain:g}x below the plane's "
+            f"{plane.rms:.3g}"
+        )
+    return None
+
+
+def fit_primitive(
+    points,
+    normals=None,
+    *,
+    plane_rms: float = 0.01,
+    cylinder_rms: float = 0.01,
+    sphere_rms: float = 0.01,
+    rms_per_range2: float = 0.0,
+    min_points: int = 10,
+    max_radius: float = 5.0,
+    min_arc_deg: float = 30.0,
+    curvature_gain: float = 1.5,
+) -> Plane | Cylinder | Sphere | FitFailure:
+    """Explain a region's points by a plane, a cylinder or a sphere (paper Fig. 2).
+
+    See the module docstring for the decision rule.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like
+        The region's points, metres.
+    normals : (N, 3) array_like, optional
+        Surface normals, used to start the cylinder fit.
+    plane_rms, cylinder_rms, sphere_rms : float
+        Largest acceptable rms orthogonal distance (m) of each model.
+    rms_per_range2 : float
+        Added to each threshold times the squared range (m) of the patch centroid, for
+        sensors whose noise grows with range; 0 for a laser scanner.
+    min_points : int
+        Smaller regions are not fitted.
+    max_radius : float
+        Largest acceptable cylinder or sphere radius (m).
+    min_arc_deg : float
+        Smallest arc (cylinder cross-section) or cap angle (sphere) the points must
+        cover, degrees: a curved model of a nearly flat patch subtends a tiny arc.
+    curvature_gain : float
+        Factor by which a curved model must lower the plane's rms (>= 1).
+
+    Returns
+    -------
+    Plane, Cylinder, Sphere or FitFailure
+        The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
+        FitFailure(kind="primitive") whose reason lists why each model was refused.
+    """
+    pts = as_points(points)
+    failure = check_points(pts, "primitive", max(int(min_points), 3))
+    if failure is not None:
+        return failure
+    if normals is not None:
+        normals = as_points(normals, "normals")
+        if normals.shape != pts.shape:
+            raise ValueError(f"normals must have the shape of points {pts.shape}; got {normals.shape}")
+    range_sq = float(np.square(pts.mean(axis=0)).sum())
+    extra = rms_per_range2 * range_sq
+    plane_tol, cylinder_tol, sphere_tol = plane_rms + extra, cylinder_rms + extra, sphere_rms + extra
+
+    plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * plane_tol)
+    if not plane:
+        return FitFailure("primitive", f"plane: {plane.reason}")
+    plane_ok = plane.rms <= plane_tol
+    # A plane within tolerance is kept unless the patch is visibly curved; the floor
+    # keeps rounding-level residuals of exact planes from looking "curved".
+    if plane_ok and (plane.rms <= 0.1 * plane_tol or curvature_gain_of(pts, plane) < curvature_gain):
+        return plane
+
+    min_arc = np.radians(min_arc_deg)
+    reasons = [] if plane_ok else [f"plane rms {plane.rms:.3g} > {plane_tol:.3g}"]
+    accepted = []
+    candidates = (
+        (fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * cylinder_tol), cylinder_tol),
+        (fit_sphere(pts, inlier_distance=INLIER_FACTOR * sphere_tol), sphere_tol),
+    )
+    for model, tolerance in candidates:
+        why = _judge_curved(model, pts, plane, tolerance, max_radius, min_arc, curvature_gain)
+        if why is None:
+            accepted.append(model)
+        else:
+            reasons.append(why)
+
+    if accepted:
+        return min(accepted, key=lambda model: model.rms)
+    if plane_ok:
+        return plane
+    return FitFailure("primitive", "; ".join(reasons))
+
+
+class PrimitiveFitterConfig(BaseModel):
+    """Parameters of the "primitives" fitter: exactly :func:`fit_primitive`'s keywords."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    plane_rms: float = Field(0.01, gt=0, description="largest plane rms, m")
+    cylinder_rms: float = Field(0.01, gt=0, description="largest cylinder rms, m")
+    sphere_rms: float = Field(0.01, gt=0, description="largest sphere rms, m")
+    rms_per_range2: float = Field(0.0, ge=0, description="threshold growth per squared range, m per m^2")
+    min_points: int = Field(10, ge=3, description="smallest region fitted")
+    max_radius: float = Field(5.0, gt=0, description="largest cylinder/sphere radius, m")
+    min_arc_deg: float = Field(30.0, gt=0, le=360, description="smallest arc/cap covered, deg")
+    curvature_gain: float = Field(1.5, ge=1, description="rms reduction a curved model must bring")
+
+
+PLUGIN = Plugin(
+    name="primitives",
+    config=PrimitiveFitterConfig,
+    run=fit_primitive,
+    description="plane, else cylinder or sphere (paper Fig. 2), with false-fitting guards",
+)

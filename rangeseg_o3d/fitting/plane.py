@@ -1,0 +1,78 @@
+"""Least-squares plane: centroid and the smallest-eigenvalue eigenvector of the scatter."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._common import DEGENERATE_RATIO, Prepared, count_within
+from .models import FitFailure, Plane
+
+__all__ = ["fit_plane", "orient_normal"]
+
+
+def orient_normal(normal: np.ndarray, d: float, scale: float = 1.0) -> tuple[np.ndarray, float]:
+    """Orient ``(normal, d)`` so that ``d >= 0`` (Hesse normal form).
+
+    The normal then points away from the origin (the sensor), and ``d`` is the distance of
+    the origin from the plane. A plane through the origin (``|d|`` below 1e-12 of
+    ``scale``) is oriented so that its largest normal component is positive.
+    """
+    if abs(d) <= 1e-12 * scale:
+        if normal[np.argmax(np.abs(normal))] < 0:
+            return -normal, 0.0
+        return normal, 0.0
+    if d < 0:
+        return -normal, -d
+    return normal, d
+
+
+def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFailure:
+    """Fit the plane ``normal . p = d`` minimising the orthogonal distances.
+
+    The normal is the eigenvector of the smallest eigenvalue of the centred scatter
+    matrix (paper Sec. 4.1 with its erratum); that eigenvalue is the residual sum of
+    squares. The plane is given in Hesse normal form: unit normal, ``d >= 0``, so the
+    normal points away from the origin (see :func:`orient_normal`).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like
+        Points in metres (any unit works; ``d`` and ``rms`` come out in it).
+    inlier_distance : float, optional
+        Count as inliers only the points within this distance of the plane; by default
+        every point is an inlier.
+
+    Returns
+    -------
+    Plane or FitFailure
+        The plane with the rms orthogonal distance, or a falsy FitFailure saying why
+        not: fewer than 3 points, NaN/inf coordinates, coincident or collinear points.
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not (N, 3).
+    TypeError
+        If ``points`` is not numeric.
+
+    Examples
+    --------
+    >>> plane = fit_plane([[0, 0, 2], [1, 0, 2], [0, 1, 2], [1, 1, 2]])
+    >>> plane.normal.tolist(), round(plane.d, 6), round(plane.rms, 6)
+    ([0.0, 0.0, 1.0], 2.0, 0.0)
+    """
+    prep = Prepared(points, "plane", 3, inlier_distance, curved=False)
+    if prep.failure is not None:
+        return prep.failure
+    eigvals, eigvecs, centroid, scale = prep.eigvals, prep.eigvecs, prep.centroid, prep.scale
+    if eigvals[2] <= 0.0 or eigvals[1] <= (DEGENERATE_RATIO**2) * eigvals[2]:
+        return FitFailure("plane", "points are coincident or collinear: the plane is undetermined")
+    normal = eigvecs[:, 0] / np.linalg.norm(eigvecs[:, 0])
+    normal, d = orient_normal(normal, float(normal @ centroid), float(np.abs(centroid).max() + scale))
+    # the smallest eigenvalue is the residual sum of squares, in scaled units
+    rms = scale * float(np.sqrt(max(eigvals[0], 0.0) / len(prep.points)))
+    if prep.inlier_distance is None:
+        inliers = len(prep.points)
+    else:
+        inliers = count_within(prep.points @ normal - d, prep.inlier_distance)
+    return Plane(normal=normal, d=d, rms=rms, inliers=inliers)
