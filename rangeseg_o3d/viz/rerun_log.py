@@ -239,7 +239,12 @@ def annotation_context(result: Result, colors: np.ndarray | None = None):
 
 
 def log_labels(
-    recording, result: Result, *, entity: str = "scan/labels", colors: np.ndarray | None = None
+    recording,
+    result: Result,
+    *,
+    entity: str = "scan/labels",
+    colors: np.ndarray | None = None,
+    context=None,
 ) -> None:
     """Log ``result.labels`` as a SegmentationImage with an AnnotationContext on the same entity.
 
@@ -250,6 +255,8 @@ def log_labels(
     entity : str
     colors : (max_label + 1, 3) uint8, optional
         Colour table; :func:`rangeseg_o3d.viz.colors.region_colors` by default.
+    context : rr.AnnotationContext, optional
+        Prebuilt :func:`annotation_context` (saves building it twice in :func:`log_scan`).
     """
     if recording is None:
         return
@@ -259,7 +266,7 @@ def log_labels(
     labels = _check_labels(result.labels, np.shape(result.labels)[:2])
     recording.log(
         entity,
-        annotation_context(result, colors),
+        context if context is not None else annotation_context(result, colors),
         rr.SegmentationImage(labels.astype(np.uint16)),
     )
 
@@ -569,8 +576,9 @@ def log_scan(
     colors = region_colors(result)
     log_range(recording, cloud)
     log_stage_images(recording, result.stages, shape=cloud.shape)
-    log_labels(recording, result, colors=colors)
-    recording.log("world", annotation_context(result, colors))
+    context = annotation_context(result, colors)
+    log_labels(recording, result, colors=colors, context=context)
+    recording.log("world", context)
     log_points(recording, cloud, result.labels, colors=colors)
     log_features(recording, cloud, result, colors=colors)
     log_timings(recording, result.timings)

@@ -1,0 +1,60 @@
+"""Median times of the viz stages: log_scan to an in-memory recording, and the PNG panel.
+
+    python scripts/bench_viz.py [--repeats 7]
+
+Scans: the synthetic default LMS200 scene (70 x 131) and the first RGB-D suite frame
+(480 x 640), segmented once with their presets; only the viz calls are timed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+
+def median_seconds(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7)
+    args = parser.parse_args()
+
+    import rerun as rr
+
+    from rangeseg_o3d.pipeline import Pipeline
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene, rgbd_suite
+    from rangeseg_o3d.viz import log_scan, render_panel
+
+    scans = [
+        ("lms200 70x131", simulate_lms200(default_scene(), seed=0).cloud, "lms200"),
+        ("rgbd 480x640", rgbd_suite()[0][1].cloud, "rgbd_vga"),
+    ]
+    for name, cloud, preset in scans:
+        result = Pipeline(preset).run(cloud)
+        rec = rr.RecordingStream("bench")
+        memory = rec.memory_recording()
+        counter = iter(range(10**6))
+
+        def log_once():
+            log_scan(rec, cloud, result, scan_index=next(counter))
+            rec.flush()
+            memory.drain_as_bytes()  # keep memory flat across repeats
+
+        t_log = median_seconds(log_once, args.repeats)
+        t_panel = median_seconds(lambda: render_panel(cloud, result), args.repeats)
+        print(f"{name}: {cloud.n_valid} valid points, {len(result.features)} features | "
+              f"log_scan {t_log * 1e3:.1f} ms | render_panel {t_panel * 1e3:.1f} ms "
+              f"(median of {args.repeats})")
+
+
+if __name__ == "__main__":
+    main()
