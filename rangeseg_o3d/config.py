@@ -30,6 +30,8 @@ class StageConfig(BaseModel):
 class RefineConfig(BaseModel):
     """Beyond the paper (its Sec. 6 future work): give edge-band pixels back, merge patches.
 
+    recover_leftovers : fit compact blobs of unlabelled pixels (small curved objects that the
+        edge band swallowed whole) and keep those a model explains.
     grow_iterations : rounds of handing unlabelled pixels to a neighbouring region whose
         fitted surface lies within ``k_sigma * max(sigma(r), model rms)`` of them (one pixel
         ring per round; no crossing of jump edges).
@@ -46,6 +48,7 @@ class RefineConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     enabled: bool = True
+    recover_leftovers: bool = True
     grow_iterations: int = Field(3, ge=0, le=20)
     k_sigma: float = Field(3.0, gt=0)
     merge: bool = True

@@ -12,14 +12,17 @@ EDGE_CEILING = 1e6
 
 
 def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float = 0.05) -> np.ndarray:
-    """Pixels on either side of a depth discontinuity.
+    """Occluded side of every depth discontinuity.
 
-    A pixel is a jump edge when the range difference to one of its 4-neighbours exceeds
-    ``max(jump_min, jump_ratio * r)`` with ``r`` the nearer of the two ranges. The relative
-    term follows the spacing of the scan, which grows linearly with range for a sensor with
-    fixed angular steps, so the test behaves the same near and far; the absolute floor keeps
-    range noise from triggering it at short range. It catches the jumps the plane residual
-    misses, e.g. between two parallel surfaces seen almost edge-on.
+    Between 4-neighbours whose ranges differ by more than ``max(jump_min, jump_ratio * r)``
+    (``r`` the nearer range) the *farther* pixel is marked: the nearer one is a genuine
+    point of the occluding surface, and a thin object only a few pixels wide would lose
+    most of itself if both sides were marked (PCL calls these occluded vs occluding edges).
+    A mixed pixel between foreground and background is farther than the foreground, so it
+    is marked too. The relative term follows the scan spacing, which grows linearly with
+    range for a sensor with fixed angular steps, so the test behaves the same near and far;
+    the absolute floor keeps range noise from triggering it at short range. It catches the
+    jumps the plane residual misses, e.g. between parallel surfaces seen almost edge-on.
 
     Parameters
     ----------
@@ -36,16 +39,12 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
         raise ValueError(f"ranges must have shape (H, W); got {r.shape}")
     mask = np.zeros(r.shape, dtype=bool)
     with np.errstate(invalid="ignore"):
-        for axis in (0, 1):
-            a = r[:-1, :] if axis == 0 else r[:, :-1]
-            b = r[1:, :] if axis == 0 else r[:, 1:]
+        for a_sl, b_sl in (((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+                           ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):
+            a, b = r[a_sl], r[b_sl]
             jump = np.abs(a - b) > np.maximum(jump_min, jump_ratio * np.fmin(a, b))
-            if axis == 0:
-                mask[:-1, :] |= jump
-                mask[1:, :] |= jump
-            else:
-                mask[:, :-1] |= jump
-                mask[:, 1:] |= jump
+            mask[a_sl] |= jump & (a > b)
+            mask[b_sl] |= jump & (b > a)
     return mask
 
 

@@ -11,9 +11,10 @@ from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting.models import FitFailure
-from .refine import grow_into_edges, merge_candidates, region_adjacency
+from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .regions import relabel_sequential
 from .residual import noise_sigma
+from .robust import trimmed_fit
 from .result import Feature, Result, Unfitted
 
 __all__ = ["Pipeline"]
@@ -116,8 +117,8 @@ class Pipeline:
         t_fit = time.perf_counter()
         timings["fit"] = t_fit - t_seg
 
-        if self.config.refine.enabled and regions:
-            labels, fits = self._refine(cloud, labels, fits)
+        if self.config.refine.enabled:
+            labels, fits = self._refine(cloud, labels, fits, seg.stages.get("jumps"))
         t_ref = time.perf_counter()
         timings["refine"] = t_ref - t_fit
 
@@ -140,11 +141,70 @@ class Pipeline:
             log_scan(recording, cloud, result, scan_index=scan_index)
         return result
 
-    def _refine(self, cloud, labels, fits):
+    def _explain(self, labels, fits, cloud, sigma, candidates, *, keep_failures: bool):
+        """Give each candidate region the model most of it lies on; split off the rest.
+
+        The inliers of a trimmed fit (:func:`rangeseg_o3d.robust.trimmed_fit`) keep the
+        region, restricted to their largest 4-connected piece of the grid; the other pixels
+        are freed for growth. Candidates nothing explains are dropped, or kept as unfitted
+        regions when ``keep_failures``.
+        """
+        import cv2
+
+        min_size = max(int(self.config.segmenter.params.get("min_region_size", 30)), 10)
+        xyz_flat = cloud.xyz.reshape(-1, 3)
+        sigma_flat = sigma.ravel()
+        width = cloud.shape[1]
+        for k, idx in _region_indices(candidates).items():
+            model = self._fit(xyz_flat[idx])
+            if not model:
+                trimmed, inliers = trimmed_fit(xyz_flat[idx], self._fit,
+                                               sigma=float(np.nanmedian(sigma_flat[idx])),
+                                               min_points=min_size)
+                if trimmed is not None:
+                    rows, cols = np.divmod(idx[inliers], width)
+                    top, left = rows.min(), cols.min()
+                    patch = np.zeros((rows.max() - top + 1, cols.max() - left + 1), np.uint8)
+                    patch[rows - top, cols - left] = 1
+                    n, comp = cv2.connectedComponents(patch, connectivity=4)
+                    piece = comp[rows - top, cols - left]
+                    largest = np.argmax(np.bincount(piece, minlength=n)[1:]) + 1
+                    chosen = idx[inliers][piece == largest]
+                    if chosen.size >= min_size:
+                        refined = self._refit(xyz_flat[chosen], trimmed)
+                        if refined:
+                            labels.ravel()[idx] = 0
+                            labels.ravel()[chosen] = k
+                            fits[k] = refined
+                            continue
+            if model:
+                labels.ravel()[idx] = k
+                fits[k] = model
+            elif keep_failures:
+                labels.ravel()[idx] = k
+                fits[k] = model
+            else:
+                labels.ravel()[idx] = 0
+                fits.pop(k, None)
+        return labels, fits
+
+    def _refine(self, cloud, labels, fits, jumps=None):
         ref = self.config.refine
         seg = self.config.segmenter.params
         ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
         sigma = self._noise(ranges)
+        failed = np.isin(labels, [k for k, m in fits.items() if not m])
+        if failed.any():
+            # Under-segmented regions: keep the dominant surface, free the rest.
+            labels, fits = self._explain(labels, fits, cloud, sigma, np.where(failed, labels, 0),
+                                         keep_failures=True)
+        if ref.recover_leftovers:
+            if jumps is None:
+                jumps = np.zeros(cloud.shape, bool)
+            min_size = max(int(seg.get("min_region_size", 30)), 10)
+            candidates = leftover_candidates(labels, cloud.valid, jumps, min_size=min_size,
+                                             first_label=int(labels.max(initial=0)) + 1)
+            labels, fits = self._explain(labels, fits, cloud, sigma, candidates, keep_failures=False)
         xyz_flat = cloud.xyz.reshape(-1, 3)
         good = {k: m for k, m in fits.items() if m}
         if ref.grow_iterations and good:
@@ -169,9 +229,9 @@ class Pipeline:
     def _merge(self, labels, fits, xyz_flat):
         ref = self.config.refine
         good = {k: m for k, m in fits.items() if m}
-        adjacency = None if ref.merge_disjoint else region_adjacency(labels)
         pairs = merge_candidates(good, max_angle_deg=ref.merge_angle_deg,
-                                 tolerance=ref.merge_tolerance, adjacency=adjacency)
+                                 tolerance=ref.merge_tolerance, adjacency=region_adjacency(labels),
+                                 disjoint=ref.merge_disjoint)
         if not pairs:
             return labels, fits
         regions = _region_indices(labels)

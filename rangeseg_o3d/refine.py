@@ -140,16 +140,55 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
 
 
 def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
-                     adjacency: set[tuple[int, int]] | None = None) -> list[tuple[int, int]]:
-    """Pairs of labels worth a union fit, most similar first (by rms sum)."""
+                     adjacency: set[tuple[int, int]], disjoint: bool = True) -> list[tuple[int, int]]:
+    """Pairs of labels worth a union fit, cheapest first (by the parts' rms sum).
+
+    Adjacent regions of one kind are always candidates: two pieces of one small cylinder
+    can disagree on their axes more than any parameter test would allow, and the union
+    fit decides. Regions that do not touch are candidates only with ``disjoint`` and when
+    :func:`similar_models` says their parameters agree.
+    """
     keys = sorted(models)
     out = []
     for i, a in enumerate(keys):
         for b in keys[i + 1:]:
-            if adjacency is not None and (a, b) not in adjacency:
+            if models[a].kind != models[b].kind:
                 continue
-            if similar_models(models[a], models[b], max_angle_deg=max_angle_deg,
-                              tolerance=tolerance):
+            if (a, b) in adjacency or (disjoint and similar_models(
+                    models[a], models[b], max_angle_deg=max_angle_deg, tolerance=tolerance)):
                 out.append((a, b))
     out.sort(key=lambda ab: models[ab[0]].rms + models[ab[1]].rms)
     return out
+
+
+def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
+                        min_size: int, first_label: int) -> np.ndarray:
+    """Compact blobs of valid, unlabelled, non-jump pixels: regions the edge band swallowed whole.
+
+    Small curved objects far away have a residual above the threshold everywhere, so no
+    region seeds them and growth cannot reach them. The leftover pixels form a network of
+    thin crease bands with such blobs attached; one 3x3 erosion cuts the bands, the
+    surviving cores are flood-filled, then dilated back by one pixel within the leftover.
+
+    Returns
+    -------
+    (H, W) int32 candidate labels numbered from ``first_label`` (0 elsewhere); each must
+    still be accepted by a fit.
+    """
+    import cv2
+
+    free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
+    cores = cv2.erode(free, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S)
+    if n <= 1:
+        return np.zeros(labels.shape, np.int32)
+    grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
+    # Dilation takes the larger id where two cores meet; only leftover pixels may join.
+    comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
+    sizes = np.bincount(comp.ravel(), minlength=n)
+    keep = sizes >= min_size
+    keep[0] = False
+    lut = np.zeros(n, np.int32)
+    lut[keep] = np.arange(first_label, first_label + int(keep.sum()), dtype=np.int32)
+    return lut[comp]

@@ -5,12 +5,14 @@ from rangeseg_o3d.edges import close_residual, edge_mask, jump_edges
 from rangeseg_o3d.regions import label_regions, relabel_sequential
 
 
-def test_jump_edges_mark_both_sides_and_scale_with_range():
+def test_jump_edges_mark_the_far_side_and_scale_with_range():
     r = np.full((4, 8), 2.0)
     r[:, 4:] = 2.5
     mask = jump_edges(r, jump_ratio=0.08, jump_min=0.05)
-    assert mask[:, 3].all() and mask[:, 4].all()
-    assert not mask[:, :3].any() and not mask[:, 5:].any()
+    assert mask[:, 4].all()
+    assert not mask[:, :4].any() and not mask[:, 5:].any()
+    vertical = jump_edges(r.T, jump_ratio=0.08, jump_min=0.05)
+    assert vertical[4].all() and vertical.sum() == 4
     # The same 0.5 m step far away (8 m) is within 8 % of the range: not a jump.
     far = r + 6.0
     assert not jump_edges(far, jump_ratio=0.08, jump_min=0.05).any()
