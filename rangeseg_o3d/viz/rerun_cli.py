@@ -107,13 +107,17 @@ def recording_from_args(args: argparse.Namespace, application_id: str = "rangese
     Raises
     ------
     ValueError
-        For ``--stdout`` with another sink, or a ``--save`` path whose directory is missing.
+        For ``--stdout`` with another sink, ``--serve`` with ``--spawn``, or a ``--save``
+        path whose directory is missing.
     """
     if not wants_recording(args):
         return None
     others = [flag for flag in RERUN_FLAGS if flag != "stdout" and getattr(args, flag, None)]
     if getattr(args, "stdout", False) and others:
         raise ValueError(f"--stdout cannot be combined with --{', --'.join(others)}")
+    if getattr(args, "serve", False) and getattr(args, "spawn", False):
+        # Both would bind rerun's default gRPC port; --serve already opens a viewer.
+        raise ValueError("--serve cannot be combined with --spawn (both use port 9876)")
     import rerun as rr
 
     rec = rr.RecordingStream(application_id)

@@ -75,6 +75,8 @@ def test_save_writes_a_readable_rrd_atomically(tmp_path):
 def test_bad_combinations(tmp_path):
     with pytest.raises(ValueError, match="--stdout cannot be combined with --save"):
         recording_from_args(_parse("--stdout", "--save", str(tmp_path / "a.rrd")))
+    with pytest.raises(ValueError, match="--serve cannot be combined with --spawn"):
+        recording_from_args(_parse("--serve", "--spawn"))
     with pytest.raises(ValueError, match="does not exist"):
         recording_from_args(_parse("--save", str(tmp_path / "nope" / "a.rrd")))
     with pytest.raises(TypeError, match="ArgumentParser"):
