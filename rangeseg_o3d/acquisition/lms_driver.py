@@ -1,0 +1,338 @@
+"""Driver for a SICK LMS2xx on a serial line: handshakes, retries, baud detection, scans."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from .errors import DeviceTimeout, LmsDeviceReset, LmsProtocolError
+from .lms2xx import (
+    BAUD_MODES,
+    MODE_INSTALLATION,
+    MODE_ON_REQUEST,
+    MODE_STREAM,
+    PASSWORD,
+    ACK,
+    Ack,
+    BadFrame,
+    Nak,
+    Scan,
+    Telegram,
+    TelegramDecoder,
+    encode_telegram,
+    parse_scan,
+    scan_count,
+)
+from .transport import open_transport, port_name, read_some, sleep
+
+__all__ = ["Lms2xx", "PROBE_ORDER"]
+
+log = logging.getLogger(__name__)
+
+PROBE_ORDER = (9600, 19200, 38400, 500000)
+_RESET_CODES = (0x90, 0x91)
+_UNITS_BYTE = 6  # index of the units byte in the configuration block
+_UNIT_M = {"mm": 0.001, "cm": 0.01}
+
+
+class Lms2xx:
+    """A SICK LMS200/LMS2xx laser scanner.
+
+    Parameters
+    ----------
+    port : str or transport
+        Port name (opened with pyserial at ``initial_baudrate``) or a transport object.
+    initial_baudrate : int
+        Rate to try first (the power-up rate is 9600).
+    timeout : float
+        Seconds of complete silence after which :class:`DeviceTimeout` is raised.
+    reply_timeout : float
+        Seconds to wait for one reply before resending (the LMS answers within 1 s).
+    gap_timeout : float
+        A started but incomplete telegram followed by this much silence is abandoned
+        (a byte was lost) and the request is sent again.
+    nak_delay : float
+        Pause before resending after a NAK (the device needs at least 30 ms).
+    attempts : int
+        Sends per command before giving up with :class:`LmsProtocolError`.
+    settle : float
+        Pause after the host changes its baud rate.
+    """
+
+    def __init__(
+        self,
+        port,
+        *,
+        initial_baudrate: int = 9600,
+        timeout: float = 3.0,
+        reply_timeout: float = 1.0,
+        gap_timeout: float = 0.05,
+        nak_delay: float = 0.03,
+        attempts: int = 10,
+        settle: float = 0.25,
+        config_timeout: float = 15.0,
+    ):
+        if timeout <= 0 or reply_timeout <= 0 or gap_timeout <= 0:
+            raise ValueError(
+                f"timeouts must be positive; got timeout={timeout}, reply_timeout={reply_timeout}, "
+                f"gap_timeout={gap_timeout}"
+            )
+        if attempts < 1:
+            raise ValueError(f"attempts must be >= 1; got {attempts}")
+        self.transport = open_transport(port, baudrate=initial_baudrate, timeout=gap_timeout)
+        self.port = port_name(self.transport) if not isinstance(port, str) else port
+        self.timeout = timeout
+        self.reply_timeout = reply_timeout
+        self.gap_timeout = gap_timeout
+        self.nak_delay = max(0.03, nak_delay)
+        self.attempts = attempts
+        self.settle = settle
+        self.config_timeout = config_timeout
+        self.n_values: int | None = None
+        self.unit: float | None = None
+        self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
+        self._decoder = TelegramDecoder(replies=True)
+
+    # -- low level --------------------------------------------------------------
+    def close(self) -> None:
+        close = getattr(self.transport, "close", None)
+        if callable(close):
+            close()
+
+    def _flush(self) -> None:
+        reset = getattr(self.transport, "reset_input_buffer", None)
+        if callable(reset):
+            reset()
+        self._decoder.clear()
+
+    def _await(self, reply_code: int, reply_timeout: float) -> tuple[str, Telegram | None, bool]:
+        """Wait for one reply: ('reply', t, heard) | ('nak'|'broken'|'silent', None, heard)."""
+        start = time.monotonic()
+        last_rx = None
+        only_ack = True
+        while True:
+            now = time.monotonic()
+            if now - start > reply_timeout:
+                return ("silent" if last_rx is None else "broken"), None, last_rx is not None
+            if last_rx is not None and not only_ack and now - last_rx > self.gap_timeout:
+                return "broken", None, True
+            wait = min(self.gap_timeout, reply_timeout - (now - start))
+            data = read_some(self.transport, max(wait, 0.001))
+            if not data:
+                continue
+            last_rx = time.monotonic()
+            if data.strip(bytes([ACK])):
+                only_ack = False  # a reply has started: from now on a gap means a lost byte
+            self._decoder.feed(data)
+            for event in self._decoder.events():
+                if isinstance(event, Ack):
+                    continue
+                if isinstance(event, Nak):
+                    return "nak", None, True
+                if isinstance(event, BadFrame):
+                    self.stats["bad_frames"] += 1
+                    continue
+                if event.command == reply_code:
+                    return "reply", event, True
+                if event.command in _RESET_CODES:
+                    self.stats["resets"] += 1
+                    raise LmsDeviceReset(
+                        f"LMS on {self.port} sent power-on/reset telegram 0x{event.command:02X}"
+                    )
+                if event.command == 0x92:
+                    raise LmsProtocolError(
+                        f"LMS on {self.port} rejected the request (0x92, data {event.data.hex(' ')})"
+                    )
+                # anything else is a stale reply or a streamed scan: not ours
+
+    def request(
+        self,
+        payload: bytes,
+        reply_code: int | None = None,
+        *,
+        attempts: int | None = None,
+        reply_timeout: float | None = None,
+        timeout: float | None = None,
+    ) -> Telegram:
+        """Send ``payload`` and return the reply telegram, resending after NAK or corruption.
+
+        Raises
+        ------
+        DeviceTimeout
+            Nothing at all came back for ``timeout`` seconds.
+        LmsProtocolError
+            Only invalid answers came back ``attempts`` times.
+        LmsDeviceReset
+            The device announced a power-on / reset.
+        """
+        reply_code = (payload[0] + 0x80) if reply_code is None else reply_code
+        attempts = self.attempts if attempts is None else attempts
+        reply_timeout = self.reply_timeout if reply_timeout is None else reply_timeout
+        timeout = self.timeout if timeout is None else timeout
+        frame = encode_telegram(bytes(payload))
+        silent_since = time.monotonic()
+        for _ in range(attempts):
+            self._flush()
+            self.transport.write(frame)
+            self.stats["sent"] += 1
+            remaining = timeout - (time.monotonic() - silent_since)
+            outcome, telegram, heard = self._await(reply_code, min(reply_timeout, max(remaining, 0.001)))
+            if heard:
+                silent_since = time.monotonic()
+            if outcome == "reply":
+                return telegram
+            self.stats[outcome] += 1
+            if outcome == "nak":
+                sleep(self.nak_delay)
+            elif outcome == "silent" and time.monotonic() - silent_since >= timeout:
+                raise DeviceTimeout(self.port, timeout, "LMS2xx")
+        raise LmsProtocolError(
+            f"no valid 0x{reply_code:02X} reply from the LMS on {self.port} after {attempts} attempts"
+        )
+
+    # -- commands ---------------------------------------------------------------
+    def set_mode(self, mode: int, *, password: bytes = PASSWORD, timeout: float | None = None) -> None:
+        """Operating mode change (0x20); installation mode sends the password."""
+        payload = bytes([0x20, mode]) + (password if mode == MODE_INSTALLATION else b"")
+        reply = self.request(payload, 0xA0, reply_timeout=max(self.reply_timeout, timeout or 0))
+        if not reply.data or reply.data[0] != 0:
+            result = reply.data[0] if reply.data else None
+            raise LmsProtocolError(f"LMS refused mode 0x{mode:02X} (result {result})")
+
+    def device_type(self) -> str:
+        """Type string (0x3A), e.g. 'LMS200;30106'."""
+        return self.request(b"\x3a", 0xBA).data.decode("ascii", "replace").strip("\x00 ")
+
+    def status(self) -> Telegram:
+        """Raw status reply (0x31)."""
+        return self.request(b"\x31", 0xB1)
+
+    def probe(self, baudrate: int, *, reply_timeout: float = 0.2) -> bool:
+        """True if the device answers a harmless 20 25 at ``baudrate`` (also stops a stream)."""
+        self.transport.baudrate = baudrate
+        sleep(min(self.settle, 0.05))
+        try:
+            self.request(bytes([0x20, MODE_ON_REQUEST]), 0xA0, attempts=2, reply_timeout=reply_timeout,
+                         timeout=2 * reply_timeout)
+            return True
+        except (DeviceTimeout, LmsProtocolError):
+            return False
+
+    def detect_baudrate(self, candidates=PROBE_ORDER, *, reply_timeout: float = 0.2) -> int:
+        """Find the rate the device talks at, current host rate first; leaves the host there.
+
+        Raises
+        ------
+        DeviceTimeout
+            No rate got an answer.
+        """
+        current = getattr(self.transport, "baudrate", None)
+        order = [current] + [b for b in candidates if b != current] if current in candidates else list(candidates)
+        for rate in order:
+            if self.probe(rate, reply_timeout=reply_timeout):
+                log.info("LMS on %s answers at %d baud", self.port, rate)
+                return rate
+        raise DeviceTimeout(self.port, reply_timeout * 2 * len(order), f"LMS2xx (probed {order} baud)")
+
+    def set_baudrate(self, baudrate: int) -> None:
+        """Switch device and host to ``baudrate`` (reply comes at the old rate), then verify."""
+        if baudrate not in BAUD_MODES:
+            raise ValueError(f"baudrate must be one of {sorted(BAUD_MODES)}; got {baudrate}")
+        if getattr(self.transport, "baudrate", None) == baudrate:
+            return
+        self.set_mode(BAUD_MODES[baudrate], timeout=3.0)
+        self.transport.baudrate = baudrate
+        sleep(self.settle)
+        self.device_type()
+
+    def set_variant(self, fov: int, resolution: int) -> int:
+        """Scan variant (0x3B): fov 100/180 degrees, resolution in 1/100 degree; returns values per scan."""
+        n = scan_count(fov, resolution)
+        payload = bytes([0x3B, fov & 0xFF, fov >> 8, resolution & 0xFF, resolution >> 8])
+        reply = self.request(payload, 0xBB)
+        if len(reply.data) < 5 or reply.data[0] != 1:
+            raise LmsProtocolError(f"LMS rejected variant {fov} deg / {resolution / 100} deg ({reply.data.hex(' ')})")
+        echo = (reply.data[1] | reply.data[2] << 8, reply.data[3] | reply.data[4] << 8)
+        if echo != (fov, resolution):
+            raise LmsProtocolError(f"LMS confirmed variant {echo}, not {(fov, resolution)}")
+        self.n_values = n
+        return n
+
+    def read_config(self) -> bytes:
+        """The configuration block (0x74 -> 0xF4; 34 bytes, 32 on older firmware)."""
+        cfg = self.request(b"\x74", 0xF4).data
+        if len(cfg) not in (32, 34):
+            raise LmsProtocolError(f"configuration block must have 32 or 34 bytes; got {len(cfg)}")
+        return cfg
+
+    def set_units(self, units: str = "mm") -> None:
+        """Measuring units by read-modify-write of the configuration (skipped when already set)."""
+        if units not in _UNIT_M:
+            raise ValueError(f"units must be 'mm' or 'cm'; got {units!r}")
+        code = 1 if units == "mm" else 0
+        cfg = bytearray(self.read_config())
+        if cfg[_UNITS_BYTE] != code:
+            cfg[_UNITS_BYTE] = code
+            self.set_mode(MODE_INSTALLATION)
+            reply = self.request(b"\x77" + bytes(cfg), 0xF7, reply_timeout=self.config_timeout,
+                                 timeout=self.config_timeout + self.timeout)
+            if not reply.data or reply.data[0] != 1:
+                raise LmsProtocolError("LMS refused the configuration write")
+            self.set_mode(MODE_ON_REQUEST)
+        self.unit = _UNIT_M[units]
+
+    def initialise(self, *, baudrate: int = 38400, fov: int = 180, resolution: int = 100, units: str = "mm") -> None:
+        """Detect the rate, switch to ``baudrate``, send-on-request mode, variant and units."""
+        self.detect_baudrate()
+        self.set_baudrate(baudrate)
+        self.set_mode(MODE_ON_REQUEST)
+        self.set_variant(fov, resolution)
+        self.set_units(units)
+
+    # -- scans ------------------------------------------------------------------
+    def _check(self, telegram: Telegram) -> Scan:
+        return parse_scan(telegram, expected_count=self.n_values, expected_unit=self.unit, index_bytes=None)
+
+    def request_scan(self, *, attempts: int | None = None) -> Scan:
+        """One complete scan (30 01) in send-on-request mode; resent until CRC, count and unit check."""
+        attempts = self.attempts if attempts is None else attempts
+        for _ in range(attempts):
+            telegram = self.request(b"\x30\x01", 0xB0, attempts=attempts)
+            try:
+                return self._check(telegram)
+            except LmsDeviceReset:
+                raise
+            except LmsProtocolError as err:
+                log.debug("scan rejected: %s", err)
+                self.stats["bad_frames"] += 1
+        raise LmsProtocolError(f"no consistent scan from the LMS on {self.port} after {attempts} attempts")
+
+    def start_streaming(self) -> None:
+        """Mode 0x24: the LMS sends every scan (75 Hz at 1 deg) until :meth:`stop_streaming`."""
+        self.set_mode(MODE_STREAM)
+
+    def stop_streaming(self) -> None:
+        self.set_mode(MODE_ON_REQUEST)
+
+    def read_streamed(self, timeout: float) -> tuple[Scan, float] | None:
+        """Next valid streamed scan and the host time its last byte arrived, or None after ``timeout``.
+
+        Corrupted scans are skipped; a power-on telegram raises :class:`LmsDeviceReset`.
+        """
+        deadline = time.monotonic() + timeout
+        while True:
+            for event in self._decoder.events():
+                if isinstance(event, Telegram):
+                    if event.command in _RESET_CODES:
+                        raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
+                    if event.command == 0xB0:
+                        try:
+                            return self._check(event), time.monotonic()
+                        except LmsProtocolError:
+                            self.stats["bad_frames"] += 1
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            data = read_some(self.transport, min(remaining, self.gap_timeout))
+            if data:
+                self._decoder.feed(data)

@@ -1,0 +1,65 @@
+"""Serial transports: open a port by name, or accept any object that behaves like serial.Serial."""
+
+from __future__ import annotations
+
+import time
+
+__all__ = ["open_transport", "port_name", "read_some"]
+
+_REQUIRED = ("read", "write")
+
+
+def open_transport(port, *, baudrate: int, timeout: float = 0.05):
+    """Return a transport for ``port``.
+
+    Parameters
+    ----------
+    port : str or transport
+        A device path / pyserial URL (``"/dev/ttyUSB0"``, ``"loop://"``), opened with
+        pyserial at ``baudrate`` 8N1; or an object with ``read``, ``write``,
+        ``timeout`` and ``baudrate`` (``serial.Serial``, a scripted fake), used as is.
+
+    Raises
+    ------
+    TypeError
+        If ``port`` is neither a string nor a transport-like object.
+    """
+    if isinstance(port, str):
+        import serial  # only drivers that open real ports need pyserial
+
+        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout)
+    missing = [name for name in _REQUIRED if not callable(getattr(port, name, None))]
+    if missing:
+        raise TypeError(
+            "port must be a port name (str) or a transport with read/write/timeout/baudrate; "
+            f"got {type(port).__name__} without {', '.join(missing)}"
+        )
+    return port
+
+
+def port_name(transport) -> str:
+    """A human-readable name for error messages."""
+    name = getattr(transport, "port", None) or getattr(transport, "name", None)
+    return str(name) if name else type(transport).__name__
+
+
+def read_some(transport, wait: float) -> bytes:
+    """Everything that arrives within ``wait`` seconds after the first byte; b"" if nothing.
+
+    Blocks at most ``wait`` seconds for the first byte, then takes what is buffered.
+    """
+    wait = max(0.0, float(wait))
+    if getattr(transport, "timeout", None) != wait:
+        transport.timeout = wait
+    waiting = getattr(transport, "in_waiting", 0) or 0
+    data = transport.read(max(1, waiting))
+    if data:
+        more = getattr(transport, "in_waiting", 0) or 0
+        if more:
+            data += transport.read(more)
+    return bytes(data)
+
+
+def sleep(seconds: float) -> None:
+    if seconds > 0:
+        time.sleep(seconds)
