@@ -141,13 +141,14 @@ class Pipeline:
             log_scan(recording, cloud, result, scan_index=scan_index)
         return result
 
-    def _explain(self, labels, fits, cloud, sigma, candidates, *, keep_failures: bool):
+    def _explain(self, labels, fits, cloud, sigma, candidates, *, keep_failures: bool,
+                 min_share: float = 0.0):
         """Give each candidate region the model most of it lies on; split off the rest.
 
         The inliers of a trimmed fit (:func:`rangeseg_o3d.robust.trimmed_fit`) keep the
         region, restricted to their largest 4-connected piece of the grid; the other pixels
-        are freed for growth. Candidates nothing explains are dropped, or kept as unfitted
-        regions when ``keep_failures``.
+        are freed for growth. Candidates nothing explains, or whose explained share is
+        below ``min_share``, are dropped, or kept as unfitted regions when ``keep_failures``.
         """
         import cv2
 
@@ -170,7 +171,7 @@ class Pipeline:
                     piece = comp[rows - top, cols - left]
                     largest = np.argmax(np.bincount(piece, minlength=n)[1:]) + 1
                     chosen = idx[inliers][piece == largest]
-                    if chosen.size >= min_size:
+                    if chosen.size >= max(min_size, min_share * idx.size):
                         refined = self._refit(xyz_flat[chosen], trimmed)
                         if refined:
                             labels.ravel()[idx] = 0
@@ -204,7 +205,10 @@ class Pipeline:
             min_size = max(int(seg.get("min_region_size", 30)), 10)
             candidates = leftover_candidates(labels, cloud.valid, jumps, min_size=min_size,
                                              first_label=int(labels.max(initial=0)) + 1)
-            labels, fits = self._explain(labels, fits, cloud, sigma, candidates, keep_failures=False)
+            # A blob at a junction of surfaces can pass for a small curved patch; a real
+            # swallowed object makes up most of its blob.
+            labels, fits = self._explain(labels, fits, cloud, sigma, candidates,
+                                         keep_failures=False, min_share=0.7)
         xyz_flat = cloud.xyz.reshape(-1, 3)
         good = {k: m for k, m in fits.items() if m}
         if ref.grow_iterations and good:
@@ -224,6 +228,7 @@ class Pipeline:
                         fits[int(k)] = refit
         if ref.merge:
             labels, fits = self._merge(labels, fits, xyz_flat)
+            labels, fits = self._dissolve(labels, fits, xyz_flat, sigma.ravel())
         return labels, fits
 
     def _merge(self, labels, fits, xyz_flat):
@@ -259,6 +264,54 @@ class Pipeline:
         for k in root:
             lut[k] = find(k)
         return lut[labels], fits
+
+    def _dissolve(self, labels, fits, xyz_flat, sigma_flat):
+        """Hand small regions to the larger neighbours whose surfaces already explain them.
+
+        A blob where two or three surfaces meet can pass for a small curved patch; its kind
+        differs from its neighbours', so the union fits of :meth:`_merge` never see it. When
+        at least 80 % of a small region's points lie within ``k_sigma max(sigma, rms)`` of a
+        larger neighbour's model, each such point joins the neighbour that explains it best
+        and the rest become unlabelled; the neighbours are refitted.
+        """
+        min_size = int(self.config.segmenter.params.get("min_region_size", 30))
+        k_sigma = self.config.refine.k_sigma
+        regions = _region_indices(labels)
+        neighbours: dict[int, set[int]] = {}
+        for a, b in region_adjacency(labels):
+            neighbours.setdefault(a, set()).add(b)
+            neighbours.setdefault(b, set()).add(a)
+        changed = set()
+        for small in sorted(regions, key=lambda k: regions[k].size):
+            idx = regions.get(small)
+            if idx is None or idx.size >= 3 * min_size:
+                continue
+            hosts = [k for k in neighbours.get(small, ()) if k in regions and fits.get(k)
+                     and regions[k].size > idx.size]
+            if not hosts:
+                continue
+            pts = xyz_flat[idx]
+            score = np.stack([
+                np.abs(fits[k].distances(pts)) / np.maximum(sigma_flat[idx], fits[k].rms)
+                for k in hosts
+            ])
+            best = np.argmin(score, axis=0)
+            explained = score[best, np.arange(idx.size)] <= k_sigma
+            if explained.mean() < 0.8:
+                continue
+            new_labels = np.where(explained, np.asarray(hosts)[best], 0)
+            labels.ravel()[idx] = new_labels
+            for k in set(new_labels[explained].tolist()):
+                regions[k] = np.concatenate([regions[k], idx[new_labels == k]])
+                changed.add(k)
+            del regions[small]
+            fits.pop(small, None)
+        for k in changed:
+            if k in regions:
+                refit = self._refit(xyz_flat[regions[k]], fits[k])
+                if refit:
+                    fits[k] = refit
+        return labels, fits
 
     @staticmethod
     def _renumber(labels, fits):

@@ -19,21 +19,24 @@ from .fitting.sphere import fit_sphere
 
 __all__ = ["trimmed_fit"]
 
-_MAD_TO_SIGMA = 1.4826
-
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
-                rounds: int = 2):
+                rounds: int = 4, keep_fraction: float = 0.6):
     """The best-supported model of ``points`` and the mask of its inliers.
+
+    Least trimmed squares by concentration steps: starting from each raw least-squares
+    model (plane, cylinder, sphere), refit on the ``keep_fraction`` of points closest to
+    the current model, ``rounds`` times; then take every point within
+    ``max(3 sigma, 3 rms)`` of it and let ``judge`` decide.
 
     Parameters
     ----------
     points : (N, 3) array.
     judge : the pipeline's fitter, ``judge(points) -> model | FitFailure``.
-    sigma : typical range noise of these points (m); inliers lie within
-        ``max(3 sigma, 3 model.rms)`` of the accepted model.
+    sigma : typical range noise of these points (m).
     min_points : fewer inliers than this is no answer.
-    rounds : trimming rounds per proposal.
+    rounds : concentration steps per proposal.
+    keep_fraction : share of the points kept in each step (the surface must hold more).
 
     Returns
     -------
@@ -42,24 +45,21 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     pts = np.asarray(points, dtype=float)
     if len(pts) < min_points:
         return None, None
+    h = max(int(keep_fraction * len(pts)), min_points)
     best, best_mask = None, None
     for propose in (fit_plane, fit_cylinder, fit_sphere):
         model = propose(pts)
-        if not model:
-            continue
-        keep = np.ones(len(pts), bool)
         for _ in range(rounds):
-            dist = np.abs(model.distances(pts))
-            spread = _MAD_TO_SIGMA * np.median(dist[keep])
-            keep = dist <= max(3.0 * sigma, 2.5 * spread)
-            if keep.sum() < min_points:
-                break
-            model = propose(pts[keep])
             if not model:
                 break
-        if not model or keep.sum() < min_points:
+            closest = np.argpartition(np.abs(model.distances(pts)), h - 1)[:h]
+            model = propose(pts[closest])
+        if not model:
             continue
-        judged = judge(pts[keep])
+        near = np.abs(model.distances(pts)) <= 3.0 * max(sigma, model.rms)
+        if near.sum() < min_points:
+            continue
+        judged = judge(pts[near])
         if not judged:
             continue
         inliers = np.abs(judged.distances(pts)) <= 3.0 * max(sigma, judged.rms)
