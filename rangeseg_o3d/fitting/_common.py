@@ -157,13 +157,21 @@ def refinement_failure(kind: str, converged: bool, max_iterations: int, params, 
     return None
 
 
-def curvature_failure(kind: str, radius: float, arc: float, rms: float, scale: float) -> FitFailure | None:
-    """FitFailure when the curvature over the covered ``arc`` is within the noise.
+def curvature_failure(prep: Prepared, kind: str, radius: float, arc: float, rms: float) -> FitFailure | None:
+    """FitFailure when a curved model does not explain the points better than a plane.
 
-    The sagitta ``r (1 - cos(arc / 2))`` (arc capped at pi) is how far the surface bends
-    away from a plane across the patch; if it is not above the rms, a plane explains the
-    points as well, and a curved model would be a false fitting.
+    Two tests, in the scaled units of ``prep``: the rms must be below the plane's (the
+    smallest scatter eigenvalue gives it for free), and the sagitta
+    ``r (1 - cos(arc / 2))`` (arc capped at pi) -- how far the surface bends away from a
+    plane across the patch -- must exceed the rms, else the curvature is noise and the
+    curved model would be a false fitting.
     """
+    scale = prep.scale
+    plane_rms = float(np.sqrt(max(prep.eigvals[0], 0.0) / len(prep.q)))
+    if rms >= plane_rms:
+        return FitFailure(
+            kind, f"rms {rms * scale:.3g} is no better than a plane's {plane_rms * scale:.3g}"
+        )
     sagitta = radius * (1.0 - np.cos(min(arc, np.pi) / 2.0))
     if sagitta > rms:
         return None

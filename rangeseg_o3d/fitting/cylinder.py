@@ -302,7 +302,7 @@ def fit_cylinder(
     if failure is not None:
         return failure
     rms = float(np.sqrt(res @ res / len(q)))
-    failure = curvature_failure("cylinder", radius, cylinder_arc(q, axis, point), rms, scale)
+    failure = curvature_failure(prep, "cylinder", radius, cylinder_arc(q, axis, point), rms)
     if failure is not None:
         return failure
     return Cylinder(

@@ -69,8 +69,10 @@ def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFai
         return FitFailure("plane", "points are coincident or collinear: the plane is undetermined")
     normal = eigvecs[:, 0] / np.linalg.norm(eigvecs[:, 0])
     normal, d = orient_normal(normal, float(normal @ centroid), float(np.abs(centroid).max() + scale))
-    # the smallest eigenvalue is the residual sum of squares, in scaled units
-    rms = scale * float(np.sqrt(max(eigvals[0], 0.0) / len(prep.points)))
+    # from the distances, not the eigenvalue: the eigenvalue carries an absolute rounding
+    # error of ~1e-16, i.e. a 1e-8 rms floor on exact data
+    heights = prep.q @ normal
+    rms = scale * float(np.sqrt(heights @ heights / len(heights)))
     if prep.inlier_distance is None:
         inliers = len(prep.points)
     else:

@@ -123,7 +123,7 @@ def fit_sphere(
         return failure
     dist = np.linalg.norm(q - center, axis=1) - radius
     rms = float(np.sqrt(dist @ dist / len(q)))
-    failure = curvature_failure("sphere", radius, sphere_cap_angle(q, center), rms, scale)
+    failure = curvature_failure(prep, "sphere", radius, sphere_cap_angle(q, center), rms)
     if failure is not None:
         return failure
     return Sphere(

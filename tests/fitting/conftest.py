@@ -51,7 +51,8 @@ def angle_deg(a, b):
     """Angle between two lines (sign-free), degrees."""
     a = np.asarray(a, float) / np.linalg.norm(a)
     b = np.asarray(b, float) / np.linalg.norm(b)
-    return float(np.degrees(np.arccos(min(1.0, abs(a @ b)))))
+    # atan2 stays exact near 0, where arccos of a dot product loses half the digits
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), abs(a @ b))))
 
 
 def line_distance(point, axis, other):
