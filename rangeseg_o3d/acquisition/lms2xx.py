@@ -237,6 +237,18 @@ class TelegramDecoder:
         length = buf[i + 2] | (buf[i + 3] << 8)
         return (2 if self.replies else 1) <= length <= MAX_PAYLOAD
 
+    def _complete_frame_after(self, i: int) -> int | None:
+        """Start of a later complete, CRC-valid frame, or None."""
+        buf = self._buf
+        j = buf.find(STX, i + 1)
+        while 0 <= j <= len(buf) - _HEADER:
+            if self._header_ok(j):
+                end = j + _HEADER + (buf[j + 2] | (buf[j + 3] << 8)) + 2
+                if end <= len(buf) and crc16(buf[j : end - 2]) == (buf[end - 2] | (buf[end - 1] << 8)):
+                    return j
+            j = buf.find(STX, j + 1)
+        return None
+
     def events(self) -> list:
         """Decode everything decodable so far; incomplete frames stay buffered."""
         out = []
@@ -256,7 +268,11 @@ class TelegramDecoder:
                 continue
             end = i + _HEADER + (buf[i + 2] | (buf[i + 3] << 8)) + 2
             if end > len(buf):
-                break
+                later = self._complete_frame_after(i)
+                if later is None:
+                    break
+                i = later  # the STX at i was garbage that hid a real frame
+                continue
             frame = bytes(buf[i:end])
             crc = crc16(frame[:-2])
             if crc != (frame[-2] | (frame[-1] << 8)):

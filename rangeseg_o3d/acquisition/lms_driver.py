@@ -92,6 +92,7 @@ class Lms2xx:
         self.unit: float | None = None
         self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
         self._decoder = TelegramDecoder(replies=True)
+        self._backlog: list = []  # events decoded after a reply (streamed scans), kept for read_streamed
 
     # -- low level --------------------------------------------------------------
     def close(self) -> None:
@@ -104,6 +105,7 @@ class Lms2xx:
         if callable(reset):
             reset()
         self._decoder.clear()
+        self._backlog = []
 
     def _await(self, reply_code: int, reply_timeout: float) -> tuple[str, Telegram | None, bool]:
         """Wait for one reply: ('reply', t, heard) | ('nak'|'broken'|'silent', None, heard)."""
@@ -124,7 +126,8 @@ class Lms2xx:
             if data.strip(bytes([ACK])):
                 only_ack = False  # a reply has started: from now on a gap means a lost byte
             self._decoder.feed(data)
-            for event in self._decoder.events():
+            events = self._decoder.events()
+            for n, event in enumerate(events):
                 if isinstance(event, Ack):
                     continue
                 if isinstance(event, Nak):
@@ -133,6 +136,7 @@ class Lms2xx:
                     self.stats["bad_frames"] += 1
                     continue
                 if event.command == reply_code:
+                    self._backlog = events[n + 1 :]
                     return "reply", event, True
                 if event.command in _RESET_CODES:
                     self.stats["resets"] += 1
@@ -321,13 +325,16 @@ class Lms2xx:
         """
         deadline = time.monotonic() + timeout
         while True:
-            for event in self._decoder.events():
+            events, self._backlog = self._backlog + self._decoder.events(), []
+            for n, event in enumerate(events):
                 if isinstance(event, Telegram):
                     if event.command in _RESET_CODES:
                         raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
                     if event.command == 0xB0:
                         try:
-                            return self._check(event), time.monotonic()
+                            scan = self._check(event)
+                            self._backlog = events[n + 1 :]
+                            return scan, time.monotonic()
                         except LmsProtocolError:
                             self.stats["bad_frames"] += 1
             remaining = deadline - time.monotonic()

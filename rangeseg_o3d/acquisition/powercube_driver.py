@@ -118,10 +118,19 @@ class PowerCube(TiltUnit):
             raise PowerCubeProtocolError(f"get {name}: expected 4 value bytes; got {reply.data.hex(' ')}")
         return reply.data[2:6]
 
-    def set_float(self, name: str, value: float) -> None:
+    def set_float(self, name: str, value: float, *, verify: bool = True) -> None:
+        """Set a float parameter; with ``verify`` read it back until it holds the value sent.
+
+        The module may not check the BCC, so a corrupted set could store a wrong value.
+        """
         if not math.isfinite(value):
             raise ValueError(f"{name} must be finite; got {value}")
-        self.request(bytes([CMD["set"], PARAM[name]]) + pack_float(value))
+        wanted = pack_float(value)
+        for _ in range(self.attempts):
+            self.request(bytes([CMD["set"], PARAM[name]]) + wanted)
+            if not verify or self.get_param(name) == wanted:
+                return
+        raise PowerCubeProtocolError(f"PowerCube on {self.port} does not keep {name} = {value}")
 
     def state(self) -> int:
         """The u32 state word (bits in :data:`~rangeseg_o3d.acquisition.powercube.STATE`)."""

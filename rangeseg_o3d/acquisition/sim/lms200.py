@@ -59,12 +59,14 @@ class VirtualLms200:
         Power-cycle (power-on telegram at 9600 baud, defaults restored) on this scan request.
     silent : bool
         Answer nothing.
+    silent_after_scans : int, optional
+        Fall silent for good (unplugged) on this scan request.
     seed : int
     """
 
     def __init__(self, clock: SimClock, scene=None, *, row_ranges=None, tilt_at, mount_offset=(0.0, 0.0, 0.0), tilt_sign=1.0,
                  noise: float = 0.0, nak_rate: float = 0.0, reset_after_scans: int | None = None,
-                 silent: bool = False, seed: int = 0):
+                 silent: bool = False, silent_after_scans: int | None = None, seed: int = 0):
         self.clock = clock
         if (scene is None) == (row_ranges is None):
             raise ValueError("give exactly one of scene and row_ranges")
@@ -77,6 +79,7 @@ class VirtualLms200:
         self.nak_rate = float(nak_rate)
         self.reset_after_scans = reset_after_scans
         self.silent = silent
+        self.silent_after_scans = silent_after_scans
         self.seed = seed
         self.rng = np.random.default_rng(seed)
         self.config = bytearray(34)  # EEPROM: survives a power cycle; units byte 6 = 0 (cm)
@@ -161,6 +164,9 @@ class VirtualLms200:
         cmd, data = t.command, t.data
         if cmd == 0x30 and data[:1] == b"\x01":
             self.scan_requests += 1
+            if self.silent_after_scans is not None and self.scan_requests >= self.silent_after_scans:
+                self.silent = True
+                return []
             if self.reset_after_scans is not None and self.scan_requests == self.reset_after_scans:
                 return self._power_cycle()
             now = self.clock.now()

@@ -1,0 +1,207 @@
+"""One scripted exchange per LMS2xx command, plus NAK, corruption, reset and silence handling."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.acquisition import lms_driver
+from rangeseg_o3d.acquisition.errors import DeviceTimeout, LmsDeviceReset, LmsProtocolError
+from rangeseg_o3d.acquisition.lms2xx import encode_scan_values, encode_telegram
+from rangeseg_o3d.acquisition.lms_driver import Lms2xx
+
+ACK, NAK = b"\x06", b"\x15"
+
+
+def req(hexstr):
+    return encode_telegram(bytes.fromhex(hexstr))
+
+
+def rep(hexstr, status=0x10):
+    return encode_telegram(bytes.fromhex(hexstr) + bytes([status]), 0x80)
+
+
+def make(scripted, script, **kw):
+    transport = scripted(script, **{k: kw.pop(k) for k in ("baudrate",) if k in kw})
+    return transport, Lms2xx(transport, timeout=kw.pop("timeout", 0.3), reply_timeout=kw.pop("reply_timeout", 0.1),
+                             gap_timeout=0.01, settle=0.0, **kw)
+
+
+def test_mode_change_golden_reply(scripted):
+    _, lms = make(scripted, [(bytes.fromhex("02 00 02 00 20 25 35 08"),
+                              ACK + bytes.fromhex("02 81 03 00 A0 00 10 36 1A"))])
+    lms.set_mode(0x25)
+
+
+def test_installation_mode_sends_password(scripted):
+    wire = bytes.fromhex("02 00 0A 00 20 00 53 49 43 4B 5F 4C 4D 53 BE C5")
+    _, lms = make(scripted, [(wire, ACK + rep("A0 00"))])
+    lms.set_mode(0x00)
+
+
+def test_refused_mode_raises(scripted):
+    _, lms = make(scripted, [(req("20 24"), ACK + rep("A0 01"))])
+    with pytest.raises(LmsProtocolError, match="refused"):
+        lms.set_mode(0x24)
+
+
+def test_device_type_and_status(scripted):
+    _, lms = make(scripted, [(req("3A"), ACK + rep("BA" + b"LMS200;30106".hex())),
+                             (req("31"), ACK + rep("B1 01 02"))])
+    assert lms.device_type() == "LMS200;30106"
+    assert lms.status().data == b"\x01\x02"
+
+
+def test_variant(scripted):
+    _, lms = make(scripted, [(bytes.fromhex("02 00 05 00 3B 64 00 19 00 E7 72"), ACK + rep("BB 01 64 00 19 00"))])
+    assert lms.set_variant(100, 25) == 401 and lms.n_values == 401
+
+
+def test_variant_rejected(scripted):
+    _, lms = make(scripted, [(req("3B B4 00 32 00"), ACK + rep("BB 00 B4 00 32 00"))])
+    with pytest.raises(LmsProtocolError, match="rejected"):
+        lms.set_variant(180, 50)
+
+
+def test_impossible_variant_is_value_error(scripted):
+    _, lms = make(scripted, [])
+    with pytest.raises(ValueError, match="fov, resolution"):
+        lms.set_variant(180, 25)
+
+
+def test_units_read_modify_write(scripted):
+    cfg = bytes(34)
+    new = bytearray(cfg)
+    new[6] = 1
+    _, lms = make(scripted, [
+        (req("74"), ACK + rep("F4" + cfg.hex())),
+        (req("20 00 53 49 43 4B 5F 4C 4D 53"), ACK + rep("A0 00")),
+        (req("77" + new.hex()), ACK + rep("F7 01" + new.hex())),
+        (req("20 25"), ACK + rep("A0 00")),
+    ])
+    lms.set_units("mm")
+    assert lms.unit == 0.001
+
+
+def test_units_already_set_only_reads(scripted):
+    cfg = bytearray(32)
+    cfg[6] = 1
+    _, lms = make(scripted, [(req("74"), ACK + rep("F4" + cfg.hex()))])
+    lms.set_units("mm")
+
+
+def test_baud_switch_reply_at_old_rate_then_verify(scripted):
+    transport, lms = make(scripted, [(bytes.fromhex("02 00 02 00 20 48 58 08"), ACK + rep("A0 00")),
+                                     (req("3A"), ACK + rep("BA 4C 4D 53"))])
+    lms.set_baudrate(500000)
+    assert transport.baud_at_write == [9600, 500000] and transport.baudrate == 500000
+
+
+def test_baud_detection_probes_until_an_answer(scripted):
+    probe = bytes.fromhex("02 00 02 00 20 25 35 08")
+    transport, lms = make(scripted, [(probe, b""), (probe, b""), (probe, b""), (probe, b""),
+                                     (probe, ACK + rep("A0 00"))])
+    assert lms.detect_baudrate(reply_timeout=0.02) == 38400
+    assert transport.baud_at_write == [9600, 9600, 19200, 19200, 38400]
+
+
+def test_baud_detection_silent_device(scripted):
+    probe = req("20 25")
+    _, lms = make(scripted, [(probe, b"")] * 8)
+    with pytest.raises(DeviceTimeout, match="scripted"):
+        lms.detect_baudrate(reply_timeout=0.01)
+
+
+def test_request_one_scan(scripted):
+    ranges = np.array([1.0, 2.5, np.nan])
+    _, lms = make(scripted, [(bytes.fromhex("02 00 02 00 30 01 31 18"),
+                              ACK + encode_telegram(encode_scan_values(ranges), 0x80))])
+    lms.n_values, lms.unit = 3, 0.001
+    scan = lms.request_scan()
+    np.testing.assert_allclose(scan.ranges, ranges)
+
+
+def test_nak_waits_at_least_30ms_then_resends(scripted, monkeypatch):
+    pauses = []
+    monkeypatch.setattr(lms_driver, "sleep", pauses.append)
+    _, lms = make(scripted, [(req("31"), NAK), (req("31"), ACK + rep("B1 00"))])
+    lms.status()
+    assert pauses == [pytest.approx(0.03)] and lms.stats["nak"] == 1
+
+
+def test_corrupted_reply_is_resent_and_garbage_skipped(scripted):
+    good = rep("BA 41")
+    bad = bytearray(good)
+    bad[5] ^= 0xFF
+    _, lms = make(scripted, [(req("3A"), ACK + bytes(bad)), (req("3A"), b"\x00\x7f\x02\x99" + ACK + good)])
+    assert lms.device_type() == "A"
+    assert lms.stats["bad_frames"] == 1
+
+
+def test_truncated_reply_abandoned_after_gap(scripted):
+    good = rep("BA 41")
+    _, lms = make(scripted, [(req("3A"), ACK + good[:-3]), (req("3A"), ACK + good)])
+    assert lms.device_type() == "A" and lms.stats["broken"] == 1
+
+
+def test_power_on_telegram_raises_reset(scripted):
+    _, lms = make(scripted, [(req("30 01"), rep("90 4C 4D 53"))])
+    with pytest.raises(LmsDeviceReset):
+        lms.request_scan()
+
+
+def test_wrong_count_never_accepted(scripted):
+    short = encode_telegram(encode_scan_values(np.ones(5)), 0x80)
+    _, lms = make(scripted, [(req("30 01"), ACK + short)] * 2)
+    lms.n_values, lms.unit = 181, 0.001
+    with pytest.raises(LmsProtocolError, match="consistent scan"):
+        lms.request_scan(attempts=2)
+
+
+def test_wrong_unit_never_accepted(scripted):
+    cm = encode_telegram(encode_scan_values(np.ones(3), unit=0.01), 0x80)
+    _, lms = make(scripted, [(req("30 01"), ACK + cm)])
+    lms.n_values, lms.unit = 3, 0.001
+    with pytest.raises(LmsProtocolError):
+        lms.request_scan(attempts=1)
+
+
+def test_silent_device_times_out_naming_the_port(scripted):
+    _, lms = make(scripted, [(req("31"), b"")] * 3, timeout=0.05, reply_timeout=0.02)
+    with pytest.raises(DeviceTimeout, match="scripted") as info:
+        lms.status()
+    assert info.value.port == "scripted"
+
+
+def test_rejection_0x92(scripted):
+    _, lms = make(scripted, [(req("30 01"), ACK + rep("92 30"))])
+    with pytest.raises(LmsProtocolError, match="rejected"):
+        lms.request_scan()
+
+
+def test_streaming(scripted):
+    scans = b"".join(encode_telegram(encode_scan_values(np.full(2, r)), 0x80) for r in (1.0, 2.0))
+    _, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00") + scans), (req("20 25"), ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    # the mode reply and the first scans arrived together: the scans are kept for read_streamed
+    first, _ = lms.read_streamed(0.05)
+    second, _ = lms.read_streamed(0.05)
+    assert first.ranges.tolist() == [1.0, 1.0] and second.ranges.tolist() == [2.0, 2.0]
+    assert lms.read_streamed(0.01) is None
+    lms.stop_streaming()
+
+
+def test_loop_transport_own_echo_is_not_a_reply():
+    serial = pytest.importorskip("serial")
+    port = serial.serial_for_url("loop://", timeout=0.01)
+    lms = Lms2xx(port, timeout=0.05, reply_timeout=0.02, gap_timeout=0.01)
+    with pytest.raises((DeviceTimeout, LmsProtocolError)):
+        lms.status()
+
+
+def test_bad_arguments(scripted):
+    with pytest.raises(TypeError, match="transport"):
+        Lms2xx(42)
+    with pytest.raises(ValueError, match="timeouts"):
+        Lms2xx(scripted([]), timeout=0)
+    with pytest.raises(ValueError, match="baudrate"):
+        Lms2xx(scripted([])).set_baudrate(115200)
