@@ -20,7 +20,7 @@ import numpy as np
 
 from ..cloud import OrganizedCloud
 from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_points
-from . import load_cloud
+from .pcd import read_pcd_grid
 
 __all__ = [
     "RealCloud",
@@ -169,9 +169,14 @@ def estimate_pinhole(xyz: np.ndarray) -> PinholeGeometry | None:
         return None
     params = []
     for ratio, pixel in ((x / z, cols), (y / z, rows)):
-        design = np.column_stack([ratio, np.ones_like(ratio)])
-        (f, c), *_ = np.linalg.lstsq(design, pixel, rcond=None)
-        if not f > 0 or np.abs(design @ (f, c) - pixel).max() > _PINHOLE_TOLERANCE_PX:
+        # Closed-form simple linear regression pixel = f * ratio + c.
+        ratio_centred = ratio - ratio.mean()
+        spread = np.dot(ratio_centred, ratio_centred)
+        if not spread > 0:
+            return None
+        f = np.dot(ratio_centred, pixel - pixel.mean()) / spread
+        c = pixel.mean() - f * ratio.mean()
+        if not f > 0 or np.abs(f * ratio + c - pixel).max() > _PINHOLE_TOLERANCE_PX:
             return None
         params.append((f, c))
     (fx, cx), (fy, cy) = params
@@ -183,11 +188,9 @@ def load_pcd(path) -> OrganizedCloud:
 
     Same as :func:`rangeseg_o3d.io.load_cloud` plus :func:`estimate_pinhole`.
     """
-    cloud = load_cloud(path)
-    geometry = estimate_pinhole(cloud.xyz) if cloud.shape[0] > 1 else None
-    if geometry is None:
-        return cloud
-    return OrganizedCloud(cloud.xyz, intensity=cloud.intensity, geometry=geometry)
+    xyz, intensity = read_pcd_grid(path)
+    geometry = estimate_pinhole(xyz) if xyz.shape[0] > 1 else None
+    return OrganizedCloud(xyz, intensity=intensity, geometry=geometry)
 
 
 def load_cape_depth(depth_png, calib_xml) -> OrganizedCloud:
@@ -260,8 +263,8 @@ def load_andreashaus(path, *, unit: float = 0.01) -> OrganizedCloud:
     The file's coordinates are in cm (the room spans a few hundred units) and
     not centred on the scanner; no sensor geometry is attached.
     """
-    cloud = load_cloud(path)
-    return OrganizedCloud(cloud.xyz * unit, intensity=cloud.intensity)
+    xyz, intensity = read_pcd_grid(path)
+    return OrganizedCloud(xyz * unit, intensity=intensity)
 
 
 # -- the catalogue --------------------------------------------------------------------

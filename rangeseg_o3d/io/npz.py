@@ -22,7 +22,7 @@ NPZ_FORMAT_VERSION = 1
 _OPTIONAL_GRIDS = ("ranges", "intensity")
 
 
-def save_npz(cloud: OrganizedCloud, path, *, compress: bool = True) -> Path:
+def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
     """Write ``cloud`` to a ``.npz`` file atomically.
 
     Keys: ``format_version``, ``xyz`` (H, W, 3) float64, and when present
@@ -36,7 +36,8 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = True) -> Path:
     path : str or os.PathLike
         Written exactly as given (no ``.npz`` is appended).
     compress : bool
-        Deflate the arrays (smaller files, slower writes).
+        Deflate the arrays: about 20 % smaller for a noisy VGA cloud but some
+        25 times slower to write (``scripts/bench_io.py``), hence off by default.
 
     Returns
     -------

@@ -1,7 +1,10 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.io.lzf import lzf_compress, lzf_decompress
+from rangeseg_o3d.io.lzf import have_c_lzf, lzf_compress, lzf_decompress
+
+BACKENDS = ["python", pytest.param("c", marks=pytest.mark.skipif(
+    not have_c_lzf(), reason="python-lzf not installed"))]
 
 
 @pytest.mark.parametrize(
@@ -16,21 +19,31 @@ from rangeseg_o3d.io.lzf import lzf_compress, lzf_decompress
         np.full(2000, np.nan, np.float32).tobytes() + np.arange(500, dtype=np.float32).tobytes(),
     ],
 )
-def test_round_trip(payload):
-    assert lzf_decompress(lzf_compress(payload), len(payload)) == payload
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_round_trip(payload, backend):
+    packed = lzf_compress(payload, backend=backend)
+    assert lzf_decompress(packed, len(payload), backend=backend) == payload
+    # Both decoders read both encoders' streams.
+    assert lzf_decompress(packed, len(payload), backend="python") == payload
 
 
-def test_hand_built_stream():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_hand_built_stream(backend):
     # literal "abc", back-reference of length 3 at distance 3, overlapping ref of length 9+1 at distance 1
     stream = bytes([2]) + b"abc" + bytes([0x20, 0x02]) + bytes([0xE0, 0x01, 0x00])
-    assert lzf_decompress(stream, 6 + 10) == b"abcabc" + b"c" * 10
+    assert lzf_decompress(stream, 6 + 10, backend=backend) == b"abcabc" + b"c" * 10
 
 
 def test_long_reference_uses_extra_length_byte():
     payload = b"xy" * 300
-    compressed = lzf_compress(payload)
+    compressed = lzf_compress(payload, backend="python")
     assert len(compressed) < 20
-    assert lzf_decompress(compressed, len(payload)) == payload
+    assert lzf_decompress(compressed, len(payload), backend="python") == payload
+
+
+def test_unknown_backend():
+    with pytest.raises(ValueError, match="backend must be one of"):
+        lzf_decompress(b"", 0, backend="zstd")
 
 
 @pytest.mark.parametrize(
@@ -38,11 +51,13 @@ def test_long_reference_uses_extra_length_byte():
     [
         (bytes([5]) + b"abc", 6, "truncated"),
         (bytes([0x20]), 3, "truncated"),
-        (bytes([0x20, 0x05]), 3, "before the start"),
+        (bytes([0x20, 0x05]), 3, "before the start|corrupt"),
         (bytes([2]) + b"abc", 5, "decompresses to 3 bytes but 5"),
-        (bytes([2]) + b"abc", 2, "more than the declared 2"),
+        (bytes([2]) + b"abc", 2, "3 bytes but 2|more than the declared 2"),
+        (bytes([2]) + b"abc" + bytes([0xE0, 0xFF, 0x00]), 3, "but 3|more than the declared 3"),
     ],
 )
-def test_corrupt_streams_raise(stream, out_len, message):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_corrupt_streams_raise(stream, out_len, message, backend):
     with pytest.raises(ValueError, match=message):
-        lzf_decompress(stream, out_len)
+        lzf_decompress(stream, out_len, backend=backend)

@@ -38,9 +38,9 @@ def test_round_trip_pinhole_and_method_api(tmp_path, pinhole_cloud):
     assert back.n_valid == 6 * 8 - 3
 
 
-def test_round_trip_bare_cloud_uncompressed(tmp_path, random_xyz):
+def test_round_trip_bare_cloud_compressed(tmp_path, random_xyz):
     cloud = OrganizedCloud(random_xyz(3, 2, nan_pixels=((2, 1),)))
-    save_npz(cloud, tmp_path / "bare.npz", compress=False)
+    save_npz(cloud, tmp_path / "bare.npz", compress=True)
     back = load_npz(tmp_path / "bare.npz")
     _assert_same_cloud(cloud, back)
     assert back.geometry is None

@@ -5,7 +5,7 @@ import pytest
 
 from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.io import load_cloud, read_pcd, save_cloud, write_pcd
-from rangeseg_o3d.io.lzf import lzf_compress
+from rangeseg_o3d.io.lzf import have_c_lzf, lzf_compress, lzf_decompress
 from rangeseg_o3d.io.pcd import parse_pcd_header, read_pcd_fields
 
 
@@ -33,7 +33,7 @@ def _compressed_payload(columns: list[np.ndarray]) -> bytes:
 
 # -- round trips ---------------------------------------------------------------------
 
-@pytest.mark.parametrize("data", ["binary", "ascii"])
+@pytest.mark.parametrize("data", ["binary", "binary_compressed", "ascii"])
 def test_round_trip_organized_with_nan(tmp_path, random_xyz, data):
     xyz = random_xyz(5, 7, nan_pixels=((0, 0), (4, 6), (2, 2))).astype(np.float32)
     cloud = OrganizedCloud(xyz, intensity=np.arange(35, dtype=np.float32).reshape(5, 7))
@@ -58,7 +58,7 @@ def test_round_trip_float64_through_save_load(tmp_path, random_xyz):
 def test_writer_rejects_bad_options(tmp_path, random_xyz):
     cloud = OrganizedCloud(random_xyz(2, 2, nan_pixels=()))
     with pytest.raises(ValueError, match="data must be"):
-        write_pcd(cloud, tmp_path / "x.pcd", data="binary_compressed")
+        write_pcd(cloud, tmp_path / "x.pcd", data="binary_lzma")
     with pytest.raises(ValueError, match="precision"):
         write_pcd(cloud, tmp_path / "x.pcd", precision="float16")
     assert not (tmp_path / "x.pcd").exists()
@@ -198,3 +198,13 @@ def test_shared_kinect_files_back_project_exactly(shared_file, name, f, c):
     x, y, z = cloud.xyz[rows, cols].T
     assert np.abs(f * x / z + c[0] - cols).max() < 0.05
     assert np.abs(f * y / z + c[1] - rows).max() < 0.05
+
+
+@pytest.mark.skipif(not have_c_lzf(), reason="python-lzf not installed")
+def test_shared_compressed_file_same_with_both_lzf_backends(shared_file):
+    raw = shared_file("pcl/table_scene_mug_stereo_textured.pcd").read_bytes()
+    header = parse_pcd_header(raw)
+    compressed_size, raw_size = struct.unpack("<II", raw[header.data_offset:header.data_offset + 8])
+    stream = raw[header.data_offset + 8:header.data_offset + 8 + compressed_size]
+    assert lzf_decompress(stream, raw_size, backend="python") == lzf_decompress(
+        stream, raw_size, backend="c")
