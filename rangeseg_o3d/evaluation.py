@@ -313,9 +313,9 @@ class Evaluation:
 
     def table1(self) -> dict:
         """The paper's Table 1 columns: features, under/over-segmentation (count and % of
-        extracted features), false fittings."""
+        extracted features; NaN when no feature was extracted), false fittings."""
         n = self.n_features
-        pct = (lambda k: 100.0 * k / n) if n else (lambda k: 0.0)
+        pct = (lambda k: 100.0 * k / n) if n else (lambda k: float("nan"))
         return {
             "features": n,
             "under": self.hoover.n_under,

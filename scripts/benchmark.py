@@ -125,9 +125,9 @@ def summarise(rows: list[dict], time_target_ms: float) -> dict:
         "table1": {
             "features": features,
             "under": counts["under"],
-            "under_pct": 100.0 * counts["under"] / features if features else 0.0,
+            "under_pct": 100.0 * counts["under"] / features if features else float("nan"),
             "over": counts["over"],
-            "over_pct": 100.0 * counts["over"] / features if features else 0.0,
+            "over_pct": 100.0 * counts["over"] / features if features else float("nan"),
             "false_fittings": false_fittings,
         },
         "median_normal_error_deg": normal,
@@ -211,8 +211,8 @@ def print_synthetic(title: str, rows: list[dict], summary: dict) -> None:
           f"{h['noise']:>5}{_fmt(h['percent_correct'], '.1f'):>7}{t['features']:>5}{t['false_fittings']:>4}"
           f"{_fmt(s['median_normal_error_deg'], '.3f'):>8}{_fmt(s['median_radius_error_cm'], '.2f'):>9}"
           f"{_fmt(s['median_scan_ms'], '.1f'):>8}  (worst scan {_fmt(s['worst_scan_ms'], '.1f')} ms)")
-    print(f"Table 1: features {t['features']}, under-segmentation {t['under']} ({t['under_pct']:.1f} %), "
-          f"over-segmentation {t['over']} ({t['over_pct']:.1f} %), false fittings {t['false_fittings']}")
+    print(f"Table 1: features {t['features']}, under-segmentation {t['under']} ({_fmt(t['under_pct'], '.1f')} %), "
+          f"over-segmentation {t['over']} ({_fmt(t['over_pct'], '.1f')} %), false fittings {t['false_fittings']}")
     print(f"medians: plane normal {_fmt(s['median_normal_error_deg'], '.3f')} deg, plane offset "
           f"{_fmt(s['median_offset_error_cm'])} cm, sphere radius {_fmt(s['median_sphere_radius_error_cm'])} cm, "
           f"cylinder radius {_fmt(s['median_cylinder_radius_error_cm'])} cm, cylinder axis "

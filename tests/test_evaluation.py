@@ -177,5 +177,8 @@ def test_evaluate_errors_false_fittings_and_table1():
     ev2 = evaluate(scan, Result(labels=labels, features=features[:1]))
     assert ev2.unfitted_correct == [2, 3] and ev2.false_fittings == 0
     assert ev2.to_dict()["hoover"]["correct"] == 3
+    # No feature extracted: the percentages are undefined, reported as NaN.
+    ev3 = evaluate(scan, Result(labels=np.full_like(labels, 1), features=[]))
+    assert ev3.table1()["under"] == 1 and np.isnan(ev3.table1()["under_pct"])
     with pytest.raises(TypeError):
         evaluate(object(), Result(labels=labels, features=[]))
