@@ -208,3 +208,12 @@ def test_shared_compressed_file_same_with_both_lzf_backends(shared_file):
     stream = raw[header.data_offset + 8:header.data_offset + 8 + compressed_size]
     assert lzf_decompress(stream, raw_size, backend="python") == lzf_decompress(
         stream, raw_size, backend="c")
+
+
+def test_crlf_header_and_nan_spellings(tmp_path):
+    header = (b"# comment\r\nVERSION 0.7\r\nFIELDS x y z\r\nSIZE 4 4 4\r\nTYPE F F F\r\nCOUNT 1 1 1\r\n"
+              b"WIDTH 3\r\nHEIGHT 1\r\nPOINTS 3\r\nDATA ascii\r\n")
+    (tmp_path / "w.pcd").write_bytes(header + b"-nan -nan -nan\r\n1 2 3\r\nNaN inf 1\r\n")
+    cloud = read_pcd(tmp_path / "w.pcd")
+    assert cloud.shape == (1, 3) and cloud.n_valid == 1
+    np.testing.assert_array_equal(cloud.xyz[0, 1], [1, 2, 3])
