@@ -89,13 +89,19 @@ def check_tolerance(value, name: str) -> float | None:
     return value
 
 
-def levenberg_marquardt(state, evaluate, apply, max_iterations: int):
+# A radius above this many times the rms spread of the points means a cap of under
+# ~0.1 deg: the points are flat, and Levenberg-Marquardt would chase r -> infinity.
+RADIUS_LIMIT = 1e3
+
+
+def levenberg_marquardt(state, evaluate, apply, max_iterations: int, abandon=None):
     """Minimise ``sum(res**2)`` by Levenberg-Marquardt; returns ``(state, res, converged)``.
 
     ``evaluate(state) -> (res (N,), jac (N, k))`` and ``apply(state, step) -> state``
     let each model choose its own parametrisation (the cylinder re-linearises in a
     frame aligned with its current axis). Converged means the step or the relative cost
-    decrease fell to rounding level.
+    decrease fell to rounding level. ``abandon(state) -> bool``, checked after each
+    accepted step, stops a hopeless run early (not converged).
     """
     res, jac = evaluate(state)
     cost = float(res @ res)
@@ -123,6 +129,8 @@ def levenberg_marquardt(state, evaluate, apply, max_iterations: int):
             damping = max(damping * 0.1, 1e-9)
             if decrease <= 1e-12 * cost + 1e-30:
                 return state, res, True
+            if abandon is not None and abandon(state):
+                return state, res, False
         elif t_cost - cost <= 1e-12 * cost + 1e-30:
             # no better point within rounding: at the minimum
             return state, res, True
@@ -150,6 +158,8 @@ class Prepared:
 
 def refinement_failure(kind: str, converged: bool, max_iterations: int, params, radius: float) -> FitFailure | None:
     """FitFailure when Levenberg-Marquardt did not converge or left non-finite/negative values."""
+    if np.isfinite(radius) and radius > RADIUS_LIMIT:
+        return FitFailure(kind, f"radius grew beyond {RADIUS_LIMIT:g}x the patch size: the points are nearly flat")
     if not converged:
         return FitFailure(kind, f"geometric refinement did not converge in {max_iterations} iterations")
     if not (np.all(np.isfinite(params)) and np.isfinite(radius)) or radius <= 0:

@@ -10,7 +10,11 @@ Rule (:func:`fit_primitive`):
    within its threshold, its radius is at most ``max_radius``, the points cover an arc
    (cylinder cross-section) or cap (sphere) of at least ``min_arc_deg`` -- which bounds
    the radius relative to the patch extent -- and it lowers the plane's rms by at least
-   ``curvature_gain``. Of the acceptable ones the lower rms wins.
+   ``curvature_gain``. The principal curvatures of the quadric (step 2) say which
+   model to try first: ratio <= 0.35 cylinder, >= 0.65 sphere; if that one is
+   acceptable it is kept without trying the other (saves the slow fit of the wrong
+   model). Otherwise, or for ratios in between, both are tried and of the acceptable
+   ones the lower rms wins.
 4. No acceptable curved model: the plane if it passed step 2's rms test, else a
    FitFailure listing why each model was refused.
 
@@ -33,17 +37,23 @@ from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import fit_plane
 from .sphere import fit_sphere, sphere_cap_angle
 
-__all__ = ["fit_primitive", "PrimitiveFitterConfig", "PLUGIN", "curvature_gain_of"]
+__all__ = ["fit_primitive", "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
 
 INLIER_FACTOR = 3.0
 """Points within INLIER_FACTOR x the kind's rms threshold count as inliers."""
 
+ROUNDNESS_CYLINDER = 0.35
+ROUNDNESS_SPHERE = 0.65
+"""Principal-curvature ratios below/above which the patch is taken for a cylinder/sphere first."""
 
-def curvature_gain_of(points: np.ndarray, plane: Plane) -> float:
-    """How much a quadratic height field over ``plane`` lowers the rms (plane rms / quadric rms).
 
-    About 1 for a flat patch whatever its noise; clearly above 1 for a curved one. inf
-    when the quadric explains the points exactly but the plane does not.
+def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
+    """Fit a quadratic height field over ``plane``: ``(gain, roundness)``.
+
+    ``gain`` is how much the quadric lowers the rms (plane rms / quadric rms): about 1
+    for a flat patch whatever its noise, clearly above 1 for a curved one, inf when the
+    quadric is exact but the plane is not. ``roundness`` is the ratio of the smaller to
+    the larger principal curvature magnitude: near 0 for a cylinder, near 1 for a sphere.
     """
     pts = np.asarray(points, float)
     centred = pts - pts.mean(axis=0)
@@ -53,15 +63,24 @@ def curvature_gain_of(points: np.ndarray, plane: Plane) -> float:
     e1 = np.cross(plane.normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(plane.normal, e1)
-    x, y = centred @ e1, centred @ e2
+    in_plane = centred @ np.column_stack([e1, e2])
+    spread = float(np.sqrt((in_plane * in_plane).sum() / len(pts))) or 1.0
+    x, y = (in_plane / spread).T  # unit spread keeps the 6x6 normal equations well conditioned
     design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
-    coef, *_ = np.linalg.lstsq(design, height, rcond=None)
+    try:
+        coef = np.linalg.solve(design.T @ design, design.T @ height)
+    except np.linalg.LinAlgError:  # points on a conic: no quadric height field to compare
+        return 1.0, 0.5
     residual = height - design @ coef
     quad_ms = float(residual @ residual) / len(pts)
     plane_ms = float(height @ height) / len(pts)
     if quad_ms <= 0.0:
-        return np.inf if plane_ms > 0.0 else 1.0
-    return float(np.sqrt(plane_ms / quad_ms))
+        gain = np.inf if plane_ms > 0.0 else 1.0
+    else:
+        gain = float(np.sqrt(plane_ms / quad_ms))
+    curvatures = np.abs(np.linalg.eigvalsh([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]))
+    roundness = float(curvatures.min() / curvatures.max()) if curvatures.max() > 0 else 0.5
+    return gain, roundness
 
 
 def _judge_curved(model, points, plane, tolerance, max_radius, min_arc, curvature_gain):
@@ -146,22 +165,33 @@ def fit_primitive(
     if not plane:
         return FitFailure("primitive", f"plane: {plane.reason}")
     plane_ok = plane.rms <= plane_tol
-    # A plane within tolerance is kept unless the patch is visibly curved; the floor
-    # keeps rounding-level residuals of exact planes from looking "curved".
-    if plane_ok and (plane.rms <= 0.1 * plane_tol or curvature_gain_of(pts, plane) < curvature_gain):
+    # The floor keeps rounding-level residuals of exact planes from looking "curved".
+    gain, roundness = quadric_shape(pts, plane) if plane.rms > 0.1 * plane_tol else (1.0, 0.5)
+    if plane_ok and gain < curvature_gain:
         return plane
 
     min_arc = np.radians(min_arc_deg)
     reasons = [] if plane_ok else [f"plane rms {plane.rms:.3g} > {plane_tol:.3g}"]
+    fitters = {
+        "cylinder": lambda: fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * cylinder_tol),
+        "sphere": lambda: fit_sphere(pts, inlier_distance=INLIER_FACTOR * sphere_tol),
+    }
+    tolerances = {"cylinder": cylinder_tol, "sphere": sphere_tol}
+    # Principal curvatures pick the likely model: tried first, the other only if it fails.
+    if roundness <= ROUNDNESS_CYLINDER:
+        order, decisive = ("cylinder", "sphere"), True
+    elif roundness >= ROUNDNESS_SPHERE:
+        order, decisive = ("sphere", "cylinder"), True
+    else:
+        order, decisive = ("cylinder", "sphere"), False
     accepted = []
-    candidates = (
-        (fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * cylinder_tol), cylinder_tol),
-        (fit_sphere(pts, inlier_distance=INLIER_FACTOR * sphere_tol), sphere_tol),
-    )
-    for model, tolerance in candidates:
-        why = _judge_curved(model, pts, plane, tolerance, max_radius, min_arc, curvature_gain)
+    for kind in order:
+        model = fitters[kind]()
+        why = _judge_curved(model, pts, plane, tolerances[kind], max_radius, min_arc, curvature_gain)
         if why is None:
             accepted.append(model)
+            if decisive:
+                break
         else:
             reasons.append(why)
 

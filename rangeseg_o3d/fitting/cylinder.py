@@ -8,6 +8,7 @@ import functools
 import numpy as np
 
 from ._common import (
+    RADIUS_LIMIT,
     Prepared,
     as_points,
     count_within,
@@ -210,7 +211,9 @@ def _refine(q: np.ndarray, axis: np.ndarray, point: np.ndarray, radius: float, m
         return (new_a, local_frame(new_a), new_p, r + step[4])
 
     state = (axis, local_frame(axis), point - (point @ axis) * axis, radius)
-    state, res, converged = levenberg_marquardt(state, evaluate, apply, max_iterations)
+    state, res, converged = levenberg_marquardt(
+        state, evaluate, apply, max_iterations, abandon=lambda st: st[3] > RADIUS_LIMIT
+    )
     return state[0], state[2], float(state[3]), res, converged
 
 
@@ -238,7 +241,7 @@ def fit_cylinder(
     points,
     normals=None,
     *,
-    max_iterations: int = 50,
+    max_iterations: int = 30,
     inlier_distance: float | None = None,
 ) -> Cylinder | FitFailure:
     """Fit an infinite cylinder minimising the orthogonal distances ``|(p - p0) x a| - r``.
@@ -264,7 +267,7 @@ def fit_cylinder(
     normals : (N, 3) array_like, optional
         Surface normals (any length, any sign; NaN rows are ignored).
     max_iterations : int
-        Levenberg-Marquardt iterations.
+        Levenberg-Marquardt iterations (4-8 are typical).
     inlier_distance : float, optional
         Count as inliers only points within this distance of the surface (default: all).
 

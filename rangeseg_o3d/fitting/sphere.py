@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import (
+    RADIUS_LIMIT,
     Prepared,
     count_within,
     curvature_failure,
@@ -49,7 +50,11 @@ def _refine(q: np.ndarray, center: np.ndarray, radius: float, max_iterations: in
         return dist - params[3], jac.copy()
 
     params, _, converged = levenberg_marquardt(
-        np.append(center, radius), evaluate, lambda p, step: p + step, max_iterations
+        np.append(center, radius),
+        evaluate,
+        lambda p, step: p + step,
+        max_iterations,
+        abandon=lambda p: p[3] > RADIUS_LIMIT,
     )
     return params[:3], float(params[3]), converged
 
@@ -73,7 +78,7 @@ def sphere_cap_angle(points: np.ndarray, center: np.ndarray) -> float:
 def fit_sphere(
     points,
     *,
-    max_iterations: int = 50,
+    max_iterations: int = 30,
     inlier_distance: float | None = None,
 ) -> Sphere | FitFailure:
     """Fit a sphere minimising the orthogonal distances ``|p - c| - r``.
@@ -92,7 +97,7 @@ def fit_sphere(
     points : (N, 3) array_like
         At least 4 points, not coplanar.
     max_iterations : int
-        Levenberg-Marquardt iterations (5-10 are typical from the algebraic start).
+        Levenberg-Marquardt iterations (3-8 are typical from the algebraic start).
     inlier_distance : float, optional
         Count as inliers only points within this distance of the surface (default: all).
 

@@ -121,3 +121,19 @@ def test_plugin_registered_and_runs_with_config(synth):
     rng = np.random.default_rng(8)
     params = PrimitiveFitterConfig(plane_rms=0.02).model_dump()
     assert isinstance(plugin.run(synth.plane(rng, (0, 0, 1), 1.0, noise=0.01), **params), Plane)
+
+
+def test_quadric_shape_tells_cylinders_from_spheres(synth):
+    from rangeseg_o3d.fitting import fit_plane
+    from rangeseg_o3d.fitting.classify import quadric_shape
+
+    rng = np.random.default_rng(9)
+    cyl, _ = synth.cylinder(rng, (0.3, 0.2, 1), (0, 0, 2), 0.3, n=400, arc=np.radians(120), noise=0.002)
+    sph, _ = synth.sphere(rng, (0, 0, 2), 0.3, n=400, cap=np.radians(120), noise=0.002)
+    flat = synth.plane(rng, (0, 0, 1), 2.0, n=400, noise=0.002)
+    gain, roundness = quadric_shape(cyl, fit_plane(cyl))
+    assert gain > 3 and roundness < 0.35
+    gain, roundness = quadric_shape(sph, fit_plane(sph))
+    assert gain > 3 and roundness > 0.65
+    gain, _ = quadric_shape(flat, fit_plane(flat))
+    assert gain < 1.1
