@@ -37,7 +37,7 @@ from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import fit_plane
 from .sphere import fit_sphere, sphere_cap_angle
 
-__all__ = ["fit_primitive", "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
+__all__ = ["fit_primitive", "refit_primitive", "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
 
 INLIER_FACTOR = 3.0
 """Points within INLIER_FACTOR x the kind's rms threshold count as inliers."""
@@ -202,6 +202,51 @@ def fit_primitive(
     return FitFailure("primitive", "; ".join(reasons))
 
 
+def refit_primitive(
+    points,
+    model: Plane | Cylinder | Sphere,
+    normals=None,
+    *,
+    plane_rms: float = 0.01,
+    cylinder_rms: float = 0.01,
+    sphere_rms: float = 0.01,
+    rms_per_range2: float = 0.0,
+    min_points: int = 10,
+    max_radius: float = 5.0,
+    min_arc_deg: float = 30.0,
+    curvature_gain: float = 1.5,
+) -> Plane | Cylinder | Sphere | FitFailure:
+    """Fit ``points`` with a model of ``model``'s kind, judged as :func:`fit_primitive` would.
+
+    For regions that grew or merged: no plane/cylinder/sphere decision again; a cylinder
+    starts from ``model.axis`` (no direction search). A refit that breaks the kind's
+    thresholds (rms, radius, arc, curvature gain) is a FitFailure with the reason.
+    """
+    if not isinstance(model, (Plane, Cylinder, Sphere)):
+        raise TypeError(f"model must be a Plane, Cylinder or Sphere; got {type(model).__name__}")
+    pts = as_points(points)
+    failure = check_points(pts, model.kind, max(int(min_points), 3))
+    if failure is not None:
+        return failure
+    extra = rms_per_range2 * float(np.square(pts.mean(axis=0)).sum())
+    plane_tol = plane_rms + extra
+    plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * plane_tol)
+    if not plane:
+        return FitFailure(model.kind, f"plane: {plane.reason}")
+    if isinstance(model, Plane):
+        if plane.rms > plane_tol:
+            return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
+        return plane
+    if isinstance(model, Cylinder):
+        tolerance = cylinder_rms + extra
+        new = fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * tolerance, axis_hint=model.axis)
+    else:
+        tolerance = sphere_rms + extra
+        new = fit_sphere(pts, inlier_distance=INLIER_FACTOR * tolerance)
+    why = _judge_curved(new, pts, plane, tolerance, max_radius, np.radians(min_arc_deg), curvature_gain)
+    return new if why is None else FitFailure(model.kind, why)
+
+
 class PrimitiveFitterConfig(BaseModel):
     """Parameters of the "primitives" fitter: exactly :func:`fit_primitive`'s keywords."""
 
@@ -222,4 +267,5 @@ PLUGIN = Plugin(
     config=PrimitiveFitterConfig,
     run=fit_primitive,
     description="plane, else cylinder or sphere (paper Fig. 2), with false-fitting guards",
+    refit=refit_primitive,
 )

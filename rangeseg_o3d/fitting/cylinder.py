@@ -243,6 +243,7 @@ def fit_cylinder(
     *,
     max_iterations: int = 30,
     inlier_distance: float | None = None,
+    axis_hint=None,
 ) -> Cylinder | FitFailure:
     """Fit an infinite cylinder minimising the orthogonal distances ``|(p - p0) x a| - r``.
 
@@ -270,6 +271,9 @@ def fit_cylinder(
         Levenberg-Marquardt iterations (4-8 are typical).
     inlier_distance : float, optional
         Count as inliers only points within this distance of the surface (default: all).
+    axis_hint : (3,) array_like, optional
+        A known approximate axis (e.g. from an earlier fit of the same region); used as
+        the start instead of the normals or the direction search.
 
     Returns
     -------
@@ -296,7 +300,14 @@ def fit_cylinder(
     q, scale = prep.q, prep.scale
 
     moments = _Moments(q)
-    axis = axis_from_normals(normals) if normals is not None else None
+    axis = None
+    if axis_hint is not None:
+        axis = np.asarray(axis_hint, float).reshape(3)
+        if not np.all(np.isfinite(axis)) or not np.linalg.norm(axis) > 0:
+            raise ValueError(f"axis_hint must be a finite non-zero 3-vector; got {axis_hint!r}")
+        axis = axis / np.linalg.norm(axis)
+    elif normals is not None:
+        axis = axis_from_normals(normals)
     if axis is None:
         axis = search_axis(q, moments)
     point, radius = _circle_start(moments, axis)

@@ -137,3 +137,22 @@ def test_quadric_shape_tells_cylinders_from_spheres(synth):
     assert gain > 3 and roundness > 0.65
     gain, _ = quadric_shape(flat, fit_plane(flat))
     assert gain < 1.1
+
+
+def test_refit_keeps_the_kind_and_judges_it(synth):
+    from rangeseg_o3d.fitting.classify import refit_primitive
+
+    rng = np.random.default_rng(10)
+    pts, _ = synth.cylinder(rng, (1, 0, 0), (0, 0, 2), 0.25, n=400, arc=np.radians(140), noise=NOISE)
+    first = fit_primitive(pts[:200])
+    assert isinstance(first, Cylinder)
+    again = PLUGIN.refit(pts, first)
+    assert isinstance(again, Cylinder) and again.radius == pytest.approx(0.25, abs=0.01)
+    # the same points refitted as a plane break the plane threshold: a reasoned failure
+    flat = fit_primitive(synth.plane(rng, (0, 0, 1), 2.0, noise=NOISE))
+    refused = refit_primitive(pts, flat)
+    assert isinstance(refused, FitFailure) and "plane rms" in refused.reason
+    # and a noisy plane refitted as a cylinder is refused too
+    assert not refit_primitive(synth.plane(rng, (0, 0, 1), 2.0, noise=NOISE), first)
+    with pytest.raises(TypeError):
+        refit_primitive(pts, "cylinder")
