@@ -157,7 +157,9 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
         _move(tilt, s.start, config)
         tilt.set_ramp(config.continuous_velocity, config.tilt.acceleration)
         lms.start_streaming()
-        transfer = (2 * partial.beam_angles.size + 10) * 10 / config.lms.baudrate
+        latency = config.scan_latency
+        if latency is None:  # the scan was measured about one transfer time before it arrived
+            latency = (2 * partial.beam_angles.size + 10) * 10 / config.lms.baudrate
         samples = [(time.monotonic(), tilt.position(confirmations=1))]
         scans = []
         tilt.move_to(s.stop)
@@ -165,7 +167,7 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
         while time.monotonic() < deadline:
             got = lms.read_streamed(config.tilt.poll_interval or 0.01)
             if got is not None:
-                scans.append((got[1] - transfer, got[0].ranges))
+                scans.append((got[1] - latency, got[0].ranges))
             moving = tilt.state() & 0x800
             samples.append((time.monotonic(), tilt.read_position()))
             if not moving:
@@ -197,7 +199,7 @@ def open_devices(config):
         raise ValueError(f"lms.port and tilt.port must be set; got {config.lms.port!r}, {config.tilt.port!r}")
     s, t = config.lms, config.tilt
     lms = Lms2xx(s.port, initial_baudrate=s.initial_baudrate, timeout=s.timeout, reply_timeout=s.reply_timeout,
-                 gap_timeout=s.gap_timeout, attempts=s.attempts, settle=s.settle)
+                 gap_timeout=s.gap_timeout, attempts=s.attempts, settle=s.settle, probe_timeout=s.probe_timeout)
     try:
         tilt = PowerCube(t.port, module_id=t.module_id, baudrate=t.baudrate, timeout=t.timeout,
                          reply_timeout=t.reply_timeout, attempts=t.attempts, poll_interval=t.poll_interval)

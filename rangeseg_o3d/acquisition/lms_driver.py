@@ -57,6 +57,10 @@ class Lms2xx:
         Sends per command before giving up with :class:`LmsProtocolError`.
     settle : float
         Pause after the host changes its baud rate.
+    config_timeout : float
+        Reply timeout of a configuration write (EEPROM: 7-15 s).
+    probe_timeout : float
+        Reply timeout of one baud-rate probe.
     """
 
     def __init__(
@@ -71,6 +75,7 @@ class Lms2xx:
         attempts: int = 10,
         settle: float = 0.25,
         config_timeout: float = 15.0,
+        probe_timeout: float = 0.2,
     ):
         if timeout <= 0 or reply_timeout <= 0 or gap_timeout <= 0:
             raise ValueError(
@@ -88,6 +93,7 @@ class Lms2xx:
         self.attempts = attempts
         self.settle = settle
         self.config_timeout = config_timeout
+        self.probe_timeout = probe_timeout
         self.n_values: int | None = None
         self.unit: float | None = None
         self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
@@ -211,8 +217,9 @@ class Lms2xx:
         """Raw status reply (0x31)."""
         return self.request(b"\x31", 0xB1)
 
-    def probe(self, baudrate: int, *, reply_timeout: float = 0.2) -> bool:
+    def probe(self, baudrate: int, *, reply_timeout: float | None = None) -> bool:
         """True if the device answers a harmless 20 25 at ``baudrate`` (also stops a stream)."""
+        reply_timeout = self.probe_timeout if reply_timeout is None else reply_timeout
         self.transport.baudrate = baudrate
         sleep(min(self.settle, 0.05))
         try:
@@ -222,7 +229,7 @@ class Lms2xx:
         except (DeviceTimeout, LmsProtocolError):
             return False
 
-    def detect_baudrate(self, candidates=PROBE_ORDER, *, reply_timeout: float = 0.2) -> int:
+    def detect_baudrate(self, candidates=PROBE_ORDER, *, reply_timeout: float | None = None) -> int:
         """Find the rate the device talks at, current host rate first; leaves the host there.
 
         Raises
@@ -230,6 +237,7 @@ class Lms2xx:
         DeviceTimeout
             No rate got an answer.
         """
+        reply_timeout = self.probe_timeout if reply_timeout is None else reply_timeout
         current = getattr(self.transport, "baudrate", None)
         order = [current] + [b for b in candidates if b != current] if current in candidates else list(candidates)
         for rate in order:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from .capture import capture
 from .config import CaptureConfig, load_capture_config
+from .lms2xx import scan_count
 
 __all__ = ["simulated_capture", "simulation_config"]
 
@@ -13,12 +14,18 @@ _SIM_LMS = {"timeout": 1.0, "reply_timeout": 0.3, "gap_timeout": 0.01, "probe_ti
 _SIM_TILT = {"timeout": 1.0, "reply_timeout": 0.05, "poll_interval": 0.001}
 
 
-def simulation_config(config=None, *, lms_port: str, tilt_port: str) -> CaptureConfig:
-    """``config`` with the simulator's ports and short host-side timeouts."""
+def simulation_config(config=None, *, lms_port: str, tilt_port: str, time_scale: float = 1.0) -> CaptureConfig:
+    """``config`` with the simulator's ports, short host-side timeouts and scaled scan latency.
+
+    Timeouts set explicitly in ``config`` are kept.
+    """
     config = load_capture_config(config)
-    lms = config.lms.model_copy(update={"port": lms_port, **_SIM_LMS})
-    tilt = config.tilt.model_copy(update={"port": tilt_port, **_SIM_TILT})
-    return config.model_copy(update={"lms": lms, "tilt": tilt})
+    lms_set, tilt_set = config.lms.model_fields_set, config.tilt.model_fields_set
+    lms = config.lms.model_copy(update={"port": lms_port, **{k: v for k, v in _SIM_LMS.items() if k not in lms_set}})
+    tilt = config.tilt.model_copy(update={"port": tilt_port, **{k: v for k, v in _SIM_TILT.items() if k not in tilt_set}})
+    transfer = (2 * scan_count(config.lms.fov, config.lms.resolution) + 10) * 10 / config.lms.baudrate
+    latency = config.scan_latency if config.scan_latency is not None else transfer * time_scale
+    return config.model_copy(update={"lms": lms, "tilt": tilt, "scan_latency": latency})
 
 
 def simulated_capture(config=None, faults: float = 0.0, seed: int = 0, *, scene=None, row_ranges=None,
@@ -58,4 +65,5 @@ def simulated_capture(config=None, faults: float = 0.0, seed: int = 0, *, scene=
                        mount_offset=config.mount.offset, tilt_sign=config.mount.tilt_sign, noise=noise,
                        **(rig_options or {}))
     with rig:
-        return capture(simulation_config(config, lms_port=rig.lms_port, tilt_port=rig.tilt_port), out=out)
+        return capture(simulation_config(config, lms_port=rig.lms_port, tilt_port=rig.tilt_port, time_scale=time_scale),
+                       out=out)

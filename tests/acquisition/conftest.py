@@ -5,11 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from rangeseg_o3d.kinematics import NoddingGeometry, nodding_rays
-
-WALL_X = 3.0
-MOUNT = (0.0, 0.0, 0.1)
-
+from acquisition_helpers import wall_ranges
 
 class ScriptedTransport:
     """A fake serial port: each write must equal the next scripted request; its reply is queued.
@@ -71,15 +67,6 @@ def scripted():
     yield make
     for t in made:
         t.verify()
-
-
-def wall_ranges(tilt, beams, *, mount=MOUNT, tilt_sign=1.0, wall_x=WALL_X):
-    """Exact ranges to the plane x = wall_x (inf where a beam misses it)."""
-    o, d = nodding_rays(NoddingGeometry(beams, np.array([tilt]), mount, tilt_sign))
-    o, d = o[0], d[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (wall_x - o[:, 0]) / d[:, 0]
-    return np.where(np.isfinite(t) & (t > 0), t, np.inf)
 
 
 @pytest.fixture
