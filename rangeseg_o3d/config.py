@@ -69,6 +69,10 @@ class PipelineConfig(BaseModel):
     segmenter: StageConfig = Field(default_factory=lambda: StageConfig(name="residual_edges"))
     fitter: StageConfig = Field(default_factory=lambda: StageConfig(name="primitives"))
     refine: RefineConfig = Field(default_factory=RefineConfig)
+    max_fit_points: int = Field(
+        3000, ge=50,
+        description="regions with more points are fitted on an even subsample of this size",
+    )
 
     @model_validator(mode="after")
     def _validate_plugins(self):

@@ -61,7 +61,14 @@ class Pipeline:
         quad = ref.sigma_quadratic if ref.sigma_quadratic is not None else seg.get("sigma_quadratic", 0.0)
         return noise_sigma(ranges, sigma0=sigma0, sigma_quadratic=quad)
 
+    def _subsample(self, points: np.ndarray) -> np.ndarray:
+        # A few thousand points pin a surface down to well below the noise; fitting a
+        # 100k-pixel wall on all of them only costs time.
+        step = -(-len(points) // self.config.max_fit_points)
+        return points[::step] if step > 1 else points
+
     def _fit(self, points: np.ndarray):
+        points = self._subsample(points)
         try:
             return self.fitter.run(points, **self.config.fitter.params)
         except ValueError as exc:
@@ -71,6 +78,7 @@ class Pipeline:
     def _refit(self, points: np.ndarray, model):
         if self.fitter.refit is None:
             return self._fit(points)
+        points = self._subsample(points)
         try:
             return self.fitter.refit(points, model, **self.config.fitter.params)
         except ValueError as exc:

@@ -21,7 +21,7 @@ __all__ = ["trimmed_fit"]
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
-                rounds: int = 4, keep_fraction: float = 0.6):
+                rounds: int = 4, keep_fraction: float = 0.6, max_points: int = 2000):
     """The best-supported model of ``points`` and the mask of its inliers.
 
     Least trimmed squares by concentration steps: starting from each raw least-squares
@@ -37,15 +37,19 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     min_points : fewer inliers than this is no answer.
     rounds : concentration steps per proposal.
     keep_fraction : share of the points kept in each step (the surface must hold more).
+    max_points : proposals and trimming run on an even subsample of at most this size;
+        the inliers are counted on all points.
 
     Returns
     -------
     (model, inliers) or (None, None) when no proposal is accepted.
     """
-    pts = np.asarray(points, dtype=float)
-    if len(pts) < min_points:
+    all_pts = np.asarray(points, dtype=float)
+    if len(all_pts) < min_points:
         return None, None
-    h = max(int(keep_fraction * len(pts)), min_points)
+    step = -(-len(all_pts) // max_points)
+    pts = all_pts[::step]
+    h = max(int(keep_fraction * len(pts)), min(min_points, len(pts)))
     best, best_mask = None, None
     for propose in (fit_plane, fit_cylinder, fit_sphere):
         model = propose(pts)
@@ -57,12 +61,12 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         if not model:
             continue
         near = np.abs(model.distances(pts)) <= 3.0 * max(sigma, model.rms)
-        if near.sum() < min_points:
+        if near.sum() * step < min_points:
             continue
         judged = judge(pts[near])
         if not judged:
             continue
-        inliers = np.abs(judged.distances(pts)) <= 3.0 * max(sigma, judged.rms)
+        inliers = np.abs(judged.distances(all_pts)) <= 3.0 * max(sigma, judged.rms)
         if inliers.sum() >= min_points and (best_mask is None or inliers.sum() > best_mask.sum()):
             best, best_mask = judged, inliers
     return best, best_mask
