@@ -157,8 +157,10 @@ def residual_image(
     ranges : (H, W) ranges for the noise model; the distance from the origin if omitted.
     sigma0, sigma_quadratic : noise model coefficients (metres, 1/metre).
     with_normals : also return the window normals (costs about as much as the residual).
-    noise_scale : factor on sigma per pixel, e.g. ``1/sqrt(n)`` for points that are means of
-        ``n`` samples (see :func:`block_means`).
+    noise_scale : factor on the range-dependent noise term per pixel, e.g. ``1/sqrt(n)``
+        for points that are means of ``n`` samples (see :func:`block_means`). ``sigma0`` is
+        not scaled: it stands for what averaging does not remove (depth quantisation
+        terraces, calibration ripple).
 
     Returns
     -------
@@ -177,7 +179,7 @@ def residual_image(
     if ranges is None:
         ranges = np.linalg.norm(xyz, axis=2)
     sigma = noise_sigma(np.asarray(ranges, dtype=np.float64), sigma0=sigma0,
-                        sigma_quadratic=sigma_quadratic) * noise_scale
+                        sigma_quadratic=sigma_quadratic * noise_scale)
     dof = np.maximum(count - 3.0, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         residual = eigenvalue / (dof * sigma * sigma)
