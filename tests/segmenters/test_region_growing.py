@@ -187,6 +187,7 @@ def test_fewer_points_than_neighbours_still_segments():
         (dict(curvature_threshold=-0.1), "curvature_threshold"),
         (dict(min_cluster_size=0), "min_cluster_size"),
         (dict(min_cluster_size=10, max_cluster_size=5), "max_cluster_size"),
+        (dict(voxel_size=0.0), "voxel_size"),
     ],
 )
 def test_bad_parameters_raise_value_error(two_planes, bad, match):
@@ -213,7 +214,8 @@ def test_config_fields_are_the_function_keywords_and_defaults_are_pcl():
     defaults = RegionGrowingConfig().model_dump()
     assert defaults == keywords
     assert defaults == dict(n_neighbours=30, normal_neighbours=30, smoothness_deg=30.0,
-                            curvature_threshold=0.05, min_cluster_size=1, max_cluster_size=None)
+                            curvature_threshold=0.05, min_cluster_size=1, max_cluster_size=None,
+                            voxel_size=None)
     with pytest.raises(ValidationError, match="extra"):
         RegionGrowingConfig(k=30)
 
@@ -248,3 +250,27 @@ def test_last_seeds_claim_like_the_sequential_queue(seed):
         nbrs = nbrs[expected[nbrs] < 0]
         expected[nbrs] = node
     assert np.array_equal(owner, expected)
+
+
+def test_voxel_grid_keeps_the_regions_and_counts_sizes_in_points(two_planes, matched_regions):
+    cloud, truth = two_planes
+    seg = segment_region_growing(cloud, voxel_size=0.05, min_cluster_size=50)
+    assert "voxels" in seg.timings
+    assert matched_regions(seg.labels, truth, min_pixels=50).keys() == {1, 2}
+    # The floor has 1600 points but far fewer voxels: a 1000-point minimum keeps it.
+    seg = segment_region_growing(cloud, voxel_size=0.05, min_cluster_size=1000)
+    assert len(np.unique(seg.labels[seg.labels > 0])) == 2
+
+
+def test_voxel_centroids_average_the_points_of_each_voxel():
+    from rangeseg_o3d.segmenters.region_growing import voxel_centroids
+
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-1, 1, (1000, 3))
+    centroids, voxel_of = voxel_centroids(pts, 0.5)
+    assert len(centroids) == 64  # the 2 m cube in 0.5 m voxels
+    for v in (0, 17, 63):
+        assert np.allclose(centroids[v], pts[voxel_of == v].mean(axis=0))
+    assert voxel_centroids(np.zeros((0, 3)), 0.1)[0].shape == (0, 3)
+    with pytest.raises(ValueError, match="voxel_size"):
+        voxel_centroids(pts, -1.0)
