@@ -65,7 +65,8 @@ def test_config_for_swaps_only_the_segmenter(segmenter):
 
 def _run(segmenter, suite, seconds, correct, n_truth=10):
     hoover = dict(n_truth=n_truth, correct=correct, over=1, under=0, missed=n_truth - correct - 1, noise=2)
-    return ScanRun(segmenter, suite, "s", 9000, seconds, correct, {}, hoover=hoover, false_fittings=0)
+    return ScanRun(segmenter, suite, "s", 9000, seconds, correct, {}, segment_seconds=seconds / 2,
+                   hoover=hoover, false_fittings=0)
 
 
 def test_summary_sums_counts_and_gives_ratio_to_residual_edges():
@@ -77,6 +78,8 @@ def test_summary_sums_counts_and_gives_ratio_to_residual_edges():
     assert rows["region_growing"]["median_ms"] == pytest.approx(80.0)
     assert rows["region_growing"]["time_ratio"] == pytest.approx(80.0 / 3.0)
     assert rows["residual_edges"]["time_ratio"] == pytest.approx(1.0)
+    assert rows["region_growing"]["median_segment_ms"] == pytest.approx(40.0)
+    assert rows["region_growing"]["segment_ratio"] == pytest.approx(80.0 / 3.0)
     table = markdown_table(list(rows.values()))
     assert table.count("\n") == 3 and "| 26.7 |" in table
 
