@@ -87,6 +87,7 @@ class VirtualLms200:
         self.resets = 0
         self._decoder = TelegramDecoder(replies=False)
         self._last_input = 0.0
+        self._scan_cache: dict = {}
         self._power_on()
 
     def _power_on(self) -> None:
@@ -120,8 +121,16 @@ class VirtualLms200:
         return np.where(np.isfinite(ranges) & (ranges > max_range), max_range + 1.0, ranges)
 
     def _scan_telegram(self, tilt: float) -> bytes:
-        payload = encode_scan_values(self.ranges_at(tilt), unit=self.unit, status=_STATUS)
-        return encode_telegram(payload, _REPLY_ADDRESS)
+        # Ranges are a pure function of (tilt, variant, unit): re-reads of a row reuse them.
+        key = (float(tilt), self.variant, self.unit)
+        frame = self._scan_cache.get(key)
+        if frame is None:
+            payload = encode_scan_values(self.ranges_at(tilt), unit=self.unit, status=_STATUS)
+            frame = encode_telegram(payload, _REPLY_ADDRESS)
+            if len(self._scan_cache) > 256:
+                self._scan_cache.clear()
+            self._scan_cache[key] = frame
+        return frame
 
     # -- protocol -------------------------------------------------------------------
     def _reply(self, payload: bytes, delay: float = 0.0) -> list[Output]:
