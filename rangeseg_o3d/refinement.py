@@ -1,0 +1,242 @@
+"""The refinement stage: beyond the paper's Sec. 3.2, after the first fits.
+
+Order, each step timed under ``refine.<step>`` in ``Result.timings``:
+
+1. ``split``: a region no model explains is cut down to the surface most of it lies on
+   (least trimmed squares); the rest is freed (the paper's "local checks that remove
+   under-segmentation").
+2. ``recover``: compact blobs of unlabelled pixels (small curved objects that the edge
+   band swallowed whole) become regions when a model explains most of them.
+3. ``grow``: edge-band pixels go back to the neighbouring region whose surface explains
+   them (the paper's "re-add points left out by the edge band").
+4. ``merge``: regions of one kind whose union one model explains as well as the parts are
+   merged; small blobs at junctions are dissolved into the neighbours that explain them
+   (the paper's "merging of patches that belong to the same surface").
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from .fitstage import RegionFitter, region_indices
+from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
+from .robust import trimmed_fit
+
+__all__ = ["refine_regions"]
+
+
+class _Timer:
+    def __init__(self, timings: dict):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timings[f"refine.{name}"] = now - self.last
+        self.last = now
+
+
+def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
+                   sigma: np.ndarray, jumps: np.ndarray | None, timings: dict):
+    """Run the refinement steps; returns the new ``(labels, fits)``.
+
+    Parameters
+    ----------
+    cloud : OrganizedCloud
+    labels : (H, W) int32 labels after segmentation (modified in place).
+    fits : label -> model or FitFailure.
+    fitter : the pipeline's region fitter.
+    config : RefineConfig.
+    segmenter_params : the segmenter's parameters (``min_region_size``, jump thresholds).
+    sigma : (H, W) range noise per pixel.
+    jumps : (H, W) jump-edge mask from the segmenter, if it made one.
+    timings : dict receiving ``refine.<step>`` durations.
+    """
+    timer = _Timer(timings)
+    min_size = max(int(segmenter_params.get("min_region_size", 30)), 10)
+    ctx = _Context(cloud, fitter, sigma, min_size)
+    failed = [k for k, m in fits.items() if not m]
+    if failed:
+        candidates = np.where(np.isin(labels, failed), labels, 0)
+        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=True)
+    timer.lap("split")
+    if config.recover_leftovers:
+        mask = jumps if jumps is not None else np.zeros(cloud.shape, bool)
+        candidates = leftover_candidates(labels, cloud.valid, mask, min_size=min_size,
+                                         first_label=int(labels.max(initial=0)) + 1)
+        # A blob at a junction of surfaces can pass for a small curved patch; a real
+        # swallowed object makes up most of its blob.
+        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
+    timer.lap("recover")
+    good = {k: m for k, m in fits.items() if m}
+    if config.grow_iterations and good:
+        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+        grown = grow_into_edges(
+            cloud.xyz, labels, good, sigma, ranges, iterations=config.grow_iterations,
+            k_sigma=config.k_sigma, jump_ratio=segmenter_params.get("jump_ratio", 0.08),
+            jump_min=segmenter_params.get("jump_min", 0.05),
+        )
+        labels, fits = ctx.refit_grown(labels, grown, fits)
+    timer.lap("grow")
+    if config.merge:
+        labels, fits = ctx.merge(labels, fits, config)
+        labels, fits = ctx.dissolve(labels, fits, config.k_sigma)
+    timer.lap("merge")
+    return labels, fits
+
+
+class _Context:
+    """What every refinement step needs: points, noise, the fitter, the size floor."""
+
+    def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int):
+        self.xyz = cloud.xyz.reshape(-1, 3)
+        self.sigma = sigma.ravel()
+        self.width = cloud.shape[1]
+        self.fitter = fitter
+        self.min_size = min_size
+
+    def _largest_piece(self, idx: np.ndarray) -> np.ndarray:
+        # Inliers can be scattered over the grid; keep the largest 4-connected piece.
+        rows, cols = np.divmod(idx, self.width)
+        top, left = rows.min(), cols.min()
+        patch = np.zeros((rows.max() - top + 1, cols.max() - left + 1), np.uint8)
+        patch[rows - top, cols - left] = 1
+        n, comp = cv2.connectedComponents(patch, connectivity=4)
+        piece = comp[rows - top, cols - left]
+        return idx[piece == np.argmax(np.bincount(piece, minlength=n)[1:]) + 1]
+
+    def explain(self, labels, fits, candidates, *, keep_failures: bool, min_share: float = 0.0):
+        """Give each candidate region the model most of it lies on; free the other pixels.
+
+        Candidates nothing explains, or whose explained share is below ``min_share``, are
+        dropped, or kept as unfitted regions when ``keep_failures``.
+        """
+        flat = labels.ravel()
+        for k, idx in region_indices(candidates).items():
+            # A failed region has its FitFailure here; a leftover blob is fitted whole first.
+            model = fits.get(k)
+            if model is None:
+                model = self.fitter.fit(self.xyz[idx])
+            if model:
+                flat[idx] = k
+                fits[k] = model
+                continue
+            trimmed, inliers = trimmed_fit(self.xyz[idx], self.fitter.fit,
+                                           sigma=float(np.nanmedian(self.sigma[idx])),
+                                           min_points=self.min_size)
+            if trimmed is not None:
+                chosen = self._largest_piece(idx[inliers])
+                if chosen.size >= max(self.min_size, min_share * idx.size):
+                    refined = self.fitter.refit(self.xyz[chosen], trimmed)
+                    if refined:
+                        flat[idx] = 0
+                        flat[chosen] = k
+                        fits[k] = refined
+                        continue
+            if keep_failures:
+                flat[idx] = k
+                fits[k] = model if model is not None else fits[k]
+            else:
+                flat[idx] = 0
+                fits.pop(k, None)
+        return labels, fits
+
+    def refit_grown(self, labels, grown, fits):
+        """Refit regions that grew by more than 5 %; a refit must keep the kind."""
+        before = np.bincount(labels.ravel(), minlength=grown.max(initial=0) + 1)
+        after = np.bincount(grown.ravel(), minlength=before.size)
+        changed = np.flatnonzero(after > 1.05 * np.maximum(before, 1))
+        if changed.size:
+            regions = region_indices(grown)
+            for k in map(int, changed):
+                if k == 0 or k not in regions or not fits.get(k):
+                    continue
+                refit = self.fitter.refit(self.xyz[regions[k]], fits[k])
+                if refit and refit.kind == fits[k].kind:
+                    fits[k] = refit
+        return grown, fits
+
+    def merge(self, labels, fits, config):
+        """Merge same-kind regions whose union one model explains (union-find over candidates)."""
+        good = {k: m for k, m in fits.items() if m}
+        pairs = merge_candidates(good, max_angle_deg=config.merge_angle_deg,
+                                 tolerance=config.merge_tolerance,
+                                 adjacency=region_adjacency(labels), disjoint=config.merge_disjoint)
+        if not pairs:
+            return labels, fits
+        regions = region_indices(labels)
+        root = {k: k for k in fits}
+
+        def find(k):
+            while root[k] != k:
+                k = root[k]
+            return k
+
+        for a, b in pairs:
+            ra, rb = find(a), find(b)
+            if ra == rb or not fits[ra] or not fits[rb]:
+                continue
+            union_idx = np.concatenate([regions[ra], regions[rb]])
+            union = self.fitter.refit(self.xyz[union_idx], fits[ra])
+            limit = config.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
+            if union and union.kind == fits[ra].kind and union.rms <= limit:
+                root[rb] = ra
+                regions[ra] = union_idx
+                fits[ra] = union
+                del regions[rb]
+                fits.pop(rb)
+        lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
+        for k in root:
+            lut[k] = find(k)
+        return lut[labels], fits
+
+    def dissolve(self, labels, fits, k_sigma: float):
+        """Hand small regions to larger neighbours whose surfaces already explain them.
+
+        A blob where surfaces meet can pass for a small curved patch; its kind differs from
+        its neighbours', so :meth:`merge` never pairs it. When at least 80 % of a region
+        smaller than ``3 * min_size`` lies within ``k_sigma max(sigma, rms)`` of larger
+        neighbours' models, each such point joins the neighbour that explains it best and
+        the rest become unlabelled; the neighbours are refitted.
+        """
+        regions = region_indices(labels)
+        small_ones = [k for k in regions if regions[k].size < 3 * self.min_size]
+        if not small_ones:
+            return labels, fits
+        neighbours: dict[int, set[int]] = {}
+        for a, b in region_adjacency(labels):
+            neighbours.setdefault(a, set()).add(b)
+            neighbours.setdefault(b, set()).add(a)
+        changed = set()
+        flat = labels.ravel()
+        for small in sorted(small_ones, key=lambda k: regions[k].size):
+            idx = regions.get(small)
+            hosts = [k for k in neighbours.get(small, ()) if k in regions and fits.get(k)
+                     and regions[k].size > idx.size]
+            if not hosts:
+                continue
+            pts = self.xyz[idx]
+            score = np.stack([
+                np.abs(fits[k].distances(pts)) / np.maximum(self.sigma[idx], fits[k].rms)
+                for k in hosts
+            ])
+            best = np.argmin(score, axis=0)
+            explained = score[best, np.arange(idx.size)] <= k_sigma
+            if explained.mean() < 0.8:
+                continue
+            new_labels = np.where(explained, np.asarray(hosts)[best], 0)
+            flat[idx] = new_labels
+            for k in set(new_labels[explained].tolist()):
+                regions[k] = np.concatenate([regions[k], idx[new_labels == k]])
+                changed.add(k)
+            del regions[small]
+            fits.pop(small, None)
+        for k in changed:
+            if k in regions:
+                refit = self.fitter.refit(self.xyz[regions[k]], fits[k])
+                if refit:
+                    fits[k] = refit
+        return labels, fits
