@@ -123,6 +123,7 @@ def cmd_segment(args) -> int:
         elif len(inputs) == 1 and Path(args.out).suffix == ".json":
             out = Path(args.out)
         else:
+            Path(args.out).mkdir(parents=True, exist_ok=True)
             out = Path(args.out) / f"{path.stem}.json"
         ok += _segment_one(pipeline, path, out, args, rec, i)
     _finish(args, rec)
@@ -144,10 +145,13 @@ def cmd_demo(args) -> int:
         cloud = simulate_lms200(default_scene(), seed=args.seed).cloud
         source = "simulated LMS200 scan of the default scene (ray-cast)"
     else:
-        from .acquisition.cli import simulated_capture
+        from .acquisition.simulate import simulated_capture
 
         cloud = simulated_capture(faults=args.faults, seed=args.seed)
         source = "stop-and-go capture from the simulated LMS200 + PowerCube over serial ptys"
+        if cloud.shape[1] == 181:
+            # The paper's processing window: beams 25..155 deg of the 181 (1 deg steps).
+            cloud = cloud.crop(cols=slice(25, 156))
     scan_path = cloud.save(out_dir / "scan.npz")
     pipeline = Pipeline(args.config)
     rec = _recording(args)

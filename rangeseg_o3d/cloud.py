@@ -154,6 +154,39 @@ class OrganizedCloud:
     def n_valid(self) -> int:
         return int(self.valid.sum())
 
+    def crop(self, rows: slice = slice(None), cols: slice = slice(None)) -> "OrganizedCloud":
+        """The sub-grid ``[rows, cols]`` with its ranges, intensity, timestamps and geometry.
+
+        The paper processes only beams 25..155 deg of its 181, because points crowd at the
+        lateral ends of a nodding scan: ``cloud.crop(cols=slice(25, 156))``. A pinhole
+        geometry's principal point is shifted to the crop.
+        """
+        if not (isinstance(rows, slice) and isinstance(cols, slice)):
+            raise TypeError("rows and cols must be slices")
+        xyz = self._xyz[rows, cols]
+        if xyz.shape[0] == 0 or xyz.shape[1] == 0:
+            raise ValueError(f"crop [{rows}, {cols}] of a {self.shape} grid is empty")
+        geometry = self.geometry
+        if isinstance(geometry, NoddingGeometry):
+            geometry = NoddingGeometry(geometry.beam_angles[cols], geometry.tilt_angles[rows],
+                                       geometry.mount_offset, geometry.tilt_sign)
+        elif isinstance(geometry, PinholeGeometry):
+            r0 = range(*rows.indices(self.shape[0]))
+            c0 = range(*cols.indices(self.shape[1]))
+            if r0.step != 1 or c0.step != 1:
+                geometry = None  # a strided crop is no longer a pinhole image
+            else:
+                geometry = PinholeGeometry(geometry.fx, geometry.fy,
+                                           geometry.cx - c0.start, geometry.cy - r0.start)
+
+        def sub(a):
+            return None if a is None else np.asarray(a)[rows, cols]
+
+        return OrganizedCloud(
+            xyz, ranges=sub(self.ranges), intensity=sub(self.intensity), geometry=geometry,
+            timestamps=None if self.timestamps is None else self.timestamps[rows],
+        )
+
     def range_image(self) -> np.ndarray:
         """Ranges if the sensor gave them, else the distance of each point from the origin."""
         if self.ranges is not None:

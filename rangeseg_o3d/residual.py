@@ -31,6 +31,7 @@ def _box_sum(plane: np.ndarray, window: int) -> np.ndarray:
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
+@np.errstate(invalid="ignore", divide="ignore")  # empty windows give NaN by design
 def neighbourhood_moments(xyz: np.ndarray, *, window: int = 3):
     """Count, centroid and centred scatter matrix of the valid points in every window.
 
@@ -74,6 +75,7 @@ def neighbourhood_moments(xyz: np.ndarray, *, window: int = 3):
     return count, mean + reference[:, None, None], scatter
 
 
+@np.errstate(invalid="ignore", divide="ignore")  # NaN matrices give NaN results by design
 def smallest_eigenpairs(scatter: np.ndarray, *, with_vectors: bool = True):
     """Smallest eigenvalue (and unit eigenvector) of packed symmetric 3x3 matrices.
 

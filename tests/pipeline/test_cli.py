@@ -1,0 +1,82 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.cli import main
+from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+from rangeseg_o3d.synthetic.suite import default_scene
+
+
+@pytest.fixture(scope="module")
+def scan_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scans")
+    cloud = simulate_lms200(default_scene(), seed=0).cloud
+    npz = cloud.save(folder / "room.npz")
+    pcd = cloud.save(folder / "room.pcd")
+    return cloud, npz, pcd
+
+
+def test_segment_npz_writes_json(scan_files, tmp_path, capsys):
+    cloud, npz, _ = scan_files
+    out = tmp_path / "result.json"
+    assert main(["segment", str(npz), "--config", "lms200", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    expected = rs.Pipeline("lms200").run(cloud)
+    assert data["shape"] == [70, 131]
+    assert len(data["features"]) == len(expected.features)
+    assert {f["kind"] for f in data["features"]} == {"plane", "cylinder", "sphere"}
+    assert data["config"]["name"] == "lms200"
+    assert "total" in data["timings"]
+    table = capsys.readouterr().out
+    assert "sphere" in table and "planes" in table
+
+
+def test_segment_batch_keeps_going_after_a_bad_file(scan_files, tmp_path, capsys):
+    _, npz, pcd = scan_files
+    bad = tmp_path / "broken.pcd"
+    bad.write_text("VERSION 0.7\nFIELDS x y z\nDATA ascii\n")
+    out_dir = tmp_path / "results"
+    code = main(["segment", str(npz), str(bad), str(pcd), "--out", str(out_dir)])
+    assert code == 1
+    assert (out_dir / "room.json").exists()
+    assert not (out_dir / "broken.json").exists()
+    err = capsys.readouterr().err
+    assert "broken.pcd" in err and "1 of 3 inputs failed" in err
+    # The PCD (float32 on disk) gives the same regions as the npz.
+    a = json.loads((out_dir / "room.json").read_text())
+    assert a["counts"]["sphere"] == 1
+
+
+def test_segment_rejects_unknown_preset_and_suffix(scan_files, tmp_path, capsys):
+    _, npz, _ = scan_files
+    assert main(["segment", str(npz), "--config", "nope"]) == 2
+    assert "unknown preset" in capsys.readouterr().err
+    other = tmp_path / "scan.xyz"
+    other.write_text("1 2 3\n")
+    assert main(["segment", str(other)]) == 1
+
+
+def test_demo_without_capture_writes_results(tmp_path, capsys):
+    assert main(["demo", "--no-capture", "--out", str(tmp_path)]) == 0
+    for name in ("scan.npz", "result.json", "labels.npy", "panel.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    labels = np.load(tmp_path / "labels.npy")
+    data = json.loads((tmp_path / "result.json").read_text())
+    assert labels.shape == tuple(data["shape"])
+    assert labels.max() == data["n_regions"]
+    assert rs.OrganizedCloud.load(tmp_path / "scan.npz").shape == (70, 131)
+
+
+def test_demo_through_the_simulated_serial_rig(tmp_path):
+    # The README's main command, in a subprocess so the ptys and threads are its own.
+    out = subprocess.run([sys.executable, "-m", "rangeseg_o3d.cli", "demo", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "serial" in out.stdout
+    data = json.loads((tmp_path / "result.json").read_text())
+    assert data["shape"] == [70, 131]
+    assert data["counts"]["plane"] >= 5 and data["counts"]["cylinder"] >= 1
