@@ -314,16 +314,18 @@ def _pyplot():
 
 
 def plot_time_vs_points(runs: list[ScanRun], path: Path) -> None:
-    """Log-log scatter: time per scan against valid points, one series per segmenter."""
+    """Log-log scatter of time per scan against valid points: whole pipeline | segmenter alone."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for seg in dict.fromkeys(r.segmenter for r in runs):
-        mine = [r for r in runs if r.segmenter == seg and r.error is None]
-        ax.scatter([r.n_points for r in mine], [1e3 * r.seconds for r in mine], label=seg, s=22)
-    ax.set(xscale="log", yscale="log", xlabel="valid points per scan", ylabel="ms per scan (median)",
-           title="Segmentation + fitting time per scan")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, attr, title in ((axes[0], "seconds", "Pipeline.run (segment + fit + refine)"),
+                            (axes[1], "segment_seconds", "segmentation stage alone")):
+        for seg in dict.fromkeys(r.segmenter for r in runs):
+            mine = [r for r in runs if r.segmenter == seg and r.error is None]
+            ax.scatter([r.n_points for r in mine], [1e3 * getattr(r, attr) for r in mine], label=seg, s=22)
+        ax.set(xscale="log", yscale="log", xlabel="valid points per scan", ylabel="ms per scan (median)",
+               title=title)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
     _save_figure(fig, path)
     plt.close(fig)
 
