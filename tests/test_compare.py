@@ -118,3 +118,12 @@ def test_bad_options_raise(tmp_path):
         run(_args(quick=True, segmenters="nope", out_dir=tmp_path))
     with pytest.raises(ValueError, match="--repeats"):
         run(_args(quick=True, repeats=0, out_dir=tmp_path))
+
+
+def test_rangeseg_cli_has_the_compare_subcommand(capsys):
+    from rangeseg_o3d.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["compare", "--help"])
+    assert exc.value.code == 0
+    assert "--segmenters" in capsys.readouterr().out
