@@ -116,10 +116,9 @@ class _Context:
         """
         flat = labels.ravel()
         for k, idx in region_indices(candidates).items():
-            # A failed region has its FitFailure here; a leftover blob is fitted whole first.
+            # A failed region has its FitFailure here; a leftover blob has nothing yet: one
+            # trimmed fit settles both "all of it" and "most of it".
             model = fits.get(k)
-            if model is None:
-                model = self.fitter.fit(self.xyz[idx])
             if model:
                 flat[idx] = k
                 fits[k] = model
