@@ -12,6 +12,8 @@ __all__ = ["RegionFitter", "region_indices"]
 def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
     """Flat pixel indices of every positive label (one sort of the grid, not a mask per region)."""
     flat = labels.ravel()
+    if flat.size and 0 <= flat.min() and flat.max() < 65536:
+        flat = flat.astype(np.uint16)  # numpy's stable sort is a radix sort for 16-bit keys
     order = np.argsort(flat, kind="stable")
     sorted_labels = flat[order]
     present, starts = np.unique(sorted_labels, return_index=True)
@@ -34,6 +36,10 @@ class RegionFitter:
     def _subsample(self, points: np.ndarray) -> np.ndarray:
         step = -(-len(points) // self.max_points)
         return points[::step] if step > 1 else points
+
+    def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The points of pixels ``idx``, subsampled before gathering (large regions)."""
+        return xyz_flat[self._subsample(idx)]
 
     def fit(self, points: np.ndarray):
         """The fitter's model of ``points``, or FitFailure (also when the fitter raises ValueError)."""

@@ -92,7 +92,8 @@ class Pipeline:
         timings["segment"] = t_seg - t_start
 
         xyz_flat = cloud.xyz.reshape(-1, 3)
-        fits = {k: self.fitter.fit(xyz_flat[idx]) for k, idx in region_indices(labels).items()}
+        fits = {k: self.fitter.fit(self.fitter.points(xyz_flat, idx))
+                for k, idx in region_indices(labels).items()}
         t_fit = time.perf_counter()
         timings["fit"] = t_fit - t_seg
 

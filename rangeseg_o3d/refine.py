@@ -56,37 +56,48 @@ def grow_into_edges(
     -------
     New (H, W) int32 labels.
     """
+    import cv2
+
     labels = np.array(labels, dtype=np.int32, copy=True)
-    valid = ~np.isnan(xyz[..., 2])
+    h, w = labels.shape
+    flat = labels.ravel()
+    points = xyz.reshape(-1, 3)
+    r = np.asarray(ranges, dtype=np.float64).ravel()
+    sig = np.asarray(sigma, dtype=np.float64).ravel()
+    free = (~np.isnan(points[:, 2])) & (flat == 0)
     grows = np.zeros(int(labels.max(initial=0)) + 1, dtype=bool)
-    grows[[k for k in models if k < grows.size]] = True
+    grows[[k for k in models if 0 < k < grows.size]] = True
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     for _ in range(iterations):
-        free = valid & (labels == 0)
-        if not free.any():
+        # Work only on the frontier: free pixels with a labelled 4-neighbour.
+        occupied = (labels > 0).astype(np.uint8)
+        frontier = np.flatnonzero(free & cv2.dilate(occupied, cross).ravel().astype(bool))
+        if frontier.size == 0:
             break
+        rows, cols = np.divmod(frontier, w)
         pix_all, lab_all = [], []
         for dy, dx in _OFFSETS:
-            nb = _shifted(labels, dy, dx, 0)
-            nr = _shifted(ranges, dy, dx, np.nan)
+            inside = (rows + dy >= 0) & (rows + dy < h) & (cols + dx >= 0) & (cols + dx < w)
+            pix = frontier[inside]
+            nb = pix + dy * w + dx
+            lab = flat[nb]
             with np.errstate(invalid="ignore"):
-                smooth = np.abs(ranges - nr) <= np.maximum(jump_min, jump_ratio * np.fmin(ranges, nr))
-            cand = free & (nb > 0) & grows[nb] & smooth
-            idx = np.flatnonzero(cand)
-            pix_all.append(idx)
-            lab_all.append(nb.ravel()[idx])
+                smooth = np.abs(r[pix] - r[nb]) <= np.maximum(jump_min, jump_ratio * np.fmin(r[pix], r[nb]))
+            ok = (lab > 0) & grows[lab] & smooth
+            pix_all.append(pix[ok])
+            lab_all.append(lab[ok])
         pix = np.concatenate(pix_all)
         if pix.size == 0:
             break
         lab = np.concatenate(lab_all)
         order = np.argsort(lab, kind="stable")
         pix, lab = pix[order], lab[order]
-        points = xyz.reshape(-1, 3)[pix]
         dist = np.empty(pix.size)
         bounds = np.flatnonzero(np.diff(lab)) + 1
         for start, stop in zip(np.r_[0, bounds], np.r_[bounds, lab.size]):
             model = models[int(lab[start])]
-            dist[start:stop] = np.abs(model.distances(points[start:stop])) / np.maximum(
-                sigma.ravel()[pix[start:stop]], model.rms
+            dist[start:stop] = np.abs(model.distances(points[pix[start:stop]])) / np.maximum(
+                sig[pix[start:stop]], model.rms
             )
         ok = dist <= k_sigma
         if not ok.any():
@@ -96,7 +107,8 @@ def grow_into_edges(
         order = np.lexsort((dist, pix))
         pix, lab = pix[order], lab[order]
         first = np.r_[True, pix[1:] != pix[:-1]]
-        labels.ravel()[pix[first]] = lab[first]
+        flat[pix[first]] = lab[first]
+        free[pix[first]] = False
     return labels
 
 

@@ -8,7 +8,8 @@ Order, each step timed under ``refine.<step>`` in ``Result.timings``:
 2. ``recover``: compact blobs of unlabelled pixels (small curved objects that the edge
    band swallowed whole) become regions when a model explains most of them.
 3. ``grow``: edge-band pixels go back to the neighbouring region whose surface explains
-   them (the paper's "re-add points left out by the edge band").
+   them (the paper's "re-add points left out by the edge band"). This runs before
+   ``recover``, so only what no neighbour explains is left over.
 4. ``merge``: regions of one kind whose union one model explains as well as the parts are
    merged; small blobs at junctions are dissolved into the neighbours that explain them
    (the paper's "merging of patches that belong to the same surface").
@@ -63,24 +64,33 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         candidates = np.where(np.isin(labels, failed), labels, 0)
         labels, fits = ctx.explain(labels, fits, candidates, keep_failures=True)
     timer.lap("split")
-    if config.recover_leftovers:
-        mask = jumps if jumps is not None else np.zeros(cloud.shape, bool)
-        candidates = leftover_candidates(labels, cloud.valid, mask, min_size=min_size,
-                                         first_label=int(labels.max(initial=0)) + 1)
-        # A blob at a junction of surfaces can pass for a small curved patch; a real
-        # swallowed object makes up most of its blob.
-        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
-    timer.lap("recover")
-    good = {k: m for k, m in fits.items() if m}
-    if config.grow_iterations and good:
-        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+    ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+
+    def grow(labels, fits, iterations):
+        good = {k: m for k, m in fits.items() if m}
+        if not (iterations and good):
+            return labels, fits
         grown = grow_into_edges(
-            cloud.xyz, labels, good, sigma, ranges, iterations=config.grow_iterations,
+            cloud.xyz, labels, good, sigma, ranges, iterations=iterations,
             k_sigma=config.k_sigma, jump_ratio=segmenter_params.get("jump_ratio", 0.08),
             jump_min=segmenter_params.get("jump_min", 0.05),
         )
-        labels, fits = ctx.refit_grown(labels, grown, fits)
+        return ctx.refit_grown(labels, grown, fits)
+
+    # Growing first leaves as leftovers only what no neighbour explains.
+    labels, fits = grow(labels, fits, config.grow_iterations)
     timer.lap("grow")
+    if config.recover_leftovers:
+        mask = jumps if jumps is not None else np.zeros(cloud.shape, bool)
+        first = int(labels.max(initial=0)) + 1
+        candidates = leftover_candidates(labels, cloud.valid, mask, min_size=min_size,
+                                         first_label=first)
+        # A blob at a junction of surfaces can pass for a small curved patch; a real
+        # swallowed object makes up most of its blob.
+        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
+        if labels.max(initial=0) >= first:
+            labels, fits = grow(labels, fits, 2)  # recovered blobs take back their rims
+    timer.lap("recover")
     if config.merge:
         labels, fits = ctx.merge(labels, fits, config)
         labels, fits = ctx.dissolve(labels, fits, config.k_sigma)
@@ -129,7 +139,7 @@ class _Context:
             if trimmed is not None:
                 chosen = self._largest_piece(idx[inliers])
                 if chosen.size >= max(self.min_size, min_share * idx.size):
-                    refined = self.fitter.refit(self.xyz[chosen], trimmed)
+                    refined = self.fitter.refit(self.fitter.points(self.xyz, chosen), trimmed)
                     if refined:
                         flat[idx] = 0
                         flat[chosen] = k
@@ -153,7 +163,7 @@ class _Context:
             for k in map(int, changed):
                 if k == 0 or k not in regions or not fits.get(k):
                     continue
-                refit = self.fitter.refit(self.xyz[regions[k]], fits[k])
+                refit = self.fitter.refit(self.fitter.points(self.xyz, regions[k]), fits[k])
                 if refit and refit.kind == fits[k].kind:
                     fits[k] = refit
         return grown, fits
@@ -179,7 +189,7 @@ class _Context:
             if ra == rb or not fits[ra] or not fits[rb]:
                 continue
             union_idx = np.concatenate([regions[ra], regions[rb]])
-            union = self.fitter.refit(self.xyz[union_idx], fits[ra])
+            union = self.fitter.refit(self.fitter.points(self.xyz, union_idx), fits[ra])
             limit = config.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
             if union and union.kind == fits[ra].kind and union.rms <= limit:
                 root[rb] = ra
@@ -235,7 +245,7 @@ class _Context:
             fits.pop(small, None)
         for k in changed:
             if k in regions:
-                refit = self.fitter.refit(self.xyz[regions[k]], fits[k])
+                refit = self.fitter.refit(self.fitter.points(self.xyz, regions[k]), fits[k])
                 if refit:
                     fits[k] = refit
         return labels, fits
