@@ -115,3 +115,38 @@ def test_bad_window_and_min_valid_raise():
 
 def test_noise_sigma_model():
     assert noise_sigma(np.array([2.0]), sigma0=0.001, sigma_quadratic=0.001425)[0] == pytest.approx(0.0067)
+
+
+def test_block_means_average_tiles_and_respect_invalid_pixels():
+    from rangeseg_o3d.residual import block_means
+
+    xyz = np.arange(4 * 6 * 3, dtype=float).reshape(4, 6, 3)
+    xyz[0, 0] = np.nan
+    means, counts = block_means(xyz, 2)
+    assert means.shape == (2, 3, 3) and counts.tolist() == [[3, 4, 4], [4, 4, 4]]
+    np.testing.assert_allclose(means[0, 0], np.nanmean(xyz[:2, :2].reshape(-1, 3), axis=0))
+    np.testing.assert_allclose(means[1, 2], xyz[2:4, 4:6].reshape(-1, 3).mean(axis=0))
+    # A tile with less than half its pixels valid is no point; a ragged edge is padded.
+    xyz[:2, 2:4] = np.nan
+    xyz[0, 4] = xyz[1, 4] = xyz[0, 5] = np.nan
+    means, counts = block_means(xyz[:, :5], 2)
+    assert means.shape == (2, 3, 3)
+    assert np.isnan(means[0, 1]).all() and np.isnan(means[0, 2]).all()
+    with pytest.raises(ValueError, match="block"):
+        block_means(xyz, 0)
+
+
+def test_tile_means_lower_the_random_noise_term_only():
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:60, 0:80].astype(float)
+    z = np.full(u.shape, 3.0) + rng.normal(0, 0.01, u.shape)
+    xyz = np.dstack([u * 0.005, v * 0.005, z])
+    from rangeseg_o3d.residual import block_means
+
+    means, counts = block_means(xyz, 4)
+    scale = 1.0 / np.sqrt(counts)
+    # Random part of sigma is 0.01 m: tile means of 16 have 0.0025 m.
+    res, _ = residual_image(means, sigma0=0.0, sigma_quadratic=0.01 / 9.0, noise_scale=scale,
+                            ranges=np.full(counts.shape, 3.0))
+    inner = res[1:-1, 1:-1]
+    assert 0.6 < np.median(inner) < 1.4
