@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rangeseg_o3d import NoddingGeometry, OrganizedCloud, PinholeGeometry
+from rangeseg_o3d import NoddingGeometry, OrganizedCloud
 
 #: <repo>/../shared/data, absent on machines without the shared data.
 SHARED_DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d import OrganizedCloud
-from rangeseg_o3d.io.open3d_conv import from_open3d, to_legacy, to_open3d
+from rangeseg_o3d.io.open3d_conv import from_open3d, to_open3d
 
 o3d = pytest.importorskip("open3d")
 

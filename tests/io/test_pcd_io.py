@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d import OrganizedCloud
-from rangeseg_o3d.io import load_cloud, read_pcd, save_cloud, write_pcd
+from rangeseg_o3d.io import load_cloud, read_pcd, write_pcd
 from rangeseg_o3d.io.lzf import have_c_lzf, lzf_compress, lzf_decompress
 from rangeseg_o3d.io.pcd import parse_pcd_header, read_pcd_fields
 
