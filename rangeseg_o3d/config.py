@@ -90,12 +90,6 @@ class PipelineConfig(BaseModel):
                 raise ValueError(problems) from None
         return self
 
-    def segmenter_params(self) -> dict:
-        return dict(self.segmenter.params)
-
-    def fitter_params(self) -> dict:
-        return dict(self.fitter.params)
-
 
 def preset_dir() -> Path:
     """The configs/ folder beside the package (a source checkout or editable install)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -97,11 +98,12 @@ class Pipeline:
         t_fit = time.perf_counter()
         timings["fit"] = t_fit - t_seg
 
-        sigma = self.noise(np.where(cloud.valid, cloud.range_image(), np.nan))
+        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+        sigma = self.noise(ranges)
         if self.config.refine.enabled:
             labels, fits = refine_regions(
                 cloud, labels, fits, fitter=self.fitter, config=self.config.refine,
-                segmenter_params=self.config.segmenter.params, sigma=sigma,
+                segmenter_params=self.config.segmenter.params, ranges=ranges, sigma=sigma,
                 jumps=seg.stages.get("jumps"), timings=timings)
         timings["refine"] = time.perf_counter() - t_fit
 
@@ -131,7 +133,7 @@ class Pipeline:
                 # points within 3 max(sigma, rms) of the surface.
                 tol = 3.0 * np.maximum(sigma_flat[idx], model.rms)
                 inliers = int(np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol))
-                features.append(Feature(label=new, model=_with_inliers(model, inliers),
+                features.append(Feature(label=new, model=replace(model, inliers=inliers),
                                         n_pixels=int(idx.size)))
             else:
                 unfitted.append(Unfitted(label=new, n_pixels=int(idx.size),
@@ -140,8 +142,3 @@ class Pipeline:
         return Result(labels=labels, features=features, unfitted=unfitted, timings=timings,
                       stages=dict(stages))
 
-
-def _with_inliers(model, inliers: int):
-    from dataclasses import replace
-
-    return replace(model, inliers=inliers)

@@ -9,6 +9,7 @@ union one model explains as well as the parts are merged.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .fitting.models import Cylinder, Plane, Sphere
@@ -56,8 +57,6 @@ def grow_into_edges(
     -------
     New (H, W) int32 labels.
     """
-    import cv2
-
     labels = np.array(labels, dtype=np.int32, copy=True)
     h, w = labels.shape
     flat = labels.ravel()
@@ -187,8 +186,6 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     (H, W) int32 candidate labels numbered from ``first_label`` (0 elsewhere); each must
     still be accepted by a fit.
     """
-    import cv2
-
     free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
     cores = cv2.erode(free, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)

@@ -41,7 +41,8 @@ class _Timer:
 
 
 def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
-                   sigma: np.ndarray, jumps: np.ndarray | None, timings: dict):
+                   ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
+                   timings: dict):
     """Run the refinement steps; returns the new ``(labels, fits)``.
 
     Parameters
@@ -52,6 +53,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     fitter : the pipeline's region fitter.
     config : RefineConfig.
     segmenter_params : the segmenter's parameters (``min_region_size``, jump thresholds).
+    ranges : (H, W) ranges, NaN where invalid (for the no-jump test of growth).
     sigma : (H, W) range noise per pixel.
     jumps : (H, W) jump-edge mask from the segmenter, if it made one.
     timings : dict receiving ``refine.<step>`` durations.
@@ -64,7 +66,6 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         candidates = np.where(np.isin(labels, failed), labels, 0)
         labels, fits = ctx.explain(labels, fits, candidates, keep_failures=True)
     timer.lap("split")
-    ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
 
     def grow(labels, fits, iterations):
         good = {k: m for k, m in fits.items() if m}

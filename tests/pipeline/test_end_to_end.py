@@ -86,10 +86,11 @@ def test_tiny_and_degenerate_clouds_do_not_crash():
     one[1, 1] = (1.0, 0.0, 0.0)
     result = pipeline.run(rs.OrganizedCloud(one))
     assert result.labels.max() == 0 and result.features == []
-    # A grid of identical points: no plane can be fitted; nothing crashes.
+    # A grid of identical points: no plane can be fitted; reported, not crashed.
     same = np.ones((10, 10, 3))
     result = pipeline.run(rs.OrganizedCloud(same))
-    assert all(f.rms >= 0 for f in result.features)
+    assert result.features == []
+    assert len(result.unfitted) == 1 and "coincident" in result.unfitted[0].reason
 
 
 def test_result_json_round_trip():
