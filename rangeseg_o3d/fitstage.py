@@ -4,9 +4,33 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fitting.models import FitFailure
+from .fitting.models import Cylinder, FitFailure, Plane, Sphere
 
-__all__ = ["RegionFitter", "region_indices"]
+__all__ = ["RegionFitter", "region_indices", "model_table"]
+
+
+def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(kinds, params, rms)`` indexed by label, as :mod:`rangeseg_o3d.kernels` takes models.
+
+    Labels without a fitted model (absent, FitFailure, or another plugin's model type)
+    get kind 0 and are ignored by the kernels.
+    """
+    kinds = np.zeros(n, np.int8)
+    params = np.zeros((n, 7))
+    rms = np.zeros(n)
+    for k, model in fits.items():
+        if not 0 < k < n or not model:
+            continue
+        if isinstance(model, Plane):
+            kinds[k], params[k, :3], params[k, 3] = 1, model.normal, model.d
+        elif isinstance(model, Sphere):
+            kinds[k], params[k, :3], params[k, 3] = 2, model.center, model.radius
+        elif isinstance(model, Cylinder):
+            kinds[k], params[k, :3], params[k, 3:6], params[k, 6] = 3, model.axis, model.point, model.radius
+        else:
+            continue
+        rms[k] = model.rms
+    return kinds, params, rms
 
 
 def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
@@ -47,6 +71,53 @@ class RegionFitter:
             return self.plugin.run(self._subsample(points), **self.params)
         except ValueError as exc:
             return FitFailure(kind="any", reason=str(exc))
+
+    def fit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
+        """A model or FitFailure for every positive label: the plugin's batch first, then one by one."""
+        flat = labels.ravel()
+        settled = {}
+        if self.plugin.fit_batch is not None:
+            settled = self.plugin.fit_batch(xyz_flat, flat, **self.params)
+        return {k: settled[k] if k in settled else self.fit(self.points(xyz_flat, idx))
+                for k, idx in region_indices(labels).items()}
+
+    def moments(self, xyz_flat: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
+        """Label-wise moments when the plugin refits from them, else None."""
+        if self.plugin.refit_moments is None:
+            return None
+        from .fitting.moments import region_moments
+
+        return region_moments(xyz_flat, labels.ravel())
+
+    def refit_from_moments(self, moments: np.ndarray | None, models: list) -> list:
+        """Per model the plugin's refit from its moments row, or None (refit from points)."""
+        if moments is None or not models:
+            return [None] * len(models)
+        try:
+            return self.plugin.refit_moments(moments, models, **self.params)
+        except ValueError as exc:
+            return [FitFailure(kind=m.kind, reason=str(exc)) for m in models]
+
+    def refit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, which) -> dict:
+        """Refit the regions ``which`` of ``labels``; returns {label: model or FitFailure}."""
+        which = [k for k in which if fits.get(k)]
+        if not which:
+            return {}
+        moments = self.moments(xyz_flat, labels)
+        out = {}
+        if moments is not None:
+            rows = np.zeros((len(which), moments.shape[1]))
+            inside = np.array([k < len(moments) for k in which])
+            rows[inside] = moments[[k for k in which if k < len(moments)]]
+            out = {k: m for k, m in zip(which, self.refit_from_moments(rows, [fits[k] for k in which]))
+                   if m is not None}
+        rest = [k for k in which if k not in out]
+        if rest:
+            regions = region_indices(labels)
+            empty = np.empty(0, np.int64)
+            for k in rest:
+                out[k] = self.refit(self.points(xyz_flat, regions.get(k, empty)), fits[k])
+        return out
 
     def refit(self, points: np.ndarray, model):
         """A model of ``model``'s kind for ``points`` (the plugin's ``refit``, else ``fit``)."""

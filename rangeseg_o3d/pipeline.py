@@ -11,7 +11,7 @@ import numpy as np
 from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
-from .fitstage import RegionFitter, region_indices
+from .fitstage import RegionFitter, model_table
 from .refinement import refine_regions
 from .residual import noise_sigma
 from .result import Feature, Result, Unfitted
@@ -93,8 +93,7 @@ class Pipeline:
         timings["segment"] = t_seg - t_start
 
         xyz_flat = cloud.xyz.reshape(-1, 3)
-        fits = {k: self.fitter.fit(self.fitter.points(xyz_flat, idx))
-                for k, idx in region_indices(labels).items()}
+        fits = self.fitter.fit_regions(xyz_flat, labels)
         t_fit = time.perf_counter()
         timings["fit"] = t_fit - t_seg
 
@@ -122,21 +121,26 @@ class Pipeline:
         lut = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.int32)
         lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
         labels = lut[labels]
-        regions = region_indices(labels)
+        from .kernels import count_inliers
+
+        sizes = np.bincount(labels.ravel(), minlength=len(kept) + 1)
+        renumbered = {new: fits[old] for new, old in enumerate(kept, start=1)}
+        kinds, params, rms = model_table(renumbered, len(kept) + 1)
+        # Inliers over the whole region (fits may have used a subsample): points within
+        # 3 max(sigma, rms) of the surface.
+        inliers = count_inliers(xyz_flat, labels.ravel(), kinds, params, rms,
+                                np.ascontiguousarray(sigma, dtype=np.float64).ravel(), 3.0)
         features, unfitted = [], []
-        sigma_flat = sigma.ravel()
-        for new, old in enumerate(kept, start=1):
-            model = fits[old]
-            idx = regions.get(new, np.empty(0, dtype=np.int64))
+        for new, model in renumbered.items():
             if model:
-                # Inliers over the whole region (fits may have used a subsample):
-                # points within 3 max(sigma, rms) of the surface.
-                tol = 3.0 * np.maximum(sigma_flat[idx], model.rms)
-                inliers = int(np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol))
-                features.append(Feature(label=new, model=replace(model, inliers=inliers),
-                                        n_pixels=int(idx.size)))
+                if kinds[new] == 0:  # a third-party model type: count with its own distances
+                    idx = np.flatnonzero(labels.ravel() == new)
+                    tol = 3.0 * np.maximum(sigma.ravel()[idx], model.rms)
+                    inliers[new] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
+                features.append(Feature(label=new, model=replace(model, inliers=int(inliers[new])),
+                                        n_pixels=int(sizes[new])))
             else:
-                unfitted.append(Unfitted(label=new, n_pixels=int(idx.size),
+                unfitted.append(Unfitted(label=new, n_pixels=int(sizes[new]),
                                          reason=f"{model.kind}: {model.reason}"))
         timings["total"] = time.perf_counter() - t_start
         return Result(labels=labels, features=features, unfitted=unfitted, timings=timings,

@@ -16,9 +16,6 @@ from .fitting.models import Cylinder, Plane, Sphere
 
 __all__ = ["grow_into_edges", "merge_candidates", "region_adjacency"]
 
-_OFFSETS = ((-1, 0), (1, 0), (0, -1), (0, 1))
-
-
 def _shifted(array: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
     # out[i, j] = array[i + dy, j + dx], ``fill`` outside the grid.
     out = np.full_like(array, fill)
@@ -57,62 +54,27 @@ def grow_into_edges(
     -------
     New (H, W) int32 labels.
     """
-    labels = np.array(labels, dtype=np.int32, copy=True)
-    h, w = labels.shape
-    flat = labels.ravel()
-    points = xyz.reshape(-1, 3)
-    r = np.asarray(ranges, dtype=np.float64).ravel()
-    sig = np.asarray(sigma, dtype=np.float64).ravel()
-    free = (~np.isnan(points[:, 2])) & (flat == 0)
-    grows = np.zeros(int(labels.max(initial=0)) + 1, dtype=bool)
-    grows[[k for k in models if 0 < k < grows.size]] = True
-    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-    for _ in range(iterations):
-        # Work only on the frontier: free pixels with a labelled 4-neighbour.
-        occupied = (labels > 0).astype(np.uint8)
-        frontier = np.flatnonzero(free & cv2.dilate(occupied, cross).ravel().astype(bool))
-        if frontier.size == 0:
-            break
-        rows, cols = np.divmod(frontier, w)
-        pix_all, lab_all = [], []
-        for dy, dx in _OFFSETS:
-            inside = (rows + dy >= 0) & (rows + dy < h) & (cols + dx >= 0) & (cols + dx < w)
-            pix = frontier[inside]
-            nb = pix + dy * w + dx
-            lab = flat[nb]
-            with np.errstate(invalid="ignore"):
-                smooth = np.abs(r[pix] - r[nb]) <= np.maximum(jump_min, jump_ratio * np.fmin(r[pix], r[nb]))
-            ok = (lab > 0) & grows[lab] & smooth
-            pix_all.append(pix[ok])
-            lab_all.append(lab[ok])
-        pix = np.concatenate(pix_all)
-        if pix.size == 0:
-            break
-        lab = np.concatenate(lab_all)
-        order = np.argsort(lab, kind="stable")
-        pix, lab = pix[order], lab[order]
-        dist = np.empty(pix.size)
-        bounds = np.flatnonzero(np.diff(lab)) + 1
-        for start, stop in zip(np.r_[0, bounds], np.r_[bounds, lab.size]):
-            model = models[int(lab[start])]
-            dist[start:stop] = np.abs(model.distances(points[pix[start:stop]])) / np.maximum(
-                sig[pix[start:stop]], model.rms
-            )
-        ok = dist <= k_sigma
-        if not ok.any():
-            break
-        pix, lab, dist = pix[ok], lab[ok], dist[ok]
-        # A pixel offered by several regions goes to the best-fitting one.
-        order = np.lexsort((dist, pix))
-        pix, lab = pix[order], lab[order]
-        first = np.r_[True, pix[1:] != pix[:-1]]
-        flat[pix[first]] = lab[first]
-        free[pix[first]] = False
+    from .fitstage import model_table
+    from .kernels import grow_rings
+
+    labels = np.array(labels, dtype=np.int32, order="C", copy=True)
+    n = int(labels.max(initial=0)) + 1
+    kinds, params, rms = model_table(models, n)
+    grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
+               np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+               np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+               int(iterations), float(k_sigma), float(jump_ratio), float(jump_min))
     return labels
 
 
 def region_adjacency(labels: np.ndarray, *, reach: int = 2) -> set[tuple[int, int]]:
     """Pairs (a < b) of regions whose pixels come within ``reach`` pixels of each other."""
+    n = int(labels.max(initial=0)) + 1
+    if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
+        from .kernels import adjacency_matrix
+
+        a, b = np.nonzero(np.triu(adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)))
+        return set(zip(a.tolist(), b.tolist()))
     pairs = set()
     for dy in range(-reach, reach + 1):
         for dx in range(0, reach + 1):

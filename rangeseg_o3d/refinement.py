@@ -158,26 +158,26 @@ class _Context:
         """Refit regions that grew by more than 5 %; a refit must keep the kind."""
         before = np.bincount(labels.ravel(), minlength=grown.max(initial=0) + 1)
         after = np.bincount(grown.ravel(), minlength=before.size)
-        changed = np.flatnonzero(after > 1.05 * np.maximum(before, 1))
-        if changed.size:
-            regions = region_indices(grown)
-            for k in map(int, changed):
-                if k == 0 or k not in regions or not fits.get(k):
-                    continue
-                refit = self.fitter.refit(self.fitter.points(self.xyz, regions[k]), fits[k])
-                if refit and refit.kind == fits[k].kind:
-                    fits[k] = refit
+        changed = [int(k) for k in np.flatnonzero(after > 1.05 * np.maximum(before, 1)) if k > 0]
+        for k, refit in self.fitter.refit_regions(self.xyz, grown, fits, changed).items():
+            if refit and refit.kind == fits[k].kind:
+                fits[k] = refit
         return grown, fits
 
     def merge(self, labels, fits, config):
-        """Merge same-kind regions whose union one model explains (union-find over candidates)."""
+        """Merge same-kind regions whose union one model explains (union-find over candidates).
+
+        Planes are tried from summed label-wise moments (no point is touched); other kinds
+        refit the union's points.
+        """
         good = {k: m for k, m in fits.items() if m}
         pairs = merge_candidates(good, max_angle_deg=config.merge_angle_deg,
                                  tolerance=config.merge_tolerance,
                                  adjacency=region_adjacency(labels), disjoint=config.merge_disjoint)
         if not pairs:
             return labels, fits
-        regions = region_indices(labels)
+        moments = self.fitter.moments(self.xyz, labels)
+        regions = None
         root = {k: k for k in fits}
 
         def find(k):
@@ -189,15 +189,23 @@ class _Context:
             ra, rb = find(a), find(b)
             if ra == rb or not fits[ra] or not fits[rb]:
                 continue
-            union_idx = np.concatenate([regions[ra], regions[rb]])
-            union = self.fitter.refit(self.fitter.points(self.xyz, union_idx), fits[ra])
+            union = None
+            if moments is not None:
+                union = self.fitter.refit_from_moments(moments[ra] + moments[rb], [fits[ra]])[0]
+            if union is None:
+                if regions is None:
+                    regions = region_indices(labels)
+                union_idx = np.concatenate([regions[ra], regions[rb]])
+                union = self.fitter.refit(self.fitter.points(self.xyz, union_idx), fits[ra])
             limit = config.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
             if union and union.kind == fits[ra].kind and union.rms <= limit:
                 root[rb] = ra
-                regions[ra] = union_idx
                 fits[ra] = union
-                del regions[rb]
                 fits.pop(rb)
+                if moments is not None:
+                    moments[ra] += moments[rb]
+                if regions is not None:
+                    regions[ra] = np.concatenate([regions[ra], regions.pop(rb)])
         lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
         for k in root:
             lut[k] = find(k)
@@ -244,9 +252,8 @@ class _Context:
                 changed.add(k)
             del regions[small]
             fits.pop(small, None)
-        for k in changed:
-            if k in regions:
-                refit = self.fitter.refit(self.fitter.points(self.xyz, regions[k]), fits[k])
-                if refit:
-                    fits[k] = refit
+        for k, refit in self.fitter.refit_regions(
+                self.xyz, labels, fits, [k for k in changed if k in regions]).items():
+            if refit:
+                fits[k] = refit
         return labels, fits

@@ -66,6 +66,15 @@ class Plugin:
     refit: Callable | None = None
     """Optional, fitters only: ``refit(points, model, **params)`` fits a model of ``model``'s
     kind (used after a region grew or merged); without it the pipeline calls ``run`` again."""
+    fit_batch: Callable | None = None
+    """Optional, fitters only: ``fit_batch(xyz (N, 3), labels (N,), **params) -> {label: model}``
+    settles at once the regions it can (e.g. every plane, from label-wise moments); the
+    others go through ``run`` one by one."""
+    refit_moments: Callable | None = None
+    """Optional, fitters only: ``refit_moments(moments (K, 10), models, **params) -> list``
+    refits from label-wise moments (see :mod:`rangeseg_o3d.fitting.moments`): a model or
+    FitFailure per row, or None where the kind needs the points (the pipeline then calls
+    ``refit``)."""
 
 
 _BUILTIN: dict[str, dict[str, str]] = {

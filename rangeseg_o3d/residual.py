@@ -204,24 +204,12 @@ def block_means(xyz: np.ndarray, block: int, *, min_fraction: float = 0.5):
         tile's pixels are valid.
     counts : the number of valid pixels averaged per tile.
     """
-    import cv2
+    from .kernels import block_means as _block_means
 
-    xyz = np.asarray(xyz, dtype=np.float64)
     if block < 1:
         raise ValueError(f"block must be >= 1; got {block}")
-    h, w = xyz.shape[:2]
-    hp, wp = -(-h // block) * block, -(-w // block) * block
-    valid = ~np.isnan(xyz[..., 2])
-    filled = np.zeros((hp, wp, 3))
-    np.copyto(filled[:h, :w], xyz, where=valid[..., None])
-    mask = np.zeros((hp, wp))
-    mask[:h, :w] = valid
-    size = (wp // block, hp // block)
-    # INTER_AREA on an exact integer factor is the tile mean; sums follow from it.
-    sums = cv2.resize(filled, size, interpolation=cv2.INTER_AREA)
-    fraction = cv2.resize(mask, size, interpolation=cv2.INTER_AREA)
-    counts = np.rint(fraction * block * block).astype(np.int64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / fraction[..., None]
-    means[fraction < min_fraction] = np.nan
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    if xyz.ndim != 3 or xyz.shape[2] != 3:
+        raise ValueError(f"xyz must have shape (H, W, 3); got {xyz.shape}")
+    means, counts = _block_means(xyz, int(block), float(min_fraction * block * block))
     return means, counts

@@ -37,7 +37,8 @@ from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import fit_plane
 from .sphere import fit_sphere, sphere_cap_angle
 
-__all__ = ["fit_primitive", "refit_primitive", "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
+__all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
+           "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
 
 INLIER_FACTOR = 3.0
 """Points within INLIER_FACTOR x the kind's rms threshold count as inliers."""
@@ -247,6 +248,103 @@ def refit_primitive(
     return new if why is None else FitFailure(model.kind, why)
 
 
+def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float) -> np.ndarray:
+    return plane_rms + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
+
+
+def fit_planes_batch(
+    xyz,
+    labels,
+    *,
+    plane_rms: float = 0.01,
+    rms_per_range2: float = 0.0,
+    min_points: int = 10,
+    curvature_gain: float = 1.5,
+    **_curved,
+) -> dict[int, Plane]:
+    """Every region of a label image that :func:`fit_primitive` would call a plane, at once.
+
+    One pass over the pixels gives each label's moments, hence its plane; the regions
+    whose plane passes step 2 of the decision rule (rms within ``plane_rms + rms_per_range2
+    R^2`` and no significant curvature by the batched quadric test) are returned. The
+    others (curved, too few or collinear points) are left to :func:`fit_primitive`.
+    Keywords for the curved models are accepted and ignored.
+
+    Parameters
+    ----------
+    xyz : (N, 3) points (NaN rows are skipped).
+    labels : (N,) int labels, 0 = in no region.
+
+    Returns
+    -------
+    {label: Plane}, each Plane's ``inliers`` counted within 3x its threshold.
+    """
+    from ..kernels import count_inliers
+    from .moments import planes_from_moments, quadric_gains, region_moments
+
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    labels = np.ascontiguousarray(labels, dtype=np.int32)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or labels.shape != (len(xyz),):
+        raise ValueError(f"xyz must be (N, 3) and labels (N,); got {xyz.shape} and {labels.shape}")
+    planes = planes_from_moments(region_moments(xyz, labels))
+    tol = _plane_tolerances(planes, plane_rms, rms_per_range2)
+    candidate = planes.ok & (planes.count >= max(int(min_points), 3)) & (planes.rms <= tol)
+    candidate[0] = False
+    # The floor keeps rounding-level residuals of exact planes from looking "curved".
+    gain, _ = quadric_gains(xyz, labels, planes, candidate & (planes.rms > 0.1 * tol))
+    settled = np.flatnonzero(candidate & (gain < curvature_gain))
+    if settled.size == 0:
+        return {}
+    kinds = np.zeros(len(tol), np.int8)
+    kinds[settled] = 1
+    params = np.zeros((len(tol), 7))
+    params[:, :3], params[:, 3] = planes.normal, planes.d
+    inliers = count_inliers(xyz, labels, kinds, params, INLIER_FACTOR * tol, np.zeros(len(xyz)), 1.0)
+    return {int(k): Plane(normal=planes.normal[k], d=float(planes.d[k]), rms=float(planes.rms[k]),
+                          inliers=int(inliers[k])) for k in settled}
+
+
+def refit_planes_from_moments(
+    moments,
+    models,
+    *,
+    plane_rms: float = 0.01,
+    rms_per_range2: float = 0.0,
+    min_points: int = 10,
+    **_curved,
+) -> list:
+    """:func:`refit_primitive` for the planes among ``models``, from label-wise moments.
+
+    Row ``i`` of ``moments`` (see :func:`rangeseg_o3d.fitting.moments.region_moments`) holds
+    the points of ``models[i]``'s region (e.g. two merged regions: the sum of their rows).
+    Returns per row a Plane, a FitFailure (too few or collinear points, rms over the
+    threshold), or None where the model is not a plane (it needs its points). A Plane's
+    ``inliers`` is its number of points: moments carry no distances.
+    """
+    from .moments import planes_from_moments
+
+    moments = np.atleast_2d(np.asarray(moments, dtype=np.float64))
+    if len(moments) != len(models):
+        raise ValueError(f"need one moments row per model; got {len(moments)} rows and {len(models)} models")
+    planes = planes_from_moments(moments)
+    tol = _plane_tolerances(planes, plane_rms, rms_per_range2)
+    out = []
+    for i, model in enumerate(models):
+        if not isinstance(model, Plane):
+            out.append(None)
+        elif planes.count[i] < max(int(min_points), 3):
+            out.append(FitFailure("plane", f"a plane fit needs at least {max(int(min_points), 3)} "
+                                           f"points; got {int(planes.count[i])}"))
+        elif not planes.ok[i]:
+            out.append(FitFailure("plane", "points are coincident or collinear: the plane is undetermined"))
+        elif planes.rms[i] > tol[i]:
+            out.append(FitFailure("plane", f"plane rms {planes.rms[i]:.3g} > {tol[i]:.3g}"))
+        else:
+            out.append(Plane(normal=planes.normal[i], d=float(planes.d[i]), rms=float(planes.rms[i]),
+                             inliers=int(planes.count[i])))
+    return out
+
+
 class PrimitiveFitterConfig(BaseModel):
     """Parameters of the "primitives" fitter: exactly :func:`fit_primitive`'s keywords."""
 
@@ -268,4 +366,6 @@ PLUGIN = Plugin(
     run=fit_primitive,
     description="plane, else cylinder or sphere (paper Fig. 2), with false-fitting guards",
     refit=refit_primitive,
+    fit_batch=fit_planes_batch,
+    refit_moments=refit_planes_from_moments,
 )

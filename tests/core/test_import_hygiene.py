@@ -13,3 +13,10 @@ def test_import_does_not_pull_heavy_or_device_modules():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_plain_import_leaves_the_compiler_for_first_use():
+    # numba costs ~0.5 s to import; only the pipeline's kernels need it.
+    code = "import sys, rangeseg_o3d as rs; rs.fit_plane([[0, 0, 1], [1, 0, 1], [0, 1, 1]]); print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -1,0 +1,223 @@
+"""Compiled kernels and the batched (moment-based) fits checked against per-region numpy."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.fitstage import model_table
+from rangeseg_o3d.fitting import fit_cylinder, fit_plane, fit_sphere
+from rangeseg_o3d.fitting.classify import (
+    fit_planes_batch,
+    fit_primitive,
+    quadric_shape,
+    refit_planes_from_moments,
+)
+from rangeseg_o3d.fitting.models import FitFailure, Plane
+from rangeseg_o3d.fitting.moments import planes_from_moments, quadric_gains, region_moments
+from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, grow_rings
+from rangeseg_o3d.refine import region_adjacency
+from rangeseg_o3d.residual import block_means as tile_means
+
+
+def _plane_points(rng, n, normal, d, noise):
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    helper = np.eye(3)[np.argmin(np.abs(normal))]
+    e1 = np.cross(normal, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    uv = rng.uniform(-1, 1, (n, 2))
+    return d * normal + uv[:, :1] * e1 + uv[:, 1:] * e2 + rng.normal(0, noise, (n, 1)) * normal
+
+
+def _labelled(rng, groups):
+    """Shuffle groups of points into one (N, 3) array with labels 1..len(groups), NaN rows as 0."""
+    pts = np.vstack(groups + [np.full((7, 3), np.nan)])
+    labels = np.concatenate([np.full(len(g), k, np.int32) for k, g in enumerate(groups, 1)]
+                            + [np.zeros(7, np.int32)])
+    order = rng.permutation(len(pts))
+    return pts[order], labels[order]
+
+
+def test_label_moments_equal_per_label_sums():
+    rng = np.random.default_rng(1)
+    groups = [rng.normal(k, 1.0, (50 + 10 * k, 3)) for k in range(3)]
+    pts, labels = _labelled(rng, groups)
+    moments = region_moments(pts, labels)
+    assert moments.shape == (4, 10) and (moments[0] == 0).all()
+    for k, g in enumerate(groups, 1):
+        outer = g.T @ g
+        expected = [len(g), *g.sum(0), outer[0, 0], outer[0, 1], outer[0, 2], outer[1, 1], outer[1, 2],
+                    outer[2, 2]]
+        np.testing.assert_allclose(moments[k], expected, rtol=1e-12)
+
+
+def test_planes_from_moments_match_fit_plane():
+    rng = np.random.default_rng(2)
+    specs = [([0, 0, 1], 2.0, 0.005), ([1, 2, -0.5], 4.0, 0.01), ([0.3, -1, 0.1], 0.5, 0.0)]
+    groups = [_plane_points(rng, 200, *s) for s in specs]
+    pts, labels = _labelled(rng, groups)
+    table = planes_from_moments(region_moments(pts, labels))
+    for k, g in enumerate(groups, 1):
+        ref = fit_plane(g)
+        assert table.ok[k]
+        np.testing.assert_allclose(table.normal[k], ref.normal, atol=1e-9)
+        assert table.d[k] == pytest.approx(ref.d, abs=1e-9)
+        assert table.rms[k] == pytest.approx(ref.rms, rel=1e-6, abs=1e-7)
+
+
+def test_planes_from_moments_flag_degenerate_rows():
+    line = np.outer(np.linspace(0, 1, 20), [1.0, 2.0, 3.0])
+    pts = np.vstack([line, [[0, 0, 1], [1, 0, 1]]])
+    labels = np.r_[np.full(20, 1, np.int32), [2, 2]]
+    table = planes_from_moments(region_moments(pts, labels, 4))
+    assert not table.ok[1]  # collinear
+    assert not table.ok[2]  # two points
+    assert not table.ok[3]  # empty
+    with pytest.raises(ValueError, match=r"\(K, 10\)"):
+        planes_from_moments(np.zeros((3, 9)))
+
+
+def test_quadric_gains_match_quadric_shape():
+    rng = np.random.default_rng(3)
+    t = rng.uniform(0, np.pi / 2, 300)
+    z = rng.uniform(0, 1, 300)
+    cyl = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), z], 1) + rng.normal(0, 0.002, (300, 3))
+    sph_dir = rng.normal(size=(300, 3))
+    sph_dir[:, 2] = np.abs(sph_dir[:, 2]) + 2
+    sph = 0.4 * sph_dir / np.linalg.norm(sph_dir, axis=1, keepdims=True) + rng.normal(0, 0.002, (300, 3))
+    flat = _plane_points(rng, 300, [0, 1, 1], 3.0, 0.005)
+    groups = [cyl, sph, flat]
+    pts, labels = _labelled(rng, groups)
+    table = planes_from_moments(region_moments(pts, labels))
+    gain, roundness = quadric_gains(pts, labels, table, np.array([False, True, True, True]))
+    for k, g in enumerate(groups, 1):
+        ref_gain, ref_round = quadric_shape(g, fit_plane(g))
+        assert gain[k] == pytest.approx(ref_gain, rel=1e-6)
+        assert roundness[k] == pytest.approx(ref_round, rel=1e-6, abs=1e-9)
+    assert gain[0] == 1.0 and roundness[0] == 0.5  # inactive row
+
+
+def test_fit_planes_batch_settles_exactly_the_planes_fit_primitive_accepts():
+    rng = np.random.default_rng(4)
+    t = rng.uniform(0, np.pi, 400)
+    cyl = np.stack([0.2 * np.cos(t), 0.2 * np.sin(t) + 2, rng.uniform(0, 1, 400)], 1)
+    cyl += rng.normal(0, 0.003, cyl.shape)
+    groups = [_plane_points(rng, 300, [0, 0, 1], 1.5, 0.004), cyl,
+              _plane_points(rng, 300, [1, 1, 0], 2.0, 0.03),  # too rough for plane_rms 0.01
+              _plane_points(rng, 5, [1, 0, 0], 2.0, 0.0)]     # fewer than min_points
+    pts, labels = _labelled(rng, groups)
+    settled = fit_planes_batch(pts, labels)
+    assert set(settled) == {1}
+    ref = fit_primitive(groups[0])
+    assert isinstance(ref, Plane)
+    np.testing.assert_allclose(settled[1].normal, ref.normal, atol=1e-9)
+    assert settled[1].rms == pytest.approx(ref.rms, rel=1e-6)
+    assert settled[1].inliers == ref.inliers
+    with pytest.raises(ValueError, match="labels"):
+        fit_planes_batch(pts, labels[:-1])
+
+
+def test_refit_planes_from_summed_moments_is_the_union_fit():
+    rng = np.random.default_rng(5)
+    a = _plane_points(rng, 100, [0, 0, 1], 2.0, 0.004)
+    b = _plane_points(rng, 150, [0, 0, 1], 2.0, 0.004) + [3, 0, 0]
+    moments = region_moments(np.vstack([a, b]), np.r_[np.ones(100, np.int32), np.full(150, 2, np.int32)])
+    union = fit_plane(np.vstack([a, b]))
+    sphere = fit_sphere(rng.normal(size=(50, 3)) / 10 + [0, 0, 3])
+    out = refit_planes_from_moments(np.stack([moments[1] + moments[2], moments[1], moments[1]]),
+                                    [union, sphere, union], plane_rms=0.001)
+    assert out[1] is None  # not a plane: needs its points
+    # union rms ~0.004 > plane_rms 0.001: refused with the reason
+    assert isinstance(out[0], FitFailure) and "rms" in out[0].reason
+    ok = refit_planes_from_moments(moments[1] + moments[2], [union])[0]
+    np.testing.assert_allclose(ok.normal, union.normal, atol=1e-9)
+    assert ok.rms == pytest.approx(union.rms, rel=1e-6) and ok.inliers == 250
+    with pytest.raises(ValueError, match="one moments row per model"):
+        refit_planes_from_moments(moments, [union])
+
+
+def test_count_inliers_matches_model_distances():
+    rng = np.random.default_rng(6)
+    t = rng.uniform(0, 2 * np.pi, 200)
+    cyl_pts = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), rng.uniform(0, 1, 200)], 1)
+    cyl_pts += rng.normal(0, 0.01, cyl_pts.shape)
+    cylinder = fit_cylinder(cyl_pts)
+    sph_pts = rng.normal(size=(200, 3))
+    sph_pts = 0.5 * sph_pts / np.linalg.norm(sph_pts, axis=1, keepdims=True) + rng.normal(0, 0.01, (200, 3))
+    sphere = fit_sphere(sph_pts)
+    pl_pts = _plane_points(rng, 200, [1, 0, 1], 1.0, 0.01)
+    plane = fit_plane(pl_pts)
+    pts = np.vstack([cyl_pts, sph_pts, pl_pts])
+    labels = np.repeat(np.arange(1, 4, dtype=np.int32), 200)
+    sigma = rng.uniform(0.002, 0.02, len(pts))
+    kinds, params, rms = model_table({1: cylinder, 2: sphere, 3: plane, 4: FitFailure("x", "y")}, 5)
+    assert kinds.tolist() == [0, 3, 2, 1, 0]
+    got = count_inliers(pts, labels, kinds, params, rms, sigma, 1.5)
+    for k, model in enumerate([cylinder, sphere, plane], 1):
+        sel = labels == k
+        expected = np.count_nonzero(np.abs(model.distances(pts[sel])) <= 1.5 * np.maximum(sigma[sel], model.rms))
+        assert got[k] == expected
+    assert got[0] == 0 and got[4] == 0
+
+
+def test_grow_rings_adds_one_ring_per_iteration_and_respects_the_model():
+    h, w = 9, 9
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.dstack([u * 0.05, v * 0.05, np.full((h, w), 2.0)])
+    xyz[0, 0, 2] = 2.2  # off the plane: never taken
+    labels = np.zeros((h, w), np.int32)
+    labels[4, 4] = 1
+    kinds, params, rms = model_table({1: Plane([0, 0, 1], 2.0, 0.001, 1)}, 2)
+    sigma = np.full(h * w, 0.002)
+    ranges = np.linalg.norm(xyz, axis=2).ravel()
+    added = grow_rings(xyz.reshape(-1, 3), labels, kinds, params, rms, sigma, ranges, 2, 3.0, 0.1, 0.05)
+    manhattan = np.abs(v - 4) + np.abs(u - 4)
+    assert added == 12 and ((labels == 1) == (manhattan <= 2)).all()
+    grow_rings(xyz.reshape(-1, 3), labels, kinds, params, rms, sigma, ranges, 20, 3.0, 0.1, 0.05)
+    assert labels[0, 0] == 0 and (labels.ravel()[1:] == 1).all()
+
+
+def test_adjacency_matrix_agrees_with_shifted_pairs():
+    rng = np.random.default_rng(7)
+    labels = rng.integers(0, 6, (30, 40)).astype(np.int32)
+    labels[rng.random((30, 40)) < 0.7] = 0
+    for reach in (1, 2, 3):
+        adj = adjacency_matrix(labels, 6, reach)
+        pairs = set()
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                a = labels[max(0, -dy):30 - max(0, dy), max(0, -dx):40 - max(0, dx)]
+                b = labels[max(0, dy):30 - max(0, -dy), max(0, dx):40 - max(0, -dx)]
+                touch = (a > 0) & (b > 0) & (a != b)
+                pairs.update(zip(np.minimum(a, b)[touch].tolist(), np.maximum(a, b)[touch].tolist()))
+        got = set(zip(*np.nonzero(np.triu(adj))))
+        assert got == {(int(p), int(q)) for p, q in pairs}
+        assert (adj == adj.T).all()
+        assert region_adjacency(labels, reach=reach) == pairs
+
+
+def test_block_means_are_nan_aware_tile_means():
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(25, 31, 3))
+    xyz[rng.random((25, 31)) < 0.3] = np.nan
+    xyz[:6, :6] = np.nan     # an empty tile
+    xyz[6:12, :4] = np.nan   # a tile with 12 of 36 valid: under min_fraction 0.5
+    xyz[6:12, 4:6] = 1.0
+    means, counts = block_means(xyz, 6, 0.0)
+    assert means.shape == (5, 6, 3) and counts.dtype == np.int64
+    for br in range(5):
+        for bc in range(6):
+            tile = xyz[6 * br:6 * br + 6, 6 * bc:6 * bc + 6].reshape(-1, 3)
+            ok = ~np.isnan(tile[:, 2])
+            assert counts[br, bc] == ok.sum()
+            if ok.any():
+                np.testing.assert_allclose(means[br, bc], tile[ok].mean(0), rtol=1e-12)
+    assert np.isnan(means[0, 0]).all() and counts[0, 0] == 0
+    half, half_counts = tile_means(xyz, 6, min_fraction=0.5)
+    assert half_counts[1, 0] == 12 and np.isnan(half[1, 0]).all()
+    # NaN exactly where fewer than half of the 36 tile pixels are valid (the partial last
+    # row of tiles counts its missing pixels as invalid)
+    assert (np.isnan(half[..., 2]) == (half_counts < 18)).all()
+    kept = half_counts >= 18
+    np.testing.assert_allclose(half[kept], means[kept], rtol=1e-12)
+    with pytest.raises(ValueError, match="block must be >= 1"):
+        tile_means(xyz, 0)
