@@ -72,12 +72,15 @@ class RegionFitter:
         except ValueError as exc:
             return FitFailure(kind="any", reason=str(exc))
 
+    def fit_batch(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
+        """The regions the plugin's batch fit settles at once ({} without one)."""
+        if self.plugin.fit_batch is None:
+            return {}
+        return self.plugin.fit_batch(xyz_flat, labels.ravel(), **self.params)
+
     def fit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
         """A model or FitFailure for every positive label: the plugin's batch first, then one by one."""
-        flat = labels.ravel()
-        settled = {}
-        if self.plugin.fit_batch is not None:
-            settled = self.plugin.fit_batch(xyz_flat, flat, **self.params)
+        settled = self.fit_batch(xyz_flat, labels)
         return {k: settled[k] if k in settled else self.fit(self.points(xyz_flat, idx))
                 for k, idx in region_indices(labels).items()}
 

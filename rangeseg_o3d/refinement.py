@@ -126,21 +126,35 @@ class _Context:
         dropped, or kept as unfitted regions when ``keep_failures``.
         """
         flat = labels.ravel()
-        for k, idx in region_indices(candidates).items():
-            # A failed region has its FitFailure here; a leftover blob has nothing yet: one
-            # trimmed fit settles both "all of it" and "most of it".
+        regions = region_indices(candidates)
+        fresh = [k for k in regions if k not in fits]
+        # One batched pass settles the fresh candidates that are planes outright.
+        settled = self.fitter.fit_batch(self.xyz, candidates) if fresh else {}
+        for k, idx in regions.items():
+            # A failed region has its FitFailure here; a leftover blob has nothing yet.
             model = fits.get(k)
             if model:
                 flat[idx] = k
                 fits[k] = model
                 continue
-            trimmed, inliers = trimmed_fit(self.xyz[idx], self.fitter.fit,
-                                           sigma=float(np.nanmedian(self.sigma[idx])),
-                                           min_points=self.min_size)
+            trimmed = inliers = None
+            if model is None:
+                # A blob that is one surface needs no trimming: the plain fit explains it.
+                plain = settled.get(k) or self.fitter.fit(self.fitter.points(self.xyz, idx))
+                if plain:
+                    near = np.abs(plain.distances(self.xyz[idx])) <= 3.0 * np.maximum(self.sigma[idx], plain.rms)
+                    if near.mean() >= 0.9:
+                        trimmed, inliers = plain, near
+            if trimmed is None:
+                # one trimmed fit settles both "all of it" and "most of it"
+                trimmed, inliers = trimmed_fit(self.xyz[idx], self.fitter.fit,
+                                               sigma=float(np.nanmedian(self.sigma[idx])),
+                                               min_points=self.min_size)
             if trimmed is not None:
                 chosen = self._largest_piece(idx[inliers])
                 if chosen.size >= max(self.min_size, min_share * idx.size):
-                    refined = self.fitter.refit(self.fitter.points(self.xyz, chosen), trimmed)
+                    refined = trimmed if chosen.size == idx.size else self.fitter.refit(
+                        self.fitter.points(self.xyz, chosen), trimmed)
                     if refined:
                         flat[idx] = 0
                         flat[chosen] = k
