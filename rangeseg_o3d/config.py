@@ -73,6 +73,11 @@ class PipelineConfig(BaseModel):
         3000, ge=50,
         description="regions with more points are fitted on an even subsample of this size",
     )
+    tile: int = Field(
+        1, ge=1, le=16,
+        description="segment, fit and refine the grid of tile x tile means, then label every "
+                    "pixel by the models (depth cameras: the noise hides creases at full resolution)",
+    )
 
     @model_validator(mode="after")
     def _validate_plugins(self):

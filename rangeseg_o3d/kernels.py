@@ -23,8 +23,10 @@ __all__ = [
     "quadric_sums",
     "grow_rings",
     "count_inliers",
+    "distance_stats",
     "adjacency_matrix",
     "block_means",
+    "assign_tiles",
     "KIND_CODES",
 ]
 
@@ -137,16 +139,28 @@ def _neighbour(i, step, h, w):
 @njit(cache=True, nogil=True)
 def count_inliers(xyz, labels, kinds, params, rms, sigma, factor):
     """Per label, the pixels within ``factor * max(sigma, rms)`` of the label's model."""
+    return distance_stats(xyz, labels, kinds, params, rms, sigma, factor)[0]
+
+
+@njit(cache=True, nogil=True)
+def distance_stats(xyz, labels, kinds, params, rms, sigma, factor):
+    """Per label: inliers (as :func:`count_inliers`), sum of squared distances, pixel count."""
     n = kinds.shape[0]
-    out = np.zeros(n, np.int64)
+    inliers = np.zeros(n, np.int64)
+    squares = np.zeros(n)
+    counts = np.zeros(n, np.int64)
     for i in range(labels.shape[0]):
         k = labels[i]
         if k <= 0 or k >= n or kinds[k] == 0:
             continue
         dist = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2])
+        if not np.isfinite(dist):
+            continue
+        counts[k] += 1
+        squares[k] += dist * dist
         if dist <= factor * max(sigma[i], rms[k]):
-            out[k] += 1
-    return out
+            inliers[k] += 1
+    return inliers, squares, counts
 
 
 @njit(cache=True, nogil=True)
@@ -287,3 +301,50 @@ def block_means(xyz, stride, min_count):
                 for a in range(3):
                     sums[br, bc, a] = np.nan
     return sums, counts
+
+
+@njit(cache=True, nogil=True)
+def assign_tiles(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma):
+    """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
+
+    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
+    the one whose model is nearest in units of ``max(sigma, rms)``, if within
+    ``k_sigma`` (its own tile's region wins ties). Pixels of a tile whose region has no
+    model (``kinds == 0``) keep that region. ``xyz`` and ``sigma`` are flat (H*W).
+    """
+    th, tw = tile_labels.shape
+    out = np.zeros((height, width), np.int32)
+    n = kinds.shape[0]
+    for r in range(height):
+        tr = r // tile
+        for c in range(width):
+            i = r * width + c
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            if not np.isfinite(z):
+                continue
+            tc = c // tile
+            own = tile_labels[tr, tc]
+            if own > 0 and own < n and kinds[own] == 0:
+                out[r, c] = own
+                continue
+            best, best_score = 0, k_sigma
+            if own > 0 and own < n:
+                score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+                if score <= best_score:
+                    best, best_score = own, score
+            for dr in range(-1, 2):
+                rr = tr + dr
+                if rr < 0 or rr >= th:
+                    continue
+                for dc in range(-1, 2):
+                    cc = tc + dc
+                    if cc < 0 or cc >= tw or (dr == 0 and dc == 0):
+                        continue
+                    k = tile_labels[rr, cc]
+                    if k <= 0 or k >= n or k == best or kinds[k] == 0:
+                        continue
+                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+            out[r, c] = best
+    return out

@@ -18,6 +18,11 @@ from .result import Feature, Result, Unfitted
 
 __all__ = ["Pipeline"]
 
+
+def _expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
+    # Nearest-neighbour upsampling of a tile-grid image back to the sensor grid.
+    return np.repeat(np.repeat(image, tile, axis=0), tile, axis=1)[: shape[0], : shape[1]]
+
 log = logging.getLogger(__name__)
 
 
@@ -48,13 +53,19 @@ class Pipeline:
         return (f"Pipeline({self.config.name!r}, segmenter={self.segmenter.name!r}, "
                 f"fitter={self.fitter.plugin.name!r})")
 
-    def noise(self, ranges: np.ndarray) -> np.ndarray:
-        """Range noise per pixel (m): the refine section's model, else the segmenter's."""
+    def noise(self, ranges: np.ndarray, samples: np.ndarray | None = None) -> np.ndarray:
+        """Range noise per pixel (m): the refine section's model, else the segmenter's.
+
+        For means of ``samples`` returns the range-dependent term shrinks by
+        ``1/sqrt(samples)``; ``sigma0`` (quantisation, calibration) does not average out.
+        """
         seg = self.config.segmenter.params
         ref = self.config.refine
         sigma0 = ref.sigma0 if ref.sigma0 is not None else seg.get("sigma0", 0.005)
         quad = (ref.sigma_quadratic if ref.sigma_quadratic is not None
                 else seg.get("sigma_quadratic", 0.0))
+        if samples is not None:
+            quad = quad / np.sqrt(np.maximum(samples, 1))
         return noise_sigma(ranges, sigma0=sigma0, sigma_quadratic=quad)
 
     def run(self, cloud: OrganizedCloud, *, recording=None, scan_index: int = 0) -> Result:
@@ -80,56 +91,88 @@ class Pipeline:
                 f"cloud has no valid point (all {cloud.shape[0]}x{cloud.shape[1]} are NaN)")
         timings: dict[str, float] = {}
         t_start = time.perf_counter()
-        seg = self.segmenter.run(cloud, **self.config.segmenter.params)
+        work = cloud.tile_means(self.config.tile) if self.config.tile > 1 else cloud
+        if work.n_valid == 0:
+            raise ValueError(f"no {self.config.tile}x{self.config.tile} tile of the cloud has "
+                             "at least half of its pixels valid; use a smaller tile")
+        seg = self.segmenter.run(work, **self.config.segmenter.params)
         labels = np.asarray(seg.labels)
-        if labels.shape != cloud.shape or not np.issubdtype(labels.dtype, np.integer):
+        if labels.shape != work.shape or not np.issubdtype(labels.dtype, np.integer):
             raise ValueError(
                 f"segmenter {self.segmenter.name!r} returned labels of shape {labels.shape} and "
-                f"dtype {labels.dtype}; expected integer labels of shape {cloud.shape}"
+                f"dtype {labels.dtype}; expected integer labels of shape {work.shape}"
             )
-        labels = np.where(cloud.valid, labels, 0).astype(np.int32)
+        labels = np.where(work.valid, labels, 0).astype(np.int32)
         timings.update(seg.timings)
         t_seg = time.perf_counter()
         timings["segment"] = t_seg - t_start
 
-        xyz_flat = cloud.xyz.reshape(-1, 3)
+        xyz_flat = work.xyz.reshape(-1, 3)
         fits = self.fitter.fit_regions(xyz_flat, labels)
         t_fit = time.perf_counter()
         timings["fit"] = t_fit - t_seg
 
-        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
-        sigma = self.noise(ranges)
+        ranges = np.where(work.valid, work.range_image(), np.nan)
+        sigma = self.noise(ranges, work.samples)
         if self.config.refine.enabled:
             labels, fits = refine_regions(
-                cloud, labels, fits, fitter=self.fitter, config=self.config.refine,
+                work, labels, fits, fitter=self.fitter, config=self.config.refine,
                 segmenter_params=self.config.segmenter.params, ranges=ranges, sigma=sigma,
                 jumps=seg.stages.get("jumps"), timings=timings)
-        timings["refine"] = time.perf_counter() - t_fit
+        t_refine = time.perf_counter()
+        timings["refine"] = t_refine - t_fit
 
-        result = self._assemble(labels, fits, sigma, xyz_flat, timings, seg.stages, t_start)
+        stages = seg.stages
+        if work is not cloud:
+            labels, fits, sigma = self._full_resolution(cloud, labels, fits)
+            stages = {k: _expand(v, self.config.tile, cloud.shape) for k, v in stages.items()}
+            timings["full_resolution"] = time.perf_counter() - t_refine
+        result = self._assemble(labels, fits, sigma, cloud.xyz.reshape(-1, 3), timings, stages, t_start,
+                                pixel_rms=work is not cloud)
         if recording is not None:
             from .viz.rerun_log import log_scan
 
             log_scan(recording, cloud, result, scan_index=scan_index)
         return result
 
+    def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict):
+        """Label every pixel by the models of its tile's region and the 8 around it.
+
+        Returns full-resolution ``(labels, fits, sigma)``. The models stay those fitted to
+        the tile means (each averages all the region's pixels; refitting the pixels moves a
+        plane's normal by far less than its error); :meth:`_assemble` reports the rms of
+        the pixels' distances.
+        """
+        from .kernels import assign_tiles
+
+        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+        sigma = self.noise(ranges)
+        xyz_flat = np.ascontiguousarray(cloud.xyz.reshape(-1, 3))
+        kinds, params, rms = model_table(fits, int(tile_labels.max(initial=0)) + 1)
+        labels = assign_tiles(xyz_flat, cloud.shape[0], cloud.shape[1],
+                              np.ascontiguousarray(tile_labels, dtype=np.int32), self.config.tile,
+                              kinds, params, rms, np.ascontiguousarray(sigma).ravel(),
+                              float(self.config.refine.k_sigma))
+        return labels, fits, sigma
+
     @staticmethod
-    def _assemble(labels, fits, sigma, xyz_flat, timings, stages, t_start) -> Result:
+    def _assemble(labels, fits, sigma, xyz_flat, timings, stages, t_start, pixel_rms=False) -> Result:
         # Number the regions that have a fit (or a reported failure) 1..n, in label order.
         present = np.unique(labels[labels > 0])
         kept = [int(k) for k in present if int(k) in fits]
         lut = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.int32)
         lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
         labels = lut[labels]
-        from .kernels import count_inliers
+        from .kernels import distance_stats
 
         sizes = np.bincount(labels.ravel(), minlength=len(kept) + 1)
         renumbered = {new: fits[old] for new, old in enumerate(kept, start=1)}
         kinds, params, rms = model_table(renumbered, len(kept) + 1)
         # Inliers over the whole region (fits may have used a subsample): points within
         # 3 max(sigma, rms) of the surface.
-        inliers = count_inliers(xyz_flat, labels.ravel(), kinds, params, rms,
-                                np.ascontiguousarray(sigma, dtype=np.float64).ravel(), 3.0)
+        inliers, squares, counts = distance_stats(
+            xyz_flat, labels.ravel(), kinds, params, rms,
+            np.ascontiguousarray(sigma, dtype=np.float64).ravel(), 3.0)
         features, unfitted = [], []
         for new, model in renumbered.items():
             if model:
@@ -137,8 +180,10 @@ class Pipeline:
                     idx = np.flatnonzero(labels.ravel() == new)
                     tol = 3.0 * np.maximum(sigma.ravel()[idx], model.rms)
                     inliers[new] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
-                features.append(Feature(label=new, model=replace(model, inliers=int(inliers[new])),
-                                        n_pixels=int(sizes[new])))
+                model = replace(model, inliers=int(inliers[new]))
+                if pixel_rms and counts[new] > 0:  # fitted on tile means: report the pixels' rms
+                    model = replace(model, rms=float(np.sqrt(squares[new] / counts[new])))
+                features.append(Feature(label=new, model=model, n_pixels=int(sizes[new])))
             else:
                 unfitted.append(Unfitted(label=new, n_pixels=int(sizes[new]),
                                          reason=f"{model.kind}: {model.reason}"))

@@ -59,7 +59,10 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     timings : dict receiving ``refine.<step>`` durations.
     """
     timer = _Timer(timings)
-    min_size = max(int(segmenter_params.get("min_region_size", 30)), 10)
+    # Segmenter sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
+    tile = cloud.tile
+    min_size = max(-(-int(segmenter_params.get("min_region_size", 30)) // (tile * tile)), 10)
+    jump_ratio = segmenter_params.get("jump_ratio", 0.08) * tile
     ctx = _Context(cloud, fitter, sigma, min_size)
     failed = [k for k, m in fits.items() if not m]
     if failed:
@@ -73,7 +76,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
             return labels, fits
         grown = grow_into_edges(
             cloud.xyz, labels, good, sigma, ranges, iterations=iterations,
-            k_sigma=config.k_sigma, jump_ratio=segmenter_params.get("jump_ratio", 0.08),
+            k_sigma=config.k_sigma, jump_ratio=jump_ratio,
             jump_min=segmenter_params.get("jump_min", 0.05),
         )
         return ctx.refit_grown(labels, grown, fits)

@@ -19,22 +19,33 @@ def test_lms_scan_segments_into_the_big_surfaces():
     assert score.n_correct >= score.n_truth - 1  # the big walls and floor, before refinement
 
 
-def test_stride_expands_labels_to_the_full_grid():
+def test_tile_means_cloud_is_segmented_with_its_reduced_noise():
     _, scan = rgbd_suite(seed=0)[0]
-    seg = segment_residual_edges(scan.cloud, sigma0=0.001, sigma_quadratic=0.001425,
-                                 threshold=3.0, stride=6, min_region_size=300,
-                                 jump_ratio=0.02, jump_min=0.02)
-    assert seg.labels.shape == (480, 640)
+    tiles = scan.cloud.tile_means(6)
+    assert tiles.shape == (80, 107) and tiles.tile == 6
+    assert tiles.samples.max() == 36
+    params = dict(sigma0=0.001, sigma_quadratic=0.001425, threshold=3.0, min_region_size=300,
+                  jump_ratio=0.02, jump_min=0.02)
+    seg = segment_residual_edges(tiles, **params)
+    assert seg.labels.shape == (80, 107)
     for image in seg.stages.values():
-        assert image.shape == (480, 640)
+        assert image.shape == (80, 107)
     assert seg.labels.max() >= 3
-    assert not seg.labels[~scan.cloud.valid].any()
+    assert not seg.labels[~tiles.valid].any()
+    # min_region_size counts sensor pixels: 300 px are 9 tiles of 36
+    sizes = np.bincount(seg.labels.ravel())[1:]
+    assert sizes.min() >= 9
+    # The residual is in units of each point's own noise variance: for a mean of 36
+    # returns the range-dependent term is 6x smaller (sigma0, quantisation, is not).
+    raw = segment_residual_edges(rs.OrganizedCloud(tiles.xyz), **params).stages["residual"]
+    full = (tiles.samples == 36) & np.isfinite(raw) & (raw > 0)
+    assert full.sum() > 5000
+    r2 = np.square(tiles.range_image()[full])
+    expected = ((0.001 + 0.001425 * r2) / (0.001 + 0.001425 * r2 / 6)) ** 2
+    np.testing.assert_allclose(seg.stages["residual"][full] / raw[full], expected, rtol=1e-6)
 
 
-def test_segmenter_validates_stride_and_config():
-    cloud = rs.OrganizedCloud(np.zeros((4, 4, 3)))
-    with pytest.raises(ValueError, match="stride"):
-        segment_residual_edges(cloud, stride=0)
+def test_segmenter_validates_config():
     with pytest.raises(ValueError, match="sigma0 and sigma_quadratic"):
         rs.load_config({"segmenter": {"name": "residual_edges",
                                       "params": {"sigma0": 0, "sigma_quadratic": 0}}})

@@ -60,9 +60,14 @@ def test_pcl_frames_are_dominated_by_planes(name):
     path = DATA / "pcl" / name
     if not path.exists():
         pytest.skip(f"{path} absent")
-    result = rs.Pipeline("rgbd_vga").run(rs.OrganizedCloud.load(path))
+    cloud = rs.OrganizedCloud.load(path)
+    result = rs.Pipeline("rgbd_vga").run(cloud)
     assert result.labels.shape == (480, 640)
     planes = [f for f in result.features if f.kind == "plane"]
     assert planes, "no plane found"
     largest = max(result.features, key=lambda f: f.n_pixels)
-    assert largest.kind == "plane" and largest.rms < 0.02
+    assert largest.kind == "plane"
+    # rms of the region's pixels within 1.5x the preset's depth noise at its median range
+    # (1.4 mm at 1 m, 3.7 cm at 5 m: Kinect-class quantisation grows with z^2)
+    depth = np.nanmedian(np.linalg.norm(cloud.xyz[result.labels == largest.label], axis=1))
+    assert largest.rms < 1.5 * (0.001 + 0.001425 * depth**2)

@@ -1,0 +1,96 @@
+"""Tile means (OrganizedCloud.tile_means) and the pipeline's tile grid brought back to full resolution."""
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitstage import model_table
+from rangeseg_o3d.fitting.models import Plane
+from rangeseg_o3d.kernels import assign_tiles
+
+
+def _wall(h=48, w=60, z=2.0, noise=0.0, seed=0):
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.dstack([(u - w / 2) * 0.01, (v - h / 2) * 0.01, np.full((h, w), z)])
+    xyz[..., 2] += np.random.default_rng(seed).normal(0, noise, (h, w)) if noise else 0.0
+    return xyz
+
+
+def test_tile_means_average_valid_pixels_and_record_samples():
+    xyz = _wall(12, 13)
+    xyz[0, 0] = np.nan
+    xyz[6:12, 0:6] = np.nan
+    xyz[6:9, 6:12] = np.nan  # 18 of 36 valid: exactly min_fraction 0.5, kept
+    tiles = rs.OrganizedCloud(xyz).tile_means(6)
+    assert tiles.shape == (2, 3) and tiles.tile == 6
+    np.testing.assert_array_equal(tiles.samples, [[35, 36, 6], [0, 18, 6]])
+    np.testing.assert_allclose(tiles.xyz[0, 1], np.nanmean(xyz[0:6, 6:12].reshape(-1, 3), axis=0))
+    # a tile with fewer than half of its 36 pixels valid (the last column has 6) is invalid
+    assert tiles.valid.tolist() == [[True, True, False], [False, True, False]]
+    assert tiles.ranges is None and tiles.geometry is None
+    sub = tiles.crop(cols=slice(1, 3))
+    assert sub.tile == 6 and sub.samples.tolist() == [[36, 6], [18, 6]]
+
+
+def test_tile_means_refuse_bad_sizes_and_means_of_means():
+    cloud = rs.OrganizedCloud(_wall(12, 12))
+    assert cloud.tile_means(1) is cloud
+    for bad in (0, -2, 2.5):
+        with pytest.raises(ValueError, match="size must be a positive integer"):
+            cloud.tile_means(bad)
+    with pytest.raises(ValueError, match="already holds means"):
+        cloud.tile_means(2).tile_means(2)
+    with pytest.raises(ValueError, match="tile must be a positive integer"):
+        rs.OrganizedCloud(_wall(4, 4), tile=0)
+    with pytest.raises(ValueError, match="samples must have shape"):
+        rs.OrganizedCloud(_wall(4, 4), samples=np.ones((3, 4)))
+
+
+def test_assign_tiles_labels_pixels_by_the_nearest_model():
+    # Two walls meeting at column 30 (a 2 cm step in depth, no jump); tiles of 6 pixels.
+    xyz = _wall(24, 60)
+    xyz[:, 30:, 2] = 2.02
+    tile_labels = np.zeros((4, 10), np.int32)
+    tile_labels[:, :4] = 1      # columns 0..23
+    tile_labels[:, 6:] = 2      # columns 36..59; tiles 4 and 5 (the border) unlabelled
+    tile_labels[0, 0] = 3       # a region without a model keeps its tile
+    kinds, params, rms = model_table({1: Plane([0, 0, 1], 2.0, 0.001, 1),
+                                      2: Plane([0, 0, 1], 2.02, 0.001, 1)}, 4)
+    sigma = np.full(24 * 60, 0.002)
+    labels = assign_tiles(xyz.reshape(-1, 3), 24, 60, tile_labels, 6, kinds, params, rms, sigma, 3.0)
+    expected = np.zeros((24, 60), np.int32)
+    expected[:, :30] = 1        # tiles 4 (columns 24..29) reached from tile 3's region
+    expected[:, 30:] = 2        # tile 5 (columns 30..35) reached from tile 6's region
+    expected[:6, :6] = 3
+    np.testing.assert_array_equal(labels, expected)
+    # an invalid pixel stays 0, a pixel off both planes too
+    xyz[5, 20] = np.nan
+    xyz[10, 10, 2] = 2.5
+    labels = assign_tiles(xyz.reshape(-1, 3), 24, 60, tile_labels, 6, kinds, params, rms, sigma, 3.0)
+    assert labels[5, 20] == 0 and labels[10, 10] == 0
+
+
+def test_pipeline_on_tiles_reports_full_resolution_labels_and_pixel_rms():
+    noise = 0.004
+    xyz = _wall(96, 120, z=2.0, noise=noise, seed=3)
+    cfg = rs.load_config({"tile": 6, "segmenter": {"name": "residual_edges", "params": {
+        "sigma0": noise, "threshold": 4.0, "min_region_size": 300}}})
+    result = rs.Pipeline(cfg).run(rs.OrganizedCloud(xyz))
+    assert result.labels.shape == (96, 120)
+    assert {image.shape for image in result.stages.values()} == {(96, 120)}
+    assert "full_resolution" in result.timings
+    (plane,) = result.features
+    assert plane.kind == "plane" and abs(plane.normal[2]) > 0.9999
+    assert plane.d == pytest.approx(2.0, abs=1e-3)
+    # the rms is the pixels' (the tile means are 6x smoother): within 10 % of the noise
+    assert plane.rms == pytest.approx(noise, rel=0.1)
+    assert plane.n_pixels >= 0.99 * 96 * 120
+
+
+def test_pipeline_on_tiles_refuses_a_cloud_without_a_valid_tile():
+    xyz = _wall(12, 12)
+    xyz[::2, :] = np.nan  # every tile half empty... and then some
+    xyz[1::4, :] = np.nan
+    cfg = rs.load_config({"tile": 4})
+    with pytest.raises(ValueError, match="use a smaller tile"):
+        rs.Pipeline(cfg).run(rs.OrganizedCloud(xyz))
