@@ -194,20 +194,28 @@ class _Context:
         if not pairs:
             return labels, fits
         moments = self.fitter.moments(self.xyz, labels)
+        first = [None] * len(pairs)
+        if moments is not None:
+            # Every candidate union from the parts' moments in one batch; a pair whose parts
+            # have since absorbed others is recomputed when its turn comes.
+            a_idx, b_idx = np.array(pairs).T
+            first = self.fitter.refit_from_moments(moments[a_idx] + moments[b_idx],
+                                                   [fits[a] for a, _ in pairs])
         regions = None
         root = {k: k for k in fits}
+        absorbed = set()
 
         def find(k):
             while root[k] != k:
                 k = root[k]
             return k
 
-        for a, b in pairs:
+        for (a, b), union in zip(pairs, first):
             ra, rb = find(a), find(b)
             if ra == rb or not fits[ra] or not fits[rb]:
                 continue
-            union = None
-            if moments is not None:
+            stale = (ra, rb) != (a, b) or ra in absorbed or rb in absorbed
+            if moments is not None and stale:
                 union = self.fitter.refit_from_moments(moments[ra] + moments[rb], [fits[ra]])[0]
             if union is None:
                 if regions is None:
@@ -217,6 +225,7 @@ class _Context:
             limit = config.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
             if union and union.kind == fits[ra].kind and union.rms <= limit:
                 root[rb] = ra
+                absorbed.add(ra)
                 fits[ra] = union
                 fits.pop(rb)
                 if moments is not None:

@@ -94,51 +94,6 @@ def check_tolerance(value, name: str) -> float | None:
 RADIUS_LIMIT = 1e3
 
 
-def levenberg_marquardt(state, evaluate, apply, max_iterations: int, abandon=None):
-    """Minimise ``sum(res**2)`` by Levenberg-Marquardt; returns ``(state, res, converged)``.
-
-    ``evaluate(state) -> (res (N,), jac (N, k))`` and ``apply(state, step) -> state``
-    let each model choose its own parametrisation (the cylinder re-linearises in a
-    frame aligned with its current axis). Converged means the step or the relative cost
-    decrease fell to rounding level. ``abandon(state) -> bool``, checked after each
-    accepted step, stops a hopeless run early (not converged).
-    """
-    res, jac = evaluate(state)
-    cost = float(res @ res)
-    damping = 1e-3
-    for _ in range(max_iterations):
-        jtj = jac.T @ jac
-        grad = jac.T @ res
-        diagonal = jtj.reshape(-1)[:: jtj.shape[0] + 1]  # a view: jtj is contiguous
-        diagonal += damping * (diagonal + 1e-12)  # Marquardt's scaled damping, in place
-        try:
-            step = np.linalg.solve(jtj, -grad)
-        except np.linalg.LinAlgError:
-            return state, res, False
-        if np.abs(step).max() <= 1e-10:
-            return state, res, True
-        trial = apply(state, step)
-        t_res, t_jac = evaluate(trial)
-        t_cost = float(t_res @ t_res)
-        if not np.isfinite(t_cost):
-            damping *= 10.0
-            continue
-        if t_cost <= cost:
-            decrease = cost - t_cost
-            state, res, jac, cost = trial, t_res, t_jac, t_cost
-            damping = max(damping * 0.1, 1e-9)
-            if decrease <= 1e-12 * cost + 1e-30:
-                return state, res, True
-            if abandon is not None and abandon(state):
-                return state, res, False
-        elif t_cost - cost <= 1e-12 * cost + 1e-30:
-            # no better point within rounding: at the minimum
-            return state, res, True
-        else:
-            damping *= 10.0
-    return state, res, False
-
-
 class Prepared:
     """Validated input of a fit: points, centred/scaled copy and scatter eigenvalues, or the failure."""
 
@@ -154,6 +109,21 @@ class Prepared:
         self.eigvals, self.eigvecs = scatter_eig(self.q)
         if curved:
             self.failure = flatness_failure(self.eigvals, kind)
+
+    def specialise(self, kind: str, minimum: int, inlier_distance, curved: bool) -> "Prepared":
+        """The same prepared points for another model kind (its own checks and inlier distance).
+
+        Lets the plane -> cylinder -> sphere decision centre, scale and decompose the
+        points once instead of once per model.
+        """
+        other = object.__new__(Prepared)
+        for name in Prepared.__slots__:
+            setattr(other, name, getattr(self, name, None))
+        other.inlier_distance = check_tolerance(inlier_distance, "inlier_distance")
+        other.failure = check_points(self.points, kind, minimum)
+        if other.failure is None and curved:
+            other.failure = flatness_failure(self.eigvals, kind)
+        return other
 
 
 def refinement_failure(kind: str, converged: bool, max_iterations: int, params, radius: float) -> FitFailure | None:

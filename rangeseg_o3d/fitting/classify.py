@@ -31,11 +31,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..registry import Plugin
-from ._common import as_points, check_points
-from .cylinder import cylinder_arc, fit_cylinder
+from ._common import Prepared, as_points, check_points
+from .cylinder import cylinder_arc, cylinder_from_prepared
 from .models import Cylinder, FitFailure, Plane, Sphere
-from .plane import fit_plane
-from .sphere import fit_sphere, sphere_cap_angle
+from .plane import plane_from_prepared
+from .sphere import sphere_cap_angle, sphere_from_prepared
 
 __all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
            "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
@@ -58,14 +58,22 @@ def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
     """
     pts = np.asarray(points, float)
     centred = pts - pts.mean(axis=0)
-    height = centred @ plane.normal
     # in-plane coordinates: any orthonormal pair perpendicular to the normal
     helper = np.eye(3)[int(np.argmin(np.abs(plane.normal)))]
     e1 = np.cross(plane.normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(plane.normal, e1)
-    in_plane = centred @ np.column_stack([e1, e2])
-    spread = float(np.sqrt((in_plane * in_plane).sum() / len(pts))) or 1.0
+    return _height_field_shape(centred @ plane.normal, centred @ np.column_stack([e1, e2]))
+
+
+def _quadric_from_prepared(prep: Prepared, normal: np.ndarray) -> tuple[float, float]:
+    # quadric_shape on prepared points: the scatter's other eigenvectors span the plane
+    return _height_field_shape(prep.q @ normal, prep.q @ prep.eigvecs[:, 1:])
+
+
+def _height_field_shape(height: np.ndarray, in_plane: np.ndarray) -> tuple[float, float]:
+    n = len(height)
+    spread = float(np.sqrt((in_plane * in_plane).sum() / n)) or 1.0
     x, y = (in_plane / spread).T  # unit spread keeps the 6x6 normal equations well conditioned
     design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
     try:
@@ -73,14 +81,17 @@ def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
     except np.linalg.LinAlgError:  # points on a conic: no quadric height field to compare
         return 1.0, 0.5
     residual = height - design @ coef
-    quad_ms = float(residual @ residual) / len(pts)
-    plane_ms = float(height @ height) / len(pts)
+    quad_ms = float(residual @ residual) / n
+    plane_ms = float(height @ height) / n
     if quad_ms <= 0.0:
         gain = np.inf if plane_ms > 0.0 else 1.0
     else:
         gain = float(np.sqrt(plane_ms / quad_ms))
-    curvatures = np.abs(np.linalg.eigvalsh([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]))
-    roundness = float(curvatures.min() / curvatures.max()) if curvatures.max() > 0 else 0.5
+    a, b, c = coef[0], coef[1], coef[2]
+    mean, diff = a + c, np.sqrt((a - c) ** 2 + b * b)  # eigenvalues of [[2a, b], [b, 2c]]
+    k1, k2 = abs(mean + diff), abs(mean - diff)
+    big = max(k1, k2)
+    roundness = float(min(k1, k2) / big) if big > 0 else 0.5
     return gain, roundness
 
 
@@ -162,20 +173,25 @@ def fit_primitive(
     extra = rms_per_range2 * range_sq
     plane_tol, cylinder_tol, sphere_tol = plane_rms + extra, cylinder_rms + extra, sphere_rms + extra
 
-    plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * plane_tol)
+    # centred, scaled and decomposed once for all three models
+    base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
+    plane = plane_from_prepared(base)
     if not plane:
         return FitFailure("primitive", f"plane: {plane.reason}")
     plane_ok = plane.rms <= plane_tol
     # The floor keeps rounding-level residuals of exact planes from looking "curved".
-    gain, roundness = quadric_shape(pts, plane) if plane.rms > 0.1 * plane_tol else (1.0, 0.5)
+    gain, roundness = (_quadric_from_prepared(base, plane.normal) if plane.rms > 0.1 * plane_tol
+                       else (1.0, 0.5))
     if plane_ok and gain < curvature_gain:
         return plane
 
     min_arc = np.radians(min_arc_deg)
     reasons = [] if plane_ok else [f"plane rms {plane.rms:.3g} > {plane_tol:.3g}"]
     fitters = {
-        "cylinder": lambda: fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * cylinder_tol),
-        "sphere": lambda: fit_sphere(pts, inlier_distance=INLIER_FACTOR * sphere_tol),
+        "cylinder": lambda: cylinder_from_prepared(
+            base.specialise("cylinder", 5, INLIER_FACTOR * cylinder_tol, curved=True), normals),
+        "sphere": lambda: sphere_from_prepared(
+            base.specialise("sphere", 4, INLIER_FACTOR * sphere_tol, curved=True)),
     }
     tolerances = {"cylinder": cylinder_tol, "sphere": sphere_tol}
     # Principal curvatures pick the likely model: tried first, the other only if it fails.
@@ -231,19 +247,23 @@ def refit_primitive(
         return failure
     extra = rms_per_range2 * float(np.square(pts.mean(axis=0)).sum())
     plane_tol = plane_rms + extra
-    plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * plane_tol)
+    base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
+    plane = plane_from_prepared(base)
     if not plane:
         return FitFailure(model.kind, f"plane: {plane.reason}")
     if isinstance(model, Plane):
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
+    if normals is not None:
+        normals = as_points(normals, "normals")
     if isinstance(model, Cylinder):
         tolerance = cylinder_rms + extra
-        new = fit_cylinder(pts, normals, inlier_distance=INLIER_FACTOR * tolerance, axis_hint=model.axis)
+        new = cylinder_from_prepared(base.specialise("cylinder", 5, INLIER_FACTOR * tolerance, curved=True),
+                                     normals, axis_hint=model.axis)
     else:
         tolerance = sphere_rms + extra
-        new = fit_sphere(pts, inlier_distance=INLIER_FACTOR * tolerance)
+        new = sphere_from_prepared(base.specialise("sphere", 4, INLIER_FACTOR * tolerance, curved=True))
     why = _judge_curved(new, pts, plane, tolerance, max_radius, np.radians(min_arc_deg), curvature_gain)
     return new if why is None else FitFailure(model.kind, why)
 

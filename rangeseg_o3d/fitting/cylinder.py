@@ -8,12 +8,10 @@ import functools
 import numpy as np
 
 from ._common import (
-    RADIUS_LIMIT,
     Prepared,
     as_points,
     count_within,
     curvature_failure,
-    levenberg_marquardt,
     refinement_failure,
 )
 from .models import Cylinder, FitFailure
@@ -79,82 +77,41 @@ def _cone_template(half_angle: float, rings: int = 4, per_ring: int = 12):
     return dirs, u, v
 
 
-def _cone(axis: np.ndarray, half_angle: float):
-    """The cone template rotated onto ``axis``: ``(directions, u, v)``; frames rotate along."""
-    u, v = _frame(axis)
-    rotation = np.stack([u, v, axis])  # rows: template x, y, z go to u, v, axis
-    return tuple(m @ rotation for m in _cone_template(half_angle))
-
-
-class _Moments:
-    """Moments up to 4th order of centred points, enough to fit a circle to their projection
-    along any direction at a cost independent of the number of points (Eberly's method)."""
-
-    def __init__(self, q: np.ndarray):
-        x, y, z = q[:, 0], q[:, 1], q[:, 2]
-        quad = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1)
-        self.n = len(q)
-        self.second = q.T @ q
-        self.third = q.T @ quad
-        self.fourth = quad.T @ quad
-
-    def circle_scores(self, directions: np.ndarray, u=None, v=None, s=None):
-        """Kasa circle fit of the projection along each unit direction.
-
-        Returns ``(score, center2, radius_sq, u, v)``: score is the algebraic error
-        divided by ``4 r^2``, i.e. approximately the mean squared geometric distance, so
-        that directions squashing the points into a small blob are not favoured.
-        ``u, v, s`` (frames and projector coefficients) may be passed precomputed.
-        """
-        if u is None:
-            u, v = _perpendicular_bases(directions)
-        if s is None:
-            s = _projector_coefficients(directions)
-        su, sv = u @ self.second, v @ self.second
-        a00, a01, a11 = (su * u).sum(axis=1), (su * v).sum(axis=1), (sv * v).sum(axis=1)
-        t3 = s @ self.third.T  # (M, 3): sum |y|^2 X
-        b0, b1 = (t3 * u).sum(axis=1), (t3 * v).sum(axis=1)
-        sum4 = ((s @ self.fourth) * s).sum(axis=1)
-        det = a00 * a11 - a01 * a01
-        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-        cx = 0.5 * (a11 * b0 - a01 * b1) / det
-        cy = 0.5 * (a00 * b1 - a01 * b0) / det
-        mu = (a00 + a11) / self.n
-        algebraic = (sum4 - self.n * mu * mu - 2.0 * (b0 * cx + b1 * cy)) / self.n
-        radius_sq = mu + cx * cx + cy * cy
-        score = np.maximum(algebraic, 0.0) / (4.0 * radius_sq)
-        return score, np.stack([cx, cy], axis=1), radius_sq, u, v
-
-
 def _projector_coefficients(directions: np.ndarray) -> np.ndarray:
     """Coefficients of ``|P x|^2`` (P = I - w w^T) on the monomials x2 y2 z2 xy xz yz."""
     wx, wy, wz = directions[:, 0], directions[:, 1], directions[:, 2]
     return np.stack([1 - wx * wx, 1 - wy * wy, 1 - wz * wz, -2 * wx * wy, -2 * wx * wz, -2 * wy * wz], axis=1)
 
 
-@functools.lru_cache(maxsize=4)
-def _hemisphere_grid(n: int):
-    """Hemisphere directions with their frames and projector coefficients, computed once."""
-    dirs = _hemisphere(n)
+@functools.lru_cache(maxsize=1)
+def _search_grids():
+    """Hemisphere directions with frames and projector coefficients, and the two cone
+    templates (8 and 2 deg), computed once."""
+    dirs = _hemisphere(300)
     u, v = _perpendicular_bases(dirs)
-    return dirs, u, v, _projector_coefficients(dirs)
+    cones = tuple(_cone_template(np.radians(angle)) for angle in (8.0, 2.0))
+    return dirs, u, v, _projector_coefficients(dirs), cones
 
 
-def search_axis(q: np.ndarray, moments: "_Moments | None" = None) -> np.ndarray:
+def _start(q: np.ndarray, axis_hint: np.ndarray | None):
+    """``(axis, point, radius)``: the hint or the searched axis, and the projection's circle."""
+    from ._compiled import cylinder_start
+
+    hint = np.full(3, np.nan) if axis_hint is None else np.asarray(axis_hint, float)
+    axis, point, radius = cylinder_start(np.ascontiguousarray(q), hint, *_search_grids())
+    return axis, point, float(radius)
+
+
+def search_axis(q: np.ndarray) -> np.ndarray:
     """Axis direction of centred, scaled points ``q`` without normals.
 
     Coarse-to-fine search over the hemisphere for the direction along which the points
-    project best onto a circle (Eberly's cylinder fit, with the Kasa error normalised to a
-    geometric one); about 8 deg coarse spacing refined to about 0.5 deg.
+    project best onto a circle (Eberly's cylinder fit from moments up to 4th order, with
+    the Kasa error divided by ``4 r^2`` so that it approximates the mean squared
+    geometric distance and directions squashing the points into a small blob are not
+    favoured); about 8 deg coarse spacing, refined on cones of 8 and 2 deg to about 0.5 deg.
     """
-    moments = _Moments(q) if moments is None else moments
-    dirs, u, v, coeffs = _hemisphere_grid(300)
-    score = moments.circle_scores(dirs, u, v, coeffs)[0]
-    best = dirs[int(np.argmin(score))]
-    for half_angle in (np.radians(8.0), np.radians(2.0)):
-        dirs, u, v = _cone(best, half_angle)
-        best = dirs[int(np.argmin(moments.circle_scores(dirs, u, v)[0]))]
-    return best
+    return _start(q, None)[0]
 
 
 def axis_from_normals(normals: np.ndarray) -> np.ndarray | None:
@@ -174,47 +131,21 @@ def axis_from_normals(normals: np.ndarray) -> np.ndarray | None:
     return eigvecs[:, 0]
 
 
-def _circle_start(moments: _Moments, axis: np.ndarray) -> tuple[np.ndarray, float]:
-    """Axis point and radius from the Kasa circle of the projection along ``axis``."""
-    _, center2, radius_sq, u, v = moments.circle_scores(axis[None, :])
-    point = center2[0, 0] * u[0] + center2[0, 1] * v[0]
-    return point, float(np.sqrt(max(radius_sq[0], 1e-300)))
-
-
 def _refine(q: np.ndarray, axis: np.ndarray, point: np.ndarray, radius: float, max_iterations: int):
     """Levenberg-Marquardt on ``|(q - p0) x a| - r``; each step linearised in a frame whose
-    z axis is the current axis (2 tilt angles, 2 axis-point shifts, the radius)."""
+    z axis is the current axis (2 tilt angles, 2 axis-point shifts, the radius).
 
-    def evaluate(state):
-        a, rotation, p0, r = state
-        local = (q - p0) @ rotation
-        x, y, z = local[:, 0], local[:, 1], local[:, 2]
-        rho = np.maximum(np.sqrt(x * x + y * y), 1e-300)
-        jac = np.empty((len(q), 5))
-        np.divide(-x, rho, out=jac[:, 0])
-        np.divide(-y, rho, out=jac[:, 1])
-        np.multiply(z, jac[:, 0], out=jac[:, 2])
-        np.multiply(z, jac[:, 1], out=jac[:, 3])
-        jac[:, 4] = -1.0
-        return rho - r, jac
+    Returns ``(axis, point, radius, residuals, converged)``.
+    """
+    from ._compiled import cylinder_lm
 
-    def local_frame(a):
-        # columns u, v, a: points @ rotation gives coordinates with the axis as z
-        return np.column_stack([*_frame(a), a])
-
-    def apply(state, step):
-        a, rotation, p0, r = state
-        new_a = rotation @ np.array([step[2], step[3], 1.0])
-        new_a /= np.sqrt(new_a @ new_a)
-        new_p = p0 + rotation[:, :2] @ step[:2]
-        new_p = new_p - (new_p @ new_a) * new_a  # keep the point nearest the centroid (origin of q)
-        return (new_a, local_frame(new_a), new_p, r + step[4])
-
-    state = (axis, local_frame(axis), point - (point @ axis) * axis, radius)
-    state, res, converged = levenberg_marquardt(
-        state, evaluate, apply, max_iterations, abandon=lambda st: st[3] > RADIUS_LIMIT
-    )
-    return state[0], state[2], float(state[3]), res, converged
+    q = np.ascontiguousarray(q)
+    axis, point, radius, converged = cylinder_lm(q, np.asarray(axis, float), np.asarray(point, float),
+                                                 float(radius), int(max_iterations))
+    rel = q - point
+    along = rel @ axis
+    radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - along * along, 0.0))
+    return axis, point, float(radius), radial - radius, bool(converged)
 
 
 def cylinder_arc(points: np.ndarray, axis: np.ndarray, point: np.ndarray) -> float:
@@ -295,11 +226,16 @@ def fit_cylinder(
         normals = as_points(normals, "normals")
         if normals.shape != prep.points.shape:
             raise ValueError(f"normals must have the shape of points {prep.points.shape}; got {normals.shape}")
+    return cylinder_from_prepared(prep, normals, max_iterations=max_iterations, axis_hint=axis_hint)
+
+
+def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int = 30,
+                           axis_hint=None) -> Cylinder | FitFailure:
+    """:func:`fit_cylinder` on points already checked, centred, scaled and decomposed."""
     if prep.failure is not None:
         return prep.failure
     q, scale = prep.q, prep.scale
 
-    moments = _Moments(q)
     axis = None
     if axis_hint is not None:
         axis = np.asarray(axis_hint, float).reshape(3)
@@ -308,9 +244,7 @@ def fit_cylinder(
         axis = axis / np.linalg.norm(axis)
     elif normals is not None:
         axis = axis_from_normals(normals)
-    if axis is None:
-        axis = search_axis(q, moments)
-    point, radius = _circle_start(moments, axis)
+    axis, point, radius = _start(q, axis)
     axis, point, radius, res, converged = _refine(q, axis, point, radius, max_iterations)
     failure = refinement_failure("cylinder", converged, max_iterations, np.append(axis, point), radius)
     if failure is not None:

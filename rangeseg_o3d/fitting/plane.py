@@ -61,7 +61,11 @@ def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFai
     >>> plane.normal.tolist(), round(plane.d, 6), round(plane.rms, 6)
     ([0.0, 0.0, 1.0], 2.0, 0.0)
     """
-    prep = Prepared(points, "plane", 3, inlier_distance, curved=False)
+    return plane_from_prepared(Prepared(points, "plane", 3, inlier_distance, curved=False))
+
+
+def plane_from_prepared(prep: Prepared) -> Plane | FitFailure:
+    """:func:`fit_plane` on points already checked, centred, scaled and decomposed."""
     if prep.failure is not None:
         return prep.failure
     eigvals, eigvecs, centroid, scale = prep.eigvals, prep.eigvecs, prep.centroid, prep.scale

@@ -5,11 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import (
-    RADIUS_LIMIT,
     Prepared,
     count_within,
     curvature_failure,
-    levenberg_marquardt,
     refinement_failure,
 )
 from .models import FitFailure, Sphere
@@ -40,23 +38,11 @@ def sphere_algebraic(q: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 def _refine(q: np.ndarray, center: np.ndarray, radius: float, max_iterations: int):
     """Levenberg-Marquardt on orthogonal distances ``|q - c| - r``; (center, radius, converged)."""
-    jac = np.empty((len(q), 4))
-    jac[:, 3] = -1.0
+    from ._compiled import sphere_lm
 
-    def evaluate(params):
-        diff = q - params[:3]
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        np.divide(-diff, np.maximum(dist, 1e-300)[:, None], out=jac[:, :3])
-        return dist - params[3], jac.copy()
-
-    params, _, converged = levenberg_marquardt(
-        np.append(center, radius),
-        evaluate,
-        lambda p, step: p + step,
-        max_iterations,
-        abandon=lambda p: p[3] > RADIUS_LIMIT,
-    )
-    return params[:3], float(params[3]), converged
+    center, radius, converged = sphere_lm(np.ascontiguousarray(q), np.asarray(center, float),
+                                          float(radius), int(max_iterations))
+    return center, float(radius), bool(converged)
 
 
 def sphere_cap_angle(points: np.ndarray, center: np.ndarray) -> float:
@@ -115,7 +101,12 @@ def fit_sphere(
     >>> np.round(s.center, 6).tolist(), round(s.radius, 6)
     ([2.0, 2.0, 2.0], 1.0)
     """
-    prep = Prepared(points, "sphere", 4, inlier_distance, curved=True)
+    return sphere_from_prepared(Prepared(points, "sphere", 4, inlier_distance, curved=True),
+                                max_iterations)
+
+
+def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | FitFailure:
+    """:func:`fit_sphere` on points already checked, centred, scaled and decomposed."""
     if prep.failure is not None:
         return prep.failure
     q, scale = prep.q, prep.scale

@@ -1,0 +1,338 @@
+"""Compiled (numba) Levenberg-Marquardt for the sphere and cylinder fits, and the axis search scores.
+
+Levenberg-Marquardt with Marquardt's scaled damping (``diag += damping * (diag + 1e-12)``,
+damping x0.1 on an accepted step, x10 on a rejected one). Converged means the step or the
+relative cost decrease fell to rounding level (1e-10, 1e-12); a radius beyond
+``RADIUS_LIMIT`` times the patch size abandons the run (the points are flat). Each
+evaluation forms the normal equations ``J^T J``, ``J^T r`` in one pass over the points
+instead of the Jacobian: a fit costs tens of microseconds, not the milliseconds of numpy's
+per-call overhead on a few hundred points. Imported on first use (numba compiles and
+caches on first call).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._common import RADIUS_LIMIT
+
+__all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
+
+
+@njit(cache=True, nogil=True)
+def _solve(a, b):
+    """Solve ``a x = b`` (small, square) by Gaussian elimination with partial pivoting.
+
+    Returns ``(x, ok)``; ``ok`` is False for an exactly singular matrix (as LAPACK's gesv).
+    """
+    n = b.shape[0]
+    m = a.copy()
+    x = b.copy()
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(m[row, col]) > abs(m[pivot, col]):
+                pivot = row
+        if m[pivot, col] == 0.0:
+            return x, False
+        if pivot != col:
+            for k in range(n):
+                m[col, k], m[pivot, k] = m[pivot, k], m[col, k]
+            x[col], x[pivot] = x[pivot], x[col]
+        for row in range(col + 1, n):
+            f = m[row, col] / m[col, col]
+            for k in range(col, n):
+                m[row, k] -= f * m[col, k]
+            x[row] -= f * x[col]
+    for col in range(n - 1, -1, -1):
+        s = x[col]
+        for k in range(col + 1, n):
+            s -= m[col, k] * x[k]
+        x[col] = s / m[col, col]
+    return x, True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _accumulate(row, res, jtj, grad):
+    # one point's Jacobian row into the upper triangle of J^T J and into J^T r
+    for a in range(row.shape[0]):
+        grad[a] += row[a] * res
+        for b in range(a, row.shape[0]):
+            jtj[a, b] += row[a] * row[b]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _symmetrise(m):
+    for a in range(m.shape[0]):
+        for b in range(a):
+            m[a, b] = m[b, a]
+
+
+@njit(cache=True, nogil=True)
+def _sphere_normal_equations(q, params):
+    k = 4
+    jtj = np.zeros((k, k))
+    grad = np.zeros(k)
+    row = np.empty(k)
+    cost = 0.0
+    for i in range(q.shape[0]):
+        dx, dy, dz = q[i, 0] - params[0], q[i, 1] - params[1], q[i, 2] - params[2]
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+        inv = 1.0 / max(dist, 1e-300)
+        res = dist - params[3]
+        row[0], row[1], row[2], row[3] = -dx * inv, -dy * inv, -dz * inv, -1.0
+        cost += res * res
+        _accumulate(row, res, jtj, grad)
+    _symmetrise(jtj)
+    return cost, jtj, grad
+
+
+@njit(cache=True, nogil=True)
+def _frame(axis):
+    # u, v completing a unit axis to a right-handed frame (as cylinder._frame)
+    x, y, z = axis[0], axis[1], axis[2]
+    u = np.empty(3)
+    if abs(x) <= 0.9:
+        u[0], u[1], u[2] = 0.0, z, -y
+    else:
+        u[0], u[1], u[2] = -z, 0.0, x
+    u /= np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    v = np.empty(3)
+    v[0] = y * u[2] - z * u[1]
+    v[1] = z * u[0] - x * u[2]
+    v[2] = x * u[1] - y * u[0]
+    return u, v
+
+
+@njit(cache=True, nogil=True)
+def _cylinder_normal_equations(q, axis, u, v, p0, r):
+    k = 5
+    jtj = np.zeros((k, k))
+    grad = np.zeros(k)
+    row = np.empty(k)
+    cost = 0.0
+    for i in range(q.shape[0]):
+        rx, ry, rz = q[i, 0] - p0[0], q[i, 1] - p0[1], q[i, 2] - p0[2]
+        x = rx * u[0] + ry * u[1] + rz * u[2]
+        y = rx * v[0] + ry * v[1] + rz * v[2]
+        z = rx * axis[0] + ry * axis[1] + rz * axis[2]
+        rho = max(np.sqrt(x * x + y * y), 1e-300)
+        res = rho - r
+        row[0], row[1] = -x / rho, -y / rho
+        row[2], row[3], row[4] = z * row[0], z * row[1], -1.0
+        cost += res * res
+        _accumulate(row, res, jtj, grad)
+    _symmetrise(jtj)
+    return cost, jtj, grad
+
+
+@njit(cache=True, nogil=True)
+def _damped_step(jtj, grad, damping):
+    m = jtj.copy()
+    for a in range(m.shape[0]):
+        m[a, a] += damping * (m[a, a] + 1e-12)
+    return _solve(m, -grad)
+
+
+@njit(cache=True, nogil=True)
+def sphere_lm(q, center, radius, max_iterations):
+    """Geometric sphere fit ``|q - c| - r`` from a start; ``(center, radius, converged)``."""
+    params = np.empty(4)
+    params[:3] = center
+    params[3] = radius
+    cost, jtj, grad = _sphere_normal_equations(q, params)
+    damping = 1e-3
+    for _ in range(max_iterations):
+        step, ok = _damped_step(jtj, grad, damping)
+        if not ok:
+            return params[:3], params[3], False
+        if np.abs(step).max() <= 1e-10:
+            return params[:3], params[3], True
+        trial = params + step
+        t_cost, t_jtj, t_grad = _sphere_normal_equations(q, trial)
+        if not np.isfinite(t_cost):
+            damping *= 10.0
+            continue
+        if t_cost <= cost:
+            decrease = cost - t_cost
+            params, cost, jtj, grad = trial, t_cost, t_jtj, t_grad
+            damping = max(damping * 0.1, 1e-9)
+            if decrease <= 1e-12 * cost + 1e-30:
+                return params[:3], params[3], True
+            if params[3] > RADIUS_LIMIT:
+                return params[:3], params[3], False
+        elif t_cost - cost <= 1e-12 * cost + 1e-30:
+            return params[:3], params[3], True
+        else:
+            damping *= 10.0
+    return params[:3], params[3], False
+
+
+@njit(cache=True, nogil=True)
+def cylinder_lm(q, axis, point, radius, max_iterations):
+    """Geometric cylinder fit ``|(q - p0) x a| - r`` from a start; ``(axis, point, radius, converged)``.
+
+    Each step is linearised in a frame whose z axis is the current axis (2 tilt angles,
+    2 axis-point shifts, the radius); the axis point is kept nearest the origin of ``q``.
+    """
+    a = axis / np.sqrt(axis @ axis)
+    p0 = point - (point @ a) * a
+    r = radius
+    u, v = _frame(a)
+    cost, jtj, grad = _cylinder_normal_equations(q, a, u, v, p0, r)
+    damping = 1e-3
+    for _ in range(max_iterations):
+        step, ok = _damped_step(jtj, grad, damping)
+        if not ok:
+            return a, p0, r, False
+        if np.abs(step).max() <= 1e-10:
+            return a, p0, r, True
+        new_a = u * step[2] + v * step[3] + a
+        new_a /= np.sqrt(new_a @ new_a)
+        new_p = p0 + u * step[0] + v * step[1]
+        new_p = new_p - (new_p @ new_a) * new_a
+        new_r = r + step[4]
+        new_u, new_v = _frame(new_a)
+        t_cost, t_jtj, t_grad = _cylinder_normal_equations(q, new_a, new_u, new_v, new_p, new_r)
+        if not np.isfinite(t_cost):
+            damping *= 10.0
+            continue
+        if t_cost <= cost:
+            decrease = cost - t_cost
+            a, u, v, p0, r = new_a, new_u, new_v, new_p, new_r
+            cost, jtj, grad = t_cost, t_jtj, t_grad
+            damping = max(damping * 0.1, 1e-9)
+            if decrease <= 1e-12 * cost + 1e-30:
+                return a, p0, r, True
+            if r > RADIUS_LIMIT:
+                return a, p0, r, False
+        elif t_cost - cost <= 1e-12 * cost + 1e-30:
+            return a, p0, r, True
+        else:
+            damping *= 10.0
+    return a, p0, r, False
+
+
+@njit(cache=True, nogil=True)
+def circle_scores(n, second, third, fourth, directions, u, v, s):
+    """Kasa circle fit of the projection along each direction, from moments up to 4th order.
+
+    The loop form of ``cylinder._Moments.circle_scores`` (see there); returns
+    ``(score, cx, cy, radius_sq)`` per direction.
+    """
+    m = directions.shape[0]
+    score = np.empty(m)
+    cxs = np.empty(m)
+    cys = np.empty(m)
+    rsq = np.empty(m)
+    for i in range(m):
+        # explicit loops: BLAS calls on 3- and 6-vectors cost more than the arithmetic
+        a00 = a01 = a11 = b0 = b1 = sum4 = 0.0
+        for j in range(3):
+            suj = svj = t3j = 0.0
+            for k in range(3):
+                suj += second[j, k] * u[i, k]
+                svj += second[j, k] * v[i, k]
+            for k in range(6):
+                t3j += third[j, k] * s[i, k]
+            a00 += suj * u[i, j]
+            a01 += suj * v[i, j]
+            a11 += svj * v[i, j]
+            b0 += t3j * u[i, j]
+            b1 += t3j * v[i, j]
+        for j in range(6):
+            f = 0.0
+            for k in range(6):
+                f += fourth[j, k] * s[i, k]
+            sum4 += s[i, j] * f
+        det = a00 * a11 - a01 * a01
+        if abs(det) <= 1e-300:
+            det = 1e-300
+        cx = 0.5 * (a11 * b0 - a01 * b1) / det
+        cy = 0.5 * (a00 * b1 - a01 * b0) / det
+        mu = (a00 + a11) / n
+        algebraic = (sum4 - n * mu * mu - 2.0 * (b0 * cx + b1 * cy)) / n
+        radius_sq = mu + cx * cx + cy * cy
+        score[i] = max(algebraic, 0.0) / (4.0 * radius_sq)
+        cxs[i], cys[i], rsq[i] = cx, cy, radius_sq
+    return score, cxs, cys, rsq
+
+
+@njit(cache=True, nogil=True)
+def _moments(q):
+    # second (3x3), third (3x6) and fourth (6x6) moments of centred points, monomials
+    # x2 y2 z2 xy xz yz (as cylinder._Moments)
+    second = np.zeros((3, 3))
+    third = np.zeros((3, 6))
+    fourth = np.zeros((6, 6))
+    quad = np.empty(6)
+    for i in range(q.shape[0]):
+        x, y, z = q[i, 0], q[i, 1], q[i, 2]
+        quad[0], quad[1], quad[2], quad[3], quad[4], quad[5] = x * x, y * y, z * z, x * y, x * z, y * z
+        for a in range(3):
+            for b in range(3):
+                second[a, b] += q[i, a] * q[i, b]
+            for b in range(6):
+                third[a, b] += q[i, a] * quad[b]
+        for a in range(6):
+            for b in range(a, 6):
+                fourth[a, b] += quad[a] * quad[b]
+    _symmetrise(fourth)
+    return second, third, fourth
+
+
+@njit(cache=True, nogil=True)
+def _projector_rows(directions):
+    # coefficients of |P x|^2 (P = I - w w^T) on x2 y2 z2 xy xz yz, per direction
+    m = directions.shape[0]
+    s = np.empty((m, 6))
+    for i in range(m):
+        wx, wy, wz = directions[i, 0], directions[i, 1], directions[i, 2]
+        s[i, 0], s[i, 1], s[i, 2] = 1 - wx * wx, 1 - wy * wy, 1 - wz * wz
+        s[i, 3], s[i, 4], s[i, 5] = -2 * wx * wy, -2 * wx * wz, -2 * wy * wz
+    return s
+
+
+@njit(cache=True, nogil=True)
+def _rotate_onto(template, axis, u, v):
+    # template vectors given in the frame (u, v, axis) -> world coordinates
+    out = np.empty_like(template)
+    for i in range(template.shape[0]):
+        for k in range(3):
+            out[i, k] = template[i, 0] * u[k] + template[i, 1] * v[k] + template[i, 2] * axis[k]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones):
+    """Axis (from ``axis_hint`` unless it is NaN, else a coarse-to-fine search), axis point and radius.
+
+    The search scores the hemisphere directions, then each cone template of ``cones``
+    (a tuple of ``(dirs, u, v)`` around +z) rotated onto the best so far; the circle of
+    the projection along the final axis gives the point and radius (see
+    ``cylinder.search_axis``). Returns ``(axis, point, radius)``.
+    """
+    second, third, fourth = _moments(q)
+    n = float(q.shape[0])
+    if np.isfinite(axis_hint[0]):
+        axis = axis_hint / np.sqrt(axis_hint @ axis_hint)
+    else:
+        score = circle_scores(n, second, third, fourth, hemisphere, hemi_u, hemi_v, hemi_s)[0]
+        axis = hemisphere[np.argmin(score)].copy()
+        for dirs_t, u_t, v_t in cones:
+            fu, fv = _frame(axis)
+            dirs = _rotate_onto(dirs_t, axis, fu, fv)
+            score = circle_scores(n, second, third, fourth, dirs, _rotate_onto(u_t, axis, fu, fv),
+                                  _rotate_onto(v_t, axis, fu, fv), _projector_rows(dirs))[0]
+            axis = dirs[np.argmin(score)].copy()
+    u, v = _frame(axis)
+    one = np.empty((1, 3))
+    one[0] = axis
+    uu = np.empty((1, 3))
+    uu[0] = u
+    vv = np.empty((1, 3))
+    vv[0] = v
+    _, cx, cy, radius_sq = circle_scores(n, second, third, fourth, one, uu, vv, _projector_rows(one))
+    point = cx[0] * u + cy[0] * v
+    return axis, point, np.sqrt(max(radius_sq[0], 1e-300))

@@ -1,0 +1,61 @@
+"""The compiled pieces of the sphere and cylinder fits against their definitions."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.fitting._compiled import _solve, circle_scores, cylinder_lm, sphere_lm
+
+
+def test_solve_matches_numpy_and_reports_singular_systems():
+    rng = np.random.default_rng(0)
+    for n in (1, 4, 5):
+        a = rng.normal(size=(n, n))
+        b = rng.normal(size=n)
+        x, ok = _solve(a, b)
+        assert ok
+        np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+    singular = np.array([[1.0, 2.0], [2.0, 4.0]])
+    assert not _solve(singular, np.ones(2))[1]
+
+
+def test_sphere_and_cylinder_lm_reach_the_exact_surfaces_from_a_rough_start():
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(200, 3))
+    d[:, 2] = np.abs(d[:, 2])
+    sphere = 0.5 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.1, -0.2, 0.3]
+    center, radius, converged = sphere_lm(sphere, np.array([0.0, 0.0, 0.0]), 0.4, 50)
+    assert converged
+    np.testing.assert_allclose(center, [0.1, -0.2, 0.3], atol=1e-9)
+    assert radius == pytest.approx(0.5, abs=1e-9)
+
+    t = rng.uniform(0, np.pi, 300)
+    axis = np.array([1.0, 1.0, 0.2]) / np.linalg.norm([1.0, 1.0, 0.2])
+    u = np.cross(axis, [0, 0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    along = rng.uniform(-1, 1, 300)
+    pts = 0.3 * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v) + along[:, None] * axis
+    start = axis + [0.05, -0.03, 0.02]
+    got_axis, point, r, converged = cylinder_lm(pts, start, np.array([0.02, 0.0, 0.01]), 0.25, 50)
+    assert converged and r == pytest.approx(0.3, abs=1e-9)
+    assert abs(abs(got_axis @ axis) - 1) < 1e-12
+    assert np.linalg.norm(point - (point @ axis) * axis) < 1e-9  # the axis through the origin
+    assert abs(point @ got_axis) < 1e-9  # kept nearest the origin of the points
+
+
+def test_circle_scores_are_zero_along_the_axis_of_an_exact_cylinder():
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    pts = np.stack([0.5 * np.cos(t), 0.5 * np.sin(t), np.tile([-1.0, 1.0], 32)], axis=1)
+    pts -= pts.mean(axis=0)
+    x, y, z = pts.T
+    quad = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1)
+    dirs = np.array([[0, 0, 1.0], [1.0, 0, 0]])
+    u = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    v = np.array([[0, 1.0, 0], [0, 0, 1.0]])
+    w = dirs
+    s = np.stack([1 - w[:, 0] ** 2, 1 - w[:, 1] ** 2, 1 - w[:, 2] ** 2,
+                  -2 * w[:, 0] * w[:, 1], -2 * w[:, 0] * w[:, 2], -2 * w[:, 1] * w[:, 2]], axis=1)
+    score, cx, cy, rsq = circle_scores(64.0, pts.T @ pts, pts.T @ quad, quad.T @ quad, dirs, u, v, s)
+    assert score[0] == pytest.approx(0.0, abs=1e-12) and rsq[0] == pytest.approx(0.25)
+    assert abs(cx[0]) < 1e-12 and abs(cy[0]) < 1e-12
+    assert score[1] > 1e-3  # across the axis the projection is a rectangle, not a circle
