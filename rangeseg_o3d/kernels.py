@@ -348,3 +348,130 @@ def assign_tiles(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                         best, best_score = k, score
             out[r, c] = best
     return out
+
+
+@njit(cache=True, nogil=True)
+def planes_from_moment_rows(moments, degenerate_ratio):
+    """Least-squares plane of each row of (K, 10) moments (see :func:`label_moments`).
+
+    Returns ``(centroid (K,3), normal (K,3), d (K,), eigvals (K,3) ascending, frame (K,3,3)
+    rows normal/middle/largest, ok (K,))`` with ``d >= 0`` (through the origin: the largest
+    normal component positive); ``ok`` is False for < 3 points or collinear points.
+    """
+    k = moments.shape[0]
+    centroid = np.zeros((k, 3))
+    normal = np.zeros((k, 3))
+    d = np.zeros(k)
+    eigvals = np.zeros((k, 3))
+    frame = np.zeros((k, 3, 3))
+    ok = np.zeros(k, np.bool_)
+    cov = np.empty((3, 3))
+    for i in range(k):
+        n = moments[i, 0]
+        if n < 1:
+            continue
+        c = moments[i, 1:4] / n
+        centroid[i] = c
+        cov[0, 0] = moments[i, 4] / n - c[0] * c[0]
+        cov[0, 1] = cov[1, 0] = moments[i, 5] / n - c[0] * c[1]
+        cov[0, 2] = cov[2, 0] = moments[i, 6] / n - c[0] * c[2]
+        cov[1, 1] = moments[i, 7] / n - c[1] * c[1]
+        cov[1, 2] = cov[2, 1] = moments[i, 8] / n - c[1] * c[2]
+        cov[2, 2] = moments[i, 9] / n - c[2] * c[2]
+        vals, vecs = np.linalg.eigh(cov)
+        for a in range(3):
+            vals[a] = max(vals[a], 0.0)
+            eigvals[i, a] = vals[a]
+            for b in range(3):
+                frame[i, a, b] = vecs[b, a]
+        nrm = vecs[:, 0].copy()
+        dist = nrm[0] * c[0] + nrm[1] * c[1] + nrm[2] * c[2]
+        scale = max(abs(c[0]), abs(c[1]), abs(c[2])) + np.sqrt(vals[0] + vals[1] + vals[2])
+        if abs(dist) <= 1e-12 * max(scale, 1e-300):
+            big = 0
+            for a in range(1, 3):
+                if abs(nrm[a]) > abs(nrm[big]):
+                    big = a
+            if nrm[big] < 0:
+                nrm = -nrm
+            dist = 0.0
+        elif dist < 0:
+            nrm = -nrm
+            dist = -dist
+        normal[i] = nrm
+        frame[i, 0] = nrm
+        d[i] = dist
+        ok[i] = n >= 3 and vals[2] > 0 and vals[1] > degenerate_ratio * degenerate_ratio * vals[2]
+    return centroid, normal, d, eigvals, frame, ok
+
+
+@njit(cache=True, nogil=True)
+def quadric_shapes(sums, counts, active):
+    """``(gain, roundness)`` per row of :func:`quadric_sums` output (see ``moments.quadric_gains``).
+
+    Rows not ``active``, or whose 6x6 normal equations are numerically singular (pivot
+    below 1e-12 of the largest: points on a conic), get ``(1.0, 0.5)``.
+    """
+    k = sums.shape[0]
+    gain = np.ones(k)
+    roundness = np.full(k, 0.5)
+    ata = np.empty((6, 6))
+    atb = np.empty(6)
+    for i in range(k):
+        if not active[i] or counts[i] < 1:
+            continue
+        m = 0
+        for a in range(6):
+            for b in range(a, 6):
+                ata[a, b] = ata[b, a] = sums[i, m]
+                m += 1
+            atb[a] = sums[i, 21 + a]
+        # Gaussian elimination with partial pivoting, watching the pivots
+        mat = ata.copy()
+        coef = atb.copy()
+        largest = 0.0
+        smallest = np.inf
+        for col in range(6):
+            piv = col
+            for row in range(col + 1, 6):
+                if abs(mat[row, col]) > abs(mat[piv, col]):
+                    piv = row
+            if piv != col:
+                for c in range(6):
+                    mat[col, c], mat[piv, c] = mat[piv, c], mat[col, c]
+                coef[col], coef[piv] = coef[piv], coef[col]
+            p = abs(mat[col, col])
+            largest = max(largest, p)
+            smallest = min(smallest, p)
+            if p == 0.0:
+                break
+            for row in range(col + 1, 6):
+                f = mat[row, col] / mat[col, col]
+                for c in range(col, 6):
+                    mat[row, c] -= f * mat[col, c]
+                coef[row] -= f * coef[col]
+        if not smallest > 1e-12 * largest:
+            continue
+        for col in range(5, -1, -1):
+            s = coef[col]
+            for c in range(col + 1, 6):
+                s -= mat[col, c] * coef[c]
+            coef[col] = s / mat[col, col]
+        hh = sums[i, 27]
+        quad_ss = hh
+        for a in range(6):
+            quad_ss -= 2.0 * coef[a] * atb[a]
+            for b in range(6):
+                quad_ss += coef[a] * ata[a, b] * coef[b]
+        quad_ms = max(quad_ss, 0.0) / counts[i]
+        plane_ms = hh / counts[i]
+        if quad_ms > 0:
+            gain[i] = np.sqrt(plane_ms / quad_ms)
+        else:
+            gain[i] = np.inf if plane_ms > 0 else 1.0
+        a2, b2, c2 = coef[0], coef[1], coef[2]
+        mean, diff = a2 + c2, np.sqrt((a2 - c2) ** 2 + b2 * b2)
+        k1, k2 = abs(mean + diff), abs(mean - diff)
+        big = max(k1, k2)
+        roundness[i] = min(k1, k2) / big if big > 0 else 0.5
+    return gain, roundness

@@ -17,27 +17,34 @@ import numpy as np
 __all__ = ["trimmed_fit", "quadric_residuals", "plane_residuals", "plane_hypotheses_support"]
 
 
+def _principal_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # centre and eigenvectors (columns, ascending eigenvalues) of the scatter of ``base``
+    centre = base.mean(axis=0)
+    rel = base - centre
+    return centre, np.linalg.eigh(rel.T @ rel)[1]
+
+
 def quadric_residuals(points: np.ndarray, support: np.ndarray) -> np.ndarray:
     """Distances of ``points`` from the quadratic height field fitted to ``points[support]``.
 
     The height is measured along the smallest principal axis of the support, and the
     field ``h = a u^2 + b uv + c v^2 + d u + e v + f`` over the other two axes.
     """
-    base = points[support]
-    centre = base.mean(axis=0)
-    _, vecs = np.linalg.eigh(np.cov((base - centre).T))
+    centre, vecs = _principal_frame(points[support])
     local = (points - centre) @ vecs  # columns: normal, minor, major
     h, u, v = local[:, 0], local[:, 1], local[:, 2]
     design = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=1)
-    coef, *_ = np.linalg.lstsq(design[support], h[support], rcond=None)
+    sub = design[support]
+    try:
+        coef = np.linalg.solve(sub.T @ sub, sub.T @ h[support])
+    except np.linalg.LinAlgError:  # support on a conic: fall back to the minimum-norm solution
+        coef = np.linalg.lstsq(sub, h[support], rcond=None)[0]
     return np.abs(h - design @ coef)
 
 
 def plane_residuals(points: np.ndarray, support: np.ndarray) -> np.ndarray:
     """Distances of ``points`` from the least-squares plane of ``points[support]``."""
-    base = points[support]
-    centre = base.mean(axis=0)
-    _, vecs = np.linalg.eigh(np.cov((base - centre).T))
+    centre, vecs = _principal_frame(points[support])
     return np.abs((points - centre) @ vecs[:, 0])
 
 

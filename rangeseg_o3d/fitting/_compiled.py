@@ -336,3 +336,100 @@ def cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones):
     _, cx, cy, radius_sq = circle_scores(n, second, third, fourth, one, uu, vv, _projector_rows(one))
     point = cx[0] * u + cy[0] * v
     return axis, point, np.sqrt(max(radius_sq[0], 1e-300))
+
+
+@njit(cache=True, nogil=True)
+def arc_around_axis(points, axis, point):
+    """2*pi minus the largest angular gap between consecutive points around the axis."""
+    n = points.shape[0]
+    if n < 2:
+        return 0.0
+    a = axis / np.sqrt(axis @ axis)
+    u, v = _frame(a)
+    angles = np.empty(n)
+    for i in range(n):
+        rx, ry, rz = points[i, 0] - point[0], points[i, 1] - point[1], points[i, 2] - point[2]
+        angles[i] = np.arctan2(rx * v[0] + ry * v[1] + rz * v[2], rx * u[0] + ry * u[1] + rz * u[2])
+    angles.sort()
+    gap = angles[0] + 2 * np.pi - angles[n - 1]
+    for i in range(1, n):
+        gap = max(gap, angles[i] - angles[i - 1])
+    return 2 * np.pi - gap
+
+
+@njit(cache=True, nogil=True)
+def cap_angle(points, center):
+    """Twice the largest angle between a point's direction from ``center`` and the mean direction."""
+    n = points.shape[0]
+    unit = np.empty((n, 3))
+    mx = my = mz = 0.0
+    for i in range(n):
+        rx, ry, rz = points[i, 0] - center[0], points[i, 1] - center[1], points[i, 2] - center[2]
+        length = np.sqrt(rx * rx + ry * ry + rz * rz)
+        unit[i, 0], unit[i, 1], unit[i, 2] = rx / length, ry / length, rz / length
+        mx += unit[i, 0]
+        my += unit[i, 1]
+        mz += unit[i, 2]
+    norm = np.sqrt(mx * mx + my * my + mz * mz) / n
+    if norm < 1e-9:
+        return 2 * np.pi
+    scale = 1.0 / (norm * n)
+    mx, my, mz = mx * scale, my * scale, mz * scale
+    lowest = 1.0
+    for i in range(n):
+        lowest = min(lowest, max(unit[i, 0] * mx + unit[i, 1] * my + unit[i, 2] * mz, -1.0))
+    return 2.0 * np.arccos(lowest)
+
+
+@njit(cache=True, nogil=True)
+def sphere_core(q, max_iterations, inlier_distance):
+    """Algebraic start, geometric refinement and the statistics of a sphere on centred, scaled ``q``.
+
+    Returns ``(ok, center, radius, converged, rms, cap, inliers)``; ``ok`` is False when
+    the algebraic system ``|q|^2 = 2 q.c - t`` is rank deficient or gives ``r^2 <= 0``.
+    """
+    n = q.shape[0]
+    design = np.empty((n, 4))
+    rhs = np.empty(n)
+    for i in range(n):
+        design[i, 0], design[i, 1], design[i, 2], design[i, 3] = 2 * q[i, 0], 2 * q[i, 1], 2 * q[i, 2], -1.0
+        rhs[i] = q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2]
+    solution, _, rank, _ = np.linalg.lstsq(design, rhs)
+    center = solution[:3].copy()
+    radius_sq = center @ center - solution[3]
+    if rank < 4 or not np.isfinite(radius_sq) or radius_sq <= 0:
+        return False, center, 0.0, False, np.inf, 0.0, 0
+    center, radius, converged = sphere_lm(q, center, np.sqrt(radius_sq), max_iterations)
+    squares = 0.0
+    inliers = 0
+    for i in range(n):
+        dx, dy, dz = q[i, 0] - center[0], q[i, 1] - center[1], q[i, 2] - center[2]
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz) - radius
+        squares += dist * dist
+        if abs(dist) <= inlier_distance:
+            inliers += 1
+    return True, center, radius, converged, np.sqrt(squares / n), cap_angle(q, center), inliers
+
+
+@njit(cache=True, nogil=True)
+def cylinder_core(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations,
+                  inlier_distance):
+    """Start (:func:`cylinder_start`), refinement (:func:`cylinder_lm`) and statistics on centred, scaled ``q``.
+
+    Returns ``(axis, point, radius, converged, rms, arc, inliers)``.
+    """
+    axis, point, radius = cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones)
+    axis, point, radius, converged = cylinder_lm(q, axis, point, radius, max_iterations)
+    u, v = _frame(axis)
+    n = q.shape[0]
+    squares = 0.0
+    inliers = 0
+    for i in range(n):
+        rx, ry, rz = q[i, 0] - point[0], q[i, 1] - point[1], q[i, 2] - point[2]
+        x = rx * u[0] + ry * u[1] + rz * u[2]
+        y = rx * v[0] + ry * v[1] + rz * v[2]
+        dist = np.sqrt(x * x + y * y) - radius
+        squares += dist * dist
+        if abs(dist) <= inlier_distance:
+            inliers += 1
+    return axis, point, radius, converged, np.sqrt(squares / n), arc_around_axis(q, axis, point), inliers

@@ -10,7 +10,6 @@ import numpy as np
 from ._common import (
     Prepared,
     as_points,
-    count_within,
     curvature_failure,
     refinement_failure,
 )
@@ -131,36 +130,15 @@ def axis_from_normals(normals: np.ndarray) -> np.ndarray | None:
     return eigvecs[:, 0]
 
 
-def _refine(q: np.ndarray, axis: np.ndarray, point: np.ndarray, radius: float, max_iterations: int):
-    """Levenberg-Marquardt on ``|(q - p0) x a| - r``; each step linearised in a frame whose
-    z axis is the current axis (2 tilt angles, 2 axis-point shifts, the radius).
-
-    Returns ``(axis, point, radius, residuals, converged)``.
-    """
-    from ._compiled import cylinder_lm
-
-    q = np.ascontiguousarray(q)
-    axis, point, radius, converged = cylinder_lm(q, np.asarray(axis, float), np.asarray(point, float),
-                                                 float(radius), int(max_iterations))
-    rel = q - point
-    along = rel @ axis
-    radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - along * along, 0.0))
-    return axis, point, float(radius), radial - radius, bool(converged)
-
-
 def cylinder_arc(points: np.ndarray, axis: np.ndarray, point: np.ndarray) -> float:
     """Arc (radians, 0 to 2*pi) of the cross-section circle that the points cover.
 
     2*pi minus the largest angular gap between consecutive points around the axis.
     """
-    axis = np.asarray(axis, float)
-    rel = np.asarray(points, float) - point
-    u, v = _frame(axis / np.linalg.norm(axis))
-    angles = np.sort(np.arctan2(rel @ v, rel @ u))
-    if len(angles) < 2:
-        return 0.0
-    gaps = np.diff(angles, append=angles[0] + 2 * np.pi)
-    return float(2 * np.pi - gaps.max())
+    from ._compiled import arc_around_axis
+
+    return float(arc_around_axis(np.ascontiguousarray(points, dtype=float), np.asarray(axis, float),
+                                 np.asarray(point, float)))
 
 
 def _oriented(axis: np.ndarray) -> np.ndarray:
@@ -244,19 +222,16 @@ def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int 
         axis = axis / np.linalg.norm(axis)
     elif normals is not None:
         axis = axis_from_normals(normals)
-    axis, point, radius = _start(q, axis)
-    axis, point, radius, res, converged = _refine(q, axis, point, radius, max_iterations)
+    from ._compiled import cylinder_core
+
+    hint = np.full(3, np.nan) if axis is None else axis
+    inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
+    axis, point, radius, converged, rms, arc, inliers = cylinder_core(
+        np.ascontiguousarray(q), hint, *_search_grids(), int(max_iterations), float(inlier_q))
     failure = refinement_failure("cylinder", converged, max_iterations, np.append(axis, point), radius)
+    if failure is None:
+        failure = curvature_failure(prep, "cylinder", radius, arc, rms)
     if failure is not None:
         return failure
-    rms = float(np.sqrt(res @ res / len(q)))
-    failure = curvature_failure(prep, "cylinder", radius, cylinder_arc(q, axis, point), rms)
-    if failure is not None:
-        return failure
-    return Cylinder(
-        axis=_oriented(axis),
-        point=prep.centroid + scale * point,
-        radius=float(radius * scale),
-        rms=rms * scale,
-        inliers=count_within(res * scale, prep.inlier_distance),
-    )
+    return Cylinder(axis=_oriented(axis), point=prep.centroid + scale * point,
+                    radius=float(radius * scale), rms=float(rms) * scale, inliers=int(inliers))

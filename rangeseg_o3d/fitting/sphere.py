@@ -6,7 +6,6 @@ import numpy as np
 
 from ._common import (
     Prepared,
-    count_within,
     curvature_failure,
     refinement_failure,
 )
@@ -36,29 +35,15 @@ def sphere_algebraic(q: np.ndarray) -> tuple[np.ndarray, float] | None:
     return center, float(np.sqrt(radius_sq))
 
 
-def _refine(q: np.ndarray, center: np.ndarray, radius: float, max_iterations: int):
-    """Levenberg-Marquardt on orthogonal distances ``|q - c| - r``; (center, radius, converged)."""
-    from ._compiled import sphere_lm
-
-    center, radius, converged = sphere_lm(np.ascontiguousarray(q), np.asarray(center, float),
-                                          float(radius), int(max_iterations))
-    return center, float(radius), bool(converged)
-
-
 def sphere_cap_angle(points: np.ndarray, center: np.ndarray) -> float:
     """Full opening angle (radians) of the cap the points cover, seen from ``center``.
 
     Twice the largest angle between a point's direction and the mean direction; 2*pi
     when the mean direction vanishes (points all round the sphere).
     """
-    rel = np.asarray(points, float) - center
-    unit = rel / np.linalg.norm(rel, axis=1, keepdims=True)
-    mean = unit.mean(axis=0)
-    norm = np.linalg.norm(mean)
-    if norm < 1e-9:
-        return 2 * np.pi
-    cosines = np.clip(unit @ (mean / norm), -1.0, 1.0)
-    return float(2.0 * np.arccos(cosines.min()))
+    from ._compiled import cap_angle
+
+    return float(cap_angle(np.ascontiguousarray(points, dtype=float), np.asarray(center, float)))
 
 
 def fit_sphere(
@@ -109,22 +94,18 @@ def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | F
     """:func:`fit_sphere` on points already checked, centred, scaled and decomposed."""
     if prep.failure is not None:
         return prep.failure
+    from ._compiled import sphere_core
+
     q, scale = prep.q, prep.scale
-    start = sphere_algebraic(q)
-    if start is None:
+    inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
+    ok, center, radius, converged, rms, cap, inliers = sphere_core(
+        np.ascontiguousarray(q), int(max_iterations), float(inlier_q))
+    if not ok:
         return FitFailure("sphere", "the algebraic sphere system is singular (coplanar points)")
-    center, radius, converged = _refine(q, start[0], start[1], max_iterations)
     failure = refinement_failure("sphere", converged, max_iterations, center, radius)
+    if failure is None:
+        failure = curvature_failure(prep, "sphere", radius, cap, rms)
     if failure is not None:
         return failure
-    dist = np.linalg.norm(q - center, axis=1) - radius
-    rms = float(np.sqrt(dist @ dist / len(q)))
-    failure = curvature_failure(prep, "sphere", radius, sphere_cap_angle(q, center), rms)
-    if failure is not None:
-        return failure
-    return Sphere(
-        center=prep.centroid + scale * center,
-        radius=float(radius * scale),
-        rms=rms * scale,
-        inliers=count_within(dist * scale, prep.inlier_distance),
-    )
+    return Sphere(center=prep.centroid + scale * center, radius=float(radius * scale),
+                  rms=float(rms) * scale, inliers=int(inliers))
