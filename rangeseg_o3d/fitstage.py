@@ -34,15 +34,18 @@ def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
-    """Flat pixel indices of every positive label (one sort of the grid, not a mask per region)."""
-    flat = labels.ravel()
-    if flat.size and 0 <= flat.min() and flat.max() < 65536:
-        flat = flat.astype(np.uint16)  # numpy's stable sort is a radix sort for 16-bit keys
-    order = np.argsort(flat, kind="stable")
-    sorted_labels = flat[order]
-    present, starts = np.unique(sorted_labels, return_index=True)
-    stops = np.r_[starts[1:], flat.size]
-    return {int(k): order[a:b] for k, a, b in zip(present, starts, stops) if k > 0}
+    """Flat pixel indices (increasing) of every positive label: one counting sort of the grid."""
+    from .kernels import group_by_label
+
+    flat = np.ascontiguousarray(labels.ravel())
+    if flat.size == 0:
+        return {}
+    if flat.dtype != np.int32:
+        flat = flat.astype(np.int32)
+    n = int(flat.max()) + 1
+    order, starts = group_by_label(flat, n)
+    present = np.flatnonzero(np.diff(starts[1:]) > 0) + 1
+    return {int(k): order[starts[k]:starts[k + 1]] for k in present}
 
 
 class RegionFitter:

@@ -475,3 +475,26 @@ def quadric_shapes(sums, counts, active):
         big = max(k1, k2)
         roundness[i] = min(k1, k2) / big if big > 0 else 0.5
     return gain, roundness
+
+
+@njit(cache=True, nogil=True)
+def group_by_label(labels, n):
+    """Counting sort of pixel indices by label: ``(order, starts)``.
+
+    ``order[starts[k]:starts[k + 1]]`` are the flat indices of label ``k`` in increasing
+    order, for ``0 <= k < n``; labels outside that range are left out.
+    """
+    counts = np.zeros(n + 1, np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 <= k < n:
+            counts[k + 1] += 1
+    starts = np.cumsum(counts)
+    fill = starts[:-1].copy()
+    order = np.empty(starts[-1], np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 <= k < n:
+            order[fill[k]] = i
+            fill[k] += 1
+    return order, starts

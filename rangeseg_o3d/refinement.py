@@ -96,8 +96,9 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
             labels, fits = grow(labels, fits, 2)  # recovered blobs take back their rims
     timer.lap("recover")
     if config.merge:
-        labels, fits = ctx.merge(labels, fits, config)
-        labels, fits = ctx.dissolve(labels, fits, config.k_sigma)
+        adjacency = region_adjacency(labels)
+        labels, fits, adjacency = ctx.merge(labels, fits, config, adjacency)
+        labels, fits = ctx.dissolve(labels, fits, config.k_sigma, adjacency)
     timer.lap("merge")
     return labels, fits
 
@@ -181,7 +182,7 @@ class _Context:
                 fits[k] = refit
         return grown, fits
 
-    def merge(self, labels, fits, config):
+    def merge(self, labels, fits, config, adjacency: set):
         """Merge same-kind regions whose union one model explains (union-find over candidates).
 
         Planes are tried from summed label-wise moments (no point is touched); other kinds
@@ -190,9 +191,9 @@ class _Context:
         good = {k: m for k, m in fits.items() if m}
         pairs = merge_candidates(good, max_angle_deg=config.merge_angle_deg,
                                  tolerance=config.merge_tolerance,
-                                 adjacency=region_adjacency(labels), disjoint=config.merge_disjoint)
+                                 adjacency=adjacency, disjoint=config.merge_disjoint)
         if not pairs:
-            return labels, fits
+            return labels, fits, adjacency
         moments = self.fitter.moments(self.xyz, labels)
         first = [None] * len(pairs)
         if moments is not None:
@@ -235,9 +236,12 @@ class _Context:
         lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
         for k in root:
             lut[k] = find(k)
-        return lut[labels], fits
+        # merged regions touch whatever their parts touched
+        mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+        adjacency = {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+        return lut[labels], fits, adjacency
 
-    def dissolve(self, labels, fits, k_sigma: float):
+    def dissolve(self, labels, fits, k_sigma: float, adjacency: set):
         """Hand small regions to larger neighbours whose surfaces already explain them.
 
         A blob where surfaces meet can pass for a small curved patch; its kind differs from
@@ -251,7 +255,7 @@ class _Context:
         if not small_ones:
             return labels, fits
         neighbours: dict[int, set[int]] = {}
-        for a, b in region_adjacency(labels):
+        for a, b in adjacency:
             neighbours.setdefault(a, set()).add(b)
             neighbours.setdefault(b, set()).add(a)
         changed = set()

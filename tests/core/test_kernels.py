@@ -221,3 +221,19 @@ def test_block_means_are_nan_aware_tile_means():
     np.testing.assert_allclose(half[kept], means[kept], rtol=1e-12)
     with pytest.raises(ValueError, match="block must be >= 1"):
         tile_means(xyz, 0)
+
+
+def test_region_indices_group_pixels_by_label_in_order():
+    from rangeseg_o3d.fitstage import region_indices
+
+    rng = np.random.default_rng(9)
+    labels = rng.integers(0, 7, (13, 17)).astype(np.int32)
+    labels[labels == 4] = 0  # a gap in the numbering
+    groups = region_indices(labels)
+    assert sorted(groups) == [k for k in range(1, 7) if k != 4]
+    for k, idx in groups.items():
+        np.testing.assert_array_equal(idx, np.flatnonzero(labels.ravel() == k))
+    assert region_indices(np.zeros((3, 3), np.int32)) == {}
+    assert region_indices(np.zeros((0, 3), np.int32)) == {}
+    big = region_indices(np.full((2, 2), 70000, np.int64))
+    assert list(big) == [70000] and big[70000].tolist() == [0, 1, 2, 3]
