@@ -99,18 +99,24 @@ def config_for(preset: str, segmenter: str):
     ``region_growing`` takes its parameters from ``configs/<preset>_region_growing.yaml``
     (or the sensor family's), the Open3D segmenters from this module's per-family table.
     The refinement's noise model is pinned to the preset segmenter's, so the stages
-    after segmentation behave the same whichever segmenter runs.
+    after segmentation behave the same whichever segmenter runs. The preset's ``tile``
+    belongs to the residual-edge method (its 3x3 window needs tile means on depth
+    cameras); the baselines see the points as their users would: region growing with its
+    own preset's tile (1: it thins the points on its voxel grid), Open3D's on raw points.
     """
     from .config import load_config, presets
 
     base = load_config(preset)
     if segmenter == base.segmenter.name:
         return base
+    tile = 1
     if segmenter == "region_growing":
         known = presets()
         name = next((f"{p}_region_growing" for p in (preset, _family(preset))
                      if f"{p}_region_growing" in known), None)
-        params = load_config(name).segmenter.params if name else {}
+        own = load_config(name) if name else None
+        params = own.segmenter.params if own else {}
+        tile = own.tile if own else 1
     else:
         params = _OPEN3D_PARAMS.get(_family(preset), {}).get(segmenter, {})
     data = base.model_dump()
@@ -119,6 +125,7 @@ def config_for(preset: str, segmenter: str):
         if data["refine"].get(key) is None and key in seg_params:
             data["refine"][key] = seg_params[key]
     data["segmenter"] = {"name": segmenter, "params": dict(params)}
+    data["tile"] = tile
     data["name"] = f"{base.name}+{segmenter}"
     return load_config(data)
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from .fitting.models import Cylinder, FitFailure, Plane, Sphere
 
-__all__ = ["RegionFitter", "region_indices", "model_table"]
+__all__ = ["RegionFitter", "region_indices", "model_table", "pixel_rms"]
 
 
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -46,6 +46,23 @@ def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
     order, starts = group_by_label(flat, n)
     present = np.flatnonzero(np.diff(starts[1:]) > 0) + 1
     return {int(k): order[starts[k]:starts[k + 1]] for k in present}
+
+
+def pixel_rms(xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray) -> dict:
+    """``fits`` with each model's rms replaced by the rms distance of its region's pixels."""
+    from dataclasses import replace
+
+    from .kernels import distance_stats
+
+    if not fits:
+        return {}
+    n = max(int(labels.max(initial=0)), max(fits)) + 1
+    kinds, params, rms = model_table(fits, n)
+    _, squares, counts = distance_stats(np.ascontiguousarray(xyz_flat, dtype=np.float64),
+                                        np.ascontiguousarray(labels.ravel(), dtype=np.int32),
+                                        kinds, params, rms, np.ascontiguousarray(sigma.ravel()), 3.0)
+    return {k: replace(m, rms=float(np.sqrt(squares[k] / counts[k]))) if counts[k] else m
+            for k, m in fits.items()}
 
 
 class RegionFitter:
@@ -104,8 +121,14 @@ class RegionFitter:
         except ValueError as exc:
             return [FitFailure(kind=m.kind, reason=str(exc)) for m in models]
 
-    def refit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, which) -> dict:
-        """Refit the regions ``which`` of ``labels``; returns {label: model or FitFailure}."""
+    def refit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, which, *,
+                      from_points: bool = True) -> dict:
+        """Refit the regions ``which`` of ``labels``; returns {label: model or FitFailure}.
+
+        Models the plugin refits from moments come from one pass over the pixels; the
+        others are refitted on their points unless ``from_points`` is False (then they
+        are left out of the answer).
+        """
         which = [k for k in which if fits.get(k)]
         if not which:
             return {}
@@ -117,7 +140,7 @@ class RegionFitter:
             rows[inside] = moments[[k for k in which if k < len(moments)]]
             out = {k: m for k, m in zip(which, self.refit_from_moments(rows, [fits[k] for k in which]))
                    if m is not None}
-        rest = [k for k in which if k not in out]
+        rest = [k for k in which if k not in out] if from_points else []
         if rest:
             regions = region_indices(labels)
             empty = np.empty(0, np.int64)

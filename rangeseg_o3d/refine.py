@@ -150,7 +150,8 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     """
     free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
-    cores = cv2.erode(free, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    # The grid border is no edge: a surface seen only by the first rows must keep its core.
+    cores = cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE)
     n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S)
     if n <= 1:
         return np.zeros(labels.shape, np.int32)

@@ -13,6 +13,8 @@ Order, each step timed under ``refine.<step>`` in ``Result.timings``:
 4. ``merge``: regions of one kind whose union one model explains as well as the parts are
    merged; small blobs at junctions are dissolved into the neighbours that explain them
    (the paper's "merging of patches that belong to the same surface").
+5. ``polish``: spheres and cylinders are refitted once on their final pixels (planes are
+   refitted from moments whenever they change, which costs nothing).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import time
 import cv2
 import numpy as np
 
-from .fitstage import RegionFitter, region_indices
+from .fitstage import RegionFitter, pixel_rms, region_indices
+from .fitting.models import Plane
 from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .robust import trimmed_fit
 
@@ -100,6 +103,8 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         labels, fits, adjacency = ctx.merge(labels, fits, config, adjacency)
         labels, fits = ctx.dissolve(labels, fits, config.k_sigma, adjacency)
     timer.lap("merge")
+    labels, fits = ctx.polish(labels, fits)
+    timer.lap("polish")
     return labels, fits
 
 
@@ -173,14 +178,27 @@ class _Context:
         return labels, fits
 
     def refit_grown(self, labels, grown, fits):
-        """Refit regions that grew by more than 5 %; a refit must keep the kind."""
+        """Refit regions that grew by more than 5 % where moments suffice (planes); a refit
+        must keep the kind. Other models keep their parameters until :meth:`polish` and
+        take the rms of their grown pixels, which later steps compare."""
         before = np.bincount(labels.ravel(), minlength=grown.max(initial=0) + 1)
         after = np.bincount(grown.ravel(), minlength=before.size)
         changed = [int(k) for k in np.flatnonzero(after > 1.05 * np.maximum(before, 1)) if k > 0]
-        for k, refit in self.fitter.refit_regions(self.xyz, grown, fits, changed).items():
+        refits = self.fitter.refit_regions(self.xyz, grown, fits, changed, from_points=False)
+        for k, refit in refits.items():
             if refit and refit.kind == fits[k].kind:
                 fits[k] = refit
+        stale = {k: fits[k] for k in changed if k not in refits and fits.get(k)}
+        fits.update(pixel_rms(self.xyz, grown, stale, self.sigma))
         return grown, fits
+
+    def polish(self, labels, fits):
+        """Refit each model that moments cannot refit (spheres, cylinders) once, on its final pixels."""
+        curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
+        for k, refit in self.fitter.refit_regions(self.xyz, labels, fits, curved).items():
+            if refit and refit.kind == fits[k].kind:
+                fits[k] = refit
+        return labels, fits
 
     def merge(self, labels, fits, config, adjacency: set):
         """Merge same-kind regions whose union one model explains (union-find over candidates).
@@ -282,8 +300,9 @@ class _Context:
                 changed.add(k)
             del regions[small]
             fits.pop(small, None)
+        # planes now; spheres and cylinders in polish
         for k, refit in self.fitter.refit_regions(
-                self.xyz, labels, fits, [k for k in changed if k in regions]).items():
+                self.xyz, labels, fits, [k for k in changed if k in regions], from_points=False).items():
             if refit:
                 fits[k] = refit
         return labels, fits

@@ -32,6 +32,7 @@ def test_region_growing_presets_are_the_sensor_presets_with_another_segmenter(pr
     rg = load_config(f"{preset}_region_growing")
     assert rg.segmenter.name == "region_growing"
     assert rg.fitter == base.fitter
+    assert rg.tile == 1  # region growing thins points on its own voxel grid
     # Same refinement, with the noise model the sensor preset's segmenter implies.
     expected = base.refine.model_copy(update={
         "sigma0": base.segmenter.params["sigma0"],
@@ -61,6 +62,15 @@ def test_config_for_swaps_only_the_segmenter(segmenter):
         assert cfg.refine.sigma0 == pytest.approx(0.005)
     if segmenter == "region_growing":
         assert cfg.segmenter.params == load_config("lms200_region_growing").segmenter.params
+
+
+@pytest.mark.parametrize("segmenter", SEGMENTERS)
+def test_only_residual_edges_works_on_the_presets_tile_means(segmenter):
+    # the depth-camera preset's 6x6 tiles belong to the residual-edge method; the
+    # baselines see the points as their users would (region growing: its own preset)
+    cfg = config_for("rgbd_vga", segmenter)
+    expected = 6 if segmenter == "residual_edges" else load_config("rgbd_vga_region_growing").tile
+    assert cfg.tile == expected
 
 
 def _run(segmenter, suite, seconds, correct, n_truth=10):
