@@ -42,5 +42,8 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
                                                            ltype=cv2.CV_32S)
     keep = np.zeros(n, dtype=bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_size
-    labels = np.where(keep[labels], labels, 0)
-    return relabel_sequential(labels)
+    # OpenCV numbers components by first pixel (row-major): renumbering the kept ones
+    # 1..n in that order needs no sort
+    lut = np.zeros(n, dtype=np.int32)
+    lut[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
+    return lut[labels]
