@@ -14,61 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["trimmed_fit", "quadric_residuals", "plane_residuals", "plane_hypotheses_support"]
-
-
-def _principal_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    # centre and eigenvectors (columns, ascending eigenvalues) of the scatter of ``base``
-    centre = base.mean(axis=0)
-    rel = base - centre
-    return centre, np.linalg.eigh(rel.T @ rel)[1]
-
-
-def quadric_residuals(points: np.ndarray, support: np.ndarray) -> np.ndarray:
-    """Distances of ``points`` from the quadratic height field fitted to ``points[support]``.
-
-    The height is measured along the smallest principal axis of the support, and the
-    field ``h = a u^2 + b uv + c v^2 + d u + e v + f`` over the other two axes.
-    """
-    centre, vecs = _principal_frame(points[support])
-    local = (points - centre) @ vecs  # columns: normal, minor, major
-    h, u, v = local[:, 0], local[:, 1], local[:, 2]
-    design = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=1)
-    sub = design[support]
-    try:
-        coef = np.linalg.solve(sub.T @ sub, sub.T @ h[support])
-    except np.linalg.LinAlgError:  # support on a conic: fall back to the minimum-norm solution
-        coef = np.linalg.lstsq(sub, h[support], rcond=None)[0]
-    return np.abs(h - design @ coef)
-
-
-def plane_residuals(points: np.ndarray, support: np.ndarray) -> np.ndarray:
-    """Distances of ``points`` from the least-squares plane of ``points[support]``."""
-    centre, vecs = _principal_frame(points[support])
-    return np.abs((points - centre) @ vecs[:, 0])
-
-
-def plane_hypotheses_support(points: np.ndarray, tolerance: float, *, trials: int = 64,
-                             seed: int = 0) -> np.ndarray:
-    """Support of the best of ``trials`` random three-point planes (points within ``tolerance``).
-
-    A least-squares start on two or three planes meeting at creases is a diagonal plane
-    that trimming cannot leave; a plane through three points of one surface is a start
-    inside its basin. Seeded, so the result is reproducible.
-    """
-    rng = np.random.default_rng(seed)
-    triplets = rng.integers(0, len(points), size=(trials, 3))
-    a, b, c = points[triplets[:, 0]], points[triplets[:, 1]], points[triplets[:, 2]]
-    normals = np.cross(b - a, c - a)
-    length = np.linalg.norm(normals, axis=1)
-    ok = length > 1e-12
-    if not ok.any():
-        return np.ones(len(points), bool)
-    normals = normals[ok] / length[ok, None]
-    offsets = np.einsum("ij,ij->i", normals, a[ok])
-    counts = (np.abs(points @ normals.T - offsets) <= tolerance).sum(axis=0)
-    best = int(np.argmax(counts))
-    return np.abs(points @ normals[best] - offsets[best]) <= tolerance
+__all__ = ["trimmed_fit"]
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
@@ -81,6 +27,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     meeting at creases; and a quadratic height field refined by concentration steps
     (refit on the ``keep_fraction`` of points closest to it), which follows a cylinder or
     a sphere. The fitter judges the points near each; the answer with most inliers wins.
+    Both proposals come from one compiled call (:func:`rangeseg_o3d.kernels.trimmed_proposals`).
 
     Parameters
     ----------
@@ -98,34 +45,18 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     -------
     (model, inliers) or (None, None) when the fitter accepts nothing.
     """
+    from .kernels import trimmed_proposals
+
     all_pts = np.asarray(points, dtype=float)
     if len(all_pts) < max(min_points, 6):
         return None, None
     step = -(-len(all_pts) // max_points)
-    pts = all_pts[::step]
-    h = max(int(keep_fraction * len(pts)), 6)
+    pts = np.ascontiguousarray(all_pts[::step])
+    keep = max(int(keep_fraction * len(pts)), 6)
+    # the plane proposal first: it locks onto the largest of planes meeting at creases
+    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
     best, best_mask = None, None
-    for residuals in (plane_residuals, quadric_residuals):
-        support = np.ones(len(pts), bool)
-        if residuals is plane_residuals:
-            # RANSAC-style: the best three-point plane, then least squares on its inliers
-            # (a fixed share would pull in the other planes when this one holds less).
-            support = plane_hypotheses_support(pts, 3.0 * sigma)
-            for _ in range(rounds):
-                if support.sum() < 6:
-                    break
-                dist = residuals(pts, support)
-                support = dist <= 3.0 * max(sigma, np.sqrt(np.mean(dist[support] ** 2)))
-            if support.sum() < 6:
-                continue
-        else:
-            for _ in range(rounds):
-                dist = residuals(pts, support)
-                support = np.zeros(len(pts), bool)
-                support[np.argpartition(dist, h - 1)[:h]] = True
-        dist = residuals(pts, support)
-        spread = np.sqrt(np.mean(dist[support] ** 2))
-        near = dist <= 3.0 * max(sigma, spread)
+    for near in proposals:
         if near.sum() * step < min_points:
             continue
         judged = judge(pts[near])

@@ -21,20 +21,23 @@ __all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
 
 
 @njit(cache=True, nogil=True)
-def _solve(a, b):
+def _solve(a, b, rel_tol=0.0):
     """Solve ``a x = b`` (small, square) by Gaussian elimination with partial pivoting.
 
-    Returns ``(x, ok)``; ``ok`` is False for an exactly singular matrix (as LAPACK's gesv).
+    Returns ``(x, ok)``; ``ok`` is False when a pivot is 0 (exactly singular, as LAPACK's
+    gesv says) or at most ``rel_tol`` times the largest pivot met (numerically singular).
     """
     n = b.shape[0]
     m = a.copy()
     x = b.copy()
+    largest = 0.0
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
             if abs(m[row, col]) > abs(m[pivot, col]):
                 pivot = row
-        if m[pivot, col] == 0.0:
+        largest = max(largest, abs(m[pivot, col]))
+        if m[pivot, col] == 0.0 or abs(m[pivot, col]) <= rel_tol * largest:
             return x, False
         if pivot != col:
             for k in range(n):
