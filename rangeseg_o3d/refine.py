@@ -123,14 +123,28 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
     """
     keys = sorted(models)
     out = []
-    for i, a in enumerate(keys):
-        for b in keys[i + 1:]:
+    planes = [k for k in keys if isinstance(models[k], Plane)]
+    if len(planes) > 1:
+        # planes: every pair's parameter test at once
+        normals = np.array([models[k].normal for k in planes])
+        offsets = np.array([models[k].d for k in planes])
+        dots = normals @ normals.T
+        sign = np.where(dots >= 0, 1.0, -1.0)
+        close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
+        close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
+        for i, j in zip(*np.triu_indices(len(planes), 1)):
+            a, b = planes[i], planes[j]
+            if (a, b) in adjacency or (disjoint and close[i, j]):
+                out.append((a, b))
+    others = [k for k in keys if not isinstance(models[k], Plane)]
+    for i, a in enumerate(others):
+        for b in others[i + 1:]:
             if models[a].kind != models[b].kind:
                 continue
             if (a, b) in adjacency or (disjoint and similar_models(
                     models[a], models[b], max_angle_deg=max_angle_deg, tolerance=tolerance)):
                 out.append((a, b))
-    out.sort(key=lambda ab: models[ab[0]].rms + models[ab[1]].rms)
+    out.sort(key=lambda ab: (models[ab[0]].rms + models[ab[1]].rms, ab))
     return out
 
 

@@ -219,29 +219,39 @@ class _Context:
         if not pairs:
             return labels, fits, adjacency
         moments = self.fitter.moments(self.xyz, labels)
-        first = [None] * len(pairs)
-        if moments is not None:
-            # Every candidate union from the parts' moments in one batch; a pair whose parts
-            # have since absorbed others is recomputed when its turn comes.
-            a_idx, b_idx = np.array(pairs).T
-            first = self.fitter.refit_from_moments(moments[a_idx] + moments[b_idx],
-                                                   [fits[a] for a, _ in pairs])
-        regions = None
         root = {k: k for k in fits}
-        absorbed = set()
 
         def find(k):
             while root[k] != k:
                 k = root[k]
             return k
 
-        for (a, b), union in zip(pairs, first):
+        cache: dict = {}
+
+        def add_unions(rest):
+            # The unions of the remaining pairs of current roots not yet known, from summed
+            # moments in one call; None where the kind needs its points (or no moments).
+            keys = []
+            for a, b in rest:
+                key = (find(a), find(b))
+                if key[0] != key[1] and key not in cache and fits.get(key[0]) and fits.get(key[1]):
+                    keys.append(key)
+            if moments is None or not keys:
+                cache.update(dict.fromkeys(keys))
+                return
+            a_idx, b_idx = np.array(keys).T
+            cache.update(zip(keys, self.fitter.refit_from_moments(moments[a_idx] + moments[b_idx],
+                                                                  [fits[a] for a, _ in keys])))
+
+        add_unions(pairs)
+        regions = None
+        for i, (a, b) in enumerate(pairs):
             ra, rb = find(a), find(b)
             if ra == rb or not fits[ra] or not fits[rb]:
                 continue
-            stale = (ra, rb) != (a, b) or ra in absorbed or rb in absorbed
-            if moments is not None and stale:
-                union = self.fitter.refit_from_moments(moments[ra] + moments[rb], [fits[ra]])[0]
+            if (ra, rb) not in cache:  # a part merged since: its pairs' unions are new
+                add_unions(pairs[i:])
+            union = cache.get((ra, rb))
             if union is None:
                 if regions is None:
                     regions = region_indices(labels)
@@ -250,9 +260,10 @@ class _Context:
             limit = config.merge_rms_factor * max(fits[ra].rms, fits[rb].rms)
             if union and union.kind == fits[ra].kind and union.rms <= limit:
                 root[rb] = ra
-                absorbed.add(ra)
                 fits[ra] = union
                 fits.pop(rb)
+                for key in [key for key in cache if ra in key or rb in key]:
+                    del cache[key]
                 if moments is not None:
                     moments[ra] += moments[rb]
                 if regions is not None:
