@@ -16,7 +16,7 @@ from .refinement import refine_regions
 from .residual import noise_sigma
 from .result import Feature, Result, Unfitted
 
-__all__ = ["Pipeline"]
+__all__ = ["Pipeline", "warm_up"]
 
 
 def _expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -191,3 +191,20 @@ class Pipeline:
         return Result(labels=labels, features=features, unfitted=unfitted, timings=timings,
                       stages=dict(stages))
 
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's cache) every kernel the presets use; returns seconds.
+
+    The first run on a machine compiles for about half a minute, later processes load
+    the cached machine code in well under a second. ``scripts/bootstrap.sh`` calls this
+    once after installing, so that the first real scan is fast.
+    """
+    from .synthetic.depth_camera import simulate_depth_camera
+    from .synthetic.lms200 import simulate_lms200
+    from .synthetic.suite import default_scene, rgbd_scenes
+
+    start = time.perf_counter()
+    Pipeline("lms200").run(simulate_lms200(default_scene(), seed=0).cloud)
+    Pipeline("rgbd_vga").run(simulate_depth_camera(rgbd_scenes()[1][1], seed=0).cloud)
+    return time.perf_counter() - start

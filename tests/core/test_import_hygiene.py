@@ -20,3 +20,15 @@ def test_plain_import_leaves_the_compiler_for_first_use():
     code = "import sys, rangeseg_o3d as rs; rs.fit_plane([[0, 0, 1], [1, 0, 1], [0, 1, 1]]); print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_warm_up_compiles_the_kernels_the_presets_use():
+    from rangeseg_o3d import kernels
+    from rangeseg_o3d.fitting import _compiled
+    from rangeseg_o3d.pipeline import warm_up
+
+    assert warm_up() > 0.0
+    for kernel in (kernels.label_moments, kernels.grow_rings, kernels.assign_tiles,
+                   kernels.block_means, kernels.distance_stats, _compiled.cylinder_core,
+                   _compiled.sphere_core):
+        assert kernel.signatures, f"{kernel.__name__} was not compiled"
