@@ -605,3 +605,57 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
     _quadric_distances(pts, support, dist)
     _within_spread(dist, support, sigma, quad_near)
     return plane_near, quad_near
+
+
+@njit(cache=True, nogil=True)
+def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, box):
+    """Let ``challengers`` take over neighbouring pixels their models explain better (in place).
+
+    Only pixels inside ``box = (row0, row1, col0, col1)`` (half-open) are considered.
+
+    Per iteration, a pixel labelled with a non-challenger region and 4-adjacent to a
+    challenger joins the challenger whose model is within ``k_sigma * max(sigma, rms)`` and
+    nearer (in those units) than its own region's. A region found after its neighbours
+    had already taken the pixels they could explain wins back those it explains better.
+    Returns the number of pixels moved.
+    """
+    h, w = labels.shape
+    n = kinds.shape[0]
+    moved = 0
+    new = labels.copy()
+    r0, r1, c0, c1 = max(box[0], 0), min(box[1], h), max(box[2], 0), min(box[3], w)
+    for _ in range(iterations):
+        changed = 0
+        for r in range(r0, r1):
+            for c in range(c0, c1):
+                own = labels[r, c]
+                if own <= 0 or own >= n or challengers[own]:
+                    continue
+                # integer tests first: most pixels touch no challenger
+                up = labels[r - 1, c] if r > 0 else 0
+                down = labels[r + 1, c] if r < h - 1 else 0
+                left = labels[r, c - 1] if c > 0 else 0
+                right = labels[r, c + 1] if c < w - 1 else 0
+                if not ((0 < up < n and challengers[up]) or (0 < down < n and challengers[down])
+                        or (0 < left < n and challengers[left]) or (0 < right < n and challengers[right])):
+                    continue
+                i = r * w + c
+                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                own_score = np.inf
+                if kinds[own] > 0:
+                    own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+                best, best_score = 0, min(own_score, k_sigma)
+                for k in (up, down, left, right):
+                    if k <= 0 or k >= n or not challengers[k] or kinds[k] == 0:
+                        continue
+                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+                if best > 0:
+                    new[r, c] = best
+                    changed += 1
+        if changed == 0:
+            break
+        labels[r0:r1, c0:c1] = new[r0:r1, c0:c1]
+        moved += changed
+    return moved

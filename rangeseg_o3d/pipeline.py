@@ -12,7 +12,7 @@ from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitstage import RegionFitter, model_table
-from .refinement import refine_regions
+from .refinement import recover_pixels, refine_regions
 from .residual import noise_sigma
 from .result import Feature, Result, Unfitted
 
@@ -153,6 +153,11 @@ class Pipeline:
                               np.ascontiguousarray(tile_labels, dtype=np.int32), self.config.tile,
                               kinds, params, rms, np.ascontiguousarray(sigma).ravel(),
                               float(self.config.refine.k_sigma))
+        refine = self.config.refine
+        if refine.enabled and refine.recover_leftovers:
+            labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=self.fitter, config=refine,
+                                          segmenter_params=self.config.segmenter.params,
+                                          ranges=ranges, sigma=sigma)
         return labels, fits, sigma
 
     @staticmethod

@@ -29,7 +29,7 @@ from .fitting.models import Plane
 from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .robust import trimmed_fit
 
-__all__ = ["refine_regions"]
+__all__ = ["refine_regions", "recover_pixels"]
 
 
 class _Timer:
@@ -106,6 +106,68 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     labels, fits = ctx.polish(labels, fits)
     timer.lap("polish")
     return labels, fits
+
+
+def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
+                   ranges: np.ndarray, sigma: np.ndarray):
+    """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles.
+
+    A table top seen at a grazing angle may be a band 5-10 pixels thick: under two 6x6
+    tiles, so the tile grid's 3x3 window always straddles it, and the tile models leave
+    its pixels unlabelled. Those leftovers are cut into compact blobs and fitted as in the
+    ``recover`` step (a blob must be mostly one surface). At such angles every pixel step
+    is a depth jump by the range test, so neither the blobs nor the 2-pixel rim their
+    regions take back are limited by it: the model distance decides.
+    """
+    # Twice the smallest region: a piece of a surface the tiles already have, left over
+    # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
+    # could not see at all is not.
+    min_size = 2 * max(int(segmenter_params.get("min_region_size", 30)), 10)
+    first = int(labels.max(initial=0)) + 1
+    candidates = leftover_candidates(labels, cloud.valid, np.zeros(labels.shape, bool),
+                                     min_size=min_size, first_label=first)
+    if not candidates.any():
+        return labels, fits
+    ctx = _Context(cloud, fitter, sigma, min_size)
+    labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
+    new = {k: m for k, m in fits.items() if k >= first and m}
+    if new:
+        from .fitstage import model_table
+        from .kernels import claim_rings
+
+        labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=2,
+                                 k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf)
+        # the tile models took what they could explain before these regions existed
+        n = int(labels.max(initial=0)) + 1
+        kinds, params, rms = model_table(fits, n)
+        challengers = np.zeros(n, bool)
+        challengers[list(new)] = True
+        rows, cols = np.nonzero(challengers[labels])
+        iterations = 3  # the box grows by the rings the challengers may take
+        box = (rows.min() - iterations, rows.max() + iterations + 1,
+               cols.min() - iterations, cols.max() + iterations + 1)
+        claim_rings(np.ascontiguousarray(cloud.xyz.reshape(-1, 3)), labels, kinds, params, rms,
+                    np.ascontiguousarray(sigma).ravel(), challengers, iterations, float(config.k_sigma),
+                    np.array(box, np.int64))
+        if config.merge:  # a recovered piece of a surface the tile grid already has
+            regions = region_indices(np.where(np.isin(labels, list(new)), labels, 0))
+            touching = {(min(k, j), max(k, j)) for k, idx in regions.items()
+                        for j in _touching(labels, idx, reach=2) if j != k}
+            labels, fits, _ = ctx.merge(labels, fits, config, touching, only=set(new))
+    return labels, fits
+
+
+def _touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
+    # labels within ``reach`` pixels of the flat pixels ``idx`` (from a bounding-box patch)
+    h, w = labels.shape
+    rows, cols = np.divmod(idx, w)
+    top, left = max(rows.min() - reach, 0), max(cols.min() - reach, 0)
+    bottom, right = min(rows.max() + reach + 1, h), min(cols.max() + reach + 1, w)
+    patch = labels[top:bottom, left:right]
+    blob = np.zeros(patch.shape, np.uint8)
+    blob[rows - top, cols - left] = 1
+    near = cv2.dilate(blob, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+    return {int(k) for k in np.unique(patch[near]) if k > 0}
 
 
 class _Context:
@@ -206,16 +268,18 @@ class _Context:
                 fits[k] = refit
         return labels, fits
 
-    def merge(self, labels, fits, config, adjacency: set):
+    def merge(self, labels, fits, config, adjacency: set, only: set | None = None):
         """Merge same-kind regions whose union one model explains (union-find over candidates).
 
         Planes are tried from summed label-wise moments (no point is touched); other kinds
-        refit the union's points.
+        refit the union's points. With ``only``, just pairs involving those labels.
         """
         good = {k: m for k, m in fits.items() if m}
         pairs = merge_candidates(good, max_angle_deg=config.merge_angle_deg,
                                  tolerance=config.merge_tolerance,
                                  adjacency=adjacency, disjoint=config.merge_disjoint)
+        if only is not None:
+            pairs = [(a, b) for a, b in pairs if a in only or b in only]
         if not pairs:
             return labels, fits, adjacency
         moments = self.fitter.moments(self.xyz, labels)

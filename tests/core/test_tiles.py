@@ -94,3 +94,58 @@ def test_pipeline_on_tiles_refuses_a_cloud_without_a_valid_tile():
     cfg = rs.load_config({"tile": 4})
     with pytest.raises(ValueError, match="use a smaller tile"):
         rs.Pipeline(cfg).run(rs.OrganizedCloud(xyz))
+
+
+def _ramp_band_scene(seed=0):
+    # A wall, a 9-row band leaning towards the sensor (creases at rows 40 and 49), and a
+    # nearer wall below: the band is thinner than two 6x6 tiles.
+    h, w = 96, 120
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    x, y = (u - w / 2) * 0.01, (v - h / 2) * 0.01
+    z = np.full((h, w), 2.0)
+    band = (v >= 40) & (v < 49)
+    z[band] = 2.0 - 0.6 * (y[band] - y[band].min())
+    z[v >= 49] = z[band].min()
+    rng = np.random.default_rng(seed)
+    xyz = np.dstack([x * z / 2, y * z / 2, z + rng.normal(0, 0.002, (h, w))])
+    cfg = rs.load_config({"tile": 6, "segmenter": {"name": "residual_edges", "params": {
+        "sigma0": 0.002, "threshold": 4.0, "min_region_size": 60}}})
+    return rs.OrganizedCloud(xyz), band, cfg
+
+
+def test_surfaces_thinner_than_the_tiles_are_recovered_at_full_resolution():
+    cloud, band, cfg = _ramp_band_scene()
+    result = rs.Pipeline(cfg).run(cloud)
+    labels, counts = np.unique(result.labels[band], return_counts=True)
+    strip = labels[np.argmax(counts)]
+    assert strip > 0 and counts.max() >= 0.8 * band.sum()
+    assert (result.labels == strip)[band].sum() >= 0.9 * (result.labels == strip).sum()
+    (feature,) = [f for f in result.features if f.label == strip]
+    assert feature.kind == "plane"
+    # the band leans 31 deg from the walls (dz/dy = -0.6 in camera coordinates)
+    assert np.degrees(np.arccos(abs(feature.normal[2]))) == pytest.approx(31.0, abs=2.0)
+    # without leftover recovery the tile grid alone never sees it
+    cfg.refine.recover_leftovers = False
+    alone = rs.Pipeline(cfg).run(cloud)
+    assert (alone.labels[band] == 0).mean() > 0.6
+
+
+def test_claim_rings_moves_only_pixels_the_challenger_explains_better():
+    from rangeseg_o3d.kernels import claim_rings
+
+    xyz = _wall(10, 12)
+    xyz[:, 6:, 2] = 2.01  # right half: 1 cm behind
+    labels = np.ones((10, 12), np.int32)
+    labels[:, 9:] = 2       # the challenger holds only columns 9..11 of the right half
+    kinds, params, rms = model_table({1: Plane([0, 0, 1], 2.0, 0.001, 1),
+                                      2: Plane([0, 0, 1], 2.01, 0.001, 1)}, 3)
+    sigma = np.full(120, 0.004)  # 3 sigma = 12 mm: region 1 explains the right half too
+    challengers = np.array([False, False, True])
+    box = np.array([0, 10, 0, 12], np.int64)
+    moved = claim_rings(xyz.reshape(-1, 3), labels, kinds, params, rms, sigma, challengers, 5, 3.0, box)
+    assert moved == 30 and (labels[:, 6:] == 2).all() and (labels[:, :6] == 1).all()
+    # a box that leaves out the columns: nothing moves there
+    labels[:, :9] = 1
+    claim_rings(xyz.reshape(-1, 3), labels, kinds, params, rms, sigma, challengers, 5, 3.0,
+                np.array([0, 10, 0, 8], np.int64))
+    assert (labels[:, :9] == 1).all()
