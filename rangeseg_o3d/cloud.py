@@ -69,7 +69,7 @@ class OrganizedCloud:
             raise ValueError(f"xyz must have at least one row and one column; got {arr.shape}")
         if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
             raise ValueError(f"xyz must be a float array; got dtype {arr.dtype}")
-        arr = arr.astype(np.float64, copy=True)
+        arr = np.array(arr, dtype=np.float64, order="C")  # C order: flat views cost no copy
         if np.isinf(arr).any():
             raise ValueError(
                 f"xyz contains {int(np.isinf(arr).any(axis=2).sum())} points with infinite "
@@ -78,6 +78,7 @@ class OrganizedCloud:
         arr[np.isnan(arr).any(axis=2)] = np.nan
         arr.setflags(write=False)
         self._xyz = arr
+        self._norms = None
         shape = arr.shape[:2]
         self.ranges = _check_grid("ranges", ranges, shape)
         self.intensity = _check_grid("intensity", intensity, shape)
@@ -225,10 +226,17 @@ class OrganizedCloud:
         return OrganizedCloud(means, timestamps=timestamps, samples=counts, tile=self.tile * size)
 
     def range_image(self) -> np.ndarray:
-        """Ranges if the sensor gave them, else the distance of each point from the origin."""
+        """Ranges if the sensor gave them, else the distance of each point from the origin.
+
+        Read-only; computed once per cloud (the points cannot change).
+        """
         if self.ranges is not None:
             return np.asarray(self.ranges, dtype=float)
-        return np.linalg.norm(self._xyz, axis=2)
+        if self._norms is None:
+            norms = np.sqrt(np.einsum("ijk,ijk->ij", self._xyz, self._xyz))
+            norms.setflags(write=False)
+            self._norms = norms
+        return self._norms
 
     def __repr__(self) -> str:
         h, w = self.shape

@@ -157,7 +157,7 @@ class Pipeline:
         if refine.enabled and refine.recover_leftovers:
             labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=self.fitter, config=refine,
                                           segmenter_params=self.config.segmenter.params,
-                                          ranges=ranges, sigma=sigma)
+                                          ranges=ranges, sigma=sigma, tile=self.config.tile)
         return labels, fits, sigma
 
     @staticmethod

@@ -109,10 +109,10 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
 
 
 def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
-                   ranges: np.ndarray, sigma: np.ndarray):
-    """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles.
+                   ranges: np.ndarray, sigma: np.ndarray, tile: int):
+    """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles see.
 
-    A table top seen at a grazing angle may be a band 5-10 pixels thick: under two 6x6
+    A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
     tiles, so the tile grid's 3x3 window always straddles it, and the tile models leave
     its pixels unlabelled. Those leftovers are cut into compact blobs and fitted as in the
     ``recover`` step (a blob must be mostly one surface). At such angles every pixel step
@@ -126,6 +126,13 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, cloud.valid, np.zeros(labels.shape, bool),
                                      min_size=min_size, first_label=first)
+    # Only what the tile grid could not see: blobs thinner than its 3x3 window (three
+    # tiles). Thicker ones were leftovers of the tile grid too, and its own recovery has
+    # had its say on them.
+    inside = cv2.distanceTransform((candidates > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    half_width = np.zeros(int(candidates.max(initial=0)) + 1, np.float32)
+    np.maximum.at(half_width, candidates.ravel(), inside.ravel())
+    candidates = np.where(half_width[candidates] < 1.5 * tile, candidates, 0)
     if not candidates.any():
         return labels, fits
     ctx = _Context(cloud, fitter, sigma, min_size)

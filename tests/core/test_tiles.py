@@ -149,3 +149,14 @@ def test_claim_rings_moves_only_pixels_the_challenger_explains_better():
     claim_rings(xyz.reshape(-1, 3), labels, kinds, params, rms, sigma, challengers, 5, 3.0,
                 np.array([0, 10, 0, 8], np.int64))
     assert (labels[:, :9] == 1).all()
+
+
+def test_cloud_points_are_c_ordered_and_ranges_computed_once():
+    # a transposed (Fortran-ordered) input must not make every flat view a copy
+    xyz = np.asfortranarray(_wall(8, 9, z=2.0))
+    cloud = rs.OrganizedCloud(xyz)
+    assert cloud.xyz.flags["C_CONTIGUOUS"] and not cloud.xyz.flags["WRITEABLE"]
+    assert np.shares_memory(cloud.xyz.reshape(-1, 3), cloud.xyz)
+    ranges = cloud.range_image()
+    np.testing.assert_allclose(ranges, np.linalg.norm(xyz, axis=2), rtol=1e-15)
+    assert cloud.range_image() is ranges and not ranges.flags["WRITEABLE"]
