@@ -217,8 +217,9 @@ class _Context:
                 continue
             trimmed = inliers = None
             if model is None:
-                # A blob that is one surface needs no trimming: the plain fit explains it.
-                plain = settled.get(k) or self.fitter.fit(self.fitter.points(self.xyz, idx))
+                # A blob that is one plane needs no trimming (settled in the batch); for the
+                # others the trimmed fit's first answer is the plain fit's when it is clean.
+                plain = settled.get(k)
                 if plain:
                     near = np.abs(plain.distances(self.xyz[idx])) <= 3.0 * np.maximum(self.sigma[idx], plain.rms)
                     if near.mean() >= 0.9:
@@ -231,7 +232,8 @@ class _Context:
             if trimmed is not None:
                 chosen = self._largest_piece(idx[inliers])
                 if chosen.size >= max(self.min_size, min_share * idx.size):
-                    refined = trimmed if chosen.size == idx.size else self.fitter.refit(
+                    # the model was fitted to (nearly) these points unless a piece was cut off
+                    refined = trimmed if chosen.size >= 0.9 * inliers.sum() else self.fitter.refit(
                         self.fitter.points(self.xyz, chosen), trimmed)
                     if refined:
                         flat[idx] = 0

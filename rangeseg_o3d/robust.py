@@ -26,7 +26,8 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     its inliers (within three noise sigmas), which locks onto the largest of several planes
     meeting at creases; and a quadratic height field refined by concentration steps
     (refit on the ``keep_fraction`` of points closest to it), which follows a cylinder or
-    a sphere. The fitter judges the points near each; the answer with most inliers wins.
+    a sphere. The fitter judges the points near each, the larger set first; the answer
+    with most inliers wins, and one with ``enough`` of the points ends the search.
     Both proposals come from one compiled call (:func:`rangeseg_o3d.kernels.trimmed_proposals`).
 
     Parameters
@@ -53,10 +54,10 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     step = -(-len(all_pts) // max_points)
     pts = np.ascontiguousarray(all_pts[::step])
     keep = max(int(keep_fraction * len(pts)), 6)
-    # the plane proposal first: it locks onto the largest of planes meeting at creases
     proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
     best, best_mask = None, None
-    for near in proposals:
+    # the proposal near more points first: often the only one judged
+    for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
         if near.sum() * step < min_points:
             continue
         judged = judge(pts[near])
