@@ -402,7 +402,14 @@ def sphere_core(q, max_iterations, inlier_distance):
     radius_sq = center @ center - solution[3]
     if rank < 4 or not np.isfinite(radius_sq) or radius_sq <= 0:
         return False, center, 0.0, False, np.inf, 0.0, 0
-    center, radius, converged = sphere_lm(q, center, np.sqrt(radius_sq), max_iterations)
+    return sphere_refine(q, center, np.sqrt(radius_sq), max_iterations, inlier_distance)
+
+
+@njit(cache=True, nogil=True)
+def sphere_refine(q, center, radius, max_iterations, inlier_distance):
+    """Geometric refinement from a start and the statistics: ``(True, center, radius, converged, rms, cap, inliers)``."""
+    center, radius, converged = sphere_lm(q, center, radius, max_iterations)
+    n = q.shape[0]
     squares = 0.0
     inliers = 0
     for i in range(n):
@@ -422,6 +429,12 @@ def cylinder_core(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_i
     Returns ``(axis, point, radius, converged, rms, arc, inliers)``.
     """
     axis, point, radius = cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones)
+    return cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance)
+
+
+@njit(cache=True, nogil=True)
+def cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance):
+    """Geometric refinement from a start and the statistics: ``(axis, point, radius, converged, rms, arc, inliers)``."""
     axis, point, radius, converged = cylinder_lm(q, axis, point, radius, max_iterations)
     u, v = _frame(axis)
     n = q.shape[0]

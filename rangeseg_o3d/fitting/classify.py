@@ -95,7 +95,7 @@ def _height_field_shape(height: np.ndarray, in_plane: np.ndarray) -> tuple[float
     return gain, roundness
 
 
-def _judge_curved(model, points, plane, tolerance, max_radius, min_arc, curvature_gain):
+def _judge_curved(model, points, plane_rms, tolerance, max_radius, min_arc, curvature_gain):
     """None if the curved ``model`` is acceptable, else the reason it is refused."""
     if not model:
         return f"{model.kind}: {model.reason}"
@@ -109,10 +109,10 @@ def _judge_curved(model, points, plane, tolerance, max_radius, min_arc, curvatur
         arc = sphere_cap_angle(points, model.center)
     if arc < min_arc:
         return f"{model.kind} arc {np.degrees(arc):.0f} deg < min_arc_deg {np.degrees(min_arc):.0f}"
-    if model.rms > 0 and plane.rms < curvature_gain * model.rms:
+    if model.rms > 0 and plane_rms < curvature_gain * model.rms:
         return (
             f"{model.kind} rms {model.rms:.3g} is not {curvature_gain:g}x below the plane's "
-            f"{plane.rms:.3g}"
+            f"{plane_rms:.3g}"
         )
     return None
 
@@ -204,7 +204,7 @@ def fit_primitive(
     accepted = []
     for kind in order:
         model = fitters[kind]()
-        why = _judge_curved(model, pts, plane, tolerances[kind], max_radius, min_arc, curvature_gain)
+        why = _judge_curved(model, pts, plane.rms, tolerances[kind], max_radius, min_arc, curvature_gain)
         if why is None:
             accepted.append(model)
             if decisive:
@@ -235,8 +235,9 @@ def refit_primitive(
 ) -> Plane | Cylinder | Sphere | FitFailure:
     """Fit ``points`` with a model of ``model``'s kind, judged as :func:`fit_primitive` would.
 
-    For regions that grew or merged: no plane/cylinder/sphere decision again; a cylinder
-    starts from ``model.axis`` (no direction search). A refit that breaks the kind's
+    For regions that grew or merged: no plane/cylinder/sphere decision again; a sphere or
+    cylinder is refined from ``model``'s parameters (no search, no algebraic start).
+    ``normals`` are accepted for the fitter contract and not needed. A refit that breaks the kind's
     thresholds (rms, radius, arc, curvature gain) is a FitFailure with the reason.
     """
     if not isinstance(model, (Plane, Cylinder, Sphere)):
@@ -248,23 +249,28 @@ def refit_primitive(
     extra = rms_per_range2 * float(np.square(pts.mean(axis=0)).sum())
     plane_tol = plane_rms + extra
     base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
-    plane = plane_from_prepared(base)
-    if not plane:
-        return FitFailure(model.kind, f"plane: {plane.reason}")
     if isinstance(model, Plane):
+        plane = plane_from_prepared(base)
+        if not plane:
+            return FitFailure(model.kind, f"plane: {plane.reason}")
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    if normals is not None:
-        normals = as_points(normals, "normals")
+    if base.failure is not None:
+        return FitFailure(model.kind, f"plane: {base.failure.reason}")
+    # the plane's rms for the curvature test, from the scatter's smallest eigenvalue
+    plane_rms = base.scale * float(np.sqrt(max(base.eigvals[0], 0.0) / len(base.q)))
+    # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
+    # surface, so no search or algebraic start is needed.
     if isinstance(model, Cylinder):
         tolerance = cylinder_rms + extra
         new = cylinder_from_prepared(base.specialise("cylinder", 5, INLIER_FACTOR * tolerance, curved=True),
-                                     normals, axis_hint=model.axis)
+                                     start=model)
     else:
         tolerance = sphere_rms + extra
-        new = sphere_from_prepared(base.specialise("sphere", 4, INLIER_FACTOR * tolerance, curved=True))
-    why = _judge_curved(new, pts, plane, tolerance, max_radius, np.radians(min_arc_deg), curvature_gain)
+        new = sphere_from_prepared(base.specialise("sphere", 4, INLIER_FACTOR * tolerance, curved=True),
+                                   start=model)
+    why = _judge_curved(new, pts, plane_rms, tolerance, max_radius, np.radians(min_arc_deg), curvature_gain)
     return new if why is None else FitFailure(model.kind, why)
 
 

@@ -208,8 +208,12 @@ def fit_cylinder(
 
 
 def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int = 30,
-                           axis_hint=None) -> Cylinder | FitFailure:
-    """:func:`fit_cylinder` on points already checked, centred, scaled and decomposed."""
+                           axis_hint=None, start=None) -> Cylinder | FitFailure:
+    """:func:`fit_cylinder` on points already checked, centred, scaled and decomposed.
+
+    ``start``, a Cylinder (e.g. the region's earlier fit), replaces the axis search and the
+    circle start.
+    """
     if prep.failure is not None:
         return prep.failure
     q, scale = prep.q, prep.scale
@@ -222,12 +226,18 @@ def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int 
         axis = axis / np.linalg.norm(axis)
     elif normals is not None:
         axis = axis_from_normals(normals)
-    from ._compiled import cylinder_core
+    from ._compiled import cylinder_core, cylinder_refine
 
-    hint = np.full(3, np.nan) if axis is None else axis
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
-    axis, point, radius, converged, rms, arc, inliers = cylinder_core(
-        np.ascontiguousarray(q), hint, *_search_grids(), int(max_iterations), float(inlier_q))
+    if start is not None:
+        axis, point, radius, converged, rms, arc, inliers = cylinder_refine(
+            np.ascontiguousarray(q), np.asarray(start.axis, float),
+            (np.asarray(start.point, float) - prep.centroid) / scale, float(start.radius) / scale,
+            int(max_iterations), float(inlier_q))
+    else:
+        hint = np.full(3, np.nan) if axis is None else axis
+        axis, point, radius, converged, rms, arc, inliers = cylinder_core(
+            np.ascontiguousarray(q), hint, *_search_grids(), int(max_iterations), float(inlier_q))
     failure = refinement_failure("cylinder", converged, max_iterations, np.append(axis, point), radius)
     if failure is None:
         failure = curvature_failure(prep, "cylinder", radius, arc, rms)

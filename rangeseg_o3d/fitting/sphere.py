@@ -90,16 +90,24 @@ def fit_sphere(
                                 max_iterations)
 
 
-def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | FitFailure:
-    """:func:`fit_sphere` on points already checked, centred, scaled and decomposed."""
+def sphere_from_prepared(prep: Prepared, max_iterations: int = 30, start=None) -> Sphere | FitFailure:
+    """:func:`fit_sphere` on points already checked, centred, scaled and decomposed.
+
+    ``start``, a Sphere (e.g. the region's earlier fit), replaces the algebraic start.
+    """
+    from ._compiled import sphere_core, sphere_refine
+
     if prep.failure is not None:
         return prep.failure
-    from ._compiled import sphere_core
-
-    q, scale = prep.q, prep.scale
+    q, scale = np.ascontiguousarray(prep.q), prep.scale
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
-    ok, center, radius, converged, rms, cap, inliers = sphere_core(
-        np.ascontiguousarray(q), int(max_iterations), float(inlier_q))
+    if start is None:
+        ok, center, radius, converged, rms, cap, inliers = sphere_core(
+            q, int(max_iterations), float(inlier_q))
+    else:
+        ok, center, radius, converged, rms, cap, inliers = sphere_refine(
+            q, (np.asarray(start.center, float) - prep.centroid) / scale, float(start.radius) / scale,
+            int(max_iterations), float(inlier_q))
     if not ok:
         return FitFailure("sphere", "the algebraic sphere system is singular (coplanar points)")
     failure = refinement_failure("sphere", converged, max_iterations, center, radius)
