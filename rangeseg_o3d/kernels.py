@@ -29,10 +29,8 @@ __all__ = [
     "adjacency_matrix",
     "block_means",
     "assign_tiles",
-    "KIND_CODES",
 ]
 
-KIND_CODES = {"plane": 1, "sphere": 2, "cylinder": 3}
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
 

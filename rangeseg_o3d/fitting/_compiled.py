@@ -311,10 +311,14 @@ def _rotate_onto(template, axis, u, v):
 def cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones):
     """Axis (from ``axis_hint`` unless it is NaN, else a coarse-to-fine search), axis point and radius.
 
-    The search scores the hemisphere directions, then each cone template of ``cones``
-    (a tuple of ``(dirs, u, v)`` around +z) rotated onto the best so far; the circle of
-    the projection along the final axis gives the point and radius (see
-    ``cylinder.search_axis``). Returns ``(axis, point, radius)``.
+    The search looks for the direction along which the points project best onto a circle
+    (Eberly's cylinder fit from moments up to 4th order, the Kasa error divided by
+    ``4 r^2`` so that it approximates the mean squared geometric distance and directions
+    squashing the points into a small blob are not favoured): it scores the hemisphere
+    directions (about 8 deg apart), then each cone template of ``cones`` (a tuple of
+    ``(dirs, u, v)`` around +z, 8 and 2 deg) rotated onto the best so far, ending about
+    0.5 deg from the optimum. The circle of the projection along the final axis gives the
+    point and radius. Returns ``(axis, point, radius)``.
     """
     second, third, fourth = _moments(q)
     n = float(q.shape[0])
@@ -388,8 +392,10 @@ def cap_angle(points, center):
 def sphere_core(q, max_iterations, inlier_distance):
     """Algebraic start, geometric refinement and the statistics of a sphere on centred, scaled ``q``.
 
+    The start is the paper's Sec. 4.2 with its errata: ``|q|^2 = 2 q.c - t`` with
+    ``t = |c|^2 - r^2``, solved by least squares (not the normal equations).
     Returns ``(ok, center, radius, converged, rms, cap, inliers)``; ``ok`` is False when
-    the algebraic system ``|q|^2 = 2 q.c - t`` is rank deficient or gives ``r^2 <= 0``.
+    that system is rank deficient or gives ``r^2 <= 0``.
     """
     n = q.shape[0]
     design = np.empty((n, 4))

@@ -15,7 +15,7 @@ from ._common import (
 )
 from .models import Cylinder, FitFailure
 
-__all__ = ["fit_cylinder", "axis_from_normals", "search_axis", "cylinder_arc"]
+__all__ = ["fit_cylinder", "axis_from_normals", "cylinder_arc"]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -99,18 +99,6 @@ def _start(q: np.ndarray, axis_hint: np.ndarray | None):
     hint = np.full(3, np.nan) if axis_hint is None else np.asarray(axis_hint, float)
     axis, point, radius = cylinder_start(np.ascontiguousarray(q), hint, *_search_grids())
     return axis, point, float(radius)
-
-
-def search_axis(q: np.ndarray) -> np.ndarray:
-    """Axis direction of centred, scaled points ``q`` without normals.
-
-    Coarse-to-fine search over the hemisphere for the direction along which the points
-    project best onto a circle (Eberly's cylinder fit from moments up to 4th order, with
-    the Kasa error divided by ``4 r^2`` so that it approximates the mean squared
-    geometric distance and directions squashing the points into a small blob are not
-    favoured); about 8 deg coarse spacing, refined on cones of 8 and 2 deg to about 0.5 deg.
-    """
-    return _start(q, None)[0]
 
 
 def axis_from_normals(normals: np.ndarray) -> np.ndarray | None:

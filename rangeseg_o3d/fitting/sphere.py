@@ -11,28 +11,7 @@ from ._common import (
 )
 from .models import FitFailure, Sphere
 
-__all__ = ["fit_sphere", "sphere_algebraic", "sphere_cap_angle"]
-
-
-def sphere_algebraic(q: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Linear least-squares sphere ``(center, radius)`` of centred, scaled points ``q``.
-
-    Paper Sec. 4.2 with its errata: ``|p|^2 = 2 p . c - t`` with
-    ``t = |c|^2 - r^2``, solved with lstsq (not the normal equations). Returns None
-    when the system is rank deficient (coplanar points) or ``r^2 <= 0``.
-    """
-    design = np.empty((len(q), 4))
-    design[:, :3] = 2.0 * q
-    design[:, 3] = -1.0
-    rhs = np.einsum("ij,ij->i", q, q)
-    solution, _, rank, _ = np.linalg.lstsq(design, rhs, rcond=None)
-    if rank < 4:
-        return None
-    center, t = solution[:3], solution[3]
-    radius_sq = center @ center - t
-    if not np.isfinite(radius_sq) or radius_sq <= 0:
-        return None
-    return center, float(np.sqrt(radius_sq))
+__all__ = ["fit_sphere", "sphere_cap_angle"]
 
 
 def sphere_cap_angle(points: np.ndarray, center: np.ndarray) -> float:
