@@ -7,7 +7,7 @@ Runs ``Pipeline(load_config("configs/lms200.yaml"))`` over the synthetic LMS200 
 before anything heavy is imported). Hoover figures at T = 0.8 over ground-truth regions of
 at least 60 pixels.
 
-Run: python scripts/benchmark.py [--repeats 20] [--quick] [--no-real] [--json OUT]
+Run: python scripts/benchmark.py [--repeats 20] [--quick] [--no-real] [--no-refine] [--json OUT]
 """
 
 from __future__ import annotations
@@ -245,6 +245,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-real", action="store_true", help="skip the real clouds in ../shared/data")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="write every figure to this JSON file")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="the paper's pipeline alone: segmentation and first fits, refinement off")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
@@ -257,10 +259,18 @@ def main(argv=None) -> int:
     if args.quick:
         lms, rgbd = lms[:3], rgbd[:1]
     print(f"benchmark: {len(lms)} LMS200 scans, {len(rgbd)} RGB-D frames, {repeats} timed runs each, one thread")
-    lms_rows = synthetic_rows(lms, Pipeline(load_config(REPO / "configs" / "lms200.yaml")), repeats)
+    def preset(name):
+        config = load_config(REPO / "configs" / f"{name}.yaml")
+        if args.no_refine:
+            config = config.model_copy(update={"refine": config.refine.model_copy(update={"enabled": False})})
+        return Pipeline(config)
+
+    if args.no_refine:
+        print("refinement off (the paper's pipeline: segmentation and first fits)")
+    lms_rows = synthetic_rows(lms, preset("lms200"), repeats)
     lms_summary = summarise(lms_rows, TARGETS["lms200_ms_max"])
     print_synthetic("synthetic LMS200 70x131 (configs/lms200.yaml)", lms_rows, lms_summary)
-    rgbd_rows = synthetic_rows(rgbd, Pipeline(load_config(REPO / "configs" / "rgbd_vga.yaml")), repeats)
+    rgbd_rows = synthetic_rows(rgbd, preset("rgbd_vga"), repeats)
     rgbd_summary = summarise(rgbd_rows, TARGETS["vga_ms_max"])
     print_synthetic("synthetic RGB-D 640x480 (configs/rgbd_vga.yaml)", rgbd_rows, rgbd_summary)
     real = [] if args.no_real else real_rows(repeats, 2 if args.quick else None)
