@@ -1,0 +1,268 @@
+"""Passes over the image grid: grouping pixels by label, adjacency, growth, tile means, full-resolution labelling."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .models import _distance, _neighbour
+
+__all__ = ["group_by_label", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles"]
+
+@njit(cache=True, nogil=True)
+def group_by_label(labels, n):
+    """Counting sort of pixel indices by label: ``(order, starts)``.
+
+    ``order[starts[k]:starts[k + 1]]`` are the flat indices of label ``k`` in increasing
+    order, for ``0 <= k < n``; labels outside that range are left out.
+    """
+    counts = np.zeros(n + 1, np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 <= k < n:
+            counts[k + 1] += 1
+    starts = np.cumsum(counts)
+    fill = starts[:-1].copy()
+    order = np.empty(starts[-1], np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 <= k < n:
+            order[fill[k]] = i
+            fill[k] += 1
+    return order, starts
+
+@njit(cache=True, nogil=True)
+def adjacency_matrix(labels, n, reach):
+    """(n, n) bool: regions ``a != b`` (both > 0) with pixels within ``reach`` rows and columns."""
+    h, w = labels.shape
+    adj = np.zeros((n, n), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            a = labels[r, c]
+            if a <= 0:
+                continue
+            for dr in range(0, reach + 1):
+                rr = r + dr
+                if rr >= h:
+                    break
+                for dc in range(-reach, reach + 1):
+                    if dr == 0 and dc <= 0:
+                        continue
+                    cc = c + dc
+                    if cc < 0 or cc >= w:
+                        continue
+                    b = labels[rr, cc]
+                    if b > 0 and b != a:
+                        adj[a, b] = True
+                        adj[b, a] = True
+    return adj
+
+@njit(cache=True, nogil=True)
+def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma,
+               jump_ratio, jump_min):
+    """Grow regions into free valid pixels, one 4-connected ring per iteration (in place).
+
+    A free pixel joins the 4-neighbouring region whose model is within
+    ``k_sigma * max(sigma, rms)`` of it, the best-fitting one when several are, provided
+    the range step to that neighbour is no jump (``<= max(jump_min, jump_ratio * r)``).
+    Regions with ``kinds[k] == 0`` do not grow. Returns the number of pixels added.
+    """
+    h, w = labels.shape
+    flat = labels.ravel()
+    n = kinds.shape[0]
+    total = 0
+    # frontier: free valid pixels next to a labelled one
+    frontier = np.empty(h * w, np.int64)
+    n_front = 0
+    mark = np.zeros(h * w, np.uint8)
+    for i in range(h * w):
+        if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
+            continue
+        r, c = i // w, i % w
+        if ((r > 0 and flat[i - w] > 0) or (r < h - 1 and flat[i + w] > 0)
+                or (c > 0 and flat[i - 1] > 0) or (c < w - 1 and flat[i + 1] > 0)):
+            frontier[n_front] = i
+            n_front += 1
+            mark[i] = 1
+    chosen = np.empty(h * w, np.int32)
+    for _ in range(iterations):
+        if n_front == 0:
+            break
+        # decide every frontier pixel from the labels as they were at the ring's start
+        for f in range(n_front):
+            i = frontier[f]
+            best, best_score = 0, k_sigma
+            for step in range(4):
+                j = _neighbour(i, step, h, w)
+                if j < 0:
+                    continue
+                k = flat[j]
+                if k <= 0 or k >= n or kinds[k] == 0:
+                    continue
+                ri, rj = ranges[i], ranges[j]
+                if not (abs(ri - rj) <= max(jump_min, jump_ratio * min(ri, rj))):
+                    continue
+                score = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2]) / max(
+                    sigma[i], rms[k])
+                if score <= best_score and (best == 0 or score < best_score):
+                    best, best_score = k, score
+            chosen[f] = best
+        grown = 0
+        for f in range(n_front):
+            if chosen[f] > 0:
+                flat[frontier[f]] = chosen[f]
+                grown += 1
+        if grown == 0:
+            break
+        total += grown
+        # next frontier: free valid neighbours of the pixels just added, plus the pixels
+        # that stayed free (a neighbour may have joined a region this ring)
+        new_front = np.empty(h * w, np.int64)
+        n_new = 0
+        for f in range(n_front):
+            i = frontier[f]
+            if chosen[f] == 0:
+                new_front[n_new] = i
+                n_new += 1
+                continue
+            mark[i] = 0
+            for step in range(4):
+                j = _neighbour(i, step, h, w)
+                if j < 0:
+                    continue
+                if flat[j] == 0 and mark[j] == 0 and np.isfinite(xyz[j, 2]):
+                    mark[j] = 1
+                    new_front[n_new] = j
+                    n_new += 1
+        frontier, n_front = new_front, n_new
+    return total
+
+@njit(cache=True, nogil=True)
+def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, box):
+    """Let ``challengers`` take over neighbouring pixels their models explain better (in place).
+
+    Only pixels inside ``box = (row0, row1, col0, col1)`` (half-open) are considered.
+
+    Per iteration, a pixel labelled with a non-challenger region and 4-adjacent to a
+    challenger joins the challenger whose model is within ``k_sigma * max(sigma, rms)`` and
+    nearer (in those units) than its own region's. A region found after its neighbours
+    had already taken the pixels they could explain wins back those it explains better.
+    Returns the number of pixels moved.
+    """
+    h, w = labels.shape
+    n = kinds.shape[0]
+    moved = 0
+    new = labels.copy()
+    r0, r1, c0, c1 = max(box[0], 0), min(box[1], h), max(box[2], 0), min(box[3], w)
+    for _ in range(iterations):
+        changed = 0
+        for r in range(r0, r1):
+            for c in range(c0, c1):
+                own = labels[r, c]
+                if own <= 0 or own >= n or challengers[own]:
+                    continue
+                # integer tests first: most pixels touch no challenger
+                up = labels[r - 1, c] if r > 0 else 0
+                down = labels[r + 1, c] if r < h - 1 else 0
+                left = labels[r, c - 1] if c > 0 else 0
+                right = labels[r, c + 1] if c < w - 1 else 0
+                if not ((0 < up < n and challengers[up]) or (0 < down < n and challengers[down])
+                        or (0 < left < n and challengers[left]) or (0 < right < n and challengers[right])):
+                    continue
+                i = r * w + c
+                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                own_score = np.inf
+                if kinds[own] > 0:
+                    own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+                best, best_score = 0, min(own_score, k_sigma)
+                for k in (up, down, left, right):
+                    if k <= 0 or k >= n or not challengers[k] or kinds[k] == 0:
+                        continue
+                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+                if best > 0:
+                    new[r, c] = best
+                    changed += 1
+        if changed == 0:
+            break
+        labels[r0:r1, c0:c1] = new[r0:r1, c0:c1]
+        moved += changed
+    return moved
+
+@njit(cache=True, nogil=True)
+def block_means(xyz, stride, min_count):
+    """Mean of the valid points of each ``stride x stride`` block, and their number.
+
+    Returns ``(means (h, w, 3), counts (h, w) int64)`` with ``h = ceil(H / stride)``; the
+    mean is NaN where a block has fewer than ``min_count`` (and at least 1) valid points.
+    """
+    big_h, big_w = xyz.shape[0], xyz.shape[1]
+    h, w = (big_h + stride - 1) // stride, (big_w + stride - 1) // stride
+    sums = np.zeros((h, w, 3))
+    counts = np.zeros((h, w), np.int64)
+    for r in range(big_h):
+        br = r // stride
+        for c in range(big_w):
+            x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+            if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                bc = c // stride
+                sums[br, bc, 0] += x
+                sums[br, bc, 1] += y
+                sums[br, bc, 2] += z
+                counts[br, bc] += 1
+    for br in range(h):
+        for bc in range(w):
+            if counts[br, bc] >= max(min_count, 1):
+                for a in range(3):
+                    sums[br, bc, a] /= counts[br, bc]
+            else:
+                for a in range(3):
+                    sums[br, bc, a] = np.nan
+    return sums, counts
+
+@njit(cache=True, nogil=True)
+def assign_tiles(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma):
+    """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
+
+    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
+    the one whose model is nearest in units of ``max(sigma, rms)``, if within
+    ``k_sigma`` (its own tile's region wins ties). Pixels of a tile whose region has no
+    model (``kinds == 0``) keep that region. ``xyz`` and ``sigma`` are flat (H*W).
+    """
+    th, tw = tile_labels.shape
+    out = np.zeros((height, width), np.int32)
+    n = kinds.shape[0]
+    for r in range(height):
+        tr = r // tile
+        for c in range(width):
+            i = r * width + c
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            if not np.isfinite(z):
+                continue
+            tc = c // tile
+            own = tile_labels[tr, tc]
+            if own > 0 and own < n and kinds[own] == 0:
+                out[r, c] = own
+                continue
+            best, best_score = 0, k_sigma
+            if own > 0 and own < n:
+                score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+                if score <= best_score:
+                    best, best_score = own, score
+            for dr in range(-1, 2):
+                rr = tr + dr
+                if rr < 0 or rr >= th:
+                    continue
+                for dc in range(-1, 2):
+                    cc = tc + dc
+                    if cc < 0 or cc >= tw or (dr == 0 and dc == 0):
+                        continue
+                    k = tile_labels[rr, cc]
+                    if k <= 0 or k >= n or k == best or kinds[k] == 0:
+                        continue
+                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+            out[r, c] = best
+    return out

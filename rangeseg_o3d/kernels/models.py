@@ -1,0 +1,33 @@
+"""Inline helpers shared by the kernels: model distances and 4-neighbours on a flat grid."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+@njit(cache=True, nogil=True, inline="always")
+def _distance(kind, prm, x, y, z):
+    # Absolute orthogonal distance of (x, y, z) from the model; inf for "no model".
+    if kind == 1:
+        return abs(prm[0] * x + prm[1] * y + prm[2] * z - prm[3])
+    if kind == 2:
+        dx, dy, dz = x - prm[0], y - prm[1], z - prm[2]
+        return abs(np.sqrt(dx * dx + dy * dy + dz * dz) - prm[3])
+    if kind == 3:
+        rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
+        along = rx * prm[0] + ry * prm[1] + rz * prm[2]
+        radial2 = rx * rx + ry * ry + rz * rz - along * along
+        return abs(np.sqrt(max(radial2, 0.0)) - prm[6])
+    return np.inf
+
+@njit(cache=True, nogil=True, inline="always")
+def _neighbour(i, step, h, w):
+    # Flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i; -1 off the grid.
+    r, c = i // w, i % w
+    if step == 0:
+        return i - w if r > 0 else -1
+    if step == 1:
+        return i + w if r < h - 1 else -1
+    if step == 2:
+        return i - 1 if c > 0 else -1
+    return i + 1 if c < w - 1 else -1

@@ -1,0 +1,137 @@
+"""The two proposals of the trimmed fit (robust.trimmed_fit) in one compiled call."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..fitting._compiled import _solve
+
+__all__ = ["trimmed_proposals"]
+
+@njit(cache=True, nogil=True)
+def _plane_frame(pts, support):
+    # centre and eigenvectors (columns, ascending) of the scatter of pts[support]
+    n = 0
+    c = np.zeros(3)
+    for i in range(pts.shape[0]):
+        if support[i]:
+            n += 1
+            c += pts[i]
+    c /= max(n, 1)
+    scatter = np.zeros((3, 3))
+    for i in range(pts.shape[0]):
+        if support[i]:
+            for a in range(3):
+                for b in range(3):
+                    scatter[a, b] += (pts[i, a] - c[a]) * (pts[i, b] - c[b])
+    return c, np.linalg.eigh(scatter)[1]
+
+@njit(cache=True, nogil=True)
+def _plane_distances(pts, support, out):
+    c, vecs = _plane_frame(pts, support)
+    for i in range(pts.shape[0]):
+        out[i] = abs((pts[i, 0] - c[0]) * vecs[0, 0] + (pts[i, 1] - c[1]) * vecs[1, 0]
+                     + (pts[i, 2] - c[2]) * vecs[2, 0])
+
+@njit(cache=True, nogil=True)
+def _quadric_distances(pts, support, out):
+    # height along the support's smallest principal axis minus the least-squares
+    # h = a u^2 + b uv + c v^2 + d u + e v + f over the other two axes
+    c, vecs = _plane_frame(pts, support)
+    n = pts.shape[0]
+    local = np.empty((n, 3))
+    for i in range(n):
+        for a in range(3):
+            local[i, a] = ((pts[i, 0] - c[0]) * vecs[0, a] + (pts[i, 1] - c[1]) * vecs[1, a]
+                           + (pts[i, 2] - c[2]) * vecs[2, a])
+    ata = np.zeros((6, 6))
+    atb = np.zeros(6)
+    row = np.empty(6)
+    for i in range(n):
+        if not support[i]:
+            continue
+        u, v = local[i, 1], local[i, 2]
+        row[0], row[1], row[2], row[3], row[4], row[5] = u * u, u * v, v * v, u, v, 1.0
+        for a in range(6):
+            atb[a] += row[a] * local[i, 0]
+            for b in range(6):
+                ata[a, b] += row[a] * row[b]
+    coef, ok = _solve(ata, atb, 0.0)
+    if not ok:
+        coef[:] = 0.0
+    for i in range(n):
+        u, v = local[i, 1], local[i, 2]
+        fitted = coef[0] * u * u + coef[1] * u * v + coef[2] * v * v + coef[3] * u + coef[4] * v + coef[5]
+        out[i] = abs(local[i, 0] - fitted)
+
+@njit(cache=True, nogil=True)
+def _within_spread(dist, support, sigma, out):
+    # out = dist <= 3 max(sigma, rms of dist over support); out may be support itself
+    ss, m = 0.0, 0
+    for p in range(dist.shape[0]):
+        if support[p]:
+            ss += dist[p] * dist[p]
+            m += 1
+    limit = 3.0 * max(sigma, np.sqrt(ss / max(m, 1)))
+    for p in range(dist.shape[0]):
+        out[p] = dist[p] <= limit
+
+@njit(cache=True, nogil=True)
+def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
+    """The two proposals of ``robust.trimmed_fit``: points near its dominant plane and quadric.
+
+    Plane: the best of ``trials`` random three-point planes (most points within
+    ``3 sigma``), refitted ``rounds`` times on the points within ``3 max(sigma, rms)``.
+    Quadric: a height field refitted ``rounds`` times on the ``keep`` closest points
+    (least trimmed squares by concentration steps). Returns two boolean masks of the
+    points within ``3 max(sigma, spread)`` of each (all False where a proposal had fewer
+    than 6 supporting points).
+    """
+    n = pts.shape[0]
+    np.random.seed(seed)
+    tol = 3.0 * sigma
+    best_count, best_n, best_d = -1, np.zeros(3), 0.0
+    for _ in range(trials):
+        i, j, k = np.random.randint(0, n), np.random.randint(0, n), np.random.randint(0, n)
+        ux, uy, uz = pts[j, 0] - pts[i, 0], pts[j, 1] - pts[i, 1], pts[j, 2] - pts[i, 2]
+        vx, vy, vz = pts[k, 0] - pts[i, 0], pts[k, 1] - pts[i, 1], pts[k, 2] - pts[i, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length <= 1e-12:
+            continue
+        nx, ny, nz = nx / length, ny / length, nz / length
+        d = nx * pts[i, 0] + ny * pts[i, 1] + nz * pts[i, 2]
+        count = 0
+        for p in range(n):
+            if abs(nx * pts[p, 0] + ny * pts[p, 1] + nz * pts[p, 2] - d) <= tol:
+                count += 1
+        if count > best_count:
+            best_count = count
+            best_n[0], best_n[1], best_n[2], best_d = nx, ny, nz, d
+    plane_near = np.zeros(n, np.bool_)
+    quad_near = np.zeros(n, np.bool_)
+    dist = np.empty(n)
+    support = np.ones(n, np.bool_)
+    if best_count >= 0:
+        for p in range(n):
+            support[p] = abs(best_n[0] * pts[p, 0] + best_n[1] * pts[p, 1] + best_n[2] * pts[p, 2]
+                             - best_d) <= tol
+    for _ in range(rounds):
+        if support.sum() < 6:
+            break
+        _plane_distances(pts, support, dist)
+        _within_spread(dist, support, sigma, support)
+    if support.sum() >= 6:
+        _plane_distances(pts, support, dist)
+        _within_spread(dist, support, sigma, plane_near)
+    support[:] = True
+    for _ in range(rounds):
+        _quadric_distances(pts, support, dist)
+        order = np.argsort(dist)
+        support[:] = False
+        for p in range(keep):
+            support[order[p]] = True
+    _quadric_distances(pts, support, dist)
+    _within_spread(dist, support, sigma, quad_near)
+    return plane_near, quad_near
