@@ -237,3 +237,13 @@ def test_region_indices_group_pixels_by_label_in_order():
     assert region_indices(np.zeros((0, 3), np.int32)) == {}
     big = region_indices(np.full((2, 2), 70000, np.int64))
     assert list(big) == [70000] and big[70000].tolist() == [0, 1, 2, 3]
+
+
+def test_region_adjacency_beyond_the_matrix_limit_uses_shifted_pairs():
+    # more than 4096 labels: pairs are collected per shift instead of in an n x n matrix
+    labels = np.zeros((6, 9), np.int32)
+    labels[:, :3] = 5000
+    labels[:, 4:] = 5001  # pixels two columns apart: within reach 2, not within reach 1
+    labels[0, 8] = 7
+    assert region_adjacency(labels, reach=2) == {(5000, 5001), (7, 5001)}
+    assert region_adjacency(labels, reach=1) == {(7, 5001)}
