@@ -164,15 +164,21 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     return labels, fits
 
 
+def _blob_patch(idx: np.ndarray, shape: tuple[int, int], margin: int):
+    """The flat pixels ``idx`` as a 0/1 uint8 patch of their bounding box grown by ``margin``
+    (clipped to ``shape``); returns ``(patch, (top, left), (rows, cols))``."""
+    rows, cols = np.divmod(idx, shape[1])
+    top, left = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    bottom, right = min(rows.max() + margin + 1, shape[0]), min(cols.max() + margin + 1, shape[1])
+    patch = np.zeros((bottom - top, right - left), np.uint8)
+    patch[rows - top, cols - left] = 1
+    return patch, (top, left), (rows, cols)
+
+
 def _touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
     # labels within ``reach`` pixels of the flat pixels ``idx`` (from a bounding-box patch)
-    h, w = labels.shape
-    rows, cols = np.divmod(idx, w)
-    top, left = max(rows.min() - reach, 0), max(cols.min() - reach, 0)
-    bottom, right = min(rows.max() + reach + 1, h), min(cols.max() + reach + 1, w)
-    patch = labels[top:bottom, left:right]
-    blob = np.zeros(patch.shape, np.uint8)
-    blob[rows - top, cols - left] = 1
+    blob, (top, left), _ = _blob_patch(idx, labels.shape, reach)
+    patch = labels[top:top + blob.shape[0], left:left + blob.shape[1]]
     near = cv2.dilate(blob, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
     return {int(k) for k in np.unique(patch[near]) if k > 0}
 
@@ -189,11 +195,8 @@ class _Context:
 
     def _largest_piece(self, idx: np.ndarray) -> np.ndarray:
         # Inliers can be scattered over the grid; keep the largest 4-connected piece.
-        rows, cols = np.divmod(idx, self.width)
-        top, left = rows.min(), cols.min()
-        patch = np.zeros((rows.max() - top + 1, cols.max() - left + 1), np.uint8)
-        patch[rows - top, cols - left] = 1
-        n, comp = cv2.connectedComponents(patch, connectivity=4)
+        blob, (top, left), (rows, cols) = _blob_patch(idx, (idx.max() // self.width + 1, self.width), 0)
+        n, comp = cv2.connectedComponents(blob, connectivity=4)
         piece = comp[rows - top, cols - left]
         return idx[piece == np.argmax(np.bincount(piece, minlength=n)[1:]) + 1]
 

@@ -5,11 +5,11 @@ Usage: python scripts/bench_fitting.py [--repeats 30]
 """
 
 import argparse
-import time
 
 import numpy as np
 
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane, fit_primitive, fit_sphere
+from _timing import median_seconds  # scripts/_timing.py (scripts/ is on sys.path)
 
 
 def frame(axis):
@@ -35,16 +35,6 @@ def patches(n, rng, noise=0.005):
     return plane, cylinder, radial, sphere
 
 
-def median_seconds(func, repeats):
-    func()  # warm caches (direction grids, imports)
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=30)
@@ -67,7 +57,7 @@ def main():
         plane, cylinder, normals, sphere = patches(n, rng)
         data[n] = {"plane": plane, "cylinder": cylinder, "normals": normals, "sphere": sphere}
     for name, func in cases:
-        row = [median_seconds(lambda: func(data[n]), args.repeats) * 1e6 for n in sizes]
+        row = [median_seconds(lambda: func(data[n]), args.repeats, warm=True) * 1e6 for n in sizes]
         print(f"{name:26s}" + "".join(f"{t:10.0f}" for t in row))
 
 

@@ -8,10 +8,8 @@ Prints the median of repeated runs (seconds). Usage::
 from __future__ import annotations
 
 import argparse
-import statistics
 import struct
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,16 +19,7 @@ from rangeseg_o3d.io import load_cloud, save_npz, write_pcd
 from rangeseg_o3d.io.datasets import default_data_root, real_clouds
 from rangeseg_o3d.io.lzf import have_c_lzf, lzf_decompress
 from rangeseg_o3d.io.pcd import parse_pcd_header
-
-
-def median_seconds(func, repeats: int) -> float:
-    """Median wall time of ``repeats`` calls of ``func()``."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+from _timing import median_seconds  # scripts/_timing.py (scripts/ is on sys.path)
 
 
 def _compressed_stream(path: Path) -> tuple[bytes, int]:

@@ -4,19 +4,9 @@ Run: python scripts/bench_knn.py [--points 300000] [--k 31] [--repeats 3]
 """
 
 import argparse
-import statistics
-import time
 
 import numpy as np
-
-
-def _median_time(func, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+from _timing import median_seconds  # scripts/_timing.py (scripts/ is on sys.path)
 
 
 def main():
@@ -45,8 +35,8 @@ def main():
         nns.knn_search(t, args.k)
 
     print(f"{len(pts)} points, k={args.k}, median of {args.repeats}")
-    print(f"scipy cKDTree(workers=-1): {_median_time(scipy_knn, args.repeats):.3f} s")
-    print(f"open3d core.nns knn:       {_median_time(o3d_knn, args.repeats):.3f} s")
+    print(f"scipy cKDTree(workers=-1): {median_seconds(scipy_knn, args.repeats):.3f} s")
+    print(f"open3d core.nns knn:       {median_seconds(o3d_knn, args.repeats):.3f} s")
 
 
 if __name__ == "__main__":

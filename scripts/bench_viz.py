@@ -9,17 +9,7 @@ Scans: the synthetic default LMS200 scene (70 x 131) and the first RGB-D suite f
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
-
-
-def median_seconds(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+from _timing import median_seconds  # scripts/_timing.py (scripts/ is on sys.path)
 
 
 def main() -> None:

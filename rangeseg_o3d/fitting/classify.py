@@ -117,6 +117,15 @@ def _judge_curved(model, points, plane_rms, tolerance, max_radius, min_arc, curv
     return None
 
 
+def _checked(points, kind: str, min_points: int, rms_per_range2: float):
+    """``(points, threshold increase for the patch's range, FitFailure or None)``."""
+    pts = as_points(points)
+    failure = check_points(pts, kind, max(int(min_points), 3))
+    if failure is not None:
+        return pts, 0.0, failure
+    return pts, rms_per_range2 * float(np.square(pts.mean(axis=0)).sum()), None
+
+
 def fit_primitive(
     points,
     normals=None,
@@ -161,16 +170,13 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    pts = as_points(points)
-    failure = check_points(pts, "primitive", max(int(min_points), 3))
+    pts, extra, failure = _checked(points, "primitive", min_points, rms_per_range2)
     if failure is not None:
         return failure
     if normals is not None:
         normals = as_points(normals, "normals")
         if normals.shape != pts.shape:
             raise ValueError(f"normals must have the shape of points {pts.shape}; got {normals.shape}")
-    range_sq = float(np.square(pts.mean(axis=0)).sum())
-    extra = rms_per_range2 * range_sq
     plane_tol, cylinder_tol, sphere_tol = plane_rms + extra, cylinder_rms + extra, sphere_rms + extra
 
     # centred, scaled and decomposed once for all three models
@@ -242,11 +248,9 @@ def refit_primitive(
     """
     if not isinstance(model, (Plane, Cylinder, Sphere)):
         raise TypeError(f"model must be a Plane, Cylinder or Sphere; got {type(model).__name__}")
-    pts = as_points(points)
-    failure = check_points(pts, model.kind, max(int(min_points), 3))
+    pts, extra, failure = _checked(points, model.kind, min_points, rms_per_range2)
     if failure is not None:
         return failure
-    extra = rms_per_range2 * float(np.square(pts.mean(axis=0)).sum())
     plane_tol = plane_rms + extra
     base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
     if isinstance(model, Plane):
