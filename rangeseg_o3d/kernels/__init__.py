@@ -2,7 +2,7 @@
 
 Region-level work in numpy costs a handful of small-array calls per region; at 10-50
 regions per scan that Python overhead, not arithmetic, dominated the pipeline. These
-kernels do per-pixel work for every region at once: label-wise moments, quadric normal
+kernels do per-pixel work for every region at once: window planes, label-wise moments, quadric normal
 equations, growth of regions into the edge band, inlier counts and region adjacency.
 
 Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.model_table`): ``kinds[k]`` is
@@ -11,7 +11,8 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.
 
 Modules: ``moments`` (label-wise sums, planes, quadric test, distances to models),
 ``grid`` (grouping by label, adjacency, growth, tile means, full-resolution labelling),
-``trimmed`` (the trimmed fit's proposals), ``models`` (shared inline helpers).
+``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
+window plane), ``models`` (shared inline helpers).
 Compiled on first use and cached beside the modules (``cache=True``): the first run on a
 machine pays the compilation (about half a minute for all of them, with the fits').
 """
@@ -26,6 +27,7 @@ from .moments import (
     quadric_sums,
 )
 from .trimmed import trimmed_proposals
+from .window import eigenvectors, smallest_eigenvalues, window_moments
 
 __all__ = [
     "label_moments",
@@ -41,4 +43,7 @@ __all__ = [
     "block_means",
     "assign_tiles",
     "trimmed_proposals",
+    "window_moments",
+    "smallest_eigenvalues",
+    "eigenvectors",
 ]

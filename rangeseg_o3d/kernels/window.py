@@ -1,0 +1,170 @@
+"""Per-pixel window planes: the moments of every k x k window and their smallest eigenpair.
+
+The moments are one pass over the grid, each window summed about one of its own points
+(its centre when valid), so the centred scatter keeps its precision however far the scan
+is from the origin. The smallest eigenvalue is the smallest root of the characteristic
+cubic, found by Newton's method from below in a branch-free loop that the compiler
+vectorises (five steps settle nearly every window); windows with repeated or clustered
+roots, where Newton crawls, take the trigonometric closed form instead.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["window_moments", "smallest_eigenvalues", "eigenvectors"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _reference(xyz, r0, r1, c0, c1, r, c):
+    # The point the window's sums are taken about: its centre, else its first valid point.
+    if xyz[r, c, 2] == xyz[r, c, 2]:
+        return r, c
+    for i in range(r0, r1):
+        for j in range(c0, c1):
+            if xyz[i, j, 2] == xyz[i, j, 2]:
+                return i, j
+    return r, c
+
+
+@njit(cache=True, nogil=True)
+def window_moments(xyz, window):
+    """Count ``(H, W)``, mean ``(3, H, W)`` and centred scatter ``(6, H, W)`` of every window.
+
+    A point is valid when its z is not NaN; windows are clipped at the grid border. The
+    scatter is packed ``(xx, yy, zz, xy, xz, yz)``; mean is NaN and scatter 0 where a
+    window has no valid point.
+    """
+    h, w = xyz.shape[0], xyz.shape[1]
+    half = window // 2
+    count = np.zeros((h, w))
+    mean = np.full((3, h, w), np.nan)
+    scatter = np.zeros((6, h, w))
+    for r in range(h):
+        r0, r1 = max(r - half, 0), min(r + half + 1, h)
+        for c in range(w):
+            c0, c1 = max(c - half, 0), min(c + half + 1, w)
+            rr, cc = _reference(xyz, r0, r1, c0, c1, r, c)
+            ox, oy, oz = xyz[rr, cc, 0], xyz[rr, cc, 1], xyz[rr, cc, 2]
+            n = 0.0
+            sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
+            for i in range(r0, r1):
+                for j in range(c0, c1):
+                    z = xyz[i, j, 2]
+                    if z == z:
+                        x, y, z = xyz[i, j, 0] - ox, xyz[i, j, 1] - oy, z - oz
+                        n += 1.0
+                        sx += x
+                        sy += y
+                        sz += z
+                        sxx += x * x
+                        syy += y * y
+                        szz += z * z
+                        sxy += x * y
+                        sxz += x * z
+                        syz += y * z
+            if n == 0.0:
+                continue
+            mx, my, mz = sx / n, sy / n, sz / n
+            count[r, c] = n
+            mean[0, r, c], mean[1, r, c], mean[2, r, c] = mx + ox, my + oy, mz + oz
+            scatter[0, r, c] = sxx - sx * mx
+            scatter[1, r, c] = syy - sy * my
+            scatter[2, r, c] = szz - sz * mz
+            scatter[3, r, c] = sxy - sx * my
+            scatter[4, r, c] = sxz - sx * mz
+            scatter[5, r, c] = syz - sy * mz
+    return count, mean, scatter
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _invariants(a11, a22, a33, a12, a13, a23):
+    # Trace, sum of principal 2x2 minors and determinant: the cubic's coefficients.
+    trace = a11 + a22 + a33
+    minors = a11 * a22 + a11 * a33 + a22 * a33 - a12 * a12 - a13 * a13 - a23 * a23
+    det = a11 * (a22 * a33 - a23 * a23) - a12 * (a12 * a33 - a23 * a13) + a13 * (a12 * a23 - a22 * a13)
+    return trace, minors, det
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _newton_step(lam, trace, minors, det):
+    # One Newton step on lam^3 - trace lam^2 + minors lam - det. Left of the smallest root
+    # the cubic is increasing and concave, so the steps climb to that root without passing it.
+    f = ((lam - trace) * lam + minors) * lam - det
+    slope = (3.0 * lam - 2.0 * trace) * lam + minors
+    return -f / slope if slope > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _closed_form(a11, a22, a33, a12, a13, a23):
+    # Trigonometric solution of the cubic: exact for repeated roots, where Newton is slow.
+    q = (a11 + a22 + a33) / 3.0
+    b11, b22, b33 = a11 - q, a22 - q, a33 - q
+    p = math.sqrt((b11 * b11 + b22 * b22 + b33 * b33 + 2.0 * (a12 * a12 + a13 * a13 + a23 * a23)) / 6.0)
+    if not p > 0.0:
+        return max(q, 0.0)
+    det = b11 * (b22 * b33 - a23 * a23) - a12 * (a12 * b33 - a23 * a13) + a13 * (a12 * a23 - b22 * a13)
+    phi = math.acos(min(max(det / (2.0 * p * p * p), -1.0), 1.0)) / 3.0
+    return max(q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), 0.0)
+
+
+@njit(cache=True, nogil=True)
+def smallest_eigenvalues(scatter):
+    """Smallest eigenvalue of each packed symmetric positive semi-definite 3x3 matrix.
+
+    ``scatter`` is (6, N) ordered ``(a11, a22, a33, a12, a13, a23)``; returns (N,), clipped at 0
+    and NaN where a matrix has a NaN. Accurate to about 1e-10 of the trace.
+    """
+    n = scatter.shape[1]
+    a11, a22, a33, a12, a13, a23 = scatter[0], scatter[1], scatter[2], scatter[3], scatter[4], scatter[5]
+    values = np.empty(n)
+    last_step = np.empty(n)
+    margin = np.empty(n)
+    # Kept free of branches (selects and float stores only), so that it vectorises.
+    for i in range(n):
+        trace, minors, det = _invariants(a11[i], a22[i], a33[i], a12[i], a13[i], a23[i])
+        # Newton's first step from 0: a lower bound, as det >= 0 and minors >= 0.
+        lam = det / minors if minors > 0.0 else 0.0
+        step = 0.0
+        for _ in range(5):
+            step = _newton_step(lam, trace, minors, det)
+            lam += step
+        values[i] = max(lam, 0.0) if trace == trace else np.nan
+        last_step[i] = abs(step) - 1e-10 * trace
+        # minors ~ 0: the two smaller roots are both ~0 and det / minors is rounding noise
+        margin[i] = minors - 1e-10 * trace * trace
+    for i in range(n):  # not settled (repeated or clustered roots, where Newton crawls)
+        if values[i] == values[i] and (last_step[i] > 0.0 or not margin[i] > 0.0):
+            values[i] = _closed_form(a11[i], a22[i], a33[i], a12[i], a13[i], a23[i])
+    return values
+
+
+@njit(cache=True, nogil=True)
+def eigenvectors(scatter, values):
+    """Unit eigenvector (N, 3) of each packed matrix (6, N) for its eigenvalue ``values[i]``.
+
+    The longest cross product of two rows of ``A - lambda I``; NaN where all three vanish
+    (the eigenvalue is not simple, e.g. the zero matrix) or the input is NaN.
+    """
+    n = scatter.shape[1]
+    out = np.full((n, 3), np.nan)
+    cross = np.empty((3, 3))
+    for i in range(n):
+        a11, a22, a33 = scatter[0, i] - values[i], scatter[1, i] - values[i], scatter[2, i] - values[i]
+        a12, a13, a23 = scatter[3, i], scatter[4, i], scatter[5, i]
+        cross[0, 0], cross[0, 1], cross[0, 2] = a12 * a23 - a13 * a22, a13 * a12 - a11 * a23, a11 * a22 - a12 * a12
+        cross[1, 0], cross[1, 1], cross[1, 2] = a12 * a33 - a13 * a23, a13 * a13 - a11 * a33, a11 * a23 - a12 * a13
+        cross[2, 0], cross[2, 1], cross[2, 2] = a22 * a33 - a23 * a23, a23 * a13 - a12 * a33, a12 * a23 - a22 * a13
+        best, pick = 0.0, -1
+        for k in range(3):
+            norm2 = cross[k, 0] ** 2 + cross[k, 1] ** 2 + cross[k, 2] ** 2
+            if norm2 > best:
+                best, pick = norm2, k
+        if pick >= 0:
+            scale = 1.0 / math.sqrt(best)
+            for k in range(3):
+                out[i, k] = cross[pick, k] * scale
+    return out
