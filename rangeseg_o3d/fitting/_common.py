@@ -29,39 +29,6 @@ def as_points(points, name: str = "points") -> np.ndarray:
     return arr
 
 
-def check_points(points: np.ndarray, kind: str, minimum: int) -> FitFailure | None:
-    """A FitFailure if there are too few points or any is NaN/inf, else None."""
-    n = len(points)
-    if n < minimum:
-        return FitFailure(kind, f"a {kind} fit needs at least {minimum} points; got {n}")
-    bad = ~np.isfinite(points).all(axis=1)
-    if bad.any():
-        return FitFailure(
-            kind,
-            f"{int(bad.sum())} of {n} points are NaN or infinite; drop invalid points before fitting",
-        )
-    return None
-
-
-def centre_and_scale(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """``(centroid, scale, q)`` with ``q = (points - centroid) / scale`` of unit rms spread.
-
-    Working on ``q`` keeps every normal-equation matrix near unit size, whatever the
-    units or the distance of the patch from the origin.
-    """
-    centroid = points.mean(axis=0)
-    rel = points - centroid
-    scale = float(np.sqrt((rel * rel).sum() / len(points)))
-    if scale == 0.0:
-        scale = 1.0
-    return centroid, scale, rel / scale
-
-
-def scatter_eig(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ascending eigenvalues and eigenvectors (columns) of the scatter ``q^T q`` of centred ``q``."""
-    return np.linalg.eigh(q.T @ q)
-
-
 def flatness_failure(eigvals: np.ndarray, kind: str) -> FitFailure | None:
     """FitFailure when the points are collinear or coplanar (a curved surface needs 3-D spread)."""
     largest = eigvals[2]
@@ -70,13 +37,6 @@ def flatness_failure(eigvals: np.ndarray, kind: str) -> FitFailure | None:
     if eigvals[0] <= (DEGENERATE_RATIO**2) * largest:
         return FitFailure(kind, "points are coplanar: no curvature to fit")
     return None
-
-
-def count_within(distances: np.ndarray, tolerance: float | None) -> int:
-    """Number of ``|distances| <= tolerance``; all of them when ``tolerance`` is None."""
-    if tolerance is None:
-        return int(len(distances))
-    return int(np.count_nonzero(np.abs(distances) <= tolerance))
 
 
 def check_tolerance(value, name: str) -> float | None:
@@ -97,18 +57,27 @@ RADIUS_LIMIT = 1e3
 class Prepared:
     """Validated input of a fit: points, centred/scaled copy and scatter eigenvalues, or the failure."""
 
-    __slots__ = ("points", "inlier_distance", "failure", "centroid", "scale", "q", "eigvals", "eigvecs")
+    __slots__ = ("points", "inlier_distance", "failure", "n_bad", "centroid", "scale", "q", "eigvals",
+                 "eigvecs")
 
     def __init__(self, points, kind: str, minimum: int, inlier_distance, curved: bool):
-        self.points = as_points(points)
+        from ._compiled import prepare_points
+
+        self.points = np.ascontiguousarray(as_points(points))
+        (self.n_bad, self.centroid, self.scale, self.q, self.eigvals,
+         self.eigvecs) = prepare_points(self.points)
+        self._check(kind, minimum, inlier_distance, curved)
+
+    def _check(self, kind: str, minimum: int, inlier_distance, curved: bool) -> None:
         self.inlier_distance = check_tolerance(inlier_distance, "inlier_distance")
-        self.failure = check_points(self.points, kind, minimum)
-        if self.failure is not None:
-            return
-        self.centroid, self.scale, self.q = centre_and_scale(self.points)
-        self.eigvals, self.eigvecs = scatter_eig(self.q)
-        if curved:
-            self.failure = flatness_failure(self.eigvals, kind)
+        n = len(self.points)
+        if n < minimum:
+            self.failure = FitFailure(kind, f"a {kind} fit needs at least {minimum} points; got {n}")
+        elif self.n_bad:
+            self.failure = FitFailure(kind, f"{self.n_bad} of {n} points are NaN or infinite; "
+                                            "drop invalid points before fitting")
+        else:
+            self.failure = flatness_failure(self.eigvals, kind) if curved else None
 
     def specialise(self, kind: str, minimum: int, inlier_distance, curved: bool) -> "Prepared":
         """The same prepared points for another model kind (its own checks and inlier distance).
@@ -118,11 +87,8 @@ class Prepared:
         """
         other = object.__new__(Prepared)
         for name in Prepared.__slots__:
-            setattr(other, name, getattr(self, name, None))
-        other.inlier_distance = check_tolerance(inlier_distance, "inlier_distance")
-        other.failure = check_points(self.points, kind, minimum)
-        if other.failure is None and curved:
-            other.failure = flatness_failure(self.eigvals, kind)
+            setattr(other, name, getattr(self, name))
+        other._check(kind, minimum, inlier_distance, curved)
         return other
 
 

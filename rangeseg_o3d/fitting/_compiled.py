@@ -455,3 +455,57 @@ def cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance):
         if abs(dist) <= inlier_distance:
             inliers += 1
     return axis, point, radius, converged, np.sqrt(squares / n), arc_around_axis(q, axis, point), inliers
+
+
+@njit(cache=True, nogil=True)
+def prepare_points(points):
+    """Centre, scale and decompose (N, 3) points in one pass: the start of every fit.
+
+    Returns ``(n_bad, centroid, scale, q, eigvals, eigvecs)``: the number of rows with a
+    NaN or infinite coordinate (when it is not 0 the rest is not computed), the centroid,
+    the rms spread ``scale`` (1 for coincident points), ``q = (points - centroid) / scale``
+    and the ascending eigenvalues and eigenvectors (columns) of ``q^T q``.
+    """
+    n = points.shape[0]
+    n_bad = 0
+    centroid = np.zeros(3)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+            centroid[0] += x
+            centroid[1] += y
+            centroid[2] += z
+        else:
+            n_bad += 1
+    q = np.empty((n, 3))
+    if n_bad or n == 0:
+        return n_bad, centroid, 1.0, q, np.zeros(3), np.eye(3)
+    centroid /= n
+    squares = 0.0
+    for i in range(n):
+        for k in range(3):
+            value = points[i, k] - centroid[k]
+            q[i, k] = value
+            squares += value * value
+    scale = np.sqrt(squares / n)
+    if scale == 0.0:
+        scale = 1.0
+    q /= scale
+    eigvals, eigvecs = np.linalg.eigh(q.T @ q)
+    return n_bad, centroid, scale, q, eigvals, eigvecs
+
+
+@njit(cache=True, nogil=True)
+def plane_statistics(q, normal, scale, points, d, inlier_distance):
+    """rms distance of the centred, scaled ``q`` from the plane through 0 with ``normal`` (in
+    the units of ``points``), and the number of ``points`` within ``inlier_distance`` of
+    ``normal . p = d``."""
+    squares = 0.0
+    inliers = 0
+    for i in range(q.shape[0]):
+        height = q[i, 0] * normal[0] + q[i, 1] * normal[1] + q[i, 2] * normal[2]
+        squares += height * height
+        distance = points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2] - d
+        if abs(distance) <= inlier_distance:
+            inliers += 1
+    return scale * np.sqrt(squares / max(q.shape[0], 1)), inliers

@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..registry import Plugin
-from ._common import Prepared, as_points, check_points
+from ._common import Prepared, as_points
 from .cylinder import cylinder_arc, cylinder_from_prepared
 from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import plane_from_prepared
@@ -63,36 +63,20 @@ def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
     e1 = np.cross(plane.normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(plane.normal, e1)
-    return _height_field_shape(centred @ plane.normal, centred @ np.column_stack([e1, e2]))
+    return _height_field_shape(centred, plane.normal, e1, e2)
 
 
 def _quadric_from_prepared(prep: Prepared, normal: np.ndarray) -> tuple[float, float]:
     # quadric_shape on prepared points: the scatter's other eigenvectors span the plane
-    return _height_field_shape(prep.q @ normal, prep.q @ prep.eigvecs[:, 1:])
+    return _height_field_shape(prep.q, normal, prep.eigvecs[:, 1], prep.eigvecs[:, 2])
 
 
-def _height_field_shape(height: np.ndarray, in_plane: np.ndarray) -> tuple[float, float]:
-    n = len(height)
-    spread = float(np.sqrt((in_plane * in_plane).sum() / n)) or 1.0
-    x, y = (in_plane / spread).T  # unit spread keeps the 6x6 normal equations well conditioned
-    design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
-    try:
-        coef = np.linalg.solve(design.T @ design, design.T @ height)
-    except np.linalg.LinAlgError:  # points on a conic: no quadric height field to compare
-        return 1.0, 0.5
-    residual = height - design @ coef
-    quad_ms = float(residual @ residual) / n
-    plane_ms = float(height @ height) / n
-    if quad_ms <= 0.0:
-        gain = np.inf if plane_ms > 0.0 else 1.0
-    else:
-        gain = float(np.sqrt(plane_ms / quad_ms))
-    a, b, c = coef[0], coef[1], coef[2]
-    mean, diff = a + c, np.sqrt((a - c) ** 2 + b * b)  # eigenvalues of [[2a, b], [b, 2c]]
-    k1, k2 = abs(mean + diff), abs(mean - diff)
-    big = max(k1, k2)
-    roundness = float(min(k1, k2) / big) if big > 0 else 0.5
-    return gain, roundness
+def _height_field_shape(centred, normal, e1, e2) -> tuple[float, float]:
+    from ..kernels import height_field_shape
+
+    gain, roundness = height_field_shape(np.ascontiguousarray(centred), np.ascontiguousarray(normal),
+                                         np.ascontiguousarray(e1), np.ascontiguousarray(e2))
+    return float(gain), float(roundness)
 
 
 def _judge_curved(model, points, plane_rms, tolerance, max_radius, min_arc, curvature_gain):
@@ -117,13 +101,12 @@ def _judge_curved(model, points, plane_rms, tolerance, max_radius, min_arc, curv
     return None
 
 
-def _checked(points, kind: str, min_points: int, rms_per_range2: float):
-    """``(points, threshold increase for the patch's range, FitFailure or None)``."""
-    pts = as_points(points)
-    failure = check_points(pts, kind, max(int(min_points), 3))
-    if failure is not None:
-        return pts, 0.0, failure
-    return pts, rms_per_range2 * float(np.square(pts.mean(axis=0)).sum()), None
+def _prepared(points, kind: str, min_points: int, rms_per_range2: float):
+    """``(prepared points, threshold increase for the patch's range)``; check ``.failure``."""
+    prep = Prepared(points, kind, max(int(min_points), 3), None, curved=False)
+    if prep.failure is not None:
+        return prep, 0.0
+    return prep, rms_per_range2 * float(prep.centroid @ prep.centroid)
 
 
 def fit_primitive(
@@ -170,9 +153,10 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    pts, extra, failure = _checked(points, "primitive", min_points, rms_per_range2)
-    if failure is not None:
-        return failure
+    base, extra = _prepared(points, "primitive", min_points, rms_per_range2)
+    if base.failure is not None:
+        return base.failure
+    pts = base.points
     if normals is not None:
         normals = as_points(normals, "normals")
         if normals.shape != pts.shape:
@@ -180,7 +164,7 @@ def fit_primitive(
     plane_tol, cylinder_tol, sphere_tol = plane_rms + extra, cylinder_rms + extra, sphere_rms + extra
 
     # centred, scaled and decomposed once for all three models
-    base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
+    base = base.specialise("plane", 3, INLIER_FACTOR * plane_tol, curved=False)
     plane = plane_from_prepared(base)
     if not plane:
         return FitFailure("primitive", f"plane: {plane.reason}")
@@ -248,11 +232,12 @@ def refit_primitive(
     """
     if not isinstance(model, (Plane, Cylinder, Sphere)):
         raise TypeError(f"model must be a Plane, Cylinder or Sphere; got {type(model).__name__}")
-    pts, extra, failure = _checked(points, model.kind, min_points, rms_per_range2)
-    if failure is not None:
-        return failure
+    base, extra = _prepared(points, model.kind, min_points, rms_per_range2)
+    if base.failure is not None:
+        return base.failure
+    pts = base.points
     plane_tol = plane_rms + extra
-    base = Prepared(pts, "plane", 3, INLIER_FACTOR * plane_tol, curved=False)
+    base = base.specialise("plane", 3, INLIER_FACTOR * plane_tol, curved=False)
     if isinstance(model, Plane):
         plane = plane_from_prepared(base)
         if not plane:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import DEGENERATE_RATIO, Prepared, count_within
+from ._common import DEGENERATE_RATIO, Prepared
 from .models import FitFailure, Plane
 
 __all__ = ["fit_plane", "orient_normal"]
@@ -73,12 +73,10 @@ def plane_from_prepared(prep: Prepared) -> Plane | FitFailure:
         return FitFailure("plane", "points are coincident or collinear: the plane is undetermined")
     normal = eigvecs[:, 0] / np.linalg.norm(eigvecs[:, 0])
     normal, d = orient_normal(normal, float(normal @ centroid), float(np.abs(centroid).max() + scale))
+    from ._compiled import plane_statistics
+
     # from the distances, not the eigenvalue: the eigenvalue carries an absolute rounding
     # error of ~1e-16, i.e. a 1e-8 rms floor on exact data
-    heights = prep.q @ normal
-    rms = scale * float(np.sqrt(heights @ heights / len(heights)))
-    if prep.inlier_distance is None:
-        inliers = len(prep.points)
-    else:
-        inliers = count_within(prep.points @ normal - d, prep.inlier_distance)
-    return Plane(normal=normal, d=d, rms=rms, inliers=inliers)
+    limit = np.inf if prep.inlier_distance is None else prep.inlier_distance
+    rms, inliers = plane_statistics(prep.q, normal, scale, prep.points, d, limit)
+    return Plane(normal=normal, d=d, rms=float(rms), inliers=int(inliers))

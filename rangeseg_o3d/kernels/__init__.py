@@ -21,6 +21,7 @@ from .grid import adjacency_matrix, assign_tiles, block_means, claim_rings, grou
 from .moments import (
     count_inliers,
     distance_stats,
+    height_field_shape,
     label_moments,
     planes_from_moment_rows,
     quadric_shapes,
@@ -34,6 +35,7 @@ __all__ = [
     "planes_from_moment_rows",
     "quadric_sums",
     "quadric_shapes",
+    "height_field_shape",
     "count_inliers",
     "distance_stats",
     "group_by_label",

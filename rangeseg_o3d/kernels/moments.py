@@ -8,7 +8,8 @@ from numba import njit
 from ..fitting._compiled import _solve
 from .models import _distance
 
-__all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "count_inliers", "distance_stats"]
+__all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
+           "count_inliers", "distance_stats"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -205,3 +206,25 @@ def distance_stats(xyz, labels, kinds, params, rms, sigma, factor):
         if dist <= factor * max(sigma[i], rms[k]):
             inliers[k] += 1
     return inliers, squares, counts
+
+@njit(cache=True, nogil=True)
+def height_field_shape(centred, normal, e1, e2):
+    """``(gain, roundness)`` of one set of centred points: :func:`quadric_shapes` of the
+    height field over the plane through their centroid with ``normal`` and in-plane unit
+    axes ``e1, e2``."""
+    n = centred.shape[0]
+    squares = 0.0
+    for i in range(n):
+        u = centred[i, 0] * e1[0] + centred[i, 1] * e1[1] + centred[i, 2] * e1[2]
+        v = centred[i, 0] * e2[0] + centred[i, 1] * e2[1] + centred[i, 2] * e2[2]
+        squares += u * u + v * v
+    spread = np.sqrt(squares / max(n, 1))
+    # unit spread keeps the 6x6 normal equations well conditioned
+    inv_spread = np.array([1.0, 1.0 / spread if spread > 0 else 1.0])
+    frame = np.zeros((3, 2, 3))
+    frame[0, 1], frame[1, 1], frame[2, 1] = e1, e2, normal
+    active = np.array([False, True])
+    sums = quadric_sums(centred, np.ones(n, np.int64), np.zeros((2, 3)), frame[0], frame[1], frame[2],
+                        inv_spread, active)
+    gain, roundness = quadric_shapes(sums, np.array([0.0, float(n)]), active)
+    return gain[1], roundness[1]
