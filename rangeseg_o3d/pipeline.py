@@ -163,14 +163,15 @@ class Pipeline:
     @staticmethod
     def _assemble(labels, fits, sigma, xyz_flat, timings, stages, t_start, pixel_rms=False) -> Result:
         # Number the regions that have a fit (or a reported failure) 1..n, in label order.
-        present = np.unique(labels[labels > 0])
-        kept = [int(k) for k in present if int(k) in fits]
-        lut = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.int32)
+        pixels = np.bincount(labels.ravel())
+        kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in fits]
+        lut = np.zeros(len(pixels), dtype=np.int32)
         lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
         labels = lut[labels]
         from .kernels import distance_stats
 
-        sizes = np.bincount(labels.ravel(), minlength=len(kept) + 1)
+        sizes = np.zeros(len(kept) + 1, np.int64)
+        sizes[1:] = pixels[kept]
         renumbered = {new: fits[old] for new, old in enumerate(kept, start=1)}
         kinds, params, rms = model_table(renumbered, len(kept) + 1)
         # Inliers over the whole region (fits may have used a subsample): points within

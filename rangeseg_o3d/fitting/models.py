@@ -11,6 +11,9 @@ __all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model"]
 
 
 def _vec(value) -> np.ndarray:
+    if (type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64
+            and not value.flags.writeable):
+        return value  # already a model's vector (dataclasses.replace passes it again)
     arr = np.asarray(value, dtype=float).reshape(3)
     arr.setflags(write=False)
     return arr

@@ -17,7 +17,15 @@ Compiled on first use and cached beside the modules (``cache=True``): the first 
 machine pays the compilation (about half a minute for all of them, with the fits').
 """
 
-from .grid import adjacency_matrix, assign_tiles, block_means, claim_rings, group_by_label, grow_rings
+from .grid import (
+    adjacency_matrix,
+    assign_tiles,
+    block_means,
+    claim_rings,
+    group_by_label,
+    grow_rings,
+    largest_piece,
+)
 from .moments import (
     count_inliers,
     distance_stats,
@@ -44,6 +52,7 @@ __all__ = [
     "claim_rings",
     "block_means",
     "assign_tiles",
+    "largest_piece",
     "trimmed_proposals",
     "window_moments",
     "smallest_eigenvalues",

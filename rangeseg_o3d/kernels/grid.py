@@ -1,4 +1,5 @@
-"""Passes over the image grid: grouping pixels by label, adjacency, growth, tile means, full-resolution labelling."""
+"""Passes over the image grid: grouping pixels by label, adjacency, growth, tile means, full-resolution
+labelling, the largest connected piece of a pixel set."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ from numba import njit
 
 from .models import _distance, _neighbour
 
-__all__ = ["group_by_label", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles"]
+__all__ = ["group_by_label", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles",
+           "largest_piece"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -265,4 +267,59 @@ def assign_tiles(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     if score < best_score:
                         best, best_score = k, score
             out[r, c] = best
+    return out
+
+@njit(cache=True, nogil=True)
+def largest_piece(idx, width):
+    """The flat pixel indices ``idx`` (increasing) of the largest 4-connected piece they form.
+
+    Ties go to the piece holding the first pixel in raster order, as with OpenCV's labels.
+    """
+    n = idx.shape[0]
+    if n == 0:
+        return idx.copy()
+    top, bottom, left, right = idx[0] // width, idx[n - 1] // width, width, 0
+    for p in range(n):
+        c = idx[p] % width
+        left, right = min(left, c), max(right, c)
+    h, w = bottom - top + 1, right - left + 1
+    slot = np.full(h * w, -1, np.int64)  # position in idx of each patch pixel, -1 if none
+    for p in range(n):
+        slot[(idx[p] // width - top) * w + idx[p] % width - left] = p
+    piece = np.full(n, -1, np.int64)
+    stack = np.empty(n, np.int64)
+    best, best_size, pieces = 0, 0, 0
+    for start in range(n):
+        if piece[start] >= 0:
+            continue
+        piece[start] = pieces
+        stack[0], depth, size = start, 1, 0
+        while depth:
+            depth -= 1
+            p = stack[depth]
+            size += 1
+            cell = (idx[p] // width - top) * w + idx[p] % width - left
+            r, c = cell // w, cell % w
+            for step in range(4):
+                if step == 0:
+                    other = cell - w if r > 0 else -1
+                elif step == 1:
+                    other = cell + w if r < h - 1 else -1
+                elif step == 2:
+                    other = cell - 1 if c > 0 else -1
+                else:
+                    other = cell + 1 if c < w - 1 else -1
+                if other >= 0 and slot[other] >= 0 and piece[slot[other]] < 0:
+                    piece[slot[other]] = pieces
+                    stack[depth] = slot[other]
+                    depth += 1
+        if size > best_size:
+            best, best_size = pieces, size
+        pieces += 1
+    out = np.empty(best_size, idx.dtype)
+    m = 0
+    for p in range(n):
+        if piece[p] == best:
+            out[m] = idx[p]
+            m += 1
     return out

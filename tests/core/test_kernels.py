@@ -247,3 +247,26 @@ def test_region_adjacency_beyond_the_matrix_limit_uses_shifted_pairs():
     labels[0, 8] = 7
     assert region_adjacency(labels, reach=2) == {(5000, 5001), (7, 5001)}
     assert region_adjacency(labels, reach=1) == {(7, 5001)}
+
+
+def test_largest_piece_matches_opencv_components():
+    import cv2
+
+    from rangeseg_o3d.kernels import largest_piece
+
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(300):
+        h, w = rng.integers(1, 20, 2)
+        mask = rng.random((h, w)) < rng.random()
+        idx = np.flatnonzero(mask)
+        if idx.size == 0:
+            assert largest_piece(idx.astype(np.int64), int(w)).size == 0
+            continue
+        n, comp = cv2.connectedComponents(mask.astype(np.uint8), connectivity=4)
+        sizes = np.bincount(comp.ravel(), minlength=n)
+        sizes[0] = 0  # background
+        expected = np.flatnonzero(comp.ravel() == np.argmax(sizes))  # ties: first in raster order
+        assert np.array_equal(largest_piece(idx.astype(np.int64), int(w)), expected)
+        checked += 1
+    assert checked > 250
