@@ -122,17 +122,18 @@ class RegionFitter:
             return [FitFailure(kind=m.kind, reason=str(exc)) for m in models]
 
     def refit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, which, *,
-                      from_points: bool = True) -> dict:
+                      from_points: bool = True, from_moments: bool = True) -> dict:
         """Refit the regions ``which`` of ``labels``; returns {label: model or FitFailure}.
 
-        Models the plugin refits from moments come from one pass over the pixels; the
-        others are refitted on their points unless ``from_points`` is False (then they
-        are left out of the answer).
+        Models the plugin refits from moments come from one pass over the pixels (skipped
+        when ``from_moments`` is False: the caller knows none of them can); the others
+        are refitted on their points unless ``from_points`` is False (then they are left
+        out of the answer).
         """
         which = [k for k in which if fits.get(k)]
         if not which:
             return {}
-        moments = self.moments(xyz_flat, labels)
+        moments = self.moments(xyz_flat, labels) if from_moments else None
         out = {}
         if moments is not None:
             rows = np.zeros((len(which), moments.shape[1]))

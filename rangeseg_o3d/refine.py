@@ -132,10 +132,13 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
         sign = np.where(dots >= 0, 1.0, -1.0)
         close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
         close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
-        for i, j in zip(*np.triu_indices(len(planes), 1)):
-            a, b = planes[i], planes[j]
-            if (a, b) in adjacency or (disjoint and close[i, j]):
-                out.append((a, b))
+        wanted = close if disjoint else np.zeros_like(close)
+        position = {k: i for i, k in enumerate(planes)}
+        for a, b in adjacency:
+            if a in position and b in position:
+                wanted[position[a], position[b]] = True
+        first, second = np.nonzero(np.triu(wanted, 1))
+        out.extend((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist()))
     others = [k for k in keys if not isinstance(models[k], Plane)]
     for i, a in enumerate(others):
         for b in others[i + 1:]:

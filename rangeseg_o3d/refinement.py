@@ -280,7 +280,7 @@ class _Context:
         sizes = np.bincount(labels.ravel(), minlength=max(fits, default=0) + 1)
         curved = [k for k, m in fits.items()
                   if m and not isinstance(m, Plane) and sizes[k] > 1.2 * max(m.inliers, 1)]
-        for k, refit in self.fitter.refit_regions(self.xyz, labels, fits, curved).items():
+        for k, refit in self.fitter.refit_regions(self.xyz, labels, fits, curved, from_moments=False).items():
             if refit and refit.kind == fits[k].kind:
                 fits[k] = refit
         return labels, fits
@@ -366,10 +366,11 @@ class _Context:
         neighbours' models, each such point joins the neighbour that explains it best and
         the rest become unlabelled; the neighbours are refitted.
         """
+        sizes = np.bincount(labels.ravel())
+        if not np.any((sizes[1:] > 0) & (sizes[1:] < 3 * self.min_size)):
+            return labels, fits
         regions = region_indices(labels)
         small_ones = [k for k in regions if regions[k].size < 3 * self.min_size]
-        if not small_ones:
-            return labels, fits
         neighbours: dict[int, set[int]] = {}
         for a, b in adjacency:
             neighbours.setdefault(a, set()).add(b)

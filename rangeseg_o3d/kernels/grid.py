@@ -38,23 +38,17 @@ def adjacency_matrix(labels, n, reach):
     """(n, n) bool: regions ``a != b`` (both > 0) with pixels within ``reach`` rows and columns."""
     h, w = labels.shape
     adj = np.zeros((n, n), np.bool_)
-    for r in range(h):
-        for c in range(w):
-            a = labels[r, c]
-            if a <= 0:
+    # one pass per forward offset: a tight compare loop, the store taken only at region borders
+    for dr in range(0, reach + 1):
+        for dc in range(-reach, reach + 1):
+            if dr == 0 and dc <= 0:
                 continue
-            for dr in range(0, reach + 1):
-                rr = r + dr
-                if rr >= h:
-                    break
-                for dc in range(-reach, reach + 1):
-                    if dr == 0 and dc <= 0:
-                        continue
-                    cc = c + dc
-                    if cc < 0 or cc >= w:
-                        continue
-                    b = labels[rr, cc]
-                    if b > 0 and b != a:
+            c0, c1 = max(0, -dc), min(w, w - dc)
+            for r in range(h - dr):
+                row, other = labels[r], labels[r + dr]
+                for c in range(c0, c1):
+                    a, b = row[c], other[c + dc]
+                    if a != b and a > 0 and b > 0:
                         adj[a, b] = True
                         adj[b, a] = True
     return adj
