@@ -210,7 +210,13 @@ def warm_up() -> float:
     from .synthetic.lms200 import simulate_lms200
     from .synthetic.suite import default_scene, rgbd_scenes
 
+    from .fitting import fit_cylinder, fit_plane, fit_sphere
+
     start = time.perf_counter()
     Pipeline("lms200").run(simulate_lms200(default_scene(), seed=0).cloud)
     Pipeline("rgbd_vga").run(simulate_depth_camera(rgbd_scenes()[1][1], seed=0).cloud)
+    # the public single-model fits have kernels of their own
+    angle = np.linspace(0.0, np.pi, 12)
+    arc = np.stack([np.cos(angle), np.sin(angle), np.tile([0.0, 1.0], 6)], axis=1)
+    fit_plane(arc), fit_sphere(arc), fit_cylinder(arc)
     return time.perf_counter() - start

@@ -31,11 +31,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..registry import Plugin
-from ._common import Prepared, as_points
-from .cylinder import cylinder_arc, cylinder_from_prepared
+from ._common import Prepared, as_points, decision_reason, input_failure
+from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import plane_from_prepared
-from .sphere import sphere_cap_angle, sphere_from_prepared
+from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
            "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
@@ -66,11 +66,6 @@ def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
     return _height_field_shape(centred, plane.normal, e1, e2)
 
 
-def _quadric_from_prepared(prep: Prepared, normal: np.ndarray) -> tuple[float, float]:
-    # quadric_shape on prepared points: the scatter's other eigenvectors span the plane
-    return _height_field_shape(prep.q, normal, prep.eigvecs[:, 1], prep.eigvecs[:, 2])
-
-
 def _height_field_shape(centred, normal, e1, e2) -> tuple[float, float]:
     from ..kernels import height_field_shape
 
@@ -79,34 +74,11 @@ def _height_field_shape(centred, normal, e1, e2) -> tuple[float, float]:
     return float(gain), float(roundness)
 
 
-def _judge_curved(model, points, plane_rms, tolerance, max_radius, min_arc, curvature_gain):
-    """None if the curved ``model`` is acceptable, else the reason it is refused."""
-    if not model:
-        return f"{model.kind}: {model.reason}"
-    if model.rms > tolerance:
-        return f"{model.kind} rms {model.rms:.3g} > {tolerance:.3g}"
-    if model.radius > max_radius:
-        return f"{model.kind} radius {model.radius:.3g} > max_radius {max_radius:.3g}"
-    if isinstance(model, Cylinder):
-        arc = cylinder_arc(points, model.axis, model.point)
-    else:
-        arc = sphere_cap_angle(points, model.center)
-    if arc < min_arc:
-        return f"{model.kind} arc {np.degrees(arc):.0f} deg < min_arc_deg {np.degrees(min_arc):.0f}"
-    if model.rms > 0 and plane_rms < curvature_gain * model.rms:
-        return (
-            f"{model.kind} rms {model.rms:.3g} is not {curvature_gain:g}x below the plane's "
-            f"{plane_rms:.3g}"
-        )
-    return None
-
-
-def _prepared(points, kind: str, min_points: int, rms_per_range2: float):
-    """``(prepared points, threshold increase for the patch's range)``; check ``.failure``."""
-    prep = Prepared(points, kind, max(int(min_points), 3), None, curved=False)
-    if prep.failure is not None:
-        return prep, 0.0
-    return prep, rms_per_range2 * float(prep.centroid @ prep.centroid)
+def _checked_points(points, kind: str, min_points: int):
+    """``(points as a C-ordered (N, 3) float array, FitFailure or None)``."""
+    pts = np.ascontiguousarray(as_points(points))
+    n_bad = len(pts) - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
+    return pts, input_failure(kind, len(pts), n_bad, max(int(min_points), 3))
 
 
 def fit_primitive(
@@ -153,59 +125,42 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    base, extra = _prepared(points, "primitive", min_points, rms_per_range2)
-    if base.failure is not None:
-        return base.failure
-    pts = base.points
+    from ._decide import primitive_decision
+
+    pts, failure = _checked_points(points, "primitive", min_points)
+    if failure is not None:
+        return failure
+    hint = np.full(3, np.nan)
     if normals is not None:
         normals = as_points(normals, "normals")
         if normals.shape != pts.shape:
             raise ValueError(f"normals must have the shape of points {pts.shape}; got {normals.shape}")
-    plane_tol, cylinder_tol, sphere_tol = plane_rms + extra, cylinder_rms + extra, sphere_rms + extra
-
-    # centred, scaled and decomposed once for all three models
-    base = base.specialise("plane", 3, INLIER_FACTOR * plane_tol, curved=False)
-    plane = plane_from_prepared(base)
-    if not plane:
-        return FitFailure("primitive", f"plane: {plane.reason}")
-    plane_ok = plane.rms <= plane_tol
-    # The floor keeps rounding-level residuals of exact planes from looking "curved".
-    gain, roundness = (_quadric_from_prepared(base, plane.normal) if plane.rms > 0.1 * plane_tol
-                       else (1.0, 0.5))
-    if plane_ok and gain < curvature_gain:
-        return plane
-
+        axis = axis_from_normals(normals)
+        if axis is not None:
+            hint = np.ascontiguousarray(axis)
     min_arc = np.radians(min_arc_deg)
-    reasons = [] if plane_ok else [f"plane rms {plane.rms:.3g} > {plane_tol:.3g}"]
-    fitters = {
-        "cylinder": lambda: cylinder_from_prepared(
-            base.specialise("cylinder", 5, INLIER_FACTOR * cylinder_tol, curved=True), normals),
-        "sphere": lambda: sphere_from_prepared(
-            base.specialise("sphere", 4, INLIER_FACTOR * sphere_tol, curved=True)),
-    }
-    tolerances = {"cylinder": cylinder_tol, "sphere": sphere_tol}
-    # Principal curvatures pick the likely model: tried first, the other only if it fails.
-    if roundness <= ROUNDNESS_CYLINDER:
-        order, decisive = ("cylinder", "sphere"), True
-    elif roundness >= ROUNDNESS_SPHERE:
-        order, decisive = ("sphere", "cylinder"), True
-    else:
-        order, decisive = ("cylinder", "sphere"), False
-    accepted = []
-    for kind in order:
-        model = fitters[kind]()
-        why = _judge_curved(model, pts, plane.rms, tolerances[kind], max_radius, min_arc, curvature_gain)
-        if why is None:
-            accepted.append(model)
-            if decisive:
-                break
-        else:
-            reasons.append(why)
-
-    if accepted:
-        return min(accepted, key=lambda model: model.rms)
-    if plane_ok:
-        return plane
+    choice, first, centroid, scale, plane, codes, curved = primitive_decision(
+        pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
+        float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, 30)
+    if choice == -2:
+        return FitFailure("primitive", "plane: points are coincident or collinear: the plane is undetermined")
+    if choice == 0:
+        return Plane(normal=plane[:3], d=float(plane[3]), rms=float(plane[4]), inliers=int(plane[7]))
+    if choice == 1:
+        return cylinder_model(curved[1], centroid, scale)
+    if choice == 2:
+        return sphere_model(curved[2], centroid, scale)
+    extra = float(rms_per_range2 * (centroid @ centroid))
+    reasons = [f"plane rms {plane[4]:.3g} > {plane[5]:.3g}"]
+    for kind in (first, 3 - first):
+        if codes[kind] >= 0:
+            name = "cylinder" if kind == 1 else "sphere"
+            tolerance = (cylinder_rms if kind == 1 else sphere_rms) + extra
+            reasons.append(decision_reason(
+                name, int(codes[kind]), curved[kind], scale=scale, eigen_rms=float(plane[6]),
+                plane_rms=float(plane[4]), n=len(pts), minimum=5 if kind == 1 else 4, max_iterations=30,
+                tolerance=tolerance, max_radius=max_radius, min_arc=min_arc, curvature_gain=curvature_gain))
     return FitFailure("primitive", "; ".join(reasons))
 
 
@@ -232,35 +187,35 @@ def refit_primitive(
     """
     if not isinstance(model, (Plane, Cylinder, Sphere)):
         raise TypeError(f"model must be a Plane, Cylinder or Sphere; got {type(model).__name__}")
-    base, extra = _prepared(points, model.kind, min_points, rms_per_range2)
-    if base.failure is not None:
-        return base.failure
-    pts = base.points
-    plane_tol = plane_rms + extra
-    base = base.specialise("plane", 3, INLIER_FACTOR * plane_tol, curved=False)
+    pts, failure = _checked_points(points, model.kind, min_points)
+    if failure is not None:
+        return failure
     if isinstance(model, Plane):
-        plane = plane_from_prepared(base)
+        base = Prepared(pts, "plane", 3, None)
+        plane_tol = plane_rms + rms_per_range2 * float(base.centroid @ base.centroid)
+        plane = plane_from_prepared(base.specialise("plane", 3, INLIER_FACTOR * plane_tol))
         if not plane:
             return FitFailure(model.kind, f"plane: {plane.reason}")
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    if base.failure is not None:
-        return FitFailure(model.kind, f"plane: {base.failure.reason}")
-    # the plane's rms for the curvature test, from the scatter's smallest eigenvalue
-    plane_rms = base.scale * float(np.sqrt(max(base.eigvals[0], 0.0) / len(base.q)))
+    from ._decide import curved_refit
+
     # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
     # surface, so no search or algebraic start is needed.
-    if isinstance(model, Cylinder):
-        tolerance = cylinder_rms + extra
-        new = cylinder_from_prepared(base.specialise("cylinder", 5, INLIER_FACTOR * tolerance, curved=True),
-                                     start=model)
-    else:
-        tolerance = sphere_rms + extra
-        new = sphere_from_prepared(base.specialise("sphere", 4, INLIER_FACTOR * tolerance, curved=True),
-                                   start=model)
-    why = _judge_curved(new, pts, plane_rms, tolerance, max_radius, np.radians(min_arc_deg), curvature_gain)
-    return new if why is None else FitFailure(model.kind, why)
+    kind = 1 if isinstance(model, Cylinder) else 2
+    start = (np.concatenate([model.axis, model.point, [model.radius]]) if kind == 1
+             else np.concatenate([model.center, [model.radius], np.zeros(3)]))
+    min_arc = np.radians(min_arc_deg)
+    code, centroid, scale, result, tolerance, eigen_rms = curved_refit(
+        kind, pts, start, float(cylinder_rms if kind == 1 else sphere_rms), float(rms_per_range2),
+        float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, 30)
+    if code == 0:
+        return cylinder_model(result, centroid, scale) if kind == 1 else sphere_model(result, centroid, scale)
+    return FitFailure(model.kind, decision_reason(
+        model.kind, int(code), result, scale=scale, eigen_rms=eigen_rms, plane_rms=eigen_rms, n=len(pts),
+        minimum=5 if kind == 1 else 4, max_iterations=30, tolerance=tolerance, max_radius=max_radius,
+        min_arc=min_arc, curvature_gain=curvature_gain))
 
 
 def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float) -> np.ndarray:

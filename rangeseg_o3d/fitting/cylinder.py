@@ -7,12 +7,7 @@ import functools
 
 import numpy as np
 
-from ._common import (
-    Prepared,
-    as_points,
-    curvature_failure,
-    refinement_failure,
-)
+from ._common import Prepared, as_points, refusal
 from .models import Cylinder, FitFailure
 
 __all__ = ["fit_cylinder", "axis_from_normals", "cylinder_arc"]
@@ -90,15 +85,6 @@ def _search_grids():
     u, v = _perpendicular_bases(dirs)
     cones = tuple(_cone_template(np.radians(angle)) for angle in (8.0, 2.0))
     return dirs, u, v, _projector_coefficients(dirs), cones
-
-
-def _start(q: np.ndarray, axis_hint: np.ndarray | None):
-    """``(axis, point, radius)``: the hint or the searched axis, and the projection's circle."""
-    from ._compiled import cylinder_start
-
-    hint = np.full(3, np.nan) if axis_hint is None else np.asarray(axis_hint, float)
-    axis, point, radius = cylinder_start(np.ascontiguousarray(q), hint, *_search_grids())
-    return axis, point, float(radius)
 
 
 def axis_from_normals(normals: np.ndarray) -> np.ndarray | None:
@@ -187,7 +173,7 @@ def fit_cylinder(
     >>> (np.round(c.axis, 6) + 0.0).tolist(), round(c.radius, 6)
     ([0.0, 0.0, 1.0], 1.0)
     """
-    prep = Prepared(points, "cylinder", 5, inlier_distance, curved=True)
+    prep = Prepared(points, "cylinder", 5, inlier_distance)
     if normals is not None:
         normals = as_points(normals, "normals")
         if normals.shape != prep.points.shape:
@@ -196,12 +182,8 @@ def fit_cylinder(
 
 
 def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int = 30,
-                           axis_hint=None, start=None) -> Cylinder | FitFailure:
-    """:func:`fit_cylinder` on points already checked, centred, scaled and decomposed.
-
-    ``start``, a Cylinder (e.g. the region's earlier fit), replaces the axis search and the
-    circle start.
-    """
+                           axis_hint=None) -> Cylinder | FitFailure:
+    """:func:`fit_cylinder` on points already checked, centred, scaled and decomposed."""
     if prep.failure is not None:
         return prep.failure
     q, scale = prep.q, prep.scale
@@ -214,22 +196,22 @@ def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int 
         axis = axis / np.linalg.norm(axis)
     elif normals is not None:
         axis = axis_from_normals(normals)
-    from ._compiled import cylinder_core, cylinder_refine
+    from ._decide import cylinder_checked
 
+    hint = np.full(3, np.nan) if axis is None else axis
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
-    if start is not None:
-        axis, point, radius, converged, rms, arc, inliers = cylinder_refine(
-            np.ascontiguousarray(q), np.asarray(start.axis, float),
-            (np.asarray(start.point, float) - prep.centroid) / scale, float(start.radius) / scale,
-            int(max_iterations), float(inlier_q))
-    else:
-        hint = np.full(3, np.nan) if axis is None else axis
-        axis, point, radius, converged, rms, arc, inliers = cylinder_core(
-            np.ascontiguousarray(q), hint, *_search_grids(), int(max_iterations), float(inlier_q))
-    failure = refinement_failure("cylinder", converged, max_iterations, np.append(axis, point), radius)
-    if failure is None:
-        failure = curvature_failure(prep, "cylinder", radius, arc, rms)
-    if failure is not None:
-        return failure
-    return Cylinder(axis=_oriented(axis), point=prep.centroid + scale * point,
-                    radius=float(radius * scale), rms=float(rms) * scale, inliers=int(inliers))
+    code, result = cylinder_checked(np.ascontiguousarray(q), prep.eigvals, hint, *_search_grids(),
+                                    int(max_iterations), float(inlier_q), np.full(7, np.nan))
+    if code:
+        return FitFailure("cylinder", refusal("cylinder", code, result, scale=scale, plane_rms=prep.eigen_rms,
+                                              n=len(q), minimum=5, max_iterations=max_iterations))
+    return cylinder_model(result, prep.centroid, scale)
+
+
+def cylinder_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Cylinder:
+    """The Cylinder of a checked result row (scaled frame about ``centroid``)."""
+    from ._decide import INLIERS, RADIUS, RMS
+
+    return Cylinder(axis=_oriented(result[:3]), point=centroid + scale * result[3:6],
+                    radius=float(result[RADIUS] * scale), rms=float(result[RMS] * scale),
+                    inliers=int(result[INLIERS]))

@@ -61,7 +61,7 @@ def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFai
     >>> plane.normal.tolist(), round(plane.d, 6), round(plane.rms, 6)
     ([0.0, 0.0, 1.0], 2.0, 0.0)
     """
-    return plane_from_prepared(Prepared(points, "plane", 3, inlier_distance, curved=False))
+    return plane_from_prepared(Prepared(points, "plane", 3, inlier_distance))
 
 
 def plane_from_prepared(prep: Prepared) -> Plane | FitFailure:

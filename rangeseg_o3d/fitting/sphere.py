@@ -4,11 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import (
-    Prepared,
-    curvature_failure,
-    refinement_failure,
-)
+from ._common import Prepared, refusal
 from .models import FitFailure, Sphere
 
 __all__ = ["fit_sphere", "sphere_cap_angle"]
@@ -65,34 +61,28 @@ def fit_sphere(
     >>> np.round(s.center, 6).tolist(), round(s.radius, 6)
     ([2.0, 2.0, 2.0], 1.0)
     """
-    return sphere_from_prepared(Prepared(points, "sphere", 4, inlier_distance, curved=True),
-                                max_iterations)
+    return sphere_from_prepared(Prepared(points, "sphere", 4, inlier_distance), max_iterations)
 
 
-def sphere_from_prepared(prep: Prepared, max_iterations: int = 30, start=None) -> Sphere | FitFailure:
-    """:func:`fit_sphere` on points already checked, centred, scaled and decomposed.
-
-    ``start``, a Sphere (e.g. the region's earlier fit), replaces the algebraic start.
-    """
-    from ._compiled import sphere_core, sphere_refine
+def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | FitFailure:
+    """:func:`fit_sphere` on points already checked, centred, scaled and decomposed."""
+    from ._decide import sphere_checked
 
     if prep.failure is not None:
         return prep.failure
-    q, scale = np.ascontiguousarray(prep.q), prep.scale
+    scale = prep.scale
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
-    if start is None:
-        ok, center, radius, converged, rms, cap, inliers = sphere_core(
-            q, int(max_iterations), float(inlier_q))
-    else:
-        ok, center, radius, converged, rms, cap, inliers = sphere_refine(
-            q, (np.asarray(start.center, float) - prep.centroid) / scale, float(start.radius) / scale,
-            int(max_iterations), float(inlier_q))
-    if not ok:
-        return FitFailure("sphere", "the algebraic sphere system is singular (coplanar points)")
-    failure = refinement_failure("sphere", converged, max_iterations, center, radius)
-    if failure is None:
-        failure = curvature_failure(prep, "sphere", radius, cap, rms)
-    if failure is not None:
-        return failure
-    return Sphere(center=prep.centroid + scale * center, radius=float(radius * scale),
-                  rms=float(rms) * scale, inliers=int(inliers))
+    code, result = sphere_checked(np.ascontiguousarray(prep.q), prep.eigvals, int(max_iterations),
+                                  float(inlier_q), np.full(7, np.nan))
+    if code:
+        return FitFailure("sphere", refusal("sphere", code, result, scale=scale, plane_rms=prep.eigen_rms,
+                                            n=len(prep.q), minimum=4, max_iterations=max_iterations))
+    return sphere_model(result, prep.centroid, scale)
+
+
+def sphere_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Sphere:
+    """The Sphere of a checked result row (scaled frame about ``centroid``)."""
+    from ._decide import INLIERS, RADIUS, RMS
+
+    return Sphere(center=centroid + scale * result[:3], radius=float(result[RADIUS] * scale),
+                  rms=float(result[RMS] * scale), inliers=int(result[INLIERS]))

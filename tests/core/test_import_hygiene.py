@@ -25,11 +25,12 @@ def test_plain_import_leaves_the_compiler_for_first_use():
 
 def test_warm_up_compiles_the_kernels_the_presets_use():
     from rangeseg_o3d import kernels
-    from rangeseg_o3d.fitting import _compiled
+    from rangeseg_o3d.fitting import _compiled, _decide
     from rangeseg_o3d.pipeline import warm_up
 
     assert warm_up() > 0.0
     for kernel in (kernels.label_moments, kernels.grow_rings, kernels.assign_tiles,
-                   kernels.block_means, kernels.distance_stats, _compiled.cylinder_core,
-                   _compiled.sphere_core):
+                   kernels.block_means, kernels.distance_stats, kernels.window_moments,
+                   kernels.smallest_eigenvalues, _compiled.prepare_points, _decide.primitive_decision,
+                   _decide.curved_refit, _decide.sphere_checked, _decide.cylinder_checked):
         assert kernel.signatures, f"{kernel.__name__} was not compiled"

@@ -1,0 +1,272 @@
+"""Compiled checks of the curved fits and the plane -> cylinder -> sphere decision.
+
+Every test that refuses a model lives here, as a code (:data:`ACCEPTED` or the reason);
+:func:`rangeseg_o3d.fitting._common.refusal` words a code and its numbers. The public
+sphere and cylinder fits (:mod:`.sphere`, :mod:`.cylinder`) and the decision of
+:func:`rangeseg_o3d.fitting.classify.fit_primitive` (:func:`primitive_decision`) call the
+same checks, so a model passes or fails for the same reason on every path. The decision
+runs as one call: a few hundred points cost tens of microseconds, where the same steps as
+separate numpy calls cost several times that in call overhead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..kernels.moments import height_field_shape
+from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
+from ._compiled import (
+    cylinder_core,
+    cylinder_refine,
+    plane_statistics,
+    prepare_points,
+    sphere_core,
+    sphere_refine,
+)
+
+ACCEPTED = 0
+TOO_FEW = 1  # fewer points than the model needs
+COLLINEAR = 2  # points coincident or collinear
+COPLANAR = 3  # points coplanar: no curvature to fit
+SINGULAR = 4  # the algebraic sphere system is singular
+RUNAWAY = 5  # the radius ran beyond RADIUS_LIMIT x the patch size
+NOT_CONVERGED = 6  # Levenberg-Marquardt did not converge
+DIVERGED = 7  # non-finite parameters or a radius <= 0
+NO_BETTER = 8  # rms not below the plane's
+FLAT = 9  # sagitta not above the rms: the curvature is noise
+RMS_OVER = 10  # rms over the kind's threshold
+RADIUS_OVER = 11  # radius over max_radius
+ARC_UNDER = 12  # arc (cylinder) or cap (sphere) under min_arc
+GAIN_UNDER = 13  # not curvature_gain x better than the plane
+
+# Rows of a curved result (:func:`cylinder_checked`, :func:`sphere_checked`): parameters
+# in the scaled frame, then statistics. A sphere uses slots 0-2 for its centre.
+CURVED_SIZE = 11
+RADIUS, RMS, INLIERS, ARC, CONVERGED = 6, 7, 8, 9, 10
+
+
+@njit(cache=True, nogil=True)
+def flatness_code(eigvals):
+    """COLLINEAR or COPLANAR from the ascending scatter eigenvalues, else ACCEPTED."""
+    largest = eigvals[2]
+    if largest <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * largest:
+        return COLLINEAR
+    if eigvals[0] <= DEGENERATE_RATIO * DEGENERATE_RATIO * largest:
+        return COPLANAR
+    return ACCEPTED
+
+
+@njit(cache=True, nogil=True)
+def _input_code(q, minimum, eigvals):
+    # enough points, spread in three dimensions
+    if q.shape[0] < minimum:
+        return TOO_FEW
+    return flatness_code(eigvals)
+
+
+@njit(cache=True, nogil=True)
+def _outcome_code(result, plane_rms):
+    # After Levenberg-Marquardt: did it converge to a finite model, and does that model
+    # bend away from the plane by more than its rms (the sagitta r (1 - cos(arc / 2)),
+    # arc capped at pi)? All in the scaled frame; ``plane_rms`` from the smallest eigenvalue.
+    radius = result[RADIUS]
+    if np.isfinite(radius) and radius > RADIUS_LIMIT:
+        return RUNAWAY
+    if result[CONVERGED] == 0.0:
+        return NOT_CONVERGED
+    if not np.all(np.isfinite(result[:RADIUS + 1])) or radius <= 0:
+        return DIVERGED
+    if result[RMS] >= plane_rms:
+        return NO_BETTER
+    if radius * (1.0 - np.cos(min(result[ARC], np.pi) / 2.0)) > result[RMS]:
+        return ACCEPTED
+    return FLAT
+
+
+@njit(cache=True, nogil=True)
+def _eigen_rms(eigvals, n):
+    return np.sqrt(max(eigvals[0], 0.0) / n)
+
+
+@njit(cache=True, nogil=True)
+def _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, n):
+    # store a fit's statistics in its row; the code of its outcome
+    result[RADIUS], result[RMS], result[INLIERS], result[ARC] = radius, rms, inliers, arc
+    result[CONVERGED] = 1.0 if converged else 0.0
+    return _outcome_code(result, _eigen_rms(eigvals, n))
+
+
+@njit(cache=True, nogil=True)
+def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
+                     max_iterations, inlier_distance, start):
+    """Cylinder on centred, scaled ``q`` with every check: ``(code, result)``.
+
+    ``start`` is ``(axis, point, radius)`` in the scaled frame (7 values) to refine from,
+    or NaN for the axis search (``axis_hint``: NaN, or an axis to start from). ``result``
+    holds axis, point, radius, rms, inliers, arc and converged (slots of CURVED_SIZE).
+    """
+    result = np.full(CURVED_SIZE, np.nan)
+    code = _input_code(q, 5, eigvals)
+    if code != ACCEPTED:
+        return code, result
+    if np.isfinite(start[6]):
+        axis, point, radius, converged, rms, arc, inliers = cylinder_refine(
+            q, start[:3].copy(), start[3:6].copy(), start[6], max_iterations, inlier_distance)
+    else:
+        axis, point, radius, converged, rms, arc, inliers = cylinder_core(
+            q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations, inlier_distance)
+    result[:3] = axis
+    result[3:6] = point
+    return _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, q.shape[0]), result
+
+
+@njit(cache=True, nogil=True)
+def sphere_checked(q, eigvals, max_iterations, inlier_distance, start):
+    """Sphere on centred, scaled ``q`` with every check: ``(code, result)``.
+
+    ``start`` is ``(center, radius)`` in the scaled frame (4 values), or NaN for the
+    algebraic start. ``result`` holds the centre in slots 0-2, then as for cylinders.
+    """
+    result = np.full(CURVED_SIZE, np.nan)
+    code = _input_code(q, 4, eigvals)
+    if code != ACCEPTED:
+        return code, result
+    if np.isfinite(start[3]):
+        ok, center, radius, converged, rms, cap, inliers = sphere_refine(
+            q, start[:3].copy(), start[3], max_iterations, inlier_distance)
+    else:
+        ok, center, radius, converged, rms, cap, inliers = sphere_core(q, max_iterations, inlier_distance)
+    if not ok:
+        return SINGULAR, result
+    result[:3] = center
+    result[3:6] = 0.0
+    return _statistics_code(result, radius, rms, inliers, cap, converged, eigvals, q.shape[0]), result
+
+
+@njit(cache=True, nogil=True)
+def judge_code(rms, radius, arc, tolerance, max_radius, min_arc, curvature_gain, plane_rms):
+    """The decision's own tests of a fitted curved model (metres, radians)."""
+    if rms > tolerance:
+        return RMS_OVER
+    if radius > max_radius:
+        return RADIUS_OVER
+    if arc < min_arc:
+        return ARC_UNDER
+    if rms > 0 and plane_rms < curvature_gain * rms:
+        return GAIN_UNDER
+    return ACCEPTED
+
+
+@njit(cache=True, nogil=True)
+def _curved_try(kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
+                max_iterations, inlier_distance, start, tolerance, max_radius, min_arc,
+                curvature_gain, plane_rms):
+    # kind 1 cylinder, 2 sphere; the check then, for a model, the decision's judgement
+    if kind == 1:
+        code, result = cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s,
+                                        cones, max_iterations, inlier_distance / scale, start)
+    else:
+        code, result = sphere_checked(q, eigvals, max_iterations, inlier_distance / scale, start)
+    if code == ACCEPTED:
+        code = judge_code(result[RMS] * scale, result[RADIUS] * scale, result[ARC], tolerance,
+                          max_radius, min_arc, curvature_gain, plane_rms)
+    return code, result
+
+
+@njit(cache=True, nogil=True)
+def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, plane_rms,
+                       cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
+                       curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
+                       max_iterations):
+    """The decision rule of ``classify.fit_primitive`` on finite (N >= 3, 3) points.
+
+    Returns ``(choice, first, centroid, scale, plane, codes, curved)``: ``choice`` 0
+    plane, 1 cylinder, 2 sphere, -1 none (see the codes), -2 the plane itself is
+    undetermined; ``first`` the curved kind tried first; ``plane`` = normal (3), d, rms,
+    threshold, rms from the smallest eigenvalue, inliers (metres); ``codes[k]`` and
+    ``curved[k]`` (k = 1 cylinder, 2 sphere) the outcome of each model tried (-1 = not
+    tried), in the scaled frame about ``centroid``.
+    """
+    _, centroid, scale, q, eigvals, eigvecs = prepare_points(points)
+    n = q.shape[0]
+    extra = rms_per_range2 * (centroid @ centroid)
+    plane_tol = plane_rms + extra
+    plane = np.full(8, np.nan)
+    codes = np.full(3, -1, np.int64)
+    curved = np.full((3, CURVED_SIZE), np.nan)
+    plane[5] = plane_tol
+    plane[6] = _eigen_rms(eigvals, n) * scale
+    if eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]:
+        return -2, 0, centroid, scale, plane, codes, curved
+    normal = eigvecs[:, 0].copy()
+    normal /= np.sqrt(normal @ normal)
+    d = normal @ centroid
+    # Hesse normal form (plane.orient_normal): d >= 0; through the origin, largest component > 0
+    if abs(d) <= 1e-12 * (np.abs(centroid).max() + scale):
+        d = 0.0
+        if normal[np.argmax(np.abs(normal))] < 0:
+            normal = -normal
+    elif d < 0:
+        normal, d = -normal, -d
+    rms, inliers = plane_statistics(q, normal, scale, points, d, inlier_factor * plane_tol)
+    plane[:3] = normal
+    plane[3], plane[4], plane[7] = d, rms, inliers
+    plane_ok = rms <= plane_tol
+    # The floor keeps rounding-level residuals of exact planes from looking "curved".
+    gain, roundness = 1.0, 0.5
+    if rms > 0.1 * plane_tol:
+        gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
+    if plane_ok and gain < curvature_gain:
+        return 0, 0, centroid, scale, plane, codes, curved
+    # Principal curvatures pick the likely model: tried first, the other only if it fails.
+    first, decisive = 1, False
+    if roundness <= roundness_cylinder:
+        decisive = True
+    elif roundness >= roundness_sphere:
+        first, decisive = 2, True
+    no_start = np.full(7, np.nan)
+    best, best_rms = -1, np.inf
+    for kind in (first, 3 - first):
+        tolerance = (cylinder_rms if kind == 1 else sphere_rms) + extra
+        codes[kind], curved[kind] = _curved_try(
+            kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
+            max_iterations, inlier_factor * tolerance, no_start, tolerance, max_radius, min_arc,
+            curvature_gain, rms)
+        if codes[kind] == ACCEPTED:
+            if curved[kind, RMS] < best_rms:
+                best, best_rms = kind, curved[kind, RMS]
+            if decisive:
+                break
+    if best > 0:
+        return best, first, centroid, scale, plane, codes, curved
+    return (0 if plane_ok else -1), first, centroid, scale, plane, codes, curved
+
+
+@njit(cache=True, nogil=True)
+def curved_refit(kind, points, start, base_tolerance, rms_per_range2, max_radius, min_arc,
+                 curvature_gain, inlier_factor, max_iterations):
+    """``refit_primitive`` for a cylinder (kind 1) or sphere (kind 2) from ``start``
+    (world coordinates: cylinder axis, point, radius; sphere centre, radius).
+
+    Returns ``(code, centroid, scale, result, tolerance, plane_rms)``: the threshold
+    grown for the patch's range, and the plane rms from the smallest scatter eigenvalue
+    (metres), which the curvature-gain test compares with.
+    """
+    _, centroid, scale, q, eigvals, _ = prepare_points(points)
+    plane_rms = _eigen_rms(eigvals, q.shape[0]) * scale
+    tolerance = base_tolerance + rms_per_range2 * (centroid @ centroid)
+    local = np.full(7, np.nan)
+    if kind == 1:
+        local[:3] = start[:3]
+        local[3:6] = (start[3:6] - centroid) / scale
+        local[6] = start[6] / scale
+    else:
+        local[:3] = (start[:3] - centroid) / scale
+        local[3] = start[3] / scale
+    empty = np.empty((0, 3))
+    code, result = _curved_try(kind, q, eigvals, scale, np.full(3, np.nan), empty, empty, empty,
+                               np.empty((0, 6)), ((empty, empty, empty), (empty, empty, empty)),
+                               max_iterations, inlier_factor * tolerance, local, tolerance,
+                               max_radius, min_arc, curvature_gain, plane_rms)
+    return code, centroid, scale, result, tolerance, plane_rms
