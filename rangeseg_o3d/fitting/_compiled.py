@@ -138,9 +138,20 @@ def _damped_step(jtj, grad, damping):
     return _solve(m, -grad)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _given_up(decrease, cost, n, give_up_rms):
+    # Creeping (under 1 % per step) at an rms over twice what will be accepted: the model
+    # cannot get there in the iterations left (a mixed region, or the wrong kind).
+    return decrease < 0.01 * (cost + decrease) and cost > 4.0 * give_up_rms * give_up_rms * n
+
+
 @njit(cache=True, nogil=True)
-def sphere_lm(q, center, radius, max_iterations):
-    """Geometric sphere fit ``|q - c| - r`` from a start; ``(center, radius, converged)``."""
+def sphere_lm(q, center, radius, max_iterations, give_up_rms=np.inf):
+    """Geometric sphere fit ``|q - c| - r`` from a start; ``(center, radius, converged)``.
+
+    ``converged`` is 1, 0 (not in ``max_iterations``) or -1: given up with the rms still
+    above twice ``give_up_rms`` while a step gained under 1 % (see :func:`_given_up`).
+    """
     params = np.empty(4)
     params[:3] = center
     params[3] = radius
@@ -149,9 +160,9 @@ def sphere_lm(q, center, radius, max_iterations):
     for _ in range(max_iterations):
         step, ok = _damped_step(jtj, grad, damping)
         if not ok:
-            return params[:3], params[3], False
+            return params[:3], params[3], 0
         if np.abs(step).max() <= 1e-10:
-            return params[:3], params[3], True
+            return params[:3], params[3], 1
         trial = params + step
         t_cost, t_jtj, t_grad = _sphere_normal_equations(q, trial)
         if not np.isfinite(t_cost):
@@ -162,19 +173,23 @@ def sphere_lm(q, center, radius, max_iterations):
             params, cost, jtj, grad = trial, t_cost, t_jtj, t_grad
             damping = max(damping * 0.1, 1e-9)
             if decrease <= 1e-12 * cost + 1e-30:
-                return params[:3], params[3], True
+                return params[:3], params[3], 1
             if params[3] > RADIUS_LIMIT:
-                return params[:3], params[3], False
+                return params[:3], params[3], 0
+            if _given_up(decrease, cost, q.shape[0], give_up_rms):
+                return params[:3], params[3], -1
         elif t_cost - cost <= 1e-12 * cost + 1e-30:
-            return params[:3], params[3], True
+            return params[:3], params[3], 1
         else:
             damping *= 10.0
-    return params[:3], params[3], False
+    return params[:3], params[3], 0
 
 
 @njit(cache=True, nogil=True)
-def cylinder_lm(q, axis, point, radius, max_iterations):
+def cylinder_lm(q, axis, point, radius, max_iterations, give_up_rms=np.inf):
     """Geometric cylinder fit ``|(q - p0) x a| - r`` from a start; ``(axis, point, radius, converged)``.
+
+    ``converged`` as for :func:`sphere_lm`.
 
     Each step is linearised in a frame whose z axis is the current axis (2 tilt angles,
     2 axis-point shifts, the radius); the axis point is kept nearest the origin of ``q``.
@@ -188,9 +203,9 @@ def cylinder_lm(q, axis, point, radius, max_iterations):
     for _ in range(max_iterations):
         step, ok = _damped_step(jtj, grad, damping)
         if not ok:
-            return a, p0, r, False
+            return a, p0, r, 0
         if np.abs(step).max() <= 1e-10:
-            return a, p0, r, True
+            return a, p0, r, 1
         new_a = u * step[2] + v * step[3] + a
         new_a /= np.sqrt(new_a @ new_a)
         new_p = p0 + u * step[0] + v * step[1]
@@ -207,14 +222,16 @@ def cylinder_lm(q, axis, point, radius, max_iterations):
             cost, jtj, grad = t_cost, t_jtj, t_grad
             damping = max(damping * 0.1, 1e-9)
             if decrease <= 1e-12 * cost + 1e-30:
-                return a, p0, r, True
+                return a, p0, r, 1
             if r > RADIUS_LIMIT:
-                return a, p0, r, False
+                return a, p0, r, 0
+            if _given_up(decrease, cost, q.shape[0], give_up_rms):
+                return a, p0, r, -1
         elif t_cost - cost <= 1e-12 * cost + 1e-30:
-            return a, p0, r, True
+            return a, p0, r, 1
         else:
             damping *= 10.0
-    return a, p0, r, False
+    return a, p0, r, 0
 
 
 @njit(cache=True, nogil=True)
@@ -389,7 +406,7 @@ def cap_angle(points, center):
 
 
 @njit(cache=True, nogil=True)
-def sphere_core(q, max_iterations, inlier_distance):
+def sphere_core(q, max_iterations, inlier_distance, give_up_rms=np.inf):
     """Algebraic start, geometric refinement and the statistics of a sphere on centred, scaled ``q``.
 
     The start is the paper's Sec. 4.2 with its errata: ``|q|^2 = 2 q.c - t`` with
@@ -407,14 +424,14 @@ def sphere_core(q, max_iterations, inlier_distance):
     center = solution[:3].copy()
     radius_sq = center @ center - solution[3]
     if rank < 4 or not np.isfinite(radius_sq) or radius_sq <= 0:
-        return False, center, 0.0, False, np.inf, 0.0, 0
-    return sphere_refine(q, center, np.sqrt(radius_sq), max_iterations, inlier_distance)
+        return False, center, 0.0, 0, np.inf, 0.0, 0
+    return sphere_refine(q, center, np.sqrt(radius_sq), max_iterations, inlier_distance, give_up_rms)
 
 
 @njit(cache=True, nogil=True)
-def sphere_refine(q, center, radius, max_iterations, inlier_distance):
+def sphere_refine(q, center, radius, max_iterations, inlier_distance, give_up_rms=np.inf):
     """Geometric refinement from a start and the statistics: ``(True, center, radius, converged, rms, cap, inliers)``."""
-    center, radius, converged = sphere_lm(q, center, radius, max_iterations)
+    center, radius, converged = sphere_lm(q, center, radius, max_iterations, give_up_rms)
     n = q.shape[0]
     squares = 0.0
     inliers = 0
@@ -429,19 +446,19 @@ def sphere_refine(q, center, radius, max_iterations, inlier_distance):
 
 @njit(cache=True, nogil=True)
 def cylinder_core(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations,
-                  inlier_distance):
+                  inlier_distance, give_up_rms=np.inf):
     """Start (:func:`cylinder_start`), refinement (:func:`cylinder_lm`) and statistics on centred, scaled ``q``.
 
     Returns ``(axis, point, radius, converged, rms, arc, inliers)``.
     """
     axis, point, radius = cylinder_start(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones)
-    return cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance)
+    return cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance, give_up_rms)
 
 
 @njit(cache=True, nogil=True)
-def cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance):
+def cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance, give_up_rms=np.inf):
     """Geometric refinement from a start and the statistics: ``(axis, point, radius, converged, rms, arc, inliers)``."""
-    axis, point, radius, converged = cylinder_lm(q, axis, point, radius, max_iterations)
+    axis, point, radius, converged = cylinder_lm(q, axis, point, radius, max_iterations, give_up_rms)
     u, v = _frame(axis)
     n = q.shape[0]
     squares = 0.0

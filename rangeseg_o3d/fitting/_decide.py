@@ -73,6 +73,8 @@ def _outcome_code(result, plane_rms):
     radius = result[RADIUS]
     if np.isfinite(radius) and radius > RADIUS_LIMIT:
         return RUNAWAY
+    if result[CONVERGED] < 0.0:  # given up far above the threshold
+        return RMS_OVER
     if result[CONVERGED] == 0.0:
         return NOT_CONVERGED
     if not np.all(np.isfinite(result[:RADIUS + 1])) or radius <= 0:
@@ -93,18 +95,20 @@ def _eigen_rms(eigvals, n):
 def _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, n):
     # store a fit's statistics in its row; the code of its outcome
     result[RADIUS], result[RMS], result[INLIERS], result[ARC] = radius, rms, inliers, arc
-    result[CONVERGED] = 1.0 if converged else 0.0
+    result[CONVERGED] = converged
     return _outcome_code(result, _eigen_rms(eigvals, n))
 
 
 @njit(cache=True, nogil=True)
 def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
-                     max_iterations, inlier_distance, start):
+                     max_iterations, inlier_distance, start, give_up_rms):
     """Cylinder on centred, scaled ``q`` with every check: ``(code, result)``.
 
     ``start`` is ``(axis, point, radius)`` in the scaled frame (7 values) to refine from,
     or NaN for the axis search (``axis_hint``: NaN, or an axis to start from). ``result``
     holds axis, point, radius, rms, inliers, arc and converged (slots of CURVED_SIZE).
+    ``give_up_rms`` (scaled; inf for never): Levenberg-Marquardt stops creeping at an rms
+    over twice it, and the code is RMS_OVER.
     """
     result = np.full(CURVED_SIZE, np.nan)
     code = _input_code(q, 5, eigvals)
@@ -112,17 +116,18 @@ def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, 
         return code, result
     if np.isfinite(start[6]):
         axis, point, radius, converged, rms, arc, inliers = cylinder_refine(
-            q, start[:3].copy(), start[3:6].copy(), start[6], max_iterations, inlier_distance)
+            q, start[:3].copy(), start[3:6].copy(), start[6], max_iterations, inlier_distance, give_up_rms)
     else:
         axis, point, radius, converged, rms, arc, inliers = cylinder_core(
-            q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations, inlier_distance)
+            q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations, inlier_distance,
+            give_up_rms)
     result[:3] = axis
     result[3:6] = point
     return _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, q.shape[0]), result
 
 
 @njit(cache=True, nogil=True)
-def sphere_checked(q, eigvals, max_iterations, inlier_distance, start):
+def sphere_checked(q, eigvals, max_iterations, inlier_distance, start, give_up_rms):
     """Sphere on centred, scaled ``q`` with every check: ``(code, result)``.
 
     ``start`` is ``(center, radius)`` in the scaled frame (4 values), or NaN for the
@@ -134,9 +139,10 @@ def sphere_checked(q, eigvals, max_iterations, inlier_distance, start):
         return code, result
     if np.isfinite(start[3]):
         ok, center, radius, converged, rms, cap, inliers = sphere_refine(
-            q, start[:3].copy(), start[3], max_iterations, inlier_distance)
+            q, start[:3].copy(), start[3], max_iterations, inlier_distance, give_up_rms)
     else:
-        ok, center, radius, converged, rms, cap, inliers = sphere_core(q, max_iterations, inlier_distance)
+        ok, center, radius, converged, rms, cap, inliers = sphere_core(q, max_iterations, inlier_distance,
+                                                                        give_up_rms)
     if not ok:
         return SINGULAR, result
     result[:3] = center
@@ -165,9 +171,11 @@ def _curved_try(kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, 
     # kind 1 cylinder, 2 sphere; the check then, for a model, the decision's judgement
     if kind == 1:
         code, result = cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s,
-                                        cones, max_iterations, inlier_distance / scale, start)
+                                        cones, max_iterations, inlier_distance / scale, start,
+                                        tolerance / scale)
     else:
-        code, result = sphere_checked(q, eigvals, max_iterations, inlier_distance / scale, start)
+        code, result = sphere_checked(q, eigvals, max_iterations, inlier_distance / scale, start,
+                                      tolerance / scale)
     if code == ACCEPTED:
         code = judge_code(result[RMS] * scale, result[RADIUS] * scale, result[ARC], tolerance,
                           max_radius, min_arc, curvature_gain, plane_rms)

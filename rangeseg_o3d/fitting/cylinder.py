@@ -201,7 +201,7 @@ def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int 
     hint = np.full(3, np.nan) if axis is None else axis
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
     code, result = cylinder_checked(np.ascontiguousarray(q), prep.eigvals, hint, *_search_grids(),
-                                    int(max_iterations), float(inlier_q), np.full(7, np.nan))
+                                    int(max_iterations), float(inlier_q), np.full(7, np.nan), np.inf)
     if code:
         return FitFailure("cylinder", refusal("cylinder", code, result, scale=scale, plane_rms=prep.eigen_rms,
                                               n=len(q), minimum=5, max_iterations=max_iterations))

@@ -73,7 +73,7 @@ def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | F
     scale = prep.scale
     inlier_q = np.inf if prep.inlier_distance is None else prep.inlier_distance / scale
     code, result = sphere_checked(np.ascontiguousarray(prep.q), prep.eigvals, int(max_iterations),
-                                  float(inlier_q), np.full(7, np.nan))
+                                  float(inlier_q), np.full(7, np.nan), np.inf)
     if code:
         return FitFailure("sphere", refusal("sphere", code, result, scale=scale, plane_rms=prep.eigen_rms,
                                             n=len(prep.q), minimum=4, max_iterations=max_iterations))
