@@ -59,3 +59,21 @@ def test_circle_scores_are_zero_along_the_axis_of_an_exact_cylinder():
     assert score[0] == pytest.approx(0.0, abs=1e-12) and rsq[0] == pytest.approx(0.25)
     assert abs(cx[0]) < 1e-12 and abs(cy[0]) < 1e-12
     assert score[1] > 1e-3  # across the axis the projection is a rectangle, not a circle
+
+
+def test_lm_gives_up_only_when_creeping_far_above_the_bound():
+    # Two perpendicular planes: no sphere explains them; LM creeps towards a huge radius.
+    rng = np.random.default_rng(2)
+    u = rng.uniform(0, 1, (400, 2))
+    left = u[:, 0] < 0.5
+    crease = np.where(left[:, None], np.c_[u[:, 0], u[:, 1], np.zeros(400)],
+                      np.c_[np.full(400, 0.5), u[:, 1], u[:, 0] - 0.5]) - 0.5
+    start = np.array([0.0, 0.0, -0.5])
+    _, _, converged = sphere_lm(crease, start, 0.6, 30, 0.01)
+    assert converged == -1
+    _, _, without = sphere_lm(crease, start, 0.6, 30)  # no bound: it never gives up
+    assert without in (0, 1)
+    # an exact sphere converges whatever the bound
+    d = rng.normal(size=(200, 3))
+    sphere = 0.5 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    assert sphere_lm(sphere, np.array([0.05, 0.0, 0.0]), 0.45, 50, 1e-6)[2] == 1
