@@ -128,10 +128,10 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
     support[:] = True
     for _ in range(rounds):
         _quadric_distances(pts, support, dist)
-        order = np.argsort(dist)
-        support[:] = False
-        for p in range(keep):
-            support[order[p]] = True
+        # the keep closest: a selection, not a sort (ties at the cut would all be kept)
+        cut = np.partition(dist, keep - 1)[keep - 1]
+        for p in range(n):
+            support[p] = dist[p] <= cut
     _quadric_distances(pts, support, dist)
     _within_spread(dist, support, sigma, quad_near)
     return plane_near, quad_near
