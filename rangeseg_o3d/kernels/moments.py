@@ -6,6 +6,7 @@ import numpy as np
 from numba import njit
 
 from ..fitting._compiled import _solve
+from .grid import group_by_label
 from .models import _distance
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
@@ -97,6 +98,49 @@ def planes_from_moment_rows(moments, degenerate_ratio):
         ok[i] = n >= 3 and vals[2] > 0 and vals[1] > degenerate_ratio * degenerate_ratio * vals[2]
     return centroid, normal, d, eigvals, frame, ok
 
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _height_field_sums(u, v, h, m, out):
+    # The 28 sums of quadric_sums over the first m entries: 15 distinct monomials u^i v^j
+    # (i + j <= 4) fill the 21 of A^T A. Reassociation lets the compiler vectorise.
+    s0 = su = sv = suu = suv = svv = suuu = suuv = suvv = svvv = 0.0
+    suuuu = suuuv = suuvv = suvvv = svvvv = 0.0
+    sh = shu = shv = shuu = shuv = shvv = shh = 0.0
+    for p in range(m):
+        up, vp, hp = u[p], v[p], h[p]
+        uu, uv, vv = up * up, up * vp, vp * vp
+        s0 += 1.0
+        su += up
+        sv += vp
+        suu += uu
+        suv += uv
+        svv += vv
+        suuu += uu * up
+        suuv += uu * vp
+        suvv += up * vv
+        svvv += vv * vp
+        suuuu += uu * uu
+        suuuv += uu * uv
+        suuvv += uu * vv
+        suvvv += uv * vv
+        svvvv += vv * vv
+        sh += hp
+        shu += hp * up
+        shv += hp * vp
+        shuu += hp * uu
+        shuv += hp * uv
+        shvv += hp * vv
+        shh += hp * hp
+    # rows (u^2, uv, v^2, u, v, 1): upper triangle of A^T A row by row, A^T h, h^T h
+    out[0], out[1], out[2], out[3], out[4], out[5] = suuuu, suuuv, suuvv, suuu, suuv, suu
+    out[6], out[7], out[8], out[9], out[10] = suuvv, suvvv, suuv, suvv, suv
+    out[11], out[12], out[13], out[14] = svvvv, suvv, svvv, svv
+    out[15], out[16], out[17] = suu, suv, su
+    out[18], out[19] = svv, sv
+    out[20] = s0
+    out[21], out[22], out[23], out[24], out[25], out[26] = shuu, shuv, shvv, shu, shv, sh
+    out[27] = shh
+
+
 @njit(cache=True, nogil=True)
 def quadric_sums(xyz, labels, centre, e1, e2, normal, inv_spread, active):
     """Normal equations of the height field ``h = a u^2 + b uv + c v^2 + d u + e v + f`` per label.
@@ -104,38 +148,34 @@ def quadric_sums(xyz, labels, centre, e1, e2, normal, inv_spread, active):
     ``u, v`` are in-plane coordinates (frame ``e1, e2`` about ``centre``, scaled by
     ``inv_spread``) and ``h`` the height along ``normal``. Returns (n, 28): the 21 upper
     triangle entries of ``A^T A`` (row-major), the 6 of ``A^T h`` and ``h^T h``. Only
-    labels with ``active[k]`` are summed.
+    labels with ``active[k]`` are summed; non-finite points are skipped.
     """
     n = centre.shape[0]
     out = np.zeros((n, 28))
-    row = np.empty(6)
-    for i in range(labels.shape[0]):
-        k = labels[i]
-        if k <= 0 or k >= n or not active[k]:
+    order, starts = group_by_label(labels, n)
+    largest = 0
+    for k in range(1, n):
+        largest = max(largest, starts[k + 1] - starts[k])
+    u, v, h = np.empty(largest), np.empty(largest), np.empty(largest)
+    for k in range(1, n):
+        if not active[k]:
             continue
-        rx = xyz[i, 0] - centre[k, 0]
-        ry = xyz[i, 1] - centre[k, 1]
-        rz = xyz[i, 2] - centre[k, 2]
-        if not (np.isfinite(rx) and np.isfinite(ry) and np.isfinite(rz)):
-            continue
-        u = (rx * e1[k, 0] + ry * e1[k, 1] + rz * e1[k, 2]) * inv_spread[k]
-        v = (rx * e2[k, 0] + ry * e2[k, 1] + rz * e2[k, 2]) * inv_spread[k]
-        h = rx * normal[k, 0] + ry * normal[k, 1] + rz * normal[k, 2]
-        row[0] = u * u
-        row[1] = u * v
-        row[2] = v * v
-        row[3] = u
-        row[4] = v
-        row[5] = 1.0
-        o = out[k]
+        cx, cy, cz = centre[k, 0], centre[k, 1], centre[k, 2]
+        s = inv_spread[k]
+        a1, a2, a3 = e1[k, 0] * s, e1[k, 1] * s, e1[k, 2] * s
+        b1, b2, b3 = e2[k, 0] * s, e2[k, 1] * s, e2[k, 2] * s
+        n1, n2, n3 = normal[k, 0], normal[k, 1], normal[k, 2]
         m = 0
-        for a in range(6):
-            for b in range(a, 6):
-                o[m] += row[a] * row[b]
-                m += 1
-        for a in range(6):
-            o[21 + a] += row[a] * h
-        o[27] += h * h
+        for p in range(starts[k], starts[k + 1]):
+            i = order[p]
+            rx, ry, rz = xyz[i, 0] - cx, xyz[i, 1] - cy, xyz[i, 2] - cz
+            if not (np.isfinite(rx) and np.isfinite(ry) and np.isfinite(rz)):
+                continue
+            u[m] = rx * a1 + ry * a2 + rz * a3
+            v[m] = rx * b1 + ry * b2 + rz * b3
+            h[m] = rx * n1 + ry * n2 + rz * n3
+            m += 1
+        _height_field_sums(u, v, h, m, out[k])
     return out
 
 @njit(cache=True, nogil=True)
