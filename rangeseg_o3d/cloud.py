@@ -79,6 +79,7 @@ class OrganizedCloud:
         arr.setflags(write=False)
         self._xyz = arr
         self._norms = None
+        self._valid = None
         shape = arr.shape[:2]
         self.ranges = _check_grid("ranges", ranges, shape)
         self.intensity = _check_grid("intensity", intensity, shape)
@@ -160,8 +161,12 @@ class OrganizedCloud:
 
     @property
     def valid(self) -> np.ndarray:
-        """(H, W) bool mask of pixels with a return."""
-        return ~np.isnan(self._xyz[..., 2])
+        """(H, W) bool mask of pixels with a return (read-only; computed once per cloud)."""
+        if self._valid is None:
+            valid = ~np.isnan(self._xyz[..., 2])
+            valid.setflags(write=False)
+            self._valid = valid
+        return self._valid
 
     @property
     def n_valid(self) -> int:
