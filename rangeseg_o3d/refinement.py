@@ -183,12 +183,6 @@ def _touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
     return {int(k) for k in np.unique(patch[near]) if k > 0}
 
 
-def _median_noise(sigma: np.ndarray) -> float:
-    # np.nanmedian costs ~10x np.median; the noise of valid pixels is never NaN
-    median = float(np.median(sigma))
-    return median if median == median else float(np.nanmedian(sigma))
-
-
 class _Context:
     """What every refinement step needs: points, noise, the fitter, the size floor."""
 
@@ -235,7 +229,7 @@ class _Context:
             if trimmed is None:
                 # one trimmed fit settles both "all of it" and "most of it"
                 trimmed, inliers = trimmed_fit(self.xyz[idx], self.fitter.fit,
-                                               sigma=_median_noise(self.sigma[idx]),
+                                               sigma=float(np.nanmedian(self.sigma[idx])),
                                                min_points=self.min_size)
             if trimmed is not None:
                 chosen = self._largest_piece(idx[inliers])
