@@ -202,7 +202,7 @@ class Pipeline:
 def warm_up() -> float:
     """Compile (or load from numba's cache) every kernel the presets use; returns seconds.
 
-    The first run on a machine compiles for about half a minute, later processes load
+    The first run on a machine compiles for about a minute, later processes load
     the cached machine code in well under a second. ``scripts/bootstrap.sh`` calls this
     once after installing, so that the first real scan is fast.
     """

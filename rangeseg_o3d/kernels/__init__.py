@@ -14,7 +14,7 @@ Modules: ``moments`` (label-wise sums, planes, quadric test, distances to models
 ``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
 window plane), ``models`` (shared inline helpers).
 Compiled on first use and cached beside the modules (``cache=True``): the first run on a
-machine pays the compilation (about half a minute for all of them, with the fits').
+machine pays the compilation (about a minute for all of them, with the fits' on the 2-core CI machine).
 """
 
 from .grid import (
