@@ -40,6 +40,8 @@ RADIUS_OVER = 11  # radius over max_radius
 ARC_UNDER = 12  # arc (cylinder) or cap (sphere) under min_arc
 GAIN_UNDER = 13  # not curvature_gain x better than the plane
 
+MIN_POINTS = (3, 5, 4)  # a plane, a cylinder (kind 1), a sphere (kind 2) need at least this many
+
 # Rows of a curved result (:func:`cylinder_checked`, :func:`sphere_checked`): parameters
 # in the scaled frame, then statistics. A sphere uses slots 0-2 for its centre.
 CURVED_SIZE = 11
@@ -111,7 +113,7 @@ def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, 
     over twice it, and the code is RMS_OVER.
     """
     result = np.full(CURVED_SIZE, np.nan)
-    code = _input_code(q, 5, eigvals)
+    code = _input_code(q, MIN_POINTS[1], eigvals)
     if code != ACCEPTED:
         return code, result
     if np.isfinite(start[6]):
@@ -134,7 +136,7 @@ def sphere_checked(q, eigvals, max_iterations, inlier_distance, start, give_up_r
     algebraic start. ``result`` holds the centre in slots 0-2, then as for cylinders.
     """
     result = np.full(CURVED_SIZE, np.nan)
-    code = _input_code(q, 4, eigvals)
+    code = _input_code(q, MIN_POINTS[2], eigvals)
     if code != ACCEPTED:
         return code, result
     if np.isfinite(start[3]):

@@ -47,6 +47,9 @@ ROUNDNESS_CYLINDER = 0.35
 ROUNDNESS_SPHERE = 0.65
 """Principal-curvature ratios below/above which the patch is taken for a cylinder/sphere first."""
 
+MAX_ITERATIONS = 30
+"""Levenberg-Marquardt iterations of the sphere and cylinder fits."""
+
 
 def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
     """Fit a quadratic height field over ``plane``: ``(gain, roundness)``.
@@ -125,7 +128,7 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    from ._decide import primitive_decision
+    from ._decide import MIN_POINTS, primitive_decision
 
     pts, failure = _checked_points(points, "primitive", min_points)
     if failure is not None:
@@ -142,7 +145,7 @@ def fit_primitive(
     choice, first, centroid, scale, plane, codes, curved = primitive_decision(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
-        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, 30)
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS)
     if choice == -2:
         return FitFailure("primitive", "plane: points are coincident or collinear: the plane is undetermined")
     if choice == 0:
@@ -159,7 +162,7 @@ def fit_primitive(
             tolerance = (cylinder_rms if kind == 1 else sphere_rms) + extra
             reasons.append(decision_reason(
                 name, int(codes[kind]), curved[kind], scale=scale, eigen_rms=float(plane[6]),
-                plane_rms=float(plane[4]), n=len(pts), minimum=5 if kind == 1 else 4, max_iterations=30,
+                plane_rms=float(plane[4]), n=len(pts), minimum=MIN_POINTS[kind], max_iterations=MAX_ITERATIONS,
                 tolerance=tolerance, max_radius=max_radius, min_arc=min_arc, curvature_gain=curvature_gain))
     return FitFailure("primitive", "; ".join(reasons))
 
@@ -199,7 +202,7 @@ def refit_primitive(
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    from ._decide import curved_refit
+    from ._decide import MIN_POINTS, curved_refit
 
     # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
     # surface, so no search or algebraic start is needed.
@@ -209,12 +212,12 @@ def refit_primitive(
     min_arc = np.radians(min_arc_deg)
     code, centroid, scale, result, tolerance, eigen_rms = curved_refit(
         kind, pts, start, float(cylinder_rms if kind == 1 else sphere_rms), float(rms_per_range2),
-        float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, 30)
+        float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, MAX_ITERATIONS)
     if code == 0:
         return cylinder_model(result, centroid, scale) if kind == 1 else sphere_model(result, centroid, scale)
     return FitFailure(model.kind, decision_reason(
         model.kind, int(code), result, scale=scale, eigen_rms=eigen_rms, plane_rms=eigen_rms, n=len(pts),
-        minimum=5 if kind == 1 else 4, max_iterations=30, tolerance=tolerance, max_radius=max_radius,
+        minimum=MIN_POINTS[kind], max_iterations=MAX_ITERATIONS, tolerance=tolerance, max_radius=max_radius,
         min_arc=min_arc, curvature_gain=curvature_gain))
 
 
