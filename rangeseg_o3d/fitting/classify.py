@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..registry import Plugin
-from ._common import Prepared, as_points, decision_reason, input_failure
+from ._common import DEGENERATE_RATIO, Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .models import Cylinder, FitFailure, Plane, Sphere
 from .plane import plane_from_prepared
@@ -252,29 +252,18 @@ def fit_planes_batch(
     -------
     {label: Plane}, each Plane's ``inliers`` counted within 3x its threshold.
     """
-    from ..kernels import count_inliers
-    from .moments import planes_from_moments, quadric_gains, region_moments
+    from ..kernels import settle_planes
 
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     labels = np.ascontiguousarray(labels, dtype=np.int32)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or labels.shape != (len(xyz),):
         raise ValueError(f"xyz must be (N, 3) and labels (N,); got {xyz.shape} and {labels.shape}")
-    planes = planes_from_moments(region_moments(xyz, labels))
-    tol = _plane_tolerances(planes, plane_rms, rms_per_range2)
-    candidate = planes.ok & (planes.count >= max(int(min_points), 3)) & (planes.rms <= tol)
-    candidate[0] = False
-    # The floor keeps rounding-level residuals of exact planes from looking "curved".
-    gain, _ = quadric_gains(xyz, labels, planes, candidate & (planes.rms > 0.1 * tol))
-    settled = np.flatnonzero(candidate & (gain < curvature_gain))
-    if settled.size == 0:
-        return {}
-    kinds = np.zeros(len(tol), np.int8)
-    kinds[settled] = 1
-    params = np.zeros((len(tol), 7))
-    params[:, :3], params[:, 3] = planes.normal, planes.d
-    inliers = count_inliers(xyz, labels, kinds, params, INLIER_FACTOR * tol, np.zeros(len(xyz)), 1.0)
-    return {int(k): Plane(normal=planes.normal[k], d=float(planes.d[k]), rms=float(planes.rms[k]),
-                          inliers=int(inliers[k])) for k in settled}
+    n = int(labels.max(initial=0)) + 1
+    settled, normal, d, rms, inliers = settle_planes(
+        xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
+        INLIER_FACTOR, DEGENERATE_RATIO)
+    return {int(k): Plane(normal=normal[k], d=float(d[k]), rms=float(rms[k]), inliers=int(inliers[k]))
+            for k in np.flatnonzero(settled)}
 
 
 def refit_planes_from_moments(

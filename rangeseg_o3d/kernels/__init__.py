@@ -34,6 +34,7 @@ from .moments import (
     planes_from_moment_rows,
     quadric_shapes,
     quadric_sums,
+    settle_planes,
 )
 from .trimmed import trimmed_proposals
 from .window import eigenvectors, smallest_eigenvalues, window_moments
@@ -44,6 +45,7 @@ __all__ = [
     "quadric_sums",
     "quadric_shapes",
     "height_field_shape",
+    "settle_planes",
     "count_inliers",
     "distance_stats",
     "group_by_label",

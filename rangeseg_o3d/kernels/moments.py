@@ -10,7 +10,7 @@ from .grid import group_by_label
 from .models import _distance
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
-           "count_inliers", "distance_stats"]
+           "settle_planes", "count_inliers", "distance_stats"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -268,3 +268,45 @@ def height_field_shape(centred, normal, e1, e2):
                         inv_spread, active)
     gain, roundness = quadric_shapes(sums, np.array([0.0, float(n)]), active)
     return gain[1], roundness[1]
+
+@njit(cache=True, nogil=True)
+def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor,
+                  degenerate_ratio):
+    """The batched plane test of ``classify.fit_planes_batch`` in one call.
+
+    Per label ``1..n-1``: the plane from its moments, accepted when it is determined, has
+    at least ``min_points`` points, an rms within ``plane_rms + rms_per_range2 |centroid|^2``
+    and no significant curvature (quadric gain below ``curvature_gain``; not tested when
+    the rms is under a tenth of the threshold). Returns ``(settled, normal, d, rms,
+    inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
+    """
+    moments = label_moments(xyz, labels, n)
+    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments, degenerate_ratio)
+    rms = np.sqrt(np.maximum(eigvals[:, 0], 0.0))
+    tolerance = np.empty(n)
+    candidate = np.zeros(n, np.bool_)
+    active = np.zeros(n, np.bool_)
+    inv_spread = np.ones(n)
+    for k in range(1, n):
+        tolerance[k] = plane_rms + rms_per_range2 * (centroid[k] @ centroid[k])
+        candidate[k] = ok[k] and moments[k, 0] >= max(min_points, 3) and rms[k] <= tolerance[k]
+        # The floor keeps rounding-level residuals of exact planes from looking "curved".
+        active[k] = candidate[k] and rms[k] > 0.1 * tolerance[k]
+        spread = np.sqrt(eigvals[k, 1] + eigvals[k, 2])
+        if spread > 0:
+            inv_spread[k] = 1.0 / spread
+    tolerance[0] = 0.0
+    sums = quadric_sums(xyz, labels, centroid, frame[:, 1].copy(), frame[:, 2].copy(), normal, inv_spread,
+                        active)
+    gain, _ = quadric_shapes(sums, moments[:, 0].copy(), active)
+    settled = candidate & (gain < curvature_gain)
+    kinds = np.zeros(n, np.int8)
+    params = np.zeros((n, 7))
+    for k in range(n):
+        if settled[k]:
+            kinds[k] = 1
+            params[k, :3] = normal[k]
+            params[k, 3] = d[k]
+    inliers = distance_stats(xyz, labels, kinds, params, inlier_factor * tolerance, np.zeros(xyz.shape[0]),
+                             1.0)[0]
+    return settled, normal, d, rms, inliers
