@@ -513,6 +513,19 @@ def prepare_points(points):
 
 
 @njit(cache=True, nogil=True)
+def hesse_form(normal, d, scale):
+    """``(normal, d)`` with ``d >= 0`` (see ``plane.orient_normal``); a plane through the
+    origin (``|d|`` under 1e-12 of ``scale``) gets its largest normal component positive."""
+    if abs(d) <= 1e-12 * scale:
+        if normal[np.argmax(np.abs(normal))] < 0:
+            return -normal, 0.0
+        return normal.copy(), 0.0
+    if d < 0:
+        return -normal, -d
+    return normal.copy(), d
+
+
+@njit(cache=True, nogil=True)
 def plane_statistics(q, normal, scale, points, d, inlier_distance):
     """rms distance of the centred, scaled ``q`` from the plane through 0 with ``normal`` (in
     the units of ``points``), and the number of ``points`` within ``inlier_distance`` of

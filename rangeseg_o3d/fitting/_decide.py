@@ -18,6 +18,7 @@ from ..kernels.moments import height_field_shape
 from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
 from ._compiled import (
     cylinder_core,
+    hesse_form,
     cylinder_refine,
     plane_statistics,
     prepare_points,
@@ -211,14 +212,7 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
         return -2, 0, centroid, scale, plane, codes, curved
     normal = eigvecs[:, 0].copy()
     normal /= np.sqrt(normal @ normal)
-    d = normal @ centroid
-    # Hesse normal form (plane.orient_normal): d >= 0; through the origin, largest component > 0
-    if abs(d) <= 1e-12 * (np.abs(centroid).max() + scale):
-        d = 0.0
-        if normal[np.argmax(np.abs(normal))] < 0:
-            normal = -normal
-    elif d < 0:
-        normal, d = -normal, -d
+    normal, d = hesse_form(normal, normal @ centroid, np.abs(centroid).max() + scale)
     rms, inliers = plane_statistics(q, normal, scale, points, d, inlier_factor * plane_tol)
     plane[:3] = normal
     plane[3], plane[4], plane[7] = d, rms, inliers

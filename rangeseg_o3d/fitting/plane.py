@@ -17,13 +17,10 @@ def orient_normal(normal: np.ndarray, d: float, scale: float = 1.0) -> tuple[np.
     the origin from the plane. A plane through the origin (``|d|`` below 1e-12 of
     ``scale``) is oriented so that its largest normal component is positive.
     """
-    if abs(d) <= 1e-12 * scale:
-        if normal[np.argmax(np.abs(normal))] < 0:
-            return -normal, 0.0
-        return normal, 0.0
-    if d < 0:
-        return -normal, -d
-    return normal, d
+    from ._compiled import hesse_form
+
+    oriented, distance = hesse_form(np.asarray(normal, dtype=np.float64), float(d), float(scale))
+    return oriented, float(distance)
 
 
 def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFailure:
