@@ -140,7 +140,7 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     new = {k: m for k, m in fits.items() if k >= first and m}
     if new:
         from .fitstage import model_table
-        from .kernels import claim_rings
+        from .kernels import claim_rings, member_pixels
 
         labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=2,
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf)
@@ -149,7 +149,7 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True
-        rows, cols = np.nonzero(challengers[labels])
+        rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
         iterations = 3  # the box grows by the rings the challengers may take
         box = (rows.min() - iterations, rows.max() + iterations + 1,
                cols.min() - iterations, cols.max() + iterations + 1)
@@ -157,7 +157,9 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
                     np.ascontiguousarray(sigma).ravel(), challengers, iterations, float(config.k_sigma),
                     np.array(box, np.int64))
         if config.merge:  # a recovered piece of a surface the tile grid already has
-            regions = region_indices(np.where(np.isin(labels, list(new)), labels, 0))
+            claimed = member_pixels(labels, challengers)
+            owner = labels.ravel()[claimed]
+            regions = {k: claimed[owner == k] for k in new if np.any(owner == k)}
             touching = {(min(k, j), max(k, j)) for k, idx in regions.items()
                         for j in _touching(labels, idx, reach=2) if j != k}
             labels, fits, _ = ctx.merge(labels, fits, config, touching, only=set(new))

@@ -25,6 +25,7 @@ from .grid import (
     group_by_label,
     grow_rings,
     largest_piece,
+    member_pixels,
 )
 from .moments import (
     count_inliers,
@@ -55,6 +56,7 @@ __all__ = [
     "block_means",
     "assign_tiles",
     "largest_piece",
+    "member_pixels",
     "trimmed_proposals",
     "window_moments",
     "smallest_eigenvalues",

@@ -9,7 +9,7 @@ from numba import njit
 from .models import _distance, _neighbour
 
 __all__ = ["group_by_label", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles",
-           "largest_piece"]
+           "largest_piece", "member_pixels"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -315,5 +315,24 @@ def largest_piece(idx, width):
     for p in range(n):
         if piece[p] == best:
             out[m] = idx[p]
+            m += 1
+    return out
+
+@njit(cache=True, nogil=True)
+def member_pixels(labels, members):
+    """Flat indices (increasing) of the pixels whose label ``k`` has ``members[k]`` (k > 0)."""
+    flat = labels.ravel()
+    n = members.shape[0]
+    count = 0
+    for i in range(flat.shape[0]):
+        k = flat[i]
+        if 0 < k < n and members[k]:
+            count += 1
+    out = np.empty(count, np.int64)
+    m = 0
+    for i in range(flat.shape[0]):
+        k = flat[i]
+        if 0 < k < n and members[k]:
+            out[m] = i
             m += 1
     return out

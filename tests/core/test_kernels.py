@@ -270,3 +270,14 @@ def test_largest_piece_matches_opencv_components():
         assert np.array_equal(largest_piece(idx.astype(np.int64), int(w)), expected)
         checked += 1
     assert checked > 250
+
+
+def test_member_pixels_are_the_flat_indices_of_the_chosen_labels():
+    from rangeseg_o3d.kernels import member_pixels
+
+    rng = np.random.default_rng(8)
+    labels = rng.integers(-1, 6, (7, 9)).astype(np.int32)
+    members = np.array([True, False, True, False, False, True])  # label 0 never counts
+    expected = np.flatnonzero(np.isin(labels, [2, 5]))
+    np.testing.assert_array_equal(member_pixels(labels, members), expected)
+    assert member_pixels(labels, np.zeros(6, bool)).size == 0
