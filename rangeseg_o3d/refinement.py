@@ -159,7 +159,7 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         if config.merge:  # a recovered piece of a surface the tile grid already has
             claimed = member_pixels(labels, challengers)
             owner = labels.ravel()[claimed]
-            regions = {k: claimed[owner == k] for k in new if np.any(owner == k)}
+            regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
             touching = {(min(k, j), max(k, j)) for k, idx in regions.items()
                         for j in _touching(labels, idx, reach=2) if j != k}
             labels, fits, _ = ctx.merge(labels, fits, config, touching, only=set(new))

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._common import RADIUS_LIMIT
+from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
 
 __all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
 
@@ -523,6 +523,29 @@ def hesse_form(normal, d, scale):
     if d < 0:
         return -normal, -d
     return normal.copy(), d
+
+
+@njit(cache=True, nogil=True)
+def collinear(eigvals):
+    """The ascending scatter eigenvalues of coincident or collinear points (no plane, no curve)."""
+    return eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]
+
+
+@njit(cache=True, nogil=True)
+def plane_of(q, points, centroid, scale, eigvals, eigvecs, inlier_distance):
+    """The least-squares plane of prepared points (see :func:`prepare_points`).
+
+    Returns ``(ok, normal, d, rms, inliers)``: the normal is the smallest eigenvector in
+    Hesse form (:func:`hesse_form`), rms and inliers as :func:`plane_statistics`; ``ok`` is
+    False for coincident or collinear points.
+    """
+    if collinear(eigvals):
+        return False, np.full(3, np.nan), np.nan, np.nan, 0
+    normal = eigvecs[:, 0].copy()
+    normal /= np.sqrt(normal @ normal)
+    normal, d = hesse_form(normal, normal @ centroid, np.abs(centroid).max() + scale)
+    rms, inliers = plane_statistics(q, normal, scale, points, d, inlier_distance)
+    return True, normal, d, rms, inliers
 
 
 @njit(cache=True, nogil=True)

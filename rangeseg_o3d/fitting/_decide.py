@@ -17,10 +17,10 @@ from numba import njit
 from ..kernels.moments import height_field_shape
 from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
 from ._compiled import (
+    collinear,
     cylinder_core,
-    hesse_form,
     cylinder_refine,
-    plane_statistics,
+    plane_of,
     prepare_points,
     sphere_core,
     sphere_refine,
@@ -52,10 +52,9 @@ RADIUS, RMS, INLIERS, ARC, CONVERGED = 6, 7, 8, 9, 10
 @njit(cache=True, nogil=True)
 def flatness_code(eigvals):
     """COLLINEAR or COPLANAR from the ascending scatter eigenvalues, else ACCEPTED."""
-    largest = eigvals[2]
-    if largest <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * largest:
+    if collinear(eigvals):
         return COLLINEAR
-    if eigvals[0] <= DEGENERATE_RATIO * DEGENERATE_RATIO * largest:
+    if eigvals[0] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]:
         return COPLANAR
     return ACCEPTED
 
@@ -208,12 +207,10 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     curved = np.full((3, CURVED_SIZE), np.nan)
     plane[5] = plane_tol
     plane[6] = _eigen_rms(eigvals, n) * scale
-    if eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]:
+    ok, normal, d, rms, inliers = plane_of(q, points, centroid, scale, eigvals, eigvecs,
+                                           inlier_factor * plane_tol)
+    if not ok:
         return -2, 0, centroid, scale, plane, codes, curved
-    normal = eigvecs[:, 0].copy()
-    normal /= np.sqrt(normal @ normal)
-    normal, d = hesse_form(normal, normal @ centroid, np.abs(centroid).max() + scale)
-    rms, inliers = plane_statistics(q, normal, scale, points, d, inlier_factor * plane_tol)
     plane[:3] = normal
     plane[3], plane[4], plane[7] = d, rms, inliers
     plane_ok = rms <= plane_tol

@@ -31,10 +31,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..registry import Plugin
-from ._common import DEGENERATE_RATIO, Prepared, as_points, decision_reason, input_failure
+from ._common import Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .models import Cylinder, FitFailure, Plane, Sphere
-from .plane import plane_from_prepared
+from .plane import UNDETERMINED, plane_from_prepared
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
@@ -147,14 +147,14 @@ def fit_primitive(
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
         ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS)
     if choice == -2:
-        return FitFailure("primitive", "plane: points are coincident or collinear: the plane is undetermined")
+        return FitFailure("primitive", f"plane: {UNDETERMINED}")
     if choice == 0:
         return Plane(normal=plane[:3], d=float(plane[3]), rms=float(plane[4]), inliers=int(plane[7]))
     if choice == 1:
         return cylinder_model(curved[1], centroid, scale)
     if choice == 2:
         return sphere_model(curved[2], centroid, scale)
-    extra = float(rms_per_range2 * (centroid @ centroid))
+    extra = float(plane[5]) - plane_rms  # every threshold grows by the same amount with range
     reasons = [f"plane rms {plane[4]:.3g} > {plane[5]:.3g}"]
     for kind in (first, 3 - first):
         if codes[kind] >= 0:
@@ -261,7 +261,7 @@ def fit_planes_batch(
     n = int(labels.max(initial=0)) + 1
     settled, normal, d, rms, inliers = settle_planes(
         xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
-        INLIER_FACTOR, DEGENERATE_RATIO)
+        INLIER_FACTOR)
     return {int(k): Plane(normal=normal[k], d=float(d[k]), rms=float(rms[k]), inliers=int(inliers[k]))
             for k in np.flatnonzero(settled)}
 
@@ -298,7 +298,7 @@ def refit_planes_from_moments(
             out.append(FitFailure("plane", f"a plane fit needs at least {max(int(min_points), 3)} "
                                            f"points; got {int(planes.count[i])}"))
         elif not planes.ok[i]:
-            out.append(FitFailure("plane", "points are coincident or collinear: the plane is undetermined"))
+            out.append(FitFailure("plane", UNDETERMINED))
         elif planes.rms[i] > tol[i]:
             out.append(FitFailure("plane", f"plane rms {planes.rms[i]:.3g} > {tol[i]:.3g}"))
         else:

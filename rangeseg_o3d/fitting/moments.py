@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._common import DEGENERATE_RATIO
 
 __all__ = ["PlaneTable", "planes_from_moments", "region_moments", "quadric_gains"]
 
@@ -54,7 +53,7 @@ def planes_from_moments(moments: np.ndarray) -> PlaneTable:
     moments = np.ascontiguousarray(moments, dtype=np.float64)
     if moments.ndim != 2 or moments.shape[1] != 10:
         raise ValueError(f"moments must have shape (K, 10); got {moments.shape}")
-    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments, DEGENERATE_RATIO)
+    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments)
     return PlaneTable(count=moments[:, 0], centroid=centroid, normal=normal, d=d,
                       rms=np.sqrt(eigvals[:, 0]), eigvals=eigvals, frame=frame, ok=ok)
 

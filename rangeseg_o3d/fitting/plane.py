@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import DEGENERATE_RATIO, Prepared
+from ._common import Prepared
 from .models import FitFailure, Plane
 
 __all__ = ["fit_plane", "orient_normal"]
+
+UNDETERMINED = "points are coincident or collinear: the plane is undetermined"
 
 
 def orient_normal(normal: np.ndarray, d: float, scale: float = 1.0) -> tuple[np.ndarray, float]:
@@ -63,17 +65,15 @@ def fit_plane(points, *, inlier_distance: float | None = None) -> Plane | FitFai
 
 def plane_from_prepared(prep: Prepared) -> Plane | FitFailure:
     """:func:`fit_plane` on points already checked, centred, scaled and decomposed."""
+    from ._compiled import plane_of
+
     if prep.failure is not None:
         return prep.failure
-    eigvals, eigvecs, centroid, scale = prep.eigvals, prep.eigvecs, prep.centroid, prep.scale
-    if eigvals[2] <= 0.0 or eigvals[1] <= (DEGENERATE_RATIO**2) * eigvals[2]:
-        return FitFailure("plane", "points are coincident or collinear: the plane is undetermined")
-    normal = eigvecs[:, 0] / np.linalg.norm(eigvecs[:, 0])
-    normal, d = orient_normal(normal, float(normal @ centroid), float(np.abs(centroid).max() + scale))
-    from ._compiled import plane_statistics
-
-    # from the distances, not the eigenvalue: the eigenvalue carries an absolute rounding
-    # error of ~1e-16, i.e. a 1e-8 rms floor on exact data
+    # rms from the distances, not the eigenvalue: the eigenvalue carries an absolute
+    # rounding error of ~1e-16, i.e. a 1e-8 rms floor on exact data
     limit = np.inf if prep.inlier_distance is None else prep.inlier_distance
-    rms, inliers = plane_statistics(prep.q, normal, scale, prep.points, d, limit)
-    return Plane(normal=normal, d=d, rms=float(rms), inliers=int(inliers))
+    ok, normal, d, rms, inliers = plane_of(prep.q, prep.points, prep.centroid, prep.scale, prep.eigvals,
+                                           prep.eigvecs, limit)
+    if not ok:
+        return FitFailure("plane", UNDETERMINED)
+    return Plane(normal=normal, d=float(d), rms=float(rms), inliers=int(inliers))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..fitting._compiled import _solve
+from ..fitting._compiled import _solve, collinear, hesse_form
 from .grid import group_by_label
 from .models import _distance
 
@@ -45,7 +45,7 @@ def label_moments(xyz, labels, n):
     return out
 
 @njit(cache=True, nogil=True)
-def planes_from_moment_rows(moments, degenerate_ratio):
+def planes_from_moment_rows(moments):
     """Least-squares plane of each row of (K, 10) moments (see :func:`label_moments`).
 
     Returns ``(centroid (K,3), normal (K,3), d (K,), eigvals (K,3) ascending, frame (K,3,3)
@@ -79,23 +79,12 @@ def planes_from_moment_rows(moments, degenerate_ratio):
             for b in range(3):
                 frame[i, a, b] = vecs[b, a]
         nrm = vecs[:, 0].copy()
-        dist = nrm[0] * c[0] + nrm[1] * c[1] + nrm[2] * c[2]
         scale = max(abs(c[0]), abs(c[1]), abs(c[2])) + np.sqrt(vals[0] + vals[1] + vals[2])
-        if abs(dist) <= 1e-12 * max(scale, 1e-300):
-            big = 0
-            for a in range(1, 3):
-                if abs(nrm[a]) > abs(nrm[big]):
-                    big = a
-            if nrm[big] < 0:
-                nrm = -nrm
-            dist = 0.0
-        elif dist < 0:
-            nrm = -nrm
-            dist = -dist
+        nrm, dist = hesse_form(nrm, nrm @ c, max(scale, 1e-300))
         normal[i] = nrm
         frame[i, 0] = nrm
         d[i] = dist
-        ok[i] = n >= 3 and vals[2] > 0 and vals[1] > degenerate_ratio * degenerate_ratio * vals[2]
+        ok[i] = n >= 3 and not collinear(vals)
     return centroid, normal, d, eigvals, frame, ok
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -270,8 +259,7 @@ def height_field_shape(centred, normal, e1, e2):
     return gain[1], roundness[1]
 
 @njit(cache=True, nogil=True)
-def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor,
-                  degenerate_ratio):
+def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor):
     """The batched plane test of ``classify.fit_planes_batch`` in one call.
 
     Per label ``1..n-1``: the plane from its moments, accepted when it is determined, has
@@ -281,7 +269,7 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
     moments = label_moments(xyz, labels, n)
-    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments, degenerate_ratio)
+    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments)
     rms = np.sqrt(np.maximum(eigvals[:, 0], 0.0))
     tolerance = np.empty(n)
     candidate = np.zeros(n, np.bool_)
