@@ -57,38 +57,53 @@ def _solve(a, b, rel_tol=0.0):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _accumulate(row, res, jtj, grad):
-    # one point's Jacobian row into the upper triangle of J^T J and into J^T r
-    for a in range(row.shape[0]):
-        grad[a] += row[a] * res
-        for b in range(a, row.shape[0]):
-            jtj[a, b] += row[a] * row[b]
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _symmetrise(m):
     for a in range(m.shape[0]):
         for b in range(a):
             m[a, b] = m[b, a]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _packed_system(sums, n_params):
+    # J^T J (symmetric) from its upper triangle packed row by row in ``sums``
+    jtj = np.empty((n_params, n_params))
+    m = 0
+    for a in range(n_params):
+        for b in range(a, n_params):
+            jtj[a, b] = jtj[b, a] = sums[m]
+            m += 1
+    return jtj
+
+
 @njit(cache=True, nogil=True)
 def _sphere_normal_equations(q, params):
-    k = 4
-    jtj = np.zeros((k, k))
-    grad = np.zeros(k)
-    row = np.empty(k)
+    # Sums kept in scalars: stored into arrays point by point they are not kept in
+    # registers. The last Jacobian entry is -1 for every point.
+    s00 = s01 = s02 = s03 = s11 = s12 = s13 = s22 = s23 = 0.0
+    g0 = g1 = g2 = g3 = 0.0
     cost = 0.0
     for i in range(q.shape[0]):
         dx, dy, dz = q[i, 0] - params[0], q[i, 1] - params[1], q[i, 2] - params[2]
         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
         inv = 1.0 / max(dist, 1e-300)
         res = dist - params[3]
-        row[0], row[1], row[2], row[3] = -dx * inv, -dy * inv, -dz * inv, -1.0
+        r0, r1, r2 = -dx * inv, -dy * inv, -dz * inv
         cost += res * res
-        _accumulate(row, res, jtj, grad)
-    _symmetrise(jtj)
-    return cost, jtj, grad
+        g0 += r0 * res
+        g1 += r1 * res
+        g2 += r2 * res
+        g3 -= res
+        s00 += r0 * r0
+        s01 += r0 * r1
+        s02 += r0 * r2
+        s03 -= r0
+        s11 += r1 * r1
+        s12 += r1 * r2
+        s13 -= r1
+        s22 += r2 * r2
+        s23 -= r2
+    sums = np.array([s00, s01, s02, s03, s11, s12, s13, s22, s23, float(q.shape[0])])
+    return cost, _packed_system(sums, 4), np.array([g0, g1, g2, g3])
 
 
 @njit(cache=True, nogil=True)
@@ -110,10 +125,9 @@ def _frame(axis):
 
 @njit(cache=True, nogil=True)
 def _cylinder_normal_equations(q, axis, u, v, p0, r):
-    k = 5
-    jtj = np.zeros((k, k))
-    grad = np.zeros(k)
-    row = np.empty(k)
+    # as _sphere_normal_equations: scalar sums; the radius entry is -1 for every point
+    s00 = s01 = s02 = s03 = s04 = s11 = s12 = s13 = s14 = s22 = s23 = s24 = s33 = s34 = 0.0
+    g0 = g1 = g2 = g3 = g4 = 0.0
     cost = 0.0
     for i in range(q.shape[0]):
         rx, ry, rz = q[i, 0] - p0[0], q[i, 1] - p0[1], q[i, 2] - p0[2]
@@ -122,12 +136,31 @@ def _cylinder_normal_equations(q, axis, u, v, p0, r):
         z = rx * axis[0] + ry * axis[1] + rz * axis[2]
         rho = max(np.sqrt(x * x + y * y), 1e-300)
         res = rho - r
-        row[0], row[1] = -x / rho, -y / rho
-        row[2], row[3], row[4] = z * row[0], z * row[1], -1.0
+        r0, r1 = -x / rho, -y / rho
+        r2, r3 = z * r0, z * r1
         cost += res * res
-        _accumulate(row, res, jtj, grad)
-    _symmetrise(jtj)
-    return cost, jtj, grad
+        g0 += r0 * res
+        g1 += r1 * res
+        g2 += r2 * res
+        g3 += r3 * res
+        g4 -= res
+        s00 += r0 * r0
+        s01 += r0 * r1
+        s02 += r0 * r2
+        s03 += r0 * r3
+        s04 -= r0
+        s11 += r1 * r1
+        s12 += r1 * r2
+        s13 += r1 * r3
+        s14 -= r1
+        s22 += r2 * r2
+        s23 += r2 * r3
+        s24 -= r2
+        s33 += r3 * r3
+        s34 -= r3
+    sums = np.array([s00, s01, s02, s03, s04, s11, s12, s13, s14, s22, s23, s24, s33, s34,
+                     float(q.shape[0])])
+    return cost, _packed_system(sums, 5), np.array([g0, g1, g2, g3, g4])
 
 
 @njit(cache=True, nogil=True)

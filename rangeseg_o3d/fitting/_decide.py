@@ -40,6 +40,7 @@ RMS_OVER = 10  # rms over the kind's threshold
 RADIUS_OVER = 11  # radius over max_radius
 ARC_UNDER = 12  # arc (cylinder) or cap (sphere) under min_arc
 GAIN_UNDER = 13  # not curvature_gain x better than the plane
+NON_FINITE = 14  # a point is NaN or infinite (the wrappers word it with the count)
 
 MIN_POINTS = (3, 5, 4)  # a plane, a cylinder (kind 1), a sphere (kind 2) need at least this many
 
@@ -189,22 +190,24 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
                        cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
                        curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
                        max_iterations):
-    """The decision rule of ``classify.fit_primitive`` on finite (N >= 3, 3) points.
+    """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points.
 
     Returns ``(choice, first, centroid, scale, plane, codes, curved)``: ``choice`` 0
     plane, 1 cylinder, 2 sphere, -1 none (see the codes), -2 the plane itself is
-    undetermined; ``first`` the curved kind tried first; ``plane`` = normal (3), d, rms,
+    undetermined, -3 a point is not finite (nothing else computed); ``first`` the curved kind tried first; ``plane`` = normal (3), d, rms,
     threshold, rms from the smallest eigenvalue, inliers (metres); ``codes[k]`` and
     ``curved[k]`` (k = 1 cylinder, 2 sphere) the outcome of each model tried (-1 = not
     tried), in the scaled frame about ``centroid``.
     """
-    _, centroid, scale, q, eigvals, eigvecs = prepare_points(points)
+    n_bad, centroid, scale, q, eigvals, eigvecs = prepare_points(points)
     n = q.shape[0]
     extra = rms_per_range2 * (centroid @ centroid)
     plane_tol = plane_rms + extra
     plane = np.full(8, np.nan)
     codes = np.full(3, -1, np.int64)
     curved = np.full((3, CURVED_SIZE), np.nan)
+    if n_bad:
+        return -3, 0, centroid, scale, plane, codes, curved
     plane[5] = plane_tol
     plane[6] = _eigen_rms(eigvals, n) * scale
     ok, normal, d, rms, inliers = plane_of(q, points, centroid, scale, eigvals, eigvecs,
@@ -252,11 +255,14 @@ def curved_refit(kind, points, start, base_tolerance, rms_per_range2, max_radius
 
     Returns ``(code, centroid, scale, result, tolerance, plane_rms)``: the threshold
     grown for the patch's range, and the plane rms from the smallest scatter eigenvalue
-    (metres), which the curvature-gain test compares with.
+    (metres), which the curvature-gain test compares with; ``code`` is NON_FINITE, and
+    nothing else computed, when a point is NaN or infinite.
     """
-    _, centroid, scale, q, eigvals, _ = prepare_points(points)
+    n_bad, centroid, scale, q, eigvals, _ = prepare_points(points)
     plane_rms = _eigen_rms(eigvals, q.shape[0]) * scale
     tolerance = base_tolerance + rms_per_range2 * (centroid @ centroid)
+    if n_bad:
+        return NON_FINITE, centroid, scale, np.full(CURVED_SIZE, np.nan), tolerance, plane_rms
     local = np.full(7, np.nan)
     if kind == 1:
         local[:3] = start[:3]

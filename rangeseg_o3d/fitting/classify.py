@@ -78,10 +78,18 @@ def _height_field_shape(centred, normal, e1, e2) -> tuple[float, float]:
 
 
 def _checked_points(points, kind: str, min_points: int):
-    """``(points as a C-ordered (N, 3) float array, FitFailure or None)``."""
+    """``(points as a C-ordered (N, 3) float array, FitFailure for too few or None)``.
+
+    Non-finite points are the compiled fits' to find (they pass over the points anyway);
+    :func:`_non_finite` words their answer.
+    """
     pts = np.ascontiguousarray(as_points(points))
+    return pts, input_failure(kind, len(pts), 0, max(int(min_points), 3))
+
+
+def _non_finite(pts: np.ndarray, kind: str) -> FitFailure:
     n_bad = len(pts) - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
-    return pts, input_failure(kind, len(pts), n_bad, max(int(min_points), 3))
+    return input_failure(kind, len(pts), n_bad, 3)
 
 
 def fit_primitive(
@@ -146,6 +154,8 @@ def fit_primitive(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
         ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS)
+    if choice == -3:
+        return _non_finite(pts, "primitive")
     if choice == -2:
         return FitFailure("primitive", f"plane: {UNDETERMINED}")
     if choice == 0:
@@ -195,6 +205,8 @@ def refit_primitive(
         return failure
     if isinstance(model, Plane):
         base = Prepared(pts, "plane", 3, None)
+        if base.n_bad:
+            return _non_finite(pts, model.kind)
         plane_tol = plane_rms + rms_per_range2 * float(base.centroid @ base.centroid)
         plane = plane_from_prepared(base.specialise("plane", 3, INLIER_FACTOR * plane_tol))
         if not plane:
@@ -202,7 +214,7 @@ def refit_primitive(
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    from ._decide import MIN_POINTS, curved_refit
+    from ._decide import MIN_POINTS, NON_FINITE, curved_refit
 
     # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
     # surface, so no search or algebraic start is needed.
@@ -215,6 +227,8 @@ def refit_primitive(
         float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, MAX_ITERATIONS)
     if code == 0:
         return cylinder_model(result, centroid, scale) if kind == 1 else sphere_model(result, centroid, scale)
+    if code == NON_FINITE:
+        return _non_finite(pts, model.kind)
     return FitFailure(model.kind, decision_reason(
         model.kind, int(code), result, scale=scale, eigen_rms=eigen_rms, plane_rms=eigen_rms, n=len(pts),
         minimum=MIN_POINTS[kind], max_iterations=MAX_ITERATIONS, tolerance=tolerance, max_radius=max_radius,

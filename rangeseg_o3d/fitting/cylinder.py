@@ -117,7 +117,9 @@ def cylinder_arc(points: np.ndarray, axis: np.ndarray, point: np.ndarray) -> flo
 
 def _oriented(axis: np.ndarray) -> np.ndarray:
     """Axis sign fixed so that its largest-magnitude component is positive."""
-    return -axis if axis[np.argmax(np.abs(axis))] < 0 else axis
+    # on Python floats: three numbers cost less than the numpy calls on them
+    largest = max(axis.tolist(), key=abs)
+    return -axis if largest < 0 else axis
 
 
 def fit_cylinder(
@@ -212,6 +214,7 @@ def cylinder_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Cy
     """The Cylinder of a checked result row (scaled frame about ``centroid``)."""
     from ._decide import INLIERS, RADIUS, RMS
 
+    values = result.tolist()  # Python floats: the scalar arithmetic below costs less
     return Cylinder(axis=_oriented(result[:3]), point=centroid + scale * result[3:6],
-                    radius=float(result[RADIUS] * scale), rms=float(result[RMS] * scale),
-                    inliers=int(result[INLIERS]))
+                    radius=values[RADIUS] * scale, rms=values[RMS] * scale,
+                    inliers=int(values[INLIERS]))

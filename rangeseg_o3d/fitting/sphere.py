@@ -84,5 +84,6 @@ def sphere_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Sphe
     """The Sphere of a checked result row (scaled frame about ``centroid``)."""
     from ._decide import INLIERS, RADIUS, RMS
 
-    return Sphere(center=centroid + scale * result[:3], radius=float(result[RADIUS] * scale),
-                  rms=float(result[RMS] * scale), inliers=int(result[INLIERS]))
+    values = result.tolist()  # Python floats: the scalar arithmetic below costs less
+    return Sphere(center=centroid + scale * result[:3], radius=values[RADIUS] * scale,
+                  rms=values[RMS] * scale, inliers=int(values[INLIERS]))

@@ -40,30 +40,35 @@ def _quadric_distances(pts, support, out):
     # h = a u^2 + b uv + c v^2 + d u + e v + f over the other two axes
     c, vecs = _plane_frame(pts, support)
     n = pts.shape[0]
-    local = np.empty((n, 3))
-    for i in range(n):
-        for a in range(3):
-            local[i, a] = ((pts[i, 0] - c[0]) * vecs[0, a] + (pts[i, 1] - c[1]) * vecs[1, a]
-                           + (pts[i, 2] - c[2]) * vecs[2, a])
     ata = np.zeros((6, 6))
     atb = np.zeros(6)
     row = np.empty(6)
     for i in range(n):
         if not support[i]:
             continue
-        u, v = local[i, 1], local[i, 2]
+        x, y, z = pts[i, 0] - c[0], pts[i, 1] - c[1], pts[i, 2] - c[2]
+        h = x * vecs[0, 0] + y * vecs[1, 0] + z * vecs[2, 0]
+        u = x * vecs[0, 1] + y * vecs[1, 1] + z * vecs[2, 1]
+        v = x * vecs[0, 2] + y * vecs[1, 2] + z * vecs[2, 2]
         row[0], row[1], row[2], row[3], row[4], row[5] = u * u, u * v, v * v, u, v, 1.0
         for a in range(6):
-            atb[a] += row[a] * local[i, 0]
-            for b in range(6):
+            atb[a] += row[a] * h
+            for b in range(a, 6):
                 ata[a, b] += row[a] * row[b]
+    for a in range(6):
+        for b in range(a):
+            ata[a, b] = ata[b, a]
     coef, ok = _solve(ata, atb, 0.0)
     if not ok:
         coef[:] = 0.0
     for i in range(n):
-        u, v = local[i, 1], local[i, 2]
+        x, y, z = pts[i, 0] - c[0], pts[i, 1] - c[1], pts[i, 2] - c[2]
+        h = x * vecs[0, 0] + y * vecs[1, 0] + z * vecs[2, 0]
+        u = x * vecs[0, 1] + y * vecs[1, 1] + z * vecs[2, 1]
+        v = x * vecs[0, 2] + y * vecs[1, 2] + z * vecs[2, 2]
         fitted = coef[0] * u * u + coef[1] * u * v + coef[2] * v * v + coef[3] * u + coef[4] * v + coef[5]
-        out[i] = abs(local[i, 0] - fitted)
+        out[i] = abs(h - fitted)
+
 
 @njit(cache=True, nogil=True)
 def _within_spread(dist, support, sigma, out):
@@ -113,25 +118,49 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
     quad_near = np.zeros(n, np.bool_)
     dist = np.empty(n)
     support = np.ones(n, np.bool_)
+    following = np.empty(n, np.bool_)
     if best_count >= 0:
         for p in range(n):
             support[p] = abs(best_n[0] * pts[p, 0] + best_n[1] * pts[p, 1] + best_n[2] * pts[p, 2]
                              - best_d) <= tol
+    # A step that keeps the support as it was has reached the fixed point: the steps left
+    # would repeat it.
+    settled = False
     for _ in range(rounds):
         if support.sum() < 6:
             break
         _plane_distances(pts, support, dist)
-        _within_spread(dist, support, sigma, support)
-    if support.sum() >= 6:
+        _within_spread(dist, support, sigma, following)
+        settled = _same(following, support)
+        if settled:
+            break
+        support[:] = following
+    if settled:
+        plane_near[:] = support
+    elif support.sum() >= 6:
         _plane_distances(pts, support, dist)
         _within_spread(dist, support, sigma, plane_near)
     support[:] = True
+    settled = False
     for _ in range(rounds):
         _quadric_distances(pts, support, dist)
         # the keep closest: a selection, not a sort (ties at the cut would all be kept)
         cut = np.partition(dist, keep - 1)[keep - 1]
         for p in range(n):
-            support[p] = dist[p] <= cut
-    _quadric_distances(pts, support, dist)
+            following[p] = dist[p] <= cut
+        settled = _same(following, support)
+        if settled:
+            break
+        support[:] = following
+    if not settled:
+        _quadric_distances(pts, support, dist)
     _within_spread(dist, support, sigma, quad_near)
     return plane_near, quad_near
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _same(a, b):
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            return False
+    return True

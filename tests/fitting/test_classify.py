@@ -156,3 +156,20 @@ def test_refit_keeps_the_kind_and_judges_it(synth):
     assert not refit_primitive(synth.plane(rng, (0, 0, 1), 2.0, noise=NOISE), first)
     with pytest.raises(TypeError):
         refit_primitive(pts, "cylinder")
+
+
+def test_non_finite_points_are_counted_on_every_path(synth):
+    # the compiled preparation finds them; the message counts them, for each kind refitted
+    from rangeseg_o3d.fitting.classify import refit_primitive
+
+    rng = np.random.default_rng(11)
+    pts, _ = synth.cylinder(rng, (1, 0, 0), (0, 0, 2), 0.25, n=200, arc=np.radians(140), noise=NOISE)
+    flat = synth.plane(rng, (0, 0, 1), 2.0, n=200, noise=NOISE)
+    cylinder, plane = fit_primitive(pts), fit_primitive(flat)
+    assert isinstance(cylinder, Cylinder) and isinstance(plane, Plane)
+    bad, bad_flat = pts.copy(), flat.copy()
+    bad[[3, 50, 199], [0, 2, 1]] = bad_flat[[3, 50, 199], [0, 2, 1]] = [np.nan, np.inf, -np.inf]
+    for refused, kind in [(fit_primitive(bad), "primitive"), (refit_primitive(bad, cylinder), "cylinder"),
+                          (refit_primitive(bad_flat, plane), "plane")]:
+        assert isinstance(refused, FitFailure) and refused.kind == kind
+        assert "3 of 200 points are NaN or infinite" in refused.reason
