@@ -276,8 +276,10 @@ def fit_planes_batch(
     settled, normal, d, rms, inliers = settle_planes(
         xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
         INLIER_FACTOR)
-    return {int(k): Plane(normal=normal[k], d=float(d[k]), rms=float(rms[k]), inliers=int(inliers[k]))
-            for k in np.flatnonzero(settled)}
+    normal.setflags(write=False)  # rows pass into the Planes as they are, without a copy each
+    d, rms, inliers = d.tolist(), rms.tolist(), inliers.tolist()
+    return {k: Plane(normal=normal[k], d=d[k], rms=rms[k], inliers=inliers[k])
+            for k in np.flatnonzero(settled).tolist()}
 
 
 def refit_planes_from_moments(

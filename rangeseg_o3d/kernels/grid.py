@@ -18,19 +18,34 @@ def group_by_label(labels, n):
     ``order[starts[k]:starts[k + 1]]`` are the flat indices of label ``k`` in increasing
     order, for ``0 <= k < n``; labels outside that range are left out.
     """
+    # Labels come in runs along the rows: a run's count and write position are kept in
+    # registers, where a store and reload per pixel would chain each pixel to the last.
     counts = np.zeros(n + 1, np.int64)
+    last, run = -1, 0
     for i in range(labels.shape[0]):
         k = labels[i]
-        if 0 <= k < n:
-            counts[k + 1] += 1
+        if k != last:
+            if 0 <= last < n:
+                counts[last + 1] += run
+            last, run = k, 0
+        run += 1
+    if 0 <= last < n:
+        counts[last + 1] += run
     starts = np.cumsum(counts)
     fill = starts[:-1].copy()
     order = np.empty(starts[-1], np.int64)
+    last, pos = -1, 0
     for i in range(labels.shape[0]):
         k = labels[i]
+        if k != last:
+            if 0 <= last < n:
+                fill[last] = pos
+            last = k
+            if 0 <= k < n:
+                pos = fill[k]
         if 0 <= k < n:
-            order[fill[k]] = i
-            fill[k] += 1
+            order[pos] = i
+            pos += 1
     return order, starts
 
 @njit(cache=True, nogil=True)

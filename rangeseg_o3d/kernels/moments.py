@@ -259,6 +259,19 @@ def height_field_shape(centred, normal, e1, e2):
     return gain[1], roundness[1]
 
 @njit(cache=True, nogil=True)
+def _labelled_only(xyz, labels, count):
+    # the ``count`` points and labels of the labelled pixels, in pixel order
+    points = np.empty((count, 3))
+    kept = np.empty(count, labels.dtype)
+    m = 0
+    for i in range(labels.shape[0]):
+        if labels[i] > 0:
+            points[m] = xyz[i]
+            kept[m] = labels[i]
+            m += 1
+    return points, kept
+
+@njit(cache=True, nogil=True)
 def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor):
     """The batched plane test of ``classify.fit_planes_batch`` in one call.
 
@@ -268,6 +281,14 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     the rms is under a tenth of the threshold). Returns ``(settled, normal, d, rms,
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
+    labelled = 0
+    for i in range(labels.shape[0]):
+        if labels[i] > 0:
+            labelled += 1
+    if 2 * labelled < labels.shape[0]:
+        # a few blobs in a large image: the passes below over the labelled pixels alone
+        # give the same sums, in the same order
+        xyz, labels = _labelled_only(xyz, labels, labelled)
     moments = label_moments(xyz, labels, n)
     centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments)
     rms = np.sqrt(np.maximum(eigvals[:, 0], 0.0))

@@ -13,7 +13,7 @@ from rangeseg_o3d.fitting.classify import (
 )
 from rangeseg_o3d.fitting.models import FitFailure, Plane
 from rangeseg_o3d.fitting.moments import planes_from_moments, quadric_gains, region_moments
-from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, grow_rings
+from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, group_by_label, grow_rings
 from rangeseg_o3d.refine import region_adjacency
 from rangeseg_o3d.residual import block_means as tile_means
 
@@ -281,3 +281,38 @@ def test_member_pixels_are_the_flat_indices_of_the_chosen_labels():
     expected = np.flatnonzero(np.isin(labels, [2, 5]))
     np.testing.assert_array_equal(member_pixels(labels, members), expected)
     assert member_pixels(labels, np.zeros(6, bool)).size == 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_group_by_label_matches_a_stable_sort(seed):
+    # runs of one label (as along image rows) and labels outside 0..n-1 (left out)
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(1, 40, 400)
+    labels = np.repeat(rng.integers(-2, 9, runs.size), runs).astype(np.int32)
+    n = 7
+    order, starts = group_by_label(labels, n)
+    for k in range(n):
+        np.testing.assert_array_equal(order[starts[k]:starts[k + 1]], np.flatnonzero(labels == k))
+    assert starts[-1] == np.count_nonzero((labels >= 0) & (labels < n))
+    empty_order, empty_starts = group_by_label(np.zeros(0, np.int32), 3)
+    assert empty_order.size == 0 and (empty_starts == 0).all()
+
+
+def test_batched_planes_of_a_few_blobs_in_a_large_image_are_those_of_the_blobs_alone():
+    # Mostly unlabelled images (refinement's leftovers) are summed over their labelled
+    # pixels only: the answer must be the one for those pixels given on their own.
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(size=(5000, 3))
+    labels = np.zeros(5000, np.int32)
+    for k, (normal, d) in enumerate([((0, 0, 1), 2.0), ((1, 0.2, 0), 1.5), ((0, 1, 1), 3.0)], start=1):
+        where = rng.choice(np.flatnonzero(labels == 0), 300, replace=False)
+        labels[where] = k
+        xyz[where] = _plane_points(rng, 300, normal, d, 0.002)
+    sparse = fit_planes_batch(xyz, labels)
+    inside = labels > 0
+    dense = fit_planes_batch(xyz[inside], labels[inside])
+    assert sorted(sparse) == sorted(dense) == [1, 2, 3]
+    for k in sparse:
+        np.testing.assert_array_equal(sparse[k].normal, dense[k].normal)
+        assert (sparse[k].d, sparse[k].rms, sparse[k].inliers) == (dense[k].d, dense[k].rms, dense[k].inliers)
+        assert sparse[k].inliers == 300 and sparse[k].rms < 0.003
