@@ -305,21 +305,24 @@ def refit_planes_from_moments(
     if len(moments) != len(models):
         raise ValueError(f"need one moments row per model; got {len(moments)} rows and {len(models)} models")
     planes = planes_from_moments(moments)
-    tol = _plane_tolerances(planes, plane_rms, rms_per_range2)
+    minimum = max(int(min_points), 3)
+    # Python scalars and read-only normal rows: per row, numpy scalars cost more than the test
+    tol = _plane_tolerances(planes, plane_rms, rms_per_range2).tolist()
+    count, ok, rms, d = planes.count.tolist(), planes.ok.tolist(), planes.rms.tolist(), planes.d.tolist()
+    normal = planes.normal
+    normal.setflags(write=False)
     out = []
     for i, model in enumerate(models):
         if not isinstance(model, Plane):
             out.append(None)
-        elif planes.count[i] < max(int(min_points), 3):
-            out.append(FitFailure("plane", f"a plane fit needs at least {max(int(min_points), 3)} "
-                                           f"points; got {int(planes.count[i])}"))
-        elif not planes.ok[i]:
+        elif count[i] < minimum:
+            out.append(FitFailure("plane", f"a plane fit needs at least {minimum} points; got {int(count[i])}"))
+        elif not ok[i]:
             out.append(FitFailure("plane", UNDETERMINED))
-        elif planes.rms[i] > tol[i]:
-            out.append(FitFailure("plane", f"plane rms {planes.rms[i]:.3g} > {tol[i]:.3g}"))
+        elif rms[i] > tol[i]:
+            out.append(FitFailure("plane", f"plane rms {rms[i]:.3g} > {tol[i]:.3g}"))
         else:
-            out.append(Plane(normal=planes.normal[i], d=float(planes.d[i]), rms=float(planes.rms[i]),
-                             inliers=int(planes.count[i])))
+            out.append(Plane(normal=normal[i], d=d[i], rms=rms[i], inliers=int(count[i])))
     return out
 
 

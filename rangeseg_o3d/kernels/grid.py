@@ -49,24 +49,57 @@ def group_by_label(labels, n):
     return order, starts
 
 @njit(cache=True, nogil=True)
+def _row_runs(labels):
+    # Runs of one positive label along each row: (row_start, start, stop, label) with
+    # row r's runs at row_start[r]:row_start[r + 1].
+    h, w = labels.shape
+    row_start = np.zeros(h + 1, np.int64)
+    starts = np.empty(h * w, np.int64)
+    stops = np.empty(h * w, np.int64)
+    owner = np.empty(h * w, labels.dtype)
+    m = 0
+    for r in range(h):
+        c = 0
+        while c < w:
+            k = labels[r, c]
+            end = c + 1
+            while end < w and labels[r, end] == k:
+                end += 1
+            if k > 0:
+                starts[m], stops[m], owner[m] = c, end, k
+                m += 1
+            c = end
+        row_start[r + 1] = m
+    return row_start, starts, stops, owner
+
+
+@njit(cache=True, nogil=True)
 def adjacency_matrix(labels, n, reach):
     """(n, n) bool: regions ``a != b`` (both > 0) with pixels within ``reach`` rows and columns."""
     h, w = labels.shape
     adj = np.zeros((n, n), np.bool_)
-    # one pass per forward offset: a tight compare loop, the store taken only at region borders
-    for dr in range(0, reach + 1):
-        for dc in range(-reach, reach + 1):
-            if dr == 0 and dc <= 0:
-                continue
-            c0, c1 = max(0, -dc), min(w, w - dc)
-            for r in range(h - dr):
-                row, other = labels[r], labels[r + dr]
-                for c in range(c0, c1):
-                    a, b = row[c], other[c + dc]
-                    if a != b and a > 0 and b > 0:
+    # On runs of one label per row: two runs ``dr <= reach`` rows apart are that close
+    # when their column spans, one widened by ``reach``, overlap. A row holds a few runs
+    # where it holds a hundred pixels.
+    row_start, starts, stops, owner = _row_runs(labels)
+    for r in range(h):
+        for dr in range(0, min(reach, h - 1 - r) + 1):
+            first = row_start[r + dr]
+            for i in range(row_start[r], row_start[r + 1]):
+                a = owner[i]
+                lo, hi = starts[i] - reach, stops[i] + reach
+                for j in range(first, row_start[r + dr + 1]):
+                    if stops[j] <= lo:
+                        first = j + 1  # runs are ordered: later runs of row r start further right
+                        continue
+                    if starts[j] >= hi:
+                        break
+                    b = owner[j]
+                    if a != b and b < n and a < n:
                         adj[a, b] = True
                         adj[b, a] = True
     return adj
+
 
 @njit(cache=True, nogil=True)
 def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma,

@@ -176,12 +176,19 @@ def test_grow_rings_adds_one_ring_per_iteration_and_respects_the_model():
     assert labels[0, 0] == 0 and (labels.ravel()[1:] == 1).all()
 
 
-def test_adjacency_matrix_agrees_with_shifted_pairs():
+@pytest.mark.parametrize("layout", ["speckle", "blocks"])
+def test_adjacency_matrix_agrees_with_shifted_pairs(layout):
     rng = np.random.default_rng(7)
-    labels = rng.integers(0, 6, (30, 40)).astype(np.int32)
-    labels[rng.random((30, 40)) < 0.7] = 0
+    if layout == "speckle":  # runs of one pixel
+        labels = rng.integers(0, 6, (30, 40)).astype(np.int32)
+        labels[rng.random((30, 40)) < 0.7] = 0
+    else:  # long runs: rectangles 1 to 4 pixels apart, diagonal neighbours included
+        labels = np.zeros((30, 40), np.int32)
+        for k, (r0, r1, c0, c1) in enumerate([(0, 10, 0, 12), (0, 10, 14, 30), (12, 20, 0, 9), (13, 29, 12, 16),
+                                              (22, 30, 19, 40), (3, 8, 34, 40)], start=1):
+            labels[r0:r1, c0:c1] = k
     for reach in (1, 2, 3):
-        adj = adjacency_matrix(labels, 6, reach)
+        adj = adjacency_matrix(labels, int(labels.max()) + 1, reach)
         pairs = set()
         for dy in range(-reach, reach + 1):
             for dx in range(-reach, reach + 1):
