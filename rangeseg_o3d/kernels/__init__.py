@@ -24,6 +24,7 @@ from .grid import (
     claim_rings,
     group_by_label,
     grow_rings,
+    jump_mask,
     largest_piece,
     member_pixels,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "count_inliers",
     "distance_stats",
     "group_by_label",
+    "jump_mask",
     "adjacency_matrix",
     "grow_rings",
     "claim_rings",

@@ -8,7 +8,7 @@ from numba import njit
 
 from .models import _distance, _neighbour
 
-__all__ = ["group_by_label", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles",
+__all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles",
            "largest_piece", "member_pixels"]
 
 @njit(cache=True, nogil=True)
@@ -47,6 +47,27 @@ def group_by_label(labels, n):
             order[pos] = i
             pos += 1
     return order, starts
+
+@njit(cache=True, nogil=True)
+def jump_mask(ranges, jump_ratio, jump_min):
+    """The farther pixel of every 4-neighbour pair whose ranges differ by more than
+    ``max(jump_min, jump_ratio * nearer)`` (see ``edges.jump_edges``); NaN is no jump."""
+    h, w = ranges.shape
+    mask = np.zeros((h, w), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            a = ranges[r, c]
+            for dr, dc in ((0, 1), (1, 0)):
+                if r + dr >= h or c + dc >= w:
+                    continue
+                b = ranges[r + dr, c + dc]
+                if abs(a - b) > max(jump_min, jump_ratio * min(a, b)):
+                    if a > b:
+                        mask[r, c] = True
+                    else:
+                        mask[r + dr, c + dc] = True
+    return mask
+
 
 @njit(cache=True, nogil=True)
 def _row_runs(labels):
