@@ -3,7 +3,7 @@
 Runs ``Pipeline(load_config("configs/lms200.yaml"))`` over the synthetic LMS200 suite, the
 ``rgbd_vga`` preset over the synthetic RGB-D suite, and each real cloud found in
 ``<repo>/../shared/data`` with the preset its loader names. Timings are medians of
-``--repeats`` runs per scan on one thread (OpenMP/BLAS/numba env vars and OpenCV set to 1
+``--repeats`` runs per scan (a suite's scans in turn, round after round) on one thread (OpenMP/BLAS/numba env vars and OpenCV set to 1
 before anything heavy is imported). Hoover figures at T = 0.8 over ground-truth regions of
 at least 60 pixels.
 
@@ -64,16 +64,27 @@ def timed_runs(pipeline: Pipeline, cloud, repeats: int):
     -------
     result, {stage: median seconds}, median wall seconds per run.
     """
-    result = pipeline.run(cloud)
-    per_stage: dict[str, list[float]] = {}
-    wall = []
+    return interleaved_runs(pipeline, [cloud], repeats)[0]
+
+
+def interleaved_runs(pipeline: Pipeline, clouds: list, repeats: int) -> list[tuple]:
+    """:func:`timed_runs` for several clouds, timed in ``repeats`` rounds of one run each.
+
+    A stall of the host (a virtual machine's neighbours) then slows one run of every
+    scan it overlaps instead of every run of one scan, and the medians stay apart from it.
+    """
+    results = [pipeline.run(cloud) for cloud in clouds]
+    per_stage: list[dict[str, list[float]]] = [{} for _ in clouds]
+    wall: list[list[float]] = [[] for _ in clouds]
     for _ in range(repeats):
-        start = time.perf_counter()
-        res = pipeline.run(cloud)
-        wall.append(time.perf_counter() - start)
-        for stage, seconds in res.timings.items():
-            per_stage.setdefault(stage, []).append(seconds)
-    return result, {k: statistics.median(v) for k, v in per_stage.items()}, statistics.median(wall)
+        for i, cloud in enumerate(clouds):
+            start = time.perf_counter()
+            res = pipeline.run(cloud)
+            wall[i].append(time.perf_counter() - start)
+            for stage, seconds in res.timings.items():
+                per_stage[i].setdefault(stage, []).append(seconds)
+    return [(result, {k: statistics.median(v) for k, v in stages.items()}, statistics.median(times))
+            for result, stages, times in zip(results, per_stage, wall)]
 
 
 def _median(values) -> float | None:
@@ -83,8 +94,8 @@ def _median(values) -> float | None:
 
 def synthetic_rows(suite, pipeline: Pipeline, repeats: int) -> list[dict]:
     rows = []
-    for name, scan in suite:
-        result, stages, wall = timed_runs(pipeline, scan.cloud, repeats)
+    timed = interleaved_runs(pipeline, [scan.cloud for _, scan in suite], repeats)
+    for (name, scan), (result, stages, wall) in zip(suite, timed):
         ev = evaluate(scan, result, tolerance=TOLERANCE, min_region=MIN_REGION)
         rows.append({
             "name": name,
