@@ -101,14 +101,14 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
         sign = 1.0 if float(a.normal @ b.normal) >= 0 else -1.0
         return (_angle_deg(a.normal, b.normal) <= max_angle_deg
                 and abs(a.d - sign * b.d) <= tolerance)
+    # the radius test first: two numbers, and it rejects most pairs
     if isinstance(a, Cylinder):
+        if abs(a.radius - b.radius) > tolerance or _angle_deg(a.axis, b.axis) > max_angle_deg:
+            return False
         rel = b.point - a.point
-        off_axis = np.linalg.norm(rel - (rel @ a.axis) * a.axis)
-        return (_angle_deg(a.axis, b.axis) <= max_angle_deg
-                and abs(a.radius - b.radius) <= tolerance and off_axis <= tolerance)
+        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= tolerance)
     if isinstance(a, Sphere):
-        return (np.linalg.norm(a.center - b.center) <= tolerance
-                and abs(a.radius - b.radius) <= tolerance)
+        return abs(a.radius - b.radius) <= tolerance and bool(np.linalg.norm(a.center - b.center) <= tolerance)
     return False
 
 

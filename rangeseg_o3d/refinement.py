@@ -25,11 +25,15 @@ import cv2
 import numpy as np
 
 from .fitstage import RegionFitter, pixel_rms, region_indices
-from .fitting.models import Plane
+from .fitting.models import FitFailure, Plane
+from .fitting.moments import planes_from_moments
 from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .robust import trimmed_fit
 
 __all__ = ["refine_regions", "recover_pixels"]
+
+# the merge's answer for a union of planes whose least-squares plane is over the merge limit
+_NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
 
 
 class _Timer:
@@ -320,8 +324,20 @@ class _Context:
                 cache.update(dict.fromkeys(keys))
                 return
             a_idx, b_idx = np.array(keys).T
-            cache.update(zip(keys, self.fitter.refit_from_moments(moments[a_idx] + moments[b_idx],
-                                                                  [fits[a] for a, _ in keys])))
+            rows = moments[a_idx] + moments[b_idx]
+            # No plane fits a union better than its least-squares plane: where that is over
+            # the merge limit, the refit (and its model) is not needed. Most adjacent planes
+            # meet at creases and end here.
+            planar = np.array([isinstance(fits[a], Plane) and isinstance(fits[b], Plane) for a, b in keys])
+            if planar.any():
+                limits = config.merge_rms_factor * np.maximum([fits[a].rms for a, _ in keys],
+                                                              [fits[b].rms for _, b in keys])
+                hopeless = planar & (planes_from_moments(rows).rms > limits)
+                cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
+                keys = [key for key, no in zip(keys, hopeless.tolist()) if not no]
+                rows = rows[~hopeless]
+            if keys:
+                cache.update(zip(keys, self.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
 
         add_unions(pairs)
         regions = None
