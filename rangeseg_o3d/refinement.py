@@ -73,7 +73,9 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     ctx = _Context(cloud, fitter, sigma, min_size)
     failed = [k for k, m in fits.items() if not m]
     if failed:
-        candidates = np.where(np.isin(labels, failed), labels, 0)
+        is_failed = np.zeros(int(labels.max()) + 1, bool)
+        is_failed[failed] = True
+        candidates = np.where(is_failed[labels], labels, 0)
         labels, fits = ctx.explain(labels, fits, candidates, keep_failures=True)
     timer.lap("split")
 

@@ -27,10 +27,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     meeting at creases; and a quadratic height field refined by concentration steps
     (refit on the ``keep_fraction`` of points closest to it), which follows a cylinder or
     a sphere. The fitter judges the points near each, the larger set first; the answer
-    with most inliers wins, and one with ``enough`` of the points ends the search. When
-    the plane is near at least half the points and the quadric leaves out more than a
-    tenth of them, the quadric bent away onto another surface: the plane is judged first
-    and, if it explains at least half the points, the mixture is not judged at all.
+    with most inliers wins, and one with ``enough`` of the points ends the search.
     Both proposals come from one compiled call (:func:`rangeseg_o3d.kernels.trimmed_proposals`).
 
     Parameters
@@ -57,19 +54,10 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     step = -(-len(all_pts) // max_points)
     pts = np.ascontiguousarray(all_pts[::step])
     keep = max(int(keep_fraction * len(pts)), 6)
-    plane_near, quad_near = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
-    # A quadric proposal that leaves out part of a plane holding most of the points, while
-    # taking in others, bent from that plane onto something else (an object resting on a
-    # floor): the mixture would fail at the highest cost. The plane is judged first then,
-    # and settles the search when it explains most points.
-    plane_first = (2 * plane_near.sum() >= len(pts)
-                   and (quad_near & plane_near).sum() < 0.9 * plane_near.sum())
-    if plane_first:
-        order = [plane_near, quad_near]
-    else:  # the proposal near more points first: often the only one judged
-        order = sorted((plane_near, quad_near), key=lambda mask: -int(mask.sum()))
+    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
     best, best_mask = None, None
-    for near in order:
+    # the proposal near more points first: often the only one judged
+    for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
         if near.sum() * step < min_points:
             continue
         judged = judge(pts[near])
@@ -78,6 +66,6 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         inliers = np.abs(judged.distances(all_pts)) <= 3.0 * max(sigma, judged.rms)
         if inliers.sum() >= min_points and (best_mask is None or inliers.sum() > best_mask.sum()):
             best, best_mask = judged, inliers
-            if inliers.mean() >= enough or (plane_first and 2 * inliers.sum() >= len(all_pts)):
+            if inliers.mean() >= enough:
                 break
     return best, best_mask

@@ -304,6 +304,8 @@ def refit_planes_from_moments(
     moments = np.atleast_2d(np.asarray(moments, dtype=np.float64))
     if len(moments) != len(models):
         raise ValueError(f"need one moments row per model; got {len(moments)} rows and {len(models)} models")
+    if not any(isinstance(model, Plane) for model in models):
+        return [None] * len(models)
     planes = planes_from_moments(moments)
     minimum = max(int(min_points), 3)
     # Python scalars and read-only normal rows: per row, numpy scalars cost more than the test
