@@ -3,7 +3,8 @@
 Runs ``Pipeline(load_config("configs/lms200.yaml"))`` over the synthetic LMS200 suite, the
 ``rgbd_vga`` preset over the synthetic RGB-D suite, and each real cloud found in
 ``<repo>/../shared/data`` with the preset its loader names. Timings are medians of
-``--repeats`` runs per scan (a suite's scans in turn, round after round) on one thread (OpenMP/BLAS/numba env vars and OpenCV set to 1
+``--repeats`` runs per scan (a suite's scans in turn, round after round) on one
+thread (OpenMP/BLAS/numba env vars and OpenCV set to 1
 before anything heavy is imported). Hoover figures at T = 0.8 over ground-truth regions of
 at least 60 pixels.
 

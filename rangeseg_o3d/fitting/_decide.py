@@ -194,7 +194,8 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
 
     Returns ``(choice, first, centroid, scale, plane, codes, curved)``: ``choice`` 0
     plane, 1 cylinder, 2 sphere, -1 none (see the codes), -2 the plane itself is
-    undetermined, -3 a point is not finite (nothing else computed); ``first`` the curved kind tried first; ``plane`` = normal (3), d, rms,
+    undetermined, -3 a point is not finite (nothing else computed); ``first`` the curved
+    kind tried first; ``plane`` = normal (3), d, rms,
     threshold, rms from the smallest eigenvalue, inliers (metres); ``codes[k]`` and
     ``curved[k]`` (k = 1 cylinder, 2 sphere) the outcome of each model tried (-1 = not
     tried), in the scaled frame about ``centroid``.

@@ -8,8 +8,8 @@ from numba import njit
 
 from .models import _distance, _neighbour
 
-__all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means", "assign_tiles",
-           "largest_piece", "member_pixels"]
+__all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
+           "assign_tiles", "largest_piece", "member_pixels"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
