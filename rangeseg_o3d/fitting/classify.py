@@ -205,8 +205,8 @@ def refit_primitive(
         return failure
     if isinstance(model, Plane):
         base = Prepared(pts, "plane", 3, None)
-        if base.n_bad:
-            return _non_finite(pts, model.kind)
+        if base.n_bad:  # counted by the preparation already
+            return input_failure(model.kind, len(pts), base.n_bad, 3)
         plane_tol = plane_rms + rms_per_range2 * float(base.centroid @ base.centroid)
         plane = plane_from_prepared(base.specialise("plane", 3, INLIER_FACTOR * plane_tol))
         if not plane:

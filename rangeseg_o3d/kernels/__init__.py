@@ -10,7 +10,7 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.
 ``(ax, ay, az, px, py, pz, r)`` in ``params[k]``, and ``rms[k]`` its rms.
 
 Modules: ``moments`` (label-wise sums, planes, quadric test, distances to models),
-``grid`` (grouping by label, adjacency, growth, tile means, full-resolution labelling),
+``grid`` (grouping by label, jump edges, adjacency, growth, tile means, full-resolution labelling),
 ``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
 window plane), ``models`` (shared inline helpers).
 Compiled on first use and cached beside the modules (``cache=True``): the first run on a

@@ -1,5 +1,5 @@
-"""Passes over the image grid: grouping pixels by label, adjacency, growth, tile means, full-resolution
-labelling, the largest connected piece of a pixel set."""
+"""Passes over the image grid: grouping pixels by label, jump edges, adjacency, growth, tile means,
+full-resolution labelling, the largest connected piece of a pixel set."""
 
 from __future__ import annotations
 
