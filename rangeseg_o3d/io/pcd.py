@@ -144,6 +144,12 @@ def parse_pcd_header(raw: bytes, path="<bytes>") -> PcdHeader:
             raise ValueError(f"{path}: FIELDS must include x, y and z; got {' '.join(fields)}")
         if counts[fields.index(axis)] != 1:
             raise ValueError(f"{path}: field {axis} must have COUNT 1; got {counts[fields.index(axis)]}")
+        if types[fields.index(axis)] != "F":
+            # Integer coordinates are either scaled units the header does not state or
+            # float bits mislabelled as integers: either way reading them gives garbage.
+            raise ValueError(
+                f"{path}: field {axis} must be a float (TYPE F); got TYPE "
+                f"{types[fields.index(axis)]}{sizes[fields.index(axis)]}")
     (width,) = _ints("WIDTH", entries["WIDTH"][:1], path) or (0,)
     height = _ints("HEIGHT", entries["HEIGHT"][:1], path)[0] if "HEIGHT" in entries else 1
     if width < 1 or height < 1:
@@ -281,12 +287,17 @@ def read_pcd_fields(path) -> tuple[PcdHeader, dict[str, np.ndarray]]:
 def read_pcd_grid(path) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a PCD file into its (H, W, 3) float64 points and (H, W) intensity (or None).
 
-    The arrays :func:`read_pcd` wraps in an OrganizedCloud; see there.
+    The arrays :func:`read_pcd` wraps in an OrganizedCloud; see there. ``xyz`` is
+    read-only (the cloud adopts it without copying); copy it to modify it.
     """
     header, fields = read_pcd_fields(path)
     shape = (header.height, header.width)
-    xyz = np.stack([fields[axis] for axis in ("x", "y", "z")], axis=-1).astype(np.float64)
-    xyz[~np.isfinite(xyz).all(axis=1)] = np.nan
+    xyz = np.empty((header.points, 3))  # one float64 copy, no stacked float32 intermediate
+    for i, axis in enumerate(("x", "y", "z")):
+        xyz[:, i] = fields[axis]
+    total = xyz[:, 0] + xyz[:, 1] + xyz[:, 2]  # finite only where all three are
+    xyz[~np.isfinite(total)] = np.nan
+    xyz.setflags(write=False)  # read-only and clean: OrganizedCloud adopts it without a copy
     intensity = fields.get("intensity")
     if intensity is not None:
         if intensity.ndim != 1:
@@ -327,9 +338,8 @@ def write_pcd(cloud: OrganizedCloud, path, *, data: str = "binary", precision: s
     cloud : OrganizedCloud
     path : str or os.PathLike
     data : {"binary", "binary_compressed", "ascii"}
-        Payload layout. ``binary_compressed`` (LZF, fields one after another) is
-        fast with the python-lzf package installed and takes seconds for a VGA
-        cloud with the pure-Python fallback.
+        Payload layout. ``binary_compressed``: LZF (liblzf's C code), fields one
+        after another.
     precision : {"float32", "float64"}
         Storage type of x, y, z (SIZE 4 or 8). PCL and Open3D tools expect float32.
 

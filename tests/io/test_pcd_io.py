@@ -5,7 +5,7 @@ import pytest
 
 from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.io import load_cloud, read_pcd, write_pcd
-from rangeseg_o3d.io.lzf import have_c_lzf, lzf_compress, lzf_decompress
+from rangeseg_o3d.io.lzf import lzf_compress
 from rangeseg_o3d.io.pcd import parse_pcd_header, read_pcd_fields
 
 
@@ -129,6 +129,10 @@ _GOOD_BINARY = _grid().tobytes()
         (_header(type_="F F Q") + _GOOD_BINARY, "TYPE Q with SIZE 4"),
         (_header(size="4 4 3") + _GOOD_BINARY, "TYPE F with SIZE 3"),
         (_header(count="1 1 2") + _GOOD_BINARY, "field z must have COUNT 1"),
+        # float data labelled as integers, and genuinely integer coordinates: both refused
+        (_header(type_="F I F") + _GOOD_BINARY, "field y must be a float .TYPE F.; got TYPE I4"),
+        (_header(type_="U U U") + _GOOD_BINARY, "field x must be a float .TYPE F.; got TYPE U4"),
+        (_header(type_="F F I", size="4 4 2") + _GOOD_BINARY[:-6], "field z must be a float"),
         (_header(width=0, height=1, points=0), "WIDTH and HEIGHT must be >= 1"),
         (_header(width="three"), "WIDTH must be integers"),
         (_header().replace(b"DATA binary\n", b""), "no DATA line|before a DATA line"),
@@ -200,14 +204,16 @@ def test_shared_kinect_files_back_project_exactly(shared_file, name, f, c):
     assert np.abs(f * y / z + c[1] - rows).max() < 0.05
 
 
-@pytest.mark.skipif(not have_c_lzf(), reason="python-lzf not installed")
-def test_shared_compressed_file_same_with_both_lzf_backends(shared_file):
-    raw = shared_file("pcl/table_scene_mug_stereo_textured.pcd").read_bytes()
-    header = parse_pcd_header(raw)
-    compressed_size, raw_size = struct.unpack("<II", raw[header.data_offset:header.data_offset + 8])
-    stream = raw[header.data_offset + 8:header.data_offset + 8 + compressed_size]
-    assert lzf_decompress(stream, raw_size, backend="python") == lzf_decompress(
-        stream, raw_size, backend="c")
+def test_shared_compressed_file_reads_as_open3d_reads_it(shared_file):
+    # An independent decoder of the same binary_compressed file: Open3D's (liblzf in C++).
+    import open3d as o3d
+
+    path = shared_file("pcl/table_scene_mug_stereo_textured.pcd")
+    ours = load_cloud(path)
+    theirs = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
+    points = np.asarray(theirs.points).reshape(ours.shape + (3,))
+    assert np.array_equal(np.isnan(points[..., 2]), ~ours.valid)
+    assert np.array_equal(points[ours.valid], ours.xyz[ours.valid])
 
 
 def test_crlf_header_and_nan_spellings(tmp_path):
