@@ -26,6 +26,12 @@ Choices made here (documented because the paper leaves them open):
   score, skipping any that reuses an already classified region, so ties go to the class
   with the higher averaged overlap.
 
+SegComp's compare rules (``count_unlabelled=True``, for real ground truth such as ABW):
+overlaps are counted over all pixels, so ``Pn`` is the machine region's whole size and
+its pixels on the annotators' unlabelled pixels (truth id 0) count against it (a region
+that spills over unlabelled pixels can fall below ``T*Pn``); every machine region is
+scored (none ignored; one lying wholly on unlabelled or small ground-truth pixels is noise).
+
 The overlaps come from one contingency table (``np.unique`` over label pairs), so the
 cost is linear in pixels; only the (few) regions are looped over.
 """
@@ -146,7 +152,8 @@ def _overlap_table(t: np.ndarray, m: np.ndarray):
     return truth_ids, machine_ids, table, truth_size
 
 
-def hoover(truth_ids, labels, *, tolerance: float = 0.8, min_region: int = 60) -> HooverScore:
+def hoover(truth_ids, labels, *, tolerance: float = 0.8, min_region: int = 60,
+           count_unlabelled: bool = False) -> HooverScore:
     """Hoover et al. (1996) classification of a segmentation against ground truth.
 
     Parameters
@@ -155,6 +162,8 @@ def hoover(truth_ids, labels, *, tolerance: float = 0.8, min_region: int = 60) -
     labels : (H, W) int, 0 = in no region.
     tolerance : T in (0.5, 1].
     min_region : ground-truth regions with fewer pixels are not scored.
+    count_unlabelled : SegComp's rules (module docstring): a machine region's size counts
+        all its pixels, truth id 0 included, and no machine region is ignored.
 
     Returns
     -------
@@ -172,10 +181,14 @@ def hoover(truth_ids, labels, *, tolerance: float = 0.8, min_region: int = 60) -
         raise ValueError(f"min_region must be a positive integer; got {min_region}")
     t, m = _check_images(truth_ids, labels)
     truth_ids_, machine_ids, table, p_m = _overlap_table(t, m)
-    p_n = table.sum(axis=0)
     counted = p_m >= min_region
-    small_overlap = table[~counted].sum(axis=0)
-    ignored = (p_n == 0) | (small_overlap * 2 >= np.maximum(p_n, 1))
+    if count_unlabelled:
+        p_n = np.bincount(np.searchsorted(machine_ids, m[m > 0]), minlength=machine_ids.size)
+        ignored = np.zeros(machine_ids.size, dtype=bool)
+    else:
+        p_n = table.sum(axis=0)
+        small_overlap = table[~counted].sum(axis=0)
+        ignored = (p_n == 0) | (small_overlap * 2 >= np.maximum(p_n, 1))
 
     tp_m = tolerance * p_m[:, None]
     tp_n = tolerance * p_n[None, :]

@@ -9,6 +9,18 @@ before anything heavy is imported). Hoover figures at T = 0.8 over ground-truth 
 at least 60 pixels.
 
 Run: python scripts/benchmark.py [--repeats 20] [--quick] [--no-real] [--no-refine] [--json OUT]
+
+The sensor matrix (``--matrix``): every sensor of :mod:`rangeseg_o3d.synthetic.matrix`
+(nodding lasers at 1, 0.5, 0.25 deg; range noise 2-20 mm; spinning lidars 32 x 1024 to
+128 x 2048; Kinect 640 x 480; stereo 1280 x 720; an ABW-like tabletop), each on several
+independent random scenes drawn from ``--seed``, segmented by the sensor's preset with
+``residual_edges`` and with ``region_growing`` (same scans, same fitting and refinement),
+plus the ABW images in ../shared/data/abw scored with SegComp's rules (overlaps over all
+pixels, every labelled region counted). One table; a JSON in docs/benchmarks/matrix.json
+for a full run (else with --json only).
+
+Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
+     [--rg-repeats 1] [--seed 0] [--json OUT]
 """
 
 from __future__ import annotations
@@ -249,6 +261,220 @@ def print_real(rows: list[dict]) -> None:
         print(f"{'':<22}largest: {largest}")
 
 
+
+# -- the sensor matrix ---------------------------------------------------------------------
+#: Presets a sensor row names that may not exist yet, and the stand-in used meanwhile
+#: (the row prints "preset (stand-in)").
+PRESET_STAND_INS = {"spinning_lidar": "lms200", "abw": "lms200"}
+#: Which region-growing preset gives the baseline's segmenter parameters, per sensor family.
+REGION_GROWING_PRESET = {"nodding": "lms200_region_growing", "noise": "lms200_region_growing",
+                         "spinning": "lms200_region_growing", "depth": "rgbd_vga_region_growing",
+                         "tabletop": "rgbd_vga_region_growing", "abw": "rgbd_vga_region_growing"}
+#: ABW images: voxel grid of the baseline at the blocks' scale (the rooms' 3 cm would merge faces).
+ABW_REGION_GROWING = {"voxel_size": 0.004}
+ABW_NOISE = {"sigma0": 0.0005, "sigma_quadratic": 0.0}
+
+
+def resolve_preset(name: str) -> tuple[str, bool]:
+    """``(preset, is_stand_in)``: the named preset if it exists, else its stand-in."""
+    from rangeseg_o3d.config import presets
+
+    if name in presets():
+        return name, False
+    return PRESET_STAND_INS[name], True
+
+
+def matrix_configs(preset: str, noise: dict, family: str, rg_params: dict):
+    """The residual-edge and region-growing configurations of one sensor row.
+
+    The sensor's noise model goes where the presets keep it today (the segmenter's
+    ``sigma0``/``sigma_quadratic``); region growing swaps the segmenter only (parameters
+    from its family's ``*_region_growing`` preset, that preset's tile), keeping the fitter
+    and the refinement, whose noise model is pinned to the same sensor noise.
+    """
+    base = load_config(preset).model_dump()
+    params = base["segmenter"]["params"]
+    for key in ("sigma0", "sigma_quadratic"):
+        if key in params:
+            params[key] = noise[key]
+    base["name"] = f"{preset}@matrix"
+    residual = load_config(base)
+    own = load_config(REGION_GROWING_PRESET[family])
+    grow = residual.model_dump()
+    grow["segmenter"] = {"name": "region_growing", "params": {**own.segmenter.params, **rg_params}}
+    grow["tile"] = own.tile
+    grow["refine"]["sigma0"] = noise["sigma0"]
+    grow["refine"]["sigma_quadratic"] = noise["sigma_quadratic"]
+    grow["name"] = f"{preset}@matrix+region_growing"
+    return residual, load_config(grow)
+
+
+def _plane_normal(points: np.ndarray) -> np.ndarray:
+    centred = points - points.mean(axis=0)
+    return np.linalg.svd(centred, full_matrices=False)[2][-1]
+
+
+def score_abw(image, result, tolerance: float = TOLERANCE) -> dict:
+    """SegComp figures of one ABW image; plane normal errors against each correctly
+    detected surface's least-squares plane of its labelled points (ABW has no models)."""
+    from rangeseg_o3d.evaluation import hoover
+
+    score = hoover(image.truth_ids, result.labels, tolerance=tolerance, min_region=1,
+                   count_unlabelled=True)
+    by_label = {int(f.label): f for f in result.features}
+    errors, false_fittings = [], 0
+    xyz = image.cloud.xyz
+    for truth_id, label in score.correct.items():
+        feature = by_label.get(label)
+        if feature is None:
+            continue
+        if feature.kind != "plane":
+            false_fittings += 1
+            continue
+        points = xyz[(image.truth_ids == truth_id) & image.cloud.valid]
+        if len(points) >= 3:
+            cos = abs(float(_plane_normal(points) @ feature.model.normal))
+            errors.append(float(np.degrees(np.arccos(min(1.0, cos)))))
+    return {"hoover": score.counts(), "false_fittings": false_fittings, "normal_errors_deg": errors}
+
+
+def score_synthetic(scan, result) -> dict:
+    ev = evaluate(scan, result, tolerance=TOLERANCE, min_region=MIN_REGION)
+    return {"hoover": ev.hoover.counts(), "false_fittings": ev.false_fittings,
+            "normal_errors_deg": ev.errors("normal_error_deg", "plane").tolist()}
+
+
+def run_method(config, clouds: list, repeats: int) -> tuple[list, list[float]]:
+    """Results and median total seconds per cloud (warm-up run scored, then ``repeats`` timed)."""
+    timed = interleaved_runs(Pipeline(config), clouds, repeats)
+    return [r for r, _, _ in timed], [stages.get("total", wall) for _, stages, wall in timed]
+
+
+def method_summary(scores: list[dict], seconds: list[float]) -> dict:
+    """Totals over a row's scans: counts, % correct, per-scan means, FF, median normal error, ms."""
+    keys = ("n_truth", "n_machine", "correct", "over", "under", "missed", "noise")
+    totals = {k: sum(s["hoover"][k] for s in scores) for k in keys}
+    n = max(len(scores), 1)
+    normal = [e for s in scores for e in s["normal_errors_deg"]]
+    return {
+        "scans": len(scores),
+        **totals,
+        "percent_correct": 100.0 * totals["correct"] / totals["n_truth"] if totals["n_truth"] else float("nan"),
+        "per_scan": {k: totals[k] / n for k in ("over", "under", "missed", "noise")},
+        "false_fittings": sum(s["false_fittings"] for s in scores),
+        "median_normal_error_deg": _median(normal),
+        "median_ms": 1000 * statistics.median(seconds) if seconds else float("nan"),
+        "ms": [1000 * t for t in seconds],
+        "scan_percent_correct": [100.0 * s["hoover"]["correct"] / s["hoover"]["n_truth"]
+                                 if s["hoover"]["n_truth"] else float("nan") for s in scores],
+    }
+
+
+def matrix_row(name, description, preset, stand_in, family, noise, rg_params, items, score,
+               repeats, rg_repeats) -> dict:
+    """Both methods on the same ``items`` (anything ``score(item, result)`` takes; ``.cloud``)."""
+    residual, grow = matrix_configs(preset, noise, family, rg_params)
+    clouds = [item.cloud for item in items]
+    row = {"sensor": name, "description": description, "preset": preset, "stand_in": stand_in,
+           "noise": noise, "shape": list(clouds[0].shape) if clouds else None}
+    for method, config, reps in (("residual_edges", residual, repeats), ("region_growing", grow, rg_repeats)):
+        results, seconds = run_method(config, clouds, reps)
+        row[method] = method_summary([score(i, r) for i, r in zip(items, results)], seconds)
+    re_ms, rg_ms = row["residual_edges"]["median_ms"], row["region_growing"]["median_ms"]
+    row["speed_ratio"] = rg_ms / re_ms if re_ms > 0 else float("nan")
+    return row
+
+
+def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: int, rg_repeats: int,
+                  abw_limit: int | None = None) -> list[dict]:
+    """Every sensor row (or those in ``only``; ``"abw"`` names the ABW images), in order."""
+    from rangeseg_o3d.synthetic.matrix import SENSORS, matrix_rng
+
+    known = [s.name for s in SENSORS] + ["abw"]
+    for name in only or []:
+        if name not in known:
+            raise SystemExit(f"--sensor {name!r} is not a row of the matrix; known: {', '.join(known)}")
+    rows = []
+    for spec in SENSORS:
+        if only and spec.name not in only:
+            continue
+        count = spec.quick_scans if quick else spec.scans
+        start = time.perf_counter()
+        scans = [spec.simulate(matrix_rng(seed, spec.name, k), quick) for k in range(count)]
+        preset, stand_in = resolve_preset(spec.preset)
+        print(f"  {spec.name}: {count} scans of {'x'.join(map(str, scans[0].cloud.shape))} simulated "
+              f"in {time.perf_counter() - start:.1f} s", flush=True)
+        rows.append(matrix_row(spec.name, spec.description, preset, stand_in, spec.family, spec.noise,
+                               spec.region_growing, scans, score_synthetic, repeats, rg_repeats))
+    if not only or "abw" in only:
+        from rangeseg_o3d.io.abw import abw_images, load_abw
+
+        paths = abw_images()
+        if quick or abw_limit:
+            paths = paths[: abw_limit or 2]
+        if not paths:
+            print("  abw: skipped (no ../shared/data/abw images)")
+        else:
+            images = [load_abw(p) for p in paths]
+            preset, stand_in = resolve_preset("abw")
+            rows.append(matrix_row("abw", f"{len(images)} ABW images (SegComp rules, every labelled surface)",
+                                   preset, stand_in, "abw", ABW_NOISE, ABW_REGION_GROWING, images,
+                                   score_abw, repeats, rg_repeats))
+    return rows
+
+
+def print_matrix(rows: list[dict]) -> None:
+    print(f"\n== sensor matrix: Hoover T={TOLERANCE} (synthetic: truth regions >= {MIN_REGION} px, "
+          "mixed/no-return pixels don't care; abw: SegComp rules, every labelled region); "
+          "over/under/missed/noise per scan; FF = false fittings; n_err = median plane normal "
+          "error; ms = median of per-scan median totals; ratio = region growing ms / residual_edges ms ==")
+    head = (f"{'sensor':<19}{'preset':<17}{'scans':>5}{'GT':>5} | {'method':<6}{'%cor':>6}{'over':>6}"
+            f"{'undr':>6}{'miss':>6}{'nois':>6}{'FF':>4}{'n_err°':>8}{'ms':>9}")
+    print(head)
+    for row in rows:
+        preset = row["preset"] + ("*" if row["stand_in"] else "")
+        for i, method in enumerate(("residual_edges", "region_growing")):
+            m = row[method]
+            lead = (f"{row['sensor']:<19}{preset:<17}{m['scans']:>5}{m['n_truth']:>5}" if i == 0
+                    else f"{'':<19}{'':<17}{'':>5}{'':>5}")
+            p = m["per_scan"]
+            tail = f"  x{row['speed_ratio']:.1f}" if i == 1 else ""
+            print(f"{lead} | {'RE' if i == 0 else 'RG':<6}{_fmt(m['percent_correct'], '.1f'):>6}"
+                  f"{p['over']:>6.2f}{p['under']:>6.2f}{p['missed']:>6.2f}{p['noise']:>6.2f}"
+                  f"{m['false_fittings']:>4}{_fmt(m['median_normal_error_deg'], '.3f'):>8}"
+                  f"{_fmt(m['median_ms'], '.1f'):>9}{tail}")
+    if any(r["stand_in"] for r in rows):
+        print("* stand-in preset: " + ", ".join(f"{k} -> {v}" for k, v in PRESET_STAND_INS.items())
+              + " until the named preset exists")
+    print("RE = residual_edges, RG = region_growing (same scans, same fitter and refinement)")
+
+
+def run_matrix(args, parser) -> int:
+    for flag in ("matrix_repeats", "rg_repeats"):
+        if getattr(args, flag) < 1:
+            parser.error(f"--{flag.replace('_', '-')} must be >= 1; got {getattr(args, flag)}")
+    _single_thread()
+    warnings.simplefilter("ignore", RuntimeWarning)
+    repeats = 2 if args.quick else args.matrix_repeats
+    print(f"sensor matrix: seed {args.seed}, {'quick, ' if args.quick else ''}{repeats} timed runs per scan "
+          f"(residual_edges), {args.rg_repeats} (region_growing), one thread", flush=True)
+    rows = sensor_matrix(seed=args.seed, quick=args.quick, only=args.sensor, repeats=repeats,
+                         rg_repeats=args.rg_repeats)
+    print_matrix(rows)
+    out = args.json
+    if out is None and not args.quick and not args.sensor:
+        out = REPO / "docs" / "benchmarks" / "matrix.json"
+    if out is not None:
+        from rangeseg_o3d.io.atomic import atomic_write
+
+        report = {"seed": args.seed, "quick": args.quick, "repeats": repeats, "rg_repeats": args.rg_repeats,
+                  "tolerance": TOLERANCE, "min_region": MIN_REGION, "rows": rows}
+        with atomic_write(out, "w", encoding="utf-8") as fh:
+            json.dump(report, fh, indent=1, default=float)
+        print(f"\nwrote {out}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=20, help="timed runs per scan (median); default 20")
@@ -259,9 +485,19 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, help="write every figure to this JSON file")
     parser.add_argument("--no-refine", action="store_true",
                         help="the paper's pipeline alone: segmentation and first fits, refinement off")
+    parser.add_argument("--matrix", action="store_true",
+                        help="the sensor matrix (both methods, every sensor, ABW) instead of the suites")
+    parser.add_argument("--sensor", action="append", metavar="NAME",
+                        help="only this row of the matrix (repeatable; 'abw' for the ABW images); implies --matrix")
+    parser.add_argument("--matrix-repeats", type=int, default=5,
+                        help="timed runs per scan of residual_edges in the matrix; default 5")
+    parser.add_argument("--rg-repeats", type=int, default=1,
+                        help="timed runs per scan of region_growing in the matrix; default 1")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
+    if args.matrix or args.sensor:
+        return run_matrix(args, parser)
     repeats = 3 if args.quick else args.repeats
     _single_thread()
     warnings.simplefilter("ignore", RuntimeWarning)

@@ -182,3 +182,51 @@ def test_evaluate_errors_false_fittings_and_table1():
     assert ev3.table1()["under"] == 1 and np.isnan(ev3.table1()["under_pct"])
     with pytest.raises(TypeError):
         evaluate(object(), Result(labels=labels, features=[]))
+
+
+# -- SegComp's compare rules (count_unlabelled=True) ------------------------------------
+def _truth_with_unlabelled_band():
+    t = np.zeros((20, 30), dtype=np.int32)
+    t[:, :10] = 1  # 200 px
+    t[:, 20:] = 2  # 200 px; columns 10..19 (200 px) left unlabelled by the annotators
+    return t
+
+
+def test_segcomp_spill_onto_unlabelled_pixels_counts_against_a_region():
+    t = _truth_with_unlabelled_band()
+    m = np.zeros_like(t)
+    m[:, :13] = 1  # truth 1 plus 60 unlabelled px: 200 / 260 = 0.77 < 0.8
+    m[:, 18:] = 2  # truth 2 plus 40 unlabelled px: 200 / 240 = 0.83
+    default = hoover(t, m, min_region=1)
+    assert default.correct == {1: 1, 2: 2}  # unlabelled pixels are don't care
+    segcomp = hoover(t, m, min_region=1, count_unlabelled=True)
+    assert segcomp.correct == {2: 2}
+    assert segcomp.missed == [1] and segcomp.noise == [1]
+    assert segcomp.n_machine == 2 and segcomp.percent_correct == 50.0
+
+
+def test_segcomp_region_on_unlabelled_pixels_only_is_noise():
+    t = _truth_with_unlabelled_band()
+    m = t.copy()
+    m[:, 12:18] = 5  # 120 px, all on unlabelled pixels
+    assert hoover(t, m, min_region=1).counts() == {
+        "n_truth": 2, "n_machine": 2, "correct": 2, "over": 0, "under": 0, "missed": 0, "noise": 0}
+    s = hoover(t, m, min_region=1, count_unlabelled=True)
+    assert s.counts() == {"n_truth": 2, "n_machine": 3, "correct": 2, "over": 0, "under": 0,
+                          "missed": 0, "noise": 1}
+    assert s.noise == [5]
+
+
+def test_segcomp_under_and_over_segmentation_use_whole_region_sizes():
+    t = _truth_with_unlabelled_band()
+    m = np.full_like(t, 4)  # one region over everything: 400 labelled of 600 px
+    assert hoover(t, m, min_region=1).under == {4: [1, 2]}
+    s = hoover(t, m, min_region=1, count_unlabelled=True)
+    assert s.under == {} and s.missed == [1, 2] and s.noise == [4]
+    m = t.copy()
+    m[:10, :10] = 3  # truth 1 split in two halves of 100 px ...
+    m[:10, 10:13] = 3  # ... one of which spills 30 px onto unlabelled: 100 / 130 = 0.77 < 0.8
+    assert hoover(t, m, min_region=1).over == {1: [1, 3]}
+    s = hoover(t, m, min_region=1, count_unlabelled=True)
+    assert s.over == {} and s.missed == [1] and sorted(s.noise) == [1, 3]
+    assert s.correct == {2: 2}

@@ -1,0 +1,169 @@
+"""The sensor matrix: simulated sensors, each scanning independent random scenes.
+
+Each :class:`SensorSpec` names a sensor model (grid, angular spacing, noise), the preset
+that segments it, the noise model the preset is given (``noise``: ``sigma0`` and
+``sigma_quadratic`` in metres, ``sigma(r) = sigma0 + sigma_quadratic r^2``), and draws
+scan ``k`` of a benchmark run from ``numpy.random.default_rng([seed, sensor, k])``: a new
+scene and new noise for every scan, the same ones for the same seed. Nothing here is
+tuned to a scene; the scenes come from :mod:`rangeseg_o3d.synthetic.rooms`.
+
+Rows (``SENSORS``):
+
+* ``nodding_1deg`` / ``_0.5deg`` / ``_0.25deg``: a nodding 2-D laser (beams 25..155 deg)
+  at 1, 0.5 and 0.25 deg, with 70, 140 and 280 tilt rows over -0.4..0.3 rad (the tilt
+  step shrinks with the beam step), 5 mm range noise, beam footprint 0.75 deg x step;
+* ``noise_2mm`` ... ``noise_20mm``: the 1-deg nodding laser at 2, 10 and 20 mm (5 mm is
+  ``nodding_1deg``);
+* ``spinning_32x1024`` (3 cm), ``spinning_64x1024`` (1.5 cm), ``spinning_128x2048``
+  (1 cm): 360-degree lidars with a 45-degree vertical field inside rooms all around them;
+* ``kinect_640x480``: Kinect noise ``1.425e-3 z^2``; ``stereo_1280x720``: a stereo
+  camera (90 deg horizontal field, 5 cm baseline, 0.1 px disparity noise -> ``sigma_z =
+  0.1 z^2 / (f B)``, correlated over 3 x 3 pixels);
+* ``tabletop_abw``: a structured-light tabletop of polyhedra (512 x 512, ABW's focal
+  lengths, 0.25 mm noise, depth quantised to 1.26 mm steps).
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .depth_camera import KINECT_NOISE, camera_pose_scene, simulate_depth_camera
+from .lms200 import simulate_lms200
+from .rooms import random_room, random_tabletop
+from .scene import SyntheticScan
+from .spinning import simulate_spinning_lidar
+
+__all__ = ["SensorSpec", "SENSORS", "sensor_names", "get_sensor", "matrix_rng"]
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One row of the sensor matrix.
+
+    ``simulate(rng, quick)`` draws one scene and scans it; ``quick`` asks for a smaller
+    grid of the same sensor family (fast checks). ``noise`` is the sensor's noise model
+    handed to the preset; ``family`` groups rows in the printed table.
+    """
+
+    name: str
+    family: str
+    preset: str
+    noise: dict
+    scans: int
+    simulate: Callable[[np.random.Generator, bool], SyntheticScan]
+    description: str = ""
+    quick_scans: int = 2
+    region_growing: dict = field(default_factory=dict)  # overrides of the baseline's parameters
+
+
+def matrix_rng(seed: int, sensor: str, scan: int) -> np.random.Generator:
+    """The generator of scan ``scan`` of ``sensor`` in a run seeded ``seed``."""
+    return np.random.default_rng([int(seed), zlib.crc32(sensor.encode()), int(scan)])
+
+
+def _noise_seed(rng: np.random.Generator) -> int:
+    return int(rng.integers(2**31))
+
+
+def _nodding(step_deg: float, noise: float):
+    rows = int(round(70 / step_deg))
+
+    def simulate(rng, quick):
+        scene = random_room(rng, around=False)
+        rows_ = rows if not quick or step_deg >= 1 else rows // 2
+        beam_step = step_deg if not quick or step_deg >= 1 else step_deg * 2
+        return simulate_lms200(scene, rows=rows_, beam_step_deg=beam_step, noise_sigma=noise,
+                               beam_width_deg=0.75 * min(1.0, beam_step), seed=_noise_seed(rng))
+    return simulate
+
+
+def _spinning(rows: int, cols: int, noise: float):
+    def simulate(rng, quick):
+        scene = random_room(rng, around=True)
+        cols_ = cols if not quick else cols // 2
+        return simulate_spinning_lidar(scene, rows=rows, cols=cols_, noise_sigma=noise,
+                                       seed=_noise_seed(rng))
+    return simulate
+
+
+def _camera(width: int, height: int, hfov_deg: float, **noise):
+    def simulate(rng, quick):
+        w, h = (width, height) if not quick else (width // 2, height // 2)
+        f = (w / 2) / np.tan(np.deg2rad(hfov_deg) / 2)
+        world = random_room(rng, around=False, sensor_height=(1.0, 1.6))
+        scene = camera_pose_scene(world, yaw=rng.uniform(-0.3, 0.3), pitch=rng.uniform(0.2, 0.45))
+        return simulate_depth_camera(scene, width=w, height=h, fx=f, fy=f, cx=(w - 1) / 2,
+                                     cy=(h - 1) / 2, seed=_noise_seed(rng), **noise)
+    return simulate
+
+
+# ABW's camera (SOURCES.md): fx = |F| ~ 1586, fy = |F| C ~ 2301 px, 512 x 512.
+_ABW_FX, _ABW_FY = 1586.0, 2301.0
+_ABW_NOISE = 0.00025
+_ABW_STEP = 0.00126
+
+
+def _tabletop(rng, quick):
+    size = 512 if not quick else 256
+    scale = size / 512
+    world = random_tabletop(rng)
+    distance = rng.uniform(0.85, 1.0)
+    pitch = rng.uniform(0.5, 0.9)
+    position = (-distance * np.cos(pitch), rng.uniform(-0.02, 0.02), distance * np.sin(pitch))
+    scene = camera_pose_scene(world, position=position, yaw=rng.uniform(-0.1, 0.1), pitch=pitch)
+    return simulate_depth_camera(
+        scene, width=size, height=size, fx=_ABW_FX * scale, fy=_ABW_FY * scale,
+        cx=(size - 1) / 2, cy=(size - 1) / 2, noise_coeff=0.0, noise_sigma0=_ABW_NOISE,
+        depth_step=_ABW_STEP, min_depth=0.3, max_depth=2.0, seed=_noise_seed(rng))
+
+
+_STEREO_HFOV = 90.0
+_STEREO_F = 640 / np.tan(np.deg2rad(_STEREO_HFOV) / 2)
+_STEREO_COEFF = 0.1 / (_STEREO_F * 0.05)  # sigma_z = sigma_d z^2 / (f B)
+
+SENSORS: tuple[SensorSpec, ...] = (
+    SensorSpec("nodding_1deg", "nodding", "lms200", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 8,
+               _nodding(1.0, 0.005), "70 x 131, 1 deg beams, 0.58 deg tilt steps, 5 mm"),
+    SensorSpec("nodding_0.5deg", "nodding", "sick_3dtk", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 6,
+               _nodding(0.5, 0.005), "140 x 261, 0.5 deg beams, 0.29 deg tilt steps, 5 mm"),
+    SensorSpec("nodding_0.25deg", "nodding", "sick_3dtk", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 4,
+               _nodding(0.25, 0.005), "280 x 521, 0.25 deg beams, 0.145 deg tilt steps, 5 mm"),
+    SensorSpec("noise_2mm", "noise", "lms200", {"sigma0": 0.002, "sigma_quadratic": 0.0}, 8,
+               _nodding(1.0, 0.002), "70 x 131 nodding laser, 2 mm"),
+    SensorSpec("noise_10mm", "noise", "lms200", {"sigma0": 0.010, "sigma_quadratic": 0.0}, 8,
+               _nodding(1.0, 0.010), "70 x 131 nodding laser, 10 mm"),
+    SensorSpec("noise_20mm", "noise", "lms200", {"sigma0": 0.020, "sigma_quadratic": 0.0}, 8,
+               _nodding(1.0, 0.020), "70 x 131 nodding laser, 20 mm"),
+    SensorSpec("spinning_32x1024", "spinning", "spinning_lidar", {"sigma0": 0.03, "sigma_quadratic": 0.0}, 4,
+               _spinning(32, 1024, 0.03), "32 x 1024, 45 deg vertical, 360 deg, 3 cm"),
+    SensorSpec("spinning_64x1024", "spinning", "spinning_lidar", {"sigma0": 0.015, "sigma_quadratic": 0.0}, 4,
+               _spinning(64, 1024, 0.015), "64 x 1024, 45 deg vertical, 360 deg, 1.5 cm"),
+    SensorSpec("spinning_128x2048", "spinning", "spinning_lidar", {"sigma0": 0.01, "sigma_quadratic": 0.0}, 3,
+               _spinning(128, 2048, 0.01), "128 x 2048, 45 deg vertical, 360 deg, 1 cm"),
+    SensorSpec("kinect_640x480", "depth", "rgbd_vga", {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE}, 6,
+               _camera(640, 480, 62.0), "Kinect, 62 deg horizontal, 1.425e-3 z^2"),
+    SensorSpec("stereo_1280x720", "depth", "rgbd_vga",
+               {"sigma0": 0.001, "sigma_quadratic": float(_STEREO_COEFF)}, 4,
+               _camera(1280, 720, _STEREO_HFOV, noise_coeff=float(_STEREO_COEFF), noise_correlation=3),
+               f"stereo, 90 deg horizontal, {_STEREO_COEFF:.2e} z^2 correlated over 3 px"),
+    SensorSpec("tabletop_abw", "tabletop", "abw", {"sigma0": 0.0005, "sigma_quadratic": 0.0}, 6,
+               _tabletop, "structured light 512 x 512, polyhedra at 0.8-1 m, 0.25 mm + 1.26 mm steps",
+               region_growing={"voxel_size": 0.004}),
+)
+
+
+def sensor_names() -> list[str]:
+    """Names of the matrix's rows, in order."""
+    return [s.name for s in SENSORS]
+
+
+def get_sensor(name: str) -> SensorSpec:
+    """The row called ``name``; ValueError listing the known ones otherwise."""
+    for spec in SENSORS:
+        if spec.name == name:
+            return spec
+    raise ValueError(f"unknown sensor {name!r}; known: {', '.join(sensor_names())}")

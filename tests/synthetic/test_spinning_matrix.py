@@ -1,0 +1,113 @@
+"""Spinning lidar simulator, random matrix scenes and the sensor matrix's draws."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.synthetic.matrix import SENSORS, get_sensor, matrix_rng, sensor_names
+from rangeseg_o3d.synthetic.rooms import random_room, random_tabletop
+from rangeseg_o3d.synthetic.scene import Scene, cylinder, room, sphere
+from rangeseg_o3d.synthetic.spinning import simulate_spinning_lidar, spinning_angles
+
+
+def _box_room():
+    return Scene([room(x=(-4.0, 6.0), y=(-3.0, 5.0), z=(-1.2, 1.8), first_id=1),
+                  sphere((2.0, 1.0, -0.5), 0.4, first_id=7),
+                  cylinder((-2.0, -1.5, -1.2), (0, 0, 1), 0.3, 3.0, caps=False, first_id=8)])
+
+
+def test_spinning_ranges_match_the_analytic_room():
+    scan = simulate_spinning_lidar(Scene(room(x=(-4.0, 6.0), y=(-3.0, 5.0), z=(-1.2, 1.8), first_id=1)),
+                                   rows=16, cols=256, noise_sigma=0.0)
+    elev, azim = spinning_angles(16, 256)
+    d = np.stack(np.broadcast_arrays(np.cos(elev)[:, None] * np.cos(azim), np.cos(elev)[:, None] * np.sin(azim),
+                                     np.sin(elev)[:, None]), axis=-1)
+    # Distance along each ray to the six planes of the box room; the nearest positive one is the truth.
+    bounds = {0: (-4.0, 6.0), 1: (-3.0, 5.0), 2: (-1.2, 1.8)}
+    with np.errstate(divide="ignore"):
+        t = np.stack([np.where(d[..., a] > 0, hi / d[..., a], lo / d[..., a]) for a, (lo, hi) in bounds.items()])
+    truth = np.min(np.where(t > 0, t, np.inf), axis=0)
+    assert scan.cloud.shape == (16, 256) and scan.cloud.valid.all()
+    np.testing.assert_allclose(scan.cloud.ranges, truth, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(scan.cloud.xyz, axis=2), truth, rtol=1e-9)
+    # Row 0 looks up (ceiling or walls), the last row down; column 0 along +x.
+    assert (scan.cloud.xyz[0, :, 2] > 0).all() and (scan.cloud.xyz[-1, :, 2] < 0).all()
+    assert scan.cloud.xyz[8, 0, 0] > 0 and abs(scan.cloud.xyz[8, 0, 1]) < 1e-9
+
+
+def test_spinning_points_lie_on_their_truth_surfaces_and_noise_matches_sigma():
+    scene = _box_room()
+    exact = simulate_spinning_lidar(scene, rows=32, cols=512, noise_sigma=0.0)
+    valid = exact.cloud.valid
+    for k, model in exact.truth.items():
+        sel = exact.truth_ids == k
+        assert np.abs(model.distances(exact.cloud.xyz[sel])).max() < 1e-9
+    assert {m.kind for m in exact.truth.values()} == {"plane", "sphere", "cylinder"}
+    noisy = simulate_spinning_lidar(scene, rows=32, cols=512, noise_sigma=0.02, seed=3)
+    err = (noisy.cloud.ranges - exact.cloud.ranges)[valid]
+    assert abs(err.std() - 0.02) < 0.02 * 0.05 and abs(err.mean()) < 0.02 * 0.05
+    np.testing.assert_array_equal(noisy.truth_ids, exact.truth_ids)
+
+
+def test_spinning_seam_columns_are_neighbours():
+    scan = simulate_spinning_lidar(_box_room(), rows=16, cols=360, noise_sigma=0.0)
+    xyz = scan.cloud.xyz
+    step = np.linalg.norm(xyz[:, 1] - xyz[:, 0], axis=1)  # one azimuth step inside the grid
+    seam = np.linalg.norm(xyz[:, -1] - xyz[:, 0], axis=1)  # across the seam
+    # Column 0 looks along +x, onto the +x wall at 6 m: the seam step equals an ordinary one.
+    np.testing.assert_allclose(seam, step, rtol=1e-3)
+    _, azim = spinning_angles(16, 360)
+    assert np.isclose((azim[0] - azim[-1]) % (2 * np.pi), azim[1] - azim[0])
+    assert np.array_equal(scan.truth_ids[:, 0], scan.truth_ids[:, -1])
+
+
+def test_spinning_bad_arguments():
+    scene = _box_room()
+    with pytest.raises(ValueError, match="rows"):
+        simulate_spinning_lidar(scene, rows=1)
+    with pytest.raises(ValueError, match="vertical_fov_deg"):
+        simulate_spinning_lidar(scene, vertical_fov_deg=200)
+    with pytest.raises(ValueError, match="noise_sigma"):
+        simulate_spinning_lidar(scene, noise_sigma=-1)
+    with pytest.raises(ValueError, match="min_range"):
+        simulate_spinning_lidar(scene, min_range=5, max_range=1)
+
+
+def _where(surface) -> np.ndarray:
+    return np.asarray(getattr(surface, "center", getattr(surface, "base", None)))
+
+
+def _signature(scene) -> list:
+    return [(type(s).__name__, *np.round(_where(s), 9)) for s in scene]
+
+
+def test_random_scenes_are_independent_draws_and_reproducible():
+    a = random_room(np.random.default_rng(1), around=True)
+    assert _signature(a) == _signature(random_room(np.random.default_rng(1), around=True))
+    c = random_room(np.random.default_rng(2), around=True)
+    assert _signature(a) != _signature(c)
+    for scene in (a, c):
+        assert len(scene) > 6  # objects were placed
+        # Objects around the sensor keep clear of it (a 1.2 m keep-out disc for their footprints).
+        for s in scene.surfaces[6:]:
+            assert np.hypot(*_where(s)[:2]) > 0.6
+    front = random_room(np.random.default_rng(3), around=False)
+    assert all(_where(s)[0] > 0.5 for s in front.surfaces[6:])  # objects in front of the sensor
+    with pytest.raises(TypeError, match="Generator"):
+        random_room(1)
+    top = random_tabletop(np.random.default_rng(0))
+    assert len(top) >= 2 + 6 * 3
+
+
+def test_matrix_rows_draw_different_scenes_per_scan_and_sensor():
+    assert len(set(sensor_names())) == len(SENSORS)
+    with pytest.raises(ValueError, match="known"):
+        get_sensor("no_such_sensor")
+    first = matrix_rng(0, "nodding_1deg", 0).random(4)
+    assert not np.allclose(first, matrix_rng(0, "nodding_1deg", 1).random(4))
+    assert not np.allclose(first, matrix_rng(0, "noise_2mm", 0).random(4))
+    assert np.allclose(first, matrix_rng(0, "nodding_1deg", 0).random(4))
+    spec = get_sensor("nodding_1deg")
+    one = spec.simulate(matrix_rng(0, spec.name, 0), True)
+    two = spec.simulate(matrix_rng(0, spec.name, 1), True)
+    assert one.cloud.shape == two.cloud.shape == (70, 131)
+    assert not np.array_equal(one.truth_ids, two.truth_ids)
