@@ -14,7 +14,8 @@ from .config import PipelineConfig, load_config
 from .fitstage import RegionFitter, model_table
 from .refinement import recover_pixels, refine_regions
 from .residual import noise_sigma
-from .result import Feature, Result, Unfitted
+from .patches import PatchSource
+from .result import INLIER_SIGMAS, Feature, Result, Unfitted
 
 __all__ = ["Pipeline", "warm_up"]
 
@@ -127,7 +128,7 @@ class Pipeline:
             labels, fits, sigma = self._full_resolution(cloud, labels, fits)
             stages = {k: _expand(v, self.config.tile, cloud.shape) for k, v in stages.items()}
             timings["full_resolution"] = time.perf_counter() - t_refine
-        result = self._assemble(labels, fits, sigma, cloud.xyz.reshape(-1, 3), timings, stages, t_start,
+        result = self._assemble(labels, fits, sigma, cloud.xyz, timings, stages, t_start,
                                 pixel_rms=work is not cloud)
         if recording is not None:
             from .viz.rerun_log import log_scan
@@ -161,8 +162,9 @@ class Pipeline:
         return labels, fits, sigma
 
     @staticmethod
-    def _assemble(labels, fits, sigma, xyz_flat, timings, stages, t_start, pixel_rms=False) -> Result:
+    def _assemble(labels, fits, sigma, xyz, timings, stages, t_start, pixel_rms=False) -> Result:
         # Number the regions that have a fit (or a reported failure) 1..n, in label order.
+        xyz_flat = xyz.reshape(-1, 3)
         pixels = np.bincount(labels.ravel())
         kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in fits]
         lut = np.zeros(len(pixels), dtype=np.int32)
@@ -174,22 +176,24 @@ class Pipeline:
         sizes[1:] = pixels[kept]
         renumbered = {new: fits[old] for new, old in enumerate(kept, start=1)}
         kinds, params, rms = model_table(renumbered, len(kept) + 1)
-        # Inliers over the whole region (fits may have used a subsample): points within
-        # 3 max(sigma, rms) of the surface.
+        # Inliers over the whole region (fits may have used a subsample): pixels within
+        # INLIER_SIGMAS sensor noise sigmas of the surface (a zero rms leaves sigma alone).
         inliers, squares, counts = distance_stats(
-            xyz_flat, labels.ravel(), kinds, params, rms,
-            np.ascontiguousarray(sigma, dtype=np.float64).ravel(), 3.0)
+            xyz_flat, labels.ravel(), kinds, params, np.zeros_like(rms),
+            np.ascontiguousarray(sigma, dtype=np.float64).ravel(), INLIER_SIGMAS)
+        source = PatchSource(xyz, labels)  # patch geometry is computed on demand from it
         features, unfitted = [], []
         for new, model in renumbered.items():
             if model:
                 if kinds[new] == 0:  # a third-party model type: count with its own distances
                     idx = np.flatnonzero(labels.ravel() == new)
-                    tol = 3.0 * np.maximum(sigma.ravel()[idx], model.rms)
+                    tol = INLIER_SIGMAS * sigma.ravel()[idx]
                     inliers[new] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
                 model = replace(model, inliers=int(inliers[new]))
                 if pixel_rms and counts[new] > 0:  # fitted on tile means: report the pixels' rms
                     model = replace(model, rms=float(np.sqrt(squares[new] / counts[new])))
-                features.append(Feature(label=new, model=model, n_pixels=int(sizes[new])))
+                features.append(Feature(label=new, model=model, n_pixels=int(sizes[new]),
+                                        source=source))
             else:
                 unfitted.append(Unfitted(label=new, n_pixels=int(sizes[new]),
                                          reason=f"{model.kind}: {model.reason}"))

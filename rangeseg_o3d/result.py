@@ -1,4 +1,4 @@
-"""What a pipeline run returns: labels, features, unfitted regions, timings."""
+"""What a pipeline run returns: labels, features (with their patch geometry), unfitted regions, timings."""
 
 from __future__ import annotations
 
@@ -8,7 +8,15 @@ import numpy as np
 
 from .fitting.models import Cylinder, Plane, Sphere
 
-__all__ = ["Feature", "Unfitted", "Result"]
+__all__ = ["Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
+
+#: A pixel is an inlier of its region's model when its orthogonal distance is within this
+#: many sensor noise sigmas at its range (the configuration's noise model).
+INLIER_SIGMAS = 2.0
+#: The ``format`` entry of :meth:`Result.to_dict` (bumped when the layout changes).
+RESULT_FORMAT = "rangeseg_o3d.result/2"
+
+_MODELS = {"plane": Plane, "sphere": Sphere, "cylinder": Cylinder}
 
 
 @dataclass(frozen=True, eq=False)
@@ -17,12 +25,21 @@ class Feature:
 
     ``label`` is the region's id in ``Result.labels``; ``kind``, ``rms``, ``inliers`` and the
     model's parameters (``normal``/``d``, ``center``/``radius``, ``axis``/``point``/``radius``)
-    are read straight from the model.
+    are read straight from the model. ``inliers`` counts the region's pixels within
+    :data:`INLIER_SIGMAS` noise sigmas of the surface.
+
+    The seen part of the surface (:attr:`geometry`) and the parameters' :attr:`covariance`
+    are computed on first access from the grid the feature was found in (``source``)
+    and cached; their fields read as attributes too: a plane's ``boundary``, ``area``,
+    ``centroid``, ``extent``; a cylinder's ``segment``, ``height``, ``angle_span``; a
+    sphere's ``cap_axis``, ``cap_angle``, ``cap_area``. See :mod:`rangeseg_o3d.patches`.
     """
 
     label: int
     model: Plane | Sphere | Cylinder
     n_pixels: int
+    source: object = field(default=None, repr=False)  # a patches.PatchSource, or None
+    _cache: dict = field(default_factory=dict, repr=False)
 
     @property
     def kind(self) -> str:
@@ -36,19 +53,58 @@ class Feature:
     def inliers(self) -> int:
         return int(self.model.inliers)
 
+    @property
+    def geometry(self):
+        """The seen patch (PlanePatch, CylinderPatch or SpherePatch), or None without a grid."""
+        if "geometry" not in self._cache:
+            from . import patches
+
+            if self.source is None or self.kind not in ("plane", "cylinder", "sphere"):
+                return None
+            if self.kind == "plane":
+                patch = patches.plane_patch(self.source, self.label, self.model)
+            else:
+                points = self.source.points(self.label)
+                patch = (patches.cylinder_patch(points, self.model) if self.kind == "cylinder"
+                         else patches.sphere_patch(points, self.model))
+            self._cache["geometry"] = patch
+        return self._cache["geometry"]
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """First-order covariance of the model's parameters (order: ``parameter_names``), or None."""
+        if "covariance" not in self._cache:
+            from . import patches
+
+            if self.source is None or self.kind not in ("plane", "cylinder", "sphere"):
+                return None
+            self._cache["covariance"] = patches.parameter_covariance(
+                self.source.points(self.label), self.model, n_total=self.n_pixels)
+        return self._cache["covariance"]
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Order of the parameters in :attr:`covariance`."""
+        from .patches import parameter_names
+
+        return parameter_names(self.kind)
+
     def __getattr__(self, name):
-        # Only reached for names the dataclass lacks: expose the model's parameters.
-        if name.startswith("_") or name == "model":
+        # Only reached for names the dataclass lacks: the model's parameters, then the patch's.
+        if name.startswith("_") or name in ("model", "source"):
             raise AttributeError(name)
         try:
             return getattr(self.model, name)
         except AttributeError:
-            raise AttributeError(
-                f"{self.kind} feature has no attribute {name!r}"
-            ) from None
+            pass
+        patch = self.geometry
+        if patch is not None and hasattr(patch, name):
+            return getattr(patch, name)
+        extra = "" if patch is not None else " (no patch geometry: the feature has no grid)"
+        raise AttributeError(f"{self.kind} feature has no attribute {name!r}{extra}") from None
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "label": int(self.label),
             "kind": self.kind,
             "n_pixels": int(self.n_pixels),
@@ -56,6 +112,38 @@ class Feature:
             "rms": self.rms,
             **self.model.params(),
         }
+        covariance = self.covariance
+        if covariance is not None:
+            out["parameter_names"] = list(self.parameter_names)
+            out["covariance"] = covariance.tolist()
+        patch = self.geometry
+        if patch is not None:
+            out["geometry"] = patch.to_dict()
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Feature":
+        """The feature :meth:`to_dict` wrote (with its geometry and covariance when stored)."""
+        from .patches import patch_from_dict
+
+        kind = data.get("kind")
+        if kind not in _MODELS:
+            raise ValueError(f"feature kind must be one of {sorted(_MODELS)}; got {kind!r}")
+        model_type = _MODELS[kind]
+        names = {"plane": ("normal", "d"), "sphere": ("center", "radius"),
+                 "cylinder": ("axis", "point", "radius")}[kind]
+        missing = [k for k in (*names, "label", "n_pixels", "rms", "inliers") if k not in data]
+        if missing:
+            raise ValueError(f"{kind} feature record lacks {', '.join(missing)}")
+        model = model_type(**{k: data[k] for k in names}, rms=float(data["rms"]),
+                           inliers=int(data["inliers"]))
+        cache = {}
+        if "covariance" in data:
+            cache["covariance"] = np.asarray(data["covariance"], dtype=float)
+        if "geometry" in data:
+            cache["geometry"] = patch_from_dict(kind, data["geometry"])
+        return cls(label=int(data["label"]), model=model, n_pixels=int(data["n_pixels"]),
+                   _cache=cache)
 
 
 @dataclass(frozen=True)
@@ -103,11 +191,58 @@ class Result:
         return out
 
     def to_dict(self) -> dict:
+        """Everything but the per-pixel labels and stage images, as JSON-ready values.
+
+        Each feature carries its model, ``inliers`` (rule in ``inlier_rule``), the
+        parameter ``covariance`` and its patch ``geometry`` (computed here if not yet).
+        """
         return {
+            "format": RESULT_FORMAT,
             "shape": list(self.labels.shape),
             "n_regions": int(len(self.features) + len(self.unfitted)),
             "counts": self.counts(),
+            "plane_convention": "normal . p = d, unit normal, d >= 0 (Open3D: [a, b, c, d] = "
+                                "[normal, -d])",
+            "inlier_rule": f"|distance| <= {INLIER_SIGMAS:g} sigma(range) of the sensor noise model",
             "features": [f.to_dict() for f in self.features],
             "unfitted": [u.to_dict() for u in self.unfitted],
             "timings": {k: float(v) for k, v in self.timings.items()},
         }
+
+    @classmethod
+    def from_dict(cls, data: dict, labels: np.ndarray | None = None) -> "Result":
+        """The result :meth:`to_dict` wrote; ``labels`` (e.g. the ``--labels`` PNG) are not in it.
+
+        Without ``labels`` the result's labels are all 0 (of the stored shape).
+
+        Raises
+        ------
+        ValueError
+            If ``data`` is not such a record, or ``labels`` has another shape.
+        """
+        if not isinstance(data, dict) or "features" not in data or "shape" not in data:
+            raise ValueError("a result record must be a dict with 'shape' and 'features' "
+                             f"(as Result.to_dict writes); got {type(data).__name__}"
+                             + (f" with keys {sorted(data)[:8]}" if isinstance(data, dict) else ""))
+        shape = tuple(int(s) for s in data["shape"])
+        if labels is None:
+            labels = np.zeros(shape, np.int32)
+        labels = np.asarray(labels)
+        if labels.shape != shape:
+            raise ValueError(f"labels must have the stored shape {shape}; got {labels.shape}")
+        return cls(
+            labels=labels.astype(np.int32, copy=False),
+            features=[Feature.from_dict(f) for f in data["features"]],
+            unfitted=[Unfitted(int(u["label"]), int(u["n_pixels"]), str(u["reason"]))
+                      for u in data.get("unfitted", [])],
+            timings={k: float(v) for k, v in data.get("timings", {}).items()},
+        )
+
+    def to_open3d(self, cloud, *, legacy: bool = False) -> list:
+        """Open3D geometries: the points coloured by region, then one mesh per feature.
+
+        See :func:`rangeseg_o3d.io.export.result_to_open3d`.
+        """
+        from .io.export import result_to_open3d
+
+        return result_to_open3d(self, cloud, legacy=legacy)
