@@ -6,12 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import (
-    NoddingGeometry,
-    PinholeGeometry,
-    nodding_points,
-    pinhole_points,
-)
+from .kinematics import NoddingGeometry, PinholeGeometry
 
 __all__ = ["OrganizedCloud"]
 
@@ -55,6 +50,27 @@ def _clean_points(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
+def _measurements(name: str, value) -> np.ndarray:
+    """A 2-D image of numbers for the compiled constructors (ints and floats kept as they are)."""
+    arr = np.asarray(value)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must have shape (H, W); got {arr.shape}")
+    if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{name} must be an image of numbers; got dtype {arr.dtype}")
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{name} must have at least one row and one column; got {arr.shape}")
+    if arr.dtype == np.float16 or not arr.dtype.isnative:  # types the compiled pass does not take
+        arr = arr.astype(np.float64)
+    return arr
+
+
+def _adopt(arr: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Points a compiled constructor made (float64, C order, clean), made read-only as they are."""
+    arr.setflags(write=False)
+    valid.setflags(write=False)
+    return arr
+
+
 class OrganizedCloud:
     """An organized point cloud: ``xyz[i, j]`` is the point seen by pixel (row i, column j).
 
@@ -89,7 +105,7 @@ class OrganizedCloud:
     """
 
     def __init__(self, xyz, *, ranges=None, intensity=None, geometry=None, timestamps=None,
-                 samples=None, tile: int = 1):
+                 samples=None, tile: int = 1, _valid=None):
         arr = np.asarray(xyz)
         if arr.ndim != 3 or arr.shape[2] != 3:
             raise ValueError(f"xyz must have shape (H, W, 3); got {arr.shape}")
@@ -97,9 +113,11 @@ class OrganizedCloud:
             raise ValueError(f"xyz must have at least one row and one column; got {arr.shape}")
         if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
             raise ValueError(f"xyz must be a float array; got dtype {arr.dtype}")
-        self._xyz = _clean_points(arr)
+        # ``_valid`` is for the compiled constructors only: their points are clean float64 by
+        # construction and their validity comes out of the same pass, so no check is repeated.
+        self._xyz = _clean_points(arr) if _valid is None else _adopt(arr, _valid)
         self._norms = None
-        self._valid = None
+        self._valid = None if _valid is None else _valid
         shape = arr.shape[:2]
         self.ranges = _check_grid("ranges", ranges, shape)
         self.intensity = _check_grid("intensity", intensity, shape)
@@ -150,24 +168,38 @@ class OrganizedCloud:
             mount_offset=mount_offset,
             tilt_sign=tilt_sign,
         )
-        ranges = np.asarray(ranges, dtype=float)
-        xyz = nodding_points(ranges, geometry)
-        clean = np.where(np.isfinite(ranges) & (ranges > 0), ranges, np.nan)
-        return cls(xyz, ranges=clean, intensity=intensity, geometry=geometry, timestamps=timestamps)
+        from .kernels.project import nodding_range_points
+
+        ranges = _measurements("ranges", ranges)
+        if ranges.shape != geometry.shape:
+            raise ValueError(
+                f"ranges must have shape (H, W) = {geometry.shape} to match the geometry; got {ranges.shape}"
+            )
+        theta = geometry.tilt_sign * geometry.tilt_angles
+        phi = geometry.beam_angles
+        xyz, clean, valid = nodding_range_points(ranges, np.cos(theta), np.sin(theta), np.sin(phi),
+                                                 np.cos(phi), geometry.mount_offset)
+        return cls(xyz, ranges=clean, intensity=intensity, geometry=geometry, timestamps=timestamps,
+                   _valid=valid)
 
     @classmethod
     def from_depth(cls, depth, fx, fy, cx, cy, *, depth_scale: float = 1.0) -> "OrganizedCloud":
         """Build a cloud from a depth image and pinhole intrinsics.
 
         ``depth * depth_scale`` must be metres (e.g. ``depth_scale=0.001`` for mm);
-        0 and NaN mark invalid pixels.
+        0, negative, infinite and NaN depths mark invalid pixels. Points, ranges and
+        validity come from one compiled pass over the image (any integer or float dtype,
+        e.g. a 16-bit PNG as read, without a float copy first).
         """
         if not depth_scale > 0:
             raise ValueError(f"depth_scale must be positive; got {depth_scale}")
+        from .kernels.project import depth_points
+
         geometry = PinholeGeometry(float(fx), float(fy), float(cx), float(cy))
-        depth_m = np.asarray(depth, dtype=float) * depth_scale
-        xyz = pinhole_points(depth_m, geometry)
-        return cls(xyz, ranges=np.linalg.norm(xyz, axis=2), geometry=geometry)
+        depth = _measurements("depth", depth)
+        xyz, ranges, valid = depth_points(depth, float(depth_scale), geometry.fx, geometry.fy,
+                                          geometry.cx, geometry.cy)
+        return cls(xyz, ranges=ranges, geometry=geometry, _valid=valid)
 
     # -- views ----------------------------------------------------------------------
     @property

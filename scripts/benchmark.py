@@ -19,6 +19,11 @@ plus the ABW images in ../shared/data/abw scored with SegComp's rules (overlaps 
 pixels, every labelled region counted). One table; a JSON in docs/benchmarks/matrix.json
 for a full run (else with --json only).
 
+The real frames (``--frames``): the six real 640 x 480 frames alone, each stage's median
+per frame, and ``OrganizedCloud.from_depth`` on the CAPE frame.
+
+Run: python scripts/benchmark.py --frames [--repeats 20]
+
 Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
      [--rg-repeats 1] [--seed 0] [--json OUT]
 """
@@ -173,13 +178,20 @@ def summarise(rows: list[dict], time_target_ms: float) -> dict:
     return summary
 
 
-def real_rows(repeats: int, limit: int | None) -> list[dict]:
+#: The six real 640 x 480 depth frames (issue 14's comparison with CAPE, PEAC and PCL).
+VGA_FRAMES = ("cape_tunnel", "pcl_table_scene_mug", "pcl_milk_cartoon", "pcl_office1", "pcl_frame_laptop",
+              "peac_stairs")
+
+
+def real_rows(repeats: int, limit: int | None, names=None) -> list[dict]:
     try:
         from rangeseg_o3d.io.datasets import real_clouds
     except ImportError as exc:
         print(f"real data: skipped (rangeseg_o3d.io.datasets unavailable: {exc})")
         return []
     clouds = real_clouds()
+    if names is not None:
+        clouds = [c for c in clouds if c.name in names]
     if limit is not None:
         clouds = clouds[:limit]
     rows, pipelines = [], {}
@@ -449,6 +461,55 @@ def print_matrix(rows: list[dict]) -> None:
     print("RE = residual_edges, RG = region_growing (same scans, same fitter and refinement)")
 
 
+def from_depth_ms(repeats: int) -> float | None:
+    """Median ms of ``OrganizedCloud.from_depth`` on the CAPE tunnel frame (16-bit PNG, mm)."""
+    from rangeseg_o3d.cloud import OrganizedCloud
+    from rangeseg_o3d.io.datasets import default_data_root
+
+    png = default_data_root() / "cape" / "depth_0.png"
+    if not png.is_file():
+        return None
+    import cv2
+
+    depth = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+    OrganizedCloud.from_depth(depth, 575.93, 576.41, 315.15, 230.59, depth_scale=0.001)  # warm (compiled)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        OrganizedCloud.from_depth(depth, 575.93, 576.41, 315.15, 230.59, depth_scale=0.001)
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def run_frames(args) -> int:
+    """The six real VGA frames, every stage (per-frame medians), and from_depth on the CAPE frame."""
+    _single_thread()
+    warnings.simplefilter("ignore", RuntimeWarning)
+    repeats = 3 if args.quick else args.repeats
+    print(f"real 640x480 frames: {repeats} timed runs each (after one warm-up), one thread")
+    rows = real_rows(repeats, None, names=VGA_FRAMES)
+    if not rows:
+        print("no real 640x480 frame found in ../shared/data")
+    else:
+        print_real(rows)
+        done = [r for r in rows if "error" not in r]
+        if done:
+            totals = [r["stage_ms"].get("total", r["wall_ms"]) for r in done]
+            print(f"whole pipeline, median per frame: {min(totals):.1f} - {max(totals):.1f} ms "
+                  f"over {len(done)} frames (issue 14 target <= 8 ms)")
+    ms = from_depth_ms(max(repeats, 50))
+    if ms is not None:
+        print(f"OrganizedCloud.from_depth on cape/depth_0.png (640x480 uint16): {ms:.2f} ms median of "
+              f"{max(repeats, 50)} (target <= 1 ms)")
+    if args.json:
+        from rangeseg_o3d.io.atomic import atomic_write
+
+        with atomic_write(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"repeats": repeats, "frames": rows, "from_depth_ms": ms}, fh, indent=1, default=float)
+        print(f"\nwrote {args.json}")
+    return 0
+
+
 def run_matrix(args, parser) -> int:
     for flag in ("matrix_repeats", "rg_repeats"):
         if getattr(args, flag) < 1:
@@ -485,6 +546,8 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, help="write every figure to this JSON file")
     parser.add_argument("--no-refine", action="store_true",
                         help="the paper's pipeline alone: segmentation and first fits, refinement off")
+    parser.add_argument("--frames", action="store_true",
+                        help="only the six real 640x480 frames (every stage) and from_depth's time")
     parser.add_argument("--matrix", action="store_true",
                         help="the sensor matrix (both methods, every sensor, ABW) instead of the suites")
     parser.add_argument("--sensor", action="append", metavar="NAME",
@@ -498,6 +561,8 @@ def main(argv=None) -> int:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
     if args.matrix or args.sensor:
         return run_matrix(args, parser)
+    if args.frames:
+        return run_frames(args)
     repeats = 3 if args.quick else args.repeats
     _single_thread()
     warnings.simplefilter("ignore", RuntimeWarning)
