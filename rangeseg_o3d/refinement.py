@@ -2,9 +2,9 @@
 
 Order, each step timed under ``refine.<step>`` in ``Result.timings``:
 
-1. ``split``: a region no model explains is cut down to the surface most of it lies on
-   (least trimmed squares); the rest is freed (the paper's "local checks that remove
-   under-segmentation").
+1. ``split``: a region no model explains is split into all the surfaces it holds, one
+   after the other (least trimmed squares, largest connected piece); only what no surface
+   takes is freed (the paper's "local checks that remove under-segmentation").
 2. ``recover``: compact blobs of unlabelled pixels (small curved objects that the edge
    band swallowed whole) become regions when a model explains most of them.
 3. ``grow``: edge-band pixels go back to the neighbouring region whose surface explains
@@ -34,6 +34,8 @@ __all__ = ["refine_regions", "recover_pixels"]
 
 # the merge's answer for a union of planes whose least-squares plane is over the merge limit
 _NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
+# a leaked region rarely holds more surfaces than this; the cap bounds the split's time
+_MAX_SURFACES_PER_REGION = 12
 
 
 class _Timer:
@@ -73,10 +75,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     ctx = _Context(cloud, fitter, sigma, min_size)
     failed = [k for k, m in fits.items() if not m]
     if failed:
-        is_failed = np.zeros(int(labels.max()) + 1, bool)
-        is_failed[failed] = True
-        candidates = np.where(is_failed[labels], labels, 0)
-        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=True)
+        labels, fits = ctx.split(labels, fits, failed)
     timer.lap("split")
 
     def grow(labels, fits, iterations):
@@ -100,7 +99,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
                                          first_label=first)
         # A blob at a junction of surfaces can pass for a small curved patch; a real
         # swallowed object makes up most of its blob.
-        labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
+        labels, fits = ctx.explain(labels, fits, candidates, min_share=0.7)
         if labels.max(initial=0) >= first:
             labels, fits = grow(labels, fits, 2)  # recovered blobs take back their rims
     timer.lap("recover")
@@ -142,7 +141,7 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     if not candidates.any():
         return labels, fits
     ctx = _Context(cloud, fitter, sigma, min_size)
-    labels, fits = ctx.explain(labels, fits, candidates, keep_failures=False, min_share=0.7)
+    labels, fits = ctx.explain(labels, fits, candidates, min_share=0.7)
     new = {k: m for k, m in fits.items() if k >= first and m}
     if new:
         from .fitstage import model_table
@@ -207,58 +206,81 @@ class _Context:
 
         return largest_piece(np.ascontiguousarray(idx, dtype=np.int64), self.width)
 
-    def explain(self, labels, fits, candidates, *, keep_failures: bool, min_share: float = 0.0):
-        """Give each candidate region the model most of it lies on; free the other pixels.
+    def split(self, labels, fits, failed: list[int]):
+        """Split every region no single model explains into all the surfaces it holds.
 
-        Candidates nothing explains, or whose explained share is below ``min_share``, are
-        dropped, or kept as unfitted regions when ``keep_failures``.
+        Sequential robust extraction: the dominant surface of the region's remaining pixels
+        (:func:`rangeseg_o3d.robust.trimmed_fit`), cut to its largest 4-connected piece,
+        becomes a region; its pixels leave the pool and the next surface is sought, until
+        what is left is smaller than the size floor or no model explains a large enough
+        piece of it. Regions leaking through a crease the edge image missed (floor, wall
+        and a box face in one) come back as one region per surface; what no surface takes
+        (the crease band itself) is freed for growth. A region of which nothing is
+        explained keeps its failure (reported as unfitted).
+        """
+        flat = labels.ravel()
+        regions = region_indices(np.where(np.isin(labels, failed), labels, 0))
+        next_label = int(labels.max(initial=0)) + 1
+        for k, pool in regions.items():
+            label, found = k, False
+            for _ in range(_MAX_SURFACES_PER_REGION):
+                piece, model = self._dominant_piece(pool)
+                if piece is None:
+                    break
+                if not found:
+                    flat[pool] = 0  # the failed region dissolves into what is found
+                found = True
+                flat[piece] = label
+                fits[label] = model
+                pool = pool[~np.isin(pool, piece, assume_unique=True)]
+                label, next_label = next_label, next_label + 1
+        return labels, fits
+
+    def _dominant_piece(self, pool: np.ndarray):
+        """The largest connected piece of the dominant surface of the flat pixels ``pool``
+        and its model, or ``(None, None)`` when no model explains ``min_size`` of them."""
+        if pool.size < self.min_size:
+            return None, None
+        noise = self.sigma[pool]
+        model, inliers = trimmed_fit(self.xyz[pool], self.fitter.fit,
+                                     sigma=float(np.partition(noise, noise.size // 2)[noise.size // 2]),
+                                     min_points=self.min_size)
+        if model is None:
+            return None, None
+        piece = self._largest_piece(pool[inliers])
+        if piece.size < self.min_size:
+            return None, None
+        if piece.size < 0.9 * inliers.sum():  # a piece was cut off: fit the piece itself
+            model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+        return (piece, model) if model else (None, None)
+
+    def explain(self, labels, fits, candidates, *, min_share: float):
+        """Give each candidate blob the model most of it lies on; free the other pixels.
+
+        Blobs nothing explains, or whose explained share is below ``min_share``, are dropped.
         """
         flat = labels.ravel()
         regions = region_indices(candidates)
-        fresh = [k for k in regions if k not in fits]
-        # One batched pass settles the fresh candidates that are planes outright.
-        settled = self.fitter.fit_batch(self.xyz, candidates) if fresh else {}
+        # One batched pass settles the candidates that are planes outright.
+        settled = self.fitter.fit_batch(self.xyz, candidates) if regions else {}
         for k, idx in regions.items():
-            # A failed region has its FitFailure here; a leftover blob has nothing yet.
-            model = fits.get(k)
-            if model:
-                flat[idx] = k
-                fits[k] = model
-                continue
-            trimmed = inliers = None
-            if model is None:
-                # A blob that is one plane needs no trimming (settled in the batch); for the
-                # others the trimmed fit's first answer is the plain fit's when it is clean.
-                plain = settled.get(k)
-                if plain:
-                    near = np.abs(plain.distances(self.xyz[idx])) <= 3.0 * np.maximum(self.sigma[idx], plain.rms)
-                    if near.mean() >= 0.9:
-                        trimmed, inliers = plain, near
-            if trimmed is None:
-                # one trimmed fit settles both "all of it" and "most of it"
-                # the typical noise: the middle value (labelled pixels are valid, their noise
-                # finite); a selection costs a fifth of np.median's call
-                noise = self.sigma[idx]
-                trimmed, inliers = trimmed_fit(self.xyz[idx], self.fitter.fit,
-                                               sigma=float(np.partition(noise, noise.size // 2)[noise.size // 2]),
-                                               min_points=self.min_size)
-            if trimmed is not None:
-                chosen = self._largest_piece(idx[inliers])
-                if chosen.size >= max(self.min_size, min_share * idx.size):
-                    # the model was fitted to (nearly) these points unless a piece was cut off
-                    refined = trimmed if chosen.size >= 0.9 * inliers.sum() else self.fitter.refit(
-                        self.fitter.points(self.xyz, chosen), trimmed)
-                    if refined:
-                        flat[idx] = 0
-                        flat[chosen] = k
-                        fits[k] = refined
-                        continue
-            if keep_failures:
-                flat[idx] = k
-                fits[k] = model if model is not None else fits[k]
+            flat[idx] = 0
+            fits.pop(k, None)
+            # A blob that is one plane needs no trimming (settled in the batch); for the
+            # others the trimmed fit's first answer is the plain fit's when it is clean.
+            plain = settled.get(k)
+            near = None
+            if plain:
+                near = np.abs(plain.distances(self.xyz[idx])) <= 3.0 * np.maximum(self.sigma[idx], plain.rms)
+            if near is not None and near.mean() >= 0.9:
+                chosen, model = self._largest_piece(idx[near]), plain
+                if chosen.size < 0.9 * near.sum():  # a piece was cut off: fit the piece itself
+                    model = self.fitter.refit(self.fitter.points(self.xyz, chosen), plain)
             else:
-                flat[idx] = 0
-                fits.pop(k, None)
+                chosen, model = self._dominant_piece(idx)
+            if chosen is not None and model and chosen.size >= max(self.min_size, min_share * idx.size):
+                flat[chosen] = k
+                fits[k] = model
         return labels, fits
 
     def refit_grown(self, labels, grown, fits):
