@@ -6,13 +6,38 @@ import argparse
 import json
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["main", "format_table"]
+__all__ = ["main", "format_table", "add_config_arguments", "config_from_args"]
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, *, preset: bool = True,
+                         units: bool = False) -> None:
+    """The configuration options every command shares: ``--config``, ``--set`` (and ``--units``)."""
+    if preset:
+        parser.add_argument("--config", default="lms200", help="preset name or YAML path (default lms200)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="set one configuration value by dotted key, e.g. sensor.sigma0=0.01 or "
+                             "refine.k_sigma=2.5 (repeatable)")
+    if units:
+        from .sensor import UNIT_SCALES
+
+        parser.add_argument("--units", choices=list(UNIT_SCALES), default=None,
+                            help="unit of the inputs' coordinates, converted to metres "
+                                 "(default: the preset's sensor.units)")
+
+
+def config_from_args(args, source=None):
+    """The configuration ``--config`` (or ``source``) names, with the ``--set`` overrides."""
+    from .config import load_config, parse_overrides
+
+    return load_config(args.config if source is None else source,
+                       overrides=parse_overrides(getattr(args, "overrides", None) or []))
 
 
 def format_table(result, *, title: str = "") -> str:
@@ -49,11 +74,12 @@ def write_json(path: Path, payload: dict) -> None:
         json.dump(payload, fh, indent=2)
 
 
-def _load_input(path: Path):
+def _load_input(path: Path, units: str = "m"):
+    # ``units``: of .npz/.pcd coordinates; 3DTK's .3d files are cm by format.
     from .cloud import OrganizedCloud
 
     if path.suffix.lower() in (".npz", ".pcd"):
-        return OrganizedCloud.load(path)
+        return OrganizedCloud.load(path, units=units)
     if path.suffix.lower() == ".3d":
         from .io.datasets import load_3dtk
 
@@ -89,7 +115,7 @@ def _finish(args, rec, cloud=None, result=None, png=None):
 
 def _segment_one(pipeline, path: Path, out: Path | None, args, rec, index: int) -> bool:
     try:
-        cloud = _load_input(path)
+        cloud = _load_input(path, args.units or pipeline.sensor.units)
         result = pipeline.run(cloud, recording=rec, scan_index=index)
     except (ValueError, OSError) as exc:
         print(f"error: {path}: {exc}", file=sys.stderr)
@@ -113,7 +139,7 @@ def _segment_one(pipeline, path: Path, out: Path | None, args, rec, index: int) 
 def cmd_segment(args) -> int:
     from .pipeline import Pipeline
 
-    pipeline = Pipeline(args.config)
+    pipeline = Pipeline(config_from_args(args))
     inputs = [Path(p) for p in args.inputs]
     rec = _recording(args)
     ok = 0
@@ -153,7 +179,7 @@ def cmd_demo(args) -> int:
             # The paper's processing window: beams 25..155 deg of the 181 (1 deg steps).
             cloud = cloud.crop(cols=slice(25, 156))
     scan_path = cloud.save(out_dir / "scan.npz")
-    pipeline = Pipeline(args.config)
+    pipeline = Pipeline(config_from_args(args))
     # The first run in a process loads the compiled kernels (about a second); the timings
     # shown are those of the run after it, which is what each further scan costs.
     first = pipeline.run(cloud).timings["total"]
@@ -184,13 +210,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     seg = sub.add_parser("segment", help="segment .npz / .pcd / .3d scans")
     seg.add_argument("inputs", nargs="+", help="input scans")
-    seg.add_argument("--config", default="lms200", help="preset name or YAML path (default lms200)")
+    add_config_arguments(seg, units=True)
     seg.add_argument("--out", help="result JSON (one input) or output folder (several)")
     _rerun_args(seg)
     seg.set_defaults(func=cmd_segment)
 
     demo = sub.add_parser("demo", help="capture a simulated scan, segment it, print and write results")
-    demo.add_argument("--config", default="lms200", help="preset name or YAML path")
+    add_config_arguments(demo)
     demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--faults", type=float, default=0.0, help="byte fault rate on the simulated serial lines")
@@ -215,10 +241,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    # A user-facing warning (e.g. a unit problem) as one line, without the source location.
+    print(f"warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``rangeseg`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.showwarning = _show_warning
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:

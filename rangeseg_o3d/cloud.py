@@ -282,6 +282,27 @@ class OrganizedCloud:
         timestamps = None if self.timestamps is None else self.timestamps[::size]
         return OrganizedCloud(means, timestamps=timestamps, samples=counts, tile=self.tile * size)
 
+    def scaled(self, factor: float) -> "OrganizedCloud":
+        """The cloud with coordinates and ranges multiplied by ``factor`` (0.01 turns cm into m).
+
+        Intensity, timestamps, samples and tile are kept; a nodding geometry's mount offset
+        is scaled, its angles and a pinhole's intrinsics are unit-free.
+        """
+        factor = float(factor)
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"factor must be a finite number > 0; got {factor!r}")
+        if factor == 1.0:
+            return self
+        geometry = self.geometry
+        if isinstance(geometry, NoddingGeometry):
+            geometry = NoddingGeometry(geometry.beam_angles, geometry.tilt_angles,
+                                       geometry.mount_offset * factor, geometry.tilt_sign)
+        return OrganizedCloud(
+            self._xyz * factor, ranges=None if self.ranges is None else self.ranges * factor,
+            intensity=self.intensity, geometry=geometry, timestamps=self.timestamps,
+            samples=self.samples, tile=self.tile,
+        )
+
     def range_image(self) -> np.ndarray:
         """Ranges if the sensor gave them, else the distance of each point from the origin.
 
@@ -308,11 +329,15 @@ class OrganizedCloud:
         return save_cloud(self, path)
 
     @classmethod
-    def load(cls, path) -> "OrganizedCloud":
-        """Read a cloud written by :meth:`save`, or any organized PCD file (ascii, binary, binary_compressed)."""
+    def load(cls, path, *, units: str = "m") -> "OrganizedCloud":
+        """Read a cloud written by :meth:`save`, or any organized PCD file (ascii, binary, binary_compressed).
+
+        ``units`` is the unit of the file's coordinates (``"m"``, ``"cm"``, ``"mm"``, ...),
+        converted to metres; files written by :meth:`save` are metres whatever it says.
+        """
         from .io import load_cloud
 
-        return load_cloud(path)
+        return load_cloud(path, units=units)
 
     def to_open3d(self):
         """``open3d.t.geometry.PointCloud`` of the valid points with int32 ``row``/``col`` attributes."""

@@ -93,22 +93,26 @@ def _family(preset: str) -> str:
     return _FAMILY.get(preset, preset)
 
 
-def config_for(preset: str, segmenter: str):
+def config_for(preset: str, segmenter: str, overrides=None):
     """The ``preset`` pipeline with its segmenter swapped for ``segmenter``.
 
     ``region_growing`` takes its parameters from ``configs/<preset>_region_growing.yaml``
     (or the sensor family's), the Open3D segmenters from this module's per-family table.
-    The refinement's noise model is pinned to the preset segmenter's, so the stages
-    after segmentation behave the same whichever segmenter runs. The preset's ``tile``
+    The sensor (noise model) is the preset's, so the stages after segmentation see the
+    same noise whichever segmenter runs. The preset's ``tile``
     belongs to the residual-edge method (its 3x3 window needs tile means on depth
     cameras); the baselines see the points as their users would: region growing with its
     own preset's tile (1: it thins the points on its voxel grid), Open3D's on raw points.
+    ``overrides`` (dotted keys, or ``KEY=VALUE`` strings as ``--set`` takes them) are set
+    over the result.
     """
-    from .config import load_config, presets
+    from .config import load_config, parse_overrides, presets
 
+    if overrides is not None and not isinstance(overrides, dict):
+        overrides = parse_overrides(overrides)
     base = load_config(preset)
     if segmenter == base.segmenter.name:
-        return base
+        return load_config(base, overrides=overrides)
     tile = 1
     if segmenter == "region_growing":
         known = presets()
@@ -120,14 +124,14 @@ def config_for(preset: str, segmenter: str):
     else:
         params = _OPEN3D_PARAMS.get(_family(preset), {}).get(segmenter, {})
     data = base.model_dump()
-    seg_params = data["segmenter"]["params"]
-    for key in ("sigma0", "sigma_quadratic"):
-        if data["refine"].get(key) is None and key in seg_params:
-            data["refine"][key] = seg_params[key]
+    # The refinement's region size and jump test follow the segmenter swapped in (they
+    # were resolved from the preset's segmenter); the sensor stays the preset's.
+    for key in ("min_region_size", "jump_ratio", "jump_min"):
+        data["refine"][key] = None
     data["segmenter"] = {"name": segmenter, "params": dict(params)}
     data["tile"] = tile
     data["name"] = f"{base.name}+{segmenter}"
-    return load_config(data)
+    return load_config(data, overrides=overrides)
 
 
 def collect_scans(*, quick: bool = False, real: bool = True, data_root=None) -> list[ScanCase]:
@@ -429,6 +433,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-real", action="store_true", help="skip the real clouds in ../shared/data")
     parser.add_argument("--no-scaling", action="store_true", help="skip the region-growing scaling curve")
     parser.add_argument("--data-root", default=None, help="shared data folder (default <repo>/../shared/data)")
+    from .cli import add_config_arguments
+
+    add_config_arguments(parser, preset=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -453,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
         for seg in segmenters:
             key = (case.preset, seg)
             if key not in pipelines:
-                pipelines[key] = Pipeline(config_for(case.preset, seg))
+                pipelines[key] = Pipeline(config_for(case.preset, seg, overrides=args.overrides))
             runs.append(run_scan(pipelines[key], case, repeats=args.repeats))
             print(f"  {case.suite:7s} {case.name:24s} {seg:20s} "
                   f"{_fmt(1e3 * runs[-1].seconds, '.1f'):>9s} ms  features {runs[-1].features}", flush=True)

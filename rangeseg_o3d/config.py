@@ -1,21 +1,66 @@
 """Pydantic configuration of a pipeline run, loaded from YAML presets.
 
-A preset names a segmenter and a fitter from the registry and their parameters; the
-parameters are validated against the plugin's own model at load time, so a typo or an
-out-of-range value fails before any scan is touched, with the field and value named.
+A preset describes its sensor (``sensor:``: noise model, units, grid, working ranges),
+names a segmenter and a fitter from the registry with their parameters, and sets the
+refinement. Everything is validated at load time (plugin parameters against the
+plugin's own model), so a typo or an out-of-range value fails before any scan is
+touched, with the field and value named. ``load_config(..., overrides={"sensor.sigma0":
+0.01})`` changes single values by dotted key without editing the YAML.
 """
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import registry
+from .sensor import UNIT_SCALES, NoiseModel, Sensor
 
-__all__ = ["StageConfig", "RefineConfig", "PipelineConfig", "load_config", "preset_dir", "presets"]
+__all__ = ["SensorConfig", "StageConfig", "RefineConfig", "PipelineConfig", "load_config",
+           "parse_overrides", "apply_overrides", "preset_dir", "presets"]
+
+
+class SensorConfig(BaseModel):
+    """The ``sensor:`` section: facts about the scanner, resolved into a :class:`Sensor`.
+
+    sigma0, sigma_quadratic : range noise ``sigma(r) = sigma0 + sigma_quadratic r^2`` (m).
+    units : unit of the coordinates in the sensor's ``.pcd`` / ``.npz`` files; inputs are
+        converted to metres when read (formats with a unit of their own, such as 3DTK's
+        ``.3d`` in cm, are converted by their reader).
+    wrap_columns : the columns close a full turn (360-degree scanners).
+    row_spacing_deg, column_spacing_deg : angular step between rows / columns, if known.
+    min_range, max_range : working ranges (m), for the unit plausibility check.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+    sigma0: float = Field(0.005, ge=0, description="constant range noise, m")
+    sigma_quadratic: float = Field(0.0, ge=0, description="range noise growth, 1/m (sigma += this * r^2)")
+    units: Literal[tuple(UNIT_SCALES)] = Field("m", description="unit of the input coordinates")
+    wrap_columns: bool = Field(False, description="first and last column are neighbours (360 deg)")
+    row_spacing_deg: float | None = Field(None, gt=0, le=360)
+    column_spacing_deg: float | None = Field(None, gt=0, le=360)
+    min_range: float = Field(0.01, ge=0, description="shortest working range, m")
+    max_range: float = Field(1000.0, gt=0, description="longest working range, m")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.sigma0 == 0 and self.sigma_quadratic == 0:
+            raise ValueError("sigma0 and sigma_quadratic cannot both be 0 (the noise model would be zero)")
+        if self.min_range >= self.max_range:
+            raise ValueError(f"min_range ({self.min_range}) must be below max_range ({self.max_range})")
+        return self
+
+    def resolve(self) -> Sensor:
+        """The immutable :class:`Sensor` every stage receives."""
+        return Sensor(noise=NoiseModel(self.sigma0, self.sigma_quadratic), units=self.units,
+                      wrap_columns=self.wrap_columns, row_spacing_deg=self.row_spacing_deg,
+                      column_spacing_deg=self.column_spacing_deg, min_range=self.min_range,
+                      max_range=self.max_range)
 
 
 class StageConfig(BaseModel):
@@ -41,8 +86,13 @@ class RefineConfig(BaseModel):
     merge_angle_deg : maximum angle between normals / axes of merge candidates.
     merge_rms_factor : the union's rms may exceed the larger part's rms by this factor.
     merge_tolerance : metres; offsets, radii and centres of merge candidates must agree within it.
-    sigma0, sigma_quadratic : the noise model (see rangeseg_o3d.residual.noise_sigma); None
-        takes the segmenter's own ``sigma0``/``sigma_quadratic`` parameters (else 5 mm, 0).
+    min_region_size : smallest region the refinement keeps or creates (sensor pixels).
+    jump_ratio, jump_min : growth never crosses a range step over ``jump_ratio r + jump_min``
+        (``jump_ratio`` per sensor pixel step; see :func:`rangeseg_o3d.edges.jump_edges`).
+        Left out, each takes the segmenter's parameter of the same name when it has one
+        (residual_edges), else 30 px, 0.08 and 0.05 m; resolved once at load.
+
+    The noise model is the sensor's (``sensor:``).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -56,8 +106,23 @@ class RefineConfig(BaseModel):
     merge_angle_deg: float = Field(3.0, gt=0, le=90)
     merge_rms_factor: float = Field(1.3, ge=1.0)
     merge_tolerance: float = Field(0.05, gt=0)
-    sigma0: float | None = Field(None, ge=0)
-    sigma_quadratic: float | None = Field(None, ge=0)
+    min_region_size: int | None = Field(None, ge=1)
+    jump_ratio: float | None = Field(None, gt=0)
+    jump_min: float | None = Field(None, ge=0)
+
+
+# What the refinement shares with a segmenter that has the same parameter, and the value
+# it takes when the segmenter has none.
+_SHARED_WITH_SEGMENTER = {"min_region_size": 30, "jump_ratio": 0.08, "jump_min": 0.05}
+# Keys that moved to the sensor section, for a helpful error on old configuration files.
+_MOVED = {
+    ("segmenter", "params", "sigma0"): "sensor.sigma0",
+    ("segmenter", "params", "sigma_quadratic"): "sensor.sigma_quadratic",
+    ("refine", "sigma0"): "sensor.sigma0",
+    ("refine", "sigma_quadratic"): "sensor.sigma_quadratic",
+    ("fitter", "params", "rms_per_range2"):
+        "sensor.sigma_quadratic (the fitter's thresholds grow by fitter.params.range_growth times it)",
+}
 
 
 class PipelineConfig(BaseModel):
@@ -66,6 +131,7 @@ class PipelineConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = "custom"
+    sensor: SensorConfig = Field(default_factory=SensorConfig)
     segmenter: StageConfig = Field(default_factory=lambda: StageConfig(name="residual_edges"))
     fitter: StageConfig = Field(default_factory=lambda: StageConfig(name="primitives"))
     refine: RefineConfig = Field(default_factory=RefineConfig)
@@ -78,6 +144,18 @@ class PipelineConfig(BaseModel):
         description="segment, fit and refine the grid of tile x tile means, then label every "
                     "pixel by the models (depth cameras: the noise hides creases at full resolution)",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved_keys(cls, data):
+        if isinstance(data, dict):
+            for path, target in _MOVED.items():
+                node = data
+                for key in path[:-1]:
+                    node = node.get(key) if isinstance(node, dict) else None
+                if isinstance(node, dict) and path[-1] in node:
+                    raise ValueError(f"{'.'.join(path)} has moved to {target}")
+        return data
 
     @model_validator(mode="after")
     def _validate_plugins(self):
@@ -93,6 +171,10 @@ class PipelineConfig(BaseModel):
                     for err in exc.errors()
                 )
                 raise ValueError(problems) from None
+        # Resolve once what the refinement shares with the segmenter.
+        for key, default in _SHARED_WITH_SEGMENTER.items():
+            if getattr(self.refine, key) is None:
+                setattr(self.refine, key, self.segmenter.params.get(key, default))
         return self
 
 
@@ -117,43 +199,135 @@ def _format_error(source: str, exc: ValidationError) -> str:
     return "\n".join(lines)
 
 
-def load_config(source: str | Path | dict | PipelineConfig | None = None) -> PipelineConfig:
+def parse_overrides(items) -> dict[str, Any]:
+    """``["sensor.sigma0=0.01", "refine.merge=false"]`` -> ``{"sensor.sigma0": 0.01, ...}``.
+
+    Values are read as YAML scalars (numbers, true/false, null, strings); pydantic then
+    validates them as the field requires.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = str(item).partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"an override must look like KEY=VALUE (e.g. sensor.sigma0=0.01); got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(text) if text.strip() else text
+        except yaml.YAMLError as exc:
+            raise ValueError(f"override {item!r}: the value is not a YAML scalar: {exc}") from None
+    return out
+
+
+def _section_model(section: str, data: dict) -> type[BaseModel]:
+    # The parameter model of the plugin the (partly overridden) data names.
+    default = PipelineConfig.model_fields[section].default_factory().name
+    stage = data.get(section)
+    name = stage.get("name", default) if isinstance(stage, dict) else default
+    return registry.get(section, name).config
+
+
+def _check_key(dotted: str, data: dict) -> None:
+    """ValueError unless ``dotted`` names one value of the configuration."""
+    path = dotted.split(".")
+    model: type[BaseModel] = PipelineConfig
+    for depth, key in enumerate(path):
+        where = ".".join(path[:depth]) or "the configuration"
+        fields = model.model_fields
+        if key not in fields:
+            raise ValueError(f"unknown configuration key {dotted!r}: {where} has no {key!r} "
+                             f"(it has {', '.join(fields)})")
+        if model is StageConfig and key == "params":
+            model = _section_model(path[depth - 1], data)
+            continue
+        annotation = fields[key].annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            model = annotation
+            continue
+        if depth != len(path) - 1:
+            raise ValueError(f"unknown configuration key {dotted!r}: {'.'.join(path[:depth + 1])} "
+                             "is a value, not a section")
+        return
+    raise ValueError(f"configuration key {dotted!r} names a section; give one of its keys "
+                     f"({', '.join(f'{dotted}.{k}' for k in model.model_fields)})")
+
+
+def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
+    """A copy of the configuration mapping ``data`` with dotted-key ``overrides`` set.
+
+    Stage names (``segmenter.name``, ``fitter.name``) are set first, so that their
+    parameters are checked against the plugin chosen. Unknown keys raise ValueError
+    naming them.
+    """
+    data = copy.deepcopy(data)
+    ordered = sorted(overrides.items(), key=lambda item: not item[0].endswith(".name"))
+    for dotted, value in ordered:
+        if not isinstance(dotted, str):
+            raise ValueError(f"override keys must be dotted strings; got {dotted!r}")
+        _check_key(dotted, data)
+        *parents, leaf = dotted.split(".")
+        node = data
+        for key in parents:
+            if not isinstance(node.get(key), dict):
+                node[key] = {}
+            node = node[key]
+        node[leaf] = value
+    return data
+
+
+def _read_source(source) -> tuple[dict, str]:
+    if isinstance(source, PipelineConfig):
+        return source.model_dump(), f"configuration {source.name!r}"
+    if isinstance(source, dict):
+        return source, "dict"
+    path = Path(source)
+    if not path.suffix and not path.exists():
+        path = preset_dir() / f"{source}.yaml"
+        if not path.exists():
+            raise ValueError(
+                f"unknown preset {str(source)!r}; known presets: {', '.join(presets())} "
+                "(or give a path to a YAML file)"
+            )
+    if not path.is_file():
+        raise ValueError(f"configuration file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"configuration file {path} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"configuration file {path} must hold a mapping; got {type(data).__name__}")
+    return data, str(path)
+
+
+def load_config(source: str | Path | dict | PipelineConfig | None = None, *,
+                overrides: dict[str, Any] | None = None) -> PipelineConfig:
     """Load a :class:`PipelineConfig`.
 
     Parameters
     ----------
     source : a YAML path, a preset name (``"lms200"``, ``"rgbd_vga"``, ... from configs/),
         a dict, an existing PipelineConfig, or None for the default (lms200).
+    overrides : dotted keys and values set over the source, e.g.
+        ``{"sensor.sigma0": 0.01, "refine.k_sigma": 2.5, "segmenter.params.threshold": 5}``.
 
     Raises
     ------
     ValueError
-        Unknown preset or file, unreadable YAML, or invalid values (field and value named).
+        Unknown preset or file, unreadable YAML, unknown override keys, or invalid values
+        (field and value named).
+
+    Examples
+    --------
+    >>> load_config("lms200", overrides={"sensor.sigma0": 0.01}).sensor.sigma0
+    0.01
     """
-    if isinstance(source, PipelineConfig):
+    if isinstance(source, PipelineConfig) and not overrides:
         return source
-    if source is None:
-        source = "lms200"
-    if isinstance(source, dict):
-        data, where = source, "dict"
-    else:
-        path = Path(source)
-        if not path.suffix and not path.exists():
-            path = preset_dir() / f"{source}.yaml"
-            if not path.exists():
-                raise ValueError(
-                    f"unknown preset {str(source)!r}; known presets: {', '.join(presets())} "
-                    "(or give a path to a YAML file)"
-                )
-        if not path.is_file():
-            raise ValueError(f"configuration file {str(path)!r} does not exist")
+    data, where = _read_source("lms200" if source is None else source)
+    if overrides:
         try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise ValueError(f"configuration file {path} is not valid YAML: {exc}") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"configuration file {path} must hold a mapping; got {type(data).__name__}")
-        where = str(path)
+            data = apply_overrides(data, overrides)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        where += " with overrides " + ", ".join(f"{k}={v!r}" for k, v in overrides.items())
     try:
         return PipelineConfig(**data)
     except ValidationError as exc:

@@ -70,10 +70,15 @@ class RegionFitter:
 
     Regions larger than ``max_points`` are fitted on an even subsample: a few thousand
     points pin a surface down far below the noise, and a 100k-pixel wall costs only time.
+    A plugin with ``bind_sensor`` gets its keywords for ``sensor`` (resolved here, once).
     """
 
-    def __init__(self, plugin, params: dict, max_points: int):
+    def __init__(self, plugin, params: dict, max_points: int, sensor=None):
         self.plugin = plugin
+        if plugin.bind_sensor is not None:
+            if sensor is None:
+                raise ValueError(f"fitter {plugin.name!r} needs the sensor (its thresholds follow its noise)")
+            params = plugin.bind_sensor(dict(params), sensor)
         self.params = dict(params)
         self.max_points = int(max_points)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 from dataclasses import replace
@@ -13,9 +14,9 @@ from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitstage import RegionFitter, model_table
 from .refinement import recover_pixels, refine_regions
-from .residual import noise_sigma
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Result, Unfitted
+from .sensor import Sensor, check_plausible
 
 __all__ = ["Pipeline", "warm_up"]
 
@@ -25,6 +26,14 @@ def _expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
     return np.repeat(np.repeat(image, tile, axis=0), tile, axis=1)[: shape[0], : shape[1]]
 
 log = logging.getLogger(__name__)
+
+
+def _takes_sensor(run) -> bool:
+    # Segmenters declare a ``sensor`` keyword to receive the Sensor; older plugins do not.
+    try:
+        return "sensor" in inspect.signature(run).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 class Pipeline:
@@ -46,28 +55,19 @@ class Pipeline:
 
     def __init__(self, config=None):
         self.config: PipelineConfig = load_config(config)
+        # The sensor, resolved once; every stage receives it (or what follows from it).
+        self.sensor: Sensor = self.config.sensor.resolve()
         self.segmenter = registry.get("segmenter", self.config.segmenter.name)
+        self._segmenter_args = dict(self.config.segmenter.params)
+        if _takes_sensor(self.segmenter.run):
+            self._segmenter_args["sensor"] = self.sensor
         self.fitter = RegionFitter(registry.get("fitter", self.config.fitter.name),
-                                   self.config.fitter.params, self.config.max_fit_points)
+                                   self.config.fitter.params, self.config.max_fit_points,
+                                   sensor=self.sensor)
 
     def __repr__(self) -> str:
         return (f"Pipeline({self.config.name!r}, segmenter={self.segmenter.name!r}, "
                 f"fitter={self.fitter.plugin.name!r})")
-
-    def noise(self, ranges: np.ndarray, samples: np.ndarray | None = None) -> np.ndarray:
-        """Range noise per pixel (m): the refine section's model, else the segmenter's.
-
-        For means of ``samples`` returns the range-dependent term shrinks by
-        ``1/sqrt(samples)``; ``sigma0`` (quantisation, calibration) does not average out.
-        """
-        seg = self.config.segmenter.params
-        ref = self.config.refine
-        sigma0 = ref.sigma0 if ref.sigma0 is not None else seg.get("sigma0", 0.005)
-        quad = (ref.sigma_quadratic if ref.sigma_quadratic is not None
-                else seg.get("sigma_quadratic", 0.0))
-        if samples is not None:
-            quad = quad / np.sqrt(np.maximum(samples, 1))
-        return noise_sigma(ranges, sigma0=sigma0, sigma_quadratic=quad)
 
     def run(self, cloud: OrganizedCloud, *, recording=None, scan_index: int = 0) -> Result:
         """Segment ``cloud`` and fit every region.
@@ -83,20 +83,24 @@ class Pipeline:
         TypeError
             ``cloud`` is not an OrganizedCloud.
         ValueError
-            The cloud has no valid point, or the segmenter returned malformed labels.
+            The cloud has no valid point, its ranges do not fit the sensor's working
+            ranges (a unit mistake: see :func:`rangeseg_o3d.sensor.check_plausible`,
+            which also warns when no window looks planar), or the segmenter returned
+            malformed labels.
         """
         if not isinstance(cloud, OrganizedCloud):
             raise TypeError(f"cloud must be an OrganizedCloud; got {type(cloud).__name__}")
         if cloud.n_valid == 0:
             raise ValueError(
                 f"cloud has no valid point (all {cloud.shape[0]}x{cloud.shape[1]} are NaN)")
+        check_plausible(cloud, self.sensor, name=f"preset {self.config.name!r}")
         timings: dict[str, float] = {}
         t_start = time.perf_counter()
         work = cloud.tile_means(self.config.tile) if self.config.tile > 1 else cloud
         if work.n_valid == 0:
             raise ValueError(f"no {self.config.tile}x{self.config.tile} tile of the cloud has "
                              "at least half of its pixels valid; use a smaller tile")
-        seg = self.segmenter.run(work, **self.config.segmenter.params)
+        seg = self.segmenter.run(work, **self._segmenter_args)
         labels = np.asarray(seg.labels)
         if labels.shape != work.shape or not np.issubdtype(labels.dtype, np.integer):
             raise ValueError(
@@ -114,11 +118,11 @@ class Pipeline:
         timings["fit"] = t_fit - t_seg
 
         ranges = np.where(work.valid, work.range_image(), np.nan)
-        sigma = self.noise(ranges, work.samples)
+        sigma = self.sensor.noise.sigma(ranges, work.samples)
         if self.config.refine.enabled:
             labels, fits = refine_regions(
                 work, labels, fits, fitter=self.fitter, config=self.config.refine,
-                segmenter_params=self.config.segmenter.params, ranges=ranges, sigma=sigma,
+                sensor=self.sensor, ranges=ranges, sigma=sigma,
                 jumps=seg.stages.get("jumps"), timings=timings)
         t_refine = time.perf_counter()
         timings["refine"] = t_refine - t_fit
@@ -147,7 +151,7 @@ class Pipeline:
         from .kernels import assign_tiles
 
         ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
-        sigma = self.noise(ranges)
+        sigma = self.sensor.noise.sigma(ranges)
         xyz_flat = np.ascontiguousarray(cloud.xyz.reshape(-1, 3))
         kinds, params, rms = model_table(fits, int(tile_labels.max(initial=0)) + 1)
         labels = assign_tiles(xyz_flat, cloud.shape[0], cloud.shape[1],
@@ -157,8 +161,7 @@ class Pipeline:
         refine = self.config.refine
         if refine.enabled and refine.recover_leftovers:
             labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=self.fitter, config=refine,
-                                          segmenter_params=self.config.segmenter.params,
-                                          ranges=ranges, sigma=sigma, tile=self.config.tile)
+                                          sensor=self.sensor, ranges=ranges, sigma=sigma, tile=self.config.tile)
         return labels, fits, sigma
 
     @staticmethod

@@ -29,6 +29,7 @@ from .fitting.models import FitFailure, Plane
 from .fitting.moments import planes_from_moments
 from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .robust import trimmed_fit
+from .sensor import Sensor
 
 __all__ = ["refine_regions", "recover_pixels"]
 
@@ -49,7 +50,7 @@ class _Timer:
         self.last = now
 
 
-def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
+def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor: Sensor,
                    ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
                    timings: dict):
     """Run the refinement steps; returns the new ``(labels, fits)``.
@@ -60,18 +61,18 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     labels : (H, W) int32 labels after segmentation (modified in place).
     fits : label -> model or FitFailure.
     fitter : the pipeline's region fitter.
-    config : RefineConfig.
-    segmenter_params : the segmenter's parameters (``min_region_size``, jump thresholds).
+    config : RefineConfig (``min_region_size`` and the jump test resolved at load).
+    sensor : the run's sensor.
     ranges : (H, W) ranges, NaN where invalid (for the no-jump test of growth).
-    sigma : (H, W) range noise per pixel.
+    sigma : (H, W) range noise per pixel (``sensor.noise`` at ``ranges``).
     jumps : (H, W) jump-edge mask from the segmenter, if it made one.
     timings : dict receiving ``refine.<step>`` durations.
     """
     timer = _Timer(timings)
-    # Segmenter sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
+    # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
     tile = cloud.tile
-    min_size = max(-(-int(segmenter_params.get("min_region_size", 30)) // (tile * tile)), 10)
-    jump_ratio = segmenter_params.get("jump_ratio", 0.08) * tile
+    min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
+    jump_ratio = config.jump_ratio * tile
     ctx = _Context(cloud, fitter, sigma, min_size)
     failed = [k for k, m in fits.items() if not m]
     if failed:
@@ -85,7 +86,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
         grown = grow_into_edges(
             cloud.xyz, labels, good, sigma, ranges, iterations=iterations,
             k_sigma=config.k_sigma, jump_ratio=jump_ratio,
-            jump_min=segmenter_params.get("jump_min", 0.05),
+            jump_min=config.jump_min,
         )
         return ctx.refit_grown(labels, grown, fits)
 
@@ -113,7 +114,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     return labels, fits
 
 
-def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segmenter_params: dict,
+def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, sensor: Sensor,
                    ranges: np.ndarray, sigma: np.ndarray, tile: int):
     """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles see.
 
@@ -127,7 +128,7 @@ def recover_pixels(cloud, labels, fits, *, fitter: RegionFitter, config, segment
     # Twice the smallest region: a piece of a surface the tiles already have, left over
     # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
     # could not see at all is not.
-    min_size = 2 * max(int(segmenter_params.get("min_region_size", 30)), 10)
+    min_size = 2 * max(int(config.min_region_size), 10)
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, cloud.valid, np.zeros(labels.shape, bool),
                                      min_size=min_size, first_label=first)

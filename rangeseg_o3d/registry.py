@@ -8,10 +8,13 @@ fails to load is skipped with a warning, never a crash.
 
 Contracts
 ---------
-segmenter ``run(cloud: OrganizedCloud, **params) -> Segmentation``
+segmenter ``run(cloud: OrganizedCloud, *, sensor: Sensor, **params) -> Segmentation``
 fitter    ``run(points: (N, 3) ndarray, **params) -> Plane | Sphere | Cylinder | FitFailure``
 
-``params`` are the fields of the plugin's pydantic ``config`` model.
+``params`` are the fields of the plugin's pydantic ``config`` model. A segmenter that
+declares a ``sensor`` keyword receives the run's :class:`~rangeseg_o3d.sensor.Sensor`
+(noise model, grid); a fitter whose keywords follow from the sensor provides
+``bind_sensor``.
 """
 
 from __future__ import annotations
@@ -75,6 +78,11 @@ class Plugin:
     refits from label-wise moments (see :mod:`rangeseg_o3d.fitting.moments`): a model or
     FitFailure per row, or None where the kind needs the points (the pipeline then calls
     ``refit``)."""
+    bind_sensor: Callable | None = None
+    """Optional, fitters only: ``bind_sensor(params, sensor) -> dict`` turns the validated
+    parameters into the keywords of ``run``, ``refit``, ``fit_batch`` and ``refit_moments``
+    for a :class:`~rangeseg_o3d.sensor.Sensor`, once per pipeline (thresholds that grow
+    with the sensor's noise)."""
 
 
 _BUILTIN: dict[str, dict[str, str]] = {

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .sensor import noise_sigma
+
 __all__ = [
     "neighbourhood_moments",
     "smallest_eigenpairs",
@@ -77,15 +79,6 @@ def smallest_eigenpairs(scatter: np.ndarray, *, with_vectors: bool = True):
     if not with_vectors:
         return values.reshape(shape)
     return values.reshape(shape), eigenvectors(packed, values).T.reshape((3,) + shape)
-
-
-def noise_sigma(ranges: np.ndarray, *, sigma0: float, sigma_quadratic: float = 0.0) -> np.ndarray:
-    """Range noise model ``sigma(r) = sigma0 + sigma_quadratic * r**2`` in metres.
-
-    A constant term suits time-of-flight lasers (LMS200: ~5 mm); the quadratic term suits
-    triangulating depth cameras (Kinect: ~1.425e-3 z^2, the CAPE model).
-    """
-    return sigma0 + sigma_quadratic * np.square(ranges)
 
 
 def residual_image(

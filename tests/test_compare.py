@@ -33,11 +33,11 @@ def test_region_growing_presets_are_the_sensor_presets_with_another_segmenter(pr
     assert rg.segmenter.name == "region_growing"
     assert rg.fitter == base.fitter
     assert rg.tile == 1  # region growing thins points on its own voxel grid
-    # Same refinement, with the noise model the sensor preset's segmenter implies.
-    expected = base.refine.model_copy(update={
-        "sigma0": base.segmenter.params["sigma0"],
-        "sigma_quadratic": base.segmenter.params["sigma_quadratic"],
-    })
+    assert rg.sensor == base.sensor
+    # Same refinement; the region size and jump test are the refinement's defaults, which
+    # it used before they were explicit (region growing has no such parameters).
+    expected = base.refine.model_copy(update={"min_region_size": 30, "jump_ratio": 0.08,
+                                              "jump_min": 0.05})
     assert rg.refine == expected
 
 
@@ -58,8 +58,7 @@ def test_config_for_swaps_only_the_segmenter(segmenter):
     assert cfg.segmenter.name == segmenter
     assert cfg.fitter == base.fitter
     assert cfg.refine.grow_iterations == base.refine.grow_iterations
-    if segmenter != "residual_edges":  # the preset itself reads sigma0 from its segmenter
-        assert cfg.refine.sigma0 == pytest.approx(0.005)
+    assert cfg.sensor == base.sensor
     if segmenter == "region_growing":
         assert cfg.segmenter.params == load_config("lms200_region_growing").segmenter.params
 

@@ -22,7 +22,9 @@ Thresholds are rms distances in metres. The defaults suit the nodding SICK LMS20
 (range noise sigma about 5 mm, independent of range): ``plane_rms = 0.01`` is twice the
 noise. Sensors whose noise grows with range (RGB-D: sigma about 1.4e-3 z^2 m, CAPE's
 model with z in m) add ``rms_per_range2 * R^2`` to every threshold, R being the
-distance of the patch centroid from the sensor origin.
+distance of the patch centroid from the sensor origin. In a pipeline that term is the
+sensor's: ``rms_per_range2 = range_growth * sensor.noise.sigma_quadratic``
+(:func:`bind_sensor`, the plugin's configuration holds ``range_growth``).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from .plane import UNDETERMINED, plane_from_prepared
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
-           "PrimitiveFitterConfig", "PLUGIN", "quadric_shape"]
+           "PrimitiveFitterConfig", "PLUGIN", "quadric_shape", "bind_sensor"]
 
 INLIER_FACTOR = 3.0
 """Points within INLIER_FACTOR x the kind's rms threshold count as inliers."""
@@ -329,18 +331,28 @@ def refit_planes_from_moments(
 
 
 class PrimitiveFitterConfig(BaseModel):
-    """Parameters of the "primitives" fitter: exactly :func:`fit_primitive`'s keywords."""
+    """Parameters of the "primitives" fitter: :func:`fit_primitive`'s keywords, with
+    ``range_growth`` in place of ``rms_per_range2`` (see :func:`bind_sensor`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     plane_rms: float = Field(0.01, gt=0, description="largest plane rms, m")
     cylinder_rms: float = Field(0.01, gt=0, description="largest cylinder rms, m")
     sphere_rms: float = Field(0.01, gt=0, description="largest sphere rms, m")
-    rms_per_range2: float = Field(0.0, ge=0, description="threshold growth per squared range, m per m^2")
+    range_growth: float = Field(
+        1.0, ge=0, description="thresholds grow by this times the sensor's sigma_quadratic r^2")
     min_points: int = Field(10, ge=3, description="smallest region fitted")
     max_radius: float = Field(5.0, gt=0, description="largest cylinder/sphere radius, m")
     min_arc_deg: float = Field(30.0, gt=0, le=360, description="smallest arc/cap covered, deg")
     curvature_gain: float = Field(1.5, ge=1, description="rms reduction a curved model must bring")
+
+
+def bind_sensor(params: dict, sensor) -> dict:
+    """:func:`fit_primitive`'s keywords for ``sensor``: the thresholds grow with range as
+    ``range_growth`` times the sensor's quadratic noise term."""
+    kwargs = dict(params)
+    kwargs["rms_per_range2"] = kwargs.pop("range_growth") * sensor.noise.sigma_quadratic
+    return kwargs
 
 
 PLUGIN = Plugin(
@@ -351,4 +363,5 @@ PLUGIN = Plugin(
     refit=refit_primitive,
     fit_batch=fit_planes_batch,
     refit_moments=refit_planes_from_moments,
+    bind_sensor=bind_sensor,
 )

@@ -59,20 +59,30 @@ def save_cloud(cloud, path) -> Path:
     return write_pcd(cloud, path)
 
 
-def load_cloud(path):
-    """Read an :class:`~rangeseg_o3d.cloud.OrganizedCloud` from ``.npz`` or ``.pcd``.
+def load_cloud(path, *, units: str = "m"):
+    """Read an :class:`~rangeseg_o3d.cloud.OrganizedCloud` from ``.npz`` or ``.pcd``, in metres.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    units : unit of the file's coordinates (``"m"``, ``"cm"``, ``"mm"``, ...; see
+        :data:`rangeseg_o3d.sensor.UNIT_SCALES`). ``.npz`` files written by
+        :func:`save_npz` are in metres by contract and are not converted.
 
     Raises
     ------
     ValueError
-        If the suffix is unknown or the file's content is malformed.
+        If the suffix or the units are unknown or the file's content is malformed.
     FileNotFoundError
         If ``path`` does not exist.
     """
+    from ..sensor import unit_scale
+
+    scale = unit_scale(units)
     path = Path(path)
     suffix = _suffix(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     if suffix == ".npz":
-        return load_npz(path)
-    return read_pcd(path)
+        return load_npz(path, units=units)
+    return read_pcd(path).scaled(scale)

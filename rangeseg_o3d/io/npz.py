@@ -10,6 +10,7 @@ import numpy as np
 
 from ..cloud import OrganizedCloud
 from ..kinematics import NoddingGeometry, PinholeGeometry
+from ..sensor import unit_scale
 from .atomic import atomic_write
 
 __all__ = ["save_npz", "load_npz", "NPZ_FORMAT_VERSION"]
@@ -108,11 +109,13 @@ def _geometry(data, path):
     raise ValueError(f"{path}: geometry_kind must be 'nodding' or 'pinhole'; got {kind!r}")
 
 
-def load_npz(path) -> OrganizedCloud:
+def load_npz(path, *, units: str = "m") -> OrganizedCloud:
     """Read a cloud written by :func:`save_npz`.
 
     A file without ``format_version`` is accepted if it holds a valid ``xyz``
-    (e.g. ``np.savez(path, xyz=points)``).
+    (e.g. ``np.savez(path, xyz=points)``); its coordinates (and ranges) are taken to be
+    in ``units`` and converted to metres. A file with ``format_version`` was written by
+    :func:`save_npz` and is in metres: ``units`` does not apply to it.
 
     Raises
     ------
@@ -122,6 +125,7 @@ def load_npz(path) -> OrganizedCloud:
     FileNotFoundError
         If ``path`` does not exist.
     """
+    scale = unit_scale(units)
     path = Path(path)
     try:
         archive = np.load(path, allow_pickle=False)
@@ -147,7 +151,13 @@ def load_npz(path) -> OrganizedCloud:
         grids = {name: data[name] for name in _OPTIONAL_GRIDS if name in data}
         timestamps = data["timestamps"] if "timestamps" in data else None
         geometry = _geometry(data, path)
+        ours = "format_version" in data
     try:
-        return OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, **grids)
+        cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, **grids)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{path}: {err}") from err
+    if ours:
+        if units != "m":
+            log.info("%s was written by save_npz, in metres; units=%r does not apply", path, units)
+        return cloud
+    return cloud.scaled(scale)

@@ -413,6 +413,7 @@ def voxel_centroids(points, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
 def segment_region_growing(
     cloud: OrganizedCloud,
     *,
+    sensor=None,
     n_neighbours: int = 30,
     normal_neighbours: int = 30,
     smoothness_deg: float = 30.0,
@@ -429,6 +430,9 @@ def segment_region_growing(
     Parameters
     ----------
     cloud : OrganizedCloud
+    sensor : the run's :class:`~rangeseg_o3d.sensor.Sensor`, received as every segmenter
+        does; PCL's method as implemented here has no noise model (angles and curvature
+        are scale-free, the voxel size is a parameter), so it is not used yet.
     n_neighbours, normal_neighbours, smoothness_deg, curvature_threshold, min_cluster_size, max_cluster_size, voxel_size
         See :func:`region_growing_labels`.
 

@@ -11,6 +11,7 @@ from ..edges import close_residual, edge_mask, jump_edges
 from ..regions import label_regions
 from ..registry import Plugin, Segmentation
 from ..residual import residual_image
+from ..sensor import Sensor
 
 __all__ = ["segment_residual_edges", "ResidualEdgesConfig", "PLUGIN"]
 
@@ -18,10 +19,9 @@ __all__ = ["segment_residual_edges", "ResidualEdgesConfig", "PLUGIN"]
 def segment_residual_edges(
     cloud,
     *,
+    sensor: Sensor | None = None,
     window: int = 3,
     min_valid: int = 6,
-    sigma0: float = 0.005,
-    sigma_quadratic: float = 0.0,
     threshold: float = 9.0,
     closing_iterations: int = 2,
     jump_ratio: float = 0.08,
@@ -34,10 +34,11 @@ def segment_residual_edges(
     Parameters
     ----------
     cloud : OrganizedCloud
+    sensor : the sensor; its noise model ``sigma(r) = sigma0 + sigma_quadratic r^2`` (m)
+        normalises the residual, which is divided by ``(N - 3) sigma(r)^2`` (see
+        :func:`rangeseg_o3d.residual.residual_image`). None: ``Sensor()`` (5 mm, constant).
     window : neighbourhood size (odd); the paper uses 3.
     min_valid : windows with fewer valid points are edges.
-    sigma0, sigma_quadratic : range-noise model ``sigma(r) = sigma0 + sigma_quadratic r^2`` (m);
-        the residual is divided by ``(N - 3) sigma(r)^2`` (see :func:`rangeseg_o3d.residual.residual_image`).
     threshold : edge threshold on the normalised residual, in units of the noise variance
         (about 1 inside a plane; 9 is "three sigma").
     closing_iterations : grey-level closings of the residual image (the paper: 2).
@@ -55,6 +56,7 @@ def segment_residual_edges(
     -------
     Segmentation with ``labels`` and the stages ``residual``, ``closed``, ``edges``, ``jumps``.
     """
+    noise = (sensor if sensor is not None else Sensor()).noise
     timings = {}
     t0 = time.perf_counter()
     tile = cloud.tile
@@ -62,8 +64,8 @@ def segment_residual_edges(
     noise_scale = 1.0 if cloud.samples is None else 1.0 / np.sqrt(np.maximum(cloud.samples, 1))
     valid = cloud.valid
     residual, _ = residual_image(
-        xyz, window=window, min_valid=min_valid, ranges=ranges, sigma0=sigma0,
-        sigma_quadratic=sigma_quadratic, with_normals=False, noise_scale=noise_scale,
+        xyz, window=window, min_valid=min_valid, ranges=ranges, sigma0=noise.sigma0,
+        sigma_quadratic=noise.sigma_quadratic, with_normals=False, noise_scale=noise_scale,
     )
     t1 = time.perf_counter()
     timings["residual"] = t1 - t0
@@ -88,8 +90,6 @@ class ResidualEdgesConfig(BaseModel):
 
     window: int = Field(3, ge=3, le=15)
     min_valid: int = Field(6, ge=4)
-    sigma0: float = Field(0.005, ge=0)
-    sigma_quadratic: float = Field(0.0, ge=0)
     threshold: float = Field(9.0, gt=0)
     closing_iterations: int = Field(2, ge=0, le=10)
     jump_ratio: float = Field(0.08, gt=0)
@@ -107,8 +107,6 @@ class ResidualEdgesConfig(BaseModel):
             )
         if self.connectivity not in (4, 8):
             raise ValueError(f"connectivity must be 4 or 8; got {self.connectivity}")
-        if self.sigma0 == 0 and self.sigma_quadratic == 0:
-            raise ValueError("sigma0 and sigma_quadratic cannot both be 0 (the noise model would be zero)")
         return self
 
 

@@ -13,9 +13,9 @@ def test_presets_load_and_name_their_sensor():
     lms = load_config("lms200")
     assert lms.name == "lms200"
     assert lms.segmenter.name == "residual_edges"
-    assert lms.segmenter.params["sigma0"] == pytest.approx(0.005)
+    assert lms.sensor.sigma0 == pytest.approx(0.005)
     rgbd = load_config("configs/rgbd_vga.yaml")
-    assert rgbd.segmenter.params["sigma_quadratic"] > 0
+    assert rgbd.sensor.sigma_quadratic > 0
 
 
 def test_defaults_are_completed_from_the_plugin_models():

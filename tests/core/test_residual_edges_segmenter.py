@@ -4,6 +4,7 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.evaluation import hoover
 from rangeseg_o3d.segmenters.residual_edges import segment_residual_edges
+from rangeseg_o3d.sensor import NoiseModel, Sensor
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.suite import default_scene, rgbd_suite
 
@@ -24,8 +25,8 @@ def test_tile_means_cloud_is_segmented_with_its_reduced_noise():
     tiles = scan.cloud.tile_means(6)
     assert tiles.shape == (80, 107) and tiles.tile == 6
     assert tiles.samples.max() == 36
-    params = dict(sigma0=0.001, sigma_quadratic=0.001425, threshold=3.0, min_region_size=300,
-                  jump_ratio=0.02, jump_min=0.02)
+    params = dict(sensor=Sensor(NoiseModel(sigma0=0.001, sigma_quadratic=0.001425)), threshold=3.0,
+                  min_region_size=300, jump_ratio=0.02, jump_min=0.02)
     seg = segment_residual_edges(tiles, **params)
     assert seg.labels.shape == (80, 107)
     for image in seg.stages.values():
@@ -47,5 +48,6 @@ def test_tile_means_cloud_is_segmented_with_its_reduced_noise():
 
 def test_segmenter_validates_config():
     with pytest.raises(ValueError, match="sigma0 and sigma_quadratic"):
-        rs.load_config({"segmenter": {"name": "residual_edges",
-                                      "params": {"sigma0": 0, "sigma_quadratic": 0}}})
+        rs.load_config({"sensor": {"sigma0": 0, "sigma_quadratic": 0}})
+    with pytest.raises(ValueError, match=r"segmenter\.params\.sigma0 has moved to sensor\.sigma0"):
+        rs.load_config({"segmenter": {"name": "residual_edges", "params": {"sigma0": 0.01}}})

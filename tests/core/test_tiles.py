@@ -73,8 +73,8 @@ def test_assign_tiles_labels_pixels_by_the_nearest_model():
 def test_pipeline_on_tiles_reports_full_resolution_labels_and_pixel_rms():
     noise = 0.004
     xyz = _wall(96, 120, z=2.0, noise=noise, seed=3)
-    cfg = rs.load_config({"tile": 6, "segmenter": {"name": "residual_edges", "params": {
-        "sigma0": noise, "threshold": 4.0, "min_region_size": 300}}})
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": noise}, "segmenter": {
+        "name": "residual_edges", "params": {"threshold": 4.0, "min_region_size": 300}}})
     result = rs.Pipeline(cfg).run(rs.OrganizedCloud(xyz))
     assert result.labels.shape == (96, 120)
     assert {image.shape for image in result.stages.values()} == {(96, 120)}
@@ -108,8 +108,8 @@ def _ramp_band_scene(seed=0):
     z[v >= 49] = z[band].min()
     rng = np.random.default_rng(seed)
     xyz = np.dstack([x * z / 2, y * z / 2, z + rng.normal(0, 0.002, (h, w))])
-    cfg = rs.load_config({"tile": 6, "segmenter": {"name": "residual_edges", "params": {
-        "sigma0": 0.002, "threshold": 4.0, "min_region_size": 60}}})
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "segmenter": {
+        "name": "residual_edges", "params": {"threshold": 4.0, "min_region_size": 60}}})
     return rs.OrganizedCloud(xyz), band, cfg
 
 

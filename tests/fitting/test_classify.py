@@ -4,7 +4,8 @@ from pydantic import ValidationError
 
 from rangeseg_o3d import registry
 from rangeseg_o3d.fitting import Cylinder, FitFailure, Plane, Sphere, fit_primitive
-from rangeseg_o3d.fitting.classify import PLUGIN, PrimitiveFitterConfig
+from rangeseg_o3d.fitting.classify import PLUGIN, PrimitiveFitterConfig, bind_sensor
+from rangeseg_o3d.sensor import NoiseModel, Sensor
 
 NOISE = 0.005  # LMS200 range noise
 
@@ -97,13 +98,21 @@ def test_too_few_and_invalid_points():
 def test_config_fields_are_exactly_the_keywords():
     import inspect
 
+    # range_growth stands for rms_per_range2, which follows from the sensor (bind_sensor)
     keywords = [
         name for name, p in inspect.signature(fit_primitive).parameters.items() if p.kind is p.KEYWORD_ONLY
     ]
-    assert list(PrimitiveFitterConfig.model_fields) == keywords
+    fields = list(PrimitiveFitterConfig.model_fields)
+    assert fields == [("range_growth" if k == "rms_per_range2" else k) for k in keywords]
     defaults = PrimitiveFitterConfig()
     for name in keywords:
-        assert getattr(defaults, name) == inspect.signature(fit_primitive).parameters[name].default
+        if name != "rms_per_range2":
+            assert getattr(defaults, name) == inspect.signature(fit_primitive).parameters[name].default
+    quadratic = Sensor(NoiseModel(sigma0=0.001, sigma_quadratic=0.002))
+    bound = bind_sensor(PrimitiveFitterConfig(range_growth=1.5).model_dump(), quadratic)
+    assert sorted(bound) == sorted(keywords)
+    assert bound["rms_per_range2"] == pytest.approx(0.003, rel=1e-12)
+    assert bind_sensor(defaults.model_dump(), Sensor())["rms_per_range2"] == 0.0
 
 
 @pytest.mark.parametrize(
@@ -119,7 +128,7 @@ def test_plugin_registered_and_runs_with_config(synth):
     plugin = registry.get("fitter", "primitives")
     assert plugin is PLUGIN and plugin.config is PrimitiveFitterConfig
     rng = np.random.default_rng(8)
-    params = PrimitiveFitterConfig(plane_rms=0.02).model_dump()
+    params = bind_sensor(PrimitiveFitterConfig(plane_rms=0.02).model_dump(), Sensor())
     assert isinstance(plugin.run(synth.plane(rng, (0, 0, 1), 1.0, noise=0.01), **params), Plane)
 
 

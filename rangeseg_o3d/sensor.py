@@ -1,0 +1,205 @@
+"""The sensor: its range-noise model, the unit of its files, its grid and its working ranges.
+
+One immutable :class:`Sensor` per run, resolved once from the ``sensor:`` section of a
+preset (:class:`rangeseg_o3d.config.SensorConfig`); the segmenter, the fitter's thresholds
+and every refinement step receive it (or what follows from it) as arguments. This module
+imports numpy only.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "NoiseModel",
+    "Sensor",
+    "UNIT_SCALES",
+    "UnitsWarning",
+    "check_plausible",
+    "noise_sigma",
+    "unit_scale",
+]
+
+#: Metres per unit of the coordinate units a scan file may use.
+UNIT_SCALES = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "um": 1e-6, "in": 0.0254, "ft": 0.3048}
+
+# A scan whose median range is further than this factor outside the sensor's working
+# ranges is taken for a unit mistake (those are factors of 10 and more).
+_RANGE_SLACK = 3.0
+# A median normalised window residual above this (local scatter ten times the noise
+# model) means no window looks planar: coordinates in a smaller unit than declared,
+# or a preset for another sensor.
+_SCATTER_LIMIT = 100.0
+# The scatter check looks at about this many windows along each side of the grid.
+_SCATTER_GRID = 64
+
+
+class UnitsWarning(UserWarning):
+    """A scan whose coordinates look implausible for the sensor (probably a unit mistake)."""
+
+
+def unit_scale(units: str) -> float:
+    """Metres per ``units`` (``"m"``, ``"cm"``, ``"mm"``, ...); ValueError naming the known ones."""
+    try:
+        return UNIT_SCALES[units]
+    except (KeyError, TypeError):
+        raise ValueError(f"units must be one of {', '.join(UNIT_SCALES)}; got {units!r}") from None
+
+
+def noise_sigma(ranges: np.ndarray, *, sigma0: float, sigma_quadratic: float = 0.0) -> np.ndarray:
+    """Range noise model ``sigma(r) = sigma0 + sigma_quadratic * r**2`` in metres.
+
+    A constant term suits time-of-flight lasers (LMS200: ~5 mm); the quadratic term suits
+    triangulating depth cameras (Kinect: ~1.425e-3 z^2, the CAPE model).
+    """
+    return sigma0 + sigma_quadratic * np.square(ranges)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Range noise ``sigma(r) = sigma0 + sigma_quadratic r^2`` (metres, r in metres).
+
+    ``sigma0`` stands for what averaging does not remove (quantisation, calibration
+    ripple); the range-dependent term shrinks like ``1/sqrt(n)`` for means of ``n``
+    returns (see :meth:`sigma`).
+    """
+
+    sigma0: float = 0.005
+    sigma_quadratic: float = 0.0
+
+    def __post_init__(self):
+        for name in ("sigma0", "sigma_quadratic"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
+        if self.sigma0 == 0 and self.sigma_quadratic == 0:
+            raise ValueError("sigma0 and sigma_quadratic cannot both be 0 (the noise model would be zero)")
+
+    def sigma(self, ranges: np.ndarray, samples: np.ndarray | None = None) -> np.ndarray:
+        """Noise per pixel (m) at ``ranges``; for means of ``samples`` returns the
+        range-dependent term is divided by ``sqrt(samples)``."""
+        quadratic = self.sigma_quadratic
+        if samples is not None:
+            quadratic = quadratic / np.sqrt(np.maximum(samples, 1))
+        return noise_sigma(ranges, sigma0=self.sigma0, sigma_quadratic=quadratic)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What the method needs to know about the scanner.
+
+    Attributes
+    ----------
+    noise : the range-noise model.
+    units : unit of the coordinates in its scan files (``.pcd``, ``.npz`` without a
+        recorded unit); inputs are converted to metres when read.
+    wrap_columns : the columns close a full turn (360-degree scanners): the first and last
+        column are neighbours.
+    row_spacing_deg, column_spacing_deg : angular step between rows / columns, when known.
+    min_range, max_range : the sensor's working ranges (m): a scan whose median range lies
+        far outside them is taken for a unit mistake (:func:`check_plausible`).
+    """
+
+    noise: NoiseModel = NoiseModel()
+    units: str = "m"
+    wrap_columns: bool = False
+    row_spacing_deg: float | None = None
+    column_spacing_deg: float | None = None
+    min_range: float = 0.01
+    max_range: float = 1000.0
+
+    def __post_init__(self):
+        if not isinstance(self.noise, NoiseModel):
+            raise TypeError(f"noise must be a NoiseModel; got {type(self.noise).__name__}")
+        unit_scale(self.units)
+        for name in ("row_spacing_deg", "column_spacing_deg"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and 0 < value <= 360):
+                raise ValueError(f"{name} must be None or in (0, 360]; got {value!r}")
+        if not (math.isfinite(self.min_range) and math.isfinite(self.max_range)
+                and 0 <= self.min_range < self.max_range):
+            raise ValueError("min_range and max_range must be finite with 0 <= min_range < max_range; "
+                             f"got {self.min_range!r}, {self.max_range!r}")
+
+    @property
+    def scale(self) -> float:
+        """Metres per unit of the sensor's files."""
+        return unit_scale(self.units)
+
+
+def _unit_hint(median_m: float, declared: str, sensor: Sensor) -> str:
+    # The unit that puts the median range nearest the middle (geometric) of the working ranges.
+    middle = math.log(max(sensor.min_range, 1e-3) * sensor.max_range) / 2
+    fits = {u: median_m * s / unit_scale(declared) for u, s in UNIT_SCALES.items()}
+    fits = {u: r for u, r in fits.items() if sensor.min_range <= r <= sensor.max_range}
+    if not fits:
+        return "no unit puts it there: is this a scan of that sensor at all?"
+    best = min(fits, key=lambda u: abs(math.log(fits[u]) - middle))
+    return (f"the coordinates are likely in {best} (that gives {fits[best]:.3g} m): read them so "
+            f"with --units {best} (sensor.units: {best})")
+
+
+def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
+    # Median noise-normalised plane residual of the windows of a sub-grid: about 1 when
+    # the noise model matches (much less for models that over-state the noise).
+    from .residual import residual_image
+
+    xyz = np.ascontiguousarray(cloud.xyz[::step, ::step])
+    if min(xyz.shape[:2]) < 3:
+        return float("nan")
+    samples = None if cloud.samples is None else cloud.samples[::step, ::step]
+    scale = 1.0 if samples is None else 1.0 / np.sqrt(np.maximum(samples, 1))
+    residual, _ = residual_image(xyz, min_valid=6, sigma0=sensor.noise.sigma0,
+                                 sigma_quadratic=sensor.noise.sigma_quadratic,
+                                 with_normals=False, noise_scale=scale)
+    finite = residual[np.isfinite(residual)]
+    return float(np.median(finite)) if finite.size else float("nan")
+
+
+def check_plausible(cloud, sensor: Sensor, *, name: str = "the sensor") -> None:
+    """Refuse or flag a scan whose coordinates do not fit ``sensor`` (a unit mistake).
+
+    The cloud is in metres (already converted from ``sensor.units``).
+
+    Raises
+    ------
+    ValueError
+        The median range lies more than a factor 3 outside ``[min_range, max_range]``
+        (a cm scan read as metres by a depth-camera preset, a scene scaled by 1e-30):
+        the message names the units that would fit.
+
+    Warns
+    -----
+    UnitsWarning
+        No window of the grid looks planar within 10 noise sigmas (a cm scan read as
+        metres under a sensor with a long reach, or a preset for another sensor).
+    """
+    # A sub-grid of about 64 x 64 pixels says as much as the whole scan, for a fraction
+    # of a millisecond on a VGA frame.
+    step = max(1, min(cloud.shape) // _SCATTER_GRID)
+    if cloud.ranges is not None:
+        ranges = np.asarray(cloud.ranges[::step, ::step], dtype=np.float64)
+    else:
+        ranges = np.linalg.norm(cloud.xyz[::step, ::step], axis=2)
+    ranges = ranges[np.isfinite(ranges)]
+    if ranges.size == 0:
+        return
+    median = float(np.median(ranges))
+    low, high = sensor.min_range / _RANGE_SLACK, sensor.max_range * _RANGE_SLACK
+    if not low <= median <= high:
+        raise ValueError(
+            f"the scan's median range is {median:.3g} m, but {name} works at "
+            f"{sensor.min_range:g}-{sensor.max_range:g} m: probably a unit problem "
+            f"(the input was read as {sensor.units}); {_unit_hint(median, sensor.units, sensor)}")
+    scatter = _median_scatter(cloud, sensor, step)
+    if scatter > _SCATTER_LIMIT:
+        warnings.warn(
+            f"the scan's local scatter is about {math.sqrt(scatter):.0f} times {name}'s noise "
+            f"model (sigma0 {sensor.noise.sigma0:g} m): no window looks planar, so few or no "
+            f"regions will be found. Probably a unit problem (the input was read as "
+            f"{sensor.units}; a scan in a smaller unit, e.g. cm read as m, looks like this), "
+            "or a preset for another sensor.", UnitsWarning, stacklevel=2)

@@ -1,0 +1,188 @@
+"""The sensor section: resolution into one Sensor, who receives it, and dotted-key overrides."""
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.config import load_config, parse_overrides, presets
+from rangeseg_o3d.pipeline import Pipeline
+from rangeseg_o3d.sensor import NoiseModel, Sensor, unit_scale
+from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+from rangeseg_o3d.synthetic.suite import default_scene
+
+
+@pytest.fixture(scope="module")
+def lms_cloud():
+    return simulate_lms200(default_scene(), seed=0).cloud
+
+
+@pytest.mark.parametrize("preset", presets())
+def test_every_preset_has_a_sensor_section_resolved_into_one_sensor(preset):
+    import yaml
+
+    from rangeseg_o3d.config import preset_dir
+
+    raw = yaml.safe_load((preset_dir() / f"{preset}.yaml").read_text())
+    assert "sensor" in raw and {"sigma0", "sigma_quadratic", "units"} <= set(raw["sensor"])
+    config = load_config(preset)
+    sensor = Pipeline(config).sensor
+    assert isinstance(sensor, Sensor)
+    assert sensor.noise == NoiseModel(raw["sensor"]["sigma0"], raw["sensor"]["sigma_quadratic"])
+    assert sensor.units == raw["sensor"]["units"]
+    # the noise is nowhere else: not in the segmenter's, fitter's or refinement's sections
+    for section in (config.segmenter.params, config.fitter.params, config.refine.model_dump()):
+        assert not {"sigma0", "sigma_quadratic", "rms_per_range2"} & set(section)
+    with pytest.raises(AttributeError):
+        sensor.units = "cm"  # immutable
+
+
+def test_noise_model_is_the_documented_formula_and_averages_only_the_range_term():
+    noise = NoiseModel(sigma0=0.001, sigma_quadratic=0.001425)
+    ranges = np.array([1.0, 2.0, 4.0])
+    np.testing.assert_allclose(noise.sigma(ranges), 0.001 + 0.001425 * ranges**2, rtol=1e-15)
+    means = noise.sigma(ranges, samples=np.array([36, 36, 0]))
+    np.testing.assert_allclose(means, [0.001 + 0.001425 / 6, 0.001 + 0.001425 * 4 / 6,
+                                       0.001 + 0.001425 * 16], rtol=1e-15)
+    with pytest.raises(ValueError, match="both be 0"):
+        NoiseModel(0.0, 0.0)
+    with pytest.raises(ValueError, match="sigma0"):
+        NoiseModel(float("nan"))
+
+
+def test_sensor_validates_units_and_ranges():
+    assert unit_scale("cm") == 0.01 and Sensor(units="mm").scale == 0.001
+    with pytest.raises(ValueError, match="units must be one of"):
+        Sensor(units="furlong")
+    with pytest.raises(ValueError, match="min_range"):
+        Sensor(min_range=5.0, max_range=1.0)
+    with pytest.raises(ValueError, match="sensor.units"):
+        load_config({"sensor": {"units": "furlong"}})
+
+
+def test_the_segmenter_normalises_by_the_sensors_noise(lms_cloud):
+    # constant noise: the residual scales as 1/sigma0^2
+    base = Pipeline("lms200").run(lms_cloud).stages["residual"]
+    doubled = Pipeline(load_config("lms200", overrides={"sensor.sigma0": 0.01})).run(lms_cloud)
+    finite = np.isfinite(base)
+    assert finite.sum() > 5000
+    np.testing.assert_allclose(doubled.stages["residual"][finite], base[finite] / 4, rtol=1e-12)
+
+
+def test_a_segmenter_declaring_sensor_receives_the_resolved_sensor(lms_cloud):
+    from pydantic import BaseModel
+
+    from rangeseg_o3d import registry
+
+    seen = []
+
+    def record(cloud, *, sensor):
+        seen.append(sensor)
+        return rs.Segmentation(labels=np.where(cloud.valid, 1, 0).astype(np.int32))
+
+    class NoParams(BaseModel):
+        pass
+
+    registry.register("segmenter", rs.Plugin("sensor_probe_test", NoParams, record), overwrite=True)
+    try:
+        config = load_config({"sensor": {"sigma0": 0.02, "wrap_columns": True},
+                              "segmenter": {"name": "sensor_probe_test"}})
+        pipeline = Pipeline(config)
+        pipeline.run(lms_cloud)
+    finally:
+        registry._REGISTERED["segmenter"].pop("sensor_probe_test", None)
+    assert seen == [pipeline.sensor]
+    assert seen[0].noise.sigma0 == 0.02 and seen[0].wrap_columns
+
+
+def test_fitter_thresholds_follow_the_sensor_noise():
+    # rgbd_vga keeps its former 0.0015 r^2 exactly, now as a factor on the sensor's term
+    assert Pipeline("rgbd_vga").fitter.params["rms_per_range2"] == 0.0015
+    assert Pipeline("lms200").fitter.params["rms_per_range2"] == 0.0
+    louder = Pipeline(load_config("rgbd_vga", overrides={"sensor.sigma_quadratic": 0.002}))
+    assert louder.fitter.params["rms_per_range2"] == pytest.approx(0.002 * 0.0015 / 0.001425, rel=1e-12)
+    assert "range_growth" not in louder.fitter.params
+
+
+def test_refinement_settings_shared_with_the_segmenter_are_resolved_once():
+    lms = load_config("lms200")
+    assert (lms.refine.min_region_size, lms.refine.jump_ratio, lms.refine.jump_min) == (
+        lms.segmenter.params["min_region_size"], lms.segmenter.params["jump_ratio"],
+        lms.segmenter.params["jump_min"])
+    rg = load_config("lms200_region_growing")  # stated in the preset: what it used before
+    assert (rg.refine.min_region_size, rg.refine.jump_ratio, rg.refine.jump_min) == (30, 0.08, 0.05)
+    bigger = load_config("lms200", overrides={"segmenter.params.min_region_size": 50})
+    assert bigger.refine.min_region_size == 50
+    own = load_config("lms200", overrides={"segmenter.params.min_region_size": 50,
+                                            "refine.min_region_size": 25})
+    assert own.refine.min_region_size == 25
+
+
+@pytest.mark.parametrize("old, new", [
+    ({"segmenter": {"name": "residual_edges", "params": {"sigma_quadratic": 0.001}}}, "sensor.sigma_quadratic"),
+    ({"refine": {"sigma0": 0.005}}, "sensor.sigma0"),
+    ({"fitter": {"name": "primitives", "params": {"rms_per_range2": 0.0015}}}, "sensor.sigma_quadratic"),
+])
+def test_old_noise_keys_say_where_they_moved(old, new):
+    with pytest.raises(ValueError, match=f"has moved to {new}"):
+        load_config(old)
+
+
+def test_overrides_set_values_by_dotted_key():
+    config = load_config("lms200", overrides={"sensor.sigma0": 0.01, "refine.k_sigma": 2.5,
+                                              "segmenter.params.threshold": 5, "tile": 2,
+                                              "fitter.params.plane_rms": 0.02})
+    assert config.sensor.sigma0 == 0.01 and config.refine.k_sigma == 2.5
+    assert config.segmenter.params["threshold"] == 5 and config.tile == 2
+    assert config.fitter.params["plane_rms"] == 0.02
+    # the rest is the preset's
+    preset = load_config("lms200")
+    assert config.refine.merge_tolerance == preset.refine.merge_tolerance
+    assert config.sensor.max_range == preset.sensor.max_range
+    # an existing configuration is a source too, and is not changed
+    again = load_config(preset, overrides={"sensor.units": "cm"})
+    assert again.sensor.units == "cm" and preset.sensor.units == "m"
+
+
+def test_override_of_the_segmenter_name_checks_params_against_the_new_plugin():
+    config = load_config("lms200_region_growing", overrides={
+        "segmenter.params.smoothness_deg": 10.0})
+    assert config.segmenter.params["smoothness_deg"] == 10.0
+    with pytest.raises(ValueError, match=r"unknown configuration key 'segmenter\.params\.threshold'.*"
+                                         r"smoothness_deg"):
+        load_config("lms200_region_growing", overrides={"segmenter.params.threshold": 5})
+
+
+@pytest.mark.parametrize("key, message", [
+    ("sensor.sigma", r"'sensor\.sigma': sensor has no 'sigma' \(it has sigma0, sigma_quadratic"),
+    ("sensr.sigma0", r"'sensr\.sigma0': the configuration has no 'sensr'"),
+    ("segmenter.params.windw", r"'segmenter\.params\.windw'.*window"),
+    ("sensor.sigma0.x", r"sensor\.sigma0 is a value, not a section"),
+    ("sensor", r"names a section; give one of its keys \(sensor\.sigma0"),
+])
+def test_unknown_override_keys_are_errors_naming_them(key, message):
+    with pytest.raises(ValueError, match=message):
+        load_config("lms200", overrides={key: 1})
+
+
+@pytest.mark.parametrize("key, value, field", [
+    ("sensor.sigma0", -1, r"sensor\.sigma0.*greater than or equal to 0.*-1"),
+    ("refine.k_sigma", "many", r"refine\.k_sigma.*'many'"),
+    ("sensor.max_range", float("inf"), r"sensor\.max_range"),
+    ("segmenter.params.window", 4, "window must be odd"),
+])
+def test_bad_override_values_are_errors_naming_field_and_value(key, value, field):
+    with pytest.raises(ValueError, match=field) as info:
+        load_config("lms200", overrides={key: value})
+    assert "with overrides" in str(info.value)
+
+
+def test_parse_overrides_reads_yaml_scalars():
+    assert parse_overrides(["sensor.sigma0=0.01", "refine.merge=false", "sensor.units=cm",
+                            "refine.min_region_size=null", "sensor.sigma_quadratic=1e-3"]) == {
+        "sensor.sigma0": 0.01, "refine.merge": False, "sensor.units": "cm",
+        "refine.min_region_size": None, "sensor.sigma_quadratic": "1e-3"}
+    # pydantic turns the numeric string into a float
+    assert load_config("lms200", overrides={"sensor.sigma_quadratic": "1e-3"}).sensor.sigma_quadratic == 0.001
+    for bad in ("sensor.sigma0", "=3", "sensor.sigma0=[1,"):
+        with pytest.raises(ValueError, match="override"):
+            parse_overrides([bad])
