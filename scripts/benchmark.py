@@ -299,24 +299,21 @@ def resolve_preset(name: str) -> tuple[str, bool]:
 def matrix_configs(preset: str, noise: dict, family: str, rg_params: dict):
     """The residual-edge and region-growing configurations of one sensor row.
 
-    The sensor's noise model goes where the presets keep it today (the segmenter's
-    ``sigma0``/``sigma_quadratic``); region growing swaps the segmenter only (parameters
-    from its family's ``*_region_growing`` preset, that preset's tile), keeping the fitter
-    and the refinement, whose noise model is pinned to the same sensor noise.
+    The sensor's noise model goes into the preset's ``sensor:`` section; region growing
+    swaps the segmenter only (parameters from its family's ``*_region_growing`` preset,
+    that preset's tile), keeping the sensor, the fitter and the refinement (whose region
+    size and jump test are then its own defaults, as region growing has none).
     """
-    base = load_config(preset).model_dump()
-    params = base["segmenter"]["params"]
-    for key in ("sigma0", "sigma_quadratic"):
-        if key in params:
-            params[key] = noise[key]
+    base = load_config(preset, overrides={f"sensor.{key}": noise[key]
+                                          for key in ("sigma0", "sigma_quadratic")}).model_dump()
     base["name"] = f"{preset}@matrix"
     residual = load_config(base)
     own = load_config(REGION_GROWING_PRESET[family])
     grow = residual.model_dump()
     grow["segmenter"] = {"name": "region_growing", "params": {**own.segmenter.params, **rg_params}}
     grow["tile"] = own.tile
-    grow["refine"]["sigma0"] = noise["sigma0"]
-    grow["refine"]["sigma_quadratic"] = noise["sigma_quadratic"]
+    for key in ("min_region_size", "jump_ratio", "jump_min"):
+        grow["refine"][key] = None
     grow["name"] = f"{preset}@matrix+region_growing"
     return residual, load_config(grow)
 
