@@ -26,10 +26,9 @@ def _split_one_region(cloud):
     labels = np.ones(cloud.shape, np.int32)  # the segmenter saw no crease at all
     fits = {1: FitFailure("plane", "rms over the limit")}
     ranges = cloud.range_image()
-    sigma = pipe.noise(ranges)
+    sigma = pipe.sensor.noise.sigma(ranges)
     return refine_regions(cloud, labels, fits, fitter=pipe.fitter, config=pipe.config.refine,
-                          segmenter_params=pipe.config.segmenter.params, ranges=ranges,
-                          sigma=sigma, jumps=None, timings={})
+                          sensor=pipe.sensor, ranges=ranges, sigma=sigma, jumps=None, timings={})
 
 
 def test_three_planes_leaking_into_one_region_come_back_as_three():
