@@ -113,7 +113,17 @@ def _finish(args, rec, cloud=None, result=None, png=None):
         finish_recording(args, rec)
 
 
-def _segment_one(pipeline, path: Path, out: Path | None, args, rec, index: int) -> bool:
+def _output_path(option: str | None, path: Path, suffix: str, n_inputs: int) -> Path | None:
+    """Where one input's output goes: the file named (one input), else ``<folder>/<stem><suffix>``."""
+    if option is None:
+        return None
+    if n_inputs == 1 and Path(option).suffix.lower() == suffix:
+        return Path(option)
+    Path(option).mkdir(parents=True, exist_ok=True)
+    return Path(option) / f"{path.stem}{suffix}"
+
+
+def _segment_one(pipeline, path: Path, outputs: dict, args, rec, index: int) -> bool:
     try:
         cloud = _load_input(path, args.units or pipeline.sensor.units)
         result = pipeline.run(cloud, recording=rec, scan_index=index)
@@ -122,10 +132,12 @@ def _segment_one(pipeline, path: Path, out: Path | None, args, rec, index: int) 
         return False
     print(format_table(result, title=f"{path} ({cloud.shape[0]}x{cloud.shape[1]}, "
                                      f"{cloud.n_valid} valid points, preset {pipeline.config.name})"))
-    if out is not None:
-        payload = {"input": str(path), "config": pipeline.config.model_dump(), **result.to_dict()}
-        write_json(out, payload)
-        print(f"wrote {out}")
+    from .io.export import write_outputs
+
+    for written in write_outputs(result, cloud, json_path=outputs.get("out"),
+                                 labels_path=outputs.get("labels"), ply_path=outputs.get("ply"),
+                                 input=str(path), config=pipeline.config.model_dump()):
+        print(f"wrote {written}")
     png = getattr(args, "png", None)
     if png:
         png_path = Path(png) if index == 0 else Path(png).with_name(f"{Path(png).stem}_{index}.png")
@@ -144,14 +156,9 @@ def cmd_segment(args) -> int:
     rec = _recording(args)
     ok = 0
     for i, path in enumerate(inputs):
-        if args.out is None:
-            out = None
-        elif len(inputs) == 1 and Path(args.out).suffix == ".json":
-            out = Path(args.out)
-        else:
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-            out = Path(args.out) / f"{path.stem}.json"
-        ok += _segment_one(pipeline, path, out, args, rec, i)
+        outputs = {name: _output_path(getattr(args, name), path, suffix, len(inputs))
+                   for name, suffix in (("out", ".json"), ("labels", ".png"), ("ply", ".ply"))}
+        ok += _segment_one(pipeline, path, outputs, args, rec, i)
     _finish(args, rec)
     if ok < len(inputs):
         print(f"{len(inputs) - ok} of {len(inputs)} inputs failed", file=sys.stderr)
@@ -212,6 +219,9 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("inputs", nargs="+", help="input scans")
     add_config_arguments(seg, units=True)
     seg.add_argument("--out", help="result JSON (one input) or output folder (several)")
+    seg.add_argument("--labels", help="per-pixel labels as a 16-bit PNG (one input) or folder (several)")
+    seg.add_argument("--ply", help="labelled coloured points and the feature meshes as PLY "
+                                   "(one input) or folder (several)")
     _rerun_args(seg)
     seg.set_defaults(func=cmd_segment)
 

@@ -246,3 +246,10 @@ class Result:
         from .io.export import result_to_open3d
 
         return result_to_open3d(self, cloud, legacy=legacy)
+
+    def write_ply(self, path, cloud):
+        """One PLY of the labelled, coloured points and every feature's mesh; see
+        :func:`rangeseg_o3d.io.export.write_ply`."""
+        from .io.export import write_ply
+
+        return write_ply(path, self, cloud)

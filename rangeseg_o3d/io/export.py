@@ -27,6 +27,7 @@ __all__ = [
     "read_labels_png",
     "write_ply",
     "write_result_json",
+    "write_outputs",
     "load_result",
 ]
 
@@ -284,6 +285,22 @@ def write_result_json(result, path, **extra) -> Path:
     with atomic_write(path, "w") as handle:
         json.dump(payload, handle, indent=1)
     return path
+
+
+def write_outputs(result, cloud, *, json_path=None, labels_path=None, ply_path=None,
+                  **extra) -> list[Path]:
+    """Write the outputs asked for (None = skip): JSON (with ``extra``), labels PNG, PLY.
+
+    Returns the paths written, in that order.
+    """
+    written = []
+    if json_path is not None:
+        written.append(write_result_json(result, json_path, **extra))
+    if labels_path is not None:
+        written.append(write_labels_png(result.labels, labels_path))
+    if ply_path is not None:
+        written.append(write_ply(ply_path, result, cloud))
+    return written
 
 
 def load_result(path, labels=None):

@@ -99,3 +99,39 @@ def test_written_pcd_is_read_by_open3d(tmp_path, cloud):
     valid = cloud.valid.ravel()
     np.testing.assert_allclose(pcd.point.positions.numpy()[valid], cloud.xyz.reshape(-1, 3)[valid],
                                rtol=1e-6)
+
+
+@pytest.mark.parametrize("sensor", ["lms200", "depth_camera"])
+@pytest.mark.parametrize("reader", ["tensor", "legacy"])
+def test_open3d_read_organized_pcd_gets_its_grid_back(tmp_path, sensor, reader):
+    # Open3D drops HEIGHT when it reads an organized PCD; the grid is recovered from the points.
+    from rangeseg_o3d.synthetic.suite import default_scene, rgbd_scenes
+
+    if sensor == "lms200":
+        from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+
+        cloud = simulate_lms200(default_scene(), seed=0).cloud
+    else:
+        from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+
+        cloud = simulate_depth_camera(rgbd_scenes()[1][1], seed=0).cloud
+    path = cloud.save(tmp_path / "scan.pcd")
+    pcd = (o3d.t.io.read_point_cloud(str(path)) if reader == "tensor"
+           else o3d.io.read_point_cloud(str(path)))
+    back = OrganizedCloud.from_open3d(pcd)
+    assert back.shape == cloud.shape
+    np.testing.assert_array_equal(back.valid, cloud.valid)
+    np.testing.assert_allclose(back.xyz[back.valid], cloud.xyz[cloud.valid], atol=1e-5)
+
+
+def test_filtered_cloud_cannot_pass_for_a_grid(tmp_path):
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    xyz = simulate_lms200(default_scene(), seed=0).cloud.xyz.copy()
+    xyz[::7, ::5] = np.nan  # a few missing returns, which remove_nan_points drops
+    cloud = OrganizedCloud(xyz)
+    pcd = o3d.io.read_point_cloud(str(cloud.save(tmp_path / "scan.pcd")), remove_nan_points=True)
+    assert len(pcd.points) < cloud.shape[0] * cloud.shape[1]
+    with pytest.raises(ValueError, match="remove_nan_points=False|pass shape"):
+        OrganizedCloud.from_open3d(pcd)

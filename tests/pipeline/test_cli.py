@@ -80,3 +80,30 @@ def test_demo_through_the_simulated_serial_rig(tmp_path):
     data = json.loads((tmp_path / "result.json").read_text())
     assert data["shape"] == [70, 131]
     assert data["counts"]["plane"] >= 5 and data["counts"]["cylinder"] >= 1
+
+
+def test_segment_writes_labels_png_ply_and_json_that_load_back(scan_files, tmp_path):
+    import open3d as o3d
+
+    from rangeseg_o3d.io.export import load_result
+
+    cloud, npz, _ = scan_files
+    out, labels, ply = tmp_path / "r.json", tmp_path / "r.png", tmp_path / "r.ply"
+    assert main(["segment", str(npz), "--out", str(out), "--labels", str(labels), "--ply", str(ply)]) == 0
+    expected = rs.Pipeline("lms200").run(cloud)
+    back = load_result(out, labels)
+    np.testing.assert_array_equal(back.labels, expected.labels)
+    assert [f.kind for f in back.features] == [f.kind for f in expected.features]
+    assert all(f.geometry is not None and f.covariance is not None for f in back.features)
+    mesh = o3d.io.read_triangle_mesh(str(ply))
+    assert len(mesh.vertices) > cloud.n_valid and len(mesh.triangles) > 0
+
+
+def test_segment_several_inputs_write_one_file_each_into_folders(scan_files, tmp_path):
+    _, npz, pcd = scan_files
+    other = tmp_path / "other.npz"
+    other.write_bytes(npz.read_bytes())
+    assert main(["segment", str(npz), str(other), "--labels", str(tmp_path / "labels"),
+                 "--ply", str(tmp_path / "ply")]) == 0
+    assert sorted(p.name for p in (tmp_path / "labels").iterdir()) == ["other.png", "room.png"]
+    assert sorted(p.name for p in (tmp_path / "ply").iterdir()) == ["other.ply", "room.ply"]
