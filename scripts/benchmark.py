@@ -282,6 +282,8 @@ PRESET_STAND_INS = {"spinning_lidar": "lms200", "abw": "lms200"}
 REGION_GROWING_PRESET = {"nodding": "lms200_region_growing", "noise": "lms200_region_growing",
                          "spinning": "lms200_region_growing", "depth": "rgbd_vga_region_growing",
                          "tabletop": "rgbd_vga_region_growing", "abw": "rgbd_vga_region_growing"}
+#: Size classes (pixels) of the ABW surfaces for the correct rate by size.
+ABW_SIZE_BINS = (0, 500, 2000, 8000)
 #: ABW images: voxel grid of the baseline at the blocks' scale (the rooms' 3 cm would merge faces).
 ABW_REGION_GROWING = {"voxel_size": 0.004}
 ABW_NOISE = {"sigma0": 0.0005, "sigma_quadratic": 0.0}
@@ -344,7 +346,13 @@ def score_abw(image, result, tolerance: float = TOLERANCE) -> dict:
         if len(points) >= 3:
             cos = abs(float(_plane_normal(points) @ feature.model.normal))
             errors.append(float(np.degrees(np.arccos(min(1.0, cos)))))
-    return {"hoover": score.counts(), "false_fittings": false_fittings, "normal_errors_deg": errors}
+    sizes = np.bincount(image.truth_ids.ravel())
+    by_size = {}
+    for lo, hi in zip(ABW_SIZE_BINS, ABW_SIZE_BINS[1:] + (None,)):
+        ids = [k for k in range(1, sizes.size) if sizes[k] >= lo and (hi is None or sizes[k] < hi)]
+        by_size[f"{lo}-{hi or ''}"] = [sum(k in score.correct for k in ids), len(ids)]
+    return {"hoover": score.counts(), "false_fittings": false_fittings, "normal_errors_deg": errors,
+            "by_size": by_size}
 
 
 def score_synthetic(scan, result) -> dict:
@@ -365,7 +373,14 @@ def method_summary(scores: list[dict], seconds: list[float]) -> dict:
     totals = {k: sum(s["hoover"][k] for s in scores) for k in keys}
     n = max(len(scores), 1)
     normal = [e for s in scores for e in s["normal_errors_deg"]]
+    by_size = {}
+    for s in scores:
+        for size, (correct, total) in s.get("by_size", {}).items():
+            have = by_size.setdefault(size, [0, 0])
+            have[0] += correct
+            have[1] += total
     return {
+        "by_size": by_size,
         "scans": len(scores),
         **totals,
         "percent_correct": 100.0 * totals["correct"] / totals["n_truth"] if totals["n_truth"] else float("nan"),
@@ -452,6 +467,9 @@ def print_matrix(rows: list[dict]) -> None:
                   f"{p['over']:>6.2f}{p['under']:>6.2f}{p['missed']:>6.2f}{p['noise']:>6.2f}"
                   f"{m['false_fittings']:>4}{_fmt(m['median_normal_error_deg'], '.3f'):>8}"
                   f"{_fmt(m['median_ms'], '.1f'):>9}{tail}")
+            if m["by_size"]:
+                print(f"{'':<46} | {'':<6}correct by size (px): " + ", ".join(
+                    f"{size}: {c}/{n}" for size, (c, n) in m["by_size"].items()))
     if any(r["stand_in"] for r in rows):
         print("* stand-in preset: " + ", ".join(f"{k} -> {v}" for k, v in PRESET_STAND_INS.items())
               + " until the named preset exists")
