@@ -6,7 +6,7 @@ Importing this package does not import open3d, rerun or serial; they load where 
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting import fit_cylinder, fit_plane, fit_sphere
-from .fitting.models import Cylinder, FitFailure, Plane, Sphere
+from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from .kinematics import NoddingGeometry, PinholeGeometry
 from .pipeline import Pipeline
 from .registry import Plugin, Segmentation

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fitting.models import Cylinder, FitFailure, Plane, Sphere
+from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+from .kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
 __all__ = ["RegionFitter", "region_indices", "model_table", "pixel_rms"]
 
@@ -12,21 +13,22 @@ __all__ = ["RegionFitter", "region_indices", "model_table", "pixel_rms"]
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(kinds, params, rms)`` indexed by label, as :mod:`rangeseg_o3d.kernels` takes models.
 
-    Labels without a fitted model (absent, FitFailure, or another plugin's model type)
-    get kind 0 and are ignored by the kernels.
+    Kinds and parameter rows as :mod:`rangeseg_o3d.kernels.kinds` lays them out. Labels
+    without a fitted model (absent, FitFailure, or another plugin's model type) get kind
+    NONE and are ignored by the kernels.
     """
-    kinds = np.zeros(n, np.int8)
-    params = np.zeros((n, 7))
+    kinds = np.full(n, NONE, np.int8)
+    params = np.zeros((n, PARAM_SLOTS))
     rms = np.zeros(n)
     for k, model in fits.items():
         if not 0 < k < n or not model:
             continue
         if isinstance(model, Plane):
-            kinds[k], params[k, :3], params[k, 3] = 1, model.normal, model.d
+            kinds[k], params[k, :3], params[k, 3] = PLANE, model.normal, model.d
         elif isinstance(model, Sphere):
-            kinds[k], params[k, :3], params[k, 3] = 2, model.center, model.radius
+            kinds[k], params[k, :3], params[k, 3] = SPHERE, model.center, model.radius
         elif isinstance(model, Cylinder):
-            kinds[k], params[k, :3], params[k, 3:6], params[k, 6] = 3, model.axis, model.point, model.radius
+            kinds[k], params[k, :3], params[k, 3:6], params[k, 6] = CYLINDER, model.axis, model.point, model.radius
         else:
             continue
         rms[k] = model.rms
@@ -113,7 +115,7 @@ class RegionFitter:
         """Label-wise moments when the plugin refits from them, else None."""
         if self.plugin.refit_moments is None:
             return None
-        from .fitting.moments import region_moments
+        from .fitting.batch_planes import region_moments
 
         return region_moments(xyz_flat, labels.ravel())
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fitting.models import Cylinder, Plane, Sphere
+from .fitting.primitives import Cylinder, Plane, Sphere
 
 __all__ = [
     "PatchSource",

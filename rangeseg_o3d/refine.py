@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .fitting.models import Cylinder, Plane, Sphere
+from .fitting.primitives import Cylinder, Plane, Sphere
 
 __all__ = ["grow_into_edges", "merge_candidates", "region_adjacency"]
 

@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 
 from .fitstage import RegionFitter, pixel_rms, region_indices
-from .fitting.models import FitFailure, Plane
-from .fitting.moments import planes_from_moments
+from .fitting.primitives import FitFailure, Plane
+from .fitting.batch_planes import planes_from_moments
 from .refine import grow_into_edges, leftover_candidates, merge_candidates, region_adjacency
 from .robust import trimmed_fit
 from .sensor import Sensor

@@ -75,7 +75,7 @@ class Plugin:
     others go through ``run`` one by one."""
     refit_moments: Callable | None = None
     """Optional, fitters only: ``refit_moments(moments (K, 10), models, **params) -> list``
-    refits from label-wise moments (see :mod:`rangeseg_o3d.fitting.moments`): a model or
+    refits from label-wise moments (see :mod:`rangeseg_o3d.fitting.batch_planes`): a model or
     FitFailure per row, or None where the kind needs the points (the pipeline then calls
     ``refit``)."""
     bind_sensor: Callable | None = None

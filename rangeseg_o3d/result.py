@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fitting.models import Cylinder, Plane, Sphere
+from .fitting.primitives import Cylinder, Plane, Sphere
 
 __all__ = ["Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
 

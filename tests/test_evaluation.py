@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.evaluation import evaluate, hoover, parameter_errors
-from rangeseg_o3d.fitting.models import Cylinder, Plane, Sphere
+from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.result import Feature, Result
 from rangeseg_o3d.synthetic.scene import SyntheticScan
 

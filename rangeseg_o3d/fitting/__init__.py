@@ -7,7 +7,7 @@ model; it is loaded on first use so that importing the plain fits stays light.
 """
 
 from .cylinder import fit_cylinder
-from .models import Cylinder, FitFailure, Plane, Sphere
+from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import fit_plane
 from .sphere import fit_sphere
 

@@ -4,12 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .models import FitFailure
-
-# Relative size below which a spread is treated as exactly zero. Centred float64 data
-# keeps ~1e-16 relative precision and float32 input ~1e-7 of the coordinates, so a
-# thickness below 1e-6 of the extent is numerical noise, never a real dimension.
-DEGENERATE_RATIO = 1e-6
+from .primitives import FitFailure
 
 
 def as_points(points, name: str = "points") -> np.ndarray:

@@ -15,45 +15,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
+from ..kernels.linalg import collinear, hesse_form, solve
+from ._common import RADIUS_LIMIT
 
 __all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
-
-
-@njit(cache=True, nogil=True)
-def _solve(a, b, rel_tol=0.0):
-    """Solve ``a x = b`` (small, square) by Gaussian elimination with partial pivoting.
-
-    Returns ``(x, ok)``; ``ok`` is False when a pivot is 0 (exactly singular, as LAPACK's
-    gesv says) or at most ``rel_tol`` times the largest pivot met (numerically singular).
-    """
-    n = b.shape[0]
-    m = a.copy()
-    x = b.copy()
-    largest = 0.0
-    for col in range(n):
-        pivot = col
-        for row in range(col + 1, n):
-            if abs(m[row, col]) > abs(m[pivot, col]):
-                pivot = row
-        largest = max(largest, abs(m[pivot, col]))
-        if m[pivot, col] == 0.0 or abs(m[pivot, col]) <= rel_tol * largest:
-            return x, False
-        if pivot != col:
-            for k in range(n):
-                m[col, k], m[pivot, k] = m[pivot, k], m[col, k]
-            x[col], x[pivot] = x[pivot], x[col]
-        for row in range(col + 1, n):
-            f = m[row, col] / m[col, col]
-            for k in range(col, n):
-                m[row, k] -= f * m[col, k]
-            x[row] -= f * x[col]
-    for col in range(n - 1, -1, -1):
-        s = x[col]
-        for k in range(col + 1, n):
-            s -= m[col, k] * x[k]
-        x[col] = s / m[col, col]
-    return x, True
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -168,7 +133,7 @@ def _damped_step(jtj, grad, damping):
     m = jtj.copy()
     for a in range(m.shape[0]):
         m[a, a] += damping * (m[a, a] + 1e-12)
-    return _solve(m, -grad)
+    return solve(m, -grad)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -543,25 +508,6 @@ def prepare_points(points):
     q /= scale
     eigvals, eigvecs = np.linalg.eigh(q.T @ q)
     return n_bad, centroid, scale, q, eigvals, eigvecs
-
-
-@njit(cache=True, nogil=True)
-def hesse_form(normal, d, scale):
-    """``(normal, d)`` with ``d >= 0`` (see ``plane.orient_normal``); a plane through the
-    origin (``|d|`` under 1e-12 of ``scale``) gets its largest normal component positive."""
-    if abs(d) <= 1e-12 * scale:
-        if normal[np.argmax(np.abs(normal))] < 0:
-            return -normal, 0.0
-        return normal.copy(), 0.0
-    if d < 0:
-        return -normal, -d
-    return normal.copy(), d
-
-
-@njit(cache=True, nogil=True)
-def collinear(eigvals):
-    """The ascending scatter eigenvalues of coincident or collinear points (no plane, no curve)."""
-    return eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]
 
 
 @njit(cache=True, nogil=True)

@@ -6,18 +6,23 @@ sphere and cylinder fits (:mod:`.sphere`, :mod:`.cylinder`) and the decision of
 :func:`rangeseg_o3d.fitting.classify.fit_primitive` (:func:`primitive_decision`) call the
 same checks, so a model passes or fails for the same reason on every path. The decision
 runs as one call: a few hundred points cost tens of microseconds, where the same steps as
-separate numpy calls cost several times that in call overhead.
+separate numpy calls cost several times that in call overhead; :func:`decide` hands its
+answer back as a :class:`Decision` with named fields. Model kinds are those of
+:mod:`rangeseg_o3d.kernels.kinds` (PLANE, SPHERE, CYLINDER; NONE for no model).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from ..kernels.moments import height_field_shape
-from ._common import DEGENERATE_RATIO, RADIUS_LIMIT
+from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
+from ..kernels.labelwise import height_field_shape
+from ..kernels.linalg import DEGENERATE_RATIO, collinear
+from ._common import RADIUS_LIMIT
 from ._compiled import (
-    collinear,
     cylinder_core,
     cylinder_refine,
     plane_of,
@@ -42,7 +47,7 @@ ARC_UNDER = 12  # arc (cylinder) or cap (sphere) under min_arc
 GAIN_UNDER = 13  # not curvature_gain x better than the plane
 NON_FINITE = 14  # a point is NaN or infinite (the wrappers word it with the count)
 
-MIN_POINTS = (3, 5, 4)  # a plane, a cylinder (kind 1), a sphere (kind 2) need at least this many
+MIN_POINTS = (0, 3, 4, 5)  # points each kind needs at least, indexed by kind (NONE, PLANE, SPHERE, CYLINDER)
 
 # Rows of a curved result (:func:`cylinder_checked`, :func:`sphere_checked`): parameters
 # in the scaled frame, then statistics. A sphere uses slots 0-2 for its centre.
@@ -114,7 +119,7 @@ def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, 
     over twice it, and the code is RMS_OVER.
     """
     result = np.full(CURVED_SIZE, np.nan)
-    code = _input_code(q, MIN_POINTS[1], eigvals)
+    code = _input_code(q, MIN_POINTS[CYLINDER], eigvals)
     if code != ACCEPTED:
         return code, result
     if np.isfinite(start[6]):
@@ -137,7 +142,7 @@ def sphere_checked(q, eigvals, max_iterations, inlier_distance, start, give_up_r
     algebraic start. ``result`` holds the centre in slots 0-2, then as for cylinders.
     """
     result = np.full(CURVED_SIZE, np.nan)
-    code = _input_code(q, MIN_POINTS[2], eigvals)
+    code = _input_code(q, MIN_POINTS[SPHERE], eigvals)
     if code != ACCEPTED:
         return code, result
     if np.isfinite(start[3]):
@@ -171,8 +176,8 @@ def judge_code(rms, radius, arc, tolerance, max_radius, min_arc, curvature_gain,
 def _curved_try(kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
                 max_iterations, inlier_distance, start, tolerance, max_radius, min_arc,
                 curvature_gain, plane_rms):
-    # kind 1 cylinder, 2 sphere; the check then, for a model, the decision's judgement
-    if kind == 1:
+    # kind CYLINDER or SPHERE; the check then, for a model, the decision's judgement
+    if kind == CYLINDER:
         code, result = cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s,
                                         cones, max_iterations, inlier_distance / scale, start,
                                         tolerance / scale)
@@ -185,6 +190,11 @@ def _curved_try(kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, 
     return code, result
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _other_curved(kind):
+    return SPHERE if kind == CYLINDER else CYLINDER
+
+
 @njit(cache=True, nogil=True)
 def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, plane_rms,
                        cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
@@ -192,48 +202,39 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
                        max_iterations):
     """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points.
 
-    Returns ``(choice, first, centroid, scale, plane, codes, curved)``: ``choice`` 0
-    plane, 1 cylinder, 2 sphere, -1 none (see the codes), -2 the plane itself is
-    undetermined, -3 a point is not finite (nothing else computed); ``first`` the curved
-    kind tried first; ``plane`` = normal (3), d, rms,
-    threshold, rms from the smallest eigenvalue, inliers (metres); ``codes[k]`` and
-    ``curved[k]`` (k = 1 cylinder, 2 sphere) the outcome of each model tried (-1 = not
-    tried), in the scaled frame about ``centroid``.
+    Returns the fields of :class:`Decision` in order (call it through :func:`decide`).
     """
     n_bad, centroid, scale, q, eigvals, eigvecs = prepare_points(points)
     n = q.shape[0]
     extra = rms_per_range2 * (centroid @ centroid)
     plane_tol = plane_rms + extra
-    plane = np.full(8, np.nan)
-    codes = np.full(3, -1, np.int64)
-    curved = np.full((3, CURVED_SIZE), np.nan)
+    codes = np.full(4, -1, np.int64)
+    curved = np.full((4, CURVED_SIZE), np.nan)
     if n_bad:
-        return -3, 0, centroid, scale, plane, codes, curved
-    plane[5] = plane_tol
-    plane[6] = _eigen_rms(eigvals, n) * scale
+        return (NONE, NON_FINITE, NONE, centroid, scale, np.full(3, np.nan), np.nan, np.nan, plane_tol,
+                np.nan, 0, codes, curved)
+    eigen_rms = _eigen_rms(eigvals, n) * scale
     ok, normal, d, rms, inliers = plane_of(q, points, centroid, scale, eigvals, eigvecs,
                                            inlier_factor * plane_tol)
     if not ok:
-        return -2, 0, centroid, scale, plane, codes, curved
-    plane[:3] = normal
-    plane[3], plane[4], plane[7] = d, rms, inliers
+        return NONE, COLLINEAR, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     plane_ok = rms <= plane_tol
     # The floor keeps rounding-level residuals of exact planes from looking "curved".
     gain, roundness = 1.0, 0.5
     if rms > 0.1 * plane_tol:
         gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
     if plane_ok and gain < curvature_gain:
-        return 0, 0, centroid, scale, plane, codes, curved
+        return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     # Principal curvatures pick the likely model: tried first, the other only if it fails.
-    first, decisive = 1, False
+    first, decisive = CYLINDER, False
     if roundness <= roundness_cylinder:
         decisive = True
     elif roundness >= roundness_sphere:
-        first, decisive = 2, True
+        first, decisive = SPHERE, True
     no_start = np.full(7, np.nan)
-    best, best_rms = -1, np.inf
-    for kind in (first, 3 - first):
-        tolerance = (cylinder_rms if kind == 1 else sphere_rms) + extra
+    best, best_rms = NONE, np.inf
+    for kind in (first, _other_curved(first)):
+        tolerance = (cylinder_rms if kind == CYLINDER else sphere_rms) + extra
         codes[kind], curved[kind] = _curved_try(
             kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
             max_iterations, inlier_factor * tolerance, no_start, tolerance, max_radius, min_arc,
@@ -243,15 +244,54 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
                 best, best_rms = kind, curved[kind, RMS]
             if decisive:
                 break
-    if best > 0:
-        return best, first, centroid, scale, plane, codes, curved
-    return (0 if plane_ok else -1), first, centroid, scale, plane, codes, curved
+    if best == NONE and plane_ok:
+        best = PLANE
+    return best, ACCEPTED, first, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
+
+
+class Decision(NamedTuple):
+    """The answer of :func:`decide`, by name (lengths in metres unless said)."""
+
+    kind: int
+    """The model chosen: PLANE, CYLINDER or SPHERE; NONE when no model is acceptable."""
+    status: int
+    """ACCEPTED when a decision was made; NON_FINITE (a point is NaN or infinite, nothing
+    else computed) or COLLINEAR (the points determine no plane, nothing decided)."""
+    first: int
+    """The curved kind tried first (NONE when no curved model was needed)."""
+    centroid: np.ndarray
+    """Origin of the scaled frame of the curved results."""
+    scale: float
+    """Scale of that frame (its lengths times ``scale`` are metres)."""
+    normal: np.ndarray
+    """The least-squares plane's unit normal (Hesse form, ``d >= 0``)."""
+    d: float
+    plane_rms: float
+    """The plane's rms orthogonal distance."""
+    plane_tolerance: float
+    """The plane's rms threshold, grown for the patch's range."""
+    eigen_rms: float
+    """The best plane's rms from the smallest scatter eigenvalue (the curved fits' own tests use it)."""
+    plane_inliers: int
+    codes: np.ndarray
+    """Per kind (index CYLINDER or SPHERE): the outcome code of the curved model tried; -1 not tried."""
+    curved: np.ndarray
+    """Per kind: the curved model's result row (:data:`CURVED_SIZE` slots, scaled frame)."""
+
+    def other_curved(self) -> int:
+        """The curved kind tried second."""
+        return SPHERE if self.first == CYLINDER else CYLINDER
+
+
+def decide(*args) -> Decision:
+    """:func:`primitive_decision` (same arguments) with its answer as a :class:`Decision`."""
+    return Decision._make(primitive_decision(*args))
 
 
 @njit(cache=True, nogil=True)
 def curved_refit(kind, points, start, base_tolerance, rms_per_range2, max_radius, min_arc,
                  curvature_gain, inlier_factor, max_iterations):
-    """``refit_primitive`` for a cylinder (kind 1) or sphere (kind 2) from ``start``
+    """``refit_primitive`` for a CYLINDER or SPHERE ``kind`` from ``start``
     (world coordinates: cylinder axis, point, radius; sphere centre, radius).
 
     Returns ``(code, centroid, scale, result, tolerance, plane_rms)``: the threshold
@@ -265,7 +305,7 @@ def curved_refit(kind, points, start, base_tolerance, rms_per_range2, max_radius
     if n_bad:
         return NON_FINITE, centroid, scale, np.full(CURVED_SIZE, np.nan), tolerance, plane_rms
     local = np.full(7, np.nan)
-    if kind == 1:
+    if kind == CYLINDER:
         local[:3] = start[:3]
         local[3:6] = (start[3:6] - centroid) / scale
         local[6] = start[6] / scale

@@ -32,10 +32,11 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..kernels.kinds import CYLINDER, PLANE, SPHERE, ModelKind
 from ..registry import Plugin
 from ._common import Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
-from .models import Cylinder, FitFailure, Plane, Sphere
+from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import UNDETERMINED, plane_from_prepared
 from .sphere import sphere_model
 
@@ -138,7 +139,7 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    from ._decide import MIN_POINTS, primitive_decision
+    from ._decide import COLLINEAR, MIN_POINTS, NON_FINITE, decide
 
     pts, failure = _checked_points(points, "primitive", min_points)
     if failure is not None:
@@ -152,30 +153,31 @@ def fit_primitive(
         if axis is not None:
             hint = np.ascontiguousarray(axis)
     min_arc = np.radians(min_arc_deg)
-    choice, first, centroid, scale, plane, codes, curved = primitive_decision(
+    decision = decide(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
         ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS)
-    if choice == -3:
+    if decision.status == NON_FINITE:
         return _non_finite(pts, "primitive")
-    if choice == -2:
+    if decision.status == COLLINEAR:
         return FitFailure("primitive", f"plane: {UNDETERMINED}")
-    if choice == 0:
-        return Plane(normal=plane[:3], d=float(plane[3]), rms=float(plane[4]), inliers=int(plane[7]))
-    if choice == 1:
-        return cylinder_model(curved[1], centroid, scale)
-    if choice == 2:
-        return sphere_model(curved[2], centroid, scale)
-    extra = float(plane[5]) - plane_rms  # every threshold grows by the same amount with range
-    reasons = [f"plane rms {plane[4]:.3g} > {plane[5]:.3g}"]
-    for kind in (first, 3 - first):
-        if codes[kind] >= 0:
-            name = "cylinder" if kind == 1 else "sphere"
-            tolerance = (cylinder_rms if kind == 1 else sphere_rms) + extra
+    if decision.kind == PLANE:
+        return Plane(normal=decision.normal, d=decision.d, rms=decision.plane_rms,
+                     inliers=int(decision.plane_inliers))
+    if decision.kind == CYLINDER:
+        return cylinder_model(decision.curved[CYLINDER], decision.centroid, decision.scale)
+    if decision.kind == SPHERE:
+        return sphere_model(decision.curved[SPHERE], decision.centroid, decision.scale)
+    extra = decision.plane_tolerance - plane_rms  # every threshold grows by the same amount with range
+    reasons = [f"plane rms {decision.plane_rms:.3g} > {decision.plane_tolerance:.3g}"]
+    for kind in (decision.first, decision.other_curved()):
+        if decision.codes[kind] >= 0:
+            tolerance = (cylinder_rms if kind == CYLINDER else sphere_rms) + extra
             reasons.append(decision_reason(
-                name, int(codes[kind]), curved[kind], scale=scale, eigen_rms=float(plane[6]),
-                plane_rms=float(plane[4]), n=len(pts), minimum=MIN_POINTS[kind], max_iterations=MAX_ITERATIONS,
-                tolerance=tolerance, max_radius=max_radius, min_arc=min_arc, curvature_gain=curvature_gain))
+                ModelKind(kind).label, int(decision.codes[kind]), decision.curved[kind], scale=decision.scale,
+                eigen_rms=decision.eigen_rms, plane_rms=decision.plane_rms, n=len(pts), minimum=MIN_POINTS[kind],
+                max_iterations=MAX_ITERATIONS, tolerance=tolerance, max_radius=max_radius, min_arc=min_arc,
+                curvature_gain=curvature_gain))
     return FitFailure("primitive", "; ".join(reasons))
 
 
@@ -216,19 +218,19 @@ def refit_primitive(
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    from ._decide import MIN_POINTS, NON_FINITE, curved_refit
+    from ._decide import ACCEPTED, MIN_POINTS, NON_FINITE, curved_refit
 
     # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
     # surface, so no search or algebraic start is needed.
-    kind = 1 if isinstance(model, Cylinder) else 2
-    start = (np.concatenate([model.axis, model.point, [model.radius]]) if kind == 1
+    kind = CYLINDER if isinstance(model, Cylinder) else SPHERE
+    start = (np.concatenate([model.axis, model.point, [model.radius]]) if kind == CYLINDER
              else np.concatenate([model.center, [model.radius], np.zeros(3)]))
     min_arc = np.radians(min_arc_deg)
     code, centroid, scale, result, tolerance, eigen_rms = curved_refit(
-        kind, pts, start, float(cylinder_rms if kind == 1 else sphere_rms), float(rms_per_range2),
+        kind, pts, start, float(cylinder_rms if kind == CYLINDER else sphere_rms), float(rms_per_range2),
         float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, MAX_ITERATIONS)
-    if code == 0:
-        return cylinder_model(result, centroid, scale) if kind == 1 else sphere_model(result, centroid, scale)
+    if code == ACCEPTED:
+        return cylinder_model(result, centroid, scale) if kind == CYLINDER else sphere_model(result, centroid, scale)
     if code == NON_FINITE:
         return _non_finite(pts, model.kind)
     return FitFailure(model.kind, decision_reason(
@@ -295,13 +297,13 @@ def refit_planes_from_moments(
 ) -> list:
     """:func:`refit_primitive` for the planes among ``models``, from label-wise moments.
 
-    Row ``i`` of ``moments`` (see :func:`rangeseg_o3d.fitting.moments.region_moments`) holds
+    Row ``i`` of ``moments`` (see :func:`rangeseg_o3d.fitting.batch_planes.region_moments`) holds
     the points of ``models[i]``'s region (e.g. two merged regions: the sum of their rows).
     Returns per row a Plane, a FitFailure (too few or collinear points, rms over the
     threshold), or None where the model is not a plane (it needs its points). A Plane's
     ``inliers`` is its number of points: moments carry no distances.
     """
-    from .moments import planes_from_moments
+    from .batch_planes import planes_from_moments
 
     moments = np.atleast_2d(np.asarray(moments, dtype=np.float64))
     if len(moments) != len(models):

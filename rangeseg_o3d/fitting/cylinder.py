@@ -8,7 +8,7 @@ import functools
 import numpy as np
 
 from ._common import Prepared, as_points, refusal
-from .models import Cylinder, FitFailure
+from .primitives import Cylinder, FitFailure
 
 __all__ = ["fit_cylinder", "axis_from_normals", "cylinder_arc"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import Prepared
-from .models import FitFailure, Plane
+from .primitives import FitFailure, Plane
 
 __all__ = ["fit_plane", "orient_normal"]
 
@@ -19,7 +19,7 @@ def orient_normal(normal: np.ndarray, d: float, scale: float = 1.0) -> tuple[np.
     the origin from the plane. A plane through the origin (``|d|`` below 1e-12 of
     ``scale``) is oriented so that its largest normal component is positive.
     """
-    from ._compiled import hesse_form
+    from ..kernels.linalg import hesse_form
 
     oriented, distance = hesse_form(np.asarray(normal, dtype=np.float64), float(d), float(scale))
     return oriented, float(distance)

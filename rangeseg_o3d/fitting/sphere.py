@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import Prepared, refusal
-from .models import FitFailure, Sphere
+from .primitives import FitFailure, Sphere
 
 __all__ = ["fit_sphere", "sphere_cap_angle"]
 

@@ -5,62 +5,47 @@ regions per scan that Python overhead, not arithmetic, dominated the pipeline. T
 kernels do per-pixel work for every region at once: window planes, label-wise moments, quadric normal
 equations, growth of regions into the edge band, inlier counts and region adjacency.
 
-Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.model_table`): ``kinds[k]`` is
-0 (no model), 1 plane ``(nx, ny, nz, d)``, 2 sphere ``(cx, cy, cz, r)`` or 3 cylinder
-``(ax, ay, az, px, py, pz, r)`` in ``params[k]``, and ``rms[k]`` its rms.
+Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.model_table`):
+``kinds[k]`` is a kind of :mod:`.kinds` (0 no model, 1 plane ``(nx, ny, nz, d)``, 2 sphere
+``(cx, cy, cz, r)``, 3 cylinder ``(ax, ay, az, px, py, pz, r)``) with its parameters in
+``params[k]`` and its rms in ``rms[k]``.
 
-Modules: ``moments`` (label-wise sums, planes, quadric test, distances to models),
+Modules: ``labelwise`` (label-wise sums, planes, quadric test, distances to models),
 ``grid`` (grouping by label, jump edges, adjacency, growth, tile means, full-resolution labelling),
 ``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
-window plane), ``models`` (shared inline helpers).
+window plane), ``project`` (points from ranges or depth, used by the cloud constructors), ``inline`` (inline helpers: model distances, grid neighbours), ``linalg``
+(small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
+kinds, plain Python). The package imports nothing from the rest of ``rangeseg_o3d``.
 Compiled on first use and cached beside the modules (``cache=True``): the first run on a
 machine pays the compilation (about a minute for all of them, with the fits' on the 2-core CI machine).
+Names load lazily (PEP 562): ``import rangeseg_o3d.kernels`` does not import numba.
 """
 
-from .grid import (
-    adjacency_matrix,
-    assign_tiles,
-    block_means,
-    claim_rings,
-    group_by_label,
-    grow_rings,
-    jump_mask,
-    largest_piece,
-    member_pixels,
-)
-from .moments import (
-    count_inliers,
-    distance_stats,
-    height_field_shape,
-    label_moments,
-    planes_from_moment_rows,
-    quadric_shapes,
-    quadric_sums,
-    settle_planes,
-)
-from .trimmed import trimmed_proposals
-from .window import eigenvectors, smallest_eigenvalues, window_moments
+from __future__ import annotations
 
-__all__ = [
-    "label_moments",
-    "planes_from_moment_rows",
-    "quadric_sums",
-    "quadric_shapes",
-    "height_field_shape",
-    "settle_planes",
-    "count_inliers",
-    "distance_stats",
-    "group_by_label",
-    "jump_mask",
-    "adjacency_matrix",
-    "grow_rings",
-    "claim_rings",
-    "block_means",
-    "assign_tiles",
-    "largest_piece",
-    "member_pixels",
-    "trimmed_proposals",
-    "window_moments",
-    "smallest_eigenvalues",
-    "eigenvectors",
-]
+import importlib
+
+_SOURCES = {
+    "grid": ("adjacency_matrix", "assign_tiles", "block_means", "claim_rings", "group_by_label",
+             "grow_rings", "jump_mask", "largest_piece", "member_pixels"),
+    "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
+                  "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
+    "trimmed": ("trimmed_proposals",),
+    "window": ("window_moments", "smallest_eigenvalues", "eigenvectors"),
+}
+_MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
+
+__all__ = [name for names in _SOURCES.values() for name in names]
+
+
+def __getattr__(name):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

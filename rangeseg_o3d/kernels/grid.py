@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .models import _distance, _neighbour
+from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
            "assign_tiles", "largest_piece", "member_pixels"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..fitting._compiled import _solve
+from .linalg import solve
 
 __all__ = ["trimmed_proposals"]
 
@@ -58,7 +58,7 @@ def _quadric_distances(pts, support, out):
     for a in range(6):
         for b in range(a):
             ata[a, b] = ata[b, a]
-    coef, ok = _solve(ata, atb, 0.0)
+    coef, ok = solve(ata, atb, 0.0)
     if not ok:
         coef[:] = 0.0
     for i in range(n):

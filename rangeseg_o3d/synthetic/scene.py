@@ -2,7 +2,7 @@
 
 Four primitive surfaces are ray-cast exactly (see :mod:`rangeseg_o3d.synthetic.raycast`):
 
-* :class:`Rectangle` - a bounded planar patch (truth: :class:`~rangeseg_o3d.fitting.models.Plane`);
+* :class:`Rectangle` - a bounded planar patch (truth: :class:`~rangeseg_o3d.fitting.primitives.Plane`);
 * :class:`Disk` - a planar disc, used for cylinder caps (truth: Plane);
 * :class:`CylinderSide` - the lateral surface of a finite cylinder (truth: Cylinder);
 * :class:`SphereSurface` - a whole sphere (truth: Sphere).
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting.models import Cylinder, Plane, Sphere
+from ..fitting.primitives import Cylinder, Plane, Sphere
 
 __all__ = [
     "Rectangle",

@@ -11,8 +11,8 @@ from rangeseg_o3d.fitting.classify import (
     quadric_shape,
     refit_planes_from_moments,
 )
-from rangeseg_o3d.fitting.models import FitFailure, Plane
-from rangeseg_o3d.fitting.moments import planes_from_moments, quadric_gains, region_moments
+from rangeseg_o3d.fitting.primitives import FitFailure, Plane
+from rangeseg_o3d.fitting.batch_planes import planes_from_moments, quadric_gains, region_moments
 from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, group_by_label, grow_rings
 from rangeseg_o3d.refine import region_adjacency
 from rangeseg_o3d.residual import block_means as tile_means

@@ -3,7 +3,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.fitting.models import Plane, Sphere
+from rangeseg_o3d.fitting.primitives import Plane, Sphere
 from rangeseg_o3d.refine import (
     grow_into_edges,
     leftover_candidates,

@@ -5,7 +5,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitstage import model_table
-from rangeseg_o3d.fitting.models import Plane
+from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.kernels import assign_tiles
 
 

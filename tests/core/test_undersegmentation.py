@@ -3,7 +3,7 @@
 import numpy as np
 
 import rangeseg_o3d as rs
-from rangeseg_o3d.fitting.models import FitFailure
+from rangeseg_o3d.fitting.primitives import FitFailure
 from rangeseg_o3d.refinement import refine_regions
 
 

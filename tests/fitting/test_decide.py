@@ -7,7 +7,7 @@ from rangeseg_o3d.fitting import _decide as d
 from rangeseg_o3d.fitting import fit_cylinder, fit_primitive, fit_sphere
 from rangeseg_o3d.fitting._common import decision_reason, refusal
 from rangeseg_o3d.fitting.classify import refit_primitive
-from rangeseg_o3d.fitting.models import Cylinder, FitFailure, Sphere
+from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure, Sphere
 
 WORDS = {
     d.TOO_FEW: "at least 5 points; got 3", d.COLLINEAR: "collinear", d.COPLANAR: "coplanar",

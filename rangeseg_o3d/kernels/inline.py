@@ -5,15 +5,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .kinds import CYLINDER, PLANE, SPHERE
+
 @njit(cache=True, nogil=True, inline="always")
 def _distance(kind, prm, x, y, z):
-    # Absolute orthogonal distance of (x, y, z) from the model; inf for "no model".
-    if kind == 1:
+    # Absolute orthogonal distance of (x, y, z) from the model (a row of a model table, see
+    # kinds.py); inf for "no model".
+    if kind == PLANE:
         return abs(prm[0] * x + prm[1] * y + prm[2] * z - prm[3])
-    if kind == 2:
+    if kind == SPHERE:
         dx, dy, dz = x - prm[0], y - prm[1], z - prm[2]
         return abs(np.sqrt(dx * dx + dy * dy + dz * dz) - prm[3])
-    if kind == 3:
+    if kind == CYLINDER:
         rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
         along = rx * prm[0] + ry * prm[1] + rz * prm[2]
         radial2 = rx * rx + ry * ry + rz * rz - along * along

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..fitting._compiled import _solve, collinear, hesse_form
 from .grid import group_by_label
-from .models import _distance
+from .inline import _distance
+from .kinds import PARAM_SLOTS, PLANE
+from .linalg import collinear, hesse_form, solve
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats"]
@@ -169,7 +170,7 @@ def quadric_sums(xyz, labels, centre, e1, e2, normal, inv_spread, active):
 
 @njit(cache=True, nogil=True)
 def quadric_shapes(sums, counts, active):
-    """``(gain, roundness)`` per row of :func:`quadric_sums` output (see ``moments.quadric_gains``).
+    """``(gain, roundness)`` per row of :func:`quadric_sums` output (see ``batch_planes.quadric_gains``).
 
     Rows not ``active``, or whose 6x6 normal equations are numerically singular (pivot
     below 1e-12 of the largest: points on a conic), get ``(1.0, 0.5)``.
@@ -189,7 +190,7 @@ def quadric_shapes(sums, counts, active):
                 m += 1
             atb[a] = sums[i, 21 + a]
         # points on a conic make the equations numerically singular: no height field
-        coef, ok = _solve(ata, atb, 1e-12)
+        coef, ok = solve(ata, atb, 1e-12)
         if not ok:
             continue
         hh = sums[i, 27]
@@ -310,10 +311,10 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     gain, _ = quadric_shapes(sums, moments[:, 0].copy(), active)
     settled = candidate & (gain < curvature_gain)
     kinds = np.zeros(n, np.int8)
-    params = np.zeros((n, 7))
+    params = np.zeros((n, PARAM_SLOTS))
     for k in range(n):
         if settled[k]:
-            kinds[k] = 1
+            kinds[k] = PLANE
             params[k, :3] = normal[k]
             params[k, 3] = d[k]
     inliers = distance_stats(xyz, labels, kinds, params, inlier_factor * tolerance, np.zeros(xyz.shape[0]),

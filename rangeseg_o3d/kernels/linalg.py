@@ -1,0 +1,73 @@
+"""Small compiled linear-algebra helpers shared by the kernels and the fits.
+
+Kept in ``kernels`` so that the kernels depend on nothing else in the package; the
+compiled fits (:mod:`rangeseg_o3d.fitting._compiled`, :mod:`rangeseg_o3d.fitting._decide`)
+import them from here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["DEGENERATE_RATIO", "solve", "hesse_form", "collinear"]
+
+# Relative size below which a spread is treated as exactly zero. Centred float64 data
+# keeps ~1e-16 relative precision and float32 input ~1e-7 of the coordinates, so a
+# thickness below 1e-6 of the extent is numerical noise, never a real dimension.
+DEGENERATE_RATIO = 1e-6
+
+
+@njit(cache=True, nogil=True)
+def solve(a, b, rel_tol=0.0):
+    """Solve ``a x = b`` (small, square) by Gaussian elimination with partial pivoting.
+
+    Returns ``(x, ok)``; ``ok`` is False when a pivot is 0 (exactly singular, as LAPACK's
+    gesv says) or at most ``rel_tol`` times the largest pivot met (numerically singular).
+    """
+    n = b.shape[0]
+    m = a.copy()
+    x = b.copy()
+    largest = 0.0
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(m[row, col]) > abs(m[pivot, col]):
+                pivot = row
+        largest = max(largest, abs(m[pivot, col]))
+        if m[pivot, col] == 0.0 or abs(m[pivot, col]) <= rel_tol * largest:
+            return x, False
+        if pivot != col:
+            for k in range(n):
+                m[col, k], m[pivot, k] = m[pivot, k], m[col, k]
+            x[col], x[pivot] = x[pivot], x[col]
+        for row in range(col + 1, n):
+            f = m[row, col] / m[col, col]
+            for k in range(col, n):
+                m[row, k] -= f * m[col, k]
+            x[row] -= f * x[col]
+    for col in range(n - 1, -1, -1):
+        s = x[col]
+        for k in range(col + 1, n):
+            s -= m[col, k] * x[k]
+        x[col] = s / m[col, col]
+    return x, True
+
+
+@njit(cache=True, nogil=True)
+def hesse_form(normal, d, scale):
+    """``(normal, d)`` with ``d >= 0`` (see ``plane.orient_normal``); a plane through the
+    origin (``|d|`` under 1e-12 of ``scale``) gets its largest normal component positive."""
+    if abs(d) <= 1e-12 * scale:
+        if normal[np.argmax(np.abs(normal))] < 0:
+            return -normal, 0.0
+        return normal.copy(), 0.0
+    if d < 0:
+        return -normal, -d
+    return normal.copy(), d
+
+
+@njit(cache=True, nogil=True)
+def collinear(eigvals):
+    """The ascending scatter eigenvalues of coincident or collinear points (no plane, no curve)."""
+    return eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]
