@@ -1,35 +1,64 @@
 """rangeseg_o3d: organized 3-D scans into planes, cylinders and spheres.
 
-Importing this package does not import open3d, rerun or serial; they load where used.
+The public names below load on first use (PEP 562): ``import rangeseg_o3d`` imports
+nothing else, and importing one stage module (``rangeseg_o3d.residual``, ``.edges``,
+``.regions``) loads neither pydantic, yaml nor OpenCV. open3d, rerun and serial load
+only where they are used.
 """
 
-from .cloud import OrganizedCloud
-from .config import PipelineConfig, load_config
-from .fitting import fit_cylinder, fit_plane, fit_sphere
-from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
-from .kinematics import NoddingGeometry, PinholeGeometry
-from .pipeline import Pipeline
-from .registry import Plugin, Segmentation
-from .result import Feature, Result, Unfitted
+from __future__ import annotations
 
-__all__ = [
-    "OrganizedCloud",
-    "NoddingGeometry",
-    "PinholeGeometry",
-    "Pipeline",
-    "PipelineConfig",
-    "load_config",
-    "fit_plane",
-    "fit_sphere",
-    "fit_cylinder",
-    "Plane",
-    "Sphere",
-    "Cylinder",
-    "FitFailure",
-    "Feature",
-    "Unfitted",
-    "Result",
-    "Plugin",
-    "Segmentation",
-]
+import importlib
+import importlib.util
+from typing import TYPE_CHECKING
+
+# public name -> the module that defines it
+_EXPORTS = {
+    "OrganizedCloud": "cloud",
+    "NoddingGeometry": "kinematics",
+    "PinholeGeometry": "kinematics",
+    "Pipeline": "pipeline",
+    "PipelineConfig": "config",
+    "load_config": "config",
+    "fit_plane": "fitting",
+    "fit_sphere": "fitting",
+    "fit_cylinder": "fitting",
+    "Plane": "fitting.primitives",
+    "Sphere": "fitting.primitives",
+    "Cylinder": "fitting.primitives",
+    "FitFailure": "fitting.primitives",
+    "Feature": "result",
+    "Unfitted": "result",
+    "Result": "result",
+    "Plugin": "registry",
+    "Segmentation": "registry",
+}
+
+__all__ = list(_EXPORTS)
 __version__ = "0.1.0"
+
+if TYPE_CHECKING:  # static analysers and IDEs see the names as ordinary imports
+    from .cloud import OrganizedCloud
+    from .config import PipelineConfig, load_config
+    from .fitting import fit_cylinder, fit_plane, fit_sphere
+    from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+    from .kinematics import NoddingGeometry, PinholeGeometry
+    from .pipeline import Pipeline
+    from .registry import Plugin, Segmentation
+    from .result import Feature, Result, Unfitted
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is not None:
+        value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    elif not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        value = importlib.import_module(f"{__name__}.{name}")  # a submodule: rs.registry, rs.io, ...
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

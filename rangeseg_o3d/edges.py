@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 __all__ = ["jump_edges", "close_residual", "edge_mask"]
@@ -58,6 +57,8 @@ def close_residual(residual: np.ndarray, *, iterations: int = 2, kernel: int = 3
     img = img.astype(np.float32)
     if iterations == 0:
         return img
+    import cv2  # here, not at module level: importing the stage stays light
+
     element = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel, kernel))
     return cv2.morphologyEx(
         img, cv2.MORPH_CLOSE, element, iterations=iterations, borderType=cv2.BORDER_REPLICATE

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 __all__ = ["label_regions", "relabel_sequential"]
@@ -37,6 +36,8 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
         raise ValueError(f"connectivity must be 4 or 8; got {connectivity}")
     if min_size < 1:
         raise ValueError(f"min_size must be >= 1; got {min_size}")
+    import cv2  # here, not at module level: importing the stage stays light
+
     free = (~edges).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=connectivity,
                                                            ltype=cv2.CV_32S)

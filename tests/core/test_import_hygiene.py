@@ -1,5 +1,8 @@
+import ast
 import subprocess
 import sys
+
+import pytest
 
 
 def test_import_does_not_pull_heavy_or_device_modules():
@@ -13,6 +16,46 @@ def test_import_does_not_pull_heavy_or_device_modules():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+CONFIG_EDGE = ("pydantic", "yaml", "cv2", "numba", "scipy", "open3d", "rerun", "serial")
+
+
+def _loaded_after(statement: str) -> list[str]:
+    # which of CONFIG_EDGE a fresh interpreter has loaded after ``statement``
+    code = f"import sys\n{statement}\nprint(sorted(m for m in {CONFIG_EDGE!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return ast.literal_eval(out.stdout.strip())
+
+
+@pytest.mark.parametrize("statement", [
+    "import rangeseg_o3d",
+    "import rangeseg_o3d.residual",
+    "import rangeseg_o3d.edges",
+    "import rangeseg_o3d.regions",
+    "from rangeseg_o3d import residual, edges, regions",
+])
+def test_importing_the_package_or_a_stage_loads_no_config_or_image_library(statement):
+    assert _loaded_after(statement) == []
+
+
+def test_a_stage_loads_opencv_only_when_it_runs():
+    statement = ("import numpy as np\nfrom rangeseg_o3d.regions import label_regions\n"
+                 "assert label_regions(np.zeros((40, 40), bool), min_size=1).max() == 1")
+    assert _loaded_after(statement) == ["cv2"]
+
+
+def test_public_names_load_on_first_use():
+    import rangeseg_o3d as rs
+
+    assert set(rs.__all__) <= set(dir(rs))
+    for name in rs.__all__:
+        assert getattr(rs, name).__name__ == name
+    assert rs.registry.get("fitter", "primitives").name == "primitives"  # submodules too
+    with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
+        rs.no_such_name
+    assert _loaded_after("import rangeseg_o3d as rs\nrs.Plane") == []
+    assert "pydantic" in _loaded_after("import rangeseg_o3d as rs\nrs.load_config")
 
 
 def test_plain_import_leaves_the_compiler_for_first_use():
