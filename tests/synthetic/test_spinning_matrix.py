@@ -111,3 +111,44 @@ def test_matrix_rows_draw_different_scenes_per_scan_and_sensor():
     two = spec.simulate(matrix_rng(0, spec.name, 1), True)
     assert one.cloud.shape == two.cloud.shape == (70, 131)
     assert not np.array_equal(one.truth_ids, two.truth_ids)
+
+
+def _wall_scene():
+    from rangeseg_o3d.synthetic.scene import patch
+
+    # A wall 2 m in front of the camera, filling the view (camera frame: z forward).
+    return Scene(patch((0.0, 0.0, 2.0), (1, 0, 0), (0, 1, 0), 5.0, 5.0, first_id=1))
+
+
+def test_depth_camera_stereo_noise_is_correlated_with_the_stated_sigma():
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+
+    kwargs = dict(width=200, height=160, fx=150.0, fy=150.0, cx=99.5, cy=79.5)
+    exact = simulate_depth_camera(_wall_scene(), noise_coeff=0.0, **kwargs).cloud.xyz[..., 2]
+    np.testing.assert_allclose(exact, 2.0, atol=1e-12)
+    sigma = 0.001 + 0.002 * 2.0**2
+    for correlation in (1, 3):
+        z = simulate_depth_camera(_wall_scene(), noise_coeff=0.002, noise_sigma0=0.001,
+                                  noise_correlation=correlation, seed=7, **kwargs).cloud.xyz[..., 2]
+        err = z - 2.0
+        assert abs(err.std() - sigma) < 0.05 * sigma
+        neighbour = np.corrcoef(err[:, :-1].ravel(), err[:, 1:].ravel())[0, 1]
+        if correlation == 1:
+            assert abs(neighbour) < 0.05
+        else:
+            assert 0.5 < neighbour < 0.8  # a 3x3 box shares 6 of its 9 cells with the next one: 2/3
+    with pytest.raises(ValueError, match="noise_correlation"):
+        simulate_depth_camera(_wall_scene(), noise_correlation=0, **kwargs)
+
+
+def test_depth_camera_quantised_depths():
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+
+    scan = simulate_depth_camera(_wall_scene(), width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5,
+                                 noise_coeff=0.0, noise_sigma0=0.002, depth_step=0.00126, seed=1)
+    z = scan.cloud.xyz[..., 2]
+    steps = z / 0.00126
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+    assert len(np.unique(np.round(steps))) > 3  # noise spreads the wall over several steps
+    with pytest.raises(ValueError, match="depth_step"):
+        simulate_depth_camera(_wall_scene(), depth_step=-1.0)
