@@ -25,7 +25,7 @@ per frame, and ``OrganizedCloud.from_depth`` on the CAPE frame.
 Run: python scripts/benchmark.py --frames [--repeats 20]
 
 Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
-     [--rg-repeats 1] [--seed 0] [--json OUT]
+     [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT]
 """
 
 from __future__ import annotations
@@ -396,16 +396,19 @@ def method_summary(scores: list[dict], seconds: list[float]) -> dict:
 
 def matrix_row(name, description, preset, stand_in, family, noise, rg_params, items, score,
                repeats, rg_repeats) -> dict:
-    """Both methods on the same ``items`` (anything ``score(item, result)`` takes; ``.cloud``)."""
+    """Both methods on the same ``items`` (anything ``score(item, result)`` takes; ``.cloud``);
+    ``rg_repeats = 0`` leaves region growing out."""
     residual, grow = matrix_configs(preset, noise, family, rg_params)
     clouds = [item.cloud for item in items]
     row = {"sensor": name, "description": description, "preset": preset, "stand_in": stand_in,
            "noise": noise, "shape": list(clouds[0].shape) if clouds else None}
-    for method, config, reps in (("residual_edges", residual, repeats), ("region_growing", grow, rg_repeats)):
+    methods = [("residual_edges", residual, repeats)] + ([("region_growing", grow, rg_repeats)] if rg_repeats else [])
+    for method, config, reps in methods:
         results, seconds = run_method(config, clouds, reps)
         row[method] = method_summary([score(i, r) for i, r in zip(items, results)], seconds)
-    re_ms, rg_ms = row["residual_edges"]["median_ms"], row["region_growing"]["median_ms"]
-    row["speed_ratio"] = rg_ms / re_ms if re_ms > 0 else float("nan")
+    if "region_growing" in row:
+        re_ms, rg_ms = row["residual_edges"]["median_ms"], row["region_growing"]["median_ms"]
+        row["speed_ratio"] = rg_ms / re_ms if re_ms > 0 else float("nan")
     return row
 
 
@@ -457,7 +460,7 @@ def print_matrix(rows: list[dict]) -> None:
     print(head)
     for row in rows:
         preset = row["preset"] + ("*" if row["stand_in"] else "")
-        for i, method in enumerate(("residual_edges", "region_growing")):
+        for i, method in enumerate(m for m in ("residual_edges", "region_growing") if m in row):
             m = row[method]
             lead = (f"{row['sensor']:<19}{preset:<17}{m['scans']:>5}{m['n_truth']:>5}" if i == 0
                     else f"{'':<19}{'':<17}{'':>5}{'':>5}")
@@ -543,7 +546,9 @@ def run_frames(args) -> int:
 
 
 def run_matrix(args, parser) -> int:
-    for flag in ("matrix_repeats", "rg_repeats"):
+    if args.no_baseline:
+        args.rg_repeats = 0
+    for flag in ("matrix_repeats", "rg_repeats") if not args.no_baseline else ("matrix_repeats",):
         if getattr(args, flag) < 1:
             parser.error(f"--{flag.replace('_', '-')} must be >= 1; got {getattr(args, flag)}")
     _single_thread()
@@ -555,7 +560,7 @@ def run_matrix(args, parser) -> int:
                          rg_repeats=args.rg_repeats)
     print_matrix(rows)
     out = args.json
-    if out is None and not args.quick and not args.sensor:
+    if out is None and not args.quick and not args.sensor and not args.no_baseline:
         out = REPO / "docs" / "benchmarks" / "matrix.json"
     if out is not None:
         from rangeseg_o3d.io.atomic import atomic_write
@@ -589,6 +594,8 @@ def main(argv=None) -> int:
                         help="timed runs per scan of residual_edges in the matrix; default 5")
     parser.add_argument("--rg-repeats", type=int, default=1,
                         help="timed runs per scan of region_growing in the matrix; default 1")
+    parser.add_argument("--no-baseline", action="store_true",
+                        help="matrix: residual_edges only (region growing takes most of the run's time)")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
