@@ -136,7 +136,8 @@ def _segment_one(pipeline, path: Path, outputs: dict, args, rec, index: int) -> 
 
     for written in write_outputs(result, cloud, json_path=outputs.get("out"),
                                  labels_path=outputs.get("labels"), ply_path=outputs.get("ply"),
-                                 input=str(path), config=pipeline.config.model_dump()):
+                                 input=str(path), config=pipeline.config.model_dump(),
+                                 **({} if cloud.pose is None else {"pose": cloud.pose.tolist()})):
         print(f"wrote {written}")
     png = getattr(args, "png", None)
     if png:

@@ -50,6 +50,48 @@ def _clean_points(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
+def _check_colors(value, shape: tuple[int, int]) -> np.ndarray | None:
+    """(H, W, 3) uint8 RGB from uint8 values or floats in [0, 1]."""
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.shape != shape + (3,):
+        raise ValueError(f"colors must have shape {shape + (3,)} (RGB per pixel); got {arr.shape}")
+    if arr.dtype == np.uint8:
+        return arr
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f"colors must be uint8 or floats in [0, 1]; got dtype {arr.dtype}")
+    return np.round(np.clip(np.nan_to_num(arr), 0.0, 1.0) * 255).astype(np.uint8)
+
+
+def _check_extras(value, shape: tuple[int, int]) -> dict:
+    """Per-pixel fields by name: arrays of shape (H, W) or (H, W, k)."""
+    extras = {}
+    for name, field in dict(value or {}).items():
+        arr = np.asarray(field)
+        if arr.shape[:2] != shape or arr.ndim not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
+            raise ValueError(f"extra field {name!r} must be numbers of shape {shape} or "
+                             f"{shape + ('k',)}; got {arr.shape} {arr.dtype}")
+        extras[str(name)] = arr
+    return extras
+
+
+def _check_pose(value) -> np.ndarray | None:
+    """A 4x4 rigid transform (sensor frame -> world), or None for the identity."""
+    if value is None:
+        return None
+    pose = np.asarray(value, dtype=float)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise ValueError(f"pose must be a finite 4x4 matrix; got shape {pose.shape}")
+    rotation = pose[:3, :3]
+    if (not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6)
+            or not np.allclose(pose[3], [0, 0, 0, 1]) or np.linalg.det(rotation) < 0):
+        raise ValueError("pose must be a rigid transform: a rotation (orthonormal, det +1) and "
+                         "a translation, last row 0 0 0 1")
+    pose.setflags(write=False)
+    return pose
+
+
 def _measurements(name: str, value) -> np.ndarray:
     """A 2-D image of numbers for the compiled constructors (ints and floats kept as they are)."""
     arr = np.asarray(value)
@@ -90,6 +132,13 @@ class OrganizedCloud:
         The noise of a mean of ``n`` returns is ``1/sqrt(n)`` of one return's.
     tile : int
         Sensor pixels per grid step along rows and columns (1 for a raw scan).
+    colors : (H, W, 3) uint8 (or floats in [0, 1]), optional
+        RGB of each pixel (an RGB-D frame, a coloured PCD).
+    extras : dict of (H, W) or (H, W, k) arrays, optional
+        Other per-pixel fields read with the points (a PCD's normals, curvature...).
+    pose : (4, 4) array, optional
+        Sensor frame -> world (a PCD's VIEWPOINT, an E57 scan's pose). ``xyz`` is in the
+        sensor frame, where ranges and the noise model apply; :meth:`world_xyz` applies it.
 
     Raises
     ------
@@ -105,7 +154,7 @@ class OrganizedCloud:
     """
 
     def __init__(self, xyz, *, ranges=None, intensity=None, geometry=None, timestamps=None,
-                 samples=None, tile: int = 1, _valid=None):
+                 samples=None, tile: int = 1, colors=None, extras=None, pose=None, _valid=None):
         arr = np.asarray(xyz)
         if arr.ndim != 3 or arr.shape[2] != 3:
             raise ValueError(f"xyz must have shape (H, W, 3); got {arr.shape}")
@@ -143,6 +192,21 @@ class OrganizedCloud:
         if int(tile) != tile or tile < 1:
             raise ValueError(f"tile must be a positive integer; got {tile!r}")
         self.tile = int(tile)
+        self.colors = _check_colors(colors, shape)
+        self.extras = _check_extras(extras, shape)
+        self.pose = _check_pose(pose)
+
+    def _scaled_pose(self, factor: float) -> np.ndarray | None:
+        if self.pose is None:
+            return None
+        pose = self.pose.copy()
+        pose[:3, 3] *= factor  # the translation is a length, the rotation is not
+        return pose
+
+    def _carried(self, sub=lambda a: a) -> dict:
+        """Colour, extra fields and pose for a derived cloud (``sub`` cuts the grids)."""
+        return {"colors": None if self.colors is None else sub(self.colors),
+                "extras": {k: sub(v) for k, v in self.extras.items()}, "pose": self.pose}
 
     # -- constructors -------------------------------------------------------------
     @classmethod
@@ -255,7 +319,7 @@ class OrganizedCloud:
         return OrganizedCloud(
             xyz, ranges=sub(self.ranges), intensity=sub(self.intensity), geometry=geometry,
             timestamps=None if self.timestamps is None else self.timestamps[rows],
-            samples=sub(self.samples), tile=self.tile,
+            samples=sub(self.samples), tile=self.tile, **self._carried(sub),
         )
 
     def tile_means(self, size: int, *, min_fraction: float = 0.5) -> "OrganizedCloud":
@@ -300,8 +364,14 @@ class OrganizedCloud:
         return OrganizedCloud(
             self._xyz * factor, ranges=None if self.ranges is None else self.ranges * factor,
             intensity=self.intensity, geometry=geometry, timestamps=self.timestamps,
-            samples=self.samples, tile=self.tile,
+            samples=self.samples, tile=self.tile, **{**self._carried(), "pose": self._scaled_pose(factor)},
         )
+
+    def world_xyz(self) -> np.ndarray:
+        """(H, W, 3) points in the world frame: ``pose`` applied (``xyz`` itself without one)."""
+        if self.pose is None:
+            return self._xyz
+        return self._xyz @ self.pose[:3, :3].T + self.pose[:3, 3]
 
     def range_image(self) -> np.ndarray:
         """Ranges if the sensor gave them, else the distance of each point from the origin.

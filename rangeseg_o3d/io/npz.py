@@ -20,14 +20,16 @@ log = logging.getLogger(__name__)
 #: Written as ``format_version``; bump when the key layout changes incompatibly.
 NPZ_FORMAT_VERSION = 1
 
-_OPTIONAL_GRIDS = ("ranges", "intensity")
+_OPTIONAL_GRIDS = ("ranges", "intensity", "colors", "pose")
+_EXTRA = "extra__"  # prefix of the keys of extra per-pixel fields
 
 
 def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
     """Write ``cloud`` to a ``.npz`` file atomically.
 
     Keys: ``format_version``, ``xyz`` (H, W, 3) float64, and when present
-    ``ranges``, ``intensity`` (dtype kept), ``timestamps``, ``geometry_kind``
+    ``ranges``, ``intensity`` (dtype kept), ``colors`` (H, W, 3) uint8, ``pose`` (4, 4),
+    ``extra__<name>`` per extra field, ``timestamps``, ``geometry_kind``
     (``"nodding"`` or ``"pinhole"``) with ``beam_angles``, ``tilt_angles``,
     ``mount_offset``, ``tilt_sign`` or ``fx``, ``fy``, ``cx``, ``cy``.
 
@@ -57,6 +59,8 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
             arrays[name] = np.asarray(value)
     if cloud.timestamps is not None:
         arrays["timestamps"] = np.asarray(cloud.timestamps)
+    for name, field in cloud.extras.items():
+        arrays[_EXTRA + name] = np.asarray(field)
     geometry = cloud.geometry
     if isinstance(geometry, NoddingGeometry):
         arrays.update(
@@ -149,11 +153,12 @@ def load_npz(path, *, units: str = "m") -> OrganizedCloud:
         if xyz.ndim != 3 or xyz.shape[2] != 3:
             raise ValueError(f"{path}: xyz must have shape (H, W, 3); got {xyz.shape}")
         grids = {name: data[name] for name in _OPTIONAL_GRIDS if name in data}
+        extras = {k[len(_EXTRA):]: data[k] for k in data.files if k.startswith(_EXTRA)}
         timestamps = data["timestamps"] if "timestamps" in data else None
         geometry = _geometry(data, path)
         ours = "format_version" in data
     try:
-        cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, **grids)
+        cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, extras=extras, **grids)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{path}: {err}") from err
     if ours:

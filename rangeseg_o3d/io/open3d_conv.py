@@ -2,7 +2,8 @@
 
 The tensor cloud holds the valid pixels only, in row-major grid order, with
 per-point attributes ``row`` and ``col`` (int32, shape (N, 1)) giving each
-point's pixel, ``intensity`` (float64, (N, 1)) when the cloud has one, and
+point's pixel, ``intensity`` (float64, (N, 1)) when the cloud has one, ``colors``
+(float32 in [0, 1]) when it has colours, one attribute per extra field, and
 ``grid_shape`` (int32, (N, 2), every row = (H, W)) so that the full grid comes
 back even when its last rows or columns are empty. Positions are float64 by
 default (exact round trip); pass ``dtype="float32"`` for Open3D operations that
@@ -20,6 +21,8 @@ from ..cloud import OrganizedCloud
 __all__ = ["to_open3d", "to_legacy", "from_open3d", "infer_grid_shape"]
 
 _DTYPES = ("float64", "float32")
+#: Point attributes with a meaning here; any other attribute is kept as an extra field.
+_RESERVED = ("positions", "row", "col", "grid_shape", "intensity", "colors")
 #: Fewest points whose grid :func:`infer_grid_shape` tries to recover.
 _MIN_INFERRED = 64
 
@@ -56,6 +59,12 @@ def to_open3d(cloud: OrganizedCloud, *, dtype: str = "float64"):
     if cloud.intensity is not None:
         values = np.asarray(cloud.intensity, dtype=dtype)[rows, cols]
         pcd.point["intensity"] = tensor(np.ascontiguousarray(values[:, None]))
+    if cloud.colors is not None:
+        pcd.point.colors = tensor(np.ascontiguousarray(cloud.colors[rows, cols], dtype=np.float32) / 255)
+    for name, field in cloud.extras.items():
+        if name not in _RESERVED:
+            values = np.asarray(field)[rows, cols]
+            pcd.point[name] = tensor(np.ascontiguousarray(values.reshape(n, -1)))
     return pcd
 
 
@@ -211,9 +220,25 @@ def from_open3d(pcd, shape: tuple[int, int] | None = None) -> OrganizedCloud:
         raise ValueError("two or more points map to the same (row, col) pixel")
     xyz = np.full((h * w, 3), np.nan)
     xyz[flat] = points
+    colors = _attribute(pcd, "colors")
+    if colors is not None:
+        if colors.dtype != np.uint8:  # Open3D's float colours are in [0, 1]
+            colors = np.round(np.clip(colors, 0, 1) * 255).astype(np.uint8)
+        grid_colors = np.zeros((h * w, 3), np.uint8)
+        grid_colors[flat] = colors
+        colors = grid_colors.reshape(h, w, 3)
+    extras = {}
+    for name in pcd.point:
+        if name not in _RESERVED:
+            values = pcd.point[name].numpy()
+            if values.ndim == 2 and values.shape[1] == 1:
+                values = values[:, 0]  # Open3D's (N, 1) scalars become (H, W) images
+            grid = np.zeros((h * w,) + values.shape[1:], values.dtype)
+            grid[flat] = values
+            extras[name] = grid.reshape((h, w) + values.shape[1:])
     grid_intensity = None
     if intensity is not None:
         grid_intensity = np.full(h * w, np.nan)
         grid_intensity[flat] = intensity.reshape(-1)
         grid_intensity = grid_intensity.reshape(h, w)
-    return OrganizedCloud(xyz.reshape(h, w, 3), intensity=grid_intensity)
+    return OrganizedCloud(xyz.reshape(h, w, 3), intensity=grid_intensity, colors=colors, extras=extras)

@@ -1,9 +1,9 @@
 """PCD (Point Cloud Library) reading and writing that keeps the organized grid.
 
 Reads versions 0.6 and 0.7 (``VERSION .7`` too), ``DATA ascii``, ``binary`` and
-``binary_compressed``. Fields ``x y z`` are required; ``intensity`` is kept;
-every other field (rgb, rgba, normal_*, curvature, padding ``_``...) is parsed
-and dropped. ``HEIGHT > 1`` gives an (HEIGHT, WIDTH) grid; an unorganized file
+``binary_compressed``. Fields ``x y z`` are required (floats); ``intensity`` and
+PCL's packed ``rgb``/``rgba`` colour are kept as such, other fields (normal_*,
+curvature...) as the cloud's extras, padding ``_`` is dropped; VIEWPOINT is applied. ``HEIGHT > 1`` gives an (HEIGHT, WIDTH) grid; an unorganized file
 (``HEIGHT 1``) gives a (1, N) grid. NaN (or inf) in any of x, y, z marks an
 invalid pixel.
 
@@ -26,7 +26,8 @@ from ..cloud import OrganizedCloud
 from .atomic import atomic_write
 from .lzf import lzf_compress, lzf_decompress
 
-__all__ = ["PcdHeader", "read_pcd", "read_pcd_grid", "read_pcd_fields", "parse_pcd_header", "write_pcd"]
+__all__ = ["PcdHeader", "read_pcd", "read_pcd_grid", "read_pcd_fields", "parse_pcd_header",
+           "write_pcd", "viewpoint_pose"]
 
 log = logging.getLogger(__name__)
 
@@ -291,6 +292,10 @@ def read_pcd_grid(path) -> tuple[np.ndarray, np.ndarray | None]:
     read-only (the cloud adopts it without copying); copy it to modify it.
     """
     header, fields = read_pcd_fields(path)
+    return _grid_arrays(header, fields, path)
+
+
+def _grid_arrays(header: PcdHeader, fields: dict, path) -> tuple[np.ndarray, np.ndarray | None]:
     shape = (header.height, header.width)
     xyz = np.empty((header.points, 3))  # one float64 copy, no stacked float32 intermediate
     for i, axis in enumerate(("x", "y", "z")):
@@ -307,13 +312,49 @@ def read_pcd_grid(path) -> tuple[np.ndarray, np.ndarray | None]:
     return xyz.reshape(shape + (3,)), intensity
 
 
+_COLOUR_FIELDS = ("rgb", "rgba")
+_PADDING = "_"
+
+
+def _unpack_rgb(values: np.ndarray, path) -> np.ndarray:
+    """(N, 3) uint8 from PCL's packed colour: the bits 0x00RRGGBB of a 4-byte float or uint."""
+    if values.dtype.itemsize != 4 or values.ndim != 1:
+        raise ValueError(f"{path}: a colour field must be one 4-byte value per point; got "
+                         f"{values.dtype} with shape {values.shape}")
+    bits = np.ascontiguousarray(values).view(np.uint32)
+    return np.stack([(bits >> 16) & 0xFF, (bits >> 8) & 0xFF, bits & 0xFF], axis=1).astype(np.uint8)
+
+
+def viewpoint_pose(viewpoint) -> np.ndarray | None:
+    """The 4x4 sensor -> world transform of a PCD VIEWPOINT (tx ty tz qw qx qy qz); None if identity."""
+    tx, ty, tz, qw, qx, qy, qz = (float(v) for v in viewpoint)
+    norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if norm == 0:
+        raise ValueError(f"VIEWPOINT quaternion must not be zero; got {viewpoint}")
+    qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
+    pose = np.eye(4)
+    pose[:3, :3] = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
+    pose[:3, 3] = tx, ty, tz
+    return None if np.allclose(pose, np.eye(4), atol=1e-12) else pose
+
+
 def read_pcd(path) -> OrganizedCloud:
     """Read a PCD file into an :class:`OrganizedCloud`.
 
     The grid is (HEIGHT, WIDTH); an unorganized file (HEIGHT 1) becomes a (1, N)
     grid. Coordinates are taken as stored (PCL files are in metres) and kept as
-    float64; non-finite x, y or z marks the pixel invalid (all-NaN). An
-    ``intensity`` field becomes ``cloud.intensity``; other fields are dropped.
+    float64; non-finite x, y or z marks the pixel invalid (all-NaN). ``intensity``
+    becomes ``cloud.intensity``, ``rgb``/``rgba`` (PCL's packed colour) ``cloud.colors``,
+    every other field (normals, curvature, labels...) ``cloud.extras[name]``; PCL's
+    padding fields ``_`` are dropped. The points are in the sensor's frame (PCL's
+    grabbers write them so, z forward) and VIEWPOINT is the sensor's pose in the world
+    (OpenNI frames carry ``0 0 0 0 1 0 0``, a half turn about x that puts y up): a
+    VIEWPOINT other than the identity becomes ``cloud.pose``, which the rerun log and
+    :meth:`OrganizedCloud.world_xyz` apply.
 
     Raises
     ------
@@ -321,17 +362,48 @@ def read_pcd(path) -> OrganizedCloud:
         If the header lies about the data (see :func:`parse_pcd_header`),
         the data are truncated or the LZF stream is corrupt.
     """
-    xyz, intensity = read_pcd_grid(path)
-    return OrganizedCloud(xyz, intensity=intensity)
+    header, fields = read_pcd_fields(path)
+    xyz, intensity = _grid_arrays(header, fields, path)
+    shape = (header.height, header.width)
+    colors, extras = None, {}
+    for name, values in fields.items():
+        base = name.split("__")[0]
+        if base in ("x", "y", "z", "intensity", _PADDING):
+            continue
+        if base in _COLOUR_FIELDS and colors is None:
+            colors = _unpack_rgb(values, path).reshape(shape + (3,))
+        else:
+            extras[name] = np.asarray(values).reshape(shape + np.asarray(values).shape[1:])
+    pose = viewpoint_pose(header.viewpoint)
+    return OrganizedCloud(xyz, intensity=intensity, colors=colors, extras=extras, pose=pose)
+
+
+def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """(qw, qx, qy, qz) of a rotation matrix (the largest-component branch, stable)."""
+    m = rotation
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0:
+        s = 2 * np.sqrt(1 + trace)
+        q = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s)
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2 * np.sqrt(1 + m[i, i] - m[j, j] - m[k, k])
+        v = np.zeros(3)
+        v[i] = 0.25 * s
+        v[j] = (m[j, i] + m[i, j]) / s
+        v[k] = (m[k, i] + m[i, k]) / s
+        q = ((m[k, j] - m[j, k]) / s, *v)
+    return tuple(float(x) for x in q)
 
 
 def write_pcd(cloud: OrganizedCloud, path, *, data: str = "binary", precision: str = "float32") -> Path:
     """Write ``cloud`` as an organized PCD v0.7 file, atomically.
 
     WIDTH and HEIGHT are the grid's columns and rows; invalid pixels are written
-    as NaN. Fields: ``x y z`` and ``intensity`` when the cloud has one (stored as
-    float32). Ranges, timestamps and geometry are not representable in PCD: use
-    ``.npz`` to keep them.
+    as NaN. Fields: ``x y z``, ``intensity`` (float32) and ``rgb`` (PCL's packed
+    uint) when the cloud has them; a pose is written as VIEWPOINT. Ranges, timestamps, extras and geometry are not written:
+    use ``.npz`` to keep them.
 
     Parameters
     ----------
@@ -360,22 +432,31 @@ def write_pcd(cloud: OrganizedCloud, path, *, data: str = "binary", precision: s
     if cloud.intensity is not None:
         names.append("intensity")
         record.append(("intensity", np.dtype("<f4")))
+    if cloud.colors is not None:
+        names.append("rgb")
+        record.append(("rgb", np.dtype("<u4")))
     table = np.empty(h * w, dtype=record)
     points = cloud.xyz.reshape(-1, 3)
+    viewpoint = "0 0 0 1 0 0 0"
+    if cloud.pose is not None:  # the sensor's pose, as PCL stores it
+        viewpoint = " ".join(f"{v:.17g}" for v in (*cloud.pose[:3, 3], *_quaternion(cloud.pose[:3, :3])))
     for i, axis in enumerate("xyz"):
         table[axis] = points[:, i]
     if cloud.intensity is not None:
         table["intensity"] = np.asarray(cloud.intensity, dtype=np.float64).ravel()
+    if cloud.colors is not None:
+        rgb = cloud.colors.reshape(-1, 3).astype(np.uint32)
+        table["rgb"] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
     sizes = " ".join(str(table.dtype[name].itemsize) for name in names)
     header = (
         "# .PCD v0.7 - Point Cloud Data file format\n"
         "VERSION 0.7\n"
         f"FIELDS {' '.join(names)}\n"
         f"SIZE {sizes}\n"
-        f"TYPE {' '.join('F' for _ in names)}\n"
+        f"TYPE {' '.join('U' if name == 'rgb' else 'F' for name in names)}\n"
         f"COUNT {' '.join('1' for _ in names)}\n"
         f"WIDTH {w}\nHEIGHT {h}\n"
-        "VIEWPOINT 0 0 0 1 0 0 0\n"
+        f"VIEWPOINT {viewpoint}\n"
         f"POINTS {h * w}\n"
         f"DATA {data}\n"
     )

@@ -135,3 +135,20 @@ def test_filtered_cloud_cannot_pass_for_a_grid(tmp_path):
     assert len(pcd.points) < cloud.shape[0] * cloud.shape[1]
     with pytest.raises(ValueError, match="remove_nan_points=False|pass shape"):
         OrganizedCloud.from_open3d(pcd)
+
+
+def test_colours_and_extras_survive_open3d(cloud):
+    colors = np.arange(90, dtype=np.uint8).reshape(5, 6, 3)
+    rich = OrganizedCloud(cloud.xyz, colors=colors, extras={"curvature": np.linspace(0, 1, 30).reshape(5, 6)})
+    pcd = to_open3d(rich)
+    assert pcd.point.colors.numpy().dtype == np.float32
+    back = from_open3d(pcd)
+    np.testing.assert_array_equal(back.colors[back.valid], colors[rich.valid])
+    np.testing.assert_allclose(back.extras["curvature"][back.valid], rich.extras["curvature"][rich.valid])
+
+
+def test_open3d_read_pcd_keeps_colour(shared_file):
+    path = shared_file("pcl/table_scene_mug_stereo_textured.pcd")
+    ours = OrganizedCloud.load(path)
+    theirs = OrganizedCloud.from_open3d(o3d.t.io.read_point_cloud(str(path)))
+    np.testing.assert_array_equal(theirs.colors[theirs.valid], ours.colors[ours.valid])

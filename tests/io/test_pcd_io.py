@@ -223,3 +223,54 @@ def test_crlf_header_and_nan_spellings(tmp_path):
     cloud = read_pcd(tmp_path / "w.pcd")
     assert cloud.shape == (1, 3) and cloud.n_valid == 1
     np.testing.assert_array_equal(cloud.xyz[0, 1], [1, 2, 3])
+
+
+# -- colour, other fields, VIEWPOINT (issue 15 item 5) ---------------------------------
+
+def test_colour_and_extra_fields_are_kept(tmp_path):
+    rgb = np.array([[255, 0, 0], [0, 128, 0], [1, 2, 3], [10, 20, 30], [200, 100, 50], [0, 0, 255]], np.uint32)
+    packed = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).astype("<u4")
+    records = np.zeros(6, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<f4"),
+                                 ("curvature", "<f4"), ("_", "<f4")])
+    records["x"], records["z"] = np.arange(6), 2.0
+    records["rgb"] = packed.view("<f4")  # PCL's packed float colour
+    records["curvature"] = np.linspace(0, 1, 6)
+    path = tmp_path / "c.pcd"
+    path.write_bytes(_header(fields="x y z rgb curvature _", size="4 4 4 4 4 4", type_="F F F F F F",
+                             count="1 1 1 1 1 1") + records.tobytes())
+    cloud = read_pcd(path)
+    np.testing.assert_array_equal(cloud.colors.reshape(-1, 3), rgb)
+    assert set(cloud.extras) == {"curvature"}  # padding dropped
+    np.testing.assert_allclose(cloud.extras["curvature"].ravel(), np.linspace(0, 1, 6), rtol=1e-6)
+    # written back (as a uint rgb) and read again: the same colours; npz keeps everything
+    back = read_pcd(write_pcd(cloud, tmp_path / "back.pcd"))
+    np.testing.assert_array_equal(back.colors, cloud.colors)
+    again = load_cloud(cloud.save(tmp_path / "c.npz"))
+    np.testing.assert_array_equal(again.colors, cloud.colors)
+    np.testing.assert_array_equal(again.extras["curvature"], cloud.extras["curvature"])
+
+
+def test_viewpoint_becomes_the_pose(tmp_path):
+    # OpenNI frames: a half turn about x (qw qx qy qz = 0 1 0 0), sensor 1 m up.
+    path = tmp_path / "v.pcd"
+    path.write_bytes(_header().replace(b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0 0 1 0 1 0 0")
+                     + _GOOD_BINARY)
+    cloud = read_pcd(path)
+    expected = np.diag([1.0, -1.0, -1.0, 1.0])
+    expected[2, 3] = 1.0
+    np.testing.assert_allclose(cloud.pose, expected, atol=1e-12)
+    np.testing.assert_array_equal(cloud.xyz, read_pcd_plain(_GOOD_BINARY))  # points stay in the sensor frame
+    world = cloud.world_xyz()
+    np.testing.assert_allclose(world[1, 2], [cloud.xyz[1, 2, 0], -cloud.xyz[1, 2, 1], 1 - cloud.xyz[1, 2, 2]])
+    back = read_pcd(write_pcd(cloud, tmp_path / "back.pcd"))
+    np.testing.assert_allclose(back.pose, cloud.pose, atol=1e-12)
+
+
+def read_pcd_plain(payload):
+    return np.frombuffer(payload, "<f4").reshape(2, 3, 3).astype(float)
+
+
+def test_shared_office1_keeps_its_colours_and_viewpoint(shared_file):
+    cloud = load_cloud(shared_file("pcl/office1.pcd"))
+    assert cloud.colors is not None and cloud.colors[cloud.valid].std() > 10
+    np.testing.assert_allclose(cloud.pose[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
