@@ -74,17 +74,21 @@ def write_json(path: Path, payload: dict) -> None:
         json.dump(payload, fh, indent=2)
 
 
-def _load_input(path: Path, units: str = "m"):
+def _load_input(path: Path, units: str = "m", args=None):
     # ``units``: of .npz/.pcd coordinates; 3DTK's .3d files are cm by format.
-    from .cloud import OrganizedCloud
+    from .io.readers import load_input
 
-    if path.suffix.lower() in (".npz", ".pcd"):
-        return OrganizedCloud.load(path, units=units)
-    if path.suffix.lower() == ".3d":
-        from .io.datasets import load_3dtk
-
-        return load_3dtk(path)
-    raise ValueError(f"input {path} must be a .npz, .pcd or 3DTK .3d file; got {path.suffix!r}")
+    intrinsics = getattr(args, "intrinsics", None)
+    if intrinsics is not None and len(intrinsics) == 1:
+        intrinsics = intrinsics[0]  # an Open3D PinholeCameraIntrinsic JSON file
+    elif intrinsics is not None:
+        try:
+            intrinsics = [float(v) for v in intrinsics]
+        except ValueError:
+            raise ValueError(f"--intrinsics takes fx fy cx cy or one JSON file; got {intrinsics}") from None
+    depth_scale = getattr(args, "depth_scale", None)
+    return load_input(path, units=units, intrinsics=intrinsics,
+                      depth_scale=0.001 if depth_scale is None else depth_scale)
 
 
 def _rerun_args(parser):
@@ -125,7 +129,7 @@ def _output_path(option: str | None, path: Path, suffix: str, n_inputs: int) -> 
 
 def _segment_one(pipeline, path: Path, outputs: dict, args, rec, index: int) -> bool:
     try:
-        cloud = _load_input(path, args.units or pipeline.sensor.units)
+        cloud = _load_input(path, args.units or pipeline.sensor.units, args)
         result = pipeline.run(cloud, recording=rec, scan_index=index)
     except (ValueError, OSError) as exc:
         print(f"error: {path}: {exc}", file=sys.stderr)
@@ -216,10 +220,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    seg = sub.add_parser("segment", help="segment .npz / .pcd / .3d scans")
+    seg = sub.add_parser("segment", help="segment scans: .npz .pcd .3d, depth .png, KITTI .bin, "
+                                             ".e57, ROS bags")
     seg.add_argument("inputs", nargs="+", help="input scans")
     add_config_arguments(seg, units=True)
     seg.add_argument("--out", help="result JSON (one input) or output folder (several)")
+    seg.add_argument("--intrinsics", nargs="+", metavar="FX_FY_CX_CY_OR_JSON",
+                     help="depth PNG inputs: fx fy cx cy (pixels), or Open3D's PinholeCameraIntrinsic JSON")
+    seg.add_argument("--depth-scale", type=float, default=None,
+                     help="depth PNG inputs: metres per stored unit (default 0.001, millimetres)")
     seg.add_argument("--labels", help="per-pixel labels as a 16-bit PNG (one input) or folder (several)")
     seg.add_argument("--ply", help="labelled coloured points and the feature meshes as PLY "
                                    "(one input) or folder (several)")
