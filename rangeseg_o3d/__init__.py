@@ -17,9 +17,12 @@ _EXPORTS = {
     "OrganizedCloud": "cloud",
     "NoddingGeometry": "kinematics",
     "PinholeGeometry": "kinematics",
+    "SphericalGeometry": "kinematics",
     "Pipeline": "pipeline",
     "PipelineConfig": "config",
     "load_config": "config",
+    "Sensor": "sensor",
+    "NoiseModel": "sensor",
     "fit_plane": "fitting",
     "fit_sphere": "fitting",
     "fit_cylinder": "fitting",
@@ -42,10 +45,11 @@ if TYPE_CHECKING:  # static analysers and IDEs see the names as ordinary imports
     from .config import PipelineConfig, load_config
     from .fitting import fit_cylinder, fit_plane, fit_sphere
     from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
-    from .kinematics import NoddingGeometry, PinholeGeometry
+    from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
     from .pipeline import Pipeline
     from .registry import Plugin, Segmentation
     from .result import Feature, Result, Unfitted
+    from .sensor import NoiseModel, Sensor
 
 
 def __getattr__(name: str):

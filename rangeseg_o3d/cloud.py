@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import NoddingGeometry, PinholeGeometry
+from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry, spherical_points
 
 __all__ = ["OrganizedCloud"]
 
@@ -123,7 +123,7 @@ class OrganizedCloud:
         A pixel with any NaN coordinate counts as invalid and is stored all-NaN.
     ranges, intensity : (H, W) arrays, optional
         Per-pixel range (metres) and return intensity, when the sensor gives them.
-    geometry : NoddingGeometry or PinholeGeometry, optional
+    geometry : NoddingGeometry, PinholeGeometry or SphericalGeometry, optional
         How the grid was produced, when known.
     timestamps : (H,) array, optional
         Acquisition time of each row, seconds.
@@ -170,11 +170,13 @@ class OrganizedCloud:
         shape = arr.shape[:2]
         self.ranges = _check_grid("ranges", ranges, shape)
         self.intensity = _check_grid("intensity", intensity, shape)
-        if geometry is not None and not isinstance(geometry, (NoddingGeometry, PinholeGeometry)):
+        if geometry is not None and not isinstance(geometry, (NoddingGeometry, PinholeGeometry,
+                                                              SphericalGeometry)):
             raise TypeError(
-                f"geometry must be NoddingGeometry or PinholeGeometry; got {type(geometry).__name__}"
+                "geometry must be NoddingGeometry, PinholeGeometry or SphericalGeometry; "
+                f"got {type(geometry).__name__}"
             )
-        if isinstance(geometry, NoddingGeometry) and geometry.shape != shape:
+        if isinstance(geometry, (NoddingGeometry, SphericalGeometry)) and geometry.shape != shape:
             raise ValueError(
                 f"geometry describes a {geometry.shape} grid but xyz is {shape}"
             )
@@ -247,6 +249,23 @@ class OrganizedCloud:
                    _valid=valid)
 
     @classmethod
+    def from_spherical(cls, ranges, elevations, azimuths, *, intensity=None,
+                       timestamps=None) -> "OrganizedCloud":
+        """Build a cloud from a spinning lidar's range image (metres; NaN, inf or <= 0 = no return).
+
+        ``ranges[i, j]`` is beam ``i`` at column ``j``: elevation ``elevations[i]`` above the
+        horizontal plane, azimuth ``azimuths[j]`` counter-clockwise from +x (radians; either
+        may be given per pixel, (H, W), for beams with azimuth offsets). A 64 x 1024 Ouster
+        or Velodyne frame: 64 elevations over the vertical field, 1024 azimuths over 360 deg
+        (``cloud.geometry.full_turn`` is then True: the columns wrap).
+        """
+        geometry = SphericalGeometry(elevations=elevations, azimuths=azimuths)
+        ranges = _measurements("ranges", ranges).astype(np.float64, copy=False)
+        xyz = spherical_points(ranges, geometry)
+        clean = np.where(np.isfinite(ranges) & (ranges > 0), ranges, np.nan)
+        return cls(xyz, ranges=clean, intensity=intensity, geometry=geometry, timestamps=timestamps)
+
+    @classmethod
     def from_depth(cls, depth, fx, fy, cx, cy, *, depth_scale: float = 1.0) -> "OrganizedCloud":
         """Build a cloud from a depth image and pinhole intrinsics.
 
@@ -304,6 +323,11 @@ class OrganizedCloud:
         if isinstance(geometry, NoddingGeometry):
             geometry = NoddingGeometry(geometry.beam_angles[cols], geometry.tilt_angles[rows],
                                        geometry.mount_offset, geometry.tilt_sign)
+        elif isinstance(geometry, SphericalGeometry):
+            elevations, azimuths = geometry.elevations, geometry.azimuths
+            geometry = SphericalGeometry(
+                elevations[rows] if elevations.ndim == 1 else elevations[rows, cols],
+                azimuths[cols] if azimuths.ndim == 1 else azimuths[rows, cols])
         elif isinstance(geometry, PinholeGeometry):
             r0 = range(*rows.indices(self.shape[0]))
             c0 = range(*cols.indices(self.shape[1]))

@@ -1,4 +1,4 @@
-"""Sensor geometry: nodding-laser kinematics and pinhole back-projection.
+"""Sensor geometry: nodding-laser kinematics, pinhole back-projection, spinning-lidar beams.
 
 The nodding-laser frame follows ``shared/docs/protocols.md``: base frame x forward,
 y left, z up; the tilt ``theta`` turns about +y, positive looking down. A beam at
@@ -16,9 +16,11 @@ import numpy as np
 __all__ = [
     "NoddingGeometry",
     "PinholeGeometry",
+    "SphericalGeometry",
     "nodding_rays",
     "nodding_points",
     "pinhole_points",
+    "spherical_points",
 ]
 
 
@@ -73,6 +75,82 @@ class PinholeGeometry:
     def __post_init__(self):
         if not (self.fx > 0 and self.fy > 0):
             raise ValueError(f"fx and fy must be positive; got fx={self.fx}, fy={self.fy}")
+
+
+@dataclass(frozen=True, eq=False)
+class SphericalGeometry:
+    """Beam angles of a spinning multi-beam lidar (Ouster / Velodyne class).
+
+    Pixel (i, j) looks along elevation ``elevations[i]`` (or ``[i, j]``) above the
+    sensor's horizontal plane and azimuth ``azimuths[j]`` (or ``[i, j]``), counter-clockwise
+    from +x: direction ``(cos e cos a, cos e sin a, sin e)`` from the origin.
+
+    Attributes
+    ----------
+    elevations : (H,) or (H, W) float array, radians.
+    azimuths : (W,) or (H, W) float array, radians (per-beam azimuth offsets need (H, W)).
+    """
+
+    elevations: np.ndarray
+    azimuths: np.ndarray
+
+    def __post_init__(self):
+        elevations = np.asarray(self.elevations, dtype=float)
+        azimuths = np.asarray(self.azimuths, dtype=float)
+        if elevations.ndim not in (1, 2) or azimuths.ndim not in (1, 2):
+            raise ValueError("elevations must have shape (H,) or (H, W) and azimuths (W,) or (H, W); "
+                             f"got {elevations.shape} and {azimuths.shape}")
+        if elevations.size == 0 or azimuths.size == 0:
+            raise ValueError("elevations and azimuths must not be empty")
+        if not (np.isfinite(elevations).all() and np.isfinite(azimuths).all()):
+            raise ValueError("elevations and azimuths must be finite (radians)")
+        if np.abs(elevations).max() > np.pi / 2:
+            raise ValueError(f"elevations must lie within +-pi/2 rad; got up to {np.abs(elevations).max():.3g}")
+        rows = elevations.shape[0]
+        cols = azimuths.shape[-1]
+        for name, value in (("elevations", elevations), ("azimuths", azimuths)):
+            if value.ndim == 2 and value.shape != (rows, cols):
+                raise ValueError(f"{name} of shape {value.shape} does not match the ({rows}, {cols}) grid")
+        object.__setattr__(self, "elevations", elevations)
+        object.__setattr__(self, "azimuths", azimuths)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.elevations.shape[0], self.azimuths.shape[-1])
+
+    def directions(self) -> np.ndarray:
+        """(H, W, 3) unit ray directions."""
+        h, w = self.shape
+        elevation = np.broadcast_to(self.elevations.reshape(h, -1), (h, w))
+        azimuth = np.broadcast_to(self.azimuths.reshape(-1, w), (h, w))
+        cos_e = np.cos(elevation)
+        return np.stack([cos_e * np.cos(azimuth), cos_e * np.sin(azimuth), np.sin(elevation)], axis=-1)
+
+    def column_step(self) -> float:
+        """Median azimuth step between neighbouring columns, radians (0 for one column)."""
+        azimuth = self.azimuths if self.azimuths.ndim == 1 else np.median(self.azimuths, axis=0)
+        steps = np.abs(np.diff(np.unwrap(azimuth)))
+        return float(np.median(steps)) if steps.size else 0.0
+
+    @property
+    def full_turn(self) -> bool:
+        """The columns close a whole turn: the last column's neighbour is the first."""
+        azimuth = self.azimuths if self.azimuths.ndim == 1 else np.median(self.azimuths, axis=0)
+        step = self.column_step()
+        if step == 0.0:
+            return False
+        span = abs(float(np.unwrap(azimuth)[-1] - azimuth[0])) + step
+        return abs(span - 2 * np.pi) < 0.5 * step
+
+
+def spherical_points(ranges: np.ndarray, geometry: SphericalGeometry) -> np.ndarray:
+    """3-D points ``(H, W, 3)`` from a spinning lidar's ranges (m); non-finite or <= 0 give NaN."""
+    ranges = np.asarray(ranges, dtype=float)
+    if ranges.shape != geometry.shape:
+        raise ValueError(f"ranges must have shape (H, W) = {geometry.shape} to match the beam angles; "
+                         f"got {ranges.shape}")
+    r = np.where(np.isfinite(ranges) & (ranges > 0), ranges, np.nan)
+    return geometry.directions() * r[..., None]
 
 
 def nodding_rays(geometry: NoddingGeometry) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cloud import OrganizedCloud
-from ..kinematics import NoddingGeometry, PinholeGeometry
+from ..kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
 from ..sensor import unit_scale
 from .atomic import atomic_write
 
@@ -30,8 +30,9 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
     Keys: ``format_version``, ``xyz`` (H, W, 3) float64, and when present
     ``ranges``, ``intensity`` (dtype kept), ``colors`` (H, W, 3) uint8, ``pose`` (4, 4),
     ``extra__<name>`` per extra field, ``timestamps``, ``geometry_kind``
-    (``"nodding"`` or ``"pinhole"``) with ``beam_angles``, ``tilt_angles``,
-    ``mount_offset``, ``tilt_sign`` or ``fx``, ``fy``, ``cx``, ``cy``.
+    (``"nodding"``, ``"pinhole"`` or ``"spherical"``) with ``beam_angles``, ``tilt_angles``,
+    ``mount_offset``, ``tilt_sign``, or ``fx``, ``fy``, ``cx``, ``cy``, or ``elevations``,
+    ``azimuths``.
 
     Parameters
     ----------
@@ -70,6 +71,9 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
             mount_offset=geometry.mount_offset,
             tilt_sign=np.asarray(float(geometry.tilt_sign)),
         )
+    elif isinstance(geometry, SphericalGeometry):
+        arrays.update(geometry_kind=np.asarray("spherical"), elevations=geometry.elevations,
+                      azimuths=geometry.azimuths)
     elif isinstance(geometry, PinholeGeometry):
         arrays.update(
             geometry_kind=np.asarray("pinhole"),
@@ -110,7 +114,12 @@ def _geometry(data, path):
             mount_offset=data["mount_offset"],
             tilt_sign=_scalar(data, "tilt_sign", path),
         )
-    raise ValueError(f"{path}: geometry_kind must be 'nodding' or 'pinhole'; got {kind!r}")
+    if kind == "spherical":
+        for key in ("elevations", "azimuths"):
+            if key not in data:
+                raise ValueError(f"{path}: spherical geometry needs key {key!r}, which is missing")
+        return SphericalGeometry(elevations=data["elevations"], azimuths=data["azimuths"])
+    raise ValueError(f"{path}: geometry_kind must be 'nodding', 'pinhole' or 'spherical'; got {kind!r}")
 
 
 def load_npz(path, *, units: str = "m") -> OrganizedCloud:

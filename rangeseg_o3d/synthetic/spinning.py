@@ -73,7 +73,8 @@ def simulate_spinning_lidar(
     Returns
     -------
     SyntheticScan
-        ``cloud`` with ``ranges`` (metres, NaN = no return) and no geometry attached,
+        ``cloud`` from :meth:`OrganizedCloud.from_spherical` (ranges in metres, NaN = no
+        return; its SphericalGeometry says the columns close a full turn),
         ``truth_ids`` (0 = no return) and ``truth`` of the surfaces seen.
 
     Examples
@@ -99,5 +100,5 @@ def simulate_spinning_lidar(
     no_return = ~np.isfinite(ranges) | (ranges < min_range) | (ranges > max_range) | (ids == 0)
     ranges[no_return] = np.nan
     ids[no_return] = 0
-    cloud = OrganizedCloud(spinning_points(ranges, elevations, azimuths), ranges=ranges)
+    cloud = OrganizedCloud.from_spherical(ranges, elevations, azimuths)
     return SyntheticScan(cloud=cloud, truth_ids=ids.astype(np.int32), truth=scene.truth(seen=ids), scene=scene)
