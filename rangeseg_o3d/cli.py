@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .cliargs import finite_float, positive_int
+
 log = logging.getLogger(__name__)
 
 __all__ = ["main", "format_table", "add_config_arguments", "config_from_args"]
@@ -74,21 +76,18 @@ def write_json(path: Path, payload: dict) -> None:
         json.dump(payload, fh, indent=2)
 
 
-def _load_input(path: Path, units: str = "m", args=None):
-    # ``units``: of .npz/.pcd coordinates; 3DTK's .3d files are cm by format.
-    from .io.readers import load_input
-
+def _load_options(args) -> dict:
+    """The reader options of ``segment`` (depth PNG intrinsics and scale) for every input."""
     intrinsics = getattr(args, "intrinsics", None)
     if intrinsics is not None and len(intrinsics) == 1:
         intrinsics = intrinsics[0]  # an Open3D PinholeCameraIntrinsic JSON file
     elif intrinsics is not None:
         try:
-            intrinsics = [float(v) for v in intrinsics]
-        except ValueError:
+            intrinsics = [finite_float(v) for v in intrinsics]
+        except argparse.ArgumentTypeError:
             raise ValueError(f"--intrinsics takes fx fy cx cy or one JSON file; got {intrinsics}") from None
     depth_scale = getattr(args, "depth_scale", None)
-    return load_input(path, units=units, intrinsics=intrinsics,
-                      depth_scale=0.001 if depth_scale is None else depth_scale)
+    return {"intrinsics": intrinsics, "depth_scale": 0.001 if depth_scale is None else depth_scale}
 
 
 def _rerun_args(parser):
@@ -117,56 +116,87 @@ def _finish(args, rec, cloud=None, result=None, png=None):
         finish_recording(args, rec)
 
 
-def _output_path(option: str | None, path: Path, suffix: str, n_inputs: int) -> Path | None:
-    """Where one input's output goes: the file named (one input), else ``<folder>/<stem><suffix>``."""
-    if option is None:
-        return None
-    if n_inputs == 1 and Path(option).suffix.lower() == suffix:
-        return Path(option)
-    Path(option).mkdir(parents=True, exist_ok=True)
-    return Path(option) / f"{path.stem}{suffix}"
+def _summary_path(args, plan) -> Path | None:
+    if args.summary:
+        return Path(args.summary)
+    return plan.folder / "summary.jsonl" if plan.folder is not None else None
 
 
-def _segment_one(pipeline, path: Path, outputs: dict, args, rec, index: int) -> bool:
-    try:
-        cloud = _load_input(path, args.units or pipeline.sensor.units, args)
-        result = pipeline.run(cloud, recording=rec, scan_index=index)
-    except (ValueError, OSError) as exc:
-        print(f"error: {path}: {exc}", file=sys.stderr)
-        return False
-    print(format_table(result, title=f"{path} ({cloud.shape[0]}x{cloud.shape[1]}, "
-                                     f"{cloud.n_valid} valid points, preset {pipeline.config.name})"))
-    from .io.export import write_outputs
+def _dask_or_none(args, n_tasks: int):
+    import contextlib
 
-    for written in write_outputs(result, cloud, json_path=outputs.get("out"),
-                                 labels_path=outputs.get("labels"), ply_path=outputs.get("ply"),
-                                 input=str(path), config=pipeline.config.model_dump(),
-                                 **({} if cloud.pose is None else {"pose": cloud.pose.tolist()})):
-        print(f"wrote {written}")
-    png = getattr(args, "png", None)
-    if png:
-        png_path = Path(png) if index == 0 else Path(png).with_name(f"{Path(png).stem}_{index}.png")
-        from .viz.panel import write_panel_png
+    if not args.scheduler:
+        return contextlib.nullcontext()
+    from .batch import dask_client
 
-        write_panel_png(png_path, cloud, result)
-        print(f"wrote {png_path}")
-    return True
+    return dask_client(args.scheduler, workers=min(args.jobs, n_tasks) if args.jobs else None)
 
 
 def cmd_segment(args) -> int:
-    from .pipeline import Pipeline
+    """``rangeseg segment``: every input through :func:`rangeseg_o3d.batch.run_batch`."""
+    import time
 
-    pipeline = Pipeline(config_from_args(args))
-    inputs = [Path(p) for p in args.inputs]
+    from .batch import Progress, plan_tasks, read_summary, run_batch, write_summary
+
+    config = config_from_args(args)
+    targets = {"labels": args.labels, "ply": args.ply, "panel": getattr(args, "png", None)}
+    plan = plan_tasks(args.inputs, out=args.out, targets=targets)
+    if args.resume and not any(task.outputs for task in plan.tasks):
+        raise ValueError("--resume needs --out (or --labels/--ply): without output files nothing tells what is done")
+    summary_path = _summary_path(args, plan)
+    if summary_path is not None and summary_path.suffix != ".jsonl":
+        raise ValueError(f"--summary must name a .jsonl file; got {summary_path}")
+    previous = read_summary(summary_path) if args.resume and summary_path else {}
+    single = len(plan.tasks) == 1
     rec = _recording(args)
-    ok = 0
-    for i, path in enumerate(inputs):
-        outputs = {name: _output_path(getattr(args, name), path, suffix, len(inputs))
-                   for name, suffix in (("out", ".json"), ("labels", ".png"), ("ply", ".ply"))}
-        ok += _segment_one(pipeline, path, outputs, args, rec, i)
-    _finish(args, rec)
-    if ok < len(inputs):
-        print(f"{len(inputs) - ok} of {len(inputs)} inputs failed", file=sys.stderr)
+    if rec is not None and (args.scheduler or (args.jobs or 1) > 1):
+        print("note: rerun logging runs every input in this process (--jobs/--scheduler ignored)",
+              file=sys.stderr)
+    rows, start = [], time.perf_counter()
+    progress = None
+    try:
+        with _dask_or_none(args, len(plan.tasks)) as client:
+            batch = run_batch(None, config=config, plan=plan, jobs=args.jobs, units=args.units,
+                              load_options=_load_options(args),
+                              client=None if rec is not None else client, resume=args.resume,
+                              tables=args.tables or single or args.out is None, recording=rec)
+            progress = None if single else Progress(len(plan.tasks), bar=None if not args.quiet else False)
+            for row in batch:
+                if row.status == "skipped" and row.input in previous:
+                    row_dict = {**previous[row.input], "status": "skipped"}
+                else:
+                    row_dict = row.row()
+                rows.append(row_dict)
+                if progress is not None:
+                    progress.update(row)
+                elif row.status == "failed":
+                    print(f"error: {row.error}", file=sys.stderr)
+                if row.table:
+                    (progress.write if progress is not None else print)(row.table)
+                if single and row.status == "ok":
+                    for out in row.outputs:
+                        print(f"wrote {out}")
+    except KeyboardInterrupt:
+        print(f"interrupted after {len(rows)} of {len(plan.tasks)} inputs"
+              + ("; run again with --resume to do the rest" if plan.folder else ""), file=sys.stderr)
+        return 130
+    finally:
+        if progress is not None:
+            progress.close()
+        if summary_path is not None and rows:
+            written = write_summary(rows, summary_path)
+            if not single:
+                print("summary: " + ", ".join(str(p) for p in written))
+        _finish(args, rec)
+    failed = sum(r["status"] == "failed" for r in rows)
+    if not single:
+        elapsed = time.perf_counter() - start
+        done = sum(r["status"] != "skipped" for r in rows)
+        print(f"{len(rows)} inputs: {len(rows) - failed - (len(rows) - done)} ok, "
+              f"{len(rows) - done} skipped, {failed} failed in {elapsed:.1f} s "
+              f"({done / elapsed if elapsed > 0 else 0:.2f} files/s)")
+    if failed:
+        print(f"{failed} of {len(rows)} inputs failed", file=sys.stderr)
         return 1
     return 0
 
@@ -212,26 +242,51 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _version() -> str:
+    from importlib import metadata
+
+    from . import __version__
+
+    try:
+        return metadata.version("rangeseg_o3d")
+    except metadata.PackageNotFoundError:  # run from a source tree that is not installed
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rangeseg",
         description="Segment organized 3-D scans into planes, cylinders and spheres.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     seg = sub.add_parser("segment", help="segment scans: .npz .pcd .3d, depth .png, KITTI .bin, "
-                                             ".e57, ROS bags")
-    seg.add_argument("inputs", nargs="+", help="input scans")
+                                             ".e57, ROS bags (files, folders, globs)")
+    seg.add_argument("inputs", nargs="+",
+                     help="input scans: files, folders (searched recursively) and glob patterns")
     add_config_arguments(seg, units=True)
     seg.add_argument("--out", help="result JSON (one input) or output folder (several)")
     seg.add_argument("--intrinsics", nargs="+", metavar="FX_FY_CX_CY_OR_JSON",
                      help="depth PNG inputs: fx fy cx cy (pixels), or Open3D's PinholeCameraIntrinsic JSON")
-    seg.add_argument("--depth-scale", type=float, default=None,
+    seg.add_argument("--depth-scale", type=finite_float, default=None,
                      help="depth PNG inputs: metres per stored unit (default 0.001, millimetres)")
     seg.add_argument("--labels", help="per-pixel labels as a 16-bit PNG (one input) or folder (several)")
     seg.add_argument("--ply", help="labelled coloured points and the feature meshes as PLY "
                                    "(one input) or folder (several)")
+    seg.add_argument("--jobs", type=positive_int, default=None,
+                     help="worker processes (default: the cores available; 1 = this process)")
+    seg.add_argument("--scheduler", default=None, metavar="local|tcp://HOST:PORT",
+                     help="run on Dask: 'local' starts a LocalCluster of --jobs workers, an address "
+                          "uses a running scheduler (needs the [dask] extra)")
+    seg.add_argument("--resume", action="store_true", help="skip inputs whose outputs all exist")
+    seg.add_argument("--summary", default=None, metavar="FILE.jsonl",
+                     help="summary table, one row per input (default <out>/summary.jsonl; "
+                          "a .parquet beside it when pyarrow is installed)")
+    seg.add_argument("--tables", action="store_true",
+                     help="print every input's feature table (default: only without --out or for one input)")
+    seg.add_argument("--quiet", action="store_true", help="no progress bar, plain lines only")
     _rerun_args(seg)
     seg.set_defaults(func=cmd_segment)
 
@@ -239,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_arguments(demo)
     demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--faults", type=float, default=0.0, help="byte fault rate on the simulated serial lines")
+    demo.add_argument("--faults", type=finite_float, default=0.0, help="byte fault rate on the simulated serial lines")
     demo.add_argument("--no-capture", action="store_true", help="ray-cast the scan directly, skip the serial simulators")
     _rerun_args(demo)
     demo.set_defaults(func=cmd_demo)

@@ -11,6 +11,8 @@ import logging
 import sys
 from pathlib import Path
 
+from ..cliargs import finite_float
+
 __all__ = ["add_arguments", "run"]
 
 log = logging.getLogger(__name__)
@@ -21,18 +23,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", help="serial port of the LMS2xx (e.g. /dev/ttyUSB0)")
     parser.add_argument("--tilt-port", help="serial port of the PowerCube tilt unit")
     parser.add_argument("--simulate", action="store_true", help="capture from the built-in simulated rig")
-    parser.add_argument("--faults", type=float, default=0.0, help="simulated byte fault rate (0.01 = 1%%)")
+    parser.add_argument("--faults", type=finite_float, default=0.0, help="simulated byte fault rate (0.01 = 1%%)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated faults and noise")
-    parser.add_argument("--time-scale", type=float, default=0.01, help="simulated: wall seconds per device second")
+    parser.add_argument("--time-scale", type=finite_float, default=0.01, help="simulated: wall seconds per device second")
     parser.add_argument("--config", help="capture settings YAML (a 'capture:' mapping or the bare settings)")
     parser.add_argument("--baud", type=int, choices=(9600, 19200, 38400, 500000), help="LMS line rate to switch to")
     parser.add_argument("--tilt-baud", type=int, choices=(9600, 19200, 38400), help="PowerCube line rate")
     parser.add_argument("--module-id", type=int, help="PowerCube module id (1..31)")
     parser.add_argument("--rows", type=int, help="number of tilt rows")
-    parser.add_argument("--tilt-start", type=float, help="first tilt angle, rad")
-    parser.add_argument("--tilt-stop", type=float, help="last tilt angle, rad")
+    parser.add_argument("--tilt-start", type=finite_float, help="first tilt angle, rad")
+    parser.add_argument("--tilt-stop", type=finite_float, help="last tilt angle, rad")
     parser.add_argument("--mode", choices=("stop_and_go", "continuous"), help="capture procedure")
-    parser.add_argument("--mount-offset", type=float, nargs=3, metavar=("X", "Y", "Z"),
+    parser.add_argument("--mount-offset", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
                         help="mirror centre from the tilt axis, tilting frame, metres")
     parser.add_argument("--tilt-sign", type=int, choices=(-1, 1), help="sign of the unit's angle")
     parser.add_argument("--out", required=True, help="output file (.npz or .pcd), written atomically")
