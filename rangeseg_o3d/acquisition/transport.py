@@ -23,18 +23,24 @@ def open_transport(port, *, baudrate: int, timeout: float = 0.05):
     ------
     TypeError
         If ``port`` is neither a string nor a transport-like object.
+
+    Either way the transport comes wrapped in a
+    :class:`~rangeseg_o3d.acquisition.logged_transport.LoggedTransport`: every write and
+    every read that returned bytes is logged at DEBUG level.
     """
+    from .logged_transport import LoggedTransport
+
     if isinstance(port, str):
         import serial  # only drivers that open real ports need pyserial
 
-        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout)
+        return LoggedTransport(serial.serial_for_url(port, baudrate=baudrate, timeout=timeout), name=port)
     missing = [name for name in _REQUIRED if not callable(getattr(port, name, None))]
     if missing:
         raise TypeError(
             "port must be a port name (str) or a transport with read/write/timeout/baudrate; "
             f"got {type(port).__name__} without {', '.join(missing)}"
         )
-    return port
+    return LoggedTransport(port)
 
 
 def port_name(transport) -> str:
