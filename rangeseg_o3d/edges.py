@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["jump_edges", "close_residual", "edge_mask"]
+__all__ = ["jump_edges", "close_residual", "edge_mask", "angular_steps", "crease_edges"]
 
 # Finite stand-in for "no plane could be fitted here" so morphology and display work.
 EDGE_CEILING = 1e6
@@ -76,3 +76,83 @@ def edge_mask(closed: np.ndarray, *, threshold: float, valid: np.ndarray | None 
     if valid is not None:
         edges |= ~valid
     return edges
+
+
+def angular_steps(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grid's angular spacing (radians) at every pixel, to the next row and column.
+
+    Measured between the viewing directions of neighbouring pixels: it needs no sensor
+    geometry, follows the grid where its spacing varies (a nodding scanner's rows crowd
+    at the lateral beams), and range noise does not move a point's direction from the
+    sensor. NaN where a neighbour is invalid.
+    """
+    from .kernels import ray_steps
+
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    if xyz.ndim != 3 or xyz.shape[2] != 3:
+        raise ValueError(f"xyz must have shape (H, W, 3); got {xyz.shape}")
+    steps = ray_steps(xyz)
+    return steps[0], steps[1]
+
+
+def _slope_noise(sigma, spacing, window: int):
+    # Standard deviation (radians) of a least-squares plane's tilt over a window x window
+    # grid of points ``spacing`` apart with orthogonal noise ``sigma``.
+    return sigma / (spacing * np.sqrt(window * window * (window * window - 1) / 12.0))
+
+
+def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
+                 min_angle_deg: float = 20.0, k_sigma: float = 4.0, visible_ratio: float = 1.0,
+                 max_window: int = 9):
+    """Creases the 3x3 residual cannot see: normal discontinuities between flanking windows.
+
+    Where the range noise ``sigma`` is comparable to the point spacing (range times the
+    grid's angular step, measured from the cloud by :func:`angular_steps`) a 3x3 window
+    straddling a crease differs from a plane by about one noise sigma, so the paper's
+    residual misses it. The normals of wider windows are well determined even there: the
+    window is the smallest (odd, up to ``max_window``) whose normals, compared in pairs,
+    have ``k_sigma`` times their predicted tilt noise under ``min_angle_deg`` at the
+    median of the grid. A pixel is a crease when the windows centred half a window to
+    either side of it (along rows or columns) tilt apart by more than ``min_angle_deg``
+    and more than ``k_sigma`` times their predicted noise. The test runs only where the
+    residual is blind: where the spacing is under ``visible_ratio`` noise sigmas (and not
+    at all when fewer pixels than one window holds are blind).
+
+    Returns
+    -------
+    (mask, window) : (H, W) bool crease pixels, and the window used (0 when the test did
+    not run because the residual sees creases everywhere).
+    """
+    from .kernels import crease_mask
+    from .residual import residual_image
+
+    ranges = np.asarray(ranges, dtype=np.float64)
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), ranges.shape)
+    row_step, col_step = angular_steps(xyz)
+    with np.errstate(invalid="ignore"):
+        # the worse-sampled direction sets how well a window's tilt is determined
+        spacing = ranges * np.fmin(row_step, col_step)
+        blind = np.isfinite(spacing) & (spacing > 0) & (spacing < visible_ratio * sigma)
+    if not blind.any():
+        return np.zeros(ranges.shape, bool), 0
+    limit = np.sin(np.radians(min_angle_deg))
+    middle = float(np.median(sigma[blind] / spacing[blind]))
+    window = next((w for w in range(3, max_window + 1, 2)
+                   if k_sigma * np.sqrt(2.0) * _slope_noise(middle, 1.0, w) <= limit), max_window)
+    if np.count_nonzero(blind) < window * window:  # too few to hide a surface's crease
+        return np.zeros(ranges.shape, bool), 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tolerance = np.maximum(limit, k_sigma * np.sqrt(2.0) * _slope_noise(sigma, spacing, window))
+    tolerance = np.where(blind, np.minimum(tolerance, 1.0), np.nan)
+    # window normals only where a test needs them: the blind pixels' box, a window around
+    rows, cols = np.nonzero(blind)
+    reach = window
+    top, left = max(rows.min() - reach, 0), max(cols.min() - reach, 0)
+    bottom, right = rows.max() + reach + 1, cols.max() + reach + 1
+    box = (slice(top, bottom), slice(left, right))
+    _, normals = residual_image(xyz[box], window=window, min_valid=max(4, window * window // 2),
+                                ranges=ranges[box], sigma0=1.0, with_normals=True)
+    mask = np.zeros(ranges.shape, bool)
+    mask[box] = crease_mask(np.ascontiguousarray(normals), np.ascontiguousarray(tolerance[box]),
+                            window // 2)
+    return mask, window

@@ -35,8 +35,8 @@ __all__ = ["refine_regions", "recover_pixels"]
 
 # the merge's answer for a union of planes whose least-squares plane is over the merge limit
 _NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
-# a leaked region rarely holds more surfaces than this; the cap bounds the split's time
-_MAX_SURFACES_PER_REGION = 12
+# searches per split region (found surfaces and failed pieces alike): bounds the split's time
+_MAX_SPLIT_ATTEMPTS = 24
 
 
 class _Timer:
@@ -210,32 +210,51 @@ class _Context:
     def split(self, labels, fits, failed: list[int]):
         """Split every region no single model explains into all the surfaces it holds.
 
-        Sequential robust extraction: the dominant surface of the region's remaining pixels
-        (:func:`rangeseg_o3d.robust.trimmed_fit`), cut to its largest 4-connected piece,
-        becomes a region; its pixels leave the pool and the next surface is sought, until
-        what is left is smaller than the size floor or no model explains a large enough
-        piece of it. Regions leaking through a crease the edge image missed (floor, wall
-        and a box face in one) come back as one region per surface; what no surface takes
-        (the crease band itself) is freed for growth. A region of which nothing is
-        explained keeps its failure (reported as unfitted).
+        Sequential robust extraction with connectivity kept: the dominant surface of a
+        connected pool of the region's pixels (:func:`rangeseg_o3d.robust.trimmed_fit`),
+        cut to its largest 4-connected piece, becomes a region; the rest of the pool falls
+        apart into its connected pieces, and each is searched in turn, until every piece
+        is smaller than the size floor or no model explains enough of it. Regions leaking
+        through creases the edge image missed (floor, walls and the objects on them in one)
+        come back as one region per surface; what no surface takes (the crease bands) is
+        freed for growth. A region of which nothing is explained keeps its failure
+        (reported as unfitted).
         """
         flat = labels.ravel()
         regions = region_indices(np.where(np.isin(labels, failed), labels, 0))
         next_label = int(labels.max(initial=0)) + 1
-        for k, pool in regions.items():
+        for k, idx in regions.items():
             label, found = k, False
-            for _ in range(_MAX_SURFACES_PER_REGION):
+            pools = self._pieces(idx)
+            attempts = 0
+            while pools and attempts < _MAX_SPLIT_ATTEMPTS:
+                attempts += 1
+                pool = pools.pop()  # the largest piece (pools are kept sorted by size)
                 piece, model = self._dominant_piece(pool)
                 if piece is None:
-                    break
+                    continue
                 if not found:
-                    flat[pool] = 0  # the failed region dissolves into what is found
-                found = True
+                    flat[idx] = 0  # the failed region dissolves into what is found
+                    found = True
                 flat[piece] = label
                 fits[label] = model
-                pool = pool[~np.isin(pool, piece, assume_unique=True)]
                 label, next_label = next_label, next_label + 1
+                pools.extend(self._pieces(pool[~np.isin(pool, piece, assume_unique=True)]))
+                pools.sort(key=len)
         return labels, fits
+
+    def _pieces(self, idx: np.ndarray) -> list[np.ndarray]:
+        """The 4-connected pieces of the flat pixels ``idx`` with at least ``min_size``
+        pixels, smallest first."""
+        if idx.size < self.min_size:
+            return []
+        patch, (top, left), (rows, cols) = _blob_patch(idx, (idx.max() // self.width + 1, self.width), 0)
+        n, comp = cv2.connectedComponents(patch, connectivity=4, ltype=cv2.CV_32S)
+        ids = comp[rows - top, cols - left]
+        order = np.argsort(ids, kind="stable")
+        bounds = np.searchsorted(ids[order], np.arange(1, n + 1))
+        pieces = [idx[order[a:b]] for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= self.min_size]
+        return sorted(pieces, key=len)
 
     def _dominant_piece(self, pool: np.ndarray):
         """The largest connected piece of the dominant surface of the flat pixels ``pool``

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["window_moments", "smallest_eigenvalues", "eigenvectors"]
+__all__ = ["window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -167,4 +167,72 @@ def eigenvectors(scatter, values):
             scale = 1.0 / math.sqrt(best)
             for k in range(3):
                 out[i, k] = cross[pick, k] * scale
+    return out
+
+
+@njit(cache=True, nogil=True)
+def crease_mask(normals, tolerance, offset):
+    """Pixels whose two flanking windows disagree in orientation: ``(H, W)`` bool.
+
+    Pixel (r, c) is marked when the unit normals of the windows centred ``offset`` pixels
+    to its left and right (or above and below) make an angle whose sine exceeds the larger
+    of the two windows' ``tolerance`` (a sine per pixel; NaN = no normal, no test there).
+    Planes on either side of a crease tilt the flanking windows apart, whatever the noise
+    of single points, once the windows are wide enough for their normals to be well
+    determined.
+    """
+    h, w = normals.shape[0], normals.shape[1]
+    out = np.zeros((h, w), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            for axis in range(2):
+                ra, ca, rb, cb = r, c - offset, r, c + offset
+                if axis == 1:
+                    ra, ca, rb, cb = r - offset, c, r + offset, c
+                if ra < 0 or ca < 0 or rb >= h or cb >= w:
+                    continue
+                ta, tb = tolerance[ra, ca], tolerance[rb, cb]
+                if not (ta == ta and tb == tb):
+                    continue
+                limit = max(ta, tb)
+                ax, ay, az = normals[ra, ca, 0], normals[ra, ca, 1], normals[ra, ca, 2]
+                bx, by, bz = normals[rb, cb, 0], normals[rb, cb, 1], normals[rb, cb, 2]
+                # |a x b| = sin(angle), sign-free (normals have arbitrary signs)
+                cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+                sine = math.sqrt(cx * cx + cy * cy + cz * cz)
+                if sine > limit:  # NaN normals compare False
+                    out[r, c] = True
+                    break
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ray_angle(xyz, r0, c0, r1, c1):
+    # angle between the viewing directions of two pixels; NaN when either is invalid
+    ax, ay, az = xyz[r0, c0, 0], xyz[r0, c0, 1], xyz[r0, c0, 2]
+    bx, by, bz = xyz[r1, c1, 0], xyz[r1, c1, 1], xyz[r1, c1, 2]
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
+    if not (na > 0.0 and nb > 0.0):
+        return np.nan
+    dx, dy, dz = ax / na - bx / nb, ay / na - by / nb, az / na - bz / nb
+    # the chord between unit vectors is 2 sin(angle / 2): exact for tiny angles too
+    return 2.0 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
+
+
+@njit(cache=True, nogil=True)
+def ray_steps(xyz):
+    """Angle (radians) between each pixel's viewing direction and the next row's and the
+    next column's, ``(2, H, W)`` (the last row / column repeats the one before; NaN where
+    either pixel is invalid)."""
+    h, w = xyz.shape[0], xyz.shape[1]
+    out = np.full((2, h, w), np.nan)
+    for r in range(h):
+        for c in range(w):
+            if h > 1:
+                ra = min(r, h - 2)
+                out[0, r, c] = _ray_angle(xyz, ra, c, ra + 1, c)
+            if w > 1:
+                ca = min(c, w - 2)
+                out[1, r, c] = _ray_angle(xyz, r, ca, r, ca + 1)
     return out

@@ -7,7 +7,7 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from ..edges import close_residual, edge_mask, jump_edges
+from ..edges import close_residual, crease_edges, edge_mask, jump_edges
 from ..regions import label_regions
 from ..registry import Plugin, Segmentation
 from ..residual import residual_image
@@ -28,6 +28,7 @@ def segment_residual_edges(
     jump_min: float = 0.05,
     min_region_size: int = 30,
     connectivity: int = 4,
+    crease_angle_deg: float = 20.0,
 ) -> Segmentation:
     """Segment an organized cloud by the plane-fit residual of each pixel's neighbourhood.
 
@@ -46,6 +47,11 @@ def segment_residual_edges(
         ``jump_ratio`` is per sensor pixel step.
     min_region_size : smaller connected areas are no region (sensor pixels).
     connectivity : 4 or 8 for the flood fill.
+    crease_angle_deg : where the noise is comparable to the point spacing (the 3x3 residual
+        is blind to creases there), normal discontinuities above this angle between
+        flanking windows wide enough for well-determined normals are edges too
+        (:func:`rangeseg_o3d.edges.crease_edges`; the grid's angular spacing is measured
+        from the cloud); 0 turns the test off.
 
     A cloud of tile means (:meth:`OrganizedCloud.tile_means`, as the pipeline's ``tile``
     makes for depth cameras) is segmented as such: each point's noise is divided by the
@@ -76,9 +82,16 @@ def segment_residual_edges(
     edges = edge_mask(closed, threshold=threshold, valid=valid, jumps=jumps)
     t2 = time.perf_counter()
     timings["edges"] = t2 - t1
+    stages = {"residual": residual, "closed": closed, "edges": edges, "jumps": jumps}
+    if crease_angle_deg > 0:
+        sigma = noise.sigma(ranges, cloud.samples)
+        creases, _ = crease_edges(xyz, ranges, sigma, min_angle_deg=crease_angle_deg)
+        edges |= creases
+        stages["creases"] = creases
+        t3 = time.perf_counter()
+        timings["creases"], t2 = t3 - t2, t3
     min_size = max(1, -(-min_region_size // (tile * tile)))
     labels = label_regions(edges, min_size=min_size, connectivity=connectivity)
-    stages = {"residual": residual, "closed": closed, "edges": edges, "jumps": jumps}
     timings["regions"] = time.perf_counter() - t2
     return Segmentation(labels=labels, stages=stages, timings=timings)
 
@@ -96,6 +109,7 @@ class ResidualEdgesConfig(BaseModel):
     jump_min: float = Field(0.05, ge=0)
     min_region_size: int = Field(30, ge=1)
     connectivity: int = Field(4)
+    crease_angle_deg: float = Field(20.0, ge=0, lt=90)
 
     @model_validator(mode="after")
     def _check(self):

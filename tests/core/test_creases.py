@@ -1,0 +1,55 @@
+"""Creases where the noise is comparable to the point spacing, and the measured angular grid."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.edges import angular_steps, crease_edges
+from rangeseg_o3d.residual import residual_image
+
+
+def _roof(noise: float, seed: int = 0):
+    """Two planes meeting at a 90-degree ridge (column 40), 40 x 80 points 2 cm apart, 3 m away."""
+    v, u = np.mgrid[0:40, 0:80].astype(float)
+    x, y = (u - 40) * 0.02, (v - 20) * 0.02
+    z = 3.0 - np.abs(x) + np.random.default_rng(seed).normal(0.0, noise, x.shape)
+    return np.dstack([x, y, z])
+
+
+def test_angular_steps_measure_the_grid_from_directions():
+    beams = np.radians(np.arange(60, 121, 0.5))
+    tilts = np.radians(np.arange(-10, 10.01, 0.25))
+    b, t = np.meshgrid(beams, tilts)
+    rays = np.dstack([np.sin(b) * np.cos(t), np.cos(b) * np.cos(t), np.sin(t)])
+    ranges = np.random.default_rng(0).uniform(1.0, 5.0, b.shape)[..., None]
+    rows, cols = angular_steps(rays * ranges)  # ranges vary: directions do not
+    assert np.nanmedian(rows) == pytest.approx(np.radians(0.25), rel=1e-6)
+    # a beam step of 0.5 deg spans 0.5 cos(tilt) deg of arc
+    assert np.nanmedian(cols) == pytest.approx(np.radians(0.5) * np.cos(np.radians(5.0)), rel=2e-3)
+
+
+def test_angular_steps_reject_a_flat_array():
+    with pytest.raises(ValueError, match="shape"):
+        angular_steps(np.zeros((4, 3)))
+
+
+def test_a_ridge_the_residual_misses_is_found_by_the_window_normals():
+    noise = 0.03  # larger than the point spacing (2 cm)
+    xyz = _roof(noise)
+    ranges = np.linalg.norm(xyz, axis=2)
+    residual, _ = residual_image(xyz, ranges=ranges, sigma0=noise, with_normals=False)
+    ridge = np.abs(np.arange(80) - 40) <= 1
+    # the paper's 3x3 residual (threshold 4 noise variances) sees under half of the ridge
+    assert (residual[:, ridge] > 4.0).mean() < 0.5
+    creases, window = crease_edges(xyz, ranges, np.full(ranges.shape, noise))
+    assert window >= 5
+    core = slice(window, 40 - window)  # rows whose windows lie inside the grid
+    assert creases[core, 39:42].all()
+    far = np.abs(np.arange(80) - 40) > window + 1
+    assert creases[core][:, far].mean() < 0.02
+
+
+def test_no_crease_test_where_the_residual_sees_creases():
+    xyz = _roof(0.001)
+    ranges = np.linalg.norm(xyz, axis=2)
+    creases, window = crease_edges(xyz, ranges, np.full(ranges.shape, 0.001))
+    assert window == 0 and not creases.any()
