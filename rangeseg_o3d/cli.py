@@ -159,7 +159,8 @@ def cmd_segment(args) -> int:
             batch = run_batch(None, config=config, plan=plan, jobs=args.jobs, units=args.units,
                               load_options=_load_options(args),
                               client=None if rec is not None else client, resume=args.resume,
-                              tables=args.tables or single or args.out is None, recording=rec)
+                              tables=args.tables or single or args.out is None, recording=rec,
+                              light_log=bool(getattr(args, "light", False)))
             progress = None if single else Progress(len(plan.tasks), bar=None if not args.quiet else False)
             for row in batch:
                 if row.status == "skipped" and row.input in previous:
@@ -226,7 +227,7 @@ def cmd_demo(args) -> int:
     # shown are those of the run after it, which is what each further scan costs.
     first = pipeline.run(cloud).timings["total"]
     rec = _recording(args)
-    result = pipeline.run(cloud, recording=rec)
+    result = pipeline.run(cloud, recording=rec, light_log=bool(getattr(args, "light", False)))
     print(format_table(result, title=f"demo: {source}\n{cloud!r}, preset {pipeline.config.name}"))
     print(f"(timings of a second run; the first, which loads the compiled kernels, took "
           f"{first * 1e3:.0f} ms)")

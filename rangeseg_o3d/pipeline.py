@@ -69,7 +69,8 @@ class Pipeline:
         return (f"Pipeline({self.config.name!r}, segmenter={self.segmenter.name!r}, "
                 f"fitter={self.fitter.plugin.name!r})")
 
-    def run(self, cloud: OrganizedCloud, *, recording=None, scan_index: int = 0) -> Result:
+    def run(self, cloud: OrganizedCloud, *, recording=None, scan_index: int = 0,
+            light_log: bool = False) -> Result:
         """Segment ``cloud`` and fit every region.
 
         Parameters
@@ -77,6 +78,7 @@ class Pipeline:
         cloud : OrganizedCloud
         recording : optional ``rerun.RecordingStream``; every stage is logged to it.
         scan_index : position of this scan on the recording's ``scan`` timeline.
+        light_log : log no intermediate images (residual, closed, edges) to ``recording``.
 
         Raises
         ------
@@ -137,7 +139,7 @@ class Pipeline:
         if recording is not None:
             from .viz.rerun_log import log_scan
 
-            log_scan(recording, cloud, result, scan_index=scan_index)
+            log_scan(recording, cloud, result, scan_index=scan_index, light=light_log)
         return result
 
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict):

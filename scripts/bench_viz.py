@@ -34,16 +34,21 @@ def main() -> None:
         memory = rec.memory_recording()
         counter = iter(range(10**6))
 
-        def log_once():
-            log_scan(rec, cloud, result, scan_index=next(counter))
+        sizes = {}
+
+        def log_once(light=False):
+            log_scan(rec, cloud, result, scan_index=next(counter), light=light)
             rec.flush()
-            memory.drain_as_bytes()  # keep memory flat across repeats
+            sizes[light] = len(memory.drain_as_bytes())  # keep memory flat across repeats
 
         t_log = median_seconds(log_once, args.repeats)
+        t_light = median_seconds(lambda: log_once(True), args.repeats)
         t_panel = median_seconds(lambda: render_panel(cloud, result), args.repeats)
         print(f"{name}: {cloud.n_valid} valid points, {len(result.features)} features | "
-              f"log_scan {t_log * 1e3:.1f} ms | render_panel {t_panel * 1e3:.1f} ms "
-              f"(median of {args.repeats})")
+              f"log_scan {t_log * 1e3:.1f} ms, {sizes[False] / 1e6:.2f} MB per scan | light "
+              f"{t_light * 1e3:.1f} ms, {sizes[True] / 1e6:.2f} MB | render_panel "
+              f"{t_panel * 1e3:.1f} ms (median of {args.repeats}; the first scan of a recording "
+              "also carries the static context and blueprint)")
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ def run_batch(inputs, *, config=None, out=None, outputs=("json",), jobs: int | N
               load_options: dict | None = None,
               keep_results: bool = False, keep_stages: bool = False, tables: bool = False,
               targets: dict | None = None, recording=None, plan: BatchPlan | None = None,
-              ) -> Iterator[InputSummary]:
+              light_log: bool = False) -> Iterator[InputSummary]:
     """Segment every input; an iterator of per-input summaries, in completion order.
 
     Parameters
@@ -85,6 +85,7 @@ def run_batch(inputs, *, config=None, out=None, outputs=("json",), jobs: int | N
     tables : put the readable feature table in each summary (``.table``).
     targets : ``{kind: file or folder}`` for further outputs (see :func:`plan_tasks`).
     recording : a rerun recording to log every scan to (runs in this process).
+    light_log : log no intermediate images to ``recording`` (see ``log_scan(light=True)``).
     plan : a plan made beforehand (then ``inputs``, ``out``, ``outputs``, ``targets``
         are not used).
 
@@ -98,7 +99,8 @@ def run_batch(inputs, *, config=None, out=None, outputs=("json",), jobs: int | N
 
     options = SegmentOptions(config=load_config(config), units=units,
                              load_options=dict(load_options or {}),
-                             keep_result=keep_results, keep_stages=keep_stages, table=tables)
+                             keep_result=keep_results, keep_stages=keep_stages, table=tables,
+                             light_log=light_log)
     if plan is None:
         plan = plan_tasks(inputs, out=out, outputs=outputs, targets=targets)
     prepare_outputs(plan)

@@ -55,6 +55,7 @@ class SegmentOptions:
     keep_stages : keep the intermediate images in that Result (several MB per VGA
         frame; off by default so that results cross process boundaries cheaply).
     table : return the readable feature table with the summary.
+    light_log : log no intermediate images to the rerun recording (``--light``).
     """
 
     config: PipelineConfig
@@ -63,6 +64,7 @@ class SegmentOptions:
     keep_result: bool = False
     keep_stages: bool = False
     table: bool = False
+    light_log: bool = False
 
 
 @dataclass
@@ -252,7 +254,8 @@ def segment_input(task: InputTask, options: SegmentOptions, pipeline=None, *,
         row.height, row.width = (int(n) for n in cloud.shape)
         row.n_valid = int(cloud.n_valid)
         row.read_s = time.perf_counter() - start
-        result = pipeline.run(cloud, recording=recording, scan_index=task.index)
+        result = pipeline.run(cloud, recording=recording, scan_index=task.index,
+                              light_log=options.light_log)
         row.segment_s = time.perf_counter() - start - row.read_s
         for kind, out in task.outputs:
             Path(out).parent.mkdir(parents=True, exist_ok=True)  # names like a/scan

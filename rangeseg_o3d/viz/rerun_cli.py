@@ -68,6 +68,8 @@ def add_rerun_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     group.add_argument("--headless", action="store_true",
                        help="accepted for compatibility with rerun scripts; no viewer is "
                             "started unless --spawn is given")
+    group.add_argument("--light", action="store_true",
+                       help="log no intermediate images (residual, closed, edges): a smaller recording")
     group.add_argument("--png", type=str, default=None, metavar="FILE.png",
                        help="write range, residual, edges and labels side by side to this PNG")
     return parser

@@ -15,19 +15,32 @@ Entities (one scan at a time, on the sequence timeline given to :func:`log_scan`
 ``world/points``                  Points3D of the valid points, coloured by region,
                                   ``class_ids`` = region label, plus a ``GridIndex``
                                   archetype with ``row`` and ``col`` per point (int32)
-``world/features/<label>``        LineStrips3D (plane outline), Cylinders3D or
-                                  Ellipsoids3D, plus a ``Feature`` archetype with
-                                  kind, rms, inliers and n_pixels
+``world/features/<label>``        LineStrips3D (plane boundary rings, holes included),
+                                  Cylinders3D (over the axis segment) or Ellipsoids3D,
+                                  plus a ``Feature`` archetype with kind, rms, inliers,
+                                  n_pixels, the model's parameters, their standard
+                                  deviations and the patch's area / extent / height /
+                                  angle span / cap
+``world``                         Transform3D of the scan's pose (``cloud.pose``: a PCD
+                                  VIEWPOINT, an E57 scan pose), identity without one
 ``timings/<stage>``               Scalars, milliseconds
 ================================  ===================================================
+
+With ``light=True`` the intermediate images (residual, closed, edges) are not logged, the
+points are those of every step-th row and column (at most ``LIGHT_POINTS`` pixels) without
+colours (the annotation context colours them by label) or grid indices: the recording keeps
+the range, the labels, the points, the features and the timings.
 
 A segmenter that produces no ``residual``/``closed``/``edges`` image simply has no such
 entity for that scan (any image from an earlier scan is cleared). Features of an earlier
 scan are cleared too, so the viewer never mixes scans.
 
-Static, logged once (``log_static=True``): ``world`` view coordinates, ``world/sensor``
-(pinhole frustum, or the outline of a nodding scanner's field of view at 1 m) and a
-``legend`` text document explaining the colours.
+Static, logged once (``log_static=True``): the default blueprint (:func:`default_blueprint`:
+the 3-D view, the labelled image, the range image and the timings), view coordinates
+whenever the sensor geometry is known or can be estimated (a pinhole fitted to the points
+of a cloud without geometry, e.g. a PCD), ``world/sensor`` (pinhole frustum, or the
+outline of a nodding scanner's field of view at 1 m) and a ``legend`` text document
+explaining the colours.
 
 Every function takes the recording as its first argument and does nothing when it is
 None, so callers need not import rerun; rerun itself is imported only when something is
@@ -66,6 +79,7 @@ __all__ = [
     "log_features",
     "log_timings",
     "log_static_context",
+    "default_blueprint",
     "annotation_context",
     "add_rerun_arguments",
     "recording_from_args",
@@ -78,6 +92,8 @@ log = logging.getLogger(__name__)
 STAGE_IMAGES = ("residual", "closed", "edges")
 #: Largest label a SegmentationImage (uint16) and a class id can carry.
 MAX_LABEL = np.iinfo(np.uint16).max
+#: Most grid pixels whose points a light log keeps (every step-th row and column).
+LIGHT_POINTS = 80_000
 #: Length (metres) of the rays drawn for a nodding scanner's field of view.
 SENSOR_RAY_LENGTH = 1.0
 
@@ -278,6 +294,7 @@ def log_points(
     *,
     colors: np.ndarray | None = None,
     entity: str = "world/points",
+    light: bool = False,
 ) -> int:
     """Log the valid points as Points3D coloured by region, with their grid row and column.
 
@@ -312,13 +329,18 @@ def log_points(
         raise ValueError(
             f"colors must have shape (>= {int(labels.max(initial=0)) + 1}, 3); got {colors.shape}"
         )
+    if light:
+        # Every step-th row and column (at most LIGHT_POINTS pixels), coloured by the class
+        # ids through the AnnotationContext on "world": no per-point colours or grid indices.
+        step = max(1, int(np.ceil(np.sqrt(cloud.shape[0] * cloud.shape[1] / LIGHT_POINTS))))
+        keep = (rows % step == 0) & (cols % step == 0)
+        recording.log(entity, rr.Points3D(cloud.xyz[rows[keep], cols[keep]].astype(np.float32),
+                                          class_ids=point_labels[keep].astype(np.uint16)))
+        return int(keep.sum())
+    positions = cloud.xyz[rows, cols].astype(np.float32)
     recording.log(
         entity,
-        rr.Points3D(
-            cloud.xyz[rows, cols].astype(np.float32),
-            colors=colors[point_labels],
-            class_ids=point_labels.astype(np.uint16),
-        ),
+        rr.Points3D(positions, colors=colors[point_labels], class_ids=point_labels.astype(np.uint16)),
         rr.DynamicArchetype(
             "GridIndex",
             components={"row": rows.astype(np.int32), "col": cols.astype(np.int32)},
@@ -331,11 +353,21 @@ def _feature_archetype(rr, feat, points: np.ndarray, color, name: str):
     """The rerun archetype drawing ``feat``, or None when there is nothing to draw."""
     model = feat.model
     style = {"colors": [color], "labels": [name], "class_ids": [int(feat.label)]}
+    patch = feat.geometry
     if feat.kind == "plane":
+        if patch is not None and patch.pieces:
+            rings = [np.vstack([ring, ring[:1]]).astype(np.float32)
+                     for piece in patch.pieces for ring in piece if len(ring) >= 2]
+            return rr.LineStrips3D(rings, **{**style, "colors": [color] * len(rings),
+                                             "labels": [name] * len(rings),
+                                             "class_ids": [int(feat.label)] * len(rings)})
         outline = plane_outline(points, model)
         return rr.LineStrips3D([outline.astype(np.float32)], **style)
     if feat.kind == "cylinder":
-        center, length = cylinder_span(points, model)
+        if patch is not None:
+            center, length = patch.segment.mean(axis=0), float(patch.height)
+        else:
+            center, length = cylinder_span(points, model)
         return rr.Cylinders3D(
             centers=[center],
             lengths=[length],
@@ -351,6 +383,25 @@ def _feature_archetype(rr, feat, points: np.ndarray, color, name: str):
         )
     log.warning("feature %d has unknown kind %r; not drawn", feat.label, feat.kind)
     return None
+
+
+def _feature_components(feat) -> dict:
+    """What the viewer shows of a feature: kind, fit quality, parameters, their sigmas, patch."""
+    components = {"kind": feat.kind, "rms": float(feat.rms), "inliers": int(feat.inliers),
+                  "n_pixels": int(feat.n_pixels)}
+    for name, value in feat.model.params().items():
+        components[name] = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    covariance = feat.covariance
+    if covariance is not None:
+        components["sigma"] = np.sqrt(np.clip(np.diag(covariance), 0, None))
+        components["sigma_order"] = " ".join(feat.parameter_names)
+    patch = feat.geometry
+    if patch is not None:
+        for name, value in patch.to_dict().items():
+            if name in ("boundary", "other_pieces"):
+                continue
+            components[name] = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
+    return components
 
 
 def log_features(
@@ -403,15 +454,7 @@ def log_features(
         if shape is None:
             continue
         path = f"{entity}/{int(feat.label)}"
-        details = rr.DynamicArchetype(
-            "Feature",
-            components={
-                "kind": feat.kind,
-                "rms": float(feat.rms),
-                "inliers": int(feat.inliers),
-                "n_pixels": int(feat.n_pixels),
-            },
-        )
+        details = rr.DynamicArchetype("Feature", components=_feature_components(feat))
         recording.log(path, shape, details)
         logged.append(path)
     return logged
@@ -484,18 +527,52 @@ def _geometry_fingerprint(cloud: OrganizedCloud) -> tuple:
     return ("none",)
 
 
-def log_static_context(recording, cloud: OrganizedCloud) -> None:
-    """Log, as static data, the world's view coordinates, the sensor and a colour legend.
+def default_blueprint():
+    """The layout the viewer opens on: the 3-D view beside the labels, the range and the timings."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="/", contents=["world/**"], name="3-D: points and features"),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="scan/labels", name="labels"),
+                rrb.Spatial2DView(origin="scan/range", name="range (m)"),
+                rrb.TimeSeriesView(origin="timings", name="timings (ms)"),
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def _known_or_estimated_geometry(cloud: OrganizedCloud):
+    """The cloud's geometry, else a pinhole fitted to its points (PCD frames), else None."""
+    if cloud.geometry is not None:
+        return cloud.geometry
+    from ..io.datasets import estimate_pinhole
+
+    return estimate_pinhole(cloud.xyz) if cloud.shape[0] > 1 else None
+
+
+def log_static_context(recording, cloud: OrganizedCloud, *, blueprint: bool = True) -> None:
+    """Log, as static data, the blueprint, the view coordinates, the sensor and a colour legend.
 
     Nodding scans use x forward, y left, z up (RIGHT_HAND_Z_UP) and draw their field of
-    view at ``world/sensor``; depth cameras use the camera frame (RDF) and log a Pinhole.
-    A cloud without geometry logs only the legend.
+    view at ``world/sensor``; depth cameras (and clouds whose points fit a pinhole, as a
+    PCD frame's do) use the camera frame (RDF) and log a Pinhole. The view coordinates go
+    on ``world`` and, when the scan has no pose, on the root the 3-D view looks from.
     """
     if recording is None:
         return
     rr = _rerun(recording)
     _check_cloud(cloud)
-    geometry = cloud.geometry
+    if blueprint:
+        recording.send_blueprint(default_blueprint())
+    geometry = _known_or_estimated_geometry(cloud)
+    coordinates = (rr.ViewCoordinates.RIGHT_HAND_Z_UP if isinstance(geometry, NoddingGeometry)
+                   else rr.ViewCoordinates.RDF if isinstance(geometry, PinholeGeometry) else None)
+    if coordinates is not None and cloud.pose is None:
+        recording.log("/", coordinates, static=True)
     if isinstance(geometry, NoddingGeometry):
         recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         recording.log(
@@ -534,6 +611,7 @@ def log_scan(
     scan_index: int,
     timeline: str = "scan",
     log_static: bool = True,
+    light: bool = False,
 ) -> None:
     """Log one scan and its segmentation at ``scan_index`` on the sequence ``timeline``.
 
@@ -555,6 +633,11 @@ def log_scan(
         Also log the static context (:func:`log_static_context`) unless this recording
         already holds it for the same sensor geometry, so it is logged once per
         recording however often log_scan is called.
+    light : bool
+        Leave out the intermediate images (residual, closed, edges), keep the points of
+        every step-th row and column only (at most ``LIGHT_POINTS`` pixels: every second of
+        a VGA frame) without explicit colours or grid indices (the annotation context
+        colours them by label).
 
     Raises
     ------
@@ -574,11 +657,14 @@ def log_scan(
         log_static_context(recording, cloud)
     recording.set_time(timeline, sequence=int(scan_index))
     colors = region_colors(result)
+    rr = _rerun(recording)
+    pose = np.eye(4) if cloud.pose is None else cloud.pose
+    recording.log("world", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
     log_range(recording, cloud)
-    log_stage_images(recording, result.stages, shape=cloud.shape)
+    log_stage_images(recording, {} if light else result.stages, shape=cloud.shape)
     context = annotation_context(result, colors)
     log_labels(recording, result, colors=colors, context=context)
     recording.log("world", context)
-    log_points(recording, cloud, result.labels, colors=colors)
+    log_points(recording, cloud, result.labels, colors=colors, light=light)
     log_features(recording, cloud, result, colors=colors)
     log_timings(recording, result.timings)

@@ -287,3 +287,73 @@ def test_pipeline_run_with_a_recording_logs_every_stage(tmp_path):
     assert {f"/timings/{stage}" for stage in result.timings} <= set(entities)
     steps = {v for batch in entities["/scan/labels"] for v in batch.column("scan").to_pylist()}
     assert steps == {2}
+
+
+# -- issue 15 item 6: blueprint, view coordinates, poses, feature parameters, light mode ----
+
+@pytest.fixture(scope="module")
+def pipeline_scan():
+    import rangeseg_o3d as rs
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    cloud = simulate_lms200(default_scene(), seed=0).cloud
+    return cloud, rs.Pipeline("lms200").run(cloud)
+
+
+def test_blueprint_is_sent_with_the_recording(tmp_path, scan):
+    from rerun.chunk import RrdReader
+
+    _record(tmp_path, [scan])
+    assert [entry.kind for entry in RrdReader(tmp_path / "scans.rrd").blueprints()] == ["blueprint"]
+    blueprint = rerun_log.default_blueprint()
+    assert isinstance(blueprint, rr.blueprint.Blueprint)
+
+
+def test_features_carry_parameters_sigmas_patch_and_boundary(tmp_path, pipeline_scan):
+    cloud, result = pipeline_scan
+    entities = _record(tmp_path, [pipeline_scan])
+    plane = next(f for f in result.features if f.kind == "plane")
+    record = entities[f"/world/features/{plane.label}"]
+    (normal,) = column_values(record, "Feature:normal")
+    np.testing.assert_allclose(normal, plane.normal)
+    (sigma,) = column_values(record, "Feature:sigma")
+    np.testing.assert_allclose(sigma, np.sqrt(np.diag(plane.covariance)))
+    (area,) = column_values(record, "Feature:area")
+    assert area == pytest.approx([plane.area])
+    (strips,) = column_values(record, "LineStrips3D:strips")
+    rings = [ring for piece in plane.geometry.pieces for ring in piece if len(ring) >= 2]
+    assert len(strips) == len(rings)  # the traced boundary rings, not a convex hull
+    np.testing.assert_allclose(np.array(strips[0])[:-1], rings[0], atol=1e-5)
+    cylinder = next(f for f in result.features if f.kind == "cylinder")
+    (length,) = column_values(entities[f"/world/features/{cylinder.label}"], "Cylinders3D:lengths")
+    assert length == pytest.approx([cylinder.height], rel=1e-5)
+
+
+def test_pose_is_the_world_transform_and_estimated_pinhole_gives_view_coordinates(tmp_path):
+    depth = np.full((12, 16), 2.0)
+    camera = OrganizedCloud.from_depth(depth, 20.0, 20.0, 7.5, 5.5)
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 3.0]
+    # as a PCD would give it: the points, no geometry, a VIEWPOINT pose
+    posed = OrganizedCloud(camera.xyz, pose=pose)
+    plain = OrganizedCloud(camera.xyz)
+    empty = Result(np.zeros((12, 16), np.int32), [])
+    entities = _record(tmp_path, [(posed, empty)])
+    (translation,) = column_values(entities["/world"], "Transform3D:translation")
+    np.testing.assert_allclose(np.ravel(translation), [1.0, 2.0, 3.0])
+    assert "ViewCoordinates:xyz" in columns(entities["/world"])
+    assert "/world/sensor" in entities  # the estimated pinhole is drawn
+    entities = _record(tmp_path, [(plain, empty)])
+    assert "ViewCoordinates:xyz" in columns(entities["/"])  # the 3-D view's root, upright
+
+
+def test_light_mode_leaves_out_the_intermediate_images(tmp_path, pipeline_scan):
+    full = _record(tmp_path, [pipeline_scan])
+    size_full = (tmp_path / "scans.rrd").stat().st_size
+    light = _record(tmp_path, [pipeline_scan], light=True)
+    size_light = (tmp_path / "scans.rrd").stat().st_size
+    assert "Image:buffer" in columns(full["/scan/residual"])
+    assert "Image:buffer" not in columns(light.get("/scan/residual", []))
+    assert "DepthImage:buffer" in columns(light["/scan/range"])
+    assert size_light < size_full
