@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from . import registry
 from .sensor import UNIT_SCALES, NoiseModel, Sensor
@@ -132,6 +132,8 @@ class PipelineConfig(BaseModel):
 
     name: str = "custom"
     sensor: SensorConfig = Field(default_factory=SensorConfig)
+    # refine fields left out that took the segmenter's value (or the default) at load
+    _refine_resolved: set = PrivateAttr(default_factory=set)
     segmenter: StageConfig = Field(default_factory=lambda: StageConfig(name="residual_edges"))
     fitter: StageConfig = Field(default_factory=lambda: StageConfig(name="primitives"))
     refine: RefineConfig = Field(default_factory=RefineConfig)
@@ -175,6 +177,7 @@ class PipelineConfig(BaseModel):
         for key, default in _SHARED_WITH_SEGMENTER.items():
             if getattr(self.refine, key) is None:
                 setattr(self.refine, key, self.segmenter.params.get(key, default))
+                self._refine_resolved.add(key)
         return self
 
 
@@ -275,7 +278,10 @@ def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
 
 def _read_source(source) -> tuple[dict, str]:
     if isinstance(source, PipelineConfig):
-        return source.model_dump(), f"configuration {source.name!r}"
+        data = source.model_dump()
+        for key in source._refine_resolved:  # resolved again, after the overrides
+            data["refine"][key] = None
+        return data, f"configuration {source.name!r}"
     if isinstance(source, dict):
         return source, "dict"
     path = Path(source)

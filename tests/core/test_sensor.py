@@ -115,6 +115,10 @@ def test_refinement_settings_shared_with_the_segmenter_are_resolved_once():
     own = load_config("lms200", overrides={"segmenter.params.min_region_size": 50,
                                             "refine.min_region_size": 25})
     assert own.refine.min_region_size == 25
+    # a loaded configuration as the source: what was resolved is resolved again
+    again = load_config(lms, overrides={"segmenter.params.min_region_size": 40})
+    assert again.refine.min_region_size == 40
+    assert load_config(own, overrides={"segmenter.params.min_region_size": 40}).refine.min_region_size == 25
 
 
 @pytest.mark.parametrize("old, new", [
@@ -186,3 +190,18 @@ def test_parse_overrides_reads_yaml_scalars():
     for bad in ("sensor.sigma0", "=3", "sensor.sigma0=[1,"):
         with pytest.raises(ValueError, match="override"):
             parse_overrides([bad])
+
+
+def test_compare_configs_take_the_same_overrides():
+    from rangeseg_o3d.cli import build_parser
+    from rangeseg_o3d.compare import config_for
+
+    swapped = config_for("lms200", "region_growing", overrides=["sensor.sigma0=0.01", "refine.k_sigma=2"])
+    assert swapped.segmenter.name == "region_growing"
+    assert swapped.sensor.sigma0 == 0.01 and swapped.refine.k_sigma == 2.0
+    assert config_for("lms200", "residual_edges", overrides={"sensor.sigma0": 0.02}).sensor.sigma0 == 0.02
+    with pytest.raises(ValueError, match="unknown configuration key 'refine.k'"):
+        config_for("lms200", "region_growing", overrides=["refine.k=2"])
+    args = build_parser().parse_args(["compare", "--quick", "--set", "sensor.sigma0=0.01",
+                                      "--set", "refine.merge=false"])
+    assert args.overrides == ["sensor.sigma0=0.01", "refine.merge=false"]
