@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cloud import OrganizedCloud
+from ..kinematics import SphericalGeometry
 
 __all__ = [
     "load_input",
@@ -140,7 +141,9 @@ def project_spinning(points, *, rows: int = 64, cols: int = 2048,
     ``elevation_range[0]``; column ``j`` the azimuth ``180 - 360 (j + 0.5) / cols`` degrees
     (column 0 behind on the left, the middle straight ahead along +x, clockwise seen from
     above as the sensor turns). A pixel hit by several points keeps the nearest; pixels no
-    point falls in are NaN. The defaults are a Velodyne HDL-64E's (KITTI).
+    point falls in are NaN. The cloud carries the grid's :class:`SphericalGeometry` (the
+    pixel-centre beam directions; points keep their measured angles) for the
+    ``spinning_lidar`` preset and the viewer. The defaults are a Velodyne HDL-64E's (KITTI).
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] < 3:
@@ -165,13 +168,20 @@ def project_spinning(points, *, rows: int = 64, cols: int = 2048,
     chosen = np.flatnonzero(inside)[order[first]]
     grid = np.full((rows * cols, 3), np.nan)
     grid[flat[order[first]]] = xyz[chosen]
+    ranges_grid = np.full(rows * cols, np.nan)
+    ranges_grid[flat[order[first]]] = ranges[chosen]
+    # The grid's beam directions (pixel centres): the measured points keep their own angles.
+    geometry = SphericalGeometry(
+        elevations=np.radians(high - (np.arange(rows) + 0.5) * (high - low) / rows),
+        azimuths=np.radians(180.0 - 360.0 * (np.arange(cols) + 0.5) / cols))
     grid_intensity = None
     if intensity is not None:
         values = np.asarray(intensity, dtype=float)[keep]
         grid_intensity = np.full(rows * cols, np.nan)
         grid_intensity[flat[order[first]]] = values[chosen]
         grid_intensity = grid_intensity.reshape(rows, cols)
-    return OrganizedCloud(grid.reshape(rows, cols, 3), intensity=grid_intensity)
+    return OrganizedCloud(grid.reshape(rows, cols, 3), ranges=ranges_grid.reshape(rows, cols),
+                          intensity=grid_intensity, geometry=geometry)
 
 
 def load_kitti_bin(path, **projection) -> OrganizedCloud:

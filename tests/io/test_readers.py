@@ -141,6 +141,22 @@ def test_kitti_bin_becomes_a_range_image(tmp_path):
     np.testing.assert_array_equal(cloud.valid, hit)
     assert np.nanmax(np.abs(cloud.xyz[..., 2][cloud.xyz[..., 0] < 7.99] + 1.73)) < 1e-4  # the ground
     np.testing.assert_allclose(cloud.intensity[cloud.valid], 0.5)
+    assert cloud.geometry.full_turn  # 360 degrees of columns: the first and last are neighbours
+    # the pixel-centre directions of the geometry are those the sweep was cast along
+    directions = cloud.geometry.directions()
+    np.testing.assert_allclose(directions[cloud.valid], cloud.xyz[cloud.valid] / cloud.ranges[cloud.valid][:, None],
+                               atol=1e-5)
+
+
+def test_kitti_sweep_segments_with_the_spinning_preset(tmp_path):
+    from rangeseg_o3d import Pipeline
+
+    points, _ = _lidar_sweep()
+    np.column_stack([points, np.zeros(len(points))]).astype("<f4").tofile(tmp_path / "s.bin")
+    result = Pipeline("spinning_lidar").run(load_input(tmp_path / "s.bin"))
+    planes = [f for f in result.features if f.kind == "plane"]
+    normals = np.abs([p.normal for p in planes if p.n_pixels > 500])
+    assert (normals[:, 2] > 0.99).any() and (normals[:, 0] > 0.99).any()  # ground and wall
 
 
 def test_projection_keeps_the_nearest_point_of_a_pixel():
