@@ -221,7 +221,9 @@ def segment_ransac_planes(
     min_inliers : int
         Stop when fewer points remain, or the best plane has fewer inliers.
     seed : int or None
-        Seeds Open3D's global random generator for repeatable runs; None leaves it.
+        Seeds Open3D's global random generator; None leaves it. Open3D draws its
+        hypotheses on several threads, so a seed narrows but does not remove run-to-run
+        variation: on a busy machine two seeded runs can keep different border points.
 
     Returns
     -------

@@ -41,10 +41,17 @@ def test_ransac_planes_stop_at_max_planes_and_min_inliers(box_on_floor):
     assert segment_ransac_planes(cloud, min_inliers=1000).labels.max() == 2
 
 
-def test_ransac_planes_are_repeatable_with_a_seed(box_on_floor):
-    cloud, _ = box_on_floor
-    first = segment_ransac_planes(cloud, seed=3).labels
-    assert np.array_equal(first, segment_ransac_planes(cloud, seed=3).labels)
+def test_seeded_ransac_runs_find_the_same_planes(box_on_floor, matched_regions):
+    # Open3D's RANSAC is multithreaded: under load two seeded runs may differ in a few border
+    # points (Open3D issue 7270), never in which surfaces they find.
+    cloud, truth = box_on_floor
+    first, second = (segment_ransac_planes(cloud, seed=3, distance_threshold=0.01).labels
+                     for _ in range(2))
+    found_first = matched_regions(first, truth, min_pixels=50)
+    assert found_first.keys() == matched_regions(second, truth, min_pixels=50).keys()
+    assert found_first.keys() == {1, 2, 3, 4, 7}
+    differing = np.count_nonzero((first > 0) != (second > 0))
+    assert differing <= 0.02 * np.count_nonzero(truth)
 
 
 def test_planar_patches_find_both_planes(two_planes, matched_regions):
