@@ -275,9 +275,6 @@ def print_real(rows: list[dict]) -> None:
 
 
 # -- the sensor matrix ---------------------------------------------------------------------
-#: Presets a sensor row names that may not exist yet, and the stand-in used meanwhile
-#: (the row prints "preset (stand-in)").
-PRESET_STAND_INS = {"spinning_lidar": "lms200", "abw": "lms200"}
 #: Which region-growing preset gives the baseline's segmenter parameters, per sensor family.
 REGION_GROWING_PRESET = {"nodding": "lms200_region_growing", "noise": "lms200_region_growing",
                          "spinning": "lms200_region_growing", "depth": "rgbd_vga_region_growing",
@@ -286,28 +283,19 @@ REGION_GROWING_PRESET = {"nodding": "lms200_region_growing", "noise": "lms200_re
 ABW_SIZE_BINS = (0, 500, 2000, 8000)
 #: ABW images: voxel grid of the baseline at the blocks' scale (the rooms' 3 cm would merge faces).
 ABW_REGION_GROWING = {"voxel_size": 0.004}
-ABW_NOISE = {"sigma0": 0.0005, "sigma_quadratic": 0.0}
 
 
-def resolve_preset(name: str) -> tuple[str, bool]:
-    """``(preset, is_stand_in)``: the named preset if it exists, else its stand-in."""
-    from rangeseg_o3d.config import presets
-
-    if name in presets():
-        return name, False
-    return PRESET_STAND_INS[name], True
-
-
-def matrix_configs(preset: str, noise: dict, family: str, rg_params: dict):
+def matrix_configs(preset: str, facts: dict | None, family: str, rg_params: dict):
     """The residual-edge and region-growing configurations of one sensor row.
 
-    The sensor's noise model goes into the preset's ``sensor:`` section; region growing
+    The sensor's facts (noise model, grid spacing) go into the preset's ``sensor:``
+    section (``facts=None``: the preset's own, as for the real ABW camera); region growing
     swaps the segmenter only (parameters from its family's ``*_region_growing`` preset,
     that preset's tile), keeping the sensor, the fitter and the refinement (whose region
     size and jump test are then its own defaults, as region growing has none).
     """
-    base = load_config(preset, overrides={f"sensor.{key}": noise[key]
-                                          for key in ("sigma0", "sigma_quadratic")}).model_dump()
+    overrides = {f"sensor.{key}": value for key, value in (facts or {}).items()}
+    base = load_config(preset, overrides=overrides).model_dump()
     base["name"] = f"{preset}@matrix"
     residual = load_config(base)
     own = load_config(REGION_GROWING_PRESET[family])
@@ -394,14 +382,14 @@ def method_summary(scores: list[dict], seconds: list[float]) -> dict:
     }
 
 
-def matrix_row(name, description, preset, stand_in, family, noise, rg_params, items, score,
+def matrix_row(name, description, preset, family, facts, rg_params, items, score,
                repeats, rg_repeats) -> dict:
     """Both methods on the same ``items`` (anything ``score(item, result)`` takes; ``.cloud``);
     ``rg_repeats = 0`` leaves region growing out."""
-    residual, grow = matrix_configs(preset, noise, family, rg_params)
+    residual, grow = matrix_configs(preset, facts, family, rg_params)
     clouds = [item.cloud for item in items]
-    row = {"sensor": name, "description": description, "preset": preset, "stand_in": stand_in,
-           "noise": noise, "shape": list(clouds[0].shape) if clouds else None}
+    row = {"sensor": name, "description": description, "preset": preset,
+           "sensor_facts": facts, "shape": list(clouds[0].shape) if clouds else None}
     methods = [("residual_edges", residual, repeats)] + ([("region_growing", grow, rg_repeats)] if rg_repeats else [])
     for method, config, reps in methods:
         results, seconds = run_method(config, clouds, reps)
@@ -428,10 +416,9 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
         count = spec.quick_scans if quick else spec.scans
         start = time.perf_counter()
         scans = [spec.simulate(matrix_rng(seed, spec.name, k), quick) for k in range(count)]
-        preset, stand_in = resolve_preset(spec.preset)
         print(f"  {spec.name}: {count} scans of {'x'.join(map(str, scans[0].cloud.shape))} simulated "
               f"in {time.perf_counter() - start:.1f} s", flush=True)
-        rows.append(matrix_row(spec.name, spec.description, preset, stand_in, spec.family, spec.noise,
+        rows.append(matrix_row(spec.name, spec.description, spec.preset, spec.family, spec.sensor_facts(quick),
                                spec.region_growing, scans, score_synthetic, repeats, rg_repeats))
     if not only or "abw" in only:
         from rangeseg_o3d.io.abw import abw_images, load_abw
@@ -443,9 +430,8 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
             print("  abw: skipped (no ../shared/data/abw images)")
         else:
             images = [load_abw(p) for p in paths]
-            preset, stand_in = resolve_preset("abw")
             rows.append(matrix_row("abw", f"{len(images)} ABW images (SegComp rules, every labelled surface)",
-                                   preset, stand_in, "abw", ABW_NOISE, ABW_REGION_GROWING, images,
+                                   "abw", "abw", None, ABW_REGION_GROWING, images,
                                    score_abw, repeats, rg_repeats))
     return rows
 
@@ -459,7 +445,7 @@ def print_matrix(rows: list[dict]) -> None:
             f"{'undr':>6}{'miss':>6}{'nois':>6}{'FF':>4}{'n_err°':>8}{'ms':>9}")
     print(head)
     for row in rows:
-        preset = row["preset"] + ("*" if row["stand_in"] else "")
+        preset = row["preset"]
         for i, method in enumerate(m for m in ("residual_edges", "region_growing") if m in row):
             m = row[method]
             lead = (f"{row['sensor']:<19}{preset:<17}{m['scans']:>5}{m['n_truth']:>5}" if i == 0
@@ -473,9 +459,6 @@ def print_matrix(rows: list[dict]) -> None:
             if m["by_size"]:
                 print(f"{'':<46} | {'':<6}correct by size (px): " + ", ".join(
                     f"{size}: {c}/{n}" for size, (c, n) in m["by_size"].items()))
-    if any(r["stand_in"] for r in rows):
-        print("* stand-in preset: " + ", ".join(f"{k} -> {v}" for k, v in PRESET_STAND_INS.items())
-              + " until the named preset exists")
     print("RE = residual_edges, RG = region_growing (same scans, same fitter and refinement)")
 
 

@@ -106,6 +106,12 @@ def test_matrix_rows_draw_different_scenes_per_scan_and_sensor():
     assert not np.allclose(first, matrix_rng(0, "nodding_1deg", 1).random(4))
     assert not np.allclose(first, matrix_rng(0, "noise_2mm", 0).random(4))
     assert np.allclose(first, matrix_rng(0, "nodding_1deg", 0).random(4))
+    # The grid facts handed to the preset follow the grid simulated (quick: a coarser one).
+    facts = get_sensor("nodding_0.5deg").sensor_facts()
+    assert facts["column_spacing_deg"] == 0.5 and np.isclose(facts["row_spacing_deg"], np.rad2deg(0.7) / 139)
+    assert get_sensor("nodding_0.5deg").sensor_facts(quick=True)["column_spacing_deg"] == 1.0
+    spinning = get_sensor("spinning_64x1024").sensor_facts()
+    assert np.isclose(spinning["column_spacing_deg"], 360 / 1024) and spinning["sigma0"] == 0.015
     spec = get_sensor("nodding_1deg")
     one = spec.simulate(matrix_rng(0, spec.name, 0), True)
     two = spec.simulate(matrix_rng(0, spec.name, 1), True)
