@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["label_regions", "relabel_sequential"]
+__all__ = ["label_regions", "relabel_sequential", "wrap_columns", "join_wrapped"]
 
 
 def relabel_sequential(labels: np.ndarray) -> np.ndarray:
@@ -48,3 +48,47 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
     lut = np.zeros(n, dtype=np.int32)
     lut[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
     return lut[labels]
+
+
+def wrap_columns(image: np.ndarray, pad: int) -> np.ndarray:
+    """``image`` (H, W, ...) with its last ``pad`` columns before and its first ``pad`` after:
+    a 360-degree grid unrolled so that windows, closing and flood fill see across the seam."""
+    image = np.asarray(image)
+    if image.ndim < 2:
+        raise ValueError(f"image must have at least 2 dimensions; got shape {image.shape}")
+    if not 0 < pad <= image.shape[1]:
+        raise ValueError(f"pad must be in 1..{image.shape[1]} (the columns); got {pad}")
+    return np.concatenate([image[:, -pad:], image, image[:, :pad]], axis=1)
+
+
+def join_wrapped(padded: np.ndarray, pad: int) -> np.ndarray:
+    """Labels of the middle of a grid padded by :func:`wrap_columns`, with the regions that
+    continue across the seam joined into one.
+
+    A pad column and the middle column it copies are one pixel; where both carry a label,
+    those labels are one region. Returns (H, W) int32 labels renumbered 1..n.
+    """
+    padded = np.asarray(padded)
+    width = padded.shape[1] - 2 * pad
+    if width < pad:
+        raise ValueError(f"a padded grid of {padded.shape[1]} columns cannot carry pads of {pad}")
+    middle = padded[:, pad:pad + width]
+    # right pad = the first columns again; left pad = the last columns again
+    copies = np.concatenate([padded[:, pad + width:].ravel(), padded[:, :pad].ravel()])
+    originals = np.concatenate([middle[:, :pad].ravel(), middle[:, width - pad:].ravel()])
+    both = (copies > 0) & (originals > 0)
+    root = np.arange(int(padded.max(initial=0)) + 1)
+
+    def find(k):
+        while root[k] != k:
+            root[k] = root[root[k]]
+            k = root[k]
+        return k
+
+    pairs = np.unique(np.stack([copies[both], originals[both]], axis=1), axis=0)
+    for a, b in pairs.tolist():
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            root[max(ra, rb)] = min(ra, rb)
+    lut = np.array([find(k) for k in range(root.size)], dtype=np.int32)
+    return relabel_sequential(lut[middle])

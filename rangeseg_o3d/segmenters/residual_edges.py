@@ -62,7 +62,14 @@ def segment_residual_edges(
     -------
     Segmentation with ``labels`` and the stages ``residual``, ``closed``, ``edges``, ``jumps``.
     """
-    noise = (sensor if sensor is not None else Sensor()).noise
+    sensor = sensor if sensor is not None else Sensor()
+    if sensor.wrap_columns:
+        return _segment_wrapped(cloud, sensor, dict(
+            window=window, min_valid=min_valid, threshold=threshold,
+            closing_iterations=closing_iterations, jump_ratio=jump_ratio, jump_min=jump_min,
+            min_region_size=min_region_size, connectivity=connectivity,
+            crease_angle_deg=crease_angle_deg))
+    noise = sensor.noise
     timings = {}
     t0 = time.perf_counter()
     tile = cloud.tile
@@ -94,6 +101,35 @@ def segment_residual_edges(
     labels = label_regions(edges, min_size=min_size, connectivity=connectivity)
     timings["regions"] = time.perf_counter() - t2
     return Segmentation(labels=labels, stages=stages, timings=timings)
+
+
+# Columns copied across the seam of a 360-degree grid: the widest window any test uses
+# (the crease test's 9) plus the closing's reach.
+_SEAM_PAD = 12
+
+
+def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
+    """Segment a 360-degree grid: the columns are unrolled with copies across the seam
+    (:func:`rangeseg_o3d.regions.wrap_columns`) so every window, the closing and the flood
+    fill see the first and last columns as neighbours; the regions continuing across the
+    seam are then joined (:func:`rangeseg_o3d.regions.join_wrapped`)."""
+    from dataclasses import replace
+
+    from ..cloud import OrganizedCloud
+    from ..regions import join_wrapped, wrap_columns
+
+    pad = min(_SEAM_PAD, cloud.shape[1] // 2)
+    if pad < 1:
+        return segment_residual_edges(cloud, sensor=replace(sensor, wrap_columns=False), **params)
+    unrolled = OrganizedCloud(
+        wrap_columns(cloud.xyz, pad),
+        ranges=None if cloud.ranges is None else wrap_columns(cloud.ranges, pad),
+        samples=None if cloud.samples is None else wrap_columns(cloud.samples, pad),
+        tile=cloud.tile)
+    seg = segment_residual_edges(unrolled, sensor=replace(sensor, wrap_columns=False), **params)
+    width = cloud.shape[1]
+    stages = {name: image[:, pad:pad + width] for name, image in seg.stages.items()}
+    return Segmentation(labels=join_wrapped(seg.labels, pad), stages=stages, timings=seg.timings)
 
 
 class ResidualEdgesConfig(BaseModel):
