@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 #: Written as ``format_version``; bump when the key layout changes incompatibly.
 NPZ_FORMAT_VERSION = 1
 
-_OPTIONAL_GRIDS = ("ranges", "intensity", "colors", "pose")
+_OPTIONAL_GRIDS = ("ranges", "intensity", "samples", "colors", "pose")
 _EXTRA = "extra__"  # prefix of the keys of extra per-pixel fields
 
 
@@ -28,7 +28,8 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
     """Write ``cloud`` to a ``.npz`` file atomically.
 
     Keys: ``format_version``, ``xyz`` (H, W, 3) float64, and when present
-    ``ranges``, ``intensity`` (dtype kept), ``colors`` (H, W, 3) uint8, ``pose`` (4, 4),
+    ``ranges``, ``intensity``, ``samples`` (dtypes kept), ``tile`` (when not 1),
+    ``colors`` (H, W, 3) uint8, ``pose`` (4, 4),
     ``extra__<name>`` per extra field, ``timestamps``, ``geometry_kind``
     (``"nodding"``, ``"pinhole"`` or ``"spherical"``) with ``beam_angles``, ``tilt_angles``,
     ``mount_offset``, ``tilt_sign``, or ``fx``, ``fy``, ``cx``, ``cy``, or ``elevations``,
@@ -60,6 +61,8 @@ def save_npz(cloud: OrganizedCloud, path, *, compress: bool = False) -> Path:
             arrays[name] = np.asarray(value)
     if cloud.timestamps is not None:
         arrays["timestamps"] = np.asarray(cloud.timestamps)
+    if cloud.tile != 1:
+        arrays["tile"] = np.asarray(cloud.tile)
     for name, field in cloud.extras.items():
         arrays[_EXTRA + name] = np.asarray(field)
     geometry = cloud.geometry
@@ -96,6 +99,15 @@ def _scalar(data, key: str, path) -> float:
     if value.shape != () or not np.isfinite(value):
         raise ValueError(f"{path}: {key} must be one finite number; got {value!r}")
     return float(value)
+
+
+def _tile(data, path) -> int:
+    if "tile" not in data:
+        return 1
+    value = np.asarray(data["tile"])
+    if value.shape != () or value.dtype.kind not in "iu" or value < 1:
+        raise ValueError(f"{path}: tile must be one positive integer; got {value!r}")
+    return int(value)
 
 
 def _geometry(data, path):
@@ -164,10 +176,11 @@ def load_npz(path, *, units: str = "m") -> OrganizedCloud:
         grids = {name: data[name] for name in _OPTIONAL_GRIDS if name in data}
         extras = {k[len(_EXTRA):]: data[k] for k in data.files if k.startswith(_EXTRA)}
         timestamps = data["timestamps"] if "timestamps" in data else None
+        tile = _tile(data, path)
         geometry = _geometry(data, path)
         ours = "format_version" in data
     try:
-        cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, extras=extras, **grids)
+        cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, extras=extras, tile=tile, **grids)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{path}: {err}") from err
     if ours:
