@@ -4,7 +4,10 @@ Built-ins are listed by import path so that importing the package stays cheap;
 third parties add theirs through ``importlib.metadata`` entry points in the groups
 ``rangeseg_o3d.segmenters`` and ``rangeseg_o3d.fitters``. An entry point must load
 to a :class:`Plugin` (or a zero-argument callable returning one). A plugin that
-fails to load is skipped with a warning, never a crash.
+fails to load is skipped with a warning, never a crash. Entry points are discovered and
+loaded once per process, on the first look-up that needs them; a name is resolved in a
+fixed order (registered in code, built-in, entry point), and an entry point whose name is
+taken is warned about, naming both, and not used.
 
 Contracts
 ---------
@@ -19,6 +22,7 @@ declares a ``sensor`` keyword receives the run's :class:`~rangeseg_o3d.sensor.Se
 
 from __future__ import annotations
 
+import functools
 import importlib
 import logging
 import warnings
@@ -36,6 +40,7 @@ __all__ = [
     "get",
     "available",
     "load_entry_points",
+    "installed_entry_points",
     "GROUPS",
 ]
 
@@ -96,7 +101,8 @@ _BUILTIN: dict[str, dict[str, str]] = {
         "primitives": "rangeseg_o3d.fitting.classify:PLUGIN",
     },
 }
-_REGISTERED: dict[str, dict[str, Plugin]] = {"segmenter": {}, "fitter": {}}
+_REGISTERED: dict[str, dict[str, Plugin]] = {"segmenter": {}, "fitter": {}}  # by register()
+_FROM_ENTRY_POINTS: dict[str, dict[str, tuple[str, Plugin]]] = {"segmenter": {}, "fitter": {}}
 _ENTRY_POINTS_LOADED: set[str] = set()
 
 
@@ -106,7 +112,11 @@ def _check_kind(kind: str) -> None:
 
 
 def register(kind: str, plugin: Plugin, *, overwrite: bool = False) -> None:
-    """Register ``plugin`` as a ``kind`` ('segmenter' or 'fitter')."""
+    """Register ``plugin`` as a ``kind`` ('segmenter' or 'fitter').
+
+    A registered plugin comes before a built-in or an entry point of the same name;
+    replacing an existing name (a built-in included) needs ``overwrite=True``.
+    """
     _check_kind(kind)
     if not isinstance(plugin, Plugin):
         raise TypeError(f"plugin must be a Plugin; got {type(plugin).__name__}")
@@ -115,29 +125,60 @@ def register(kind: str, plugin: Plugin, *, overwrite: bool = False) -> None:
     _REGISTERED[kind][plugin.name] = plugin
 
 
+@functools.lru_cache(maxsize=None)
+def installed_entry_points(kind: str) -> tuple[EntryPoint, ...]:
+    """The entry points installed in ``kind``'s group, discovered once per process (cached)."""
+    _check_kind(kind)
+    return tuple(entry_points(group=GROUPS[kind]))
+
+
+def _load_plugin(ep: EntryPoint) -> Plugin:
+    obj = ep.load()
+    plugin = obj if isinstance(obj, Plugin) else obj()
+    if not isinstance(plugin, Plugin):
+        raise TypeError(f"loaded {type(plugin).__name__}, expected Plugin")
+    return plugin
+
+
+def _shadowed(kind: str, plugin: Plugin, ep: EntryPoint) -> str | None:
+    """Why an entry point's plugin is not used under its name (None: it is)."""
+    name = plugin.name
+    if name in _BUILTIN[kind]:
+        return f"shadows the built-in {kind} {name!r} ({_BUILTIN[kind][name]}); the built-in is used"
+    if name in _REGISTERED[kind]:
+        return f"shadows the {kind} {name!r} registered in code; that one is used"
+    earlier = _FROM_ENTRY_POINTS[kind].get(name)
+    if earlier is not None and earlier[0] != ep.value:
+        return f"has the name of the {kind} plugin {name!r} from {earlier[0]}; that one (found first) is used"
+    return None
+
+
 def load_entry_points(kind: str, eps: Iterable[EntryPoint] | None = None) -> list[str]:
-    """Register the plugins advertised in ``kind``'s entry-point group; returns their names.
+    """Load the plugins advertised in ``kind``'s entry-point group; returns the names they add.
 
     ``eps`` replaces the installed entry points (tests build EntryPoint objects directly).
+    A plugin that fails to load, or whose name is taken (a built-in, a plugin registered
+    in code, an earlier entry point), is skipped with a warning naming both: which plugin
+    :func:`get` returns never depends on the order of calls.
     """
     _check_kind(kind)
     if eps is None:
-        eps = entry_points(group=GROUPS[kind])
+        eps = installed_entry_points(kind)
     names = []
     for ep in eps:
         try:
-            obj = ep.load()
-            plugin = obj if isinstance(obj, Plugin) else obj()
-            if not isinstance(plugin, Plugin):
-                raise TypeError(f"loaded {type(plugin).__name__}, expected Plugin")
-            register(kind, plugin, overwrite=True)
-            names.append(plugin.name)
+            plugin = _load_plugin(ep)
         except Exception as exc:  # a broken third-party plugin must not break us
-            warnings.warn(
-                f"{kind} plugin {ep.name!r} ({ep.value}) failed to load and is skipped: {exc}",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            warnings.warn(f"{kind} plugin {ep.name!r} ({ep.value}) failed to load and is skipped: {exc}",
+                          RuntimeWarning, stacklevel=2)
+            continue
+        reason = _shadowed(kind, plugin, ep)
+        if reason is not None:
+            warnings.warn(f"{kind} plugin {plugin.name!r} from entry point {ep.value} {reason}",
+                          RuntimeWarning, stacklevel=2)
+            continue
+        _FROM_ENTRY_POINTS[kind][plugin.name] = (ep.value, plugin)
+        names.append(plugin.name)
     return names
 
 
@@ -151,11 +192,15 @@ def available(kind: str) -> list[str]:
     """Sorted names of every ``kind`` known: built-ins, registered and entry points."""
     _check_kind(kind)
     _ensure_entry_points(kind)
-    return sorted(set(_BUILTIN[kind]) | set(_REGISTERED[kind]))
+    return sorted(set(_BUILTIN[kind]) | set(_REGISTERED[kind]) | set(_FROM_ENTRY_POINTS[kind]))
 
 
 def get(kind: str, name: str) -> Plugin:
-    """The plugin called ``name``; ValueError listing the known names if there is none."""
+    """The plugin called ``name``; ValueError listing the known names if there is none.
+
+    Looked up in a fixed order: registered in code, built-in, installed entry points
+    (discovered and loaded once, on the first look-up that needs them).
+    """
     _check_kind(kind)
     if name in _REGISTERED[kind]:
         return _REGISTERED[kind][name]
@@ -163,6 +208,6 @@ def get(kind: str, name: str) -> Plugin:
         module, attr = _BUILTIN[kind][name].split(":")
         return getattr(importlib.import_module(module), attr)
     _ensure_entry_points(kind)
-    if name in _REGISTERED[kind]:
-        return _REGISTERED[kind][name]
+    if name in _FROM_ENTRY_POINTS[kind]:
+        return _FROM_ENTRY_POINTS[kind][name][1]
     raise ValueError(f"unknown {kind} {name!r}; known: {', '.join(available(kind))}")
