@@ -292,16 +292,18 @@ def read_pcd_grid(path) -> tuple[np.ndarray, np.ndarray | None]:
     read-only (the cloud adopts it without copying); copy it to modify it.
     """
     header, fields = read_pcd_fields(path)
-    return _grid_arrays(header, fields, path)
+    xyz, intensity, _ = _grid_arrays(header, fields, path)
+    return xyz, intensity
 
 
-def _grid_arrays(header: PcdHeader, fields: dict, path) -> tuple[np.ndarray, np.ndarray | None]:
+def _grid_arrays(header: PcdHeader, fields: dict, path):
+    """``(xyz, intensity, valid)``: points float64 (H, W, 3), all-NaN where any coordinate is not finite."""
     shape = (header.height, header.width)
     xyz = np.empty((header.points, 3))  # one float64 copy, no stacked float32 intermediate
     for i, axis in enumerate(("x", "y", "z")):
         xyz[:, i] = fields[axis]
-    total = xyz[:, 0] + xyz[:, 1] + xyz[:, 2]  # finite only where all three are
-    xyz[~np.isfinite(total)] = np.nan
+    valid = np.isfinite(xyz[:, 0] + xyz[:, 1] + xyz[:, 2])  # finite only where all three are
+    xyz[~valid] = np.nan
     xyz.setflags(write=False)  # read-only and clean: OrganizedCloud adopts it without a copy
     intensity = fields.get("intensity")
     if intensity is not None:
@@ -309,7 +311,7 @@ def _grid_arrays(header: PcdHeader, fields: dict, path) -> tuple[np.ndarray, np.
             raise ValueError(f"{path}: field intensity must have COUNT 1; got {intensity.shape[1]}")
         intensity = intensity.reshape(shape).copy()
     log.debug("read %s: %s grid, DATA %s", path, shape, header.data)
-    return xyz.reshape(shape + (3,)), intensity
+    return xyz.reshape(shape + (3,)), intensity, valid.reshape(shape)
 
 
 _COLOUR_FIELDS = ("rgb", "rgba")
@@ -321,8 +323,9 @@ def _unpack_rgb(values: np.ndarray, path) -> np.ndarray:
     if values.dtype.itemsize != 4 or values.ndim != 1:
         raise ValueError(f"{path}: a colour field must be one 4-byte value per point; got "
                          f"{values.dtype} with shape {values.shape}")
-    bits = np.ascontiguousarray(values).view(np.uint32)
-    return np.stack([(bits >> 16) & 0xFF, (bits >> 8) & 0xFF, bits & 0xFF], axis=1).astype(np.uint8)
+    # 0x00RRGGBB little-endian is the bytes B, G, R, 0: read them in reverse, no arithmetic.
+    raw = np.ascontiguousarray(values).astype(values.dtype.newbyteorder("<"), copy=False)
+    return np.ascontiguousarray(raw.view(np.uint8).reshape(-1, 4)[:, 2::-1])
 
 
 def viewpoint_pose(viewpoint) -> np.ndarray | None:
@@ -363,7 +366,7 @@ def read_pcd(path) -> OrganizedCloud:
         the data are truncated or the LZF stream is corrupt.
     """
     header, fields = read_pcd_fields(path)
-    xyz, intensity = _grid_arrays(header, fields, path)
+    xyz, intensity, valid = _grid_arrays(header, fields, path)
     shape = (header.height, header.width)
     colors, extras = None, {}
     for name, values in fields.items():
@@ -375,7 +378,9 @@ def read_pcd(path) -> OrganizedCloud:
         else:
             extras[name] = np.asarray(values).reshape(shape + np.asarray(values).shape[1:])
     pose = viewpoint_pose(header.viewpoint)
-    return OrganizedCloud(xyz, intensity=intensity, colors=colors, extras=extras, pose=pose)
+    # The points are clean float64 and their validity known: the cloud takes both unchecked.
+    return OrganizedCloud(xyz, intensity=intensity, colors=colors, extras=extras, pose=pose,
+                          _valid=valid)
 
 
 def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
