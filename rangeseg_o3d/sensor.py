@@ -131,16 +131,28 @@ class Sensor:
         return unit_scale(self.units)
 
 
-def _unit_hint(median_m: float, declared: str, sensor: Sensor) -> str:
-    # The unit that puts the median range nearest the middle (geometric) of the working ranges.
+def _unit_hint(median_m: float, sensor: Sensor) -> str:
+    """Which unit mistake puts the median range nearest the middle of the working ranges.
+
+    A file in unit ``x`` read as ``y`` is off by ``scale(y) / scale(x)``. Pairs reading in
+    the sensor's own units come first (the usual mistake), then the nearest to the middle.
+    """
     middle = math.log(max(sensor.min_range, 1e-3) * sensor.max_range) / 2
-    fits = {u: median_m * s / unit_scale(declared) for u, s in UNIT_SCALES.items()}
-    fits = {u: r for u, r in fits.items() if sensor.min_range <= r <= sensor.max_range}
-    if not fits:
+    best = None
+    for x, sx in UNIT_SCALES.items():
+        for y, sy in UNIT_SCALES.items():
+            corrected = median_m * sx / sy
+            if x == y or not sensor.min_range <= corrected <= sensor.max_range:
+                continue
+            rank = (y != sensor.units, round(abs(math.log(corrected) - middle), 6),
+                    x not in ("m", "cm", "mm"), y not in ("m", "cm", "mm"))
+            if best is None or rank < best[0]:
+                best = (rank, x, y, corrected)
+    if best is None:
         return "no unit puts it there: is this a scan of that sensor at all?"
-    best = min(fits, key=lambda u: abs(math.log(fits[u]) - middle))
-    return (f"the coordinates are likely in {best} (that gives {fits[best]:.3g} m): read them so "
-            f"with --units {best} (sensor.units: {best})")
+    _, x, y, corrected = best
+    return (f"coordinates in {x} read as {y}? Read in {x} the median range is {corrected:.3g} m "
+            f"(--units {x}, or sensor.units: {x})")
 
 
 def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
@@ -192,13 +204,13 @@ def check_plausible(cloud, sensor: Sensor, *, name: str = "the sensor") -> None:
     if not low <= median <= high:
         raise ValueError(
             f"the scan's median range is {median:.3g} m, but {name} works at "
-            f"{sensor.min_range:g}-{sensor.max_range:g} m: probably a unit problem "
-            f"(the input was read as {sensor.units}); {_unit_hint(median, sensor.units, sensor)}")
+            f"{sensor.min_range:g}-{sensor.max_range:g} m: probably a unit problem, "
+            f"{_unit_hint(median, sensor)}")
     scatter = _median_scatter(cloud, sensor, step)
     if scatter > _SCATTER_LIMIT:
         warnings.warn(
             f"the scan's local scatter is about {math.sqrt(scatter):.0f} times {name}'s noise "
             f"model (sigma0 {sensor.noise.sigma0:g} m): no window looks planar, so few or no "
-            f"regions will be found. Probably a unit problem (the input was read as "
-            f"{sensor.units}; a scan in a smaller unit, e.g. cm read as m, looks like this), "
-            "or a preset for another sensor.", UnitsWarning, stacklevel=2)
+            "regions will be found. Probably a unit problem (coordinates in a smaller unit "
+            "than they were read in, e.g. cm read as m: --units / sensor.units), or a preset "
+            "for another sensor.", UnitsWarning, stacklevel=2)

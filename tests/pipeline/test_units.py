@@ -74,8 +74,12 @@ def test_a_cm_scan_under_a_metre_preset_is_an_error_naming_the_units(room):
     with pytest.raises(ValueError, match=r"median range is \d+ m.*0.1-80 m.*unit problem.*cm") as info:
         rs.Pipeline("lms200").run(room.scaled(100.0))
     assert "--units cm" in str(info.value)
-    with pytest.raises(ValueError, match="mm"):
+    with pytest.raises(ValueError, match="mm read as m"):
         rs.Pipeline("lms200").run(room.scaled(1000.0))
+    # read in a unit other than the preset's (--units cm under a metre preset): the
+    # message names the mistake by its factor, not by what the preset says
+    with pytest.raises(ValueError, match=r"in m read as cm\?.*--units m\b"):
+        rs.Pipeline("lms200").run(room.scaled(0.01))
 
 
 def test_a_scene_scaled_to_nothing_is_an_error(room):
