@@ -1,0 +1,88 @@
+"""End to end on small generated scans of several sensors, with Hoover floors (T = 0.8).
+
+The floors guard what the method reaches today on scans it was not tuned on (the matrix's
+random rooms and the LMS200 scenes at other angular steps and noise); they are not the
+project's targets (issue 13), which some sensors do not meet yet. Only the sensor section
+changes between scanners of one family.
+"""
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.evaluation import evaluate, hoover
+from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+from rangeseg_o3d.synthetic.suite import lms200_scenes
+
+
+def _percent_correct(pairs) -> float:
+    correct = total = 0
+    for scan, result in pairs:
+        score = evaluate(scan, result).hoover
+        correct += score.n_correct
+        total += score.n_truth
+    return 100.0 * correct / total
+
+
+def _nodding(step_deg: float, noise: float):
+    scenes = dict(lms200_scenes())
+    config = rs.load_config("lms200", overrides={"sensor.sigma0": noise})
+    pipe = rs.Pipeline(config)
+    pairs = []
+    for name in ("default", "boxes_yawed", "corridor_clutter"):
+        scan = simulate_lms200(scenes[name], rows=int(round(70 / step_deg)), beam_step_deg=step_deg,
+                               noise_sigma=noise, seed=1)
+        pairs.append((scan, pipe.run(scan.cloud)))
+    return pairs
+
+
+@pytest.mark.parametrize("step_deg, noise, floor", [
+    (0.5, 0.005, 90.0),    # today 31/31 (the lms200 preset, sensor noise 5 mm)
+    (1.0, 0.01, 90.0),     # 1 cm range noise: today 28/29
+])
+def test_nodding_lasers_at_other_steps_and_noise(step_deg, noise, floor):
+    pairs = _nodding(step_deg, noise)
+    assert _percent_correct(pairs) >= floor
+    for scan, result in pairs:
+        assert evaluate(scan, result).false_fittings == 0
+
+
+def _matrix_row(name: str, scans: int = 2):
+    spec = get_sensor(name)
+    config = rs.load_config(spec.preset, overrides={f"sensor.{key}": value
+                                                     for key, value in spec.sensor_facts(True).items()})
+    pipe = rs.Pipeline(config)
+    pairs = []
+    for k in range(scans):
+        scan = spec.simulate(matrix_rng(0, name, k), True)
+        pairs.append((scan, pipe.run(scan.cloud)))
+    return pairs
+
+
+@pytest.mark.parametrize("name, floor", [
+    ("spinning_64x1024", 85.0),   # today 25/27 on the two quick scans (360 deg, wrap_columns)
+    ("nodding_1deg", 85.0),       # today 18/19
+    ("kinect_640x480", 45.0),     # today 15/28 on the quick (half-resolution) frames: target not met
+])
+def test_matrix_sensors_end_to_end(name, floor):
+    pairs = _matrix_row(name)
+    assert _percent_correct(pairs) >= floor
+
+
+def test_abw_images_reach_a_floor():
+    from rangeseg_o3d.io.abw import abw_images, load_abw
+
+    paths = abw_images()
+    if not paths:
+        pytest.skip("no ABW images in ../shared/data/abw")
+    pipe = rs.Pipeline("abw")
+    correct = total = 0
+    for path in paths[:2]:
+        image = load_abw(path)
+        labels = pipe.run(image.cloud).labels
+        score = hoover(image.truth_ids, labels, tolerance=0.8, min_region=1, count_unlabelled=True)
+        correct += score.n_correct
+        total += score.n_truth
+    # SegComp rules; today 27/50 on images 0 and 1 (the target, 90 %, is not met)
+    assert 100.0 * correct / total >= 45.0
