@@ -11,7 +11,8 @@ Cases: the synthetic LMS200 suite under ``lms200`` and ``lms200_region_growing``
 synthetic RGB-D suite under ``rgbd_vga`` and ``rgbd_vga_region_growing``, every real
 cloud of :func:`rangeseg_o3d.io.datasets.real_clouds` under its preset (the depth-camera
 ones also under ``rgbd_vga_region_growing``), and the ``rangeseg compare`` configurations
-(each segmenter swapped into the preset) on the first LMS200 scan. Each case stores its
+(each segmenter swapped into the preset) on the first LMS200 scan, a simulated spinning
+lidar room under ``spinning_lidar`` and the ABW images under ``abw``. Each case stores its
 labels and the JSON of its features and unfitted regions (Python's float repr round-trips
 exactly).
 """
@@ -46,10 +47,21 @@ def _cases(real: bool):
 
     for segmenter in ("region_growing", "o3d_planar_patches"):
         yield f"compare/lms200+{segmenter}/{lms[0][0]}", config_for("lms200", segmenter), lms[0][1].cloud
+    from rangeseg_o3d.synthetic.scene import Scene, box, room
+    from rangeseg_o3d.synthetic.spinning import simulate_spinning_lidar
+
+    spinning_room = Scene([room(x=(-6, 8), y=(-5, 4), z=(-1.7, 2.5), first_id=1),
+                           box((3.0, 1.5, -1.2), (1.0, 1.0, 1.0), first_id=10)])
+    yield ("spinning/spinning_lidar/room_box",
+           "spinning_lidar", simulate_spinning_lidar(spinning_room, noise_sigma=0.015, seed=0).cloud)
     if not real:
         return
     from rangeseg_o3d.io.datasets import real_clouds
 
+    from rangeseg_o3d.io.abw import abw_images, load_abw
+
+    for path in abw_images():
+        yield f"abw/abw/{path.stem}", "abw", load_abw(path).cloud
     for item in real_clouds():
         cloud = item.load()
         yield f"real/{item.preset}/{item.name}", item.preset, cloud
