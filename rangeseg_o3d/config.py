@@ -182,8 +182,21 @@ class PipelineConfig(BaseModel):
 
 
 def preset_dir() -> Path:
-    """The configs/ folder beside the package (a source checkout or editable install)."""
-    return Path(__file__).resolve().parent.parent / "configs"
+    """The folder of the preset YAML files.
+
+    The presets live in the repository's top-level ``configs/``; a wheel or sdist install
+    carries them as package data in ``rangeseg_o3d/configs/`` (pyproject.toml maps the
+    one onto the other). A source checkout or editable install has no such copy and uses
+    ``configs/`` beside the package, recognised by the ``pyproject.toml`` next to it.
+    """
+    package = Path(__file__).resolve().parent
+    installed = package / "configs"
+    if installed.is_dir():
+        return installed
+    checkout = package.parent
+    if (checkout / "pyproject.toml").is_file():
+        return checkout / "configs"
+    return installed
 
 
 def presets() -> list[str]:

@@ -191,7 +191,7 @@ def test_streaming(scripted):
 
 
 def test_loop_transport_own_echo_is_not_a_reply():
-    serial = pytest.importorskip("serial")
+    import serial  # pyserial is a core dependency
     port = serial.serial_for_url("loop://", timeout=0.01)
     lms = Lms2xx(port, timeout=0.05, reply_timeout=0.02, gap_timeout=0.01)
     with pytest.raises((DeviceTimeout, LmsProtocolError)):

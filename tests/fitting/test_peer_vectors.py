@@ -1,5 +1,7 @@
 """Our least-squares fitters against the numbers in PCL's and Open3D's own tests
 (../shared/data/peer_vectors/*.json; each test skips when its file is absent).
+open3d_segment_plane_fragment.json is not used: its data (Open3D's fragment.pcd) is
+downloaded by Open3D's tests and is not in the shared data, so no test can run it here.
 
 Where a case contains outliers we either drop the outliers the file lists (sphere
 RANSAC) or run a simple robust re-fit: least squares on all points, then repeatedly
@@ -156,12 +158,17 @@ def test_pcl_sac_plane_test_robust_refit(shared_data):
 
 def test_open3d_known_plane(shared_data):
     case = load(shared_data, "open3d_segment_plane_known")
-    plane = fit_plane(np.array(case["points_newer"]), inlier_distance=case["distance_threshold"])
+    points = np.array(case["points_newer"])
+    plane = fit_plane(points, inlier_distance=case["distance_threshold"])
     assert plane.inliers == 5
+    # The points lie exactly on the plane: what is left is rounding, which grows with the
+    # coordinates' magnitude (21 here) and differs between CPUs / BLAS builds. Allow 1000
+    # units of rounding at the data's scale (5e-12), far below any real misfit.
+    tolerance = 1000 * np.finfo(float).eps * np.abs(points).max()
     # x + y + z + 1 = 0 in Hesse form: normal -(1,1,1)/sqrt(3), d = 1/sqrt(3)
-    assert np.allclose(plane.normal, -np.ones(3) / np.sqrt(3), atol=1e-12)
-    assert plane.d == pytest.approx(1 / np.sqrt(3), abs=1e-12)
-    assert plane.rms < 1e-14
+    assert np.allclose(plane.normal, -np.ones(3) / np.sqrt(3), rtol=0, atol=tolerance)
+    assert plane.d == pytest.approx(1 / np.sqrt(3), abs=tolerance)
+    assert plane.rms < tolerance
 
 
 def test_open3d_older_points_are_collinear(shared_data):
@@ -171,7 +178,3 @@ def test_open3d_older_points_are_collinear(shared_data):
     result = fit_plane(np.array(case["points_older"]))
     assert isinstance(result, FitFailure) and "collinear" in result.reason
 
-
-def test_open3d_fragment_needs_download(shared_data):
-    case = load(shared_data, "open3d_segment_plane_fragment")
-    pytest.skip(f"not runnable offline: {case['data_file']}")

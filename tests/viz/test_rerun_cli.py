@@ -24,7 +24,7 @@ def _parse(*argv):
 
 
 def test_flags_cover_rerun_script_add_args():
-    rr = pytest.importorskip("rerun")
+    import rerun as rr  # a core dependency: missing is a failure, not a skip
     theirs = argparse.ArgumentParser()
     rr.script_add_args(theirs)
     ours = add_rerun_arguments(argparse.ArgumentParser())

@@ -5,13 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-rr = pytest.importorskip("rerun")
+import rerun as rr  # a core dependency: its absence is a failure, not a skip
 
-from rangeseg_o3d import OrganizedCloud, Result  # noqa: E402
-from rangeseg_o3d.viz import rerun_log  # noqa: E402
-from rangeseg_o3d.viz.rerun_log import log_scan, log_timings  # noqa: E402
+from rangeseg_o3d import OrganizedCloud, Result
+from rangeseg_o3d.pipeline import Pipeline
+from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+from rangeseg_o3d.synthetic.suite import default_scene
+from rangeseg_o3d.viz import rerun_log
+from rangeseg_o3d.viz.rerun_log import log_scan, log_timings
 
-from viz_scan import (  # noqa: E402
+from viz_scan import (
     CYLINDER_LABEL,
     CYLINDER_RADIUS,
     H,
@@ -267,14 +270,11 @@ def test_static_context_is_logged_once_per_recording(tmp_path):
 
 
 def test_pipeline_run_with_a_recording_logs_every_stage(tmp_path):
-    pipeline_mod = pytest.importorskip("rangeseg_o3d.pipeline")
-    synthetic = pytest.importorskip("rangeseg_o3d.synthetic.lms200")
-    suite = pytest.importorskip("rangeseg_o3d.synthetic.suite")
-    cloud = synthetic.simulate_lms200(suite.default_scene(), seed=0).cloud
+    cloud = simulate_lms200(default_scene(), seed=0).cloud
     path = tmp_path / "pipeline.rrd"
     rec = rr.RecordingStream("rangeseg_test")
     rec.save(path)
-    result = pipeline_mod.Pipeline("lms200").run(cloud, recording=rec, scan_index=2)
+    result = Pipeline("lms200").run(cloud, recording=rec, scan_index=2)
     rec.flush()
     rec.disconnect()
     entities = read_rrd(path)
