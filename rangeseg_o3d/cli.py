@@ -137,8 +137,10 @@ def cmd_segment(args) -> int:
     import time
 
     from .batch import Progress, plan_tasks, read_summary, run_batch, write_summary
+    from .cloud import set_max_grid_points
 
     config = config_from_args(args)
+    set_max_grid_points(config.max_grid_points)  # loaders refuse bigger grids before allocating
     targets = {"labels": args.labels, "ply": args.ply, "panel": getattr(args, "png", None)}
     plan = plan_tasks(args.inputs, out=args.out, targets=targets)
     if args.resume and not any(task.outputs for task in plan.tasks):

@@ -8,7 +8,51 @@ import numpy as np
 
 from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry, spherical_points
 
-__all__ = ["OrganizedCloud"]
+__all__ = ["OrganizedCloud", "DEFAULT_MAX_GRID_POINTS", "max_grid_points", "set_max_grid_points",
+           "check_grid_size"]
+
+#: Largest grid (rows x columns) a cloud may have unless raised with
+#: :func:`set_max_grid_points` or the configuration's ``max_grid_points``. A 70 x 131 nodding
+#: scan has 9 170 points, a VGA frame 307 200, the shared terrestrial scans under 2 million;
+#: the pipeline needs a few hundred bytes per point, so 20 million is several GB. A lying
+#: header or a mistyped size must fail at once, not after the machine runs out of memory.
+DEFAULT_MAX_GRID_POINTS = 20_000_000
+_max_grid_points = DEFAULT_MAX_GRID_POINTS
+
+
+def max_grid_points() -> int:
+    """The current limit on rows x columns of a cloud (see :func:`set_max_grid_points`)."""
+    return _max_grid_points
+
+
+def set_max_grid_points(limit: int) -> int:
+    """Set the largest grid (rows x columns) clouds and loaders accept; returns the old limit."""
+    global _max_grid_points
+    if isinstance(limit, bool) or int(limit) != limit or limit < 1:
+        raise ValueError(f"max_grid_points must be a positive integer; got {limit!r}")
+    previous, _max_grid_points = _max_grid_points, int(limit)
+    return previous
+
+
+def check_grid_size(rows: int, cols: int, *, source: str = "grid") -> None:
+    """Raise ValueError if a ``rows x cols`` grid exceeds :func:`max_grid_points`.
+
+    Loaders call this with the size a header declares, before allocating anything.
+
+    >>> check_grid_size(480, 640)
+    >>> check_grid_size(10_000, 10_000, source="scan.pcd")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: scan.pcd: a 10000 x 10000 grid (100,000,000 points) exceeds the limit of 20,000,000 ...
+    """
+    points = int(rows) * int(cols)
+    if points > _max_grid_points:
+        raise ValueError(
+            f"{source}: a {int(rows)} x {int(cols)} grid ({points:,} points) exceeds the limit of "
+            f"{_max_grid_points:,} points; raise max_grid_points in the configuration (or call "
+            "rangeseg_o3d.cloud.set_max_grid_points) if this machine has the memory "
+            "(a few hundred bytes per point)"
+        )
 
 
 def _check_grid(name: str, value, shape: tuple[int, int]) -> np.ndarray | None:
@@ -101,6 +145,7 @@ def _measurements(name: str, value) -> np.ndarray:
         raise ValueError(f"{name} must be an image of numbers; got dtype {arr.dtype}")
     if arr.shape[0] == 0 or arr.shape[1] == 0:
         raise ValueError(f"{name} must have at least one row and one column; got {arr.shape}")
+    check_grid_size(*arr.shape, source=name)
     if arr.dtype == np.float16 or not arr.dtype.isnative:  # types the compiled pass does not take
         arr = arr.astype(np.float64)
     return arr
@@ -160,6 +205,7 @@ class OrganizedCloud:
             raise ValueError(f"xyz must have shape (H, W, 3); got {arr.shape}")
         if arr.shape[0] == 0 or arr.shape[1] == 0:
             raise ValueError(f"xyz must have at least one row and one column; got {arr.shape}")
+        check_grid_size(*arr.shape[:2], source="xyz")
         if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
             raise ValueError(f"xyz must be a float array; got dtype {arr.dtype}")
         # ``_valid`` is for the compiled constructors only: their points are clean float64 by

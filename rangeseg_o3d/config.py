@@ -18,6 +18,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from . import registry
+from .cloud import DEFAULT_MAX_GRID_POINTS
 from .sensor import UNIT_SCALES, NoiseModel, Sensor
 
 __all__ = ["SensorConfig", "StageConfig", "RefineConfig", "PipelineConfig", "load_config",
@@ -140,6 +141,11 @@ class PipelineConfig(BaseModel):
     max_fit_points: int = Field(
         3000, ge=50,
         description="regions with more points are fitted on an even subsample of this size",
+    )
+    max_grid_points: int = Field(
+        DEFAULT_MAX_GRID_POINTS, ge=1,
+        description="largest grid (rows x columns) the command line loads; a bigger one is an "
+                    "error before anything is allocated (library: rangeseg_o3d.cloud.set_max_grid_points)",
     )
     tile: int = Field(
         1, ge=1, le=16,

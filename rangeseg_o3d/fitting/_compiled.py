@@ -13,7 +13,7 @@ caches on first call).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 
 from ..kernels.linalg import collinear, hesse_form, solve
 from ._common import RADIUS_LIMIT

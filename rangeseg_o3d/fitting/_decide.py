@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape

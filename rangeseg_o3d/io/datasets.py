@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..cloud import OrganizedCloud
+from ..cloud import OrganizedCloud, check_grid_size
 from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_points
 from .pcd import read_pcd_grid
 
@@ -58,6 +58,7 @@ def _parse_xyz_text(path: Path, columns: int) -> np.ndarray:
     tokens = raw.split()
     # Counting lines catches an x y z r (or x y z nx ny nz) file whose value count happens to divide by 3.
     n_lines = sum(1 for line in raw.splitlines() if line.strip())
+    check_grid_size(max(n_lines // columns, 1), columns, source=str(path))
     if n_lines * 3 != len(tokens):
         raise ValueError(
             f"{path}: expected 3 values (x y z) per line; got {len(tokens)} values on {n_lines} lines"

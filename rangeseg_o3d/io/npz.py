@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import logging
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
-from ..cloud import OrganizedCloud
+from ..cloud import OrganizedCloud, check_grid_size
 from ..kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
 from ..sensor import unit_scale
 from .atomic import atomic_write
@@ -134,6 +135,32 @@ def _geometry(data, path):
     raise ValueError(f"{path}: geometry_kind must be 'nodding', 'pinhole' or 'spherical'; got {kind!r}")
 
 
+#: What reading a damaged archive member raises (truncated, bad CRC, bad deflate stream,
+#: a header numpy cannot parse).
+_DAMAGED = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError)
+
+
+def _declared_shape(archive: np.lib.npyio.NpzFile, key: str, path) -> tuple[int, ...]:
+    """The shape a member's .npy header declares, read without loading its data."""
+    try:
+        with archive.zip.open(f"{key}.npy") as member:
+            version = np.lib.format.read_magic(member)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, _ = read_header(member)
+    except _DAMAGED as err:
+        raise ValueError(f"{path}: member {key!r} is damaged or not an .npy array ({err})") from None
+    return shape
+
+
+def _member(data: np.lib.npyio.NpzFile, key: str, path) -> np.ndarray:
+    """One array of the archive; a damaged member is a ValueError naming it."""
+    try:
+        return data[key]
+    except _DAMAGED as err:
+        raise ValueError(f"{path}: member {key!r} is damaged ({type(err).__name__}: {err})") from None
+
+
 def load_npz(path, *, units: str = "m") -> OrganizedCloud:
     """Read a cloud written by :func:`save_npz`.
 
@@ -154,7 +181,7 @@ def load_npz(path, *, units: str = "m") -> OrganizedCloud:
     path = Path(path)
     try:
         archive = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, OSError, ValueError) as err:
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as err:
         if not path.exists():
             raise FileNotFoundError(f"no such file: {path}") from err
         raise ValueError(f"{path} is not a readable .npz archive: {err}") from err
@@ -162,7 +189,10 @@ def load_npz(path, *, units: str = "m") -> OrganizedCloud:
         raise ValueError(f"{path} holds a single array, not an .npz archive with key 'xyz'")
     with archive as data:
         if "format_version" in data:
-            version = int(data["format_version"])
+            version = _member(data, "format_version", path)
+            if version.shape != () or not np.issubdtype(version.dtype, np.integer):
+                raise ValueError(f"{path}: format_version must be one integer; got {version!r}")
+            version = int(version)
             if version > NPZ_FORMAT_VERSION:
                 raise ValueError(
                     f"{path} has format_version {version}; this reader knows up to "
@@ -170,14 +200,19 @@ def load_npz(path, *, units: str = "m") -> OrganizedCloud:
                 )
         if "xyz" not in data:
             raise ValueError(f"{path} has no 'xyz' array; keys are {sorted(data.files)}")
-        xyz = data["xyz"]
-        if xyz.ndim != 3 or xyz.shape[2] != 3:
-            raise ValueError(f"{path}: xyz must have shape (H, W, 3); got {xyz.shape}")
-        grids = {name: data[name] for name in _OPTIONAL_GRIDS if name in data}
-        extras = {k[len(_EXTRA):]: data[k] for k in data.files if k.startswith(_EXTRA)}
-        timestamps = data["timestamps"] if "timestamps" in data else None
-        tile = _tile(data, path)
-        geometry = _geometry(data, path)
+        shape = _declared_shape(data, "xyz", path)
+        if len(shape) != 3 or shape[2] != 3:
+            raise ValueError(f"{path}: xyz must have shape (H, W, 3); got {shape}")
+        check_grid_size(shape[0], shape[1], source=str(path))  # before reading the points
+        xyz = _member(data, "xyz", path)
+        grids = {name: _member(data, name, path) for name in _OPTIONAL_GRIDS if name in data}
+        extras = {k[len(_EXTRA):]: _member(data, k, path) for k in data.files if k.startswith(_EXTRA)}
+        timestamps = _member(data, "timestamps", path) if "timestamps" in data else None
+        try:
+            tile = _tile(data, path)
+            geometry = _geometry(data, path)
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as err:
+            raise ValueError(f"{path}: geometry is damaged ({type(err).__name__}: {err})") from None
         ours = "format_version" in data
     try:
         cloud = OrganizedCloud(xyz, geometry=geometry, timestamps=timestamps, extras=extras, tile=tile, **grids)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cloud import OrganizedCloud
+from ..cloud import OrganizedCloud, check_grid_size
 from .atomic import atomic_write
 from .lzf import lzf_compress, lzf_decompress
 
@@ -281,6 +281,7 @@ def read_pcd_fields(path) -> tuple[PcdHeader, dict[str, np.ndarray]]:
     path = Path(path)
     raw = path.read_bytes()
     header = parse_pcd_header(raw, path)
+    check_grid_size(header.height, header.width, source=str(path))  # before any allocation
     fields = _READERS[header.data](raw[header.data_offset:], header, path)
     return header, fields
 

@@ -4,7 +4,7 @@ full-resolution labelling, the largest connected piece of a pixel set."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _distance, _neighbour
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .kinds import CYLINDER, PLANE, SPHERE
 

@@ -8,7 +8,7 @@ import them from here.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["DEGENERATE_RATIO", "solve", "hesse_form", "collinear"]
 

@@ -11,7 +11,7 @@ writing 7 MB of points, not by arithmetic).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["depth_points", "nodding_range_points"]
 

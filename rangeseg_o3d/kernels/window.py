@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"]
 

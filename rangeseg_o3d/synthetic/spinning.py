@@ -82,8 +82,8 @@ def simulate_spinning_lidar(
     >>> from rangeseg_o3d.synthetic.scene import Scene, room
     >>> scene = Scene(room(x=(-4, 4), y=(-3, 3), z=(-1, 2), first_id=1))
     >>> scan = simulate_spinning_lidar(scene, rows=8, cols=32, noise_sigma=0.0)
-    >>> scan.cloud.shape, sorted(scan.truth)
-    ((8, 32), [1, 2, 3, 4, 5, 6])
+    >>> scan.cloud.shape, sorted(scan.truth)  # the ceiling (2) is above the +-22.5 deg beams
+    ((8, 32), [1, 3, 4, 5, 6])
     """
     if not (np.isfinite(noise_sigma) and noise_sigma >= 0):
         raise ValueError(f"noise_sigma must be >= 0; got {noise_sigma}")

@@ -1,0 +1,105 @@
+"""The compiled kernels load for every user: a cache folder is always found, and the
+kernels compiled into the installation are reused (see rangeseg_o3d/kernels/cache.py)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+from unprivileged import run_as_nobody, world_reachable
+
+from rangeseg_o3d.kernels import cache as kernel_cache
+from rangeseg_o3d.kernels.cache import KernelCacheLocator, _seed
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SNIPPET = """
+import warnings, numpy as np
+warnings.simplefilter("always")
+from rangeseg_o3d.kernels import group_by_label
+from rangeseg_o3d.kernels.cache import kernel_cache_dir
+order, starts = group_by_label(np.array([2, 1, 2], np.int32), 3)
+print("ok", order.tolist(), kernel_cache_dir(str(__import__("pathlib").Path(
+    __import__("rangeseg_o3d.kernels.grid").kernels.grid.__file__).parent)))
+"""
+
+
+def test_seed_copies_new_and_newer_files_only(tmp_path):
+    source, target = tmp_path / "installed", tmp_path / "user"
+    source.mkdir(), target.mkdir()
+    (source / "grid.f-1.py311.nbi").write_bytes(b"index")
+    (source / "grid.f-1.py311.1.nbc").write_bytes(b"code")
+    (source / "grid.py").write_text("not a kernel file")
+    assert _seed(source, target) == 2
+    assert sorted(p.name for p in target.iterdir()) == ["grid.f-1.py311.1.nbc", "grid.f-1.py311.nbi"]
+    assert _seed(source, target) == 0  # up to date
+    os.utime(source / "grid.f-1.py311.nbi", (2e9, 2e9))  # recompiled in the installation since
+    assert _seed(source, target) == 1
+    assert _seed(tmp_path / "missing", target) == 0
+
+
+def test_locator_is_first_and_only_for_this_package():
+    from numba.core import caching
+
+    import rangeseg_o3d.kernels.jit  # noqa: F401  installs the locator
+
+    assert caching.CacheImpl._locator_classes[0] is KernelCacheLocator
+
+    def outside():
+        return 1
+
+    assert KernelCacheLocator.from_function(outside, __file__) is None
+
+
+def _tree_reachable():
+    if not world_reachable(ROOT / "rangeseg_o3d" / "kernels" / "grid.py"):
+        pytest.skip(f"{ROOT} is not readable by other users")
+
+
+def test_unprivileged_user_without_home_gets_a_temporary_cache_and_one_warning():
+    _tree_reachable()
+    done = run_as_nobody(["-c", SNIPPET], pythonpath=[str(ROOT)], cwd="/")
+    assert done.returncode == 0, done.stderr
+    assert "ok [1, 0, 2]" in done.stdout
+    assert f"{tempfile.gettempdir()}/rangeseg_o3d-65534/" in done.stdout
+    assert done.stderr.count("no writable cache folder") == 1, done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_unprivileged_user_with_a_cache_dir_uses_it_seeded_from_the_installation():
+    _tree_reachable()
+    import rangeseg_o3d.kernels.grid as grid
+
+    installed = Path(grid.__file__).parent / "__pycache__"
+    if not any(installed.glob("grid.*.nbi")):
+        pytest.skip("no kernels compiled into this tree yet")
+    folder = Path(tempfile.mkdtemp(prefix="rangeseg-cache-"))
+    try:
+        os.chmod(folder, 0o777)
+        done = run_as_nobody(["-c", SNIPPET], pythonpath=[str(ROOT)], cwd="/",
+                             extra_env={"RANGESEG_CACHE_DIR": str(folder)})
+        assert done.returncode == 0, done.stderr
+        assert "no writable cache folder" not in done.stderr
+        (used,) = folder.glob("kernels_*")  # one folder per module folder, named after it
+        assert str(used) in done.stdout
+        assert {p.name for p in installed.glob("grid.*.nb[ic]")} <= {p.name for p in used.iterdir()}
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_unwritable_numba_cache_dir_is_named_in_the_warning():
+    _tree_reachable()
+    done = run_as_nobody(["-c", SNIPPET], pythonpath=[str(ROOT)], cwd="/",
+                         extra_env={"NUMBA_CACHE_DIR": "/proc/forbidden"})
+    assert done.returncode == 0, done.stderr
+    assert "NUMBA_CACHE_DIR=/proc/forbidden is not writable" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_module_documents_every_candidate():
+    doc = kernel_cache.__doc__
+    for name in ("NUMBA_CACHE_DIR", "__pycache__", "RANGESEG_CACHE_DIR", "XDG_CACHE_HOME", "rangeseg_o3d-<uid>"):
+        assert name in doc
