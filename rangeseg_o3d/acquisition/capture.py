@@ -9,6 +9,7 @@ there (atomically) as an OrganizedCloud ``.npz``.
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -18,7 +19,8 @@ from ..cloud import OrganizedCloud
 from .errors import AcquisitionError, DeviceTimeout, LmsDeviceReset, LmsProtocolError, PowerCubeProtocolError
 from .lms2xx import beam_angles
 
-__all__ = ["PartialCapture", "capture_stop_and_go", "capture_continuous", "capture", "open_devices", "initialise"]
+__all__ = ["PartialCapture", "CaptureProgress", "capture_stop_and_go", "capture_continuous", "capture",
+           "open_devices", "initialise", "retries"]
 
 log = logging.getLogger(__name__)
 
@@ -91,18 +93,69 @@ def _read_row(lms, config) -> np.ndarray:
     return lms.request_scan(attempts=config.lms.scan_attempts).ranges
 
 
-def _fail(err: AcquisitionError, partial: PartialCapture, config) -> AcquisitionError:
-    err.partial = partial
-    if config.partial_path is not None and partial.n_rows:
-        try:
-            partial.to_cloud().save(config.partial_path)
-            log.warning("saved %d captured rows to %s", partial.n_rows, config.partial_path)
-        except Exception as save_err:  # the capture error matters more than a failed save
-            log.error("could not save the partial capture: %s", save_err)
+def _keep_partial(partial: PartialCapture, config) -> bool:
+    """Save the rows so far to ``config.partial_path`` (atomically); True if saved."""
+    if config.partial_path is None or not partial.n_rows:
+        return False
+    try:
+        partial.to_cloud().save(config.partial_path)
+    except Exception as save_err:  # the capture's own error matters more than a failed save
+        log.error("could not save the partial capture to %s: %s", config.partial_path, save_err)
+        return False
+    log.warning("saved %d captured rows to %s", partial.n_rows, config.partial_path)
+    return True
+
+
+def _fail(err: BaseException, partial: PartialCapture, config) -> BaseException:
+    """``err`` with ``.partial`` attached, after saving the rows so far (Ctrl-C included)."""
+    try:
+        err.partial = partial
+    except AttributeError:  # an exception type without a __dict__
+        pass
+    _keep_partial(partial, config)
     return err
 
 
-def capture_stop_and_go(lms, tilt, config, *, on_row=None) -> OrganizedCloud:
+def retries(lms, tilt) -> int:
+    """Requests the drivers have had to resend so far (NAK, corrupted, broken or unanswered)."""
+    counted = ("nak", "bad_frames", "broken", "silent")
+    return sum(getattr(device, "stats", {}).get(key, 0) for device in (lms, tilt) for key in counted)
+
+
+class CaptureProgress:
+    """``row 12/70, 3 retries, 4.2 s elapsed, ETA 20 s`` rewritten in place on a terminal.
+
+    Quiet when ``stream`` is not a terminal (a log file or a pipe gets nothing), unless
+    ``always`` is set. Call it with ``(rows_done, retries)``; :meth:`close` ends the line.
+    """
+
+    def __init__(self, total: int, stream=None, *, always: bool = False):
+        self.total = int(total)
+        self.stream = sys.stderr if stream is None else stream
+        isatty = getattr(self.stream, "isatty", None)
+        self.enabled = always or bool(callable(isatty) and isatty())
+        self.start = time.monotonic()
+        self._shown = False
+
+    def line(self, done: int, resent: int) -> str:
+        elapsed = time.monotonic() - self.start
+        eta = f"ETA {elapsed / done * (self.total - done):.0f} s" if done else "ETA ?"
+        return f"row {done}/{self.total}, {resent} retries, {elapsed:.1f} s elapsed, {eta}"
+
+    def __call__(self, done: int, resent: int) -> None:
+        if self.enabled:
+            self.stream.write("\r" + self.line(done, resent) + "  ")
+            self.stream.flush()
+            self._shown = True
+
+    def close(self) -> None:
+        if self._shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._shown = False
+
+
+def capture_stop_and_go(lms, tilt, config, *, on_row=None, progress=None) -> OrganizedCloud:
     """Row by row: move, wait, read back the angle, discard a stale scan, request one scan.
 
     After a power-on telegram or silence the LMS is re-initialised and the row re-read
@@ -115,33 +168,47 @@ def capture_stop_and_go(lms, tilt, config, *, on_row=None) -> OrganizedCloud:
     config : CaptureConfig
     on_row : callable, optional
         ``on_row(index, ranges, tilt)`` after each row.
+    progress : callable, optional
+        ``progress(rows_done, retries)`` after each row (e.g. a :class:`CaptureProgress`).
 
     Raises
     ------
     AcquisitionError
-        With ``.partial`` holding the rows captured so far.
+        With ``.partial`` holding the rows captured so far. Any other exception, Ctrl-C
+        (KeyboardInterrupt) included, also saves the rows so far to ``config.partial_path``.
     """
     partial = _new_partial(config)
-    for k, target in enumerate(config.schedule.angles()):
-        for retry in range(config.row_retries + 1):
-            try:
-                actual = _move(tilt, float(target), config)
-                ranges = _read_row(lms, config)
-                break
-            except (LmsDeviceReset, DeviceTimeout) as err:
-                if isinstance(err, DeviceTimeout) and err.port != lms.port or retry == config.row_retries:
-                    raise _fail(err, partial, config) from None
-                log.warning("row %d: %s; re-initialising the LMS", k, err)
-                try:
-                    initialise(lms, tilt, config, tilt_too=False)
-                except AcquisitionError as again:
-                    raise _fail(again, partial, config) from err
-            except AcquisitionError as err:
-                raise _fail(err, partial, config) from None
-        partial.add(ranges, actual, time.time())
-        if on_row is not None:
-            on_row(k, ranges, actual)
+    try:
+        for k, target in enumerate(config.schedule.angles()):
+            actual, ranges = _capture_row(lms, tilt, config, k, float(target), partial)
+            partial.add(ranges, actual, time.time())
+            if on_row is not None:
+                on_row(k, ranges, actual)
+            if progress is not None:
+                progress(partial.n_rows, retries(lms, tilt))
+    except AcquisitionError:
+        raise  # _capture_row attached and saved the partial capture
+    except BaseException as err:  # Ctrl-C, a vanished port: keep what was captured
+        raise _fail(err, partial, config)
     return partial.to_cloud()
+
+
+def _capture_row(lms, tilt, config, k: int, target: float, partial: PartialCapture):
+    """Move to ``target`` and read one row; after a reset or silence re-initialise the LMS and retry."""
+    for retry in range(config.row_retries + 1):
+        try:
+            return _move(tilt, target, config), _read_row(lms, config)
+        except (LmsDeviceReset, DeviceTimeout) as err:
+            if isinstance(err, DeviceTimeout) and err.port != lms.port or retry == config.row_retries:
+                raise _fail(err, partial, config) from None
+            log.warning("row %d: %s; re-initialising the LMS", k, err)
+            try:
+                initialise(lms, tilt, config, tilt_too=False)
+            except AcquisitionError as again:
+                raise _fail(again, partial, config) from err
+        except AcquisitionError as err:
+            raise _fail(err, partial, config) from None
+    raise AssertionError("unreachable: the last retry raises")
 
 
 def capture_continuous(lms, tilt, config) -> OrganizedCloud:
@@ -199,7 +266,9 @@ def open_devices(config):
         raise ValueError(f"lms.port and tilt.port must be set; got {config.lms.port!r}, {config.tilt.port!r}")
     s, t = config.lms, config.tilt
     lms = Lms2xx(s.port, initial_baudrate=s.initial_baudrate, timeout=s.timeout, reply_timeout=s.reply_timeout,
-                 gap_timeout=s.gap_timeout, attempts=s.attempts, settle=s.settle, probe_timeout=s.probe_timeout)
+                 gap_timeout=s.gap_timeout, attempts=s.attempts, settle=s.settle, probe_timeout=s.probe_timeout,
+                 nak_delay=s.nak_delay, ack_timeout=s.ack_timeout, config_timeout=s.config_timeout,
+                 mode_timeout=s.mode_timeout)
     try:
         tilt = PowerCube(t.port, module_id=t.module_id, baudrate=t.baudrate, timeout=t.timeout,
                          reply_timeout=t.reply_timeout, attempts=t.attempts, poll_interval=t.poll_interval)
@@ -209,10 +278,12 @@ def open_devices(config):
     return lms, tilt
 
 
-def capture(config, *, out=None) -> OrganizedCloud:
+def capture(config, *, out=None, progress=None) -> OrganizedCloud:
     """Open the devices named in ``config``, initialise them, capture, optionally save to ``out``.
 
-    ``out`` is written atomically through :meth:`OrganizedCloud.save`.
+    ``out`` is written atomically through :meth:`OrganizedCloud.save`; if that fails, the
+    capture is saved to ``config.partial_path`` instead (when set) before the error is raised.
+    ``progress(rows_done, retries)`` is called after each row of a stop-and-go capture.
     """
     lms, tilt = open_devices(config)
     try:
@@ -220,11 +291,20 @@ def capture(config, *, out=None) -> OrganizedCloud:
             initialise(lms, tilt, config)
         except AcquisitionError as err:
             raise _fail(err, _new_partial(config), config) from None
-        run = capture_continuous if config.mode == "continuous" else capture_stop_and_go
-        cloud = run(lms, tilt, config)
+        if config.mode == "continuous":
+            cloud = capture_continuous(lms, tilt, config)
+        else:
+            cloud = capture_stop_and_go(lms, tilt, config, progress=progress)
     finally:
         lms.close()
         tilt.close()
     if out is not None:
-        cloud.save(out)
+        try:
+            cloud.save(out)
+        except Exception as err:
+            whole = PartialCapture(cloud.geometry.beam_angles, tuple(config.mount.offset),
+                                   float(config.mount.tilt_sign))
+            for row, tilt_angle, stamp in zip(cloud.ranges, cloud.geometry.tilt_angles, cloud.timestamps):
+                whole.add(row, tilt_angle, stamp)
+            raise _fail(err, whole, config)
     return cloud

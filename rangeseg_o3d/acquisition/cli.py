@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
+import tempfile
 from pathlib import Path
 
 from ..cliargs import finite_float
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["add_arguments", "run", "check_output"]
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _config(args):
     from .config import CaptureConfig, load_capture_config
 
-    data = load_capture_config(args.config).model_dump()
+    # Only the fields the file or the command line set: a settings model rebuilt from a full
+    # dump would count every field as set, and the simulator would keep the hardware's waits.
+    data = load_capture_config(args.config).model_dump(exclude_unset=True)
     overrides = {
         ("lms", "port"): args.port, ("lms", "baudrate"): args.baud,
         ("tilt", "port"): args.tilt_port, ("tilt", "baudrate"): args.tilt_baud, ("tilt", "module_id"): args.module_id,
@@ -53,7 +57,7 @@ def _config(args):
     }
     for (section, key), value in overrides.items():
         if value is not None:
-            data[section][key] = value
+            data.setdefault(section, {})[key] = value
     if args.mode:
         data["mode"] = args.mode
     out = Path(args.out)
@@ -61,11 +65,36 @@ def _config(args):
     return CaptureConfig.model_validate(data)
 
 
+def check_output(out: Path) -> None:
+    """Refuse an ``--out`` the capture could not be written to, before capturing anything."""
+    if out.suffix.lower() not in (".npz", ".pcd"):
+        raise ValueError(f"--out {out} must end in .npz or .pcd; got {out.suffix or 'no suffix'!r}")
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a directory; give a file name")
+    folder = out.parent
+    if not folder.is_dir():
+        raise ValueError(f"--out {out}: folder {folder} does not exist")
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as err:
+        raise ValueError(f"--out {out}: cannot write in {folder} ({err.strerror or err})") from None
+
+
+def _kept(err: BaseException, config) -> str:
+    """Where the rows captured before ``err`` went, for the message."""
+    partial = getattr(err, "partial", None)
+    kept = partial.n_rows if partial is not None else 0
+    if kept and config.partial_path is not None and Path(config.partial_path).is_file():
+        return (f"{kept} rows saved to {config.partial_path} "
+                "(OrganizedCloud.load or rangeseg segment read it)")
+    return "no rows captured" if not kept else f"{kept} rows captured, but saving them failed"
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run a capture; 0 on success, 1 on a device error, 2 on bad arguments."""
+    """Run a capture; 0 on success, 1 on a device or write error, 2 on bad arguments, 130 on Ctrl-C."""
     from pydantic import ValidationError
 
-    from .capture import capture
+    from .capture import CaptureProgress, capture
     from .errors import AcquisitionError
     from .simulate import simulated_capture
 
@@ -73,20 +102,30 @@ def run(args: argparse.Namespace) -> int:
         config = _config(args)
         if not args.simulate and not (args.port and args.tilt_port):
             raise ValueError("give --port and --tilt-port for hardware, or --simulate")
+        if not (math.isfinite(args.time_scale) and args.time_scale > 0):
+            raise ValueError(f"--time-scale must be a positive number; got {args.time_scale}")
+        if not (math.isfinite(args.faults) and 0 <= args.faults < 1):
+            raise ValueError(f"--faults must be in [0, 1); got {args.faults}")
+        check_output(Path(args.out))
     except (ValueError, ValidationError, OSError) as err:
         print(f"rangeseg capture: {err}", file=sys.stderr)
         return 2
+    progress = CaptureProgress(config.schedule.rows)
     try:
         if args.simulate:
             cloud = simulated_capture(config, faults=args.faults, seed=args.seed, time_scale=args.time_scale,
-                                      out=args.out)
+                                      out=args.out, progress=progress)
         else:
-            cloud = capture(config, out=args.out)
-    except AcquisitionError as err:
-        kept = err.partial.n_rows if err.partial is not None else 0
-        where = f"; {kept} rows saved to {config.partial_path}" if kept else "; no rows captured"
-        print(f"rangeseg capture: {err}{where}", file=sys.stderr)
+            cloud = capture(config, out=args.out, progress=progress)
+    except KeyboardInterrupt as err:
+        progress.close()
+        print(f"rangeseg capture: interrupted; {_kept(err, config)}", file=sys.stderr)
+        return 130
+    except (AcquisitionError, OSError) as err:
+        progress.close()
+        print(f"rangeseg capture: {err}; {_kept(err, config)}", file=sys.stderr)
         return 1
+    progress.close()
     h, w = cloud.shape
     print(f"captured {h} x {w} ({cloud.n_valid} points) -> {args.out}")
     return 0

@@ -30,7 +30,12 @@ class LmsSettings(_Strict):
     gap_timeout: float = Field(0.05, gt=0, description="silence (s) that ends an incomplete telegram")
     probe_timeout: float = Field(0.2, gt=0)
     settle: float = Field(0.25, ge=0)
-    attempts: int = Field(10, ge=1)
+    config_timeout: float = Field(15.0, gt=0, description="reply timeout of a configuration write (EEPROM)")
+    mode_timeout: float = Field(3.0, gt=0, description="reply timeout of a baud-rate change")
+    nak_delay: float = Field(0.03, ge=0, description="pause before resending after a NAK (the device needs 30 ms)")
+    ack_timeout: float | None = Field(None, gt=0, description="resend a scan request nothing answered "
+                                      "(not even the ACK) within this; None: wait reply_timeout")
+    attempts: int = Field(30, ge=1, description="sends per command before giving up (a noisy line garbles many)")
     scan_attempts: int = Field(2000, ge=1, description="sends per row before giving up")
 
     @model_validator(mode="after")

@@ -5,7 +5,9 @@ from __future__ import annotations
 import logging
 import time
 
-from .errors import DeviceTimeout, LmsDeviceReset, LmsProtocolError
+import numpy as np
+
+from .errors import SILENT_REQUESTS, DeviceTimeout, LmsDeviceReset, LmsProtocolError
 from .lms2xx import (
     BAUD_MODES,
     MODE_INSTALLATION,
@@ -23,6 +25,7 @@ from .lms2xx import (
     parse_scan,
     scan_count,
 )
+from .consensus import consensus
 from .transport import open_transport, port_name, read_some, sleep
 
 __all__ = ["Lms2xx", "PROBE_ORDER"]
@@ -33,6 +36,7 @@ PROBE_ORDER = (9600, 19200, 38400, 500000)
 _RESET_CODES = (0x90, 0x91)
 _UNITS_BYTE = 6  # index of the units byte in the configuration block
 _UNIT_M = {"mm": 0.001, "cm": 0.01}
+_PROBE_SWEEPS = 3
 
 
 class Lms2xx:
@@ -52,15 +56,22 @@ class Lms2xx:
         A started but incomplete telegram followed by this much silence is abandoned
         (a byte was lost) and the request is sent again.
     nak_delay : float
-        Pause before resending after a NAK (the device needs at least 30 ms).
+        Pause before resending after a NAK (a real device needs at least 30 ms; the
+        simulator's time runs faster, so its host waits less).
     attempts : int
         Sends per command before giving up with :class:`LmsProtocolError`.
     settle : float
         Pause after the host changes its baud rate.
+    mode_timeout : float
+        Reply timeout of a baud-rate change (up to 3 s).
     config_timeout : float
         Reply timeout of a configuration write (EEPROM: 7-15 s).
     probe_timeout : float
         Reply timeout of one baud-rate probe.
+    ack_timeout : float, optional
+        A scan request answered by nothing at all (not even the ACK, which the LMS sends
+        at once) for this long was lost on the line and is resent without waiting the
+        whole ``reply_timeout``. None (default): wait ``reply_timeout``.
     """
 
     def __init__(
@@ -75,7 +86,9 @@ class Lms2xx:
         attempts: int = 10,
         settle: float = 0.25,
         config_timeout: float = 15.0,
+        mode_timeout: float = 3.0,
         probe_timeout: float = 0.2,
+        ack_timeout: float | None = None,
     ):
         if timeout <= 0 or reply_timeout <= 0 or gap_timeout <= 0:
             raise ValueError(
@@ -89,16 +102,19 @@ class Lms2xx:
         self.timeout = timeout
         self.reply_timeout = reply_timeout
         self.gap_timeout = gap_timeout
-        self.nak_delay = max(0.03, nak_delay)
+        self.nak_delay = max(0.0, float(nak_delay))
         self.attempts = attempts
         self.settle = settle
         self.config_timeout = config_timeout
+        self.mode_timeout = mode_timeout
         self.probe_timeout = probe_timeout
+        self.ack_timeout = ack_timeout
         self.n_values: int | None = None
         self.unit: float | None = None
         self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
         self._decoder = TelegramDecoder(replies=True)
         self._backlog: list = []  # events decoded after a reply (streamed scans), kept for read_streamed
+        self._received = bytearray()
 
     # -- low level --------------------------------------------------------------
     def close(self) -> None:
@@ -113,22 +129,34 @@ class Lms2xx:
         self._decoder.clear()
         self._backlog = []
 
-    def _await(self, reply_code: int, reply_timeout: float) -> tuple[str, Telegram | None, bool]:
-        """Wait for one reply: ('reply', t, heard) | ('nak'|'broken'|'silent', None, heard)."""
+    def _await(self, reply_code: int, reply_timeout: float,
+               ack_timeout: float | None = None) -> tuple[str, Telegram | None, bool]:
+        """Wait for one reply: ('reply', t, heard) | ('nak'|'broken'|'silent', None, heard).
+
+        A frame that arrives whole but fails its CRC ends the wait at once ('broken'): the
+        request is resent without waiting for a gap that would tell nothing more.
+        """
         start = time.monotonic()
         last_rx = None
         only_ack = True
+        self._received = bytearray()  # what this reply brought, for rebuilding a damaged scan
         while True:
             now = time.monotonic()
-            if now - start > reply_timeout:
-                return ("silent" if last_rx is None else "broken"), None, last_rx is not None
-            if last_rx is not None and not only_ack and now - last_rx > self.gap_timeout:
-                return "broken", None, True
             wait = min(self.gap_timeout, reply_timeout - (now - start))
             data = read_some(self.transport, max(wait, 0.001))
             if not data:
+                # Timeouts are judged only after a read came back empty, so a host that was
+                # descheduled for a while reads what arrived meanwhile before deciding.
+                now = time.monotonic()
+                if now - start > reply_timeout:
+                    return ("silent" if last_rx is None else "broken"), None, last_rx is not None
+                if last_rx is None and ack_timeout is not None and now - start > ack_timeout:
+                    return "silent", None, False
+                if last_rx is not None and not only_ack and now - last_rx > self.gap_timeout:
+                    return "broken", None, True
                 continue
             last_rx = time.monotonic()
+            self._received += data
             if data.strip(bytes([ACK])):
                 only_ack = False  # a reply has started: from now on a gap means a lost byte
             self._decoder.feed(data)
@@ -140,7 +168,7 @@ class Lms2xx:
                     return "nak", None, True
                 if isinstance(event, BadFrame):
                     self.stats["bad_frames"] += 1
-                    continue
+                    return "broken", None, True
                 if event.command == reply_code:
                     self._backlog = events[n + 1 :]
                     return "reply", event, True
@@ -163,6 +191,8 @@ class Lms2xx:
         attempts: int | None = None,
         reply_timeout: float | None = None,
         timeout: float | None = None,
+        ack_timeout: float | None = None,
+        rescue=None,
     ) -> Telegram:
         """Send ``payload`` and return the reply telegram, resending after NAK or corruption.
 
@@ -180,21 +210,31 @@ class Lms2xx:
         reply_timeout = self.reply_timeout if reply_timeout is None else reply_timeout
         timeout = self.timeout if timeout is None else timeout
         frame = encode_telegram(bytes(payload))
+        if rescue is None and attempts > 2:
+            rescue = self._rescue(reply_code)
         silent_since = time.monotonic()
+        silent_in_a_row = 0
         for _ in range(attempts):
             self._flush()
             self.transport.write(frame)
             self.stats["sent"] += 1
             remaining = timeout - (time.monotonic() - silent_since)
-            outcome, telegram, heard = self._await(reply_code, min(reply_timeout, max(remaining, 0.001)))
+            outcome, telegram, heard = self._await(reply_code, min(reply_timeout, max(remaining, 0.001)),
+                                                   ack_timeout)
             if heard:
                 silent_since = time.monotonic()
             if outcome == "reply":
                 return telegram
             self.stats[outcome] += 1
+            if outcome == "broken" and rescue is not None:
+                telegram = rescue(bytes(self._received).lstrip(bytes([ACK])))
+                if telegram is not None:
+                    return telegram
+            silent_in_a_row = silent_in_a_row + 1 if outcome == "silent" else 0
             if outcome == "nak":
                 sleep(self.nak_delay)
-            elif outcome == "silent" and time.monotonic() - silent_since >= timeout:
+            elif (outcome == "silent" and time.monotonic() - silent_since >= timeout
+                  and silent_in_a_row >= min(attempts, SILENT_REQUESTS)):
                 raise DeviceTimeout(self.port, timeout, "LMS2xx")
         raise LmsProtocolError(
             f"no valid 0x{reply_code:02X} reply from the LMS on {self.port} after {attempts} attempts"
@@ -240,11 +280,15 @@ class Lms2xx:
         reply_timeout = self.probe_timeout if reply_timeout is None else reply_timeout
         current = getattr(self.transport, "baudrate", None)
         order = [current] + [b for b in candidates if b != current] if current in candidates else list(candidates)
-        for rate in order:
-            if self.probe(rate, reply_timeout=reply_timeout):
-                log.info("LMS on %s answers at %d baud", self.port, rate)
-                return rate
-        raise DeviceTimeout(self.port, reply_timeout * 2 * len(order), f"LMS2xx (probed {order} baud)")
+        # A probe garbled on a noisy line looks like a wrong rate: sweep the rates a few
+        # times before calling the device silent.
+        for _ in range(_PROBE_SWEEPS):
+            for rate in order:
+                if self.probe(rate, reply_timeout=reply_timeout):
+                    log.info("LMS on %s answers at %d baud", self.port, rate)
+                    return rate
+        raise DeviceTimeout(self.port, reply_timeout * 2 * len(order) * _PROBE_SWEEPS,
+                            f"LMS2xx (probed {order} baud {_PROBE_SWEEPS} times)")
 
     def set_baudrate(self, baudrate: int) -> None:
         """Switch device and host to ``baudrate`` (reply comes at the old rate), then verify."""
@@ -252,10 +296,22 @@ class Lms2xx:
             raise ValueError(f"baudrate must be one of {sorted(BAUD_MODES)}; got {baudrate}")
         if getattr(self.transport, "baudrate", None) == baudrate:
             return
-        self.set_mode(BAUD_MODES[baudrate], timeout=3.0)
-        self.transport.baudrate = baudrate
-        sleep(self.settle)
-        self.device_type()
+        for _ in range(_PROBE_SWEEPS):
+            try:
+                self.set_mode(BAUD_MODES[baudrate], timeout=self.mode_timeout)
+                self.transport.baudrate = baudrate
+                sleep(self.settle)
+                self.device_type()
+                return
+            except (DeviceTimeout, LmsProtocolError) as err:
+                if isinstance(err, LmsDeviceReset):
+                    raise
+                # The device switches right after its confirmation: if that was lost on the
+                # line, it now talks at the new rate and the old one hears silence.
+                log.info("LMS on %s: baud change to %d unconfirmed (%s); probing", self.port, baudrate, err)
+                if self.detect_baudrate() == baudrate:
+                    return
+        raise LmsProtocolError(f"the LMS on {self.port} did not switch to {baudrate} baud")
 
     def set_variant(self, fov: int, resolution: int) -> int:
         """Scan variant (0x3B): fov 100/180 degrees, resolution in 1/100 degree; returns values per scan."""
@@ -305,11 +361,63 @@ class Lms2xx:
     def _check(self, telegram: Telegram) -> Scan:
         return parse_scan(telegram, expected_count=self.n_values, expected_unit=self.unit, index_bytes=None)
 
+    def _rescue(self, reply_code: int, length: int | None = None):
+        """A ``rescue`` for :meth:`request`: rebuilds a reply from its damaged copies.
+
+        The device repeats the same reply to the same request (a scan at a standstill, a
+        configuration block...). ``length`` is the frame's length in bytes; None takes the
+        length most copies' headers declare. Tried at 3, 5, 8, 12, 20, 30, ... copies (each
+        try costs a few ms per copy) with the newest 40; the rebuilt frame must pass the CRC
+        like any other.
+        """
+        copies: list[bytes] = []
+        tries = {3, 5, 8, 12, 20}
+
+        def frame_length() -> int | None:
+            declared = [c[2] | c[3] << 8 for c in copies if len(c) > 4 and c[0] == 0x02]
+            if not declared:
+                return None
+            values, counts = np.unique(declared, return_counts=True)
+            return int(values[counts.argmax()]) + 6 if counts.max() >= 2 else None
+
+        def rescue(raw: bytes) -> Telegram | None:
+            if len(raw) < 6:
+                return None
+            copies.append(raw)
+            del copies[:-40]
+            if len(copies) not in tries and (len(copies) < 20 or len(copies) % 10):
+                return None
+            expected = length if length is not None else frame_length()
+            if expected is None or not expected // 2 <= len(raw) <= expected + expected // 2:
+                return None
+            frame = consensus([c for c in copies if abs(len(c) - expected) <= expected // 4], expected)
+            if frame is None:
+                return None
+            decoder = TelegramDecoder(replies=True)
+            decoder.feed(frame)
+            for event in decoder.events():
+                if isinstance(event, Telegram) and event.command == reply_code:
+                    self.stats["rebuilt"] = self.stats.get("rebuilt", 0) + 1
+                    log.debug("reply 0x%02X rebuilt from %d damaged copies", reply_code, len(copies))
+                    return event
+            return None
+
+        return rescue
+
     def request_scan(self, *, attempts: int | None = None) -> Scan:
-        """One complete scan (30 01) in send-on-request mode; resent until CRC, count and unit check."""
+        """One complete scan (30 01) in send-on-request mode; resent until CRC, count and unit check.
+
+        On a line too noisy for a whole copy to arrive, the scan is rebuilt from its damaged
+        copies (:mod:`~rangeseg_o3d.acquisition.consensus`; the device repeats a scan at a
+        standstill) and must then pass the same checks.
+        """
         attempts = self.attempts if attempts is None else attempts
+        # STX, address, length, command, count, values, status, CRC
+        length = None if self.n_values is None else 10 + 2 * self.n_values
+        rescue = self._rescue(0xB0, length) if attempts > 1 else None
         for _ in range(attempts):
-            telegram = self.request(b"\x30\x01", 0xB0, attempts=attempts)
+            telegram = self.request(b"\x30\x01", 0xB0, attempts=attempts, ack_timeout=self.ack_timeout,
+                                    rescue=rescue)
             try:
                 return self._check(telegram)
             except LmsDeviceReset:

@@ -7,7 +7,7 @@ import math
 import struct
 import time
 
-from .errors import DeviceTimeout, PowerCubeProtocolError
+from .errors import SILENT_REQUESTS, DeviceTimeout, PowerCubeProtocolError
 from .powercube import CMD, FROM_MODULE, MOTION, PARAM, STATE, Frame, FrameDecoder, encode_frame, pack_float, unpack_float
 from .tilt import TiltUnit
 from .transport import open_transport, port_name, read_some
@@ -89,6 +89,7 @@ class PowerCube(TiltUnit):
             if echo is None else echo
         frame = encode_frame(self.module_id, bytes(data))
         silent_since = time.monotonic()
+        silent_in_a_row = 0
         for _ in range(self.attempts):
             reset = getattr(self.transport, "reset_input_buffer", None)
             if callable(reset):
@@ -101,9 +102,13 @@ class PowerCube(TiltUnit):
                 return reply
             if heard:
                 silent_since = time.monotonic()
+                silent_in_a_row = 0
             else:
                 self.stats["silent"] += 1
-                if time.monotonic() - silent_since >= self.timeout:
+                silent_in_a_row += 1
+                # a garbled request goes unanswered too: silence alone is not a dead device
+                if (time.monotonic() - silent_since >= self.timeout
+                        and silent_in_a_row >= min(self.attempts, SILENT_REQUESTS)):
                     raise DeviceTimeout(self.port, self.timeout, "PowerCube")
         raise PowerCubeProtocolError(
             f"no valid reply to {bytes(data[:2]).hex(' ')} from PowerCube {self.module_id} on {self.port} "

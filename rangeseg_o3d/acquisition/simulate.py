@@ -8,28 +8,46 @@ from .lms2xx import scan_count
 
 __all__ = ["simulated_capture", "simulation_config"]
 
-# Host-side timing for the simulated line: simulated time runs fast, so the host's
-# waits for silence can be short; the protocol's 30 ms after a NAK is kept.
-_SIM_LMS = {"timeout": 1.0, "reply_timeout": 0.3, "gap_timeout": 0.01, "probe_timeout": 0.1, "settle": 0.005}
-_SIM_TILT = {"timeout": 1.0, "reply_timeout": 0.05, "poll_interval": 0.001}
+# The host's waits on a simulated line are the hardware's (the settings' defaults) times the
+# time scale, as the devices' own timing is; each has a floor in wall seconds, because the
+# operating system's scheduling does not speed up with the simulation (a few ms on a busy
+# machine) and a dead device must still be told from a slow host.
+_LMS_FLOORS = {"timeout": 0.5, "reply_timeout": 0.02, "gap_timeout": 0.002, "probe_timeout": 0.02,
+               "settle": 0.0, "nak_delay": 0.0, "config_timeout": 0.1, "mode_timeout": 0.05}
+# The simulated LMS acknowledges a request within one byte time, as the real one does at
+# once: a request nothing answered within 60 ms of device time was lost on the line.
+_SIM_ACK = 0.06
+_ACK_FLOOR = 0.015
+_TILT_FLOORS = {"timeout": 0.5, "reply_timeout": 0.02, "poll_interval": 0.0, "move_timeout": 2.0}
+
+
+def _scaled_waits(settings, floors: dict, time_scale: float) -> dict:
+    """The waits of ``settings`` not set explicitly, scaled to the simulation's time."""
+    defaults = type(settings).model_fields
+    return {name: max(defaults[name].default * time_scale, floor) for name, floor in floors.items()
+            if name not in settings.model_fields_set}
 
 
 def simulation_config(config=None, *, lms_port: str, tilt_port: str, time_scale: float = 1.0) -> CaptureConfig:
-    """``config`` with the simulator's ports, short host-side timeouts and scaled scan latency.
+    """``config`` with the simulator's ports, host waits scaled by ``time_scale`` and scaled scan latency.
 
-    Timeouts set explicitly in ``config`` are kept.
+    Waits set explicitly in ``config`` are kept.
     """
     config = load_capture_config(config)
-    lms_set, tilt_set = config.lms.model_fields_set, config.tilt.model_fields_set
-    lms = config.lms.model_copy(update={"port": lms_port, **{k: v for k, v in _SIM_LMS.items() if k not in lms_set}})
-    tilt = config.tilt.model_copy(update={"port": tilt_port, **{k: v for k, v in _SIM_TILT.items() if k not in tilt_set}})
+    lms_waits = _scaled_waits(config.lms, _LMS_FLOORS, time_scale)
+    if "ack_timeout" not in config.lms.model_fields_set:
+        lms_waits["ack_timeout"] = max(_SIM_ACK * time_scale, _ACK_FLOOR)
+    lms = config.lms.model_copy(update={"port": lms_port, **lms_waits})
+    tilt = config.tilt.model_copy(update={"port": tilt_port,
+                                          **_scaled_waits(config.tilt, _TILT_FLOORS, time_scale)})
     transfer = (2 * scan_count(config.lms.fov, config.lms.resolution) + 10) * 10 / config.lms.baudrate
     latency = config.scan_latency if config.scan_latency is not None else transfer * time_scale
     return config.model_copy(update={"lms": lms, "tilt": tilt, "scan_latency": latency})
 
 
 def simulated_capture(config=None, faults: float = 0.0, seed: int = 0, *, scene=None, row_ranges=None,
-                      time_scale: float = 0.01, noise: float = 0.005, out=None, rig_options: dict | None = None):
+                      time_scale: float = 0.01, noise: float = 0.005, out=None, rig_options: dict | None = None,
+                      progress=None):
     """Capture a scan from a virtual LMS200 on a virtual PowerCube.
 
     Parameters
@@ -52,6 +70,8 @@ def simulated_capture(config=None, faults: float = 0.0, seed: int = 0, *, scene=
         Save the cloud there (atomically).
     rig_options : dict, optional
         Extra :class:`~rangeseg_o3d.acquisition.sim.rig.SimulatedRig` arguments (fault events).
+    progress : callable, optional
+        ``progress(rows_done, retries)`` after each row (see :class:`~.capture.CaptureProgress`).
 
     Returns
     -------
@@ -66,4 +86,4 @@ def simulated_capture(config=None, faults: float = 0.0, seed: int = 0, *, scene=
                        **(rig_options or {}))
     with rig:
         return capture(simulation_config(config, lms_port=rig.lms_port, tilt_port=rig.tilt_port, time_scale=time_scale),
-                       out=out)
+                       out=out, progress=progress)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import select
 import time
 
 __all__ = ["open_transport", "port_name", "read_some"]
@@ -49,12 +50,34 @@ def port_name(transport) -> str:
     return str(name) if name else type(transport).__name__
 
 
+def _descriptor(transport) -> int | None:
+    """The file descriptor of a port that has one (pyserial on POSIX), else None."""
+    fileno = getattr(transport, "fileno", None)
+    if not callable(fileno) or not hasattr(transport, "in_waiting"):
+        return None
+    try:
+        return int(fileno())
+    except (OSError, ValueError, TypeError, AttributeError):
+        return None
+
+
 def read_some(transport, wait: float) -> bytes:
     """Everything that arrives within ``wait`` seconds after the first byte; b"" if nothing.
 
     Blocks at most ``wait`` seconds for the first byte, then takes what is buffered.
+    A port with a file descriptor is waited on with ``select``: changing pyserial's
+    ``timeout`` reconfigures the port (tcsetattr) on every call, which at hundreds of
+    reads per second costs more than the bytes.
     """
     wait = max(0.0, float(wait))
+    descriptor = _descriptor(transport)
+    if descriptor is not None:
+        if not transport.in_waiting:
+            ready, _, _ = select.select([descriptor], [], [], wait)
+            if not ready:
+                return b""
+        waiting = transport.in_waiting
+        return bytes(transport.read(waiting)) if waiting else b""
     if getattr(transport, "timeout", None) != wait:
         transport.timeout = wait
     waiting = getattr(transport, "in_waiting", 0) or 0

@@ -1,10 +1,12 @@
 """One scripted exchange per LMS2xx command, plus NAK, corruption, reset and silence handling."""
 
+import time
+
 import numpy as np
 import pytest
 
 from rangeseg_o3d.acquisition import lms_driver
-from rangeseg_o3d.acquisition.errors import DeviceTimeout, LmsDeviceReset, LmsProtocolError
+from rangeseg_o3d.acquisition.errors import SILENT_REQUESTS, DeviceTimeout, LmsDeviceReset, LmsProtocolError
 from rangeseg_o3d.acquisition.lms2xx import encode_scan_values, encode_telegram
 from rangeseg_o3d.acquisition.lms_driver import Lms2xx
 
@@ -105,7 +107,8 @@ def test_baud_detection_probes_until_an_answer(scripted):
 
 def test_baud_detection_silent_device(scripted):
     probe = req("20 25")
-    _, lms = make(scripted, [(probe, b"")] * 8)
+    # 4 rates x 2 probes, swept 3 times (a probe garbled on a noisy line is not a silent device)
+    _, lms = make(scripted, [(probe, b"")] * 24)
     with pytest.raises(DeviceTimeout, match="scripted"):
         lms.detect_baudrate(reply_timeout=0.01)
 
@@ -165,10 +168,31 @@ def test_wrong_unit_never_accepted(scripted):
 
 
 def test_silent_device_times_out_naming_the_port(scripted):
-    _, lms = make(scripted, [(req("31"), b"")] * 3, timeout=0.05, reply_timeout=0.02)
+    _, lms = make(scripted, [(req("31"), b"")] * SILENT_REQUESTS, timeout=0.05, reply_timeout=0.02)
     with pytest.raises(DeviceTimeout, match="scripted") as info:
         lms.status()
     assert info.value.port == "scripted"
+    assert lms.stats["silent"] == SILENT_REQUESTS
+
+
+def test_a_few_unanswered_requests_are_not_a_dead_device(scripted):
+    # requests garbled on the line go unanswered; past `timeout` of silence, fewer than
+    # SILENT_REQUESTS of them in a row are still resent
+    script = [(req("31"), b"")] * (SILENT_REQUESTS - 1) + [(req("31"), ACK + rep("B1 00"))]
+    _, lms = make(scripted, script, timeout=0.01, reply_timeout=0.02)
+    assert lms.status().data == b"\x00"
+    assert lms.stats["silent"] == SILENT_REQUESTS - 1
+
+
+def test_a_whole_frame_failing_its_crc_is_resent_at_once(scripted):
+    bad = bytearray(rep("B1 00"))
+    bad[-1] ^= 0xFF  # CRC wrong, frame complete
+    transport = scripted([(req("31"), ACK + bytes(bad)), (req("31"), ACK + rep("B1 00"))])
+    lms = Lms2xx(transport, timeout=10.0, reply_timeout=5.0, gap_timeout=5.0, settle=0.0)
+    start = time.monotonic()
+    assert lms.status().data == b"\x00"
+    assert time.monotonic() - start < 2.0  # not the 5 s gap or reply timeout
+    assert lms.stats["bad_frames"] == 1 and lms.stats["broken"] == 1
 
 
 def test_rejection_0x92(scripted):

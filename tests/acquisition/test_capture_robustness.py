@@ -1,0 +1,157 @@
+"""Capture on noisy lines and its command line: simulator timing, damaged frames, progress,
+partial files on Ctrl-C or a fatal error, --out checked first."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import io
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d import OrganizedCloud
+from rangeseg_o3d.acquisition import CaptureConfig, cli, simulated_capture
+from rangeseg_o3d.acquisition.consensus import consensus
+from rangeseg_o3d.acquisition.sim.faults import LineFaults
+from rangeseg_o3d.acquisition.simulate import simulation_config
+
+from acquisition_helpers import wall_ranges
+
+capture_module = importlib.import_module("rangeseg_o3d.acquisition.capture")
+
+
+def parse(argv):
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+def wall(tilt, beams):
+    return wall_ranges(tilt, beams)
+
+
+def test_command_line_config_leaves_the_simulator_its_timing(tmp_path):
+    config = cli._config(parse(["--simulate", "--rows", "5", "--out", str(tmp_path / "x.npz")]))
+    assert config.lms.model_fields_set == set() and config.schedule.model_fields_set == {"rows"}
+    sim = simulation_config(config, lms_port="a", tilt_port="b", time_scale=0.05)
+    assert sim.lms.reply_timeout == pytest.approx(0.05)  # the hardware's 1 s, scaled
+    assert sim.lms.timeout == pytest.approx(0.5)  # floor: a dead device still told from a slow host
+    explicit = tmp_path / "capture.yaml"
+    explicit.write_text("capture:\n  lms:\n    reply_timeout: 0.7\n")
+    config = cli._config(parse(["--simulate", "--config", str(explicit), "--out", str(tmp_path / "x.npz")]))
+    assert simulation_config(config, lms_port="a", tilt_port="b", time_scale=0.05).lms.reply_timeout == 0.7
+
+
+def test_every_wait_scales_with_the_time_scale():
+    slow, fast = (simulation_config(None, lms_port="a", tilt_port="b", time_scale=t) for t in (1.0, 0.1))
+    for name in ("reply_timeout", "gap_timeout", "nak_delay", "config_timeout", "mode_timeout", "settle"):
+        assert getattr(fast.lms, name) == pytest.approx(getattr(slow.lms, name) * 0.1), name
+    assert slow.lms.reply_timeout == 1.0 and slow.lms.nak_delay == 0.03
+    assert fast.tilt.poll_interval == pytest.approx(slow.tilt.poll_interval * 0.1)
+
+
+def test_consensus_rebuilds_a_frame_no_copy_of_which_is_whole():
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 256, 372, dtype=np.uint8).tobytes()
+    faults = LineFaults(0.03, seed=3)
+    copies = [faults.apply(frame) for _ in range(8)]
+    assert frame not in copies
+    assert consensus(copies, len(frame)) == frame
+    assert consensus(copies[:1], len(frame)) is None  # one copy is no majority
+    unrelated = [rng.integers(0, 256, 372, dtype=np.uint8).tobytes() for _ in range(4)]
+    assert consensus(unrelated, 372) is None  # scans that differ give no frame, not a mixture
+
+
+def test_three_percent_faults_every_row_equals_the_fault_free_capture():
+    config = CaptureConfig.model_validate({"schedule": {"rows": 3, "start": -0.3, "stop": 0.2}})
+    clean = simulated_capture(config, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
+    noisy = simulated_capture(config, faults=0.03, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
+    np.testing.assert_array_equal(noisy.ranges, clean.ranges)
+    np.testing.assert_array_equal(noisy.geometry.tilt_angles, clean.geometry.tilt_angles)
+
+
+def test_progress_is_quiet_when_not_a_terminal_and_complete_on_one():
+    quiet = io.StringIO()
+    progress = capture_module.CaptureProgress(5, stream=quiet)
+    progress(2, 1)
+    progress.close()
+    assert quiet.getvalue() == ""
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    shown = Terminal()
+    progress = capture_module.CaptureProgress(5, stream=shown)
+    progress(2, 7)
+    progress.close()
+    text = shown.getvalue()
+    assert text.startswith("\rrow 2/5, 7 retries, ") and "s elapsed, ETA " in text and text.endswith("\n")
+
+
+@pytest.mark.parametrize("out, message", [
+    ("missing/x.npz", "does not exist"),
+    ("x.txt", "must end in .npz or .pcd"),
+    (".", "is a directory"),
+])
+def test_out_is_checked_before_the_capture_starts(tmp_path, monkeypatch, capsys, out, message):
+    def never(*args, **kwargs):
+        raise AssertionError("the capture started")
+
+    monkeypatch.setattr(cli, "_config", cli._config)
+    monkeypatch.setattr("rangeseg_o3d.acquisition.simulate.simulated_capture", never)
+    target = tmp_path / out if out != "." else tmp_path
+    if out == ".":
+        target = tmp_path / "dir.npz"
+        target.mkdir()
+    assert cli.run(parse(["--simulate", "--out", str(target)])) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def _interrupt_after(rows, exception):
+    original = capture_module.CaptureProgress.__call__
+
+    def call(self, done, resent):
+        original(self, done, resent)
+        if done == rows:
+            raise exception
+
+    return call
+
+
+def test_ctrl_c_saves_the_rows_so_far_beside_out(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(capture_module.CaptureProgress, "__call__", _interrupt_after(3, KeyboardInterrupt()))
+    out = tmp_path / "scan.npz"
+    assert cli.run(parse(["--simulate", "--rows", "6", "--time-scale", "0.05", "--out", str(out)])) == 130
+    err = capsys.readouterr().err
+    partial = tmp_path / "scan.partial.npz"
+    assert f"interrupted; 3 rows saved to {partial}" in err and "Traceback" not in err
+    assert not out.exists()
+    assert OrganizedCloud.load(partial).shape == (3, 181)
+
+
+def test_a_fatal_error_saves_the_rows_so_far(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(capture_module.CaptureProgress, "__call__",
+                        _interrupt_after(2, OSError(5, "Input/output error: the port went away")))
+    out = tmp_path / "scan.pcd"
+    assert cli.run(parse(["--simulate", "--rows", "5", "--time-scale", "0.05", "--out", str(out)])) == 1
+    err = capsys.readouterr().err
+    assert "port went away" in err and f"2 rows saved to {tmp_path / 'scan.partial.npz'}" in err
+    assert OrganizedCloud.load(tmp_path / "scan.partial.npz").shape == (2, 181)
+
+
+def test_library_attaches_and_saves_the_partial_capture(tmp_path):
+    config = CaptureConfig.model_validate({"schedule": {"rows": 4}, "partial_path": str(tmp_path / "p.npz")})
+    calls = []
+
+    def progress(done, resent):
+        calls.append(done)
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt) as info:
+        simulated_capture(config, row_ranges=wall, time_scale=0.05, progress=progress)
+    assert info.value.partial.n_rows == 2 and calls == [1, 2]
+    assert OrganizedCloud.load(tmp_path / "p.npz").shape == (2, 181)
