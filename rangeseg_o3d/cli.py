@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -207,6 +208,8 @@ def cmd_segment(args) -> int:
 def cmd_demo(args) -> int:
     from .pipeline import Pipeline
 
+    if not (math.isfinite(args.faults) and 0.0 <= args.faults < 1.0):
+        raise ValueError(f"--faults must be a byte fault rate in [0, 1); got {args.faults}")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.no_capture:

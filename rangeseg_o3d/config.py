@@ -11,6 +11,7 @@ touched, with the field and value named. ``load_config(..., overrides={"sensor.s
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -96,7 +97,7 @@ class RefineConfig(BaseModel):
     The noise model is the sensor's (``sensor:``).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     enabled: bool = True
     recover_leftovers: bool = True
@@ -129,7 +130,7 @@ _MOVED = {
 class PipelineConfig(BaseModel):
     """A whole run: sensor preset name, segmenter, fitter, refinement."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: str = "custom"
     sensor: SensorConfig = Field(default_factory=SensorConfig)
@@ -172,6 +173,9 @@ class PipelineConfig(BaseModel):
             # Normalise to the plugin's validated, complete parameter set.
             try:
                 stage.params = plugin.config(**stage.params).model_dump()
+            except TypeError:
+                raise ValueError(f"{kind}.params must be a mapping of parameter names to values; "
+                                 f"got {stage.params!r}") from None
             except ValidationError as exc:
                 problems = "; ".join(
                     f"{kind}.params.{'.'.join(str(p) for p in err['loc'])}: {err['msg']}"
@@ -179,12 +183,30 @@ class PipelineConfig(BaseModel):
                     for err in exc.errors()
                 )
                 raise ValueError(problems) from None
+            for name, value in _non_finite(stage.params):
+                raise ValueError(f"{kind}.params.{name} must be a finite number; got {value!r}")
         # Resolve once what the refinement shares with the segmenter.
         for key, default in _SHARED_WITH_SEGMENTER.items():
             if getattr(self.refine, key) is None:
                 setattr(self.refine, key, self.segmenter.params.get(key, default))
                 self._refine_resolved.add(key)
         return self
+
+
+def _non_finite(params: dict, prefix: str = ""):
+    """(dotted name, value) of every float in ``params`` that is NaN or infinite.
+
+    Plugins' own models may not forbid them; a threshold of inf would silently turn
+    every edge off.
+    """
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _non_finite(value, f"{name}.")
+        elif isinstance(value, (list, tuple)):
+            yield from _non_finite({str(i): v for i, v in enumerate(value)}, f"{name}.")
+        elif isinstance(value, float) and not math.isfinite(value):
+            yield name, value
 
 
 def preset_dir() -> Path:
@@ -312,11 +334,16 @@ def _read_source(source) -> tuple[dict, str]:
                 "(or give a path to a YAML file)"
             )
     if not path.is_file():
-        raise ValueError(f"configuration file {str(path)!r} does not exist")
+        what = "is not a regular file" if path.exists() else "does not exist"
+        raise ValueError(f"configuration file {str(path)!r} {what}")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ValueError(f"configuration file {path} is not valid YAML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"configuration file {path} is not UTF-8 text (a YAML file): {exc}") from None
+    except OSError as exc:
+        raise ValueError(f"configuration file {path} cannot be read: {exc.strerror or exc}") from None
     if not isinstance(data, dict):
         raise ValueError(f"configuration file {path} must hold a mapping; got {type(data).__name__}")
     return data, str(path)

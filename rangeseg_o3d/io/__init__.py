@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .atomic import atomic_write
+from .files import require_regular_file
 from .npz import load_npz, save_npz
 from .pcd import read_pcd, write_pcd
 
@@ -81,8 +82,7 @@ def load_cloud(path, *, units: str = "m"):
     scale = unit_scale(units)
     path = Path(path)
     suffix = _suffix(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
+    require_regular_file(path)  # a FIFO or device named scan.pcd must not block the reader
     if suffix == ".npz":
         return load_npz(path, units=units)
     return read_pcd(path).scaled(scale)

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..cloud import OrganizedCloud, check_grid_size
 from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_points
+from .files import require_regular_file
 from .pcd import read_pcd_grid
 
 __all__ = [
@@ -126,7 +127,7 @@ def load_3dtk(path, *, columns: int = SICK_3DTK_COLUMNS) -> OrganizedCloud:
     ValueError
         If a line does not hold 3 numbers or the points do not fill whole rows.
     """
-    path = Path(path)
+    path = require_regular_file(path)  # a FIFO named scan000.3d must not block the reader
     raw_cm = _parse_xyz_text(path, columns)
     xyz = np.stack([raw_cm[..., 2], -raw_cm[..., 0], raw_cm[..., 1]], axis=-1) / 100.0
     ranges = np.linalg.norm(xyz, axis=-1)
