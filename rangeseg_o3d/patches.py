@@ -231,7 +231,7 @@ def plane_patch(source: PatchSource, label: int, plane: Plane) -> PlanePatch:
     centroid = points.mean(axis=0)
     centroid = centroid - (centroid @ plane.normal - plane.d) * plane.normal
     flat = np.stack([(points - centroid) @ u, (points - centroid) @ v], axis=1)
-    _, vecs = np.linalg.eigh(flat.T @ flat)
+    _, vecs = np.linalg.eigh(np.einsum("ni,nj->ij", flat, flat))  # not BLAS: see parameter_covariance
     axes2 = vecs[:, ::-1].T  # major axis first
     # The extremes along any direction lie on the outer rings: measure the extent there.
     outer = np.concatenate([piece[0] for piece in pieces]) - centroid
@@ -441,7 +441,9 @@ def parameter_covariance(points: np.ndarray, model, *, n_total: int | None = Non
     jac, lift = _jacobians(points, model)
     if len(points) < jac.shape[1] + 1:
         return None
-    info = jac.T @ jac
+    # einsum, not BLAS: a threaded GEMM splits the sum over points differently with the
+    # thread count, and a result file must not change in its last digits with it.
+    info = np.einsum("ni,nj->ij", jac, jac)
     if n_total is not None and n_total > len(points):
         info *= n_total / len(points)
     try:
