@@ -58,6 +58,11 @@ def main() -> None:
                 cloud = OrganizedCloud.load(path)
                 same = [np.array_equal(a, b, equal_nan=True) for a, b in zip(cloud.ranges, clean.ranges)]
                 equal_rows.append(sum(same) if cloud.shape == clean.shape else 0)
+                for row in np.flatnonzero(~np.asarray(same)):  # say how a differing row differs
+                    tilt, reference = cloud.geometry.tilt_angles[row], clean.geometry.tilt_angles[row]
+                    values = int((~np.isclose(cloud.ranges[row], clean.ranges[row], equal_nan=True)).sum())
+                    print(f"  run {k}: row {row} differs in {values} values; tilt {tilt:.7f} "
+                          f"(fault-free {reference:.7f})")
             print(f"faults={rate:.3f} time_scale={args.time_scale}: median {statistics.median(times):.1f} s "
                   f"(runs: {', '.join(f'{t:.1f}' for t in times)} s); rows equal to the fault-free "
                   f"capture: {', '.join(f'{n}/{clean.shape[0]}' for n in equal_rows)}")

@@ -115,7 +115,8 @@ def first_result(python: Path, cwd: Path, label: str, prefix=(), env=None) -> No
     wall, cpu, features, where = done.stdout.split()
     if not where.startswith(str(python.parent.parent)):
         raise StepFailed(f"FAILED: imported {where}, not the installed package")
-    warned = " (warned: " + done.stderr.strip().splitlines()[-1][:160] + ")" if done.stderr.strip() else ""
+    warnings = [line for line in done.stderr.splitlines() if "Warning:" in line]
+    warned = f" (warned: {warnings[0].split('Warning: ', 1)[1][:200]})" if warnings else ""
     print(f"{label}: first result in {wall} s wall, {cpu} s CPU ({features} features){warned}")
 
 

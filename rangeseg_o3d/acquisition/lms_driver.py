@@ -338,14 +338,30 @@ class Lms2xx:
         if units not in _UNIT_M:
             raise ValueError(f"units must be 'mm' or 'cm'; got {units!r}")
         code = 1 if units == "mm" else 0
-        cfg = bytearray(self.read_config())
-        if cfg[_UNITS_BYTE] != code:
+        installing = False
+        for _ in range(_PROBE_SWEEPS):
+            cfg = bytearray(self.read_config())
+            if cfg[_UNITS_BYTE] == code:
+                break
             cfg[_UNITS_BYTE] = code
             self.set_mode(MODE_INSTALLATION)
-            reply = self.request(b"\x77" + bytes(cfg), 0xF7, reply_timeout=self.config_timeout,
-                                 timeout=self.config_timeout + self.timeout)
+            installing = True
+            try:
+                reply = self.request(b"\x77" + bytes(cfg), 0xF7, reply_timeout=self.config_timeout,
+                                     timeout=self.config_timeout + self.timeout)
+            except LmsProtocolError as err:
+                if isinstance(err, LmsDeviceReset):
+                    raise
+                # On a noisy line the write may have happened and only its long reply been
+                # lost: the next round reads the configuration back and stops if it holds.
+                log.info("LMS on %s: configuration write unconfirmed (%s); reading it back", self.port, err)
+                continue
             if not reply.data or reply.data[0] != 1:
                 raise LmsProtocolError("LMS refused the configuration write")
+            break
+        else:
+            raise LmsProtocolError(f"the LMS on {self.port} did not take units {units!r}")
+        if installing:
             self.set_mode(MODE_ON_REQUEST)
         self.unit = _UNIT_M[units]
 

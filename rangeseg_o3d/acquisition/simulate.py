@@ -18,6 +18,7 @@ _LMS_FLOORS = {"timeout": 0.5, "reply_timeout": 0.02, "gap_timeout": 0.002, "pro
 # once: a request nothing answered within 60 ms of device time was lost on the line.
 _SIM_ACK = 0.06
 _ACK_FLOOR = 0.015
+_SIM_POSITION_TOLERANCE = 1e-6  # rad
 _TILT_FLOORS = {"timeout": 0.5, "reply_timeout": 0.02, "poll_interval": 0.0, "move_timeout": 2.0}
 
 
@@ -38,8 +39,12 @@ def simulation_config(config=None, *, lms_port: str, tilt_port: str, time_scale:
     if "ack_timeout" not in config.lms.model_fields_set:
         lms_waits["ack_timeout"] = max(_SIM_ACK * time_scale, _ACK_FLOOR)
     lms = config.lms.model_copy(update={"port": lms_port, **lms_waits})
-    tilt = config.tilt.model_copy(update={"port": tilt_port,
-                                          **_scaled_waits(config.tilt, _TILT_FLOORS, time_scale)})
+    tilt_settings = _scaled_waits(config.tilt, _TILT_FLOORS, time_scale)
+    if "position_tolerance" not in config.tilt.model_fields_set:
+        # The simulated unit stops exactly at its target (as float32): a stop 0.1 mrad away
+        # means a move command corrupted past the 8-bit BCC, to be sent again.
+        tilt_settings["position_tolerance"] = _SIM_POSITION_TOLERANCE
+    tilt = config.tilt.model_copy(update={"port": tilt_port, **tilt_settings})
     transfer = (2 * scan_count(config.lms.fov, config.lms.resolution) + 10) * 10 / config.lms.baudrate
     latency = config.scan_latency if config.scan_latency is not None else transfer * time_scale
     return config.model_copy(update={"lms": lms, "tilt": tilt, "scan_latency": latency})
