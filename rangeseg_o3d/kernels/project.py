@@ -4,8 +4,8 @@ Used by :meth:`~rangeseg_o3d.cloud.OrganizedCloud.from_depth` and ``from_ranges`
 arithmetic is that of :func:`~rangeseg_o3d.kinematics.pinhole_points` and
 :func:`~rangeseg_o3d.kinematics.nodding_points` in the same order, so the points agree
 with them to the last bit or two. The outputs are float64: the cloud and every stage
-after it work in float64, and a float32 pass measured no faster (the pass is bound by
-writing 7 MB of points, not by arithmetic).
+after it work in float64 (a float32 variant of the first, branching form of the pass
+measured no faster).
 """
 
 from __future__ import annotations
@@ -33,21 +33,18 @@ def depth_points(depth, scale, fx, fy, cx, cy):
     for i in range(h):
         down = (i - cy) / fy
         for j in range(w):
+            # No branch: an invalid depth becomes NaN and NaN carries through the arithmetic,
+            # so the loop vectorises (3.5x faster than with an if/else per pixel).
             z = depth[i, j] * scale
-            if z > 0.0 and z < np.inf:  # NaN fails both tests
-                x = across[j] * z
-                y = down * z
-                xyz[i, j, 0] = x
-                xyz[i, j, 1] = y
-                xyz[i, j, 2] = z
-                ranges[i, j] = np.sqrt(x * x + y * y + z * z)
-                valid[i, j] = True
-            else:
-                xyz[i, j, 0] = np.nan
-                xyz[i, j, 1] = np.nan
-                xyz[i, j, 2] = np.nan
-                ranges[i, j] = np.nan
-                valid[i, j] = False
+            ok = (z > 0.0) & (z < np.inf)  # NaN fails both tests
+            z = z if ok else np.nan
+            x = across[j] * z
+            y = down * z
+            xyz[i, j, 0] = x
+            xyz[i, j, 1] = y
+            xyz[i, j, 2] = z
+            ranges[i, j] = np.sqrt(x * x + y * y + z * z)
+            valid[i, j] = ok
     return xyz, ranges, valid
 
 
@@ -72,16 +69,11 @@ def nodding_range_points(ranges, cos_tilt, sin_tilt, sin_beam, cos_beam, offset)
         oz = -s * offset[0] + c * offset[2]
         for j in range(w):
             r = ranges[i, j]
-            if r > 0.0 and r < np.inf:
-                xyz[i, j, 0] = ox + c * sin_beam[j] * r
-                xyz[i, j, 1] = oy - cos_beam[j] * r
-                xyz[i, j, 2] = oz - s * sin_beam[j] * r
-                clean[i, j] = r
-                valid[i, j] = True
-            else:
-                xyz[i, j, 0] = np.nan
-                xyz[i, j, 1] = np.nan
-                xyz[i, j, 2] = np.nan
-                clean[i, j] = np.nan
-                valid[i, j] = False
+            ok = (r > 0.0) & (r < np.inf)  # branch-free, as in depth_points
+            r = r if ok else np.nan
+            xyz[i, j, 0] = ox + c * sin_beam[j] * r
+            xyz[i, j, 1] = oy - cos_beam[j] * r
+            xyz[i, j, 2] = oz - s * sin_beam[j] * r
+            clean[i, j] = r
+            valid[i, j] = ok
     return xyz, clean, valid
