@@ -151,7 +151,12 @@ def main() -> None:
         first_result(python, elsewhere, "first process after install")
         first_result(python, elsewhere, "next process")
         demo_and_segment(work / "venv", elsewhere, "as this user", env=env)
-        if args.unprivileged:
+        dependencies = [p for p in site.getsitepackages() if Path(p).is_dir()]
+        hidden = [p for p in dependencies if not world_reachable(Path(p))]
+        if args.unprivileged and hidden:
+            # e.g. a checkout under /root: nobody cannot import numpy from there; not the package's fault
+            print(f"nobody: skipped (the dependencies in {hidden} are not readable by other users)")
+        elif args.unprivileged:
             if os.geteuid() != 0 or shutil.which("setpriv") is None:
                 raise StepFailed("FAILED: --unprivileged needs root and setpriv")
             shared = work / "nobody"
