@@ -11,7 +11,9 @@ results. Printed per engine (medians over the repeats, runs interleaved):
 - wall: from the call of run_batch to the last result (worker start-up and kernel loading
   included; the Dask cluster's own start-up is not, it is printed on its own line);
 - steady: inputs per second after the first result, (N - 1) / (t_last - t_first), i.e.
-  the throughput once the workers are warm.
+  the throughput once the workers are warm;
+- CPU s/file: the median CPU time a worker spent per input (process_time: it does not
+  grow when other programs take the cores), and cores busy: all inputs' CPU time / wall.
 
 The machine's load average is printed before and after: on a shared machine the figures
 move with it. No test asserts on these numbers.
@@ -40,12 +42,14 @@ from rangeseg_o3d.batch import run_batch, dask_client
 frames, out, engine, jobs = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 def measure(client=None):
     start = time.perf_counter()
-    stamps = []
+    stamps, cpu = [], []
     for row in run_batch([frames], config="rgbd_vga", out=out, jobs=jobs, client=client):
         assert row.status == "ok", row.error
         stamps.append(time.perf_counter() - start)
+        cpu.append(row.cpu_s)
     return {"wall": stamps[-1], "first": stamps[0], "n": len(stamps),
-            "steady": (len(stamps) - 1) / (stamps[-1] - stamps[0])}
+            "steady": (len(stamps) - 1) / (stamps[-1] - stamps[0]),
+            "cpu_per_file": sorted(cpu)[len(cpu) // 2], "cpu_total": sum(cpu)}
 if __name__ == "__main__":
     if engine == "dask":
         t0 = time.perf_counter()
@@ -118,14 +122,18 @@ def main(argv=None) -> int:
     for _ in range(args.repeats):
         for engine in engines:
             runs[engine].append(run_once(frames, *engine))
-    print(f"{'engine':<16} {'wall s':>8} {'wall files/s':>13} {'steady files/s':>15}   (medians of {args.repeats})")
+    print(f"{'engine':<16} {'wall s':>8} {'wall files/s':>13} {'steady files/s':>15} "
+          f"{'CPU s/file':>11} {'cores busy':>11}   (medians of {args.repeats})")
     med = {}
     for (engine, jobs), results in runs.items():
         wall = statistics.median(r["wall"] for r in results)
         steady = statistics.median(r["steady"] for r in results)
         med[(engine, jobs)] = (wall, steady)
+        cpu_file = statistics.median(r["cpu_per_file"] for r in results)
+        busy = statistics.median(r["cpu_total"] / r["wall"] for r in results)
         label = f"{'jobs' if engine == 'pool' else 'dask local'} {jobs}"
-        print(f"{label:<16} {wall:>8.2f} {args.frames / wall:>13.2f} {steady:>15.2f}")
+        print(f"{label:<16} {wall:>8.2f} {args.frames / wall:>13.2f} {steady:>15.2f} "
+              f"{cpu_file:>11.3f} {busy:>11.2f}")
     one, many = med[("pool", 1)], med[("pool", args.jobs)]
     print(f"jobs {args.jobs} / jobs 1: {one[0] / many[0]:.2f}x wall throughput, "
           f"{many[1] / one[1]:.2f}x steady throughput")

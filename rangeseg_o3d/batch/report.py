@@ -98,7 +98,7 @@ class Progress:
 
 _PARQUET_COLUMNS = ("index", "input", "name", "status", "error", "height", "width", "n_valid",
                     "planes", "cylinders", "spheres", "unfitted", "read_s", "segment_s",
-                    "write_s", "total_s", "worker", "outputs", "stage_timings")
+                    "write_s", "total_s", "cpu_s", "worker", "outputs", "stage_timings")
 
 
 def write_summary(rows, path) -> list[Path]:
@@ -121,7 +121,7 @@ def write_summary(rows, path) -> list[Path]:
         ("width", pa.int64()), ("n_valid", pa.int64()), ("planes", pa.int64()),
         ("cylinders", pa.int64()), ("spheres", pa.int64()), ("unfitted", pa.int64()),
         ("read_s", pa.float64()), ("segment_s", pa.float64()), ("write_s", pa.float64()),
-        ("total_s", pa.float64()), ("worker", pa.string()), ("outputs", pa.list_(pa.string())),
+        ("total_s", pa.float64()), ("cpu_s", pa.float64()), ("worker", pa.string()), ("outputs", pa.list_(pa.string())),
         ("stage_timings", pa.string()),  # a JSON object: its keys depend on the segmenter
     ])
     table = pa.Table.from_pylist(

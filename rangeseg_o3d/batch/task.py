@@ -72,7 +72,9 @@ class InputSummary:
     """What one input gave: one row of the batch's summary table.
 
     ``status`` is ``"ok"``, ``"failed"`` (``error`` says why) or ``"skipped"`` (resumed:
-    its outputs were there). Times are seconds: reading, the pipeline, writing, all.
+    its outputs were there). Times are seconds: reading, the pipeline, writing, all, and
+    the CPU time the worker process spent on it (``cpu_s``; less than ``total_s`` when
+    the machine is shared).
     ``result`` and ``table`` are filled only when asked for; they are not part of the row.
     """
 
@@ -92,6 +94,7 @@ class InputSummary:
     segment_s: float | None = None
     write_s: float | None = None
     total_s: float | None = None
+    cpu_s: float | None = None
     worker: str | None = None
     outputs: list[str] = field(default_factory=list)
     stage_timings: dict[str, float] = field(default_factory=dict)
@@ -245,7 +248,7 @@ def segment_input(task: InputTask, options: SegmentOptions, pipeline=None, *,
     """
     row = InputSummary(index=task.index, input=task.path, name=task.name,
                        worker=f"{socket.gethostname()}:{os.getpid()}")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     try:
         if pipeline is None:
             pipeline = worker_pipeline(options.config)
@@ -265,6 +268,7 @@ def segment_input(task: InputTask, options: SegmentOptions, pipeline=None, *,
     except Exception as exc:  # any failure of one input is that input's error, the batch goes on
         row.status, row.error = "failed", describe_error(exc, task.path)
         row.total_s = time.perf_counter() - start
+        row.cpu_s = time.process_time() - cpu_start
         return row
     counts = result.counts()
     row.planes, row.cylinders, row.spheres, row.unfitted = (
@@ -272,6 +276,7 @@ def segment_input(task: InputTask, options: SegmentOptions, pipeline=None, *,
     row.outputs = [out for _, out in task.outputs]
     row.stage_timings = {k: float(v) for k, v in result.timings.items()}
     row.total_s = time.perf_counter() - start
+    row.cpu_s = time.process_time() - cpu_start
     if options.table:
         from ..cli import format_table
 
