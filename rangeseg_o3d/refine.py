@@ -67,8 +67,15 @@ def grow_into_edges(
     return labels
 
 
-def region_adjacency(labels: np.ndarray, *, reach: int = 2) -> set[tuple[int, int]]:
-    """Pairs (a < b) of regions whose pixels come within ``reach`` pixels of each other."""
+def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool = False) -> set[tuple[int, int]]:
+    """Pairs (a < b) of regions whose pixels come within ``reach`` pixels of each other.
+
+    With ``wrap_columns`` (a 360-degree grid) the first and last columns are neighbours too.
+    """
+    if wrap_columns and labels.shape[1] > 2 * reach:
+        # the seam's strip: the last ``reach`` columns, then the first ``reach``
+        seam = np.concatenate([labels[:, -reach:], labels[:, :reach]], axis=1)
+        return region_adjacency(labels, reach=reach) | region_adjacency(seam, reach=reach)
     n = int(labels.max(initial=0)) + 1
     if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
         from .kernels import adjacency_matrix

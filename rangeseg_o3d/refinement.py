@@ -105,7 +105,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor:
             labels, fits = grow(labels, fits, 2)  # recovered blobs take back their rims
     timer.lap("recover")
     if config.merge:
-        adjacency = region_adjacency(labels)
+        adjacency = region_adjacency(labels, wrap_columns=sensor.wrap_columns)
         labels, fits, adjacency = ctx.merge(labels, fits, config, adjacency)
         labels, fits = ctx.dissolve(labels, fits, config.k_sigma, adjacency)
     timer.lap("merge")

@@ -79,3 +79,15 @@ def test_join_wrapped_unites_labels_across_the_seam():
 def test_wrap_columns_validates():
     with pytest.raises(ValueError, match="pad"):
         wrap_columns(np.zeros((2, 4)), 5)
+
+
+def test_region_adjacency_across_the_seam():
+    from rangeseg_o3d.refine import region_adjacency
+
+    labels = np.zeros((4, 20), np.int32)
+    labels[:, :3] = 1
+    labels[:, 8:12] = 3
+    labels[:, -3:] = 2
+    assert (1, 2) not in region_adjacency(labels)
+    assert (1, 2) in region_adjacency(labels, wrap_columns=True)
+    assert (1, 3) not in region_adjacency(labels, wrap_columns=True)
