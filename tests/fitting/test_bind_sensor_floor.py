@@ -4,7 +4,7 @@ from rangeseg_o3d.fitting.classify import RMS_NOISE_FACTOR, PrimitiveFitterConfi
 from rangeseg_o3d.sensor import NoiseModel, Sensor
 
 
-def test_thresholds_are_at_least_twice_the_constant_noise():
+def test_thresholds_are_at_least_the_constant_noise():
     params = PrimitiveFitterConfig().model_dump()
     quiet = bind_sensor(params, Sensor(noise=NoiseModel(sigma0=0.002)))
     noisy = bind_sensor(params, Sensor(noise=NoiseModel(sigma0=0.02)))
