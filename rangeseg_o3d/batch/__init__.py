@@ -145,6 +145,9 @@ def dask_client(scheduler: str, *, workers: int | None = None):
         from distributed import Client, LocalCluster
     except ImportError:
         raise ValueError("--scheduler needs dask.distributed: pip install 'rangeseg_o3d[dask]'") from None
+    if not logging.getLogger().isEnabledFor(logging.INFO):
+        # distributed logs every connection at INFO; keep the progress readable (-v shows it)
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler == "local":
         n = workers or available_cores()
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
