@@ -81,7 +81,10 @@ def _projector_coefficients(directions: np.ndarray) -> np.ndarray:
 def _search_grids():
     """Hemisphere directions with frames and projector coefficients, and the two cone
     templates (8 and 2 deg), computed once."""
-    dirs = _hemisphere(300)
+    # A writable copy: compiled code passes writable (empty) grids to the same kernels when it
+    # refits, and numba compiles a read-only array as another type, so a read-only grid here
+    # would compile the whole cylinder search twice.
+    dirs = np.array(_hemisphere(300))
     u, v = _perpendicular_bases(dirs)
     cones = tuple(_cone_template(np.radians(angle)) for angle in (8.0, 2.0))
     return dirs, u, v, _projector_coefficients(dirs), cones
