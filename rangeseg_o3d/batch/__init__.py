@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 from typing import Iterator
 
 from .engines import MAX_ATTEMPTS, available_cores, run_dask, run_pool, run_serial
@@ -155,14 +156,25 @@ def dask_client(scheduler: str, *, workers: int | None = None):
         # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which makes glibc map and
         # zero fresh pages for every large array: 0.12-0.13 instead of 0.09 CPU s per VGA
         # frame (scripts/bench_batch.py). Our workers allocate frame-sized arrays in a loop.
-        environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()
-                   if k != "MALLOC_TRIM_THRESHOLD_"}
+        spawn_env = dask.config.get("distributed.nanny.pre-spawn-environ")
+        environ = {k: v for k, v in spawn_env.items() if k != "MALLOC_TRIM_THRESHOLD_"}
+        # An earlier cluster in this process left Dask's value in os.environ (its nannies
+        # write it there); the workers would inherit it. A value of the user's stays.
+        leaked = os.environ.get("MALLOC_TRIM_THRESHOLD_")
+        if leaked is not None and leaked == str(spawn_env.get("MALLOC_TRIM_THRESHOLD_")):
+            del os.environ["MALLOC_TRIM_THRESHOLD_"]
+        else:
+            leaked = None
         # Nor the statistical profiler's stack sampling every 10 ms: it is for the dashboard,
         # which this cluster does not serve.
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
-                              "distributed.worker.profile.enabled": False}):
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
+        try:
+            with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
+                                  "distributed.worker.profile.enabled": False}):
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
+        finally:
+            if leaked is not None:
+                os.environ["MALLOC_TRIM_THRESHOLD_"] = leaked
         try:
             with Client(cluster) as client:
                 yield client
