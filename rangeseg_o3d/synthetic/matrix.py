@@ -171,9 +171,9 @@ _STEREO_COEFF = 0.1 / (_STEREO_F * 0.05)  # sigma_z = sigma_d z^2 / (f B)
 SENSORS: tuple[SensorSpec, ...] = (
     SensorSpec("nodding_1deg", "nodding", "lms200", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 8,
                *_nodding(1.0, 0.005), "70 x 131, 1 deg beams, 0.58 deg tilt steps, 5 mm"),
-    SensorSpec("nodding_0.5deg", "nodding", "sick_3dtk", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 6,
+    SensorSpec("nodding_0.5deg", "nodding", "lms200", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 6,
                *_nodding(0.5, 0.005), "140 x 261, 0.5 deg beams, 0.29 deg tilt steps, 5 mm"),
-    SensorSpec("nodding_0.25deg", "nodding", "sick_3dtk", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 4,
+    SensorSpec("nodding_0.25deg", "nodding", "lms200", {"sigma0": 0.005, "sigma_quadratic": 0.0}, 4,
                *_nodding(0.25, 0.005), "280 x 521, 0.25 deg beams, 0.145 deg tilt steps, 5 mm"),
     SensorSpec("noise_2mm", "noise", "lms200", {"sigma0": 0.002, "sigma_quadratic": 0.0}, 8,
                *_nodding(1.0, 0.002), "70 x 131 nodding laser, 2 mm"),
