@@ -272,7 +272,7 @@ def test_missing_file(tmp_path, capsys):
 def test_directory_named_like_a_scan(tmp_path, capsys):
     path = tmp_path / "scan.npz"
     path.mkdir()
-    with pytest.raises(ValueError, match="is a directory, not a scan file"):
+    with pytest.raises(ValueError, match="is a directory, not a regular file"):
         OrganizedCloud.load(path)
     code, err = _segment([str(path)], capsys)
     assert code != 0 and str(path) in err
@@ -301,7 +301,7 @@ def test_fifo_named_like_a_scan_is_refused_not_read(tmp_path, name):
 def test_character_device_is_refused(tmp_path, capsys):
     device = tmp_path / "zero.3d"
     device.symlink_to("/dev/zero")  # reading it would never end
-    with pytest.raises(ValueError, match="a device"):
+    with pytest.raises(ValueError, match="a character device"):
         load_3dtk(device)
     code, err = _segment([str(device)], capsys)
     assert code != 0 and str(device) in err

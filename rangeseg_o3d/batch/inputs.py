@@ -13,8 +13,9 @@ from __future__ import annotations
 import glob
 import logging
 import os
-import stat
 from pathlib import Path, PurePosixPath
+
+from ..io.files import require_regular_file
 
 __all__ = ["LOADERS", "input_suffixes", "is_bag_folder", "expand_inputs", "output_names",
            "check_regular_file", "load_scan"]
@@ -38,16 +39,6 @@ def is_bag_folder(path) -> bool:
     return os.path.isdir(path) and os.path.isfile(os.path.join(path, "metadata.yaml"))
 
 
-def _file_kind(mode: int) -> str | None:
-    # The kinds of special file that would block or stream forever when opened.
-    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
-                       (stat.S_ISDIR, "a directory")):
-        if test(mode):
-            return name
-    return None
-
-
 def check_regular_file(path) -> None:
     """Raise unless ``path`` is a regular file (checked with ``stat``, never opened).
 
@@ -59,13 +50,9 @@ def check_regular_file(path) -> None:
         If ``path`` is a FIFO, a device, a socket or a directory (other than a ROS 2 bag):
         opening a FIFO or a terminal would wait for a writer forever.
     """
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        raise FileNotFoundError(f"no such file: {path}") from None
-    kind = _file_kind(mode)
-    if kind is not None and not is_bag_folder(path):
-        raise ValueError(f"{path} is {kind}, not a regular file")
+    if is_bag_folder(path):
+        return
+    require_regular_file(path)
 
 
 def load_scan(path, **options):

@@ -28,7 +28,14 @@ def require_regular_file(path) -> Path:
         raise ValueError(f"{path}: cannot be read ({err.strerror or err})") from None
     if stat.S_ISREG(mode):
         return path
-    kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
-            else "not a regular file")
-    raise ValueError(f"{path} is {kind}, not a scan file")
+    raise ValueError(f"{path} is {_special_file_kind(mode)}, not a regular file")
+
+
+def _special_file_kind(mode: int) -> str:
+    """What a ``stat`` mode that is not a regular file names: 'a FIFO', 'a directory' ..."""
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
