@@ -96,7 +96,7 @@ class PatchSource:
     def indices(self, label: int) -> np.ndarray:
         """Flat pixel indices of region ``label`` (increasing; empty if it has none)."""
         if self._regions is None:
-            from .fitstage import region_indices
+            from .fitting.region_fitter import region_indices
 
             self._regions = region_indices(self.labels)  # one counting sort for all regions
         return self._regions.get(int(label), np.empty(0, np.int64))

@@ -12,7 +12,7 @@ import numpy as np
 from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
-from .fitstage import RegionFitter, model_table
+from .fitting.region_fitter import RegionFitter, model_table
 from .refinement import recover_pixels, refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Result, Unfitted

@@ -5,7 +5,7 @@ regions per scan that Python overhead, not arithmetic, dominated the pipeline. T
 kernels do per-pixel work for every region at once: window planes, label-wise moments, quadric normal
 equations, growth of regions into the edge band, inlier counts and region adjacency.
 
-Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitstage.model_table`):
+Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitting.region_fitter.model_table`):
 ``kinds[k]`` is a kind of :mod:`.kinds` (0 no model, 1 plane ``(nx, ny, nz, d)``, 2 sphere
 ``(cx, cy, cz, r)``, 3 cylinder ``(ax, ay, az, px, py, pz, r)``) with its parameters in
 ``params[k]`` and its rms in ``rms[k]``.

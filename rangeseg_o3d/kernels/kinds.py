@@ -1,6 +1,6 @@
 """The one table of model kinds, shared by the compiled kernels and the Python code.
 
-A model table (see :func:`rangeseg_o3d.fitstage.model_table`) gives each label a kind and
+A model table (see :func:`rangeseg_o3d.fitting.region_fitter.model_table`) gives each label a kind and
 a row of ``PARAM_SLOTS`` parameters:
 
 =========  =====  ==========================================

@@ -1,4 +1,4 @@
-"""The two proposals of the trimmed fit (robust.trimmed_fit) in one compiled call."""
+"""The two proposals of the trimmed fit (fitting.robust.trimmed_fit) in one compiled call."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def _within_spread(dist, support, sigma, out):
 
 @njit(cache=True, nogil=True)
 def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
-    """The two proposals of ``robust.trimmed_fit``: points near its dominant plane and quadric.
+    """The two proposals of ``fitting.robust.trimmed_fit``: points near its dominant plane and quadric.
 
     Plane: the best of ``trials`` random three-point planes (most points within
     ``3 sigma``), refitted ``rounds`` times on the points within ``3 max(sigma, rms)``.

@@ -84,3 +84,24 @@ def test_from_ranges_equals_the_numpy_reference():
         OrganizedCloud.from_ranges(ranges[:, :10], beams, tilts)
     ints = OrganizedCloud.from_ranges(np.full((2, 3), 2, dtype=np.int16), beams[:3], tilts[:2])
     np.testing.assert_allclose(np.linalg.norm(ints.xyz, axis=2), 2.0)
+
+
+def test_crop_keeps_geometry_consistent():
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    scan = simulate_lms200(default_scene(), beam_start_deg=0, beam_stop_deg=180)
+    full = scan.cloud
+    crop = full.crop(cols=slice(25, 156))
+    assert crop.shape == (70, 131)
+    np.testing.assert_allclose(np.degrees(crop.geometry.beam_angles[[0, -1]]), [25, 155])
+    np.testing.assert_array_equal(crop.xyz, full.xyz[:, 25:156])
+    rebuilt = OrganizedCloud.from_ranges(crop.ranges, crop.geometry.beam_angles,
+                                            crop.geometry.tilt_angles,
+                                            mount_offset=crop.geometry.mount_offset)
+    np.testing.assert_allclose(rebuilt.xyz, crop.xyz, equal_nan=True)
+    with pytest.raises(ValueError, match="empty"):
+        full.crop(cols=slice(5, 5))
+    depth = OrganizedCloud.from_depth(np.full((4, 6), 1000.0), 100, 100, 3, 2, depth_scale=1e-3)
+    sub = depth.crop(rows=slice(1, 3), cols=slice(2, 5))
+    assert (sub.geometry.cx, sub.geometry.cy) == (1, 1)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.fitstage import model_table
+from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane, fit_sphere
 from rangeseg_o3d.fitting.classify import (
     fit_planes_batch,
@@ -14,7 +14,7 @@ from rangeseg_o3d.fitting.classify import (
 from rangeseg_o3d.fitting.primitives import FitFailure, Plane
 from rangeseg_o3d.fitting.batch_planes import planes_from_moments, quadric_gains, region_moments
 from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, group_by_label, grow_rings
-from rangeseg_o3d.refine import region_adjacency
+from rangeseg_o3d.refinement.merge import region_adjacency
 from rangeseg_o3d.residual import block_means as tile_means
 
 
@@ -231,7 +231,7 @@ def test_block_means_are_nan_aware_tile_means():
 
 
 def test_region_indices_group_pixels_by_label_in_order():
-    from rangeseg_o3d.fitstage import region_indices
+    from rangeseg_o3d.fitting.region_fitter import region_indices
 
     rng = np.random.default_rng(9)
     labels = rng.integers(0, 7, (13, 17)).astype(np.int32)

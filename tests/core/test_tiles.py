@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import rangeseg_o3d as rs
-from rangeseg_o3d.fitstage import model_table
+from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.kernels import assign_tiles
 

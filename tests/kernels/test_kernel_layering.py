@@ -51,7 +51,7 @@ def test_kernels_import_nothing_from_the_rest_of_the_package():
 
 
 def test_the_kinds_table_is_the_decisions_and_the_model_tables():
-    from rangeseg_o3d.fitstage import model_table
+    from rangeseg_o3d.fitting.region_fitter import model_table
     from rangeseg_o3d.fitting import Cylinder, Plane, Sphere
 
     assert [int(k) for k in kinds.ModelKind] == [kinds.NONE, kinds.PLANE, kinds.SPHERE, kinds.CYLINDER]

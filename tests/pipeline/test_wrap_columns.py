@@ -82,7 +82,7 @@ def test_wrap_columns_validates():
 
 
 def test_region_adjacency_across_the_seam():
-    from rangeseg_o3d.refine import region_adjacency
+    from rangeseg_o3d.refinement.merge import region_adjacency
 
     labels = np.zeros((4, 20), np.int32)
     labels[:, :3] = 1

@@ -46,7 +46,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     -------
     (model, inliers) or (None, None) when the fitter accepts nothing.
     """
-    from .kernels import trimmed_proposals
+    from ..kernels import trimmed_proposals
 
     all_pts = np.asarray(points, dtype=float)
     if len(all_pts) < max(min_points, 6):

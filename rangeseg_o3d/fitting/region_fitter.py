@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
-from .kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
+from .primitives import Cylinder, FitFailure, Plane, Sphere
+from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
 __all__ = ["RegionFitter", "region_indices", "model_table", "pixel_rms"]
 
@@ -37,7 +37,7 @@ def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
     """Flat pixel indices (increasing) of every positive label: one counting sort of the grid."""
-    from .kernels import group_by_label
+    from ..kernels import group_by_label
 
     flat = np.ascontiguousarray(labels.ravel())
     if flat.size == 0:
@@ -54,7 +54,7 @@ def pixel_rms(xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
     """``fits`` with each model's rms replaced by the rms distance of its region's pixels."""
     from dataclasses import replace
 
-    from .kernels import distance_stats
+    from ..kernels import distance_stats
 
     if not fits:
         return {}
@@ -115,7 +115,7 @@ class RegionFitter:
         """Label-wise moments when the plugin refits from them, else None."""
         if self.plugin.refit_moments is None:
             return None
-        from .fitting.batch_planes import region_moments
+        from .batch_planes import region_moments
 
         return region_moments(xyz_flat, labels.ravel())
 

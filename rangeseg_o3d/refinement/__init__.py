@@ -1,0 +1,105 @@
+"""The refinement: beyond the paper's Sec. 3.2, after the first fits.
+
+One module per step, in run order; each step is a function from ``(labels, fits)`` to new
+ones and is timed under ``refine.<step>`` in ``Result.timings``:
+
+1. :mod:`.split`: a region no model explains is split into all the surfaces it holds, one
+   after the other (least trimmed squares, largest connected piece); only what no surface
+   takes is freed (the paper's "local checks that remove under-segmentation").
+2. :mod:`.grow`: edge-band pixels go back to the neighbouring region whose surface explains
+   them (the paper's "re-add points left out by the edge band").
+3. :mod:`.recover`: compact blobs of unlabelled pixels (small curved objects that the edge
+   band swallowed whole) become regions when a model explains most of them, and take
+   back their rims. Running after ``grow``, it sees only what no neighbour explains.
+4. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
+   are merged (the paper's "merging of patches that belong to the same surface").
+5. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
+   that explain them.
+6. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
+   are refitted from moments whenever they change, which costs nothing).
+
+:func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
+:mod:`.context` holds what the steps share (points, noise, fitter, size floor).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..fitting.region_fitter import RegionFitter
+from ..sensor import Sensor
+from .context import Context
+from .dissolve import dissolve_small
+from .grow import grow_regions
+from .merge import merge_regions, region_adjacency
+from .polish import polish_models
+from .recover import recover_leftovers, recover_pixels
+from .split import split_regions
+
+__all__ = ["refine_regions", "recover_pixels"]
+
+
+class _Timer:
+    def __init__(self, timings: dict):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timings[f"refine.{name}"] = now - self.last
+        self.last = now
+
+
+def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor: Sensor,
+                   ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
+                   timings: dict):
+    """Run the refinement steps; returns the new ``(labels, fits)`` (the inputs are not changed).
+
+    Parameters
+    ----------
+    cloud : OrganizedCloud
+    labels : (H, W) int32 labels after segmentation.
+    fits : label -> model or FitFailure.
+    fitter : the pipeline's region fitter.
+    config : RefineConfig (``min_region_size`` and the jump test resolved at load).
+    sensor : the run's sensor.
+    ranges : (H, W) ranges, NaN where invalid (for the no-jump test of growth).
+    sigma : (H, W) range noise per pixel (``sensor.noise`` at ``ranges``).
+    jumps : (H, W) jump-edge mask from the segmenter, if it made one.
+    timings : dict receiving ``refine.<step>`` durations.
+    """
+    timer = _Timer(timings)
+    # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
+    tile = cloud.tile
+    min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
+    growth = dict(xyz=cloud.xyz, ranges=ranges, sigma=sigma, k_sigma=config.k_sigma,
+                  jump_ratio=config.jump_ratio * tile, jump_min=config.jump_min)
+    ctx = Context(cloud, fitter, sigma, min_size)
+
+    failed = [k for k, m in fits.items() if not m]
+    if failed:
+        labels, fits = split_regions(ctx, labels, fits, failed)
+    timer.lap("split")
+    labels, fits = grow_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
+    timer.lap("grow")
+    if config.recover_leftovers:
+        labels, fits = recover_leftovers(ctx, labels, fits, valid=cloud.valid,
+                                         jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
+                                         **growth)
+    timer.lap("recover")
+    adjacency = set()
+    if config.merge:
+        adjacency = region_adjacency(labels, wrap_columns=sensor.wrap_columns)
+        labels, fits, adjacency = merge_regions(
+            ctx, labels, fits, adjacency, max_angle_deg=config.merge_angle_deg,
+            tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
+            rms_factor=config.merge_rms_factor)
+    timer.lap("merge")
+    if config.merge:  # the merge's adjacency tells the small regions' neighbours
+        labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
+    timer.lap("dissolve")
+    fits = polish_models(ctx, labels, fits)
+    timer.lap("polish")
+    return labels, fits

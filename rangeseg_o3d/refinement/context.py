@@ -1,0 +1,80 @@
+"""What every refinement step needs (points, noise, the fitter, the size floor) and the
+connected-piece helpers that split and recover share."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..fitting.region_fitter import RegionFitter
+from ..fitting.robust import trimmed_fit
+
+__all__ = ["Context", "blob_patch", "touching"]
+
+
+def blob_patch(idx: np.ndarray, shape: tuple[int, int], margin: int):
+    """The flat pixels ``idx`` as a 0/1 uint8 patch of their bounding box grown by ``margin``
+    (clipped to ``shape``); returns ``(patch, (top, left), (rows, cols))``."""
+    rows, cols = np.divmod(idx, shape[1])
+    top, left = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    bottom, right = min(rows.max() + margin + 1, shape[0]), min(cols.max() + margin + 1, shape[1])
+    patch = np.zeros((bottom - top, right - left), np.uint8)
+    patch[rows - top, cols - left] = 1
+    return patch, (top, left), (rows, cols)
+
+
+def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
+    """The labels within ``reach`` pixels of the flat pixels ``idx`` (from a bounding-box patch)."""
+    blob, (top, left), _ = blob_patch(idx, labels.shape, reach)
+    patch = labels[top:top + blob.shape[0], left:left + blob.shape[1]]
+    near = cv2.dilate(blob, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+    return {int(k) for k in np.unique(patch[near]) if k > 0}
+
+
+class Context:
+    """What every refinement step needs: points, noise, the fitter, the size floor."""
+
+    def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int):
+        self.xyz = cloud.xyz.reshape(-1, 3)
+        self.sigma = sigma.ravel()
+        self.width = cloud.shape[1]
+        self.fitter = fitter
+        self.min_size = min_size
+
+    def largest_piece(self, idx: np.ndarray) -> np.ndarray:
+        """The largest 4-connected piece of the flat pixels ``idx`` (inliers can be
+        scattered over the grid)."""
+        from ..kernels import largest_piece
+
+        return largest_piece(np.ascontiguousarray(idx, dtype=np.int64), self.width)
+
+    def pieces(self, idx: np.ndarray) -> list[np.ndarray]:
+        """The 4-connected pieces of the flat pixels ``idx`` with at least ``min_size``
+        pixels, smallest first."""
+        if idx.size < self.min_size:
+            return []
+        patch, (top, left), (rows, cols) = blob_patch(idx, (idx.max() // self.width + 1, self.width), 0)
+        n, comp = cv2.connectedComponents(patch, connectivity=4, ltype=cv2.CV_32S)
+        ids = comp[rows - top, cols - left]
+        order = np.argsort(ids, kind="stable")
+        bounds = np.searchsorted(ids[order], np.arange(1, n + 1))
+        pieces = [idx[order[a:b]] for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= self.min_size]
+        return sorted(pieces, key=len)
+
+    def dominant_piece(self, pool: np.ndarray):
+        """The largest connected piece of the dominant surface of the flat pixels ``pool``
+        and its model, or ``(None, None)`` when no model explains ``min_size`` of them."""
+        if pool.size < self.min_size:
+            return None, None
+        noise = self.sigma[pool]
+        model, inliers = trimmed_fit(self.xyz[pool], self.fitter.fit,
+                                     sigma=float(np.partition(noise, noise.size // 2)[noise.size // 2]),
+                                     min_points=self.min_size)
+        if model is None:
+            return None, None
+        piece = self.largest_piece(pool[inliers])
+        if piece.size < self.min_size:
+            return None, None
+        if piece.size < 0.9 * inliers.sum():  # a piece was cut off: fit the piece itself
+            model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+        return (piece, model) if model else (None, None)

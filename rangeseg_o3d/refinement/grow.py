@@ -1,0 +1,91 @@
+"""Step 2, ``grow``: edge-band pixels go back to the neighbouring region whose surface explains them.
+
+The paper's own future work (Sec. 6, "re-add points left out by the edge band"). Closing
+and the 3x3 window leave a band of edge pixels around every region; small objects lose
+most of their pixels to it. Regions are grown back into that band, a ring of pixels at a
+time, wherever the region's fitted surface explains the pixel within the local noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..fitting.region_fitter import model_table, pixel_rms
+from .context import Context
+
+__all__ = ["grow_into_edges", "grow_regions", "refit_grown"]
+
+
+def grow_into_edges(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    models: dict,
+    sigma: np.ndarray,
+    ranges: np.ndarray,
+    *,
+    iterations: int = 3,
+    k_sigma: float = 3.0,
+    jump_ratio: float = 0.08,
+    jump_min: float = 0.05,
+) -> np.ndarray:
+    """Hand unlabelled valid pixels to the adjacent region whose model fits them best.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) points, NaN where invalid.
+    labels : (H, W) int labels, 0 = no region.
+    models : label -> fitted model (regions without a model do not grow).
+    sigma : (H, W) range noise per pixel, metres.
+    ranges : (H, W) ranges, for the no-jump test between a pixel and its neighbour.
+    iterations : rings of pixels to add at most.
+    k_sigma : accept a pixel within ``k_sigma * max(sigma, model.rms)`` of the surface.
+
+    Returns
+    -------
+    New (H, W) int32 labels.
+    """
+    from ..kernels import grow_rings
+
+    labels = np.array(labels, dtype=np.int32, order="C", copy=True)
+    n = int(labels.max(initial=0)) + 1
+    kinds, params, rms = model_table(models, n)
+    grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
+               np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+               np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+               int(iterations), float(k_sigma), float(jump_ratio), float(jump_min))
+    return labels
+
+
+def refit_grown(ctx: Context, labels: np.ndarray, grown: np.ndarray, fits: dict) -> dict:
+    """The models of ``fits`` after the regions of ``labels`` grew to ``grown``.
+
+    Regions that grew by more than 5 % are refitted where moments suffice (planes); a
+    refit must keep the kind. Other models keep their parameters until the ``polish``
+    step and take the rms of their grown pixels, which later steps compare.
+    """
+    fits = dict(fits)
+    before = np.bincount(labels.ravel(), minlength=grown.max(initial=0) + 1)
+    after = np.bincount(grown.ravel(), minlength=before.size)
+    changed = [int(k) for k in np.flatnonzero(after > 1.05 * np.maximum(before, 1)) if k > 0]
+    refits = ctx.fitter.refit_regions(ctx.xyz, grown, fits, changed, from_points=False)
+    for k, refit in refits.items():
+        if refit and refit.kind == fits[k].kind:
+            fits[k] = refit
+    stale = {k: fits[k] for k in changed if k not in refits and fits.get(k)}
+    fits.update(pixel_rms(ctx.xyz, grown, stale, ctx.sigma))
+    return fits
+
+
+def grow_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray, ranges: np.ndarray,
+                 sigma: np.ndarray, iterations: int, k_sigma: float, jump_ratio: float, jump_min: float):
+    """Grow every fitted region by up to ``iterations`` rings and refit; returns new ``(labels, fits)``.
+
+    ``xyz``, ``ranges`` and ``sigma`` are the (H, W) grids; see :func:`grow_into_edges`
+    for the acceptance test.
+    """
+    good = {k: m for k, m in fits.items() if m}
+    if not (iterations and good):
+        return labels, fits
+    grown = grow_into_edges(xyz, labels, good, sigma, ranges, iterations=iterations,
+                            k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
+    return grown, refit_grown(ctx, labels, grown, fits)

@@ -1,0 +1,211 @@
+"""Step 4, ``merge``: regions of one kind whose union one model explains as well as the parts are merged.
+
+The paper's "merging of patches that belong to the same surface" (Sec. 6). Candidates are
+pairs of adjacent regions of one kind, and with ``merge_disjoint`` regions apart whose
+parameters agree; cheap tests first (summed moments, the union's least-squares plane),
+the fitter decides.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..fitting.batch_planes import planes_from_moments
+from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+from ..fitting.region_fitter import region_indices
+from .context import Context
+
+__all__ = ["merge_regions", "merge_candidates", "region_adjacency", "similar_models"]
+
+# the merge's answer for a union of planes whose least-squares plane is over the merge limit
+_NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
+
+
+def _shifted(array: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
+    # out[i, j] = array[i + dy, j + dx], ``fill`` outside the grid.
+    out = np.full_like(array, fill)
+    h, w = array.shape[:2]
+    ys, yd = (slice(dy, h), slice(0, h - dy)) if dy >= 0 else (slice(0, h + dy), slice(-dy, h))
+    xs, xd = (slice(dx, w), slice(0, w - dx)) if dx >= 0 else (slice(0, w + dx), slice(-dx, w))
+    out[yd, xd] = array[ys, xs]
+    return out
+
+
+def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool = False) -> set[tuple[int, int]]:
+    """Pairs (a < b) of regions whose pixels come within ``reach`` pixels of each other.
+
+    With ``wrap_columns`` (a 360-degree grid) the first and last columns are neighbours too.
+    """
+    if wrap_columns and labels.shape[1] > 2 * reach:
+        # the seam's strip: the last ``reach`` columns, then the first ``reach``
+        seam = np.concatenate([labels[:, -reach:], labels[:, :reach]], axis=1)
+        return region_adjacency(labels, reach=reach) | region_adjacency(seam, reach=reach)
+    n = int(labels.max(initial=0)) + 1
+    if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
+        from ..kernels import adjacency_matrix
+
+        a, b = np.nonzero(np.triu(adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)))
+        return set(zip(a.tolist(), b.tolist()))
+    pairs = set()
+    for dy in range(-reach, reach + 1):
+        for dx in range(0, reach + 1):
+            if (dx == 0 and dy <= 0):
+                continue
+            other = _shifted(labels, dy, dx, 0)
+            touch = (labels > 0) & (other > 0) & (labels != other)
+            if touch.any():
+                a, b = labels[touch], other[touch]
+                codes = np.unique(np.minimum(a, b).astype(np.int64) << 32 | np.maximum(a, b))
+                pairs.update((int(c >> 32), int(c & 0xFFFFFFFF)) for c in codes)
+    return pairs
+
+
+def _angle_deg(u: np.ndarray, v: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(abs(float(u @ v)), 0.0, 1.0))))
+
+
+def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
+    """Cheap pre-test: could ``a`` and ``b`` be the same surface (before fitting the union)?"""
+    if a.kind != b.kind:
+        return False
+    if isinstance(a, Plane):
+        sign = 1.0 if float(a.normal @ b.normal) >= 0 else -1.0
+        return (_angle_deg(a.normal, b.normal) <= max_angle_deg
+                and abs(a.d - sign * b.d) <= tolerance)
+    # the radius test first: two numbers, and it rejects most pairs
+    if isinstance(a, Cylinder):
+        if abs(a.radius - b.radius) > tolerance or _angle_deg(a.axis, b.axis) > max_angle_deg:
+            return False
+        rel = b.point - a.point
+        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= tolerance)
+    if isinstance(a, Sphere):
+        return abs(a.radius - b.radius) <= tolerance and bool(np.linalg.norm(a.center - b.center) <= tolerance)
+    return False
+
+
+def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
+                     adjacency: set[tuple[int, int]], disjoint: bool = True) -> list[tuple[int, int]]:
+    """Pairs of labels worth a union fit, cheapest first (by the parts' rms sum).
+
+    Adjacent regions of one kind are always candidates: two pieces of one small cylinder
+    can disagree on their axes more than any parameter test would allow, and the union
+    fit decides. Regions that do not touch are candidates only with ``disjoint`` and when
+    :func:`similar_models` says their parameters agree.
+    """
+    keys = sorted(models)
+    out = []
+    planes = [k for k in keys if isinstance(models[k], Plane)]
+    if len(planes) > 1:
+        # planes: every pair's parameter test at once
+        normals = np.array([models[k].normal for k in planes])
+        offsets = np.array([models[k].d for k in planes])
+        dots = normals @ normals.T
+        sign = np.where(dots >= 0, 1.0, -1.0)
+        close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
+        close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
+        wanted = close if disjoint else np.zeros_like(close)
+        position = {k: i for i, k in enumerate(planes)}
+        for a, b in adjacency:
+            if a in position and b in position:
+                wanted[position[a], position[b]] = True
+        first, second = np.nonzero(np.triu(wanted, 1))
+        out.extend((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist()))
+    others = [k for k in keys if not isinstance(models[k], Plane)]
+    for i, a in enumerate(others):
+        for b in others[i + 1:]:
+            if models[a].kind != models[b].kind:
+                continue
+            if (a, b) in adjacency or (disjoint and similar_models(
+                    models[a], models[b], max_angle_deg=max_angle_deg, tolerance=tolerance)):
+                out.append((a, b))
+    out.sort(key=lambda ab: (models[ab[0]].rms + models[ab[1]].rms, ab))
+    return out
+
+
+def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
+                  max_angle_deg: float, tolerance: float, disjoint: bool, rms_factor: float,
+                  only: set | None = None):
+    """Merge same-kind regions whose union one model explains (union-find over candidates).
+
+    A union is accepted when its model keeps the kind and its rms is at most
+    ``rms_factor`` times the larger of the parts'. Planes are tried from summed label-wise
+    moments (no point is touched); other kinds refit the union's points. With ``only``,
+    just pairs involving those labels. Returns new ``(labels, fits, adjacency)``: merged
+    regions touch whatever their parts touched.
+    """
+    fits = dict(fits)
+    good = {k: m for k, m in fits.items() if m}
+    pairs = merge_candidates(good, max_angle_deg=max_angle_deg, tolerance=tolerance,
+                             adjacency=adjacency, disjoint=disjoint)
+    if only is not None:
+        pairs = [(a, b) for a, b in pairs if a in only or b in only]
+    if not pairs:
+        return labels, fits, adjacency
+    moments = ctx.fitter.moments(ctx.xyz, labels)
+    root = {k: k for k in fits}
+
+    def find(k):
+        while root[k] != k:
+            k = root[k]
+        return k
+
+    cache: dict = {}
+
+    def add_unions(rest):
+        # The unions of the remaining pairs of current roots not yet known, from summed
+        # moments in one call; None where the kind needs its points (or no moments).
+        keys = []
+        for a, b in rest:
+            key = (find(a), find(b))
+            if key[0] != key[1] and key not in cache and fits.get(key[0]) and fits.get(key[1]):
+                keys.append(key)
+        if moments is None or not keys:
+            cache.update(dict.fromkeys(keys))
+            return
+        a_idx, b_idx = np.array(keys).T
+        rows = moments[a_idx] + moments[b_idx]
+        # No plane fits a union better than its least-squares plane: where that is over
+        # the merge limit, the refit (and its model) is not needed. Most adjacent planes
+        # meet at creases and end here.
+        planar = np.array([isinstance(fits[a], Plane) and isinstance(fits[b], Plane) for a, b in keys])
+        if planar.any():
+            limits = rms_factor * np.maximum([fits[a].rms for a, _ in keys],
+                                             [fits[b].rms for _, b in keys])
+            hopeless = planar & (planes_from_moments(rows).rms > limits)
+            cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
+            keys = [key for key, no in zip(keys, hopeless.tolist()) if not no]
+            rows = rows[~hopeless]
+        if keys:
+            cache.update(zip(keys, ctx.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
+
+    add_unions(pairs)
+    regions = None
+    for i, (a, b) in enumerate(pairs):
+        ra, rb = find(a), find(b)
+        if ra == rb or not fits[ra] or not fits[rb]:
+            continue
+        if (ra, rb) not in cache:  # a part merged since: its pairs' unions are new
+            add_unions(pairs[i:])
+        union = cache.get((ra, rb))
+        if union is None:
+            if regions is None:
+                regions = region_indices(labels)
+            union_idx = np.concatenate([regions[ra], regions[rb]])
+            union = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, union_idx), fits[ra])
+        limit = rms_factor * max(fits[ra].rms, fits[rb].rms)
+        if union and union.kind == fits[ra].kind and union.rms <= limit:
+            root[rb] = ra
+            fits[ra] = union
+            fits.pop(rb)
+            for key in [key for key in cache if ra in key or rb in key]:
+                del cache[key]
+            if moments is not None:
+                moments[ra] += moments[rb]
+            if regions is not None:
+                regions[ra] = np.concatenate([regions[ra], regions.pop(rb)])
+    lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
+    for k in root:
+        lut[k] = find(k)
+    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+    adjacency = {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    return lut[labels], fits, adjacency

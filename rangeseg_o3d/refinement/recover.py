@@ -1,0 +1,165 @@
+"""Step 3, ``recover``: compact blobs of unlabelled pixels become regions when a model explains most of them.
+
+Small curved objects far away have a residual above the threshold everywhere, so no
+region seeds them and growth cannot reach them: the edge band swallows them whole. Runs
+after ``grow``, so only what no neighbour explains is left over; recovered blobs then take
+back their rims (two rings of growth, timed with this step).
+
+:func:`recover_pixels` is the same step at full resolution after a run on tile means.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..fitting.region_fitter import model_table, region_indices
+from .context import Context, touching
+from .grow import grow_into_edges, grow_regions
+from .merge import merge_regions
+
+__all__ = ["leftover_candidates", "explain_blobs", "recover_leftovers", "recover_pixels"]
+
+
+def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
+                        min_size: int, first_label: int) -> np.ndarray:
+    """Compact blobs of valid, unlabelled, non-jump pixels: regions the edge band swallowed whole.
+
+    Small curved objects far away have a residual above the threshold everywhere, so no
+    region seeds them and growth cannot reach them. The leftover pixels form a network of
+    thin crease bands with such blobs attached; one 3x3 erosion cuts the bands, the
+    surviving cores are flood-filled, then dilated back by one pixel within the leftover.
+
+    Returns
+    -------
+    (H, W) int32 candidate labels numbered from ``first_label`` (0 elsewhere); each must
+    still be accepted by a fit.
+    """
+    free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
+    # The grid border is no edge: a surface seen only by the first rows must keep its core.
+    cores = cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE)
+    n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S)
+    if n <= 1:
+        return np.zeros(labels.shape, np.int32)
+    grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
+    # Dilation takes the larger id where two cores meet; only leftover pixels may join.
+    comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
+    sizes = np.bincount(comp.ravel(), minlength=n)
+    keep = sizes >= min_size
+    keep[0] = False
+    lut = np.zeros(n, np.int32)
+    lut[keep] = np.arange(first_label, first_label + int(keep.sum()), dtype=np.int32)
+    return lut[comp]
+
+
+def explain_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
+                  min_share: float):
+    """Give each candidate blob the model most of it lies on; free the other pixels.
+
+    ``candidates`` numbers the blobs (0 elsewhere). Blobs nothing explains, or whose
+    explained share is below ``min_share``, are dropped. Returns new ``(labels, fits)``.
+    """
+    labels, fits = labels.copy(), dict(fits)
+    flat = labels.ravel()
+    regions = region_indices(candidates)
+    # One batched pass settles the candidates that are planes outright.
+    settled = ctx.fitter.fit_batch(ctx.xyz, candidates) if regions else {}
+    for k, idx in regions.items():
+        flat[idx] = 0
+        fits.pop(k, None)
+        # A blob that is one plane needs no trimming (settled in the batch); for the
+        # others the trimmed fit's first answer is the plain fit's when it is clean.
+        plain = settled.get(k)
+        near = None
+        if plain:
+            near = np.abs(plain.distances(ctx.xyz[idx])) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
+        if near is not None and near.mean() >= 0.9:
+            chosen, model = ctx.largest_piece(idx[near]), plain
+            if chosen.size < 0.9 * near.sum():  # a piece was cut off: fit the piece itself
+                model = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, chosen), plain)
+        else:
+            chosen, model = ctx.dominant_piece(idx)
+        if chosen is not None and model and chosen.size >= max(ctx.min_size, min_share * idx.size):
+            flat[chosen] = k
+            fits[k] = model
+    return labels, fits
+
+
+def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
+                      valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
+                      k_sigma: float, jump_ratio: float, jump_min: float):
+    """Turn the compact leftover blobs a model explains into regions; returns new ``(labels, fits)``.
+
+    ``valid`` and ``jumps`` are (H, W) masks (no blob crosses a jump edge); ``xyz``,
+    ``ranges`` and ``sigma`` the grids the rims grow on (see
+    :func:`rangeseg_o3d.refinement.grow.grow_into_edges`).
+    """
+    first = int(labels.max(initial=0)) + 1
+    candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
+    # A blob at a junction of surfaces can pass for a small curved patch; a real
+    # swallowed object makes up most of its blob.
+    labels, fits = explain_blobs(ctx, labels, fits, candidates, min_share=0.7)
+    if labels.max(initial=0) >= first:  # recovered blobs take back their rims
+        labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
+                                    k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
+    return labels, fits
+
+
+def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
+                   sigma: np.ndarray, tile: int):
+    """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles see.
+
+    A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
+    tiles, so the tile grid's 3x3 window always straddles it, and the tile models leave
+    its pixels unlabelled. Those leftovers are cut into compact blobs and fitted as in the
+    ``recover`` step (a blob must be mostly one surface). At such angles every pixel step
+    is a depth jump by the range test, so neither the blobs nor the 2-pixel rim their
+    regions take back are limited by it: the model distance decides.
+    """
+    # Twice the smallest region: a piece of a surface the tiles already have, left over
+    # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
+    # could not see at all is not.
+    min_size = 2 * max(int(config.min_region_size), 10)
+    first = int(labels.max(initial=0)) + 1
+    candidates = leftover_candidates(labels, cloud.valid, np.zeros(labels.shape, bool),
+                                     min_size=min_size, first_label=first)
+    # Only what the tile grid could not see: blobs thinner than its 3x3 window (three
+    # tiles). Thicker ones were leftovers of the tile grid too, and its own recovery has
+    # had its say on them.
+    inside = cv2.distanceTransform((candidates > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    half_width = np.zeros(int(candidates.max(initial=0)) + 1, np.float32)
+    np.maximum.at(half_width, candidates.ravel(), inside.ravel())
+    candidates = np.where(half_width[candidates] < 1.5 * tile, candidates, 0)
+    if not candidates.any():
+        return labels, fits
+    ctx = Context(cloud, fitter, sigma, min_size)
+    labels, fits = explain_blobs(ctx, labels, fits, candidates, min_share=0.7)
+    new = {k: m for k, m in fits.items() if k >= first and m}
+    if new:
+        from ..kernels import claim_rings, member_pixels
+
+        labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=2,
+                                 k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf)
+        # the tile models took what they could explain before these regions existed
+        n = int(labels.max(initial=0)) + 1
+        kinds, params, rms = model_table(fits, n)
+        challengers = np.zeros(n, bool)
+        challengers[list(new)] = True
+        rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
+        iterations = 3  # the box grows by the rings the challengers may take
+        box = (rows.min() - iterations, rows.max() + iterations + 1,
+               cols.min() - iterations, cols.max() + iterations + 1)
+        claim_rings(np.ascontiguousarray(cloud.xyz.reshape(-1, 3)), labels, kinds, params, rms,
+                    np.ascontiguousarray(sigma).ravel(), challengers, iterations, float(config.k_sigma),
+                    np.array(box, np.int64))
+        if config.merge:  # a recovered piece of a surface the tile grid already has
+            claimed = member_pixels(labels, challengers)
+            owner = labels.ravel()[claimed]
+            regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
+            near = {(min(k, j), max(k, j)) for k, idx in regions.items()
+                    for j in touching(labels, idx, reach=2) if j != k}
+            labels, fits, _ = merge_regions(ctx, labels, fits, near, max_angle_deg=config.merge_angle_deg,
+                                            tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
+                                            rms_factor=config.merge_rms_factor, only=set(new))
+    return labels, fits
