@@ -55,7 +55,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     pts = np.ascontiguousarray(all_pts[::step])
     keep = max(int(keep_fraction * len(pts)), 6)
     proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
-    best, best_mask = None, None
+    best, best_mask, best_score = None, None, -1
     # the proposal near more points first: often the only one judged
     for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
         if near.sum() * step < min_points:
@@ -63,9 +63,13 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         judged = judge(pts[near])
         if not judged:
             continue
-        inliers = np.abs(judged.distances(all_pts)) <= 3.0 * max(sigma, judged.rms)
-        if inliers.sum() >= min_points and (best_mask is None or inliers.sum() > best_mask.sum()):
-            best, best_mask = judged, inliers
-            if inliers.mean() >= enough:
+        distances = np.abs(judged.distances(all_pts))
+        inliers = distances <= 3.0 * max(sigma, judged.rms)
+        # Candidates are compared within one tolerance: with each model's own, a worse
+        # fit (a cylinder bent over the crease of two planes) would win by its larger rms.
+        score = int(np.count_nonzero(distances <= 3.0 * sigma))
+        if inliers.sum() >= min_points and score > best_score:
+            best, best_mask, best_score = judged, inliers, score
+            if score >= enough * len(all_pts):
                 break
     return best, best_mask
