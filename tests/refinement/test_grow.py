@@ -2,8 +2,10 @@
 
 import numpy as np
 
+import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.refinement.grow import grow_into_edges
+from rangeseg_o3d.refinement.grow import grow_into_edges, grow_regions
+from refinement_helpers import plane_grid
 
 
 def _flat_grid(h=12, w=16, z=2.0):
@@ -35,3 +37,33 @@ def test_grow_does_not_cross_jumps_or_take_far_points():
     grown = grow_into_edges(xyz, labels, models, np.full((12, 16), 0.002), xyz[..., 2],
                             iterations=10)
     assert (grown[:, :8] == 1).all() and (grown[:, 8:] == 0).all()
+
+
+def test_grow_regions_grows_then_refits_the_planes_that_grew(context):
+    xyz = plane_grid(20, 30, slope=0.3, noise=0.002, seed=3)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.zeros(cloud.shape, np.int32)
+    labels[:, :12] = 1  # a third of the plane; the rest is an edge band to grow into
+    first = fit_plane(xyz[:, :12].reshape(-1, 3))
+    ctx = context(cloud, sigma=np.full(cloud.shape, 0.002))
+    grown, fits = grow_regions(ctx, labels, {1: first}, xyz=xyz, ranges=cloud.range_image(),
+                               sigma=np.full(cloud.shape, 0.002), iterations=30, k_sigma=3.0,
+                               jump_ratio=0.08, jump_min=0.05)
+    assert (labels[:, 12:] == 0).all()  # the input is left alone
+    assert (grown > 0).mean() > 0.97
+    # refitted on the grown region: the plane of all its pixels, not the first third's
+    refit = fit_plane(xyz[grown == 1])
+    assert fits[1] != first
+    np.testing.assert_allclose(fits[1].normal, refit.normal, atol=1e-9)
+    assert abs(fits[1].d - refit.d) < 1e-9
+
+
+def test_grow_regions_without_iterations_changes_nothing(context):
+    xyz = plane_grid(10, 10)
+    labels = np.zeros((10, 10), np.int32)
+    labels[:, :5] = 1
+    fits = {1: fit_plane(xyz[:, :5].reshape(-1, 3))}
+    out = grow_regions(context(rs.OrganizedCloud(xyz)), labels, fits, xyz=xyz, ranges=xyz[..., 2],
+                       sigma=np.full((10, 10), 0.002), iterations=0, k_sigma=3.0, jump_ratio=0.08,
+                       jump_min=0.05)
+    assert out[0] is labels and out[1] is fits

@@ -2,7 +2,10 @@
 
 import numpy as np
 
-from rangeseg_o3d.refinement.recover import leftover_candidates
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting import fit_plane
+from rangeseg_o3d.refinement.recover import explain_blobs, leftover_candidates, recover_leftovers
+from refinement_helpers import plane_grid
 
 
 def test_leftover_candidates_cut_thin_bands_and_keep_blobs():
@@ -27,3 +30,48 @@ def test_leftover_candidates_keep_strips_along_the_grid_border():
     cand = leftover_candidates(labels, valid, np.zeros_like(valid), min_size=20, first_label=3)
     assert (cand[0:2, 11:49] == 3).all()
     assert not cand[9:11].any()
+
+
+def _board_in_front_of_a_wall():
+    # a wall at z = 3 and a 16 x 16 pixel board tilted in front of it; the wall's region
+    # stops a pixel short of the board (the edge band), the board has no region
+    xyz = plane_grid(40, 60, z=3.0, noise=0.001, seed=5)
+    board = (slice(12, 28), slice(36, 52))
+    xyz[board + (2,)] = 2.5 + 0.3 * xyz[board + (0,)]
+    labels = np.ones((40, 60), np.int32)
+    labels[11:29, 35:53] = 0
+    return xyz, board, labels
+
+
+def test_explain_blobs_keeps_what_a_model_explains_and_drops_the_rest(context):
+    xyz, board, _ = _board_in_front_of_a_wall()
+    rng = np.random.default_rng(0)
+    xyz[2:10, 2:10, 2] = 3.0 + rng.uniform(-0.3, 0.3, (8, 8))  # a blob of pure noise
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.zeros((40, 60), np.int32)
+    candidates = np.zeros((40, 60), np.int32)
+    candidates[board] = 7
+    candidates[2:10, 2:10] = 8
+    out, fits = explain_blobs(context(cloud, sigma=np.full((40, 60), 0.001)), labels, {}, candidates,
+                              min_share=0.7)
+    assert not labels.any()  # the input is left alone
+    assert set(fits) == {7} and fits[7].kind == "plane"
+    np.testing.assert_allclose(np.abs(fits[7].normal), np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0),
+                               atol=0.01)
+    assert (out[board] == 7).mean() > 0.95 and not out[2:10, 2:10].any()
+
+
+def test_recover_leftovers_turns_a_swallowed_board_into_a_region(context):
+    xyz, board, labels = _board_in_front_of_a_wall()
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full((40, 60), 0.001)
+    wall = fit_plane(xyz[labels == 1])
+    out, fits = recover_leftovers(context(cloud, sigma=sigma), labels, {1: wall}, xyz=xyz, valid=cloud.valid,
+                                  jumps=np.zeros((40, 60), bool), ranges=cloud.range_image(), sigma=sigma,
+                                  k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    assert (labels[11:29, 35:53] == 0).all()  # the input is left alone
+    new = [k for k in fits if k != 1]
+    assert len(new) == 1 and fits[new[0]].kind == "plane"
+    assert (out[board] == new[0]).mean() > 0.95
+    # the wall's pixels stay the wall's, and the wall takes back its side of the band
+    assert (out[labels == 1] == 1).all() and (out[11:29, 35:53] > 0).mean() > 0.95

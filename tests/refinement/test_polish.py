@@ -1,0 +1,39 @@
+"""The polish step on its own: spheres and cylinders refitted on their final pixels."""
+
+import numpy as np
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting import fit_plane, fit_sphere
+from rangeseg_o3d.refinement.polish import polish_models
+
+
+def _ball_beside_a_wall():
+    # the near cap of a ball of radius 0.5 m centred 3 m away (label 1) beside a wall (label 2)
+    v, u = np.mgrid[0:30, 0:40].astype(float)
+    x, y = (u - 15) * 0.02, (v - 15) * 0.02
+    rng = np.random.default_rng(6)
+    z = np.where(u < 30, 3.0 - np.sqrt(np.clip(0.25 - x ** 2 - y ** 2, 0, None)), 3.0)
+    xyz = np.dstack([x, y, z + rng.normal(0.0, 0.001, z.shape)])
+    labels = np.where(u < 30, 1, 2).astype(np.int32)
+    return xyz, labels
+
+
+def test_a_sphere_fitted_on_part_of_its_region_is_refitted_on_all_of_it(context):
+    xyz, labels = _ball_beside_a_wall()
+    part = fit_sphere(xyz[:10, :10].reshape(-1, 3))  # a corner of the cap: 100 of 900 pixels
+    wall = fit_plane(xyz[labels == 2])
+    fits = {1: part, 2: wall}
+    polished = polish_models(context(rs.OrganizedCloud(xyz)), labels, fits)
+    assert fits[1] is part  # the input is left alone
+    assert polished[2] is wall  # planes are not polished
+    assert polished[1].kind == "sphere" and polished[1].inliers == (labels == 1).sum()
+    # all 900 pixels pin the ball down better than a corner of it (noise 1 mm)
+    assert abs(polished[1].radius - 0.5) < 0.5 * abs(part.radius - 0.5)
+    assert np.linalg.norm(polished[1].center - [0, 0, 3]) < 0.5 * np.linalg.norm(part.center - [0, 0, 3])
+
+
+def test_a_sphere_that_kept_its_points_is_not_refitted(context):
+    xyz, labels = _ball_beside_a_wall()
+    whole = fit_sphere(xyz[labels == 1])
+    polished = polish_models(context(rs.OrganizedCloud(xyz)), labels, {1: whole})
+    assert polished[1] is whole

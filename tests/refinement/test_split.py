@@ -1,0 +1,47 @@
+"""The split step on its own: a region no model explains comes back as all its surfaces."""
+
+import numpy as np
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting.primitives import FitFailure
+from rangeseg_o3d.refinement.split import split_regions
+from refinement_helpers import best_overlap, folded_strip
+
+
+def test_a_region_of_three_planes_is_split_into_three(context):
+    xyz, truth, normals = folded_strip(noise=0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.ones(cloud.shape, np.int32)
+    fits = {1: FitFailure("plane", "rms over the limit")}
+    out_labels, out_fits = split_regions(context(cloud, min_size=10), labels, fits, [1])
+    # the inputs are left alone
+    assert (labels == 1).all() and list(fits) == [1] and not fits[1]
+    found = set()
+    for k in (1, 2, 3):
+        best, share = best_overlap(out_labels, truth, k)
+        assert best > 0 and share >= 0.9
+        assert (truth[out_labels == best] == k).mean() >= 0.9
+        model = out_fits[best]
+        assert model.kind == "plane" and abs(float(model.normal @ normals[k])) >= np.cos(np.radians(1.0))
+        found.add(best)
+    # the first surface keeps the region's label, the others are numbered after the largest
+    assert found == {1, 2, 3}
+
+
+def test_regions_not_named_failed_are_untouched(context):
+    xyz, truth, _ = folded_strip(noise=0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = truth.astype(np.int32)
+    fits = {1: FitFailure("plane", "pretend"), 2: FitFailure("plane", "pretend"), 3: FitFailure("plane", "x")}
+    out_labels, out_fits = split_regions(context(cloud), labels, fits, [2])
+    assert (out_labels[truth != 2] == truth[truth != 2]).all()
+    assert not out_fits[1] and not out_fits[3] and out_fits[2].kind == "plane"
+
+
+def test_a_region_of_pure_noise_keeps_its_failure(context):
+    rng = np.random.default_rng(1)
+    v, u = np.mgrid[0:30, 0:30].astype(float)
+    cloud = rs.OrganizedCloud(np.dstack([u * 0.02, v * 0.02, 3.0 + rng.uniform(-0.3, 0.3, u.shape)]))
+    failure = FitFailure("plane", "rms over the limit")
+    labels, fits = split_regions(context(cloud), np.ones(cloud.shape, np.int32), {1: failure}, [1])
+    assert fits == {1: failure} and (labels == 1).all()
