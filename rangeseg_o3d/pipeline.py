@@ -1,4 +1,4 @@
-"""Pipeline: OrganizedCloud -> segmentation -> per-region fits -> refinement -> Result."""
+"""Pipeline: OrganizedCloud -> segment -> fit -> refine -> full resolution (tiled presets) -> Result."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from .config import PipelineConfig, load_config
 from .fitting.region_fitter import RegionFitter, model_table
 from .refinement import recover_pixels, refine_regions
 from .patches import PatchSource
-from .result import INLIER_SIGMAS, Feature, Result, Unfitted
+from .registry import Segmentation
+from .result import INLIER_SIGMAS, Feature, Regions, Result, Unfitted
 from .sensor import Sensor, check_plausible
 
 __all__ = ["Pipeline", "warm_up"]
@@ -26,6 +27,19 @@ def _expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
     return np.repeat(np.repeat(image, tile, axis=0), tile, axis=1)[: shape[0], : shape[1]]
 
 log = logging.getLogger(__name__)
+
+
+class _Clock:
+    """Seconds per stage, each lap from the end of the previous one (``start`` at creation)."""
+
+    def __init__(self):
+        self.timings: dict[str, float] = {}
+        self.start = self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timings[name] = now - self.last
+        self.last = now
 
 
 def _takes_sensor(run) -> bool:
@@ -90,15 +104,41 @@ class Pipeline:
             which also warns when no window looks planar), or the segmenter returned
             malformed labels.
         """
+        self._check(cloud)
+        clock = _Clock()
+        work = cloud.tile_means(self.config.tile) if self.config.tile > 1 else cloud
+        segmentation = self._segment(work)
+        clock.timings.update(segmentation.timings)
+        clock.lap("segment")
+        labels = segmentation.labels
+        regions = Regions(labels, self.fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
+        clock.lap("fit")
+        regions, sigma = self._refine(work, regions, segmentation.stages.get("jumps"), clock.timings)
+        clock.lap("refine")
+        stages = segmentation.stages
+        if work is not cloud:
+            labels, fits, sigma = self._full_resolution(cloud, regions.labels, regions.models)
+            regions = Regions(labels, fits)
+            stages = {k: _expand(v, self.config.tile, cloud.shape) for k, v in stages.items()}
+            clock.lap("full_resolution")
+        result = self._assemble(regions, sigma, cloud.xyz, clock, stages, pixel_rms=work is not cloud)
+        if recording is not None:
+            from .viz.rerun_log import log_scan
+
+            log_scan(recording, cloud, result, scan_index=scan_index, light=light_log)
+        return result
+
+    def _check(self, cloud) -> None:
+        # what run refuses before any work: see its Raises
         if not isinstance(cloud, OrganizedCloud):
             raise TypeError(f"cloud must be an OrganizedCloud; got {type(cloud).__name__}")
         if cloud.n_valid == 0:
             raise ValueError(
                 f"cloud has no valid point (all {cloud.shape[0]}x{cloud.shape[1]} are NaN)")
         check_plausible(cloud, self.sensor, name=f"preset {self.config.name!r}")
-        timings: dict[str, float] = {}
-        t_start = time.perf_counter()
-        work = cloud.tile_means(self.config.tile) if self.config.tile > 1 else cloud
+
+    def _segment(self, work: OrganizedCloud) -> Segmentation:
+        """The segmenter's answer on ``work``, its labels checked and zero on invalid pixels."""
         if work.n_valid == 0:
             raise ValueError(f"no {self.config.tile}x{self.config.tile} tile of the cloud has "
                              "at least half of its pixels valid; use a smaller tile")
@@ -109,38 +149,17 @@ class Pipeline:
                 f"segmenter {self.segmenter.name!r} returned labels of shape {labels.shape} and "
                 f"dtype {labels.dtype}; expected integer labels of shape {work.shape}"
             )
-        labels = np.where(work.valid, labels, 0).astype(np.int32)
-        timings.update(seg.timings)
-        t_seg = time.perf_counter()
-        timings["segment"] = t_seg - t_start
+        return Segmentation(np.where(work.valid, labels, 0).astype(np.int32), seg.stages, seg.timings)
 
-        xyz_flat = work.xyz.reshape(-1, 3)
-        fits = self.fitter.fit_regions(xyz_flat, labels)
-        t_fit = time.perf_counter()
-        timings["fit"] = t_fit - t_seg
-
+    def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict):
+        """The refined regions (``regions`` when refinement is off) and the noise per pixel of ``work``."""
         ranges = np.where(work.valid, work.range_image(), np.nan)
         sigma = self.sensor.noise.sigma(ranges, work.samples)
         if self.config.refine.enabled:
-            labels, fits = refine_regions(
-                work, labels, fits, fitter=self.fitter, config=self.config.refine,
-                sensor=self.sensor, ranges=ranges, sigma=sigma,
-                jumps=seg.stages.get("jumps"), timings=timings)
-        t_refine = time.perf_counter()
-        timings["refine"] = t_refine - t_fit
-
-        stages = seg.stages
-        if work is not cloud:
-            labels, fits, sigma = self._full_resolution(cloud, labels, fits)
-            stages = {k: _expand(v, self.config.tile, cloud.shape) for k, v in stages.items()}
-            timings["full_resolution"] = time.perf_counter() - t_refine
-        result = self._assemble(labels, fits, sigma, cloud.xyz, timings, stages, t_start,
-                                pixel_rms=work is not cloud)
-        if recording is not None:
-            from .viz.rerun_log import log_scan
-
-            log_scan(recording, cloud, result, scan_index=scan_index, light=light_log)
-        return result
+            regions = refine_regions(work, regions, fitter=self.fitter, config=self.config.refine,
+                                     sensor=self.sensor, ranges=ranges, sigma=sigma, jumps=jumps,
+                                     timings=timings)
+        return regions, sigma
 
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict):
         """Label every pixel by the models of its tile's region and the 8 around it.
@@ -167,45 +186,58 @@ class Pipeline:
         return labels, fits, sigma
 
     @staticmethod
-    def _assemble(labels, fits, sigma, xyz, timings, stages, t_start, pixel_rms=False) -> Result:
-        # Number the regions that have a fit (or a reported failure) 1..n, in label order.
-        xyz_flat = xyz.reshape(-1, 3)
-        pixels = np.bincount(labels.ravel())
-        kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in fits]
-        lut = np.zeros(len(pixels), dtype=np.int32)
-        lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
-        labels = lut[labels]
-        from .kernels import distance_stats
+    def _assemble(regions: Regions, sigma, xyz, clock: _Clock, stages, pixel_rms=False) -> Result:
+        # Regions with a fit (or a reported failure) numbered 1..n, in label order.
+        regions, sizes = _renumber(regions)
+        features, unfitted = _features(regions, sizes, sigma, xyz, pixel_rms=pixel_rms)
+        clock.timings["total"] = time.perf_counter() - clock.start
+        return Result(labels=regions.labels, features=features, unfitted=unfitted,
+                      timings=clock.timings, stages=dict(stages))
 
-        sizes = np.zeros(len(kept) + 1, np.int64)
-        sizes[1:] = pixels[kept]
-        renumbered = {new: fits[old] for new, old in enumerate(kept, start=1)}
-        kinds, params, rms = model_table(renumbered, len(kept) + 1)
-        # Inliers over the whole region (fits may have used a subsample): pixels within
-        # INLIER_SIGMAS sensor noise sigmas of the surface (a zero rms leaves sigma alone).
-        inliers, squares, counts = distance_stats(
-            xyz_flat, labels.ravel(), kinds, params, np.zeros_like(rms),
-            np.ascontiguousarray(sigma, dtype=np.float64).ravel(), INLIER_SIGMAS)
-        source = PatchSource(xyz, labels)  # patch geometry is computed on demand from it
-        features, unfitted = [], []
-        for new, model in renumbered.items():
-            if model:
-                if kinds[new] == 0:  # a third-party model type: count with its own distances
-                    idx = np.flatnonzero(labels.ravel() == new)
-                    tol = INLIER_SIGMAS * sigma.ravel()[idx]
-                    inliers[new] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
-                model = replace(model, inliers=int(inliers[new]))
-                if pixel_rms and counts[new] > 0:  # fitted on tile means: report the pixels' rms
-                    model = replace(model, rms=float(np.sqrt(squares[new] / counts[new])))
-                features.append(Feature(label=new, model=model, n_pixels=int(sizes[new]),
-                                        source=source))
-            else:
-                unfitted.append(Unfitted(label=new, n_pixels=int(sizes[new]),
-                                         reason=f"{model.kind}: {model.reason}"))
-        timings["total"] = time.perf_counter() - t_start
-        return Result(labels=labels, features=features, unfitted=unfitted, timings=timings,
-                      stages=dict(stages))
 
+def _renumber(regions: Regions) -> tuple[Regions, np.ndarray]:
+    """The regions that have a model (or a failure) and pixels, numbered 1..n in label order,
+    and their pixel counts (index 0 unused); other pixels become 0."""
+    pixels = np.bincount(regions.labels.ravel())
+    kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in regions.models]
+    lut = np.zeros(len(pixels), dtype=np.int32)
+    lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
+    sizes = np.zeros(len(kept) + 1, np.int64)
+    sizes[1:] = pixels[kept]
+    models = {new: regions.models[old] for new, old in enumerate(kept, start=1)}
+    return Regions(lut[regions.labels], models), sizes
+
+
+def _features(regions: Regions, sizes: np.ndarray, sigma: np.ndarray, xyz: np.ndarray, *,
+              pixel_rms: bool) -> tuple[list[Feature], list[Unfitted]]:
+    """A Feature per fitted region (inliers counted over all its pixels; with ``pixel_rms``
+    the rms of its pixels' distances) and an Unfitted per failure."""
+    from .kernels import distance_stats
+    from .kernels.kinds import NONE
+
+    labels, xyz_flat = regions.labels, xyz.reshape(-1, 3)
+    kinds, params, rms = model_table(regions.models, len(sizes))
+    # Inliers over the whole region (fits may have used a subsample): pixels within
+    # INLIER_SIGMAS sensor noise sigmas of the surface (a zero rms leaves sigma alone).
+    inliers, squares, counts = distance_stats(
+        xyz_flat, labels.ravel(), kinds, params, np.zeros_like(rms),
+        np.ascontiguousarray(sigma, dtype=np.float64).ravel(), INLIER_SIGMAS)
+    source = PatchSource(xyz, labels)  # patch geometry is computed on demand from it
+    features, unfitted = [], []
+    for label, model in regions.models.items():
+        if not model:
+            unfitted.append(Unfitted(label=label, n_pixels=int(sizes[label]),
+                                     reason=f"{model.kind}: {model.reason}"))
+            continue
+        if kinds[label] == NONE:  # a third-party model type: count with its own distances
+            idx = np.flatnonzero(labels.ravel() == label)
+            tol = INLIER_SIGMAS * sigma.ravel()[idx]
+            inliers[label] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
+        model = replace(model, inliers=int(inliers[label]))
+        if pixel_rms and counts[label] > 0:  # fitted on tile means: report the pixels' rms
+            model = replace(model, rms=float(np.sqrt(squares[label] / counts[label])))
+        features.append(Feature(label=label, model=model, n_pixels=int(sizes[label]), source=source))
+    return features, unfitted
 
 
 def warm_up() -> float:

@@ -8,7 +8,7 @@ import numpy as np
 
 from .fitting.primitives import Cylinder, Plane, Sphere
 
-__all__ = ["Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
+__all__ = ["Regions", "Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
 
 #: A pixel is an inlier of its region's model when its orthogonal distance is within this
 #: many sensor noise sigmas at its range (the configuration's noise model).
@@ -17,6 +17,19 @@ INLIER_SIGMAS = 2.0
 RESULT_FORMAT = "rangeseg_o3d.result/2"
 
 _MODELS = {"plane": Plane, "sphere": Sphere, "cylinder": Cylinder}
+
+
+@dataclass(frozen=True, eq=False)
+class Regions:
+    """Regions of a grid and their models, as they pass from stage to stage inside a run.
+
+    labels : (H, W) int32, 0 = in no region.
+    models : label -> fitted model, or a falsy FitFailure for a region no model explains
+        (a label without an entry has no model yet).
+    """
+
+    labels: np.ndarray
+    models: dict
 
 
 @dataclass(frozen=True, eq=False)

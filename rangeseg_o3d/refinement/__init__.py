@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
+from ..result import Regions
 from ..sensor import Sensor
 from .context import Context
 from .dissolve import dissolve_small
@@ -52,16 +53,15 @@ class _Timer:
         self.last = now
 
 
-def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor: Sensor,
+def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,
                    ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
-                   timings: dict):
-    """Run the refinement steps; returns the new ``(labels, fits)`` (the inputs are not changed).
+                   timings: dict) -> Regions:
+    """Run the refinement steps; returns new Regions (``regions`` is not changed).
 
     Parameters
     ----------
     cloud : OrganizedCloud
-    labels : (H, W) int32 labels after segmentation.
-    fits : label -> model or FitFailure.
+    regions : the regions after segmentation and their first fits.
     fitter : the pipeline's region fitter.
     config : RefineConfig (``min_region_size`` and the jump test resolved at load).
     sensor : the run's sensor.
@@ -77,6 +77,7 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor:
     growth = dict(xyz=cloud.xyz, ranges=ranges, sigma=sigma, k_sigma=config.k_sigma,
                   jump_ratio=config.jump_ratio * tile, jump_min=config.jump_min)
     ctx = Context(cloud, fitter, sigma, min_size)
+    labels, fits = regions.labels, regions.models
 
     failed = [k for k, m in fits.items() if not m]
     if failed:
@@ -102,4 +103,4 @@ def refine_regions(cloud, labels, fits, *, fitter: RegionFitter, config, sensor:
     timer.lap("dissolve")
     fits = polish_models(ctx, labels, fits)
     timer.lap("polish")
-    return labels, fits
+    return Regions(labels, fits)

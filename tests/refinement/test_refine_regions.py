@@ -5,6 +5,7 @@ import numpy as np
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import FitFailure
 from rangeseg_o3d.refinement import refine_regions
+from rangeseg_o3d.result import Regions
 from refinement_helpers import best_overlap, folded_strip
 
 STEPS = ["refine.split", "refine.grow", "refine.recover", "refine.merge", "refine.dissolve", "refine.polish"]
@@ -15,11 +16,11 @@ def _refine_one_failed_region(pipeline, cloud, timings=None):
     fits = {1: FitFailure("plane", "rms over the limit")}
     ranges = cloud.range_image()
     sigma = pipeline.sensor.noise.sigma(ranges)
-    out = refine_regions(cloud, labels, fits, fitter=pipeline.fitter, config=pipeline.config.refine,
+    out = refine_regions(cloud, Regions(labels, fits), fitter=pipeline.fitter, config=pipeline.config.refine,
                          sensor=pipeline.sensor, ranges=ranges, sigma=sigma, jumps=None,
                          timings={} if timings is None else timings)
     assert (labels == 1).all() and not fits[1] and list(fits) == [1]  # inputs unchanged
-    return out
+    return out.labels, out.models
 
 
 def test_three_planes_leaking_into_one_region_come_back_as_three(pipeline):
@@ -47,7 +48,7 @@ def test_steps_switched_off_still_report_their_time(pipeline):
     cloud = rs.OrganizedCloud(folded_strip(noise=0.001)[0])
     ranges = cloud.range_image()
     timings = {}
-    refine_regions(cloud, np.ones(cloud.shape, np.int32), {1: FitFailure("plane", "x")},
+    refine_regions(cloud, Regions(np.ones(cloud.shape, np.int32), {1: FitFailure("plane", "x")}),
                    fitter=pipeline.fitter, config=config, sensor=pipeline.sensor, ranges=ranges,
                    sigma=pipeline.sensor.noise.sigma(ranges), jumps=None, timings=timings)
     assert list(timings) == STEPS
