@@ -3,7 +3,8 @@
     python examples/custom_segmenter_plugin.py
 
 A segmenter is a function ``run(cloud, **params) -> Segmentation`` with a pydantic model
-of its parameters, wrapped in a :class:`rangeseg_o3d.Plugin`. Registered in code (as
+of its parameters (read off the function's signature by ``registry.params_model``, so
+each default is written once), wrapped in a :class:`rangeseg_o3d.Plugin`. Registered in code (as
 here) or advertised by an installed package through the entry-point group
 ``rangeseg_o3d.segmenters``, it is chosen by name in a configuration, validated like the
 built-ins, and its regions are fitted and refined by the same pipeline.
@@ -12,22 +13,12 @@ This one cuts the scan into bands of equal range: crude, but it shows every part
 """
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 import rangeseg_o3d as rs
 from rangeseg_o3d import registry
 from rangeseg_o3d.regions import label_regions
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.suite import default_scene
-
-
-class RangeBandsConfig(BaseModel):
-    """Parameters of the "range_bands" segmenter (validated when a configuration is loaded)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    band: float = Field(0.5, gt=0, description="width of one range band, m")
-    min_region_size: int = Field(30, ge=1, description="smaller regions are dropped")
 
 
 def segment_range_bands(cloud, *, band: float = 0.5, min_region_size: int = 30) -> rs.Segmentation:
@@ -41,6 +32,12 @@ def segment_range_bands(cloud, *, band: float = 0.5, min_region_size: int = 30) 
     labels = label_regions(edges, min_size=min_region_size)
     return rs.Segmentation(labels=labels, stages={"bands": bands})
 
+
+# Validated when a configuration is loaded: types and defaults from the signature, bounds here.
+RangeBandsConfig = registry.params_model(segment_range_bands, dict(
+    band=dict(gt=0, description="width of one range band, m"),
+    min_region_size=dict(ge=1, description="smaller regions are dropped"),
+), name="RangeBandsConfig")
 
 PLUGIN = rs.Plugin(name="range_bands", config=RangeBandsConfig, run=segment_range_bands,
                    description="connected pixels of equal range band (an example)")

@@ -24,18 +24,22 @@ from __future__ import annotations
 
 import functools
 import importlib
+import inspect
 import logging
+import typing
 import warnings
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
 from typing import Callable, Iterable
 
 import numpy as np
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, Field, create_model
 
 __all__ = [
     "Plugin",
     "Segmentation",
+    "params_model",
+    "defaults_of",
     "register",
     "get",
     "available",
@@ -61,6 +65,57 @@ class Segmentation:
     labels: np.ndarray
     stages: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+
+
+class StrictParams(BaseModel):
+    """The default base of :func:`params_model`: unknown keys are an error, values frozen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def params_model(function: Callable, fields: dict, *, name: str, doc: str | None = None,
+                 base: type[BaseModel] = StrictParams) -> type[BaseModel]:
+    """A plugin's parameter model read off its function, so that each default is written once.
+
+    Every keyword of ``function`` named in ``fields`` with a dict of pydantic constraints
+    (``{"window": dict(ge=3, le=15), "seed": {}}``) becomes a field with the signature's
+    annotation and default and those constraints. A name given a ``(type, Field(default,
+    ...))`` pair instead is a field the function does not take (a setting the plugin's
+    ``bind_sensor`` turns into keywords). Fields keep the order of ``fields``; ``base``
+    carries the model's config and its validators.
+    """
+    signature = inspect.signature(function)
+    hints = typing.get_type_hints(function)
+    model_fields = {}
+    for key, spec in fields.items():
+        if isinstance(spec, tuple):
+            model_fields[key] = spec
+            continue
+        parameter = signature.parameters.get(key)
+        if parameter is None or parameter.default is inspect.Parameter.empty:
+            raise ValueError(f"{function.__qualname__} has no keyword {key!r} with a default")
+        model_fields[key] = (hints.get(key, typing.Any), Field(parameter.default, **spec))
+    doc = doc or f"Parameters of :func:`{function.__qualname__}` (defaults: its signature's)."
+    return create_model(name, __base__=base, __module__=function.__module__, __doc__=doc, **model_fields)
+
+
+def defaults_of(source: Callable):
+    """Decorator: the keyword-only parameters the decorated function declares without a
+    default take ``source``'s defaults, so that a plugin's hooks share the defaults of its
+    ``run`` written once. A name ``source`` has no default for is an error at import."""
+    defaults = {key: p.default for key, p in inspect.signature(source).parameters.items()
+                if p.default is not inspect.Parameter.empty}
+
+    def apply(function: Callable) -> Callable:
+        wanted = [key for key, p in inspect.signature(function).parameters.items()
+                  if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is inspect.Parameter.empty]
+        missing = [key for key in wanted if key not in defaults]
+        if missing:
+            raise ValueError(f"{function.__qualname__}: {source.__qualname__} has no default for {missing}")
+        function.__kwdefaults__ = {**(function.__kwdefaults__ or {}), **{key: defaults[key] for key in wanted}}
+        return function
+
+    return apply
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ import numpy as np
 from .sensor import noise_sigma
 
 __all__ = [
+    "MIN_VALID",
     "neighbourhood_moments",
     "smallest_eigenpairs",
     "residual_image",
@@ -81,11 +82,16 @@ def smallest_eigenpairs(scatter: np.ndarray, *, with_vectors: bool = True):
     return values.reshape(shape), eigenvectors(packed, values).T.reshape((3,) + shape)
 
 
+# A 3x3 window needs this many valid points for its plane: with fewer, one missing row or
+# column leaves a collinear set. The paper's segmenter and the plausibility check use it too.
+MIN_VALID = 6
+
+
 def residual_image(
     xyz: np.ndarray,
     *,
     window: int = 3,
-    min_valid: int = 5,
+    min_valid: int = MIN_VALID,
     ranges: np.ndarray | None = None,
     sigma0: float = 0.005,
     sigma_quadratic: float = 0.0,

@@ -165,7 +165,7 @@ def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
         return float("nan")
     samples = None if cloud.samples is None else cloud.samples[::step, ::step]
     scale = 1.0 if samples is None else 1.0 / np.sqrt(np.maximum(samples, 1))
-    residual, _ = residual_image(xyz, min_valid=6, sigma0=sensor.noise.sigma0,
+    residual, _ = residual_image(xyz, sigma0=sensor.noise.sigma0,
                                  sigma_quadratic=sensor.noise.sigma_quadratic,
                                  with_normals=False, noise_scale=scale)
     finite = residual[np.isfinite(residual)]

@@ -32,10 +32,10 @@ the 1 cm that suits a 5 mm one).
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from ..kernels.kinds import CYLINDER, PLANE, SPHERE, ModelKind
-from ..registry import Plugin
+from ..registry import Plugin, StrictParams, defaults_of, params_model
 from ._common import Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .primitives import Cylinder, FitFailure, Plane, Sphere
@@ -183,19 +183,20 @@ def fit_primitive(
     return FitFailure("primitive", "; ".join(reasons))
 
 
+@defaults_of(fit_primitive)
 def refit_primitive(
     points,
     model: Plane | Cylinder | Sphere,
     normals=None,
     *,
-    plane_rms: float = 0.01,
-    cylinder_rms: float = 0.01,
-    sphere_rms: float = 0.01,
-    rms_per_range2: float = 0.0,
-    min_points: int = 10,
-    max_radius: float = 5.0,
-    min_arc_deg: float = 30.0,
-    curvature_gain: float = 1.5,
+    plane_rms: float,
+    cylinder_rms: float,
+    sphere_rms: float,
+    rms_per_range2: float,
+    min_points: int,
+    max_radius: float,
+    min_arc_deg: float,
+    curvature_gain: float,
 ) -> Plane | Cylinder | Sphere | FitFailure:
     """Fit ``points`` with a model of ``model``'s kind, judged as :func:`fit_primitive` would.
 
@@ -245,14 +246,15 @@ def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float) -> np.nda
     return plane_rms + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
 
 
+@defaults_of(fit_primitive)
 def fit_planes_batch(
     xyz,
     labels,
     *,
-    plane_rms: float = 0.01,
-    rms_per_range2: float = 0.0,
-    min_points: int = 10,
-    curvature_gain: float = 1.5,
+    plane_rms: float,
+    rms_per_range2: float,
+    min_points: int,
+    curvature_gain: float,
     **_curved,
 ) -> dict[int, Plane]:
     """Every region of a label image that :func:`fit_primitive` would call a plane, at once.
@@ -288,13 +290,14 @@ def fit_planes_batch(
             for k in np.flatnonzero(settled).tolist()}
 
 
+@defaults_of(fit_primitive)
 def refit_planes_from_moments(
     moments,
     models,
     *,
-    plane_rms: float = 0.01,
-    rms_per_range2: float = 0.0,
-    min_points: int = 10,
+    plane_rms: float,
+    rms_per_range2: float,
+    min_points: int,
     **_curved,
 ) -> list:
     """:func:`refit_primitive` for the planes among ``models``, from label-wise moments.
@@ -334,21 +337,23 @@ def refit_planes_from_moments(
     return out
 
 
-class PrimitiveFitterConfig(BaseModel):
-    """Parameters of the "primitives" fitter: :func:`fit_primitive`'s keywords, with
-    ``range_growth`` in place of ``rms_per_range2`` (see :func:`bind_sensor`)."""
+class _FitterParams(StrictParams):
+    model_config = ConfigDict(allow_inf_nan=False)
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    plane_rms: float = Field(0.01, gt=0, description="largest plane rms, m")
-    cylinder_rms: float = Field(0.01, gt=0, description="largest cylinder rms, m")
-    sphere_rms: float = Field(0.01, gt=0, description="largest sphere rms, m")
-    range_growth: float = Field(
-        1.0, ge=0, description="thresholds grow by this times the sensor's sigma_quadratic r^2")
-    min_points: int = Field(10, ge=3, description="smallest region fitted")
-    max_radius: float = Field(5.0, gt=0, description="largest cylinder/sphere radius, m")
-    min_arc_deg: float = Field(30.0, gt=0, le=360, description="smallest arc/cap covered, deg")
-    curvature_gain: float = Field(1.5, ge=1, description="rms reduction a curved model must bring")
+PrimitiveFitterConfig = params_model(fit_primitive, dict(
+    plane_rms=dict(gt=0, description="largest plane rms, m"),
+    cylinder_rms=dict(gt=0, description="largest cylinder rms, m"),
+    sphere_rms=dict(gt=0, description="largest sphere rms, m"),
+    range_growth=(float, Field(
+        1.0, ge=0, description="thresholds grow by this times the sensor's sigma_quadratic r^2")),
+    min_points=dict(ge=3, description="smallest region fitted"),
+    max_radius=dict(gt=0, description="largest cylinder/sphere radius, m"),
+    min_arc_deg=dict(gt=0, le=360, description="smallest arc/cap covered, deg"),
+    curvature_gain=dict(ge=1, description="rms reduction a curved model must bring"),
+), name="PrimitiveFitterConfig", base=_FitterParams,
+    doc="""Parameters of the "primitives" fitter: :func:`fit_primitive`'s keywords (and their
+    defaults), with ``range_growth`` in place of ``rms_per_range2`` (see :func:`bind_sensor`).""")
 
 
 # No rms threshold is under this many times the sensor's constant noise term: a noisier

@@ -28,10 +28,9 @@ import logging
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from ..cloud import OrganizedCloud
-from ..registry import Plugin, Segmentation
+from ..registry import Plugin, Segmentation, params_model
 
 __all__ = [
     "PlanarPatchesConfig",
@@ -269,31 +268,25 @@ def segment_ransac_planes(
     return Segmentation(labels=_to_grid(cloud, point_labels), timings=timings)
 
 
-class PlanarPatchesConfig(BaseModel):
-    """Parameters of :func:`segment_planar_patches` (defaults: Open3D's)."""
+PlanarPatchesConfig = params_model(segment_planar_patches, dict(
+    normal_neighbours=dict(ge=3),
+    normal_variance_threshold_deg=dict(gt=0, le=90),
+    coplanarity_deg=dict(gt=0, le=90),
+    outlier_ratio=dict(gt=0, le=1),
+    min_plane_edge_length=dict(ge=0),
+    min_num_points=dict(ge=0),
+    distance_threshold=dict(ge=0),
+), name="PlanarPatchesConfig",
+    doc="Parameters of :func:`segment_planar_patches` (defaults: Open3D's, written in its signature).")
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    normal_neighbours: int = Field(30, ge=3)
-    normal_variance_threshold_deg: float = Field(60.0, gt=0, le=90)
-    coplanarity_deg: float = Field(75.0, gt=0, le=90)
-    outlier_ratio: float = Field(0.75, gt=0, le=1)
-    min_plane_edge_length: float = Field(0.0, ge=0)
-    min_num_points: int = Field(0, ge=0)
-    distance_threshold: float = Field(0.0, ge=0)
-
-
-class RansacPlanesConfig(BaseModel):
-    """Parameters of :func:`segment_ransac_planes`."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    distance_threshold: float = Field(0.02, gt=0)
-    ransac_n: int = Field(3, ge=3)
-    num_iterations: int = Field(1000, ge=1)
-    max_planes: int = Field(10, ge=1)
-    min_inliers: int = Field(100, ge=3)
-    seed: int | None = 0
+RansacPlanesConfig = params_model(segment_ransac_planes, dict(
+    distance_threshold=dict(gt=0),
+    ransac_n=dict(ge=3),
+    num_iterations=dict(ge=1),
+    max_planes=dict(ge=1),
+    min_inliers=dict(ge=3),
+    seed={},
+), name="RansacPlanesConfig")
 
 
 PLANAR_PATCHES = Plugin(

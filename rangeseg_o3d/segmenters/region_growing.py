@@ -69,10 +69,10 @@ import logging
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from ..cloud import OrganizedCloud
-from ..registry import Plugin, Segmentation
+from ..registry import Plugin, Segmentation, defaults_of, params_model
 
 __all__ = [
     "RegionGrowingConfig",
@@ -410,17 +410,18 @@ def voxel_centroids(points, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
     return centroids, voxel_of
 
 
+@defaults_of(region_growing_labels)  # PCL's defaults, written there
 def segment_region_growing(
     cloud: OrganizedCloud,
     *,
     sensor=None,
-    n_neighbours: int = 30,
-    normal_neighbours: int = 30,
-    smoothness_deg: float = 30.0,
-    curvature_threshold: float = 0.05,
-    min_cluster_size: int = 1,
-    max_cluster_size: int | None = None,
-    voxel_size: float | None = None,
+    n_neighbours: int,
+    normal_neighbours: int,
+    smoothness_deg: float,
+    curvature_threshold: float,
+    min_cluster_size: int,
+    max_cluster_size: int | None,
+    voxel_size: float | None,
 ) -> Segmentation:
     """Segment an organized cloud by smoothness-constraint region growing.
 
@@ -474,18 +475,9 @@ def segment_region_growing(
     return Segmentation(labels=labels, stages={"curvature": curvature}, timings=timings)
 
 
-class RegionGrowingConfig(BaseModel):
-    """Parameters of :func:`segment_region_growing` (defaults: PCL's)."""
-
+class _RegionGrowingChecks(BaseModel):
+    # the checks across fields; the fields (and their defaults) come from the signature
     model_config = ConfigDict(extra="forbid", frozen=True)
-
-    n_neighbours: int = Field(30, ge=1, description="neighbours a region grows across")
-    normal_neighbours: int = Field(30, ge=3, description="neighbourhood size for PCA normals")
-    smoothness_deg: float = Field(30.0, gt=0.0, le=90.0, description="max normal angle, degrees")
-    curvature_threshold: float = Field(0.05, ge=0.0, description="max curvature of growing points")
-    min_cluster_size: int = Field(1, ge=1, description="smallest region kept")
-    max_cluster_size: int | None = Field(None, ge=1, description="largest region kept; None = no limit")
-    voxel_size: float | None = Field(None, gt=0, description="grow on voxel centroids (metres); None = off")
 
     @model_validator(mode="after")
     def _sizes_ordered(self):
@@ -495,6 +487,18 @@ class RegionGrowingConfig(BaseModel):
                 f"min_cluster_size ({self.min_cluster_size})"
             )
         return self
+
+
+RegionGrowingConfig = params_model(segment_region_growing, dict(
+    n_neighbours=dict(ge=1, description="neighbours a region grows across"),
+    normal_neighbours=dict(ge=3, description="neighbourhood size for PCA normals"),
+    smoothness_deg=dict(gt=0.0, le=90.0, description="max normal angle, degrees"),
+    curvature_threshold=dict(ge=0.0, description="max curvature of growing points"),
+    min_cluster_size=dict(ge=1, description="smallest region kept"),
+    max_cluster_size=dict(ge=1, description="largest region kept; None = no limit"),
+    voxel_size=dict(gt=0, description="grow on voxel centroids (metres); None = off"),
+), name="RegionGrowingConfig", base=_RegionGrowingChecks,
+    doc="Parameters of :func:`segment_region_growing` (defaults: PCL's, written in its signature).")
 
 
 PLUGIN = Plugin(

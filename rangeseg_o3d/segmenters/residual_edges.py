@@ -5,12 +5,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from ..edges import close_residual, crease_edges, edge_mask, jump_edges
 from ..regions import label_regions
-from ..registry import Plugin, Segmentation
-from ..residual import residual_image
+from ..registry import Plugin, Segmentation, params_model
+from ..residual import MIN_VALID, residual_image
 from ..sensor import Sensor
 
 __all__ = ["segment_residual_edges", "ResidualEdgesConfig", "PLUGIN"]
@@ -21,7 +21,7 @@ def segment_residual_edges(
     *,
     sensor: Sensor | None = None,
     window: int = 3,
-    min_valid: int = 6,
+    min_valid: int = MIN_VALID,
     threshold: float = 9.0,
     closing_iterations: int = 2,
     jump_ratio: float = 0.08,
@@ -132,20 +132,9 @@ def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
     return Segmentation(labels=join_wrapped(seg.labels, pad), stages=stages, timings=seg.timings)
 
 
-class ResidualEdgesConfig(BaseModel):
-    """Parameters of :func:`segment_residual_edges`."""
-
+class _ResidualEdgesChecks(BaseModel):
+    # the checks across fields; the fields (and their defaults) come from the signature
     model_config = ConfigDict(extra="forbid")
-
-    window: int = Field(3, ge=3, le=15)
-    min_valid: int = Field(6, ge=4)
-    threshold: float = Field(9.0, gt=0)
-    closing_iterations: int = Field(2, ge=0, le=10)
-    jump_ratio: float = Field(0.08, gt=0)
-    jump_min: float = Field(0.05, ge=0)
-    min_region_size: int = Field(30, ge=1)
-    connectivity: int = Field(4)
-    crease_angle_deg: float = Field(20.0, ge=0, lt=90)
 
     @model_validator(mode="after")
     def _check(self):
@@ -158,6 +147,19 @@ class ResidualEdgesConfig(BaseModel):
         if self.connectivity not in (4, 8):
             raise ValueError(f"connectivity must be 4 or 8; got {self.connectivity}")
         return self
+
+
+ResidualEdgesConfig = params_model(segment_residual_edges, dict(
+    window=dict(ge=3, le=15),
+    min_valid=dict(ge=4),
+    threshold=dict(gt=0),
+    closing_iterations=dict(ge=0, le=10),
+    jump_ratio=dict(gt=0),
+    jump_min=dict(ge=0),
+    min_region_size=dict(ge=1),
+    connectivity={},
+    crease_angle_deg=dict(ge=0, lt=90),
+), name="ResidualEdgesConfig", base=_ResidualEdgesChecks)
 
 
 PLUGIN = Plugin(
