@@ -12,8 +12,10 @@ import numpy as np
 from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
-from .fitting.region_fitter import RegionFitter, model_table
-from .refinement import recover_pixels, refine_regions
+from .fitting.primitives import Cylinder, Plane, Sphere
+from .fitting.region_fitter import RegionFitter
+from .fullres import ExpandedStages, PixelStats, label_pixels, recover_thin_surfaces, region_stats
+from .refinement import refine_regions
 from .patches import PatchSource
 from .registry import Segmentation
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Unfitted
@@ -21,10 +23,6 @@ from .sensor import Sensor, check_plausible
 
 __all__ = ["Pipeline", "warm_up"]
 
-
-def _expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
-    # Nearest-neighbour upsampling of a tile-grid image back to the sensor grid.
-    return np.repeat(np.repeat(image, tile, axis=0), tile, axis=1)[: shape[0], : shape[1]]
 
 log = logging.getLogger(__name__)
 
@@ -115,13 +113,13 @@ class Pipeline:
         clock.lap("fit")
         regions, sigma = self._refine(work, regions, segmentation.stages.get("jumps"), clock.timings)
         clock.lap("refine")
-        stages = segmentation.stages
+        stages, stats = segmentation.stages, None
         if work is not cloud:
-            labels, fits, sigma = self._full_resolution(cloud, regions.labels, regions.models)
+            labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models)
             regions = Regions(labels, fits)
-            stages = {k: _expand(v, self.config.tile, cloud.shape) for k, v in stages.items()}
+            stages = ExpandedStages(stages, self.config.tile, cloud.shape)
             clock.lap("full_resolution")
-        result = self._assemble(regions, sigma, cloud.xyz, clock, stages, pixel_rms=work is not cloud)
+        result = self._assemble(regions, sigma, cloud.xyz, clock, stages, stats=stats)
         if recording is not None:
             from .viz.rerun_log import log_scan
 
@@ -164,40 +162,47 @@ class Pipeline:
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict):
         """Label every pixel by the models of its tile's region and the 8 around it.
 
-        Returns full-resolution ``(labels, fits, sigma)``. The models stay those fitted to
-        the tile means (each averages all the region's pixels; refitting the pixels moves a
-        plane's normal by far less than its error); :meth:`_assemble` reports the rms of
-        the pixels' distances.
+        Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
+        :class:`rangeseg_o3d.fullres.PixelStats` of the labels. The models stay those
+        fitted to the tile means (each averages all the region's pixels; refitting the
+        pixels moves a plane's normal by far less than its error); :meth:`_assemble`
+        reports the rms of the pixels' distances.
         """
-        from .kernels import assign_tiles
-
         ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
         sigma = self.sensor.noise.sigma(ranges)
-        xyz_flat = np.ascontiguousarray(cloud.xyz.reshape(-1, 3))
-        kinds, params, rms = model_table(fits, int(tile_labels.max(initial=0)) + 1)
-        labels = assign_tiles(xyz_flat, cloud.shape[0], cloud.shape[1],
-                              np.ascontiguousarray(tile_labels, dtype=np.int32), self.config.tile,
-                              kinds, params, rms, np.ascontiguousarray(sigma).ravel(),
-                              float(self.config.refine.k_sigma))
         refine = self.config.refine
+        labels, stats = label_pixels(cloud, tile_labels, fits, tile=self.config.tile, sigma=sigma,
+                                     k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled and refine.recover_leftovers:
-            labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=self.fitter, config=refine,
-                                          sensor=self.sensor, ranges=ranges, sigma=sigma, tile=self.config.tile)
-        return labels, fits, sigma
+            labels, fits, stats = recover_thin_surfaces(
+                cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
+                ranges=ranges, sigma=sigma, tile=self.config.tile, inlier_factor=INLIER_SIGMAS)
+        return labels, fits, sigma, stats
 
     @staticmethod
-    def _assemble(regions: Regions, sigma, xyz, clock: _Clock, stages, pixel_rms=False) -> Result:
-        # Regions with a fit (or a reported failure) numbered 1..n, in label order.
-        regions, sizes = _renumber(regions)
-        features, unfitted = _features(regions, sizes, sigma, xyz, pixel_rms=pixel_rms)
+    def _assemble(regions: Regions, sigma, xyz, clock: _Clock, stages,
+                  stats: PixelStats | None = None) -> Result:
+        # Regions with a fit (or a reported failure) numbered 1..n, in label order. With
+        # ``stats`` (measured at full resolution on tile models) the rms is the pixels'.
+        pixel_rms = stats is not None
+        if stats is None:
+            # Inliers over the whole region (fits may have used a subsample): pixels within
+            # INLIER_SIGMAS sensor noise sigmas of the surface.
+            stats = region_stats(xyz, regions.labels, regions.models, sigma, INLIER_SIGMAS)
+        regions, sizes, kept = _renumber(regions)
+        stats = PixelStats(*(np.concatenate([[0], values[kept]]).astype(values.dtype)
+                             for values in (stats.inliers, stats.squares, stats.counts)))
+        features, unfitted = _features(regions, sizes, stats, sigma, xyz, pixel_rms=pixel_rms)
         clock.timings["total"] = time.perf_counter() - clock.start
+        if not isinstance(stages, ExpandedStages):
+            stages = dict(stages)
         return Result(labels=regions.labels, features=features, unfitted=unfitted,
-                      timings=clock.timings, stages=dict(stages))
+                      timings=clock.timings, stages=stages)
 
 
-def _renumber(regions: Regions) -> tuple[Regions, np.ndarray]:
+def _renumber(regions: Regions) -> tuple[Regions, np.ndarray, np.ndarray]:
     """The regions that have a model (or a failure) and pixels, numbered 1..n in label order,
-    and their pixel counts (index 0 unused); other pixels become 0."""
+    their pixel counts (index 0 unused) and their old labels; other pixels become 0."""
     pixels = np.bincount(regions.labels.ravel())
     kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in regions.models]
     lut = np.zeros(len(pixels), dtype=np.int32)
@@ -205,23 +210,15 @@ def _renumber(regions: Regions) -> tuple[Regions, np.ndarray]:
     sizes = np.zeros(len(kept) + 1, np.int64)
     sizes[1:] = pixels[kept]
     models = {new: regions.models[old] for new, old in enumerate(kept, start=1)}
-    return Regions(lut[regions.labels], models), sizes
+    return Regions(lut[regions.labels], models), sizes, np.array(kept, np.int64)
 
 
-def _features(regions: Regions, sizes: np.ndarray, sigma: np.ndarray, xyz: np.ndarray, *,
-              pixel_rms: bool) -> tuple[list[Feature], list[Unfitted]]:
-    """A Feature per fitted region (inliers counted over all its pixels; with ``pixel_rms``
-    the rms of its pixels' distances) and an Unfitted per failure."""
-    from .kernels import distance_stats
-    from .kernels.kinds import NONE
-
+def _features(regions: Regions, sizes: np.ndarray, stats: PixelStats, sigma: np.ndarray,
+              xyz: np.ndarray, *, pixel_rms: bool) -> tuple[list[Feature], list[Unfitted]]:
+    """A Feature per fitted region (``stats`` give the inliers over all its pixels and,
+    with ``pixel_rms``, the rms of its pixels' distances) and an Unfitted per failure."""
     labels, xyz_flat = regions.labels, xyz.reshape(-1, 3)
-    kinds, params, rms = model_table(regions.models, len(sizes))
-    # Inliers over the whole region (fits may have used a subsample): pixels within
-    # INLIER_SIGMAS sensor noise sigmas of the surface (a zero rms leaves sigma alone).
-    inliers, squares, counts = distance_stats(
-        xyz_flat, labels.ravel(), kinds, params, np.zeros_like(rms),
-        np.ascontiguousarray(sigma, dtype=np.float64).ravel(), INLIER_SIGMAS)
+    inliers, squares, counts = stats.inliers.copy(), stats.squares, stats.counts
     source = PatchSource(xyz, labels)  # patch geometry is computed on demand from it
     features, unfitted = [], []
     for label, model in regions.models.items():
@@ -229,7 +226,8 @@ def _features(regions: Regions, sizes: np.ndarray, sigma: np.ndarray, xyz: np.nd
             unfitted.append(Unfitted(label=label, n_pixels=int(sizes[label]),
                                      reason=f"{model.kind}: {model.reason}"))
             continue
-        if kinds[label] == NONE:  # a third-party model type: count with its own distances
+        if not isinstance(model, (Plane, Sphere, Cylinder)):  # a third-party model type:
+            # count with its own distances
             idx = np.flatnonzero(labels.ravel() == label)
             tol = INLIER_SIGMAS * sigma.ravel()[idx]
             inliers[label] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)

@@ -72,7 +72,7 @@ def test_warm_up_compiles_the_kernels_the_presets_use():
     from rangeseg_o3d.pipeline import warm_up
 
     assert warm_up() > 0.0
-    for kernel in (kernels.label_moments, kernels.grow_rings, kernels.assign_tiles,
+    for kernel in (kernels.label_moments, kernels.grow_rings, kernels.label_pixels, kernels.leftover_blobs,
                    kernels.block_means, kernels.distance_stats, kernels.window_moments,
                    kernels.smallest_eigenvalues, _compiled.prepare_points, _decide.primitive_decision,
                    _decide.curved_refit, _decide.sphere_checked, _decide.cylinder_checked):

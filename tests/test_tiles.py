@@ -6,7 +6,6 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting.primitives import Plane
-from rangeseg_o3d.kernels import assign_tiles
 
 
 def _wall(h=48, w=60, z=2.0, noise=0.0, seed=0):
@@ -44,30 +43,6 @@ def test_tile_means_refuse_bad_sizes_and_means_of_means():
         rs.OrganizedCloud(_wall(4, 4), tile=0)
     with pytest.raises(ValueError, match="samples must have shape"):
         rs.OrganizedCloud(_wall(4, 4), samples=np.ones((3, 4)))
-
-
-def test_assign_tiles_labels_pixels_by_the_nearest_model():
-    # Two walls meeting at column 30 (a 2 cm step in depth, no jump); tiles of 6 pixels.
-    xyz = _wall(24, 60)
-    xyz[:, 30:, 2] = 2.02
-    tile_labels = np.zeros((4, 10), np.int32)
-    tile_labels[:, :4] = 1      # columns 0..23
-    tile_labels[:, 6:] = 2      # columns 36..59; tiles 4 and 5 (the border) unlabelled
-    tile_labels[0, 0] = 3       # a region without a model keeps its tile
-    kinds, params, rms = model_table({1: Plane([0, 0, 1], 2.0, 0.001, 1),
-                                      2: Plane([0, 0, 1], 2.02, 0.001, 1)}, 4)
-    sigma = np.full(24 * 60, 0.002)
-    labels = assign_tiles(xyz.reshape(-1, 3), 24, 60, tile_labels, 6, kinds, params, rms, sigma, 3.0)
-    expected = np.zeros((24, 60), np.int32)
-    expected[:, :30] = 1        # tiles 4 (columns 24..29) reached from tile 3's region
-    expected[:, 30:] = 2        # tile 5 (columns 30..35) reached from tile 6's region
-    expected[:6, :6] = 3
-    np.testing.assert_array_equal(labels, expected)
-    # an invalid pixel stays 0, a pixel off both planes too
-    xyz[5, 20] = np.nan
-    xyz[10, 10, 2] = 2.5
-    labels = assign_tiles(xyz.reshape(-1, 3), 24, 60, tile_labels, 6, kinds, params, rms, sigma, 3.0)
-    assert labels[5, 20] == 0 and labels[10, 10] == 0
 
 
 def test_pipeline_on_tiles_reports_full_resolution_labels_and_pixel_rms():

@@ -11,7 +11,8 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitting.r
 ``params[k]`` and its rms in ``rms[k]``.
 
 Modules: ``labelwise`` (label-wise sums, planes, quadric test, distances to models),
-``grid`` (grouping by label, jump edges, adjacency, growth, tile means, full-resolution labelling),
+``grid`` (grouping by label, jump edges, adjacency, growth, tile means), ``tiles`` (full-resolution
+labels from the tile grid with their distance statistics, leftover blobs),
 ``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
 window plane), ``project`` (points from ranges or depth, used by the cloud constructors), ``inline`` (inline helpers: model distances, grid neighbours), ``linalg``
 (small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
@@ -26,10 +27,11 @@ from __future__ import annotations
 import importlib
 
 _SOURCES = {
-    "grid": ("adjacency_matrix", "assign_tiles", "block_means", "claim_rings", "group_by_label",
+    "grid": ("adjacency_matrix", "block_means", "claim_rings", "group_by_label",
              "grow_rings", "jump_mask", "largest_piece", "member_pixels"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
+    "tiles": ("label_pixels", "leftover_blobs"),
     "trimmed": ("trimmed_proposals",),
     "window": ("window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"),
 }

@@ -1,5 +1,5 @@
 """Passes over the image grid: grouping pixels by label, jump edges, adjacency, growth, tile means,
-full-resolution labelling, the largest connected piece of a pixel set."""
+the largest connected piece of a pixel set."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
-           "assign_tiles", "largest_piece", "member_pixels"]
+           "largest_piece", "member_pixels"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -285,52 +285,6 @@ def block_means(xyz, stride, min_count):
                 for a in range(3):
                     sums[br, bc, a] = np.nan
     return sums, counts
-
-@njit(cache=True, nogil=True)
-def assign_tiles(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma):
-    """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
-
-    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
-    the one whose model is nearest in units of ``max(sigma, rms)``, if within
-    ``k_sigma`` (its own tile's region wins ties). Pixels of a tile whose region has no
-    model (``kinds == 0``) keep that region. ``xyz`` and ``sigma`` are flat (H*W).
-    """
-    th, tw = tile_labels.shape
-    out = np.zeros((height, width), np.int32)
-    n = kinds.shape[0]
-    for r in range(height):
-        tr = r // tile
-        for c in range(width):
-            i = r * width + c
-            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-            if not np.isfinite(z):
-                continue
-            tc = c // tile
-            own = tile_labels[tr, tc]
-            if own > 0 and own < n and kinds[own] == 0:
-                out[r, c] = own
-                continue
-            best, best_score = 0, k_sigma
-            if own > 0 and own < n:
-                score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
-                if score <= best_score:
-                    best, best_score = own, score
-            for dr in range(-1, 2):
-                rr = tr + dr
-                if rr < 0 or rr >= th:
-                    continue
-                for dc in range(-1, 2):
-                    cc = tc + dc
-                    if cc < 0 or cc >= tw or (dr == 0 and dc == 0):
-                        continue
-                    k = tile_labels[rr, cc]
-                    if k <= 0 or k >= n or k == best or kinds[k] == 0:
-                        continue
-                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
-                    if score < best_score:
-                        best, best_score = k, score
-            out[r, c] = best
-    return out
 
 @njit(cache=True, nogil=True)
 def largest_piece(idx, width):

@@ -107,32 +107,18 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
 
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
-                   sigma: np.ndarray, tile: int):
+                   sigma: np.ndarray, candidates: np.ndarray, min_size: int):
     """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles see.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
     tiles, so the tile grid's 3x3 window always straddles it, and the tile models leave
-    its pixels unlabelled. Those leftovers are cut into compact blobs and fitted as in the
-    ``recover`` step (a blob must be mostly one surface). At such angles every pixel step
-    is a depth jump by the range test, so neither the blobs nor the 2-pixel rim their
-    regions take back are limited by it: the model distance decides.
+    its pixels unlabelled. Those leftovers, cut into compact blobs (``candidates``,
+    numbered above every label: :func:`rangeseg_o3d.fullres.thin_leftovers`), are fitted
+    as in the ``recover`` step (a blob must be mostly one surface). At such angles every
+    pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
+    rim their regions take back are limited by it: the model distance decides.
     """
-    # Twice the smallest region: a piece of a surface the tiles already have, left over
-    # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
-    # could not see at all is not.
-    min_size = 2 * max(int(config.min_region_size), 10)
     first = int(labels.max(initial=0)) + 1
-    candidates = leftover_candidates(labels, cloud.valid, np.zeros(labels.shape, bool),
-                                     min_size=min_size, first_label=first)
-    # Only what the tile grid could not see: blobs thinner than its 3x3 window (three
-    # tiles). Thicker ones were leftovers of the tile grid too, and its own recovery has
-    # had its say on them.
-    inside = cv2.distanceTransform((candidates > 0).astype(np.uint8), cv2.DIST_L2, 3)
-    half_width = np.zeros(int(candidates.max(initial=0)) + 1, np.float32)
-    np.maximum.at(half_width, candidates.ravel(), inside.ravel())
-    candidates = np.where(half_width[candidates] < 1.5 * tile, candidates, 0)
-    if not candidates.any():
-        return labels, fits
     ctx = Context(cloud, fitter, sigma, min_size)
     labels, fits = explain_blobs(ctx, labels, fits, candidates, min_share=0.7)
     new = {k: m for k, m in fits.items() if k >= first and m}

@@ -1,0 +1,200 @@
+"""The tile grid brought back to the sensor grid: labels, statistics, thin leftovers, stage images.
+
+A depth camera's frame is segmented on ``tile x tile`` means
+(:meth:`rangeseg_o3d.OrganizedCloud.tile_means`); this module does the per-pixel work
+that follows, each piece only where it is needed:
+
+- :func:`label_pixels`: every pixel tested against the models of its tile's region and
+  the regions around it, listed once per tile (a pixel inside a region costs one
+  distance); the same distances give each region's inlier count and squared sum, so
+  :meth:`rangeseg_o3d.Pipeline.run` makes no second pass over the pixels for them.
+- :func:`thin_leftovers`: the blobs of pixels no tile model explains that are thinner
+  than the tile grid sees; nothing is done past one pass when no pixel is left over, and
+  the blobs' widths are measured in their bounding patches only.
+- :class:`ExpandedStages`: stage images of the tile grid, expanded to the sensor grid
+  when someone asks for them.
+- :class:`PixelStats` and :func:`region_stats`: the statistics, kept for the regions the
+  recovery of thin surfaces did not touch and recomputed for those it did.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .fitting.region_fitter import model_table
+
+__all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
+           "region_stats", "thin_leftovers"]
+
+
+def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
+    """Nearest-neighbour upsampling of a tile-grid image to the sensor grid of ``shape``."""
+    return np.repeat(np.repeat(image, tile, axis=0), tile, axis=1)[: shape[0], : shape[1]]
+
+
+class ExpandedStages(Mapping):
+    """Stage images of the tile grid, each expanded to the sensor grid on first access.
+
+    A camera loop that never looks at them pays nothing for them (0.4-0.5 ms per VGA
+    frame otherwise); ``dict(stages)`` expands them all.
+    """
+
+    def __init__(self, images: Mapping, tile: int, shape: tuple[int, int]):
+        self._images = dict(images)
+        self._tile = int(tile)
+        self._shape = (int(shape[0]), int(shape[1]))
+        self._expanded: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        image = self._expanded.get(name)
+        if image is None:
+            image = expand(self._images[name], self._tile, self._shape)
+            self._expanded[name] = image
+        return image
+
+    def __iter__(self):
+        return iter(self._images)
+
+    def __len__(self) -> int:
+        return len(self._images)
+
+    def __repr__(self) -> str:
+        return f"ExpandedStages({sorted(self._images)}, tile={self._tile}, shape={self._shape})"
+
+
+@dataclass
+class PixelStats:
+    """Per label of the full-resolution labels: pixels within ``INLIER_SIGMAS`` sigma of the
+    model (``inliers``), sum of squared distances (``squares``), pixels with a finite
+    distance (``counts``), each over the region's pixels in raster order."""
+
+    inliers: np.ndarray
+    squares: np.ndarray
+    counts: np.ndarray
+
+
+def label_pixels(cloud, tile_labels: np.ndarray, fits: dict, *, tile: int, sigma: np.ndarray,
+                 k_sigma: float, inlier_factor: float) -> tuple[np.ndarray, PixelStats]:
+    """Label every pixel of ``cloud`` by the models of its tile's region and the 8 around it.
+
+    A pixel joins the nearest model in units of ``max(sigma, rms)`` if within ``k_sigma``
+    (see :func:`rangeseg_o3d.kernels.label_pixels`). Returns the ``(H, W)`` int32 labels
+    (in the tile labels' numbering) and the :class:`PixelStats` of those labels.
+    """
+    from .kernels import label_pixels as kernel
+
+    kinds, params, rms = model_table(fits, int(tile_labels.max(initial=0)) + 1)
+    labels, inliers, squares, counts = kernel(
+        _flat_points(cloud), cloud.shape[0], cloud.shape[1],
+        np.ascontiguousarray(tile_labels, dtype=np.int32), int(tile), kinds, params, rms,
+        np.ascontiguousarray(sigma, dtype=np.float64).ravel(), float(k_sigma), float(inlier_factor))
+    return labels, PixelStats(inliers, squares, counts)
+
+
+def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray,
+                 inlier_factor: float, *, known: PixelStats | None = None,
+                 stale=()) -> PixelStats:
+    """The :class:`PixelStats` of every label of ``labels`` under its model in ``fits``.
+
+    With ``known`` (statistics of these labels measured earlier), only the labels in
+    ``stale`` (whose pixels or model changed since) are measured again.
+    """
+    from .kernels import distance_stats
+
+    n = int(labels.max(initial=0)) + 1
+    kinds, params, rms = model_table(fits, n)
+    if known is not None:
+        measure = np.zeros(n, bool)
+        measure[[k for k in stale if 0 < k < n]] = True
+        kinds = np.where(measure, kinds, 0).astype(kinds.dtype)
+    inliers, squares, counts = distance_stats(
+        np.ascontiguousarray(xyz.reshape(-1, 3)), np.ascontiguousarray(labels).ravel(), kinds,
+        params, np.zeros_like(rms), np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+        float(inlier_factor))
+    if known is None:
+        return PixelStats(inliers, squares, counts)
+    merged = PixelStats(*(np.zeros(n, a.dtype) for a in (inliers, squares, counts)))
+    for mine, theirs, fresh in zip((merged.inliers, merged.squares, merged.counts),
+                                   (known.inliers, known.squares, known.counts),
+                                   (inliers, squares, counts)):
+        m = min(n, theirs.size)
+        mine[:m] = theirs[:m]
+        mine[measure] = fresh[measure]
+    return merged
+
+
+def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
+                          config, sensor, ranges: np.ndarray, sigma: np.ndarray, tile: int,
+                          inlier_factor: float):
+    """Surfaces thinner than the tile grid sees, recovered from the pixels no tile model took.
+
+    Returns ``(labels, fits, stats)``. When no such blob is left over (most frames), the
+    inputs come back untouched at the cost of one pass over the labels; otherwise
+    :func:`rangeseg_o3d.refinement.recover.recover_pixels` fits the blobs and the statistics of
+    the regions whose pixels or models changed are measured again.
+    """
+    from .refinement.recover import recover_pixels
+
+    # Twice the smallest region: a piece of a surface the tiles already have, left over
+    # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
+    # could not see at all is not.
+    min_size = 2 * max(int(config.min_region_size), 10)
+    # Only what the tile grid could not see: blobs thinner than its 3x3 window (three
+    # tiles). Thicker ones were leftovers of the tile grid too, and its own recovery has
+    # had its say on them.
+    candidates = thin_leftovers(labels, cloud.valid, min_size=min_size, max_half_width=1.5 * tile,
+                                first_label=int(labels.max(initial=0)) + 1)
+    if candidates is None:
+        return labels, fits, stats
+    before, fits_before = labels.copy(), fits
+    labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
+                                  sensor=sensor, ranges=ranges, sigma=sigma,
+                                  candidates=candidates, min_size=min_size)
+    moved = before != labels
+    stale = set(np.unique(before[moved]).tolist()) | set(np.unique(labels[moved]).tolist())
+    stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
+    stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=stale)
+    return labels, fits, stats
+
+
+def thin_leftovers(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
+                   max_half_width: float, first_label: int) -> np.ndarray | None:
+    """Blobs of valid unlabelled pixels thinner than ``max_half_width``, or None if there are none.
+
+    The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no jump mask),
+    numbered from ``first_label``; a blob is kept when its largest distance to a pixel
+    outside every blob (OpenCV's 3x3 L2 distance transform) is below ``max_half_width``.
+    Each width is measured in the blob's bounding box grown by more than
+    ``max_half_width``: a path shorter than that from a blob pixel stays inside it, so the
+    test decides as it would on the whole image.
+    """
+    from .kernels import leftover_blobs
+
+    candidates, boxes = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
+                                       int(min_size), int(first_label))
+    if boxes.shape[0] == 0:
+        return None
+    height, width = labels.shape
+    margin = int(np.ceil(max_half_width)) + 2
+    too_wide = []  # dropped after all are measured: a blob's width counts its neighbours
+    for j, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
+        window = (slice(max(r0 - margin, 0), min(r1 + margin, height)),
+                  slice(max(c0 - margin, 0), min(c1 + margin, width)))
+        patch = candidates[window]
+        inside = cv2.distanceTransform((patch > 0).astype(np.uint8), cv2.DIST_L2, 3)
+        mine = patch == first_label + j
+        if not inside[mine].max() < max_half_width:
+            too_wide.append((window, mine))
+    if len(too_wide) == boxes.shape[0]:
+        return None
+    for window, mine in too_wide:
+        candidates[window][mine] = 0
+    return candidates
+
+
+def _flat_points(cloud) -> np.ndarray:
+    return np.ascontiguousarray(cloud.xyz.reshape(-1, 3))

@@ -1,0 +1,237 @@
+"""Tile grid -> sensor grid: full-resolution labels from the tile models, with the
+regions' distance statistics in the same pass, and the leftover blobs of the result.
+
+The per-pixel work is what each pixel needs: the candidate models of a tile (the
+regions of the tile and of the 8 around it) are listed once per tile, so a pixel inside
+a region (one candidate) costs one distance, which serves both its label test and its
+region's statistics; only pixels of tiles where regions meet test several models.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from .jit import njit  # numba.njit, with this package's cache locator installed
+
+from .inline import _distance
+
+__all__ = ["label_pixels", "leftover_blobs"]
+
+
+@njit(cache=True, nogil=True)
+def _tile_candidates(tile_labels, kinds):
+    # Per tile: the models its pixels are tested against, in the order of the per-pixel
+    # rule (own region first, then the 8 neighbours row by row), each label once.
+    # count -1: the tile's region has no model and keeps the tile's pixels.
+    th, tw = tile_labels.shape
+    n = kinds.shape[0]
+    table = np.zeros((th, tw, 9), np.int32)
+    count = np.zeros((th, tw), np.int32)
+    for tr in range(th):
+        for tc in range(tw):
+            own = tile_labels[tr, tc]
+            if 0 < own < n and kinds[own] == 0:
+                count[tr, tc] = -1
+                continue
+            m = 0
+            if 0 < own < n:
+                table[tr, tc, 0] = own
+                m = 1
+            for dr in range(-1, 2):
+                rr = tr + dr
+                if rr < 0 or rr >= th:
+                    continue
+                for dc in range(-1, 2):
+                    cc = tc + dc
+                    if cc < 0 or cc >= tw or (dr == 0 and dc == 0):
+                        continue
+                    k = tile_labels[rr, cc]
+                    if k <= 0 or k >= n or kinds[k] == 0:
+                        continue
+                    seen = False
+                    for j in range(m):
+                        if table[tr, tc, j] == k:
+                            seen = True
+                    if not seen:
+                        table[tr, tc, m] = k
+                        m += 1
+            count[tr, tc] = m
+    return table, count
+
+
+@njit(cache=True, nogil=True)
+def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma,
+                 inlier_factor):
+    """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
+
+    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
+    the one whose model is nearest in units of ``max(sigma, rms)``, if within ``k_sigma``
+    (its own tile's region wins ties, then the first neighbour in row order). Pixels of a
+    tile whose region has no model (``kinds == 0``) keep that region. ``xyz`` and
+    ``sigma`` are flat (H*W).
+
+    Returns ``(labels (H, W) int32, inliers, squares, counts)``: per label, the pixels
+    within ``inlier_factor * sigma`` of its model, the sum of their squared distances and
+    the number of pixels with a finite distance (pixels taken in raster order, as
+    :func:`rangeseg_o3d.kernels.distance_stats` counts them with a zero rms).
+    """
+    table, count = _tile_candidates(tile_labels, kinds)
+    n = kinds.shape[0]
+    out = np.zeros((height, width), np.int32)
+    inliers = np.zeros(n, np.int64)
+    squares = np.zeros(n)
+    counts = np.zeros(n, np.int64)
+    for r in range(height):
+        tr = r // tile
+        for c in range(width):
+            i = r * width + c
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            if not np.isfinite(z):
+                continue
+            tc = c // tile
+            m = count[tr, tc]
+            if m < 0:  # a region without a model keeps its tile
+                out[r, c] = tile_labels[tr, tc]
+                continue
+            if m == 0:
+                continue
+            noise = sigma[i]
+            best, best_score, best_dist = 0, k_sigma, 0.0
+            first = table[tr, tc, 0]
+            own_first = first == tile_labels[tr, tc]
+            for j in range(m):
+                k = table[tr, tc, j]
+                dist = _distance(kinds[k], params[k], x, y, z)
+                score = dist / max(noise, rms[k])
+                # the own region wins ties; neighbours must beat what is found so far
+                if score < best_score or (j == 0 and own_first and score <= best_score):
+                    best, best_score, best_dist = k, score, dist
+            if best == 0:
+                continue
+            out[r, c] = best
+            if np.isfinite(best_dist):
+                counts[best] += 1
+                squares[best] += best_dist * best_dist
+                if best_dist <= inlier_factor * max(noise, 0.0):
+                    inliers[best] += 1
+    return out, inliers, squares, counts
+
+
+@njit(cache=True, nogil=True)
+def leftover_blobs(labels, valid, min_size, first_label):
+    """Compact blobs of valid, unlabelled pixels: :func:`rangeseg_o3d.refinement.recover.leftover_candidates`
+    without a jump mask, in compiled passes that stop after the first when no pixel is left.
+
+    Cores are the leftover pixels whose 3x3 neighbourhood is all leftover (the grid border
+    replicated); 4-connected cores are numbered in raster order of their first pixel, each
+    leftover pixel takes the largest core number in its 3x3 neighbourhood, and blobs of at
+    least ``min_size`` pixels are renumbered from ``first_label``.
+
+    Returns ``(candidates (H, W) int32, boxes (n, 4) int64)``: each blob's bounding box
+    ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``.
+    """
+    h, w = labels.shape
+    candidates = np.zeros((h, w), np.int32)
+    none = np.zeros((0, 4), np.int64)
+    free = np.zeros((h, w), np.uint8)
+    n_free = 0
+    for r in range(h):
+        for c in range(w):
+            f = valid[r, c] and labels[r, c] == 0
+            free[r, c] = f
+            n_free += f
+    if n_free == 0:
+        return candidates, none
+    # cores: a separable 3x3 erosion (min along rows, then along columns), border replicated
+    across = _min3_rows(free)
+    core = np.zeros((h, w), np.int32)  # -1: a core pixel not yet numbered
+    n_core_pixels = 0
+    for r in range(h):
+        up, down = max(r - 1, 0), min(r + 1, h - 1)
+        for c in range(w):
+            if across[up, c] & across[r, c] & across[down, c]:
+                core[r, c] = -1
+                n_core_pixels += 1
+    if n_core_pixels == 0:
+        return candidates, none
+    n_cores = _number_pieces(core, n_core_pixels)
+    # every leftover pixel takes the largest core number around it (a separable 3x3 max)
+    across_max = np.empty((h, w), np.int32)
+    for r in range(h):
+        for c in range(w):
+            across_max[r, c] = max(core[r, max(c - 1, 0)], core[r, c], core[r, min(c + 1, w - 1)])
+    sizes = np.zeros(n_cores + 1, np.int64)
+    for r in range(h):
+        up, down = max(r - 1, 0), min(r + 1, h - 1)
+        for c in range(w):
+            if free[r, c]:
+                k = max(across_max[up, c], across_max[r, c], across_max[down, c])
+                candidates[r, c] = k
+                sizes[k] += 1
+    lut = np.zeros(n_cores + 1, np.int32)
+    kept = 0
+    for k in range(1, n_cores + 1):
+        if sizes[k] >= min_size:
+            lut[k] = first_label + kept
+            kept += 1
+    boxes = np.empty((kept, 4), np.int64)
+    boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
+    for r in range(h):
+        for c in range(w):
+            k = candidates[r, c]
+            if k == 0:
+                continue
+            k = lut[k]
+            candidates[r, c] = k
+            if k:
+                j = k - first_label
+                boxes[j, 0], boxes[j, 1] = min(boxes[j, 0], r), max(boxes[j, 1], r + 1)
+                boxes[j, 2], boxes[j, 3] = min(boxes[j, 2], c), max(boxes[j, 3], c + 1)
+    return candidates, boxes
+
+
+@njit(cache=True, nogil=True)
+def _min3_rows(image):
+    # min over each pixel and its left and right neighbours, the row's ends replicated
+    h, w = image.shape
+    out = np.empty_like(image)
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = image[r, max(c - 1, 0)] & image[r, c] & image[r, min(c + 1, w - 1)]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _number_pieces(marks, n_marked):
+    # Number the 4-connected pieces of the pixels marked -1 as 1, 2, ... in raster order of
+    # their first pixel (OpenCV's order); returns how many there are.
+    h, w = marks.shape
+    rows = np.empty(n_marked, np.int64)
+    cols = np.empty(n_marked, np.int64)
+    pieces = 0
+    for r in range(h):
+        for c in range(w):
+            if marks[r, c] != -1:
+                continue
+            pieces += 1
+            marks[r, c] = pieces
+            rows[0], cols[0], depth = r, c, 1
+            while depth:
+                depth -= 1
+                pr, pc = rows[depth], cols[depth]
+                if pr > 0 and marks[pr - 1, pc] == -1:
+                    marks[pr - 1, pc] = pieces
+                    rows[depth], cols[depth] = pr - 1, pc
+                    depth += 1
+                if pr < h - 1 and marks[pr + 1, pc] == -1:
+                    marks[pr + 1, pc] = pieces
+                    rows[depth], cols[depth] = pr + 1, pc
+                    depth += 1
+                if pc > 0 and marks[pr, pc - 1] == -1:
+                    marks[pr, pc - 1] = pieces
+                    rows[depth], cols[depth] = pr, pc - 1
+                    depth += 1
+                if pc < w - 1 and marks[pr, pc + 1] == -1:
+                    marks[pr, pc + 1] = pieces
+                    rows[depth], cols[depth] = pr, pc + 1
+                    depth += 1
+    return pieces

@@ -1,0 +1,232 @@
+"""The tile grid brought back to the sensor grid (rangeseg_o3d.fullres): labels by tile
+candidates, statistics of the labelling pass, thin leftovers, lazily expanded stages."""
+
+import pickle
+
+import cv2
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting.region_fitter import model_table
+from rangeseg_o3d.fitting.primitives import Plane
+from rangeseg_o3d.fullres import (ExpandedStages, expand, label_pixels, recover_thin_surfaces,
+                                  region_stats, thin_leftovers)
+from rangeseg_o3d.kernels import distance_stats
+from rangeseg_o3d.refinement.recover import leftover_candidates
+from rangeseg_o3d.result import INLIER_SIGMAS
+
+
+def _wall(h, w, z=2.0):
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    return np.dstack([(u - w / 2) * 0.01, (v - h / 2) * 0.01, np.full((h, w), z)])
+
+
+def _per_pixel_labels(xyz, tile_labels, tile, kinds, params, rms, sigma, k_sigma):
+    """The rule, pixel by pixel: the nearest of the models of the tile's region and the 8
+    around it in units of max(sigma, rms), within k_sigma; own region first (wins ties),
+    then the neighbours in row order (a later one must be strictly nearer)."""
+    from rangeseg_o3d.kernels.inline import _distance
+
+    distance = _distance.py_func
+    h, w = xyz.shape[:2]
+    th, tw = tile_labels.shape
+    out = np.zeros((h, w), np.int32)
+    for r in range(h):
+        for c in range(w):
+            x, y, z = xyz[r, c]
+            if not np.isfinite(z):
+                continue
+            tr, tc = r // tile, c // tile
+            own = tile_labels[tr, tc]
+            if own > 0 and kinds[own] == 0:
+                out[r, c] = own
+                continue
+            best, best_score = 0, k_sigma
+            if own > 0:
+                score = distance(kinds[own], params[own], x, y, z) / max(sigma[r, c], rms[own])
+                if score <= best_score:
+                    best, best_score = own, score
+            for rr in range(tr - 1, tr + 2):
+                for cc in range(tc - 1, tc + 2):
+                    if not (0 <= rr < th and 0 <= cc < tw) or (rr, cc) == (tr, tc):
+                        continue
+                    k = tile_labels[rr, cc]
+                    if k <= 0 or kinds[k] == 0:
+                        continue
+                    score = distance(kinds[k], params[k], x, y, z) / max(sigma[r, c], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+            out[r, c] = best
+    return out
+
+
+class _Capture(rs.Pipeline):
+    # the tile labels and fits the pipeline hands to the full-resolution step
+    def _full_resolution(self, cloud, tile_labels, fits):
+        self.captured = (tile_labels.copy(), dict(fits))
+        return super()._full_resolution(cloud, tile_labels, fits)
+
+
+@pytest.fixture(scope="module")
+def generated_frame():
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+    from rangeseg_o3d.synthetic.suite import rgbd_scenes
+
+    # planes, cylinders and a sphere at 160 x 120, tiles of 4
+    cloud = simulate_depth_camera(rgbd_scenes()[1][1], width=160, height=120, fx=131.25,
+                                  fy=131.25, cx=79.5, cy=59.5, seed=1).cloud
+    pipe = _Capture(rs.load_config("rgbd_vga", overrides={"tile": 4}))
+    result = pipe.run(cloud)
+    return cloud, pipe, result
+
+
+def test_labels_by_tile_candidates_equal_the_per_pixel_rule(generated_frame):
+    cloud, pipe, _ = generated_frame
+    tile_labels, fits = pipe.captured
+    kinds, params, rms = model_table(fits, int(tile_labels.max()) + 1)
+    assert {1, 3} <= set(kinds[1:].tolist())  # planes and cylinders are tested
+    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
+    labels, stats = label_pixels(cloud, tile_labels, fits, tile=4, sigma=sigma, k_sigma=3.0,
+                                 inlier_factor=INLIER_SIGMAS)
+    expected = _per_pixel_labels(cloud.xyz, tile_labels, 4, kinds, params, rms, sigma, 3.0)
+    np.testing.assert_array_equal(labels, expected)
+    # interior and border pixels both occur, and some pixels are left to no model
+    assert 0.3 < (labels > 0).mean() < 1.0
+    # the statistics of the labelling pass are those of a separate pass over the labels
+    inliers, squares, counts = distance_stats(cloud.xyz.reshape(-1, 3), labels.ravel(), kinds, params,
+                                              np.zeros_like(rms), sigma.ravel(), INLIER_SIGMAS)
+    np.testing.assert_array_equal(stats.inliers, inliers)
+    np.testing.assert_array_equal(stats.counts, counts)
+    np.testing.assert_array_equal(stats.squares, squares)
+
+
+def test_label_pixels_on_two_walls_and_a_region_without_a_model():
+    # Two walls meeting at column 30 (a 2 cm step in depth, no jump); tiles of 6 pixels.
+    xyz = _wall(24, 60)
+    xyz[:, 30:, 2] = 2.02
+    xyz[5, 20] = np.nan     # an invalid pixel stays 0
+    xyz[10, 10, 2] = 2.5    # a pixel off both planes too
+    tile_labels = np.zeros((4, 10), np.int32)
+    tile_labels[:, :4] = 1      # columns 0..23
+    tile_labels[:, 6:] = 2      # columns 36..59; tiles 4 and 5 (the border) unlabelled
+    tile_labels[0, 0] = 3       # a region without a model keeps its tile
+    fits = {1: Plane([0, 0, 1], 2.0, 0.001, 1), 2: Plane([0, 0, 1], 2.02, 0.001, 1)}
+    labels, stats = label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6,
+                                 sigma=np.full((24, 60), 0.002), k_sigma=3.0, inlier_factor=2.0)
+    expected = np.zeros((24, 60), np.int32)
+    expected[:, :30] = 1        # tile 4 (columns 24..29) reached from tile 3's region
+    expected[:, 30:] = 2        # tile 5 (columns 30..35) reached from tile 6's region
+    expected[:6, :6] = 3
+    expected[5, 20] = expected[10, 10] = 0
+    np.testing.assert_array_equal(labels, expected)
+    # every labelled pixel lies on its plane: all are inliers, at distance 0
+    assert stats.counts[1:3].tolist() == [(labels == 1).sum(), (labels == 2).sum()]
+    assert stats.inliers[1:3].tolist() == stats.counts[1:3].tolist() and stats.counts[3] == 0
+    assert stats.squares[1:3] == pytest.approx([0.0, 0.0], abs=1e-20)
+
+
+def _reference_thin_leftovers(labels, valid, min_size, first, max_half_width):
+    # the whole-image computation the patches replace
+    candidates = leftover_candidates(labels, valid, np.zeros(labels.shape, bool), min_size=min_size,
+                                     first_label=first)
+    inside = cv2.distanceTransform((candidates > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    widest = np.zeros(int(candidates.max(initial=0)) + 1, np.float32)
+    np.maximum.at(widest, candidates.ravel(), inside.ravel())
+    candidates = np.where(widest[candidates] < max_half_width, candidates, 0)
+    return candidates if candidates.any() else None
+
+
+def test_thin_leftovers_equal_the_whole_image_computation():
+    rng = np.random.default_rng(4)
+    labels = np.ones((120, 160), np.int32)
+    valid = np.ones(labels.shape, bool)
+    valid[:, :3] = False
+    # leftovers of every width, some touching each other and the grid's border
+    for _ in range(25):
+        r, c = rng.integers(0, 118), rng.integers(0, 158)
+        labels[r:r + rng.integers(2, 30), c:c + rng.integers(2, 30)] = 0
+    found = 0
+    for min_size in (10, 40, 200):
+        expected = _reference_thin_leftovers(labels, valid, min_size, 2, 9.0)
+        got = thin_leftovers(labels, valid, min_size=min_size, max_half_width=9.0, first_label=2)
+        if expected is None:
+            assert got is None
+        else:
+            found += 1
+            np.testing.assert_array_equal(got, expected)
+    assert found >= 2
+
+
+def test_nothing_left_over_skips_the_recovery():
+    labels = np.ones((30, 40), np.int32)
+    valid = np.ones(labels.shape, bool)
+    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=2) is None
+    labels[10:20, 10:30] = 0
+    labels[12:18, 12:28] = 2  # a band 2 pixels wide around: no core survives the erosion
+    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=3) is None
+    valid[10:20, 10:30] = False  # invalid pixels are no leftover
+    labels[12:18, 12:28] = 0
+    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=2) is None
+
+
+def test_recovery_with_nothing_left_over_returns_its_inputs_and_the_same_result():
+    xyz = _wall(48, 60)
+    cloud = rs.OrganizedCloud(xyz)
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}})
+    pipe = rs.Pipeline(cfg)
+    fits = {1: Plane([0, 0, 1], 2.0, 0.0, 1)}
+    sigma = np.full(cloud.shape, 0.002)
+    labels, stats = label_pixels(cloud, np.ones((8, 10), np.int32), fits, tile=6, sigma=sigma,
+                                 k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+    assert (labels == 1).all()
+    out = recover_thin_surfaces(cloud, labels, fits, stats, fitter=pipe.fitter, config=cfg.refine,
+                                sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma, tile=6,
+                                inlier_factor=INLIER_SIGMAS)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+    # the pipeline finds the same with the recovery switched off
+    with_recovery = pipe.run(cloud)
+    cfg.refine.recover_leftovers = False
+    without = rs.Pipeline(cfg).run(cloud)
+    np.testing.assert_array_equal(with_recovery.labels, without.labels)
+    assert [repr(f.model) for f in with_recovery.features] == [repr(f.model) for f in without.features]
+
+
+def test_recovered_regions_get_their_statistics_measured_again(generated_frame):
+    # stale labels measured again, the others kept: as a full measure of the final labels
+    cloud, pipe, result = generated_frame
+    tile_labels, fits = pipe.captured
+    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
+    labels, stats = label_pixels(cloud, tile_labels, fits, tile=4, sigma=sigma, k_sigma=3.0,
+                                 inlier_factor=INLIER_SIGMAS)
+    moved = labels.copy()
+    k = int(labels.max())
+    moved[labels == k] = 0  # region k lost its pixels, one more region appears
+    moved[:10, :10] = k + 1
+    new_fits = dict(fits)
+    new_fits[k + 1] = Plane([0, 0, 1], 1.0, 0.001, 1)
+    full = region_stats(cloud.xyz, moved, new_fits, sigma, INLIER_SIGMAS)
+    stale = set(np.unique(labels[moved != labels]).tolist()) | {k, k + 1}
+    kept = region_stats(cloud.xyz, moved, new_fits, sigma, INLIER_SIGMAS, known=stats, stale=stale)
+    for a, b in zip((full.inliers, full.squares, full.counts), (kept.inliers, kept.squares, kept.counts)):
+        np.testing.assert_array_equal(a, b)
+    assert full.counts[k + 1] > 0 and full.counts[k] == 0
+
+
+def test_stage_images_expand_on_first_access_only():
+    small = {"residual": np.arange(6, dtype=np.float32).reshape(2, 3), "edges": np.eye(2, 3, dtype=bool)}
+    stages = ExpandedStages(small, 4, (7, 11))
+    assert len(stages) == 2 and set(stages) == {"residual", "edges"} and not stages._expanded
+    residual = stages["residual"]
+    assert residual.shape == (7, 11) and residual[6, 10] == 5.0 and residual[3, 4] == 1.0
+    assert set(stages._expanded) == {"residual"} and stages["residual"] is residual
+    np.testing.assert_array_equal(stages.get("edges"), expand(small["edges"], 4, (7, 11)))
+    assert stages.get("closed") is None and "closed" not in stages
+    copy = pickle.loads(pickle.dumps(stages))
+    assert {k: v.shape for k, v in dict(copy).items()} == {"residual": (7, 11), "edges": (7, 11)}
+
+
+def test_pipeline_on_tiles_returns_lazy_stages(generated_frame):
+    cloud, _, result = generated_frame
+    assert isinstance(result.stages, ExpandedStages)
+    assert {image.shape for image in result.stages.values()} == {cloud.shape}
