@@ -34,7 +34,7 @@ _EXPORTS = {
     "Unfitted": "result",
     "Result": "result",
     "Plugin": "registry",
-    "Segmentation": "registry",
+    "Segmentation": "result",
 }
 
 __all__ = list(_EXPORTS)
@@ -47,8 +47,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the names as ordinary imports
     from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
     from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
     from .pipeline import Pipeline
-    from .registry import Plugin, Segmentation
-    from .result import Feature, Result, Unfitted
+    from .registry import Plugin
+    from .result import Feature, Result, Segmentation, Unfitted
     from .sensor import NoiseModel, Sensor
 
 

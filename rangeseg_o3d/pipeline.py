@@ -17,8 +17,7 @@ from .fitting.region_fitter import RegionFitter
 from .fullres import ExpandedStages, PixelStats, label_pixels, recover_thin_surfaces, region_stats
 from .refinement import refine_regions
 from .patches import PatchSource
-from .registry import Segmentation
-from .result import INLIER_SIGMAS, Feature, Regions, Result, Unfitted
+from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
 from .sensor import Sensor, check_plausible
 
 __all__ = ["Pipeline", "warm_up"]

@@ -28,12 +28,14 @@ import inspect
 import logging
 import typing
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
 from typing import Callable, Iterable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model
+
+from .result import Segmentation  # the segmenters' answer; here for the plugins that import it from here
 
 __all__ = [
     "Plugin",
@@ -51,20 +53,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 GROUPS = {"segmenter": "rangeseg_o3d.segmenters", "fitter": "rangeseg_o3d.fitters"}
-
-
-@dataclass(frozen=True)
-class Segmentation:
-    """What a segmenter returns.
-
-    labels : (H, W) int32, 0 = in no region, regions numbered 1..n.
-    stages : intermediate (H, W) images worth inspecting, e.g. ``residual``, ``closed``, ``edges``.
-    timings : seconds per internal stage.
-    """
-
-    labels: np.ndarray
-    stages: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
 
 
 class StrictParams(BaseModel):

@@ -1,4 +1,5 @@
-"""What a pipeline run returns: labels, features (with their patch geometry), unfitted regions, timings."""
+"""What the stages return: a segmenter's Segmentation, the Regions passed between stages, and a run's
+Result (labels, features with their patch geometry, unfitted regions, timings)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 
 from .fitting.primitives import Cylinder, Plane, Sphere
 
-__all__ = ["Regions", "Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
+__all__ = ["Segmentation", "Regions", "Feature", "Unfitted", "Result", "INLIER_SIGMAS", "RESULT_FORMAT"]
 
 #: A pixel is an inlier of its region's model when its orthogonal distance is within this
 #: many sensor noise sigmas at its range (the configuration's noise model).
@@ -17,6 +18,20 @@ INLIER_SIGMAS = 2.0
 RESULT_FORMAT = "rangeseg_o3d.result/2"
 
 _MODELS = {"plane": Plane, "sphere": Sphere, "cylinder": Cylinder}
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """What a segmenter returns.
+
+    labels : (H, W) int32, 0 = in no region, regions numbered 1..n.
+    stages : intermediate (H, W) images worth inspecting, e.g. ``residual``, ``closed``, ``edges``.
+    timings : seconds per internal stage.
+    """
+
+    labels: np.ndarray
+    stages: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)

@@ -141,71 +141,91 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
     if not pairs:
         return labels, fits, adjacency
-    moments = ctx.fitter.moments(ctx.xyz, labels)
-    root = {k: k for k in fits}
+    unions = _Unions(ctx, labels, fits, rms_factor)
+    unions.add(pairs)
+    for i, (a, b) in enumerate(pairs):
+        ra, rb = unions.find(a), unions.find(b)
+        if ra == rb or not fits[ra] or not fits[rb]:
+            continue
+        if (ra, rb) not in unions.cache:  # a part merged since: its pairs' unions are new
+            unions.add(pairs[i:])
+        union = unions.model(ra, rb)
+        if union and union.kind == fits[ra].kind and union.rms <= rms_factor * max(fits[ra].rms, fits[rb].rms):
+            unions.join(ra, rb, union)
+    lut = unions.lookup()
+    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+    return lut[labels], fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
 
-    def find(k):
-        while root[k] != k:
-            k = root[k]
+
+class _Unions:
+    """Union-find over the labels of ``fits`` (which it updates: a root holds its union's
+    model) and the models of candidate unions, cached until a part merges."""
+
+    def __init__(self, ctx: Context, labels: np.ndarray, fits: dict, rms_factor: float):
+        self.ctx, self.labels, self.fits, self.rms_factor = ctx, labels, fits, rms_factor
+        self.moments = ctx.fitter.moments(ctx.xyz, labels)  # None: the fitter needs points
+        self.root = {k: k for k in fits}
+        self.cache: dict = {}
+        self.regions = None  # flat pixels per label, gathered when a union needs its points
+
+    def find(self, k: int) -> int:
+        while self.root[k] != k:
+            k = self.root[k]
         return k
 
-    cache: dict = {}
-
-    def add_unions(rest):
-        # The unions of the remaining pairs of current roots not yet known, from summed
-        # moments in one call; None where the kind needs its points (or no moments).
+    def add(self, pairs) -> None:
+        """Cache the unions of ``pairs``' current roots not yet known, from summed moments in
+        one call; None where the kind needs its points (or there are no moments)."""
+        fits = self.fits
         keys = []
-        for a, b in rest:
-            key = (find(a), find(b))
-            if key[0] != key[1] and key not in cache and fits.get(key[0]) and fits.get(key[1]):
+        for a, b in pairs:
+            key = (self.find(a), self.find(b))
+            if key[0] != key[1] and key not in self.cache and fits.get(key[0]) and fits.get(key[1]):
                 keys.append(key)
-        if moments is None or not keys:
-            cache.update(dict.fromkeys(keys))
+        if self.moments is None or not keys:
+            self.cache.update(dict.fromkeys(keys))
             return
         a_idx, b_idx = np.array(keys).T
-        rows = moments[a_idx] + moments[b_idx]
+        rows = self.moments[a_idx] + self.moments[b_idx]
         # No plane fits a union better than its least-squares plane: where that is over
         # the merge limit, the refit (and its model) is not needed. Most adjacent planes
         # meet at creases and end here.
         planar = np.array([isinstance(fits[a], Plane) and isinstance(fits[b], Plane) for a, b in keys])
         if planar.any():
-            limits = rms_factor * np.maximum([fits[a].rms for a, _ in keys],
-                                             [fits[b].rms for _, b in keys])
+            limits = self.rms_factor * np.maximum([fits[a].rms for a, _ in keys],
+                                                  [fits[b].rms for _, b in keys])
             hopeless = planar & (planes_from_moments(rows).rms > limits)
-            cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
+            self.cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
             keys = [key for key, no in zip(keys, hopeless.tolist()) if not no]
             rows = rows[~hopeless]
         if keys:
-            cache.update(zip(keys, ctx.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
+            self.cache.update(zip(keys, self.ctx.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
 
-    add_unions(pairs)
-    regions = None
-    for i, (a, b) in enumerate(pairs):
-        ra, rb = find(a), find(b)
-        if ra == rb or not fits[ra] or not fits[rb]:
-            continue
-        if (ra, rb) not in cache:  # a part merged since: its pairs' unions are new
-            add_unions(pairs[i:])
-        union = cache.get((ra, rb))
+    def model(self, ra: int, rb: int):
+        """The union's model: the cached one, else a refit of the union's points."""
+        union = self.cache.get((ra, rb))
         if union is None:
-            if regions is None:
-                regions = region_indices(labels)
-            union_idx = np.concatenate([regions[ra], regions[rb]])
-            union = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, union_idx), fits[ra])
-        limit = rms_factor * max(fits[ra].rms, fits[rb].rms)
-        if union and union.kind == fits[ra].kind and union.rms <= limit:
-            root[rb] = ra
-            fits[ra] = union
-            fits.pop(rb)
-            for key in [key for key in cache if ra in key or rb in key]:
-                del cache[key]
-            if moments is not None:
-                moments[ra] += moments[rb]
-            if regions is not None:
-                regions[ra] = np.concatenate([regions[ra], regions.pop(rb)])
-    lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
-    for k in root:
-        lut[k] = find(k)
-    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    adjacency = {(min(a, b), max(a, b)) for a, b in mapped if a != b}
-    return lut[labels], fits, adjacency
+            if self.regions is None:
+                self.regions = region_indices(self.labels)
+            union_idx = np.concatenate([self.regions[ra], self.regions[rb]])
+            union = self.ctx.fitter.refit(self.ctx.fitter.points(self.ctx.xyz, union_idx), self.fits[ra])
+        return union
+
+    def join(self, ra: int, rb: int, union) -> None:
+        """Merge root ``rb`` into root ``ra``, whose model becomes ``union``."""
+        self.root[rb] = ra
+        self.fits[ra] = union
+        self.fits.pop(rb)
+        for key in [key for key in self.cache if ra in key or rb in key]:
+            del self.cache[key]
+        if self.moments is not None:
+            self.moments[ra] += self.moments[rb]
+        if self.regions is not None:
+            self.regions[ra] = np.concatenate([self.regions[ra], self.regions.pop(rb)])
+
+    def lookup(self) -> np.ndarray:
+        """Label -> its root's label, for every label of the grid."""
+        lut = np.arange(int(self.labels.max(initial=0)) + 1, dtype=np.int32)
+        for k in self.root:
+            lut[k] = self.find(k)
+        return lut

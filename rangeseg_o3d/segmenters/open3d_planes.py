@@ -30,7 +30,8 @@ import time
 import numpy as np
 
 from ..cloud import OrganizedCloud
-from ..registry import Plugin, Segmentation, params_model
+from ..registry import Plugin, params_model
+from ..result import Segmentation
 
 __all__ = [
     "PlanarPatchesConfig",

@@ -72,7 +72,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
 
 from ..cloud import OrganizedCloud
-from ..registry import Plugin, Segmentation, defaults_of, params_model
+from ..registry import Plugin, defaults_of, params_model
+from ..result import Segmentation
 
 __all__ = [
     "RegionGrowingConfig",

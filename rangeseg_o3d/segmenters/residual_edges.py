@@ -9,8 +9,9 @@ from pydantic import BaseModel, ConfigDict, model_validator
 
 from ..edges import close_residual, crease_edges, edge_mask, jump_edges
 from ..regions import label_regions
-from ..registry import Plugin, Segmentation, params_model
+from ..registry import Plugin, params_model
 from ..residual import MIN_VALID, residual_image
+from ..result import Segmentation
 from ..sensor import Sensor
 
 __all__ = ["segment_residual_edges", "ResidualEdgesConfig", "PLUGIN"]
