@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d import OrganizedCloud
-from rangeseg_o3d.acquisition import CaptureConfig, cli, simulated_capture
+from rangeseg_o3d.acquisition import CaptureConfig, simulated_capture
+from rangeseg_o3d.cli import capture as cli
 from rangeseg_o3d.acquisition.consensus import consensus
 from rangeseg_o3d.acquisition.sim.faults import LineFaults
 from rangeseg_o3d.acquisition.simulate import simulation_config

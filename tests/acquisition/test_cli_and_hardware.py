@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d import OrganizedCloud
-from rangeseg_o3d.acquisition import cli
+from rangeseg_o3d.cli import capture as cli
 
 
 def parse(argv):

@@ -129,7 +129,7 @@ def test_version_and_non_finite_floats(capsys):
 def test_finite_float_type():
     import argparse
 
-    from rangeseg_o3d.cliargs import finite_float, positive_int
+    from rangeseg_o3d.cli.args import finite_float, positive_int
 
     assert finite_float("1e-3") == pytest.approx(1e-3)
     for text in ("nan", "inf", "-Infinity", "1e999", "one"):

@@ -1,4 +1,5 @@
-"""The ``rangeseg`` command line: segment, demo, compare, capture."""
+"""The ``rangeseg`` command line: segment, demo, compare, capture (argument types in
+:mod:`.args`, the capture command in :mod:`.capture`)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cliargs import finite_float, positive_int
+from .args import finite_float, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +29,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, *, preset: bool = True
                         help="set one configuration value by dotted key, e.g. sensor.sigma0=0.01 or "
                              "refine.k_sigma=2.5 (repeatable)")
     if units:
-        from .sensor import UNIT_SCALES
+        from ..sensor import UNIT_SCALES
 
         parser.add_argument("--units", choices=list(UNIT_SCALES), default=None,
                             help="unit of the inputs' coordinates, converted to metres "
@@ -37,7 +38,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, *, preset: bool = True
 
 def config_from_args(args, source=None):
     """The configuration ``--config`` (or ``source``) names, with the ``--set`` overrides."""
-    from .config import load_config, parse_overrides
+    from ..config import load_config, parse_overrides
 
     return load_config(args.config if source is None else source,
                        overrides=parse_overrides(getattr(args, "overrides", None) or []))
@@ -71,7 +72,7 @@ def format_table(result, *, title: str = "") -> str:
 
 def write_json(path: Path, payload: dict) -> None:
     """Write ``payload`` as JSON atomically."""
-    from .io.atomic import atomic_write
+    from ..io.atomic import atomic_write
 
     with atomic_write(path, mode="w") as fh:
         json.dump(payload, fh, indent=2)
@@ -93,26 +94,26 @@ def _load_options(args) -> dict:
 
 def _rerun_args(parser):
     try:
-        from .viz.rerun_log import add_rerun_arguments
+        from ..viz.rerun_log import add_rerun_arguments
     except ImportError:  # pragma: no cover - viz is part of the package
         return
     add_rerun_arguments(parser)
 
 
 def _recording(args):
-    from .viz.rerun_log import recording_from_args
+    from ..viz.rerun_log import recording_from_args
 
     return recording_from_args(args)
 
 
 def _finish(args, rec, cloud=None, result=None, png=None):
     if png and cloud is not None and result is not None:
-        from .viz.panel import write_panel_png
+        from ..viz.panel import write_panel_png
 
         write_panel_png(png, cloud, result)
         print(f"wrote {png}")
     if rec is not None:
-        from .viz.rerun_log import finish_recording
+        from ..viz.rerun_log import finish_recording
 
         finish_recording(args, rec)
 
@@ -128,7 +129,7 @@ def _dask_or_none(args, n_tasks: int):
 
     if not args.scheduler:
         return contextlib.nullcontext()
-    from .batch import dask_client
+    from ..batch import dask_client
 
     return dask_client(args.scheduler, workers=min(args.jobs, n_tasks) if args.jobs else None)
 
@@ -137,8 +138,8 @@ def cmd_segment(args) -> int:
     """``rangeseg segment``: every input through :func:`rangeseg_o3d.batch.run_batch`."""
     import time
 
-    from .batch import Progress, plan_tasks, read_summary, run_batch, write_summary
-    from .cloud import set_max_grid_points
+    from ..batch import Progress, plan_tasks, read_summary, run_batch, write_summary
+    from ..cloud import set_max_grid_points
 
     config = config_from_args(args)
     set_max_grid_points(config.max_grid_points)  # loaders refuse bigger grids before allocating
@@ -206,20 +207,20 @@ def cmd_segment(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .pipeline import Pipeline
+    from ..pipeline import Pipeline
 
     if not (math.isfinite(args.faults) and 0.0 <= args.faults < 1.0):
         raise ValueError(f"--faults must be a byte fault rate in [0, 1); got {args.faults}")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.no_capture:
-        from .synthetic.lms200 import simulate_lms200
-        from .synthetic.suite import default_scene
+        from ..synthetic.lms200 import simulate_lms200
+        from ..synthetic.suite import default_scene
 
         cloud = simulate_lms200(default_scene(), seed=args.seed).cloud
         source = "simulated LMS200 scan of the default scene (ray-cast)"
     else:
-        from .acquisition.simulate import simulated_capture
+        from ..acquisition.simulate import simulated_capture
 
         cloud = simulated_capture(faults=args.faults, seed=args.seed)
         source = "stop-and-go capture from the simulated LMS200 + PowerCube over serial ptys"
@@ -239,7 +240,7 @@ def cmd_demo(args) -> int:
     payload = {"input": str(scan_path), "source": source,
                "config": pipeline.config.model_dump(), **result.to_dict()}
     write_json(out_dir / "result.json", payload)
-    from .io.atomic import atomic_write
+    from ..io.atomic import atomic_write
 
     with atomic_write(out_dir / "labels.npy", mode="wb") as fh:
         np.save(fh, result.labels)
@@ -251,7 +252,7 @@ def cmd_demo(args) -> int:
 def _version() -> str:
     from importlib import metadata
 
-    from . import __version__
+    from .. import __version__
 
     try:
         return metadata.version("rangeseg_o3d")
@@ -307,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, module, help_text in (
         ("compare", "rangeseg_o3d.compare", "run every segmenter on the same scans and compare"),
-        ("capture", "rangeseg_o3d.acquisition.cli", "capture a scan from an LMS200 on a PowerCube (or simulators)"),
+        ("capture", "rangeseg_o3d.cli.capture", "capture a scan from an LMS200 on a PowerCube (or simulators)"),
     ):
         import importlib
 
@@ -339,7 +340,3 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

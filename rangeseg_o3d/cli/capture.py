@@ -13,7 +13,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..cliargs import finite_float
+from .args import finite_float
 
 __all__ = ["add_arguments", "run", "check_output"]
 
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args):
-    from .config import CaptureConfig, load_capture_config
+    from ..acquisition.config import CaptureConfig, load_capture_config
 
     # Only the fields the file or the command line set: a settings model rebuilt from a full
     # dump would count every field as set, and the simulator would keep the hardware's waits.
@@ -94,9 +94,9 @@ def run(args: argparse.Namespace) -> int:
     """Run a capture; 0 on success, 1 on a device or write error, 2 on bad arguments, 130 on Ctrl-C."""
     from pydantic import ValidationError
 
-    from .capture import CaptureProgress, capture
-    from .errors import AcquisitionError
-    from .simulate import simulated_capture
+    from ..acquisition.capture import CaptureProgress, capture
+    from ..acquisition.errors import AcquisitionError
+    from ..acquisition.simulate import simulated_capture
 
     try:
         config = _config(args)
