@@ -3,19 +3,23 @@
 Steps, each printed with its figures:
 
 1. ``python -m build`` (sdist, then the wheel from the sdist); both must carry the presets.
+   Building the wheel compiles the numba kernels into it (setup.py): the build time includes
+   that compilation, and the step says how many compiled kernels the wheel carries.
 2. A fresh venv from an interpreter every user may run; the wheel installed with
    ``pip --no-deps``; the dependencies are those of the interpreter running this script
-   (a ``.pth`` file), so nothing is downloaded but the build backend.
+   (a ``.pth`` file), so nothing is downloaded but the build's own requirements (setuptools,
+   and for the wheel what compiling the kernels imports: build_support/rangeseg_build.py).
 3. From another directory, as the installing user: the time to a first result (a saved
-   LMS200 scan loaded and segmented) in the first process after the install (numba compiles the kernels it needs) and in the next process
-   (loads them), then ``rangeseg demo`` and ``rangeseg segment`` on the demo's scan.
+   LMS200 scan loaded and segmented) in the first process after the install (numba loads the
+   kernels compiled into the wheel, or compiles those it needs when they do not fit this
+   machine) and in the next process, then ``rangeseg demo`` and ``rangeseg segment`` on the demo's scan.
 4. With ``--unprivileged`` (needs root): the same as ``nobody`` with ``HOME=/nonexistent``:
    the time to a first result (kernels taken from the installation) and ``rangeseg demo``.
 
 Exit status 0 when every step worked. Times are wall seconds with CPU seconds beside them
 (on a shared machine the wall time depends on the load, the CPU time much less).
 
-    python scripts/wheel_install.py [--unprivileged] [--keep DIR]
+    python scripts/wheel_install.py [--unprivileged] [--no-precompile] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -41,9 +45,12 @@ NOBODY = "65534"
 FIRST_RESULT = """
 import sys, time
 start, cpu = time.perf_counter(), time.process_time()
+from numba.core import event
 import rangeseg_o3d as rs
-result = rs.Pipeline("lms200").run(rs.OrganizedCloud.load(sys.argv[1]))
-print(f"{time.perf_counter() - start:.2f} {time.process_time() - cpu:.2f} {len(result.features)} {rs.__file__}")
+with event.install_recorder("numba:compile") as compiled:
+    result = rs.Pipeline("lms200").run(rs.OrganizedCloud.load(sys.argv[1]))
+functions = sum(1 for _, e in compiled.buffer if e.is_start)
+print(f"{time.perf_counter() - start:.2f} {time.process_time() - cpu:.2f} {len(result.features)} {functions} {rs.__file__}")
 """
 
 
@@ -78,14 +85,16 @@ def base_interpreter() -> str:
 
 
 def clean_env(**extra) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR", "RANGESEG_CACHE_DIR")}
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR", "RANGESEG_CACHE_DIR",
+                                                              "RANGESEG_NO_PRECOMPILE")}
     env.update(extra)
     return env
 
 
-def build(dist: Path) -> tuple[Path, Path]:
+def build(dist: Path, precompile: bool = True) -> tuple[Path, Path]:
     start = time.perf_counter()
-    run([sys.executable, "-m", "build", "--outdir", dist, ROOT], timeout=900)
+    env = clean_env() if precompile else clean_env(RANGESEG_NO_PRECOMPILE="1")
+    run([sys.executable, "-m", "build", "--outdir", dist, ROOT], env=env, timeout=1800)
     (sdist,) = dist.glob("*.tar.gz")
     (wheel,) = dist.glob("*.whl")
     presets = sorted(p.name for p in (ROOT / "configs").glob("*.yaml"))
@@ -93,9 +102,11 @@ def build(dist: Path) -> tuple[Path, Path]:
         in_sdist = sorted(Path(n).name for n in archive.getnames() if "/configs/" in n and n.endswith(".yaml"))
     with zipfile.ZipFile(wheel) as archive:
         in_wheel = sorted(Path(n).name for n in archive.namelist() if n.startswith("rangeseg_o3d/configs/"))
+        kernels = sum(1 for n in archive.namelist() if n.endswith(".nbi"))
     if in_sdist != presets or in_wheel != presets:
         raise StepFailed(f"FAILED: presets {presets}; sdist has {in_sdist}, wheel has {in_wheel}")
-    print(f"build: sdist and wheel in {time.perf_counter() - start:.1f} s; both carry the {len(presets)} presets")
+    print(f"build: sdist and wheel in {time.perf_counter() - start:.1f} s; both carry the {len(presets)} presets; "
+          f"the wheel carries {kernels} compiled kernels")
     return sdist, wheel
 
 
@@ -122,12 +133,13 @@ def save_scan(path: Path) -> Path:
 
 def first_result(python: Path, scan: Path, cwd: Path, label: str, prefix=(), env=None) -> None:
     done = run([python, "-c", FIRST_RESULT, str(scan)], cwd=cwd, prefix=prefix, env=env)
-    wall, cpu, features, where = done.stdout.split()
+    wall, cpu, features, functions, where = done.stdout.split()
     if not where.startswith(str(python.parent.parent)):
         raise StepFailed(f"FAILED: imported {where}, not the installed package")
     warnings = [line for line in done.stderr.splitlines() if "Warning:" in line]
     warned = f" (warned: {warnings[0].split('Warning: ', 1)[1][:200]})" if warnings else ""
-    print(f"{label}: first result in {wall} s wall, {cpu} s CPU ({features} features){warned}")
+    print(f"{label}: first result in {wall} s wall, {cpu} s CPU ({features} features; numba compiled "
+          f"{functions} functions){warned}")
 
 
 def demo_and_segment(venv: Path, cwd: Path, label: str, prefix=(), env=None, segment=True) -> None:
@@ -147,13 +159,16 @@ def demo_and_segment(venv: Path, cwd: Path, label: str, prefix=(), env=None, seg
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--unprivileged", action="store_true", help="also run as nobody without a home (root only)")
+    parser.add_argument("--no-precompile", action="store_true",
+                        help="build the wheel without compiled kernels (as one built on another CPU): "
+                             "the first process compiles")
     parser.add_argument("--keep", help="work in this folder and keep it (default: a temporary folder)")
     args = parser.parse_args()
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="rangeseg-wheel-"))
     work.mkdir(parents=True, exist_ok=True)
     os.chmod(work, 0o755)  # the unprivileged user must reach the venv
     try:
-        _, wheel = build(work / "dist")
+        _, wheel = build(work / "dist", precompile=not args.no_precompile)
         python = install(wheel, work / "venv")
         elsewhere = work / "run"
         elsewhere.mkdir(exist_ok=True)
