@@ -76,44 +76,69 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     """
     table, count = _tile_candidates(tile_labels, kinds)
     n = kinds.shape[0]
+    th, tw = tile_labels.shape
     out = np.zeros((height, width), np.int32)
     inliers = np.zeros(n, np.int64)
     squares = np.zeros(n)
     counts = np.zeros(n, np.int64)
+    # Row by row (the statistics sum in raster order), tile by tile along the row: no
+    # division per pixel, and a pixel of a tile inside a region tests one model.
     for r in range(height):
-        tr = r // tile
-        for c in range(width):
-            i = r * width + c
-            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-            if not np.isfinite(z):
-                continue
-            tc = c // tile
+        tr = min(r // tile, th - 1)
+        for tc in range(tw):
+            c0, c1 = tc * tile, min(tc * tile + tile, width)
             m = count[tr, tc]
-            if m < 0:  # a region without a model keeps its tile
-                out[r, c] = tile_labels[tr, tc]
-                continue
             if m == 0:
                 continue
-            noise = sigma[i]
-            best, best_score, best_dist = 0, k_sigma, 0.0
-            first = table[tr, tc, 0]
-            own_first = first == tile_labels[tr, tc]
-            for j in range(m):
-                k = table[tr, tc, j]
-                dist = _distance(kinds[k], params[k], x, y, z)
-                score = dist / max(noise, rms[k])
-                # the own region wins ties; neighbours must beat what is found so far
-                if score < best_score or (j == 0 and own_first and score <= best_score):
-                    best, best_score, best_dist = k, score, dist
-            if best == 0:
+            own = tile_labels[tr, tc]
+            if m < 0:  # a region without a model keeps its tile
+                for c in range(c0, c1):
+                    if np.isfinite(xyz[r * width + c, 2]):
+                        out[r, c] = own
                 continue
-            out[r, c] = best
-            if np.isfinite(best_dist):
-                counts[best] += 1
-                squares[best] += best_dist * best_dist
-                if best_dist <= inlier_factor * max(noise, 0.0):
-                    inliers[best] += 1
+            if m == 1:
+                k = table[tr, tc, 0]
+                kind, prm, floor = kinds[k], params[k], rms[k]
+                ties = k == own  # the own region wins ties
+                for c in range(c0, c1):
+                    i = r * width + c
+                    z = xyz[i, 2]
+                    if not np.isfinite(z):
+                        continue
+                    noise = sigma[i]
+                    dist = _distance(kind, prm, xyz[i, 0], xyz[i, 1], z)
+                    score = dist / max(noise, floor)
+                    if score < k_sigma or (ties and score <= k_sigma):
+                        _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor)
+                continue
+            own_first = table[tr, tc, 0] == own
+            for c in range(c0, c1):
+                i = r * width + c
+                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                if not np.isfinite(z):
+                    continue
+                noise = sigma[i]
+                best, best_score, best_dist = 0, k_sigma, 0.0
+                for j in range(m):
+                    k = table[tr, tc, j]
+                    dist = _distance(kinds[k], params[k], x, y, z)
+                    score = dist / max(noise, rms[k])
+                    # neighbours must beat what is found so far
+                    if score < best_score or (j == 0 and own_first and score <= best_score):
+                        best, best_score, best_dist = k, score, dist
+                if best != 0:
+                    _take(out, inliers, squares, counts, r, c, best, best_dist, noise, inlier_factor)
     return out, inliers, squares, counts
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor):
+    # pixel (r, c) joins region k at distance dist (finite: it passed the test)
+    out[r, c] = k
+    counts[k] += 1
+    squares[k] += dist * dist
+    if dist <= inlier_factor * max(noise, 0.0):
+        inliers[k] += 1
 
 
 @njit(cache=True, nogil=True)
