@@ -130,7 +130,8 @@ def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndar
 def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
                           config, sensor, ranges: np.ndarray, sigma: np.ndarray, tile: int,
                           inlier_factor: float):
-    """Surfaces thinner than the tile grid sees, recovered from the pixels no tile model took.
+    """Surfaces the tile grid lost (thinner than it sees, or small faces between creases it
+    could not see), recovered from the pixels no tile model took.
 
     Returns ``(labels, fits, stats)``. When no such blob is left over (most frames), the
     inputs come back untouched at the cost of one pass over the labels; otherwise
@@ -143,10 +144,10 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
     # could not see at all is not.
     min_size = 2 * max(int(config.min_region_size), 10)
-    # Only what the tile grid could not see: blobs thinner than its 3x3 window (three
-    # tiles). Thicker ones were leftovers of the tile grid too, and its own recovery has
-    # had its say on them.
-    candidates = thin_leftovers(labels, cloud.valid, min_size=min_size, max_half_width=1.5 * tile,
+    # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
+    # window, small faces between creases it could not see, and faces the split left
+    # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
+    candidates = thin_leftovers(labels, cloud.valid, min_size=min_size, max_half_width=None,
                                 first_label=int(labels.max(initial=0)) + 1)
     if candidates is None:
         return labels, fits, stats
@@ -162,8 +163,9 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
 
 
 def thin_leftovers(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
-                   max_half_width: float, first_label: int) -> np.ndarray | None:
-    """Blobs of valid unlabelled pixels thinner than ``max_half_width``, or None if there are none.
+                   max_half_width: float | None, first_label: int) -> np.ndarray | None:
+    """Blobs of valid unlabelled pixels thinner than ``max_half_width`` (None: every blob),
+    or None if there are none.
 
     The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no jump mask),
     numbered from ``first_label``; a blob is kept when its largest distance to a pixel
@@ -178,6 +180,8 @@ def thin_leftovers(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
                                        int(min_size), int(first_label))
     if boxes.shape[0] == 0:
         return None
+    if max_half_width is None:
+        return candidates
     height, width = labels.shape
     margin = int(np.ceil(max_half_width)) + 2
     too_wide = []  # dropped after all are measured: a blob's width counts its neighbours

@@ -18,7 +18,7 @@ from .context import Context, touching
 from .grow import grow_into_edges, grow_regions
 from .merge import merge_regions
 
-__all__ = ["leftover_candidates", "explain_blobs", "recover_leftovers", "recover_pixels"]
+__all__ = ["leftover_candidates", "explain_blobs", "split_blobs", "recover_leftovers", "recover_pixels"]
 
 
 def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
@@ -70,20 +70,60 @@ def explain_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.n
         fits.pop(k, None)
         # A blob that is one plane needs no trimming (settled in the batch); for the
         # others the trimmed fit's first answer is the plain fit's when it is clean.
-        plain = settled.get(k)
-        near = None
-        if plain:
-            near = np.abs(plain.distances(ctx.xyz[idx])) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
-        if near is not None and near.mean() >= 0.9:
-            chosen, model = ctx.largest_piece(idx[near]), plain
-            if chosen.size < 0.9 * near.sum():  # a piece was cut off: fit the piece itself
-                model = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, chosen), plain)
-        else:
+        chosen, model = _one_plane(ctx, idx, settled.get(k))
+        if chosen is None:
             chosen, model = ctx.dominant_piece(idx)
         if chosen is not None and model and chosen.size >= max(ctx.min_size, min_share * idx.size):
             flat[chosen] = k
             fits[k] = model
     return labels, fits
+
+
+def _one_plane(ctx: Context, idx: np.ndarray, plain):
+    """``(pixels, model)`` when the plane ``plain`` fitted to the blob ``idx`` explains 90 %
+    of it (its largest connected piece of them), else ``(None, None)``."""
+    if not plain:
+        return None, None
+    near = np.abs(plain.distances(ctx.xyz[idx])) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
+    if near.mean() < 0.9:
+        return None, None
+    chosen, model = ctx.largest_piece(idx[near]), plain
+    if chosen.size < 0.9 * near.sum():  # a piece was cut off: fit the piece itself
+        model = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, chosen), plain)
+    return chosen, model
+
+
+def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray):
+    """Split each candidate blob into every surface it holds; free what none explains.
+
+    ``candidates`` numbers the blobs (0 elsewhere, numbers above every label). A blob
+    left over at full resolution may hold several faces (small faces between creases
+    the tile grid could not see): the ``split`` step's sequential robust extraction
+    (:func:`rangeseg_o3d.refinement.split.split_regions`) gives each its region, where
+    explaining the blob by one dominant surface would drop the rest. Returns new
+    ``(labels, fits)``; the first surface of a blob keeps the blob's number.
+    """
+    from .split import split_regions
+
+    labels, fits = np.where(candidates > 0, candidates, labels).astype(np.int32), dict(fits)
+    flat = labels.ravel()
+    regions = region_indices(candidates)
+    # blobs that are one plane need no search (one batched pass settles them)
+    settled = ctx.fitter.fit_batch(ctx.xyz, candidates) if regions else {}
+    mixed = []
+    for k, idx in regions.items():
+        chosen, model = _one_plane(ctx, idx, settled.get(k))
+        if chosen is None or not model or chosen.size < ctx.min_size:
+            mixed.append(k)
+            continue
+        flat[idx] = 0
+        flat[chosen] = k
+        fits[k] = model
+    labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed)
+    unexplained = [k for k in mixed if not fits.get(k)]
+    for k in unexplained:
+        del fits[k]
+    return np.where(np.isin(labels, unexplained), 0, labels).astype(np.int32), fits
 
 
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
@@ -108,19 +148,21 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int):
-    """After a run on tile means: recover, at full resolution, surfaces thinner than the tiles see.
+    """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
     tiles, so the tile grid's 3x3 window always straddles it, and the tile models leave
-    its pixels unlabelled. Those leftovers, cut into compact blobs (``candidates``,
-    numbered above every label: :func:`rangeseg_o3d.fullres.thin_leftovers`), are fitted
-    as in the ``recover`` step (a blob must be mostly one surface). At such angles every
+    its pixels unlabelled. Small faces between creases vanish the same way, and so do
+    faces of a region that leaked through creases the tile grid could not see when the
+    split left them over. Those leftovers, cut into compact blobs (``candidates``,
+    numbered above every label: :func:`rangeseg_o3d.fullres.thin_leftovers`), are each
+    split into every surface they hold (:func:`split_blobs`). At grazing angles every
     pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
     rim their regions take back are limited by it: the model distance decides.
     """
     first = int(labels.max(initial=0)) + 1
     ctx = Context(cloud, fitter, sigma, min_size)
-    labels, fits = explain_blobs(ctx, labels, fits, candidates, min_share=0.7)
+    labels, fits = split_blobs(ctx, labels, fits, candidates)
     new = {k: m for k, m in fits.items() if k >= first and m}
     if new:
         from ..kernels import claim_rings, member_pixels

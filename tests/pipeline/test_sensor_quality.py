@@ -77,12 +77,16 @@ def test_abw_images_reach_a_floor():
     if not paths:
         pytest.skip("no ABW images in ../shared/data/abw")
     pipe = rs.Pipeline("abw")
-    correct = total = 0
-    for path in paths[:2]:
+    correct = total = over = under = 0
+    for path in paths:
         image = load_abw(path)
         labels = pipe.run(image.cloud).labels
         score = hoover(image.truth_ids, labels, tolerance=0.8, min_region=1, count_unlabelled=True)
         correct += score.n_correct
         total += score.n_truth
-    # SegComp rules; today 27/50 on images 0 and 1 (the target, 90 %, is not met)
-    assert 100.0 * correct / total >= 45.0
+        over += score.n_over
+        under += score.n_under
+    # SegComp rules; today 150/192 (78.1 %) on the ten images, over 0.6 and under 0.1 per
+    # image (targets: 90 %, 0.5, 0.3: the correct rate is not met). UE got 88.1 % in 1996.
+    assert 100.0 * correct / total >= 72.0
+    assert over / len(paths) <= 1.0 and under / len(paths) <= 0.5

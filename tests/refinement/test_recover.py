@@ -4,8 +4,8 @@ import numpy as np
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.refinement.recover import explain_blobs, leftover_candidates, recover_leftovers
-from refinement_helpers import plane_grid
+from rangeseg_o3d.refinement.recover import explain_blobs, leftover_candidates, recover_leftovers, split_blobs
+from refinement_helpers import best_overlap, folded_strip, plane_grid
 
 
 def test_leftover_candidates_cut_thin_bands_and_keep_blobs():
@@ -75,3 +75,34 @@ def test_recover_leftovers_turns_a_swallowed_board_into_a_region(context):
     assert (out[board] == new[0]).mean() > 0.95
     # the wall's pixels stay the wall's, and the wall takes back its side of the band
     assert (out[labels == 1] == 1).all() and (out[11:29, 35:53] > 0).mean() > 0.95
+
+
+def test_split_blobs_gives_every_face_of_a_leftover_blob_its_region(context):
+    # A blob holding three faces at 45-degree creases (what the tile grid loses when it
+    # cannot see the creases): each face comes back as a region, where explaining the
+    # blob by its dominant surface keeps one face and drops the others.
+    xyz, truth, normals = folded_strip(noise=0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full(truth.shape, 0.001)
+    labels = np.zeros(truth.shape, np.int32)
+    candidates = np.full(truth.shape, 4, np.int32)
+    out, fits = split_blobs(context(cloud, min_size=100, sigma=sigma), labels, {}, candidates)
+    assert not labels.any()  # the input is left alone
+    for face, normal in normals.items():
+        label, share = best_overlap(out, truth, face)
+        assert share > 0.9 and fits[label].kind == "plane"
+        assert abs(fits[label].normal @ normal) > 0.999
+    assert len({best_overlap(out, truth, face)[0] for face in normals}) == 3
+    one, _ = explain_blobs(context(cloud, min_size=100, sigma=sigma), labels, {}, candidates, min_share=0.3)
+    assert (one > 0).mean() < 0.5  # the dominant surface alone
+
+
+def test_split_blobs_frees_a_blob_no_model_explains(context):
+    xyz = plane_grid(30, 30, z=3.0, noise=0.001, seed=2)
+    xyz[..., 2] += np.random.default_rng(3).uniform(-0.3, 0.3, (30, 30))
+    cloud = rs.OrganizedCloud(xyz)
+    candidates = np.zeros((30, 30), np.int32)
+    candidates[5:25, 5:25] = 9
+    out, fits = split_blobs(context(cloud, min_size=50, sigma=np.full((30, 30), 0.001)),
+                            np.zeros((30, 30), np.int32), {2: None}, candidates)
+    assert not out.any() and 9 not in fits and 2 in fits
