@@ -29,7 +29,11 @@ def _check_grid(xyz, window: int) -> np.ndarray:
         raise ValueError(f"xyz must have shape (H, W, 3); got {xyz.shape}")
     if window < 3 or window % 2 == 0:
         raise ValueError(f"window must be an odd integer >= 3; got {window}")
-    return xyz
+    # always read-only (a cloud's points are): numba compiles writable and read-only arrays
+    # apart, this gives the kernel one specialisation
+    view = xyz.view()
+    view.flags.writeable = False
+    return view
 
 
 def neighbourhood_moments(xyz: np.ndarray, *, window: int = 3):

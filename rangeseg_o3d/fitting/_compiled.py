@@ -133,7 +133,7 @@ def _damped_step(jtj, grad, damping):
     m = jtj.copy()
     for a in range(m.shape[0]):
         m[a, a] += damping * (m[a, a] + 1e-12)
-    return solve(m, -grad)
+    return solve(m, -grad, 0.0)  # rel_tol given: the specialisation the other callers compile
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -403,7 +403,9 @@ def cap_angle(points, center):
     return 2.0 * np.arccos(lowest)
 
 
-@njit(cache=True, nogil=True)
+# inline: compiled into its one caller, not as a kernel of its own (numba generates the machine
+# code of every kernel with all it calls: a level less is that code generated once less)
+@njit(cache=True, nogil=True, inline="always")
 def sphere_core(q, max_iterations, inlier_distance, give_up_rms=np.inf):
     """Algebraic start, geometric refinement and the statistics of a sphere on centred, scaled ``q``.
 
@@ -442,7 +444,8 @@ def sphere_refine(q, center, radius, max_iterations, inlier_distance, give_up_rm
     return True, center, radius, converged, np.sqrt(squares / n), cap_angle(q, center), inliers
 
 
-@njit(cache=True, nogil=True)
+# inline: as sphere_core
+@njit(cache=True, nogil=True, inline="always")
 def cylinder_core(q, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, max_iterations,
                   inlier_distance, give_up_rms=np.inf):
     """Start (:func:`cylinder_start`), refinement (:func:`cylinder_lm`) and statistics on centred, scaled ``q``.

@@ -107,7 +107,8 @@ def _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, n):
     return _outcome_code(result, _eigen_rms(eigvals, n))
 
 
-@njit(cache=True, nogil=True)
+# inline into _curved_try (see _compiled.sphere_core); the public fits' calls compile it alone
+@njit(cache=True, nogil=True, inline="always")
 def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
                      max_iterations, inlier_distance, start, give_up_rms):
     """Cylinder on centred, scaled ``q`` with every check: ``(code, result)``.
@@ -134,7 +135,8 @@ def cylinder_checked(q, eigvals, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, 
     return _statistics_code(result, radius, rms, inliers, arc, converged, eigvals, q.shape[0]), result
 
 
-@njit(cache=True, nogil=True)
+# inline into _curved_try (see _compiled.sphere_core); the public fits' calls compile it alone
+@njit(cache=True, nogil=True, inline="always")
 def sphere_checked(q, eigvals, max_iterations, inlier_distance, start, give_up_rms):
     """Sphere on centred, scaled ``q`` with every check: ``(code, result)``.
 

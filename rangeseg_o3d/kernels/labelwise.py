@@ -155,7 +155,7 @@ def quadric_sums(xyz, labels, centre, e1, e2, normal, inv_spread, active):
         a1, a2, a3 = e1[k, 0] * s, e1[k, 1] * s, e1[k, 2] * s
         b1, b2, b3 = e2[k, 0] * s, e2[k, 1] * s, e2[k, 2] * s
         n1, n2, n3 = normal[k, 0], normal[k, 1], normal[k, 2]
-        m = 0
+        m = np.intp(0)  # not a literal 0: see settle_planes
         for p in range(starts[k], starts[k + 1]):
             i = order[p]
             rx, ry, rz = xyz[i, 0] - cx, xyz[i, 1] - cy, xyz[i, 2] - cz
@@ -254,7 +254,8 @@ def height_field_shape(centred, normal, e1, e2):
     frame = np.zeros((3, 2, 3))
     frame[0, 1], frame[1, 1], frame[2, 1] = e1, e2, normal
     active = np.array([False, True])
-    sums = quadric_sums(centred, np.ones(n, np.int64), np.zeros((2, 3)), frame[0], frame[1], frame[2],
+    # int32 labels, as settle_planes': one compiled group_by_label
+    sums = quadric_sums(centred, np.ones(n, np.int32), np.zeros((2, 3)), frame[0], frame[1], frame[2],
                         inv_spread, active)
     gain, roundness = quadric_shapes(sums, np.array([0.0, float(n)]), active)
     return gain[1], roundness[1]
@@ -282,7 +283,9 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     the rms is under a tenth of the threshold). Returns ``(settled, normal, d, rms,
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
-    labelled = 0
+    # np.intp, not a literal 0: while numba's type inference settles, a variable seen only as
+    # the literal 0 so far compiles the call below once more for that literal type
+    labelled = np.intp(0)
     for i in range(labels.shape[0]):
         if labels[i] > 0:
             labelled += 1
