@@ -202,14 +202,17 @@ class Pipeline:
 def _renumber(regions: Regions) -> tuple[Regions, np.ndarray, np.ndarray]:
     """The regions that have a model (or a failure) and pixels, numbered 1..n in label order,
     their pixel counts (index 0 unused) and their old labels; other pixels become 0."""
-    pixels = np.bincount(regions.labels.ravel())
+    from .kernels import label_counts, relabel
+
+    labels = np.ascontiguousarray(regions.labels)
+    pixels = label_counts(labels)
     kept = [int(k) for k in np.flatnonzero(pixels[1:]) + 1 if int(k) in regions.models]
     lut = np.zeros(len(pixels), dtype=np.int32)
     lut[kept] = np.arange(1, len(kept) + 1, dtype=np.int32)
     sizes = np.zeros(len(kept) + 1, np.int64)
     sizes[1:] = pixels[kept]
     models = {new: regions.models[old] for new, old in enumerate(kept, start=1)}
-    return Regions(lut[regions.labels], models), sizes, np.array(kept, np.int64)
+    return Regions(relabel(labels, lut), models), sizes, np.array(kept, np.int64)
 
 
 def _features(regions: Regions, sizes: np.ndarray, stats: PixelStats, sigma: np.ndarray,

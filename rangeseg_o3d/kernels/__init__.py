@@ -27,7 +27,7 @@ from __future__ import annotations
 import importlib
 
 _SOURCES = {
-    "grid": ("adjacency_matrix", "block_means", "claim_rings", "group_by_label",
+    "grid": ("adjacency_matrix", "block_means", "claim_rings", "group_by_label", "label_counts", "relabel",
              "grow_rings", "jump_mask", "largest_piece", "member_pixels"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),

@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
-           "largest_piece", "member_pixels"]
+           "largest_piece", "member_pixels", "label_counts", "relabel"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -358,4 +358,27 @@ def member_pixels(labels, members):
         if 0 < k < n and members[k]:
             out[m] = i
             m += 1
+    return out
+
+@njit(cache=True, nogil=True)
+def label_counts(labels):
+    """``np.bincount`` of a non-negative label image (any shape), in one compiled pass each
+    for the largest label and the counts."""
+    flat = labels.ravel()
+    top = 0
+    for i in range(flat.shape[0]):
+        top = max(top, flat[i])
+    counts = np.zeros(top + 1, np.int64)
+    for i in range(flat.shape[0]):
+        counts[flat[i]] += 1
+    return counts
+
+@njit(cache=True, nogil=True)
+def relabel(labels, lut):
+    """``lut[labels]`` for a 2-D label image, as int32 (labels within ``lut``)."""
+    h, w = labels.shape
+    out = np.empty((h, w), np.int32)
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = lut[labels[r, c]]
     return out
