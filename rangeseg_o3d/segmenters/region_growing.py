@@ -289,8 +289,6 @@ def region_growing_labels(
     if n < 3:
         return np.zeros(n, dtype=np.int32), np.zeros(n)
 
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     start = time.perf_counter()
@@ -305,18 +303,40 @@ def region_growing_labels(
     timings["normals"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    cos_limit = np.cos(np.deg2rad(smoothness_deg))
+    src, dst = _smooth_pairs(normals, nbr[:, :k_grow], np.cos(np.deg2rad(smoothness_deg)))
+    owner = _grow_regions(src, dst, curvature, curvature_threshold)
+    timings["growth"] = time.perf_counter() - start
+
+    # Seed ranks -> 1..n in seed order (PCL's cluster order), then the size filter.
+    _, region = np.unique(owner, return_inverse=True)
+    labels = _filter_sizes(region.ravel().astype(np.int32) + 1, min_cluster_size, max_cluster_size)
+    log.debug("region growing: %d points, %d regions kept", n, int(labels.max(initial=0)))
+    return labels, curvature
+
+
+def _smooth_pairs(normals: np.ndarray, hood: np.ndarray, cos_limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The directed pairs (point, neighbour in ``hood``) whose normals are within the
+    smoothness angle (``|cos| >= cos_limit``), the point itself excluded; in blocks of rows."""
+    n = len(normals)
     src_parts, dst_parts = [], []
     for rows in _blocks(n):
-        hood = nbr[rows, :k_grow]
-        dots = np.abs(normals[hood] @ normals[rows][:, :, None])[:, :, 0]
-        src = np.broadcast_to(np.arange(rows.start, rows.stop)[:, None], hood.shape)
-        ok = (dots >= cos_limit) & (hood != src)
+        block = hood[rows]
+        dots = np.abs(normals[block] @ normals[rows][:, :, None])[:, :, 0]
+        src = np.broadcast_to(np.arange(rows.start, rows.stop)[:, None], block.shape)
+        ok = (dots >= cos_limit) & (block != src)
         src_parts.append(src[ok])
-        dst_parts.append(hood[ok])
-    src = np.concatenate(src_parts)
-    dst = np.concatenate(dst_parts)
+        dst_parts.append(block[ok])
+    return np.concatenate(src_parts), np.concatenate(dst_parts)
 
+
+def _grow_regions(src: np.ndarray, dst: np.ndarray, curvature: np.ndarray,
+                  curvature_threshold: float) -> np.ndarray:
+    """PCL's region growing over the smooth pairs, in closed form: per point the seed rank
+    (position in increasing curvature) of the region it joins."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(curvature)
     # Seed order: increasing curvature, ties by index (stable), as PCL's sort.
     order = np.argsort(curvature, kind="stable")
     rank = np.empty(n, dtype=np.int64)
@@ -351,13 +371,7 @@ def region_growing_labels(
         left_by_rank[rank[left]] = True
         claimed_by = _greedy_claims(n, lo, hi, left_by_rank)
         owner[left] = claimed_by[rank[left]]
-    timings["growth"] = time.perf_counter() - start
-
-    # Seed ranks -> 1..n in seed order (PCL's cluster order), then the size filter.
-    _, region = np.unique(owner, return_inverse=True)
-    labels = _filter_sizes(region.ravel().astype(np.int32) + 1, min_cluster_size, max_cluster_size)
-    log.debug("region growing: %d points, %d regions kept", n, int(labels.max(initial=0)))
-    return labels, curvature
+    return owner
 
 
 def _filter_sizes(labels: np.ndarray, min_size: int, max_size: int | None) -> np.ndarray:
