@@ -87,12 +87,14 @@ class RefineConfig(BaseModel):
     merge_disjoint : also merge regions that do not touch (one wall split by an occluder).
     merge_angle_deg : maximum angle between normals / axes of merge candidates.
     merge_rms_factor : the union's rms may exceed the larger part's rms by this factor.
-    merge_tolerance : metres; offsets, radii and centres of merge candidates must agree within it.
+    merge_tolerance : metres; offsets, radii and centres of merge candidates must agree within
+        it. Left out: derived from the sensor's noise (:mod:`rangeseg_o3d.scales`).
     min_region_size : smallest region the refinement keeps or creates (sensor pixels).
-    jump_ratio, jump_min : growth never crosses a range step over ``jump_ratio r + jump_min``
+    jump_ratio, jump_min : growth never crosses a range step over ``max(jump_ratio r, jump_min)``
         (``jump_ratio`` per sensor pixel step; see :func:`rangeseg_o3d.edges.jump_edges`).
-        Left out, each takes the segmenter's parameter of the same name when it has one
-        (residual_edges), else 30 px, 0.08 and 0.05 m; resolved once at load.
+        Left out, each takes the segmenter's parameter of the same name when it sets one
+        (resolved once at load), else it is derived from the sensor for each scan
+        (:func:`rangeseg_o3d.scales.derive_scales`), as the segmenter's own.
 
     The noise model is the sensor's (``sensor:``).
     """
@@ -107,15 +109,15 @@ class RefineConfig(BaseModel):
     merge_disjoint: bool = True
     merge_angle_deg: float = Field(3.0, gt=0, le=90)
     merge_rms_factor: float = Field(1.3, ge=1.0)
-    merge_tolerance: float = Field(0.05, gt=0)
+    merge_tolerance: float | None = Field(None, gt=0)
     min_region_size: int | None = Field(None, ge=1)
     jump_ratio: float | None = Field(None, gt=0)
     jump_min: float | None = Field(None, ge=0)
 
 
-# What the refinement shares with a segmenter that has the same parameter, and the value
-# it takes when the segmenter has none.
-_SHARED_WITH_SEGMENTER = {"min_region_size": 30, "jump_ratio": 0.08, "jump_min": 0.05}
+# What the refinement shares with a segmenter that has the same parameter (None when the
+# segmenter has none or leaves it to the sensor: derived per scan, rangeseg_o3d.scales).
+_SHARED_WITH_SEGMENTER = ("min_region_size", "jump_ratio", "jump_min")
 # Keys that moved to the sensor section, for a helpful error on old configuration files.
 _MOVED = {
     ("segmenter", "params", "sigma0"): "sensor.sigma0",
@@ -148,10 +150,12 @@ class PipelineConfig(BaseModel):
         description="largest grid (rows x columns) the command line loads; a bigger one is an "
                     "error before anything is allocated (library: rangeseg_o3d.cloud.set_max_grid_points)",
     )
-    tile: int = Field(
+    tile: int | None = Field(
         1, ge=1, le=16,
         description="segment, fit and refine the grid of tile x tile means, then label every "
-                    "pixel by the models (depth cameras: the noise hides creases at full resolution)",
+                    "pixel by the models (depth cameras: the noise hides creases at full "
+                    "resolution); null: derived per scan from the sensor's noise and spacing "
+                    "(rangeseg_o3d.scales)",
     )
 
     @model_validator(mode="before")
@@ -186,9 +190,9 @@ class PipelineConfig(BaseModel):
             for name, value in _non_finite(stage.params):
                 raise ValueError(f"{kind}.params.{name} must be a finite number; got {value!r}")
         # Resolve once what the refinement shares with the segmenter.
-        for key, default in _SHARED_WITH_SEGMENTER.items():
+        for key in _SHARED_WITH_SEGMENTER:
             if getattr(self.refine, key) is None:
-                setattr(self.refine, key, self.segmenter.params.get(key, default))
+                setattr(self.refine, key, self.segmenter.params.get(key))
                 self._refine_resolved.add(key)
         return self
 

@@ -6,11 +6,16 @@ import numpy as np
 
 __all__ = ["jump_edges", "close_residual", "edge_mask", "angular_steps", "crease_edges"]
 
+# A range step that the steps before and after it on the same line continue within this
+# share of itself lies on a surface seen at a grazing angle (its steps change slowly): no
+# jump. An occlusion's step has the occluder's small steps on one side at least.
+JUMP_CONTINUATION = 0.5
 # Finite stand-in for "no plane could be fitted here" so morphology and display work.
 EDGE_CEILING = 1e6
 
 
-def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float = 0.05) -> np.ndarray:
+def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float = 0.05,
+               continuation: float = JUMP_CONTINUATION) -> np.ndarray:
     """Occluded side of every depth discontinuity.
 
     Between 4-neighbours whose ranges differ by more than ``max(jump_min, jump_ratio * r)``
@@ -28,6 +33,11 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
     ranges : (H, W) ranges in metres, NaN where invalid.
     jump_ratio : relative jump threshold.
     jump_min : absolute jump threshold in metres.
+    continuation : a step that the steps before and after it along the same row or column
+        continue within this share of itself is no jump: a surface seen at a grazing angle
+        steps steadily, pixel after pixel (on a fine grid such a face is many pixels wide
+        and would otherwise be all edge), while an occlusion's step has the occluder's
+        small steps on one side at least. 0 turns this off.
 
     Returns
     -------
@@ -39,7 +49,7 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
     if r.ndim != 2:
         raise ValueError(f"ranges must have shape (H, W); got {r.shape}")
     # one compiled pass: the same test as a dozen whole-image numpy operations, at a tenth
-    return jump_mask(np.ascontiguousarray(r), float(jump_ratio), float(jump_min))
+    return jump_mask(np.ascontiguousarray(r), float(jump_ratio), float(jump_min), float(continuation))
 
 
 def close_residual(residual: np.ndarray, *, iterations: int = 2, kernel: int = 3) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import inspect
 import logging
 import time
+from typing import NamedTuple
 from dataclasses import replace
 
 import numpy as np
@@ -18,12 +19,25 @@ from .fullres import ExpandedStages, PixelStats, label_pixels, recover_thin_surf
 from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
+from .scales import Scales, scales_for_cloud
 from .sensor import Sensor, check_plausible
 
 __all__ = ["Pipeline", "warm_up"]
 
 
 log = logging.getLogger(__name__)
+
+# Settings a preset may leave to the sensor (None): rangeseg_o3d.scales derives them per scan.
+_DERIVED_SEGMENTER = ("jump_ratio", "jump_min", "min_region_size")
+_DERIVED_REFINE = ("min_region_size", "jump_ratio", "jump_min", "merge_tolerance")
+
+
+class _Settings(NamedTuple):
+    """One run's scale-dependent settings: the preset's, with what it leaves to the sensor derived."""
+
+    tile: int
+    segmenter_args: dict
+    refine: object  # RefineConfig
 
 
 class _Clock:
@@ -75,6 +89,25 @@ class Pipeline:
         self.fitter = RegionFitter(registry.get("fitter", self.config.fitter.name),
                                    self.config.fitter.params, self.config.max_fit_points,
                                    sensor=self.sensor)
+        self._derived_segmenter = [k for k in _DERIVED_SEGMENTER
+                                   if k in self._segmenter_args and self._segmenter_args[k] is None]
+        self._derived_refine = [k for k in _DERIVED_REFINE if getattr(self.config.refine, k) is None]
+
+    def scales(self, cloud: OrganizedCloud) -> Scales | None:
+        """The scales derived for ``cloud`` (:func:`rangeseg_o3d.scales.scales_for_cloud`),
+        or None when the preset sets every scale-dependent value itself."""
+        if self.config.tile is not None and not (self._derived_segmenter or self._derived_refine):
+            return None
+        return scales_for_cloud(self.sensor, cloud, tile=self.config.tile)
+
+    def _with_scales(self, scales: Scales | None) -> _Settings:
+        # the run's tile, segmenter keywords and refinement with the derived values filled in
+        if scales is None:
+            return _Settings(self.config.tile, self._segmenter_args, self.config.refine)
+        args = {**self._segmenter_args, **{k: getattr(scales, k) for k in self._derived_segmenter}}
+        refine = self.config.refine.model_copy(
+            update={k: getattr(scales, k) for k in self._derived_refine})
+        return _Settings(scales.tile, args, refine)
 
     def __repr__(self) -> str:
         return (f"Pipeline({self.config.name!r}, segmenter={self.segmenter.name!r}, "
@@ -103,20 +136,22 @@ class Pipeline:
         """
         self._check(cloud)
         clock = _Clock()
-        work = cloud.tile_means(self.config.tile) if self.config.tile > 1 else cloud
-        segmentation = self._segment(work)
+        settings = self._with_scales(self.scales(cloud))
+        work = cloud.tile_means(settings.tile) if settings.tile > 1 else cloud
+        segmentation = self._segment(work, settings)
         clock.timings.update(segmentation.timings)
         clock.lap("segment")
         labels = segmentation.labels
         regions = Regions(labels, self.fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
         clock.lap("fit")
-        regions, sigma = self._refine(work, regions, segmentation.stages.get("jumps"), clock.timings)
+        regions, sigma = self._refine(work, regions, segmentation.stages.get("jumps"), clock.timings,
+                                      settings.refine)
         clock.lap("refine")
         stages, stats = segmentation.stages, None
         if work is not cloud:
-            labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models)
+            labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models, settings)
             regions = Regions(labels, fits)
-            stages = ExpandedStages(stages, self.config.tile, cloud.shape)
+            stages = ExpandedStages(stages, settings.tile, cloud.shape)
             clock.lap("full_resolution")
         result = self._assemble(regions, sigma, cloud.xyz, clock, stages, stats=stats)
         if recording is not None:
@@ -134,12 +169,12 @@ class Pipeline:
                 f"cloud has no valid point (all {cloud.shape[0]}x{cloud.shape[1]} are NaN)")
         check_plausible(cloud, self.sensor, name=f"preset {self.config.name!r}")
 
-    def _segment(self, work: OrganizedCloud) -> Segmentation:
+    def _segment(self, work: OrganizedCloud, settings: _Settings) -> Segmentation:
         """The segmenter's answer on ``work``, its labels checked and zero on invalid pixels."""
         if work.n_valid == 0:
-            raise ValueError(f"no {self.config.tile}x{self.config.tile} tile of the cloud has "
+            raise ValueError(f"no {settings.tile}x{settings.tile} tile of the cloud has "
                              "at least half of its pixels valid; use a smaller tile")
-        seg = self.segmenter.run(work, **self._segmenter_args)
+        seg = self.segmenter.run(work, **settings.segmenter_args)
         labels = np.asarray(seg.labels)
         if labels.shape != work.shape or not np.issubdtype(labels.dtype, np.integer):
             raise ValueError(
@@ -148,17 +183,18 @@ class Pipeline:
             )
         return Segmentation(np.where(work.valid, labels, 0).astype(np.int32), seg.stages, seg.timings)
 
-    def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict):
+    def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict, refine):
         """The refined regions (``regions`` when refinement is off) and the noise per pixel of ``work``."""
         ranges = np.where(work.valid, work.range_image(), np.nan)
         sigma = self.sensor.noise.sigma(ranges, work.samples)
-        if self.config.refine.enabled:
-            regions = refine_regions(work, regions, fitter=self.fitter, config=self.config.refine,
+        if refine.enabled:
+            regions = refine_regions(work, regions, fitter=self.fitter, config=refine,
                                      sensor=self.sensor, ranges=ranges, sigma=sigma, jumps=jumps,
                                      timings=timings)
         return regions, sigma
 
-    def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict):
+    def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict,
+                         settings: _Settings):
         """Label every pixel by the models of its tile's region and the 8 around it.
 
         Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
@@ -169,13 +205,13 @@ class Pipeline:
         """
         ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
         sigma = self.sensor.noise.sigma(ranges)
-        refine = self.config.refine
-        labels, stats = label_pixels(cloud, tile_labels, fits, tile=self.config.tile, sigma=sigma,
+        refine = settings.refine
+        labels, stats = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled and refine.recover_leftovers:
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
-                ranges=ranges, sigma=sigma, tile=self.config.tile, inlier_factor=INLIER_SIGMAS)
+                ranges=ranges, sigma=sigma, tile=settings.tile, inlier_factor=INLIER_SIGMAS)
         return labels, fits, sigma, stats
 
     @staticmethod

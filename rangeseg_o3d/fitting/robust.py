@@ -54,7 +54,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     step = -(-len(all_pts) // max_points)
     pts = np.ascontiguousarray(all_pts[::step])
     keep = max(int(keep_fraction * len(pts)), 6)
-    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 64, 0)
+    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 256, 0)
     best, best_mask, best_score = None, None, -1
     # the proposal near more points first: often the only one judged
     for near in sorted(proposals, key=lambda mask: -int(mask.sum())):

@@ -49,9 +49,29 @@ def group_by_label(labels, n):
     return order, starts
 
 @njit(cache=True, nogil=True)
-def jump_mask(ranges, jump_ratio, jump_min):
+def _continues(ranges, r, c, dr, dc, step, continuation):
+    # Is the step ``step`` from (r, c) to (r + dr, c + dc) continued on both sides along
+    # the same line by steps within ``continuation`` of it (a surface seen at a grazing
+    # angle: its range steps change slowly)? An occlusion onto such a surface has the
+    # occluder's small steps on one side.
+    h, w = ranges.shape
+    limit = continuation * abs(step)
+    rp, cp = r - dr, c - dc
+    rn, cn = r + 2 * dr, c + 2 * dc
+    if rp < 0 or cp < 0 or rn >= h or cn >= w:
+        return False
+    before = ranges[r, c] - ranges[rp, cp]
+    after = ranges[rn, cn] - ranges[r + dr, c + dc]
+    return (before * step > 0 and abs(before - step) <= limit
+            and after * step > 0 and abs(after - step) <= limit)
+
+
+@njit(cache=True, nogil=True)
+def jump_mask(ranges, jump_ratio, jump_min, continuation):
     """The farther pixel of every 4-neighbour pair whose ranges differ by more than
-    ``max(jump_min, jump_ratio * nearer)`` (see ``edges.jump_edges``); NaN is no jump."""
+    ``max(jump_min, jump_ratio * nearer)`` (see ``edges.jump_edges``); NaN is no jump.
+    With ``continuation > 0`` a step that the steps before and after it along the same
+    line continue (within that share of itself) is a grazing surface, no jump."""
     h, w = ranges.shape
     mask = np.zeros((h, w), np.bool_)
     for r in range(h):
@@ -62,6 +82,8 @@ def jump_mask(ranges, jump_ratio, jump_min):
                     continue
                 b = ranges[r + dr, c + dc]
                 if abs(a - b) > max(jump_min, jump_ratio * min(a, b)):
+                    if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation):
+                        continue
                     if a > b:
                         mask[r, c] = True
                     else:

@@ -71,23 +71,31 @@ def _quadric_distances(pts, support, out):
 
 
 @njit(cache=True, nogil=True)
-def _within_spread(dist, support, sigma, out):
-    # out = dist <= 3 max(sigma, rms of dist over support); out may be support itself
+def _within_spread(dist, support, sigma, cap, out):
+    # out = dist <= 3 min(max(sigma, rms of dist over support), cap sigma); out may be support
     ss, m = 0.0, 0
     for p in range(dist.shape[0]):
         if support[p]:
             ss += dist[p] * dist[p]
             m += 1
-    limit = 3.0 * max(sigma, np.sqrt(ss / max(m, 1)))
+    limit = 3.0 * min(max(sigma, np.sqrt(ss / max(m, 1))), cap * sigma)
     for p in range(dist.shape[0]):
         out[p] = dist[p] <= limit
+
+# The plane proposal's band is at most this many noise sigmas wide (times 3): a plane's
+# points lie within the noise, and a band following the support's own rms widened with
+# every point of a crossing surface it took in (in a region holding a whole room, the
+# band grew until no plane was left to judge).
+_PLANE_SPREAD_CAP = 1.5
+
 
 @njit(cache=True, nogil=True)
 def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
     """The two proposals of ``fitting.robust.trimmed_fit``: points near its dominant plane and quadric.
 
     Plane: the best of ``trials`` random three-point planes (most points within
-    ``3 sigma``), refitted ``rounds`` times on the points within ``3 max(sigma, rms)``.
+    ``3 sigma``), refitted ``rounds`` times on the points within ``3 max(sigma, rms)``,
+    the band capped at ``4.5 sigma``.
     Quadric: a height field refitted ``rounds`` times on the ``keep`` closest points
     (least trimmed squares by concentration steps). Returns two boolean masks of the
     points within ``3 max(sigma, spread)`` of each (all False where a proposal had fewer
@@ -130,7 +138,7 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
         if support.sum() < 6:
             break
         _plane_distances(pts, support, dist)
-        _within_spread(dist, support, sigma, following)
+        _within_spread(dist, support, sigma, _PLANE_SPREAD_CAP, following)
         settled = _same(following, support)
         if settled:
             break
@@ -139,7 +147,7 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
         plane_near[:] = support
     elif support.sum() >= 6:
         _plane_distances(pts, support, dist)
-        _within_spread(dist, support, sigma, plane_near)
+        _within_spread(dist, support, sigma, _PLANE_SPREAD_CAP, plane_near)
     support[:] = True
     settled = False
     for _ in range(rounds):
@@ -154,7 +162,7 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
         support[:] = following
     if not settled:
         _quadric_distances(pts, support, dist)
-    _within_spread(dist, support, sigma, quad_near)
+    _within_spread(dist, support, sigma, np.inf, quad_near)
     return plane_near, quad_near
 
 

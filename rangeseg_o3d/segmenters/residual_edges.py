@@ -25,9 +25,9 @@ def segment_residual_edges(
     min_valid: int = MIN_VALID,
     threshold: float = 9.0,
     closing_iterations: int = 2,
-    jump_ratio: float = 0.08,
-    jump_min: float = 0.05,
-    min_region_size: int = 30,
+    jump_ratio: float | None = None,
+    jump_min: float | None = None,
+    min_region_size: int | None = None,
     connectivity: int = 4,
     crease_angle_deg: float = 20.0,
 ) -> Segmentation:
@@ -45,8 +45,9 @@ def segment_residual_edges(
         (about 1 inside a plane; 9 is "three sigma").
     closing_iterations : grey-level closings of the residual image (the paper: 2).
     jump_ratio, jump_min : depth-discontinuity test of :func:`rangeseg_o3d.edges.jump_edges`;
-        ``jump_ratio`` is per sensor pixel step.
-    min_region_size : smaller connected areas are no region (sensor pixels).
+        ``jump_ratio`` is per sensor pixel step. None: derived from the sensor
+        (:func:`rangeseg_o3d.scales.derive_scales`).
+    min_region_size : smaller connected areas are no region (sensor pixels). None: derived.
     connectivity : 4 or 8 for the flood fill.
     crease_angle_deg : where the noise is comparable to the point spacing (the 3x3 residual
         is blind to creases there), normal discontinuities above this angle between
@@ -64,6 +65,13 @@ def segment_residual_edges(
     Segmentation with ``labels`` and the stages ``residual``, ``closed``, ``edges``, ``jumps``.
     """
     sensor = sensor if sensor is not None else Sensor()
+    if None in (jump_ratio, jump_min, min_region_size):
+        from ..scales import scales_for_cloud
+
+        scales = scales_for_cloud(sensor, cloud, tile=cloud.tile)
+        jump_ratio = scales.jump_ratio if jump_ratio is None else jump_ratio
+        jump_min = scales.jump_min if jump_min is None else jump_min
+        min_region_size = scales.min_region_size if min_region_size is None else min_region_size
     if sensor.wrap_columns:
         return _segment_wrapped(cloud, sensor, dict(
             window=window, min_valid=min_valid, threshold=threshold,

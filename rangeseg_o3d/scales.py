@@ -1,0 +1,190 @@
+"""Scale-dependent settings derived from the sensor, not written by the preset's author.
+
+Every threshold of the method that has a length or a pixel count in it follows from two
+facts about the scanner: its range-noise model ``sigma(r) = sigma0 + sigma_quadratic r^2``
+(:class:`rangeseg_o3d.sensor.NoiseModel`) and the angular spacing of its grid (the
+``sensor:`` section's ``row_spacing_deg`` / ``column_spacing_deg``, or measured from the
+cloud's viewing directions when the preset gives none). :func:`derive_scales` turns them,
+with the scan's median range, into the numbers the stages use (:class:`Scales`); the
+constants below are the method's own, the same for every sensor and scene. A preset may
+still set any of these values explicitly; left out (``null``), they are derived.
+
+The rules (``delta`` the geometric mean of the row and column steps in radians, ``r`` the
+scan's median range, ``sigma = sigma(r)``):
+
+* ``jump_ratio = delta / GRAZING_TAN``: a range step between neighbouring pixels is a depth
+  jump when it exceeds what a surface seen under ``atan(GRAZING_TAN)`` (about 9.5 degrees)
+  from grazing produces over one pixel step (``r delta / tan(angle)``). Per sensor pixel;
+  a tile grid multiplies it by the tile.
+* ``jump_min = JUMP_SIGMAS * sigma0``: below ``jump_min / jump_ratio`` metres the test is
+  an absolute one; ten times the constant noise keeps two noisy neighbours (their
+  difference has ``sqrt(2) sigma0``) from ever passing for a jump. Doubling ``sigma0``
+  doubles it.
+* ``merge_tolerance = MERGE_SIGMAS * sigma_t``: two patches of one surface have fitted
+  offsets within a few noise sigmas; ten leaves room for the bias of small patches.
+  ``sigma_t`` is the noise of the points the models are fitted to (tile means: the
+  range-dependent term divided by the tile, :meth:`NoiseModel.sigma`). Doubling the noise
+  doubles it.
+* ``min_region_size = max(MIN_PIXELS, MIN_CELLS * tile**2)`` sensor pixels: the fewest
+  returns whose fit tells a plane from a curved surface, and on a tile grid the fewest
+  tile means (each already averages ``tile**2`` returns) that still outline a surface.
+* ``tile``: 1 where the point spacing ``r delta`` is at least the noise ``sigma``: the
+  paper's 3x3 residual then sees creases at full resolution (nodding and spinning lasers).
+  Where the noise exceeds the spacing (depth cameras, structured light), the grid is
+  averaged into tiles until a tile mean's noise (``sigma / t``, the tile averaging ``t**2``
+  independent returns) is under ``TILE_NOISE_RATIO`` of the tile spacing ``t r delta``:
+  ``t = ceil(sqrt(sigma / (TILE_NOISE_RATIO r delta)))``; at most ``MAX_TILE``, and never
+  so large that fewer than ``MIN_GRID_CELLS`` cells remain across the grid's shorter side.
+  ``TILE_NOISE_RATIO`` was read off the sensor matrix's depth-camera rows (random scenes:
+  on the Kinect row a 3-pixel tile lost a whole scan, 5-6 pixels did not).
+
+This module imports numpy only (the spacing measurement imports :mod:`rangeseg_o3d.edges`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
+           "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
+           "MIN_GRID_CELLS", "MAX_TILE"]
+
+#: A range step over one pixel larger than a surface at ~9.5 deg from grazing makes is a jump.
+GRAZING_TAN = 1.0 / 6.0
+#: The absolute jump floor, in constant-noise sigmas.
+JUMP_SIGMAS = 10.0
+#: Merge tolerance (offsets, radii, centres of merge candidates), in noise sigmas at the median range.
+MERGE_SIGMAS = 10.0
+#: Smallest region, in sensor pixels ...
+MIN_PIXELS = 20
+#: ... and in cells of the working (tile) grid.
+MIN_CELLS = 8
+#: Tiles average until a tile mean's noise is under this share of the tile spacing.
+TILE_NOISE_RATIO = 0.1
+#: A derived tile leaves at least this many cells across the grid's shorter side.
+MIN_GRID_CELLS = 48
+#: Largest derived tile.
+MAX_TILE = 8
+# The measurements look at a sub-grid of about this many pixels.
+_SAMPLE_PIXELS = 4096
+
+
+@dataclass(frozen=True)
+class Scales:
+    """The scale-dependent numbers of one run (lengths in metres, sizes in sensor pixels).
+
+    ``spacing_rad`` is the (row, column) angular step used; ``typical_range`` the median
+    range and ``sigma`` the noise there, from which the rest follows (see the module).
+    """
+
+    tile: int
+    jump_ratio: float
+    jump_min: float
+    min_region_size: int
+    merge_tolerance: float
+    spacing_rad: tuple[float, float]
+    typical_range: float
+    sigma: float
+
+
+def _subgrid(image: np.ndarray) -> np.ndarray:
+    step = max(1, round(math.sqrt(image.shape[0] * image.shape[1] / _SAMPLE_PIXELS)))
+    return image[::step, ::step]
+
+
+def median_range(cloud) -> float:
+    """Median range (m) of the cloud's valid pixels (a sub-grid of ~4096 of them)."""
+    ranges = cloud.ranges if cloud.ranges is not None else np.linalg.norm(cloud.xyz, axis=2)
+    ranges = np.asarray(_subgrid(ranges), dtype=np.float64)
+    ranges = ranges[np.isfinite(ranges) & (ranges > 0)]
+    if ranges.size == 0:
+        raise ValueError("the cloud has no valid range to derive its scales from")
+    return float(np.median(ranges))
+
+
+def measured_spacing(cloud) -> tuple[float, float]:
+    """Median angular step (radians) between neighbouring rows and columns, per sensor pixel.
+
+    Measured between viewing directions (:func:`rangeseg_o3d.edges.angular_steps`), so
+    range noise does not enter; a cloud of tile means is divided by its tile. A direction
+    without two valid neighbours takes the other's step (square pixels).
+    """
+    from .edges import angular_steps
+
+    out = []
+    for steps in angular_steps(np.ascontiguousarray(cloud.xyz, dtype=np.float64)):
+        steps = steps[np.isfinite(steps) & (steps > 0)]
+        out.append(float(np.median(steps)) / cloud.tile if steps.size else None)
+    if out == [None, None]:
+        raise ValueError("the cloud has no two valid neighbouring pixels to measure its "
+                         "angular spacing from; give sensor.row_spacing_deg and column_spacing_deg")
+    return (out[0] if out[0] is not None else out[1]), (out[1] if out[1] is not None else out[0])
+
+
+def derive_scales(sensor, *, typical_range: float, spacing_rad: tuple[float, float] | None = None,
+                  shape: tuple[int, int] | None = None, tile: int | None = None) -> Scales:
+    """The scale-dependent settings for ``sensor`` at ``typical_range`` metres.
+
+    Parameters
+    ----------
+    sensor : :class:`rangeseg_o3d.sensor.Sensor`.
+    typical_range : the scan's median range (m), where range-dependent noise is evaluated.
+    spacing_rad : (row, column) angular steps in radians; None: the sensor's.
+    shape : the sensor grid's (rows, columns), which bounds the derived tile; None: unbounded.
+    tile : a tile fixed by the preset (the other values follow it); None: derived.
+
+    Raises
+    ------
+    ValueError
+        No spacing (neither given nor in the sensor), or a non-positive range or spacing.
+    """
+    if spacing_rad is None:
+        if sensor.row_spacing_deg is None or sensor.column_spacing_deg is None:
+            raise ValueError("deriving scales needs the grid's angular spacing: give "
+                             "sensor.row_spacing_deg and column_spacing_deg, or a cloud to measure it")
+        spacing_rad = (math.radians(sensor.row_spacing_deg), math.radians(sensor.column_spacing_deg))
+    row_step, col_step = (float(s) for s in spacing_rad)
+    if not (math.isfinite(typical_range) and typical_range > 0):
+        raise ValueError(f"typical_range must be a positive number of metres; got {typical_range!r}")
+    if not all(math.isfinite(s) and s > 0 for s in (row_step, col_step)):
+        raise ValueError(f"spacing_rad must be two positive angles; got {spacing_rad!r}")
+    delta = math.sqrt(row_step * col_step)
+    sigma = float(sensor.noise.sigma(np.float64(typical_range)))
+    if tile is None:
+        tile = _crease_tile(typical_range * delta, sigma, shape)
+    return Scales(
+        tile=int(tile),
+        jump_ratio=delta / GRAZING_TAN,
+        jump_min=JUMP_SIGMAS * sensor.noise.sigma0,
+        min_region_size=int(max(MIN_PIXELS, MIN_CELLS * tile * tile)),
+        # the merged models are fitted to tile means: their noise (NoiseModel.sigma's rule)
+        merge_tolerance=MERGE_SIGMAS * float(sensor.noise.sigma(np.float64(typical_range),
+                                                                   np.float64(tile * tile))),
+        spacing_rad=(row_step, col_step),
+        typical_range=float(typical_range),
+        sigma=sigma,
+    )
+
+
+def _crease_tile(spacing_m: float, sigma: float, shape) -> int:
+    # 1 where the spacing is at least the noise, else the smallest t with
+    # sigma / t <= TILE_NOISE_RATIO * t * spacing, within MAX_TILE and the grid
+    if sigma <= spacing_m:
+        return 1
+    largest = MAX_TILE if shape is None else max(1, min(MAX_TILE, min(shape) // MIN_GRID_CELLS))
+    needed = math.ceil(math.sqrt(sigma / (TILE_NOISE_RATIO * spacing_m)) - 1e-9)
+    return int(min(max(needed, 1), largest))
+
+
+def scales_for_cloud(sensor, cloud, *, tile: int | None = None) -> Scales:
+    """:func:`derive_scales` for ``cloud`` (sensor grid): its median range, the sensor's
+    spacing or the one measured from the cloud when the sensor gives none."""
+    spacing = None
+    if sensor.row_spacing_deg is None or sensor.column_spacing_deg is None:
+        spacing = measured_spacing(cloud)
+    shape = tuple(s * cloud.tile for s in cloud.shape)
+    return derive_scales(sensor, typical_range=median_range(cloud), spacing_rad=spacing,
+                         shape=shape, tile=tile)
