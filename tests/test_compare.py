@@ -65,10 +65,11 @@ def test_config_for_swaps_only_the_segmenter(segmenter):
 
 @pytest.mark.parametrize("segmenter", SEGMENTERS)
 def test_only_residual_edges_works_on_the_presets_tile_means(segmenter):
-    # the depth-camera preset's 6x6 tiles belong to the residual-edge method; the
+    # the depth-camera preset's tiles belong to the residual-edge method; the
     # baselines see the points as their users would (region growing: its own preset)
     cfg = config_for("rgbd_vga", segmenter)
-    expected = 6 if segmenter == "residual_edges" else load_config("rgbd_vga_region_growing").tile
+    # residual_edges: the preset's tile, derived per frame from the sensor (None)
+    expected = None if segmenter == "residual_edges" else load_config("rgbd_vga_region_growing").tile
     assert cfg.tile == expected
 
 

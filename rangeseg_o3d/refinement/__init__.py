@@ -53,6 +53,20 @@ class _Timer:
         self.last = now
 
 
+_DERIVED = ("min_region_size", "jump_ratio", "jump_min", "merge_tolerance")
+
+
+def _with_derived_scales(config, sensor: Sensor, cloud):
+    # ``config`` with the values it leaves to the sensor filled in for ``cloud``
+    missing = [key for key in _DERIVED if getattr(config, key) is None]
+    if not missing:
+        return config
+    from ..scales import scales_for_cloud
+
+    scales = scales_for_cloud(sensor, cloud, tile=cloud.tile)
+    return config.model_copy(update={key: getattr(scales, key) for key in missing})
+
+
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,
                    ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
                    timings: dict) -> Regions:
@@ -63,7 +77,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     cloud : OrganizedCloud
     regions : the regions after segmentation and their first fits.
     fitter : the pipeline's region fitter.
-    config : RefineConfig (``min_region_size`` and the jump test resolved at load).
+    config : RefineConfig; the scale-dependent values it leaves out (None: ``min_region_size``,
+        the jump test, ``merge_tolerance``) are derived from ``sensor`` for ``cloud``
+        (:func:`rangeseg_o3d.scales.scales_for_cloud`; the Pipeline passes them resolved).
     sensor : the run's sensor.
     ranges : (H, W) ranges, NaN where invalid (for the no-jump test of growth).
     sigma : (H, W) range noise per pixel (``sensor.noise`` at ``ranges``).
@@ -71,6 +87,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     timings : dict receiving ``refine.<step>`` durations.
     """
     timer = _Timer(timings)
+    config = _with_derived_scales(config, sensor, cloud)
     # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
     tile = cloud.tile
     min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
