@@ -18,6 +18,27 @@ def test_jump_edges_mark_the_far_side_and_scale_with_range():
     assert not jump_edges(far, jump_ratio=0.08, jump_min=0.05).any()
 
 
+def test_a_surface_seen_at_a_grazing_angle_is_no_jump_but_an_occlusion_onto_it_is():
+    # a plane at 3 deg from grazing, seen by a 0.25 deg grid: every step is ~8 % of the range
+    # (over jump_ratio) and the steps change slowly along the row
+    angle, step = np.radians(3.0), np.radians(0.25)
+    plane = 2.0 / (1.0 - np.arange(12) * step / np.tan(angle))  # r_k = r_0 / (1 - k step cot a)
+    ranges = np.tile(plane[:8], (3, 1))
+    steps = np.diff(ranges[0]) / ranges[0, :-1]
+    deltas = np.diff(ranges[0])
+    assert (steps > 0.08).all() and (np.abs(np.diff(deltas)) <= 0.5 * deltas[:-1]).all()
+    assert jump_edges(ranges, jump_ratio=0.08, jump_min=0.05, continuation=0).sum() > 10
+    # only the steps at the row's ends, which have no step on one side, stay jumps
+    grazing = jump_edges(ranges, jump_ratio=0.08, jump_min=0.05)
+    assert grazing[:, 1].all() and grazing[:, 7].all() and grazing.sum() == 6
+    # an occluder at 1 m in front of the first four pixels: the step onto the plane has the
+    # occluder's flat steps on one side, so it stays a jump (the plane's pixel is marked)
+    occluded = ranges.copy()
+    occluded[:, :4] = 1.0
+    mask = jump_edges(occluded, jump_ratio=0.08, jump_min=0.05)
+    assert mask[:, 4].all() and not mask[:, :4].any()
+
+
 def test_jump_edges_ignore_nan():
     r = np.full((3, 3), 1.0)
     r[1, 1] = np.nan
