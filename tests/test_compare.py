@@ -68,8 +68,7 @@ def test_only_residual_edges_works_on_the_presets_tile_means(segmenter):
     # the depth-camera preset's tiles belong to the residual-edge method; the
     # baselines see the points as their users would (region growing: its own preset)
     cfg = config_for("rgbd_vga", segmenter)
-    # residual_edges: the preset's tile, derived per frame from the sensor (None)
-    expected = None if segmenter == "residual_edges" else load_config("rgbd_vga_region_growing").tile
+    expected = 6 if segmenter == "residual_edges" else load_config("rgbd_vga_region_growing").tile
     assert cfg.tile == expected
 
 

@@ -30,4 +30,4 @@ def test_presets_are_the_top_level_configs_in_a_checkout():
 
 def test_preset_found_by_name_from_another_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert load_config("rgbd_vga").sensor.sigma_quadratic == 0.001425
+    assert load_config("rgbd_vga").tile == 6

@@ -119,4 +119,4 @@ def test_shipped_presets_leave_the_scales_to_the_sensor():
         params = config.segmenter.params
         assert (params["jump_ratio"], params["jump_min"], params["min_region_size"]) == (None, None, None), name
         assert config.refine.merge_tolerance is None, name
-    assert load_config("rgbd_vga").tile is None
+    assert load_config("rgbd_vga").tile == 6  # the one scale still set (see the preset)

@@ -16,6 +16,9 @@ import numpy as np
 
 __all__ = ["trimmed_fit"]
 
+# Pools of at least this many points get four times the random three-point planes.
+_MANY_POINTS = 5000
+
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
                 rounds: int = 5, keep_fraction: float = 0.6, max_points: int = 600,
@@ -54,7 +57,10 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     step = -(-len(all_pts) // max_points)
     pts = np.ascontiguousarray(all_pts[::step])
     keep = max(int(keep_fraction * len(pts)), 6)
-    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), 256, 0)
+    # a pool of many surfaces (a region that leaked through a whole room) needs more random
+    # three-point planes before one lies on a single surface
+    trials = 64 if len(all_pts) < _MANY_POINTS else 256
+    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0)
     best, best_mask, best_score = None, None, -1
     # the proposal near more points first: often the only one judged
     for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
