@@ -139,7 +139,9 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     the regions whose pixels or models changed are measured again.
     """
     from .refinement.recover import recover_pixels
+    from .scales import with_derived_refinement
 
+    config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
     # Twice the smallest region: a piece of a surface the tiles already have, left over
     # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
     # could not see at all is not.

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
+           "with_derived_refinement",
            "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
            "MIN_GRID_CELLS", "MAX_TILE"]
 
@@ -177,6 +178,20 @@ def _crease_tile(spacing_m: float, sigma: float, shape) -> int:
     largest = MAX_TILE if shape is None else max(1, min(MAX_TILE, min(shape) // MIN_GRID_CELLS))
     needed = math.ceil(math.sqrt(sigma / (TILE_NOISE_RATIO * spacing_m)) - 1e-9)
     return int(min(max(needed, 1), largest))
+
+
+#: The refinement settings (RefineConfig fields) that None leaves to the sensor.
+DERIVED_REFINEMENT = ("min_region_size", "jump_ratio", "jump_min", "merge_tolerance")
+
+
+def with_derived_refinement(config, sensor, cloud):
+    """``config`` (a RefineConfig) with the values it leaves to the sensor (None) derived for
+    ``cloud``; ``config`` itself when it sets them all."""
+    missing = [key for key in DERIVED_REFINEMENT if getattr(config, key) is None]
+    if not missing:
+        return config
+    scales = scales_for_cloud(sensor, cloud, tile=cloud.tile)
+    return config.model_copy(update={key: getattr(scales, key) for key in missing})
 
 
 def scales_for_cloud(sensor, cloud, *, tile: int | None = None) -> Scales:

@@ -63,9 +63,9 @@ def _per_pixel_labels(xyz, tile_labels, tile, kinds, params, rms, sigma, k_sigma
 
 class _Capture(rs.Pipeline):
     # the tile labels and fits the pipeline hands to the full-resolution step
-    def _full_resolution(self, cloud, tile_labels, fits):
+    def _full_resolution(self, cloud, tile_labels, fits, settings):
         self.captured = (tile_labels.copy(), dict(fits))
-        return super()._full_resolution(cloud, tile_labels, fits)
+        return super()._full_resolution(cloud, tile_labels, fits, settings)
 
 
 @pytest.fixture(scope="module")

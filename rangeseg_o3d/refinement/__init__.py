@@ -30,6 +30,7 @@ import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
 from ..result import Regions
+from ..scales import with_derived_refinement
 from ..sensor import Sensor
 from .context import Context
 from .dissolve import dissolve_small
@@ -53,20 +54,6 @@ class _Timer:
         self.last = now
 
 
-_DERIVED = ("min_region_size", "jump_ratio", "jump_min", "merge_tolerance")
-
-
-def _with_derived_scales(config, sensor: Sensor, cloud):
-    # ``config`` with the values it leaves to the sensor filled in for ``cloud``
-    missing = [key for key in _DERIVED if getattr(config, key) is None]
-    if not missing:
-        return config
-    from ..scales import scales_for_cloud
-
-    scales = scales_for_cloud(sensor, cloud, tile=cloud.tile)
-    return config.model_copy(update={key: getattr(scales, key) for key in missing})
-
-
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,
                    ranges: np.ndarray, sigma: np.ndarray, jumps: np.ndarray | None,
                    timings: dict) -> Regions:
@@ -87,7 +74,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     timings : dict receiving ``refine.<step>`` durations.
     """
     timer = _Timer(timings)
-    config = _with_derived_scales(config, sensor, cloud)
+    config = with_derived_refinement(config, sensor, cloud)
     # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
     tile = cloud.tile
     min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
