@@ -18,7 +18,8 @@ window plane), ``project`` (points from ranges or depth, used by the cloud const
 (small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
 kinds, plain Python). The package imports nothing from the rest of ``rangeseg_o3d``.
 Compiled on first use and cached beside the modules (``cache=True``): the first run on a
-machine pays the compilation (about a minute for all of them, with the fits' on the 2-core CI machine).
+machine pays the compilation (about a minute for all of them, with the fits' on the 2-core CI machine;
+a wheel carries them compiled when it was built, see setup.py).
 Names load lazily (PEP 562): ``import rangeseg_o3d.kernels`` does not import numba.
 """
 
