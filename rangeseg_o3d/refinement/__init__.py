@@ -11,11 +11,14 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 3. :mod:`.recover`: compact blobs of unlabelled pixels (small curved objects that the edge
    band swallowed whole) become regions when a model explains most of them, and take
    back their rims. Running after ``grow``, it sees only what no neighbour explains.
-4. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
+4. :mod:`.facets`: a curved model whose residuals exceed the sensor's noise (a cylinder
+   over the crease of two faces) gives way to the planes that explain its region (before
+   the merge, which joins them to the rest of their faces).
+5. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
    are merged (the paper's "merging of patches that belong to the same surface").
-5. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
+6. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
    that explain them.
-6. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
+7. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
    are refitted from moments whenever they change, which costs nothing).
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
@@ -34,6 +37,7 @@ from ..scales import with_derived_refinement
 from ..sensor import Sensor
 from .context import Context
 from .dissolve import dissolve_small
+from .facets import planes_for_curved
 from .grow import grow_regions
 from .merge import merge_regions, region_adjacency
 from .polish import polish_models
@@ -94,6 +98,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
                                          **growth)
     timer.lap("recover")
+    labels, fits = planes_for_curved(ctx, labels, fits)
+    timer.lap("facets")
     adjacency = set()
     if config.merge:
         adjacency = region_adjacency(labels, wrap_columns=sensor.wrap_columns)

@@ -1,0 +1,120 @@
+"""Step 4, ``facets``: a curved model that fits worse than the sensor's noise is tested
+against planes.
+
+A cylinder bent over the crease of two block faces (or a sphere over a corner of three)
+fits their pixels within the fitter's tolerance, but its residuals are far larger than
+the noise: the faces are flat and the model is wrong. The noise model tells when: the
+mean squared residual of ``n`` pixels of a right model is ``sigma^2`` within a few
+standard deviations ``sigma^2 sqrt(2 / n)`` of the chi-square law. Only such regions
+are split into planes (the split's sequential trimmed extraction with a planes-only
+judge), and the planes replace the curved model when they explain the region at least
+as closely as it did and at the noise (facets of a truly curved surface, a tunnel, do
+not): on a sensor whose curved surfaces fit at their noise (a laser's pipes and balls)
+nothing runs.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ..fitting.plane import fit_plane
+from ..fitting.primitives import Plane
+from ..fitting.region_fitter import region_indices
+from .context import Context
+
+__all__ = ["planes_for_curved"]
+
+#: Standard deviations of the chi-square law above which a fit's mean square residual is
+#: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
+CHI_SQUARE_SIGMAS = 4.0
+#: Share of the region's pixels the planes must take (the crease band between them is left).
+PLANES_COVER = 0.9
+#: Searches per region (bounds the time; a crease region holds two or three faces).
+_MAX_ATTEMPTS = 6
+
+
+class _PlaneJudge:
+    """A planes-only stand-in for the pipeline's fitter (what :class:`Context` calls),
+    refusing a plane whose rms exceeds ``max_rms``."""
+
+    def __init__(self, fitter, max_rms: float):
+        self.fitter = fitter
+        self.max_rms = max_rms
+
+    def fit(self, points: np.ndarray):
+        plane = fit_plane(points)
+        return plane if plane and plane.rms <= self.max_rms else None
+
+    def refit(self, points: np.ndarray, model):
+        return self.fit(points)
+
+    def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        return self.fitter.points(xyz_flat, idx)
+
+
+def beyond_noise(rms: float, sigma: float, n: int) -> bool:
+    """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
+    explains (chi-square: ``rms^2 / sigma^2`` has mean 1 and deviation ``sqrt(2 / n)``)."""
+    return rms * rms > sigma * sigma * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n, 1)))
+
+
+def _planes_of(ctx: Context, idx: np.ndarray, max_rms: float) -> list[tuple[np.ndarray, Plane]]:
+    """The planes a sequential trimmed split finds in the pixels ``idx``, with their pixels."""
+    planar = copy.copy(ctx)  # the same points, noise and size floor
+    planar.fitter = _PlaneJudge(ctx.fitter, max_rms)
+    found, pools = [], planar.pieces(idx)
+    for _ in range(_MAX_ATTEMPTS):
+        if not pools:
+            break
+        pool = pools.pop()
+        piece, plane = planar.dominant_piece(pool)
+        if piece is None:
+            continue
+        found.append((piece, plane))
+        pools.extend(planar.pieces(pool[~np.isin(pool, piece, assume_unique=True)]))
+        pools.sort(key=len)
+    return found
+
+
+def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
+    """Replace each curved model that fits worse than the noise by the planes that explain
+    its region (returns new ``(labels, fits)``).
+
+    The planes must take ``PLANES_COVER`` of the region's pixels with a pooled rms no
+    larger than the curved model's on the same pixels and within the noise's chi-square
+    bound; the first keeps the label, the others take new labels, the pixels none takes
+    are freed.
+    """
+    curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
+    if not curved:
+        return labels, fits
+    regions = region_indices(np.where(np.isin(labels, curved), labels, 0))
+    labels, fits = labels.copy(), dict(fits)
+    flat = labels.ravel()
+    next_label = int(labels.max(initial=0)) + 1
+    for k, idx in regions.items():
+        model = fits[k]
+        sigma = float(np.median(ctx.sigma[idx]))
+        distances = model.distances(ctx.xyz[idx])
+        rms = float(np.sqrt(np.mean(distances * distances)))
+        if not beyond_noise(rms, sigma, idx.size):
+            continue
+        planes = _planes_of(ctx, idx, max_rms=rms)
+        taken = sum(piece.size for piece, _ in planes)
+        if not planes or taken < PLANES_COVER * idx.size:
+            continue
+        squares = sum(float(np.sum(plane.distances(ctx.xyz[piece]) ** 2)) for piece, plane in planes)
+        covered = np.concatenate([piece for piece, _ in planes])
+        if squares > float(np.sum(model.distances(ctx.xyz[covered]) ** 2)):
+            continue
+        if beyond_noise(np.sqrt(squares / taken), sigma, taken):
+            continue  # facets of a curved surface: the planes do not fit at the noise either
+        flat[idx] = 0
+        for i, (piece, plane) in enumerate(planes):
+            label = k if i == 0 else next_label
+            next_label += i > 0
+            flat[piece] = label
+            fits[label] = plane
+    return labels, fits
