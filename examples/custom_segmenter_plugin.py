@@ -16,7 +16,7 @@ import numpy as np
 
 import rangeseg_o3d as rs
 from rangeseg_o3d import registry
-from rangeseg_o3d.regions import label_regions
+from rangeseg_o3d.segmentation.regions import label_regions
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.suite import default_scene
 

@@ -1,16 +1,16 @@
 """rangeseg_o3d: organized 3-D scans into planes, cylinders and spheres.
 
 The public names below load on first use (PEP 562): ``import rangeseg_o3d`` imports
-nothing else, and importing one stage module (``rangeseg_o3d.residual``, ``.edges``,
+nothing else, and importing one stage module (``rangeseg_o3d.segmentation.residual``, ``.edges``,
 ``.regions``) loads neither pydantic, yaml nor OpenCV. open3d, rerun and serial load
 only where they are used.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 from typing import TYPE_CHECKING
+
+from ._lazy import lazy_attributes
 
 # public name -> the module that defines it
 _EXPORTS = {
@@ -52,17 +52,4 @@ if TYPE_CHECKING:  # static analysers and IDEs see the names as ordinary imports
     from .sensor import NoiseModel, Sensor
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is not None:
-        value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    elif not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        value = importlib.import_module(f"{__name__}.{name}")  # a submodule: rs.registry, rs.io, ...
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)

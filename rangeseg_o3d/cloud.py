@@ -402,7 +402,7 @@ class OrganizedCloud:
         between the surfaces, which the jump test flags like a mixed pixel. Ranges are
         recomputed from the means; intensity and geometry are dropped.
         """
-        from .residual import block_means
+        from .segmentation.residual import block_means
 
         if int(size) != size or size < 1:
             raise ValueError(f"size must be a positive integer; got {size!r}")

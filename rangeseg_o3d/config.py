@@ -91,7 +91,7 @@ class RefineConfig(BaseModel):
         it. Left out: derived from the sensor's noise (:mod:`rangeseg_o3d.scales`).
     min_region_size : smallest region the refinement keeps or creates (sensor pixels).
     jump_ratio, jump_min : growth never crosses a range step over ``max(jump_ratio r, jump_min)``
-        (``jump_ratio`` per sensor pixel step; see :func:`rangeseg_o3d.edges.jump_edges`).
+        (``jump_ratio`` per sensor pixel step; see :func:`rangeseg_o3d.segmentation.edges.jump_edges`).
         Left out, each takes the segmenter's parameter of the same name when it sets one
         (resolved once at load), else it is derived from the sensor for each scan
         (:func:`rangeseg_o3d.scales.derive_scales`), as the segmenter's own.

@@ -38,7 +38,7 @@ scan's median range, ``sigma = sigma(r)``):
   ``TILE_NOISE_RATIO`` was read off the sensor matrix's depth-camera rows (random scenes:
   on the Kinect row a 3-pixel tile lost a whole scan, 5-6 pixels did not).
 
-This module imports numpy only (the spacing measurement imports :mod:`rangeseg_o3d.edges`).
+This module imports numpy only (the spacing measurement imports :mod:`rangeseg_o3d.segmentation.edges`).
 """
 
 from __future__ import annotations
@@ -109,11 +109,11 @@ def median_range(cloud) -> float:
 def measured_spacing(cloud) -> tuple[float, float]:
     """Median angular step (radians) between neighbouring rows and columns, per sensor pixel.
 
-    Measured between viewing directions (:func:`rangeseg_o3d.edges.angular_steps`), so
+    Measured between viewing directions (:func:`rangeseg_o3d.segmentation.edges.angular_steps`), so
     range noise does not enter; a cloud of tile means is divided by its tile. A direction
     without two valid neighbours takes the other's step (square pixels).
     """
-    from .edges import angular_steps
+    from .segmentation.edges import angular_steps
 
     out = []
     for steps in angular_steps(np.ascontiguousarray(cloud.xyz, dtype=np.float64)):

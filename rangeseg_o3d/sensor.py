@@ -158,7 +158,7 @@ def _unit_hint(median_m: float, sensor: Sensor) -> str:
 def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
     # Median noise-normalised plane residual of the windows of a sub-grid: about 1 when
     # the noise model matches (much less for models that over-state the noise).
-    from .residual import residual_image
+    from .segmentation.residual import residual_image
 
     xyz = np.ascontiguousarray(cloud.xyz[::step, ::step])
     if min(xyz.shape[:2]) < 3:

@@ -30,17 +30,18 @@ def _loaded_after(statement: str) -> list[str]:
 
 @pytest.mark.parametrize("statement", [
     "import rangeseg_o3d",
-    "import rangeseg_o3d.residual",
-    "import rangeseg_o3d.edges",
-    "import rangeseg_o3d.regions",
-    "from rangeseg_o3d import residual, edges, regions",
+    "import rangeseg_o3d.segmentation.residual",
+    "import rangeseg_o3d.segmentation.edges",
+    "import rangeseg_o3d.segmentation.regions",
+    "from rangeseg_o3d.segmentation import residual, edges, regions",
+    "from rangeseg_o3d.segmentation import residual_image, label_regions, crease_edges",
 ])
 def test_importing_the_package_or_a_stage_loads_no_config_or_image_library(statement):
     assert _loaded_after(statement) == []
 
 
 def test_a_stage_loads_opencv_only_when_it_runs():
-    statement = ("import numpy as np\nfrom rangeseg_o3d.regions import label_regions\n"
+    statement = ("import numpy as np\nfrom rangeseg_o3d.segmentation.regions import label_regions\n"
                  "assert label_regions(np.zeros((40, 40), bool), min_size=1).max() == 1")
     assert _loaded_after(statement) == ["cv2"]
 

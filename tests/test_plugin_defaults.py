@@ -75,7 +75,7 @@ def test_hooks_take_the_defaults_of_the_run_function():
 
 
 def test_the_residual_image_and_the_segmenter_share_min_valid():
-    from rangeseg_o3d.residual import MIN_VALID, residual_image
+    from rangeseg_o3d.segmentation.residual import MIN_VALID, residual_image
     from rangeseg_o3d.segmenters.residual_edges import ResidualEdgesConfig, segment_residual_edges
 
     assert (_keyword_defaults(residual_image)["min_valid"] == _keyword_defaults(segment_residual_edges)["min_valid"]

@@ -7,10 +7,10 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
 
-from ..edges import close_residual, crease_edges, edge_mask, jump_edges
-from ..regions import label_regions
+from ..segmentation.edges import close_residual, crease_edges, edge_mask, jump_edges
+from ..segmentation.regions import label_regions
 from ..registry import Plugin, params_model
-from ..residual import MIN_VALID, residual_image
+from ..segmentation.residual import MIN_VALID, residual_image
 from ..result import Segmentation
 from ..sensor import Sensor
 
@@ -38,13 +38,13 @@ def segment_residual_edges(
     cloud : OrganizedCloud
     sensor : the sensor; its noise model ``sigma(r) = sigma0 + sigma_quadratic r^2`` (m)
         normalises the residual, which is divided by ``(N - 3) sigma(r)^2`` (see
-        :func:`rangeseg_o3d.residual.residual_image`). None: ``Sensor()`` (5 mm, constant).
+        :func:`rangeseg_o3d.segmentation.residual.residual_image`). None: ``Sensor()`` (5 mm, constant).
     window : neighbourhood size (odd); the paper uses 3.
     min_valid : windows with fewer valid points are edges.
     threshold : edge threshold on the normalised residual, in units of the noise variance
         (about 1 inside a plane; 9 is "three sigma").
     closing_iterations : grey-level closings of the residual image (the paper: 2).
-    jump_ratio, jump_min : depth-discontinuity test of :func:`rangeseg_o3d.edges.jump_edges`;
+    jump_ratio, jump_min : depth-discontinuity test of :func:`rangeseg_o3d.segmentation.edges.jump_edges`;
         ``jump_ratio`` is per sensor pixel step. None: derived from the sensor
         (:func:`rangeseg_o3d.scales.derive_scales`).
     min_region_size : smaller connected areas are no region (sensor pixels). None: derived.
@@ -52,7 +52,7 @@ def segment_residual_edges(
     crease_angle_deg : where the noise is comparable to the point spacing (the 3x3 residual
         is blind to creases there), normal discontinuities above this angle between
         flanking windows wide enough for well-determined normals are edges too
-        (:func:`rangeseg_o3d.edges.crease_edges`; the grid's angular spacing is measured
+        (:func:`rangeseg_o3d.segmentation.edges.crease_edges`; the grid's angular spacing is measured
         from the cloud); 0 turns the test off.
 
     A cloud of tile means (:meth:`OrganizedCloud.tile_means`, as the pipeline's ``tile``
@@ -119,13 +119,13 @@ _SEAM_PAD = 12
 
 def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
     """Segment a 360-degree grid: the columns are unrolled with copies across the seam
-    (:func:`rangeseg_o3d.regions.wrap_columns`) so every window, the closing and the flood
+    (:func:`rangeseg_o3d.segmentation.regions.wrap_columns`) so every window, the closing and the flood
     fill see the first and last columns as neighbours; the regions continuing across the
-    seam are then joined (:func:`rangeseg_o3d.regions.join_wrapped`)."""
+    seam are then joined (:func:`rangeseg_o3d.segmentation.regions.join_wrapped`)."""
     from dataclasses import replace
 
     from ..cloud import OrganizedCloud
-    from ..regions import join_wrapped, wrap_columns
+    from ..segmentation.regions import join_wrapped, wrap_columns
 
     pad = min(_SEAM_PAD, cloud.shape[1] // 2)
     if pad < 1:

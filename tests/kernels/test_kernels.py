@@ -15,7 +15,7 @@ from rangeseg_o3d.fitting.primitives import FitFailure, Plane
 from rangeseg_o3d.fitting.batch_planes import planes_from_moments, quadric_gains, region_moments
 from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, group_by_label, grow_rings
 from rangeseg_o3d.refinement.merge import region_adjacency
-from rangeseg_o3d.residual import block_means as tile_means
+from rangeseg_o3d.segmentation.residual import block_means as tile_means
 
 
 def _plane_points(rng, n, normal, d, noise):

@@ -5,7 +5,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.evaluation import hoover
-from rangeseg_o3d.regions import join_wrapped, label_regions, wrap_columns
+from rangeseg_o3d.segmentation.regions import join_wrapped, label_regions, wrap_columns
 from rangeseg_o3d.synthetic.scene import Scene, room
 from rangeseg_o3d.synthetic.spinning import simulate_spinning_lidar
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sensor import noise_sigma
+from ..sensor import noise_sigma
 
 __all__ = [
     "MIN_VALID",
@@ -50,7 +50,7 @@ def neighbourhood_moments(xyz: np.ndarray, *, window: int = 3):
     centroid : (3, H, W) mean of those points (NaN where count is 0).
     scatter : (6, H, W) centred scatter ``(axx, ayy, azz, axy, axz, ayz)``.
     """
-    from .kernels import window_moments
+    from ..kernels import window_moments
 
     return window_moments(_check_grid(xyz, window), int(window))
 
@@ -73,7 +73,7 @@ def smallest_eigenpairs(scatter: np.ndarray, *, with_vectors: bool = True):
     normal : (3, ...) its unit eigenvector, arbitrary sign, NaN where undefined
         (only if ``with_vectors``).
     """
-    from .kernels import eigenvectors, smallest_eigenvalues
+    from ..kernels import eigenvectors, smallest_eigenvalues
 
     scatter = np.asarray(scatter, dtype=np.float64)
     if scatter.ndim < 1 or scatter.shape[0] != 6:
@@ -162,7 +162,7 @@ def block_means(xyz: np.ndarray, block: int, *, min_fraction: float = 0.5):
         tile's pixels are valid.
     counts : the number of valid pixels averaged per tile.
     """
-    from .kernels import block_means as _block_means
+    from ..kernels import block_means as _block_means
 
     if block < 1:
         raise ValueError(f"block must be >= 1; got {block}")

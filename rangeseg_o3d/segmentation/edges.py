@@ -43,7 +43,7 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
     -------
     (H, W) bool mask.
     """
-    from .kernels import jump_mask
+    from ..kernels import jump_mask
 
     r = np.asarray(ranges, dtype=np.float64)
     if r.ndim != 2:
@@ -96,7 +96,7 @@ def angular_steps(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     at the lateral beams), and range noise does not move a point's direction from the
     sensor. NaN where a neighbour is invalid.
     """
-    from .kernels import ray_steps
+    from ..kernels import ray_steps
 
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
@@ -133,7 +133,7 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
     (mask, window) : (H, W) bool crease pixels, and the window used (0 when the test did
     not run because the residual sees creases everywhere).
     """
-    from .kernels import crease_mask
+    from ..kernels import crease_mask
     from .residual import residual_image
 
     ranges = np.asarray(ranges, dtype=np.float64)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.edges import angular_steps, crease_edges
-from rangeseg_o3d.residual import residual_image
+from rangeseg_o3d.segmentation.edges import angular_steps, crease_edges
+from rangeseg_o3d.segmentation.residual import residual_image
 
 
 def _roof(noise: float, seed: int = 0):

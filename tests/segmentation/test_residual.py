@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.residual import (
+from rangeseg_o3d.segmentation.residual import (
     neighbourhood_moments,
     noise_sigma,
     residual_image,
@@ -139,7 +139,7 @@ def test_noise_sigma_model():
 
 
 def test_block_means_average_tiles_and_respect_invalid_pixels():
-    from rangeseg_o3d.residual import block_means
+    from rangeseg_o3d.segmentation.residual import block_means
 
     xyz = np.arange(4 * 6 * 3, dtype=float).reshape(4, 6, 3)
     xyz[0, 0] = np.nan
@@ -162,7 +162,7 @@ def test_tile_means_lower_the_random_noise_term_only():
     v, u = np.mgrid[0:60, 0:80].astype(float)
     z = np.full(u.shape, 3.0) + rng.normal(0, 0.01, u.shape)
     xyz = np.dstack([u * 0.005, v * 0.005, z])
-    from rangeseg_o3d.residual import block_means
+    from rangeseg_o3d.segmentation.residual import block_means
 
     means, counts = block_means(xyz, 4)
     scale = 1.0 / np.sqrt(counts)

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.edges import close_residual, edge_mask, jump_edges
-from rangeseg_o3d.regions import label_regions, relabel_sequential
+from rangeseg_o3d.segmentation.edges import close_residual, edge_mask, jump_edges
+from rangeseg_o3d.segmentation.regions import label_regions, relabel_sequential
 
 
 def test_jump_edges_mark_the_far_side_and_scale_with_range():
