@@ -15,9 +15,9 @@ from ._lazy import lazy_attributes
 # public name -> the module that defines it
 _EXPORTS = {
     "OrganizedCloud": "cloud",
-    "NoddingGeometry": "kinematics",
-    "PinholeGeometry": "kinematics",
-    "SphericalGeometry": "kinematics",
+    "NoddingGeometry": "geometry",
+    "PinholeGeometry": "geometry",
+    "SphericalGeometry": "geometry",
     "Pipeline": "pipeline",
     "PipelineConfig": "config",
     "load_config": "config",
@@ -45,7 +45,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the names as ordinary imports
     from .config import PipelineConfig, load_config
     from .fitting import fit_cylinder, fit_plane, fit_sphere
     from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
-    from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
+    from .geometry import NoddingGeometry, PinholeGeometry, SphericalGeometry
     from .pipeline import Pipeline
     from .registry import Plugin
     from .result import Feature, Result, Segmentation, Unfitted

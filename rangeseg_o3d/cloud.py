@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry, spherical_points
+from .geometry import NoddingGeometry, PinholeGeometry, SphericalGeometry, spherical_points
 
 __all__ = ["OrganizedCloud", "DEFAULT_MAX_GRID_POINTS", "max_grid_points", "set_max_grid_points",
            "check_grid_size"]
@@ -272,7 +272,7 @@ class OrganizedCloud:
         """Build a cloud from a nodding laser's ranges (metres; NaN, inf or <= 0 = no return).
 
         ``ranges[i, j]`` is beam ``beam_angles[j]`` at tilt ``tilt_angles[i]`` (radians);
-        the kinematics are those of :mod:`rangeseg_o3d.kinematics`.
+        the kinematics are those of :mod:`rangeseg_o3d.geometry`.
         """
         geometry = NoddingGeometry(
             beam_angles=beam_angles,

@@ -5,7 +5,7 @@ import pytest
 
 from rangeseg_o3d.cloud import OrganizedCloud
 from rangeseg_o3d.io.datasets import default_data_root
-from rangeseg_o3d.kinematics import NoddingGeometry, PinholeGeometry, nodding_points, pinhole_points
+from rangeseg_o3d.geometry import NoddingGeometry, PinholeGeometry, nodding_points, pinhole_points
 
 
 def _reference_depth(depth, fx, fy, cx, cy, scale):

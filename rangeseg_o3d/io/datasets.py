@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from ..cloud import OrganizedCloud, check_grid_size
-from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_points
+from ..geometry import NoddingGeometry, PinholeGeometry, nodding_points
 from .files import require_regular_file
 from .pcd import read_pcd_grid
 
@@ -105,7 +105,7 @@ def load_3dtk(path, *, columns: int = SICK_3DTK_COLUMNS) -> OrganizedCloud:
     our right-handed sensor frame (x forward, y left, z up), i.e.
     ``x = z_3dtk, y = -x_3dtk, z = y_3dtk``, in metres. The minus sign is what
     turns left-handed into right-handed: with it, beam 0 (along +x_3dtk) points
-    right (-y) and beam 179.5 deg left, as in :mod:`rangeseg_o3d.kinematics`.
+    right (-y) and beam 179.5 deg left, as in :mod:`rangeseg_o3d.geometry`.
 
     Returns with 3DTK's own filter applied: ranges ``< 0.48 m`` or
     ``>= 32.75 m`` (the scanner's no-return value 32.767 m, printed rounded)

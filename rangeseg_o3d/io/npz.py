@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cloud import OrganizedCloud, check_grid_size
-from ..kinematics import NoddingGeometry, PinholeGeometry, SphericalGeometry
+from ..geometry import NoddingGeometry, PinholeGeometry, SphericalGeometry
 from ..sensor import unit_scale
 from .atomic import atomic_write
 

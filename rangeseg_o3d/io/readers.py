@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cloud import OrganizedCloud
-from ..kinematics import SphericalGeometry
+from ..geometry import SphericalGeometry
 
 __all__ = [
     "load_input",

@@ -1,8 +1,8 @@
 """Sensor measurements to points in one compiled pass: points, ranges and validity together.
 
 Used by :meth:`~rangeseg_o3d.cloud.OrganizedCloud.from_depth` and ``from_ranges``. The
-arithmetic is that of :func:`~rangeseg_o3d.kinematics.pinhole_points` and
-:func:`~rangeseg_o3d.kinematics.nodding_points` in the same order, so the points agree
+arithmetic is that of :func:`~rangeseg_o3d.geometry.pinhole_points` and
+:func:`~rangeseg_o3d.geometry.nodding_points` in the same order, so the points agree
 with them to the last bit or two. The outputs are float64: the cloud and every stage
 after it work in float64 (a float32 variant of the first, branching form of the pass
 measured no faster).

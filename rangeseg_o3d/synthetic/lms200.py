@@ -1,7 +1,7 @@
 """A simulated nodding SICK LMS200 (the paper's sensor), ray-cast exactly.
 
 Frame: the nodding geometry's base frame (x forward, y left, z up, origin on the tilt
-axis; see :mod:`rangeseg_o3d.kinematics`). Build scenes in that frame: a sensor
+axis; see :mod:`rangeseg_o3d.geometry`). Build scenes in that frame: a sensor
 0.5 m above the floor means a floor at z = -0.5.
 
 Defaults follow the paper: beams 25..155 deg at 1 deg (131 columns, the central part
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..cloud import OrganizedCloud
-from ..kinematics import NoddingGeometry, nodding_rays
+from ..geometry import NoddingGeometry, nodding_rays
 from .raycast import cast
 from .scene import Scene, SyntheticScan
 
@@ -82,7 +82,7 @@ def nodding_ranges(
     ----------
     scene : Scene
     beam_angles : (W,) radians.  tilt_angles : (H,) radians (the unit's actual angles).
-    mount_offset, tilt_sign : see :class:`~rangeseg_o3d.kinematics.NoddingGeometry`.
+    mount_offset, tilt_sign : see :class:`~rangeseg_o3d.geometry.NoddingGeometry`.
     noise_sigma : Gaussian range noise, metres (0 = exact).
     max_range : returns beyond this are no return.
     mixed_pixels, beam_width_deg, mixed_tolerance : the footprint model (module docstring).

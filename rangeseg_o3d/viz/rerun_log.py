@@ -56,7 +56,7 @@ import weakref
 import numpy as np
 
 from ..cloud import OrganizedCloud
-from ..kinematics import NoddingGeometry, PinholeGeometry, nodding_rays
+from ..geometry import NoddingGeometry, PinholeGeometry, nodding_rays
 from ..result import Result
 from .colors import KIND_HUES, region_colors, region_names
 # Re-exported: the CLI imports its rerun helpers from this module.

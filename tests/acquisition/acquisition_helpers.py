@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rangeseg_o3d.kinematics import NoddingGeometry, nodding_rays
+from rangeseg_o3d.geometry import NoddingGeometry, nodding_rays
 
 WALL_X = 3.0
 MOUNT = (0.0, 0.0, 0.1)

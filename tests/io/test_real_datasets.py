@@ -13,7 +13,7 @@ from rangeseg_o3d.io.datasets import (
     load_pcd,
     real_clouds,
 )
-from rangeseg_o3d.kinematics import nodding_points
+from rangeseg_o3d.geometry import nodding_points
 
 
 def _plane(points):
@@ -172,7 +172,7 @@ def test_estimate_pinhole_recovers_intrinsics_and_rejects_non_pinhole(random_xyz
     depth = np.linspace(1.0, 3.0, 12 * 16).reshape(12, 16)
     depth[0, :4] = 0
     truth = PinholeGeometry(500.0, 510.0, 7.2, 5.9)
-    from rangeseg_o3d.kinematics import pinhole_points
+    from rangeseg_o3d.geometry import pinhole_points
 
     estimated = estimate_pinhole(pinhole_points(depth, truth))
     assert (estimated.fx, estimated.fy, estimated.cx, estimated.cy) == pytest.approx(

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.kinematics import NoddingGeometry, PinholeGeometry
+from rangeseg_o3d.geometry import NoddingGeometry, PinholeGeometry
 from rangeseg_o3d.synthetic.depth_camera import camera_pose_scene, simulate_depth_camera
 from rangeseg_o3d.synthetic.lms200 import (
     lms200_beam_angles,

@@ -50,7 +50,7 @@ class VirtualLms200:
     tilt_at : callable
         ``tilt_at(t) -> angle`` of the tilt unit (rad, unit convention) at simulated time t.
     mount_offset, tilt_sign
-        Where the scanner sits on the tilt unit (see :mod:`rangeseg_o3d.kinematics`).
+        Where the scanner sits on the tilt unit (see :mod:`rangeseg_o3d.geometry`).
     noise : float
         Range noise sigma in metres, reproducible per (tilt angle, beam).
     nak_rate : float

@@ -1,4 +1,9 @@
-"""Sensor geometry: nodding-laser kinematics, pinhole back-projection, spinning-lidar beams.
+"""Sensor geometry: how each kind of sensor's grid of ranges becomes points.
+
+One frozen dataclass per kind of sensor, with the function from its ranges to points:
+:class:`NoddingGeometry` (a 2-D scanner on a tilt unit: :func:`nodding_rays`,
+:func:`nodding_points`), :class:`PinholeGeometry` (depth cameras: :func:`pinhole_points`)
+and :class:`SphericalGeometry` (spinning lidars, terrestrial scanners: :func:`spherical_points`).
 
 The nodding-laser frame follows ``shared/docs/protocols.md``: base frame x forward,
 y left, z up; the tilt ``theta`` turns about +y, positive looking down. A beam at
