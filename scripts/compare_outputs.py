@@ -43,7 +43,7 @@ def _cases(real: bool):
     for preset in ("rgbd_vga", "rgbd_vga_region_growing"):
         for name, scan in rgbd:
             yield f"rgbd/{preset}/{name}", preset, scan.cloud
-    from rangeseg_o3d.compare import config_for
+    from rangeseg_o3d.evaluation.compare import config_for
 
     for segmenter in ("region_growing", "o3d_planar_patches"):
         yield f"compare/lms200+{segmenter}/{lms[0][0]}", config_for("lms200", segmenter), lms[0][1].cloud

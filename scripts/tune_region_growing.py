@@ -9,7 +9,7 @@ Run: python scripts/tune_region_growing.py --preset lms200 [--scans 10]
 import argparse
 import itertools
 
-from rangeseg_o3d.compare import config_for
+from rangeseg_o3d.evaluation.compare import config_for
 from rangeseg_o3d.evaluation import evaluate
 from rangeseg_o3d.pipeline import Pipeline
 from rangeseg_o3d.synthetic.suite import lms200_suite, rgbd_suite

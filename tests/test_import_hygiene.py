@@ -35,6 +35,7 @@ def _loaded_after(statement: str) -> list[str]:
     "import rangeseg_o3d.segmentation.regions",
     "from rangeseg_o3d.segmentation import residual, edges, regions",
     "from rangeseg_o3d.segmentation import residual_image, label_regions, crease_edges",
+    "from rangeseg_o3d.evaluation import evaluate, hoover, parameter_errors",
 ])
 def test_importing_the_package_or_a_stage_loads_no_config_or_image_library(statement):
     assert _loaded_after(statement) == []

@@ -194,7 +194,7 @@ def test_parse_overrides_reads_yaml_scalars():
 
 def test_compare_configs_take_the_same_overrides():
     from rangeseg_o3d.cli import build_parser
-    from rangeseg_o3d.compare import config_for
+    from rangeseg_o3d.evaluation.compare import config_for
 
     swapped = config_for("lms200", "region_growing", overrides=["sensor.sigma0=0.01", "refine.k_sigma=2"])
     assert swapped.segmenter.name == "region_growing"

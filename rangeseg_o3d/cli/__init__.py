@@ -307,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=cmd_demo)
 
     for name, module, help_text in (
-        ("compare", "rangeseg_o3d.compare", "run every segmenter on the same scans and compare"),
+        ("compare", "rangeseg_o3d.evaluation.compare", "run every segmenter on the same scans and compare"),
         ("capture", "rangeseg_o3d.cli.capture", "capture a scan from an LMS200 on a PowerCube (or simulators)"),
     ):
         import importlib

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.evaluation import evaluate, hoover, parameter_errors
+from rangeseg_o3d.evaluation.metrics import evaluate, hoover, parameter_errors
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.result import Feature, Result
 from rangeseg_o3d.synthetic.scene import SyntheticScan
@@ -230,3 +230,11 @@ def test_segcomp_under_and_over_segmentation_use_whole_region_sizes():
     s = hoover(t, m, min_region=1, count_unlabelled=True)
     assert s.over == {} and s.missed == [1] and sorted(s.noise) == [1, 3]
     assert s.correct == {2: 2}
+
+
+def test_the_evaluation_package_re_exports_the_metrics():
+    from rangeseg_o3d import evaluation
+    from rangeseg_o3d.evaluation import metrics
+
+    assert set(evaluation.__all__) == set(metrics.__all__)
+    assert all(getattr(evaluation, name) is getattr(metrics, name) for name in metrics.__all__)

@@ -5,7 +5,7 @@ import argparse
 import numpy as np
 import pytest
 
-from rangeseg_o3d.compare import (
+from rangeseg_o3d.evaluation.compare import (
     SEGMENTERS,
     ScanRun,
     add_arguments,

@@ -106,7 +106,7 @@ def config_for(preset: str, segmenter: str, overrides=None):
     ``overrides`` (dotted keys, or ``KEY=VALUE`` strings as ``--set`` takes them) are set
     over the result.
     """
-    from .config import load_config, parse_overrides, presets
+    from ..config import load_config, parse_overrides, presets
 
     if overrides is not None and not isinstance(overrides, dict):
         overrides = parse_overrides(overrides)
@@ -140,12 +140,12 @@ def collect_scans(*, quick: bool = False, real: bool = True, data_root=None) -> 
     ``quick`` keeps one small scan of each synthetic suite (the RGB-D one rendered at
     160 x 120) and no real data, for tests.
     """
-    from .synthetic.suite import lms200_scenes, lms200_suite, rgbd_scenes, rgbd_suite
+    from ..synthetic.suite import lms200_scenes, lms200_suite, rgbd_scenes, rgbd_suite
 
     cases = []
     if quick:
-        from .synthetic.depth_camera import simulate_depth_camera
-        from .synthetic.lms200 import simulate_lms200
+        from ..synthetic.depth_camera import simulate_depth_camera
+        from ..synthetic.lms200 import simulate_lms200
 
         name, scene = lms200_scenes()[0]
         cases.append(ScanCase("lms200", name, None, "lms200", simulate_lms200(scene, seed=0)))
@@ -159,7 +159,7 @@ def collect_scans(*, quick: bool = False, real: bool = True, data_root=None) -> 
     for case in cases:
         case.cloud = case.truth.cloud
     if real and not quick:
-        from .io.datasets import real_clouds
+        from ..io.datasets import real_clouds
 
         for item in real_clouds(data_root):
             try:
@@ -187,7 +187,7 @@ def _median_time(func, repeats: int, stage: str | None = None):
 
 def run_scan(pipeline, case: ScanCase, *, repeats: int = 3) -> ScanRun:
     """Run ``pipeline`` on ``case`` ``repeats`` times; score the last result if there is truth."""
-    from .evaluation import evaluate
+    from .metrics import evaluate
 
     name = pipeline.segmenter.name
     try:
@@ -280,9 +280,9 @@ def scaling_curve(points=SCALING_POINTS, *, repeats: int = 3, params: dict | Non
     point count (focal length scaled with it, so the view is the same).
     Returns ``(n_valid, seconds)`` pairs.
     """
-    from .segmenters.region_growing import segment_region_growing
-    from .synthetic.depth_camera import simulate_depth_camera
-    from .synthetic.suite import rgbd_scenes
+    from ..segmenters.region_growing import segment_region_growing
+    from ..synthetic.depth_camera import simulate_depth_camera
+    from ..synthetic.suite import rgbd_scenes
 
     scene = rgbd_scenes()[0][1]
     params = params or {}
@@ -303,7 +303,7 @@ def scaling_curve(points=SCALING_POINTS, *, repeats: int = 3, params: dict | Non
 # -- plots and files ------------------------------------------------------------------
 
 def _write_bytes(path: Path, data: bytes) -> None:
-    from .io.atomic import atomic_write
+    from ..io.atomic import atomic_write
 
     with atomic_write(path, "wb") as fh:
         fh.write(data)
@@ -433,15 +433,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-real", action="store_true", help="skip the real clouds in ../shared/data")
     parser.add_argument("--no-scaling", action="store_true", help="skip the region-growing scaling curve")
     parser.add_argument("--data-root", default=None, help="shared data folder (default <repo>/../shared/data)")
-    from .cli import add_config_arguments
+    from ..cli import add_config_arguments
 
     add_config_arguments(parser, preset=False)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; print the table; write compare.md and the plots. Returns 0."""
-    from .pipeline import Pipeline
-    from .registry import available
+    from ..pipeline import Pipeline
+    from ..registry import available
 
     segmenters = [s.strip() for s in args.segmenters.split(",") if s.strip()]
     known = available("segmenter")
@@ -516,7 +516,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
-    """``python -m rangeseg_o3d.compare`` / ``scripts/compare.py``."""
+    """``python -m rangeseg_o3d.evaluation.compare`` / ``scripts/compare.py``."""
     parser = argparse.ArgumentParser(prog="compare", description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
