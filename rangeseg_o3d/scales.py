@@ -98,8 +98,10 @@ def _subgrid(image: np.ndarray) -> np.ndarray:
 
 def median_range(cloud) -> float:
     """Median range (m) of the cloud's valid pixels (a sub-grid of ~4096 of them)."""
-    ranges = cloud.ranges if cloud.ranges is not None else np.linalg.norm(cloud.xyz, axis=2)
-    ranges = np.asarray(_subgrid(ranges), dtype=np.float64)
+    if cloud.ranges is not None:
+        ranges = np.asarray(_subgrid(cloud.ranges), dtype=np.float64)
+    else:  # the norms of the sub-grid only: a whole VGA frame's would cost ~6 ms a scan
+        ranges = np.asarray(np.linalg.norm(_subgrid(cloud.xyz), axis=2), dtype=np.float64)
     ranges = ranges[np.isfinite(ranges) & (ranges > 0)]
     if ranges.size == 0:
         raise ValueError("the cloud has no valid range to derive its scales from")
