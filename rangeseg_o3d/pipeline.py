@@ -144,7 +144,7 @@ class Pipeline:
         labels = segmentation.labels
         regions = Regions(labels, self.fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
         clock.lap("fit")
-        regions, sigma = self._refine(work, regions, segmentation.stages.get("jumps"), clock.timings,
+        regions, sigma = self._refine(work, regions, segmentation.jumps, clock.timings,
                                       settings.refine)
         clock.lap("refine")
         stages, stats = segmentation.stages, None
@@ -181,7 +181,12 @@ class Pipeline:
                 f"segmenter {self.segmenter.name!r} returned labels of shape {labels.shape} and "
                 f"dtype {labels.dtype}; expected integer labels of shape {work.shape}"
             )
-        return Segmentation(np.where(work.valid, labels, 0).astype(np.int32), seg.stages, seg.timings)
+        jumps = getattr(seg, "jumps", None)  # plugins written before the field have none
+        if jumps is not None and np.shape(jumps) != work.shape:
+            raise ValueError(f"segmenter {self.segmenter.name!r} returned jumps of shape "
+                             f"{np.shape(jumps)}; expected {work.shape}")
+        return Segmentation(np.where(work.valid, labels, 0).astype(np.int32), seg.stages, seg.timings,
+                            jumps=None if jumps is None else np.asarray(jumps, dtype=bool))
 
     def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict, refine):
         """The refined regions (``regions`` when refinement is off) and the noise per pixel of ``work``."""

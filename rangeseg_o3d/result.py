@@ -27,11 +27,14 @@ class Segmentation:
     labels : (H, W) int32, 0 = in no region, regions numbered 1..n.
     stages : intermediate (H, W) images worth inspecting, e.g. ``residual``, ``closed``, ``edges``.
     timings : seconds per internal stage.
+    jumps : (H, W) bool, the depth jumps between neighbouring pixels, which the refinement
+        never grows a region across; None when the segmenter finds none.
     """
 
     labels: np.ndarray
     stages: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    jumps: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -109,7 +109,7 @@ def segment_residual_edges(
     min_size = max(1, -(-min_region_size // (tile * tile)))
     labels = label_regions(edges, min_size=min_size, connectivity=connectivity)
     timings["regions"] = time.perf_counter() - t2
-    return Segmentation(labels=labels, stages=stages, timings=timings)
+    return Segmentation(labels=labels, stages=stages, timings=timings, jumps=jumps)
 
 
 # Columns copied across the seam of a 360-degree grid: the widest window any test uses
@@ -138,7 +138,9 @@ def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
     seg = segment_residual_edges(unrolled, sensor=replace(sensor, wrap_columns=False), **params)
     width = cloud.shape[1]
     stages = {name: image[:, pad:pad + width] for name, image in seg.stages.items()}
-    return Segmentation(labels=join_wrapped(seg.labels, pad), stages=stages, timings=seg.timings)
+    jumps = None if seg.jumps is None else seg.jumps[:, pad:pad + width]
+    return Segmentation(labels=join_wrapped(seg.labels, pad), stages=stages, timings=seg.timings,
+                        jumps=jumps)
 
 
 class _ResidualEdgesChecks(BaseModel):
