@@ -1,4 +1,4 @@
-"""The tile grid brought back to the sensor grid: labels, statistics, thin leftovers, stage images.
+"""The tile grid brought back to the sensor grid: labels, statistics, leftovers, stage images.
 
 A depth camera's frame is segmented on ``tile x tile`` means
 (:meth:`rangeseg_o3d.OrganizedCloud.tile_means`); this module does the per-pixel work
@@ -8,9 +8,9 @@ that follows, each piece only where it is needed:
   the regions around it, listed once per tile (a pixel inside a region costs one
   distance); the same distances give each region's inlier count and squared sum, so
   :meth:`rangeseg_o3d.Pipeline.run` makes no second pass over the pixels for them.
-- :func:`thin_leftovers`: the blobs of pixels no tile model explains that are thinner
-  than the tile grid sees; nothing is done past one pass when no pixel is left over, and
-  the blobs' widths are measured in their bounding patches only.
+- :func:`leftover_blob_labels`: the blobs of pixels no tile model explains (surfaces
+  thinner than the tile grid sees, small faces between creases it could not see);
+  nothing is done past one pass when no pixel is left over.
 - :class:`ExpandedStages`: stage images of the tile grid, expanded to the sensor grid
   when someone asks for them.
 - :class:`PixelStats` and :func:`region_stats`: the statistics, kept for the regions the
@@ -22,13 +22,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats", "thin_leftovers"]
+           "region_stats", "leftover_blob_labels"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -128,7 +127,7 @@ def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndar
 
 
 def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
-                          config, sensor, ranges: np.ndarray, sigma: np.ndarray, tile: int,
+                          config, sensor, ranges: np.ndarray, sigma: np.ndarray,
                           inlier_factor: float):
     """Surfaces the tile grid lost (thinner than it sees, or small faces between creases it
     could not see), recovered from the pixels no tile model took.
@@ -149,8 +148,8 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
-    candidates = thin_leftovers(labels, cloud.valid, min_size=min_size, max_half_width=None,
-                                first_label=int(labels.max(initial=0)) + 1)
+    candidates = leftover_blob_labels(labels, cloud.valid, min_size=min_size,
+                                      first_label=int(labels.max(initial=0)) + 1)
     if candidates is None:
         return labels, fits, stats
     before, fits_before = labels.copy(), fits
@@ -164,42 +163,19 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     return labels, fits, stats
 
 
-def thin_leftovers(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
-                   max_half_width: float | None, first_label: int) -> np.ndarray | None:
-    """Blobs of valid unlabelled pixels thinner than ``max_half_width`` (None: every blob),
-    or None if there are none.
+def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
+                         first_label: int) -> np.ndarray | None:
+    """Every blob of valid unlabelled pixels, numbered from ``first_label``, or None if there
+    are none.
 
-    The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no jump mask),
-    numbered from ``first_label``; a blob is kept when its largest distance to a pixel
-    outside every blob (OpenCV's 3x3 L2 distance transform) is below ``max_half_width``.
-    Each width is measured in the blob's bounding box grown by more than
-    ``max_half_width``: a path shorter than that from a blob pixel stays inside it, so the
-    test decides as it would on the whole image.
+    The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no
+    jump mask), found by one compiled pass that stops as soon as it sees nothing is left over.
     """
     from .kernels import leftover_blobs
 
     candidates, boxes = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
                                        int(min_size), int(first_label))
-    if boxes.shape[0] == 0:
-        return None
-    if max_half_width is None:
-        return candidates
-    height, width = labels.shape
-    margin = int(np.ceil(max_half_width)) + 2
-    too_wide = []  # dropped after all are measured: a blob's width counts its neighbours
-    for j, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
-        window = (slice(max(r0 - margin, 0), min(r1 + margin, height)),
-                  slice(max(c0 - margin, 0), min(c1 + margin, width)))
-        patch = candidates[window]
-        inside = cv2.distanceTransform((patch > 0).astype(np.uint8), cv2.DIST_L2, 3)
-        mine = patch == first_label + j
-        if not inside[mine].max() < max_half_width:
-            too_wide.append((window, mine))
-    if len(too_wide) == boxes.shape[0]:
-        return None
-    for window, mine in too_wide:
-        candidates[window][mine] = 0
-    return candidates
+    return candidates if boxes.shape[0] else None
 
 
 def _flat_points(cloud) -> np.ndarray:

@@ -216,7 +216,7 @@ class Pipeline:
         if refine.enabled and refine.recover_leftovers:
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
-                ranges=ranges, sigma=sigma, tile=settings.tile, inlier_factor=INLIER_SIGMAS)
+                ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         return labels, fits, sigma, stats
 
     @staticmethod

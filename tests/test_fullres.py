@@ -3,7 +3,6 @@ candidates, statistics of the labelling pass, thin leftovers, lazily expanded st
 
 import pickle
 
-import cv2
 import numpy as np
 import pytest
 
@@ -11,7 +10,7 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.fullres import (ExpandedStages, expand, label_pixels, recover_thin_surfaces,
-                                  region_stats, thin_leftovers)
+                                  region_stats, leftover_blob_labels)
 from rangeseg_o3d.kernels import distance_stats
 from rangeseg_o3d.refinement.recover import leftover_candidates
 from rangeseg_o3d.result import INLIER_SIGMAS
@@ -126,18 +125,7 @@ def test_label_pixels_on_two_walls_and_a_region_without_a_model():
     assert stats.squares[1:3] == pytest.approx([0.0, 0.0], abs=1e-20)
 
 
-def _reference_thin_leftovers(labels, valid, min_size, first, max_half_width):
-    # the whole-image computation the patches replace
-    candidates = leftover_candidates(labels, valid, np.zeros(labels.shape, bool), min_size=min_size,
-                                     first_label=first)
-    inside = cv2.distanceTransform((candidates > 0).astype(np.uint8), cv2.DIST_L2, 3)
-    widest = np.zeros(int(candidates.max(initial=0)) + 1, np.float32)
-    np.maximum.at(widest, candidates.ravel(), inside.ravel())
-    candidates = np.where(widest[candidates] < max_half_width, candidates, 0)
-    return candidates if candidates.any() else None
-
-
-def test_thin_leftovers_equal_the_whole_image_computation():
+def test_leftover_blobs_equal_the_whole_image_computation():
     rng = np.random.default_rng(4)
     labels = np.ones((120, 160), np.int32)
     valid = np.ones(labels.shape, bool)
@@ -148,9 +136,11 @@ def test_thin_leftovers_equal_the_whole_image_computation():
         labels[r:r + rng.integers(2, 30), c:c + rng.integers(2, 30)] = 0
     found = 0
     for min_size in (10, 40, 200):
-        expected = _reference_thin_leftovers(labels, valid, min_size, 2, 9.0)
-        got = thin_leftovers(labels, valid, min_size=min_size, max_half_width=9.0, first_label=2)
-        if expected is None:
+        # the whole-image computation the compiled pass replaces
+        expected = leftover_candidates(labels, valid, np.zeros(labels.shape, bool),
+                                       min_size=min_size, first_label=2)
+        got = leftover_blob_labels(labels, valid, min_size=min_size, first_label=2)
+        if not expected.any():
             assert got is None
         else:
             found += 1
@@ -161,13 +151,13 @@ def test_thin_leftovers_equal_the_whole_image_computation():
 def test_nothing_left_over_skips_the_recovery():
     labels = np.ones((30, 40), np.int32)
     valid = np.ones(labels.shape, bool)
-    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=2) is None
+    assert leftover_blob_labels(labels, valid, min_size=10, first_label=2) is None
     labels[10:20, 10:30] = 0
     labels[12:18, 12:28] = 2  # a band 2 pixels wide around: no core survives the erosion
-    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=3) is None
+    assert leftover_blob_labels(labels, valid, min_size=10, first_label=3) is None
     valid[10:20, 10:30] = False  # invalid pixels are no leftover
     labels[12:18, 12:28] = 0
-    assert thin_leftovers(labels, valid, min_size=10, max_half_width=9.0, first_label=2) is None
+    assert leftover_blob_labels(labels, valid, min_size=10, first_label=2) is None
 
 
 def test_recovery_with_nothing_left_over_returns_its_inputs_and_the_same_result():
@@ -181,7 +171,7 @@ def test_recovery_with_nothing_left_over_returns_its_inputs_and_the_same_result(
                                  k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
     assert (labels == 1).all()
     out = recover_thin_surfaces(cloud, labels, fits, stats, fitter=pipe.fitter, config=cfg.refine,
-                                sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma, tile=6,
+                                sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma,
                                 inlier_factor=INLIER_SIGMAS)
     assert out[0] is labels and out[1] is fits and out[2] is stats
     # the pipeline finds the same with the recovery switched off

@@ -155,7 +155,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     its pixels unlabelled. Small faces between creases vanish the same way, and so do
     faces of a region that leaked through creases the tile grid could not see when the
     split left them over. Those leftovers, cut into compact blobs (``candidates``,
-    numbered above every label: :func:`rangeseg_o3d.fullres.thin_leftovers`), are each
+    numbered above every label: :func:`rangeseg_o3d.fullres.leftover_blob_labels`), are each
     split into every surface they hold (:func:`split_blobs`). At grazing angles every
     pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
     rim their regions take back are limited by it: the model distance decides.
