@@ -112,19 +112,40 @@ def measured_spacing(cloud) -> tuple[float, float]:
     """Median angular step (radians) between neighbouring rows and columns, per sensor pixel.
 
     Measured between viewing directions (:func:`rangeseg_o3d.segmentation.edges.angular_steps`), so
-    range noise does not enter; a cloud of tile means is divided by its tile. A direction
-    without two valid neighbours takes the other's step (square pixels).
+    range noise does not enter, at the pixels of a sub-grid of about ``_SAMPLE_PIXELS``
+    (each to its next row and column: a whole frame's steps would cost ~10 ms per scan for
+    a median that a few thousand of them give as well); a cloud of tile means is divided
+    by its tile. A direction without two valid neighbours takes the other's step (square pixels).
     """
-    from .segmentation.edges import angular_steps
-
     out = []
-    for steps in angular_steps(np.ascontiguousarray(cloud.xyz, dtype=np.float64)):
+    for steps in _sampled_steps(np.asarray(cloud.xyz, dtype=np.float64)):
         steps = steps[np.isfinite(steps) & (steps > 0)]
         out.append(float(np.median(steps)) / cloud.tile if steps.size else None)
     if out == [None, None]:
         raise ValueError("the cloud has no two valid neighbouring pixels to measure its "
                          "angular spacing from; give sensor.row_spacing_deg and column_spacing_deg")
     return (out[0] if out[0] is not None else out[1]), (out[1] if out[1] is not None else out[0])
+
+
+def _sampled_steps(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # The angular steps from about _SAMPLE_PIXELS pixels to their next row and next column.
+    # The pixels are every stride-th in raster order, the stride prime to the width so that
+    # they spread over every column and row (a scanner's column steps can vary column by
+    # column). Each pixel and its neighbour are stacked into a two-row (two-column) grid
+    # whose angular_steps between the two are the steps wanted.
+    from .segmentation.edges import angular_steps
+
+    h, w = xyz.shape[:2]
+    stride = max(1, (h * w) // _SAMPLE_PIXELS)
+    while math.gcd(stride, w) != 1:
+        stride += 1
+    flat = xyz.reshape(-1, 3)
+    pixels = np.arange(0, h * w, stride)
+    down = pixels[pixels < (h - 1) * w]
+    right = pixels[pixels % w < w - 1]
+    rows = angular_steps(np.stack([flat[down], flat[down + w]]))[0][0]
+    cols = angular_steps(np.stack([flat[right], flat[right + 1]], axis=1))[1][:, 0]
+    return rows, cols
 
 
 def derive_scales(sensor, *, typical_range: float, spacing_rad: tuple[float, float] | None = None,

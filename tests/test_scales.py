@@ -101,6 +101,44 @@ def test_spacing_is_measured_from_the_cloud_when_the_sensor_gives_none():
     assert measured_spacing(cloud.tile_means(2))[1] == pytest.approx(cols, rel=0.05)
 
 
+def _jittered_grid(rows: int, cols: int, seed: int = 0) -> np.ndarray:
+    # A spherical grid whose column steps vary column by column (a terrestrial scanner's
+    # jittery azimuth: 1.1-1.8 mrad) and whose row steps are 1.4 mrad; ranges 2-12 m.
+    rng = np.random.default_rng(seed)
+    azimuth = np.cumsum(rng.uniform(1.1e-3, 1.8e-3, cols))
+    elevation = 1.4e-3 * np.arange(rows) - 0.3
+    el, az = np.meshgrid(elevation, azimuth, indexing="ij")
+    r = rng.uniform(2.0, 12.0, (rows, cols))
+    return np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=-1)
+
+
+def test_measured_spacing_from_a_sample_matches_the_whole_grid_median():
+    from rangeseg_o3d.segmentation.edges import angular_steps
+
+    xyz = _jittered_grid(400, 513)
+    xyz[:40, :60] = np.nan  # an invalid corner
+    whole = [float(np.median(s[np.isfinite(s) & (s > 0)])) for s in angular_steps(xyz)]
+    sampled = measured_spacing(rs.OrganizedCloud(xyz))
+    # a few thousand of the ~200k steps: within 0.5 % though the column steps spread over 50 %
+    assert sampled[0] == pytest.approx(whole[0], rel=1e-3)
+    assert sampled[1] == pytest.approx(whole[1], rel=5e-3)
+
+
+def test_measured_spacing_of_thin_and_tiny_grids():
+    line = rs.OrganizedCloud(_jittered_grid(1, 300))  # one row: its column step stands for both
+    rows, cols = measured_spacing(line)
+    assert rows == cols and 1.1e-3 < cols < 1.8e-3
+    column = rs.OrganizedCloud(_jittered_grid(300, 1))
+    rows, cols = measured_spacing(column)
+    assert rows == cols == pytest.approx(1.4e-3, rel=1e-3)
+    two = rs.OrganizedCloud(_jittered_grid(2, 2))
+    assert 1.0e-3 < min(measured_spacing(two)) <= max(measured_spacing(two)) < 1.9e-3
+    lonely = np.full((5, 5, 3), np.nan)
+    lonely[2, 2] = (1.0, 0.0, 0.0)  # valid, but no valid neighbour
+    with pytest.raises(ValueError, match="angular spacing"):
+        measured_spacing(rs.OrganizedCloud(lonely))
+
+
 def test_derive_scales_refuses_what_it_cannot_use():
     with pytest.raises(ValueError, match="angular spacing"):
         derive_scales(Sensor(), typical_range=3.0)
