@@ -22,7 +22,7 @@ _MANY_POINTS = 5000
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
                 rounds: int = 5, keep_fraction: float = 0.6, max_points: int = 600,
-                enough: float = 0.9):
+                enough: float = 0.9, pool: np.ndarray | None = None):
     """The dominant surface of ``points`` as judged by the fitter, and its inliers.
 
     Two proposals: a plane started from the best random three-point plane and refitted on
@@ -44,6 +44,8 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     max_points : the steps run on an even subsample of at most this size; inliers are
         counted on all points.
     enough : a share of inliers at which the first answer is taken without trying more.
+    pool : indices into ``points``: fit ``points[pool]`` (gathered only when a model is
+        judged, the subsample before: a large pool no model explains costs no gather).
 
     Returns
     -------
@@ -51,15 +53,21 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     """
     from ..kernels import trimmed_proposals
 
-    all_pts = np.asarray(points, dtype=float)
-    if len(all_pts) < max(min_points, 6):
+    if pool is None:
+        pool = slice(None)
+        size = len(points)
+    else:
+        size = len(pool)
+    if size < max(min_points, 6):
         return None, None
-    step = -(-len(all_pts) // max_points)
-    pts = np.ascontiguousarray(all_pts[::step])
+    step = -(-size // max_points)
+    pts = np.ascontiguousarray(points[pool][::step] if isinstance(pool, slice) else points[pool[::step]],
+                               dtype=float)
+    all_pts = None
     keep = max(int(keep_fraction * len(pts)), 6)
     # a pool of many surfaces (a region that leaked through a whole room) needs more random
     # three-point planes before one lies on a single surface
-    trials = 64 if len(all_pts) < _MANY_POINTS else 256
+    trials = 64 if size < _MANY_POINTS else 256
     proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0)
     best, best_mask, best_score = None, None, -1
     # the proposal near more points first: often the only one judged
@@ -69,6 +77,8 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         judged = judge(pts[near])
         if not judged:
             continue
+        if all_pts is None:
+            all_pts = np.asarray(points[pool], dtype=float)
         distances = np.abs(judged.distances(all_pts))
         inliers = distances <= 3.0 * max(sigma, judged.rms)
         # Candidates are compared within one tolerance: with each model's own, a worse
@@ -76,6 +86,6 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         score = int(np.count_nonzero(distances <= 3.0 * sigma))
         if inliers.sum() >= min_points and score > best_score:
             best, best_mask, best_score = judged, inliers, score
-            if score >= enough * len(all_pts):
+            if score >= enough * size:
                 break
     return best, best_mask

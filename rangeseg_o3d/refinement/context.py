@@ -53,12 +53,13 @@ class Context:
         pixels, smallest first."""
         if idx.size < self.min_size:
             return []
+        from ..kernels import group_by_label
+
         patch, (top, left), (rows, cols) = blob_patch(idx, (idx.max() // self.width + 1, self.width), 0)
         n, comp = cv2.connectedComponents(patch, connectivity=4, ltype=cv2.CV_32S)
-        ids = comp[rows - top, cols - left]
-        order = np.argsort(ids, kind="stable")
-        bounds = np.searchsorted(ids[order], np.arange(1, n + 1))
-        pieces = [idx[order[a:b]] for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= self.min_size]
+        # the pixels of each piece in idx's order: a counting sort of their piece numbers
+        order, starts = group_by_label(np.ascontiguousarray(comp[rows - top, cols - left]), n)
+        pieces = [idx[order[a:b]] for a, b in zip(starts[1:-1], starts[2:]) if b - a >= self.min_size]
         return sorted(pieces, key=len)
 
     def dominant_piece(self, pool: np.ndarray):
@@ -67,7 +68,7 @@ class Context:
         if pool.size < self.min_size:
             return None, None
         noise = self.sigma[pool]
-        model, inliers = trimmed_fit(self.xyz[pool], self.fitter.fit,
+        model, inliers = trimmed_fit(self.xyz, self.fitter.fit, pool=pool,
                                      sigma=float(np.partition(noise, noise.size // 2)[noise.size // 2]),
                                      min_points=self.min_size)
         if model is None:

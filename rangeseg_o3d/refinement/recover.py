@@ -119,11 +119,13 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         flat[idx] = 0
         flat[chosen] = k
         fits[k] = model
-    labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed)
-    unexplained = [k for k in mixed if not fits.get(k)]
-    for k in unexplained:
+    labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed,
+                                 pixels={k: regions[k] for k in mixed})
+    flat = labels.ravel()
+    for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
-    return np.where(np.isin(labels, unexplained), 0, labels).astype(np.int32), fits
+        flat[regions[k]] = 0
+    return labels, fits
 
 
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,

@@ -18,7 +18,8 @@ __all__ = ["split_regions"]
 _MAX_SPLIT_ATTEMPTS = 24
 
 
-def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int]):
+def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int], *,
+                  pixels: dict | None = None):
     """Split every region of ``failed`` into all the surfaces it holds; returns new ``(labels, fits)``.
 
     Sequential robust extraction with connectivity kept: the dominant surface of a
@@ -29,11 +30,16 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     walls and the objects on them in one) come back as one region per surface; what no
     surface takes (the crease bands) is freed for growth. A region of which nothing is
     explained keeps its failure (reported as unfitted). The first surface found keeps the
-    region's label, the others take new labels above the largest.
+    region's label, the others take new labels above the largest. ``pixels`` (optional):
+    the flat pixels (increasing) of each failed region, when the caller has them (saves a
+    pass over the grid).
     """
     labels, fits = labels.copy(), dict(fits)
     flat = labels.ravel()
-    regions = region_indices(np.where(np.isin(labels, failed), labels, 0))
+    if pixels is None:
+        regions = region_indices(np.where(np.isin(labels, failed), labels, 0))
+    else:
+        regions = {k: pixels[k] for k in sorted(failed)}
     next_label = int(labels.max(initial=0)) + 1
     for k, idx in regions.items():
         label, found = k, False

@@ -90,3 +90,28 @@ def test_trimmed_proposals_stop_at_their_fixed_point():
         np.testing.assert_array_equal(plane_near, answers[0][0])
         np.testing.assert_array_equal(quad_near, answers[0][1])
     assert answers[0][0][:260].mean() > 0.95 and answers[0][0][260:].mean() < 0.1
+
+
+def test_trimmed_fit_on_a_pool_of_indices_equals_the_fit_on_the_gathered_points():
+    # the pool form gathers the points itself (the subsample first): same answer, bit for bit
+    judge = rs.registry.get("fitter", "primitives").run
+    rng = np.random.default_rng(3)
+    points, _ = _block_corner(0, 0.0005)
+    scattered = np.vstack([rng.uniform(-1, 1, (500, 3)), points])  # pool: the corner only, shuffled
+    pool = 500 + rng.permutation(len(points))
+    for size in (6, 40, 700, len(points)):
+        want = trimmed_fit(scattered[pool[:size]], judge, sigma=0.0005, min_points=6)
+        got = trimmed_fit(scattered, judge, sigma=0.0005, min_points=6, pool=pool[:size])
+        assert (got[0] is None) == (want[0] is None)
+        if want[0] is not None:
+            assert _same_model(got[0], want[0]) and np.array_equal(got[1], want[1])
+    noise = rng.uniform(0, 1, (300, 3))  # nothing explained: no answer either way
+    assert trimmed_fit(noise, judge, sigma=0.003, min_points=30, pool=np.arange(300)) == (None, None)
+    assert trimmed_fit(noise, judge, sigma=0.003, min_points=30, pool=np.arange(0)) == (None, None)
+
+
+def _same_model(a, b) -> bool:
+    from dataclasses import fields
+
+    return type(a) is type(b) and all(np.array_equal(getattr(a, f.name), getattr(b, f.name))
+                                      for f in fields(a))

@@ -1,5 +1,7 @@
 """The split step on its own: a region no model explains comes back as all its surfaces."""
 
+from dataclasses import fields
+
 import numpy as np
 
 import rangeseg_o3d as rs
@@ -45,3 +47,21 @@ def test_a_region_of_pure_noise_keeps_its_failure(context):
     failure = FitFailure("plane", "rms over the limit")
     labels, fits = split_regions(context(cloud), np.ones(cloud.shape, np.int32), {1: failure}, [1])
     assert fits == {1: failure} and (labels == 1).all()
+
+
+def test_split_with_the_failed_regions_pixels_given_equals_the_split_that_finds_them(context):
+    xyz, truth, _ = folded_strip(noise=0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = truth.astype(np.int32)
+    fits = {k: FitFailure("plane", "pretend") for k in (1, 2, 3)}
+    pixels = {k: np.flatnonzero(labels.ravel() == k) for k in (3, 1)}
+    ctx = context(cloud)
+    want_labels, want_fits = split_regions(ctx, labels, fits, [3, 1])
+    got_labels, got_fits = split_regions(ctx, labels, fits, [3, 1], pixels=pixels)
+    assert np.array_equal(got_labels, want_labels)
+    assert got_fits.keys() == want_fits.keys()
+    for k, model in got_fits.items():
+        assert type(model) is type(want_fits[k])
+        for f in fields(model):  # a failure's rms is NaN in both
+            mine, theirs = getattr(model, f.name), getattr(want_fits[k], f.name)
+            assert np.array_equal(mine, theirs) or (mine != mine and theirs != theirs), f.name

@@ -1,0 +1,32 @@
+"""The connected-piece helpers that split and recover share (refinement/context.py)."""
+
+import cv2
+import numpy as np
+
+import rangeseg_o3d as rs
+
+
+def _reference_pieces(idx, shape, min_size):
+    # every 4-connected piece of the pixels idx, each in increasing order, smallest first
+    # (ties in the order of their first pixel)
+    mask = np.zeros(shape, np.uint8)
+    mask.ravel()[idx] = 1
+    n, comp = cv2.connectedComponents(mask, connectivity=4, ltype=cv2.CV_32S)
+    pieces = [np.flatnonzero(comp.ravel() == k) for k in range(1, n)]
+    pieces = sorted((p for p in pieces if p.size >= min_size), key=lambda p: (p.size, p[0]))
+    return pieces
+
+
+def test_pieces_are_every_connected_piece_above_the_floor_smallest_first(context):
+    rng = np.random.default_rng(5)
+    cloud = rs.OrganizedCloud(np.dstack([*np.mgrid[0:40, 0:50].astype(float), np.full((40, 50), 3.0)]))
+    for density, min_size in ((0.45, 1), (0.55, 3), (0.7, 10), (1.0, 10)):
+        idx = np.flatnonzero(rng.random(cloud.shape).ravel() < density)
+        got = context(cloud, min_size=min_size).pieces(idx)
+        want = _reference_pieces(idx, cloud.shape, min_size)
+        assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
+    ctx = context(cloud, min_size=1)
+    one = np.array([7 * 50 + 3])
+    assert [p.tolist() for p in ctx.pieces(one)] == [one.tolist()]  # a one-pixel piece
+    assert ctx.pieces(np.array([], np.int64)) == []
+    assert context(cloud, min_size=10).pieces(np.arange(5)) == []  # under the floor
