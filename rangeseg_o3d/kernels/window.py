@@ -170,37 +170,57 @@ def eigenvectors(scatter, values):
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _tilt(normals, tolerance, ra, ca, rb, cb):
+    # sine of the angle between the normals at two pixels (sign-free); -1 where either
+    # lies outside the grid or has no test (NaN tolerance) or no normal
+    h, w = normals.shape[0], normals.shape[1]
+    if ra < 0 or ca < 0 or rb < 0 or cb < 0 or ra >= h or rb >= h or ca >= w or cb >= w:
+        return -1.0
+    if not (tolerance[ra, ca] == tolerance[ra, ca] and tolerance[rb, cb] == tolerance[rb, cb]):
+        return -1.0
+    ax, ay, az = normals[ra, ca, 0], normals[ra, ca, 1], normals[ra, ca, 2]
+    bx, by, bz = normals[rb, cb, 0], normals[rb, cb, 1], normals[rb, cb, 2]
+    # |a x b| = sin(angle), sign-free (normals have arbitrary signs)
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    sine = math.sqrt(cx * cx + cy * cy + cz * cz)
+    return sine if sine == sine else -1.0
+
+
 @njit(cache=True, nogil=True)
 def crease_mask(normals, tolerance, offset):
-    """Pixels whose two flanking windows disagree in orientation: ``(H, W)`` bool.
+    """Pixels where the surface's orientation changes at once: ``(H, W)`` bool.
 
     Pixel (r, c) is marked when the unit normals of the windows centred ``offset`` pixels
-    to its left and right (or above and below) make an angle whose sine exceeds the larger
-    of the two windows' ``tolerance`` (a sine per pixel; NaN = no normal, no test there).
-    Planes on either side of a crease tilt the flanking windows apart, whatever the noise
-    of single points, once the windows are wide enough for their normals to be well
-    determined.
+    to its left and right (or above and below) make an angle whose sine exceeds, by more
+    than the larger of the two windows' ``tolerance`` (a sine per pixel; NaN = no normal,
+    no test there), the tilt between one of them and the next window ``2 offset`` further
+    out on its side. Planes on either side of a crease tilt the flanking windows apart,
+    whatever the noise of single points, once the windows are wide enough for their
+    normals to be well determined, while the windows further out lie on the same planes
+    and do not tilt; on a curved surface (a column, a ball) every pair of windows the
+    same distance apart tilts alike: its orientation changes steadily, which is no crease.
+    Where neither outer window exists (the grid's border) the tilt alone decides.
     """
     h, w = normals.shape[0], normals.shape[1]
     out = np.zeros((h, w), np.bool_)
+    far = 3 * offset
     for r in range(h):
         for c in range(w):
             for axis in range(2):
-                ra, ca, rb, cb = r, c - offset, r, c + offset
-                if axis == 1:
-                    ra, ca, rb, cb = r - offset, c, r + offset, c
-                if ra < 0 or ca < 0 or rb >= h or cb >= w:
+                dr, dc = (0, 1) if axis == 0 else (1, 0)
+                ra, ca, rb, cb = r - offset * dr, c - offset * dc, r + offset * dr, c + offset * dc
+                sine = _tilt(normals, tolerance, ra, ca, rb, cb)
+                if sine < 0:
                     continue
-                ta, tb = tolerance[ra, ca], tolerance[rb, cb]
-                if not (ta == ta and tb == tb):
+                limit = max(tolerance[ra, ca], tolerance[rb, cb])
+                if sine <= limit:
                     continue
-                limit = max(ta, tb)
-                ax, ay, az = normals[ra, ca, 0], normals[ra, ca, 1], normals[ra, ca, 2]
-                bx, by, bz = normals[rb, cb, 0], normals[rb, cb, 1], normals[rb, cb, 2]
-                # |a x b| = sin(angle), sign-free (normals have arbitrary signs)
-                cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-                sine = math.sqrt(cx * cx + cy * cy + cz * cz)
-                if sine > limit:  # NaN normals compare False
+                # the steady tilt of a curved surface: the smaller of the two outer pairs'
+                left = _tilt(normals, tolerance, r - far * dr, c - far * dc, ra, ca)
+                right = _tilt(normals, tolerance, rb, cb, r + far * dr, c + far * dc)
+                steady = min(left, right) if left >= 0 and right >= 0 else max(left, right, 0.0)
+                if sine - steady > limit:
                     out[r, c] = True
                     break
     return out

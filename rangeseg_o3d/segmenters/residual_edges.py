@@ -112,9 +112,9 @@ def segment_residual_edges(
     return Segmentation(labels=labels, stages=stages, timings=timings, jumps=jumps)
 
 
-# Columns copied across the seam of a 360-degree grid: the widest window any test uses
-# (the crease test's 9) plus the closing's reach.
-_SEAM_PAD = 12
+# Columns copied across the seam of a 360-degree grid: the farthest any test looks (the
+# crease test's outer windows, 3 x 4 columns away and 9 wide) plus the closing's reach.
+_SEAM_PAD = 20
 
 
 def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
