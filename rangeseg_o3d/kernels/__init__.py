@@ -29,7 +29,7 @@ import importlib
 
 _SOURCES = {
     "grid": ("adjacency_matrix", "block_means", "claim_rings", "group_by_label", "label_counts", "relabel",
-             "grow_rings", "jump_mask", "largest_piece", "member_pixels"),
+             "grow_rings", "jump_mask", "largest_piece", "member_pixels", "piece_ids"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
     "tiles": ("label_pixels", "leftover_blobs"),

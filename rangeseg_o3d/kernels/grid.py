@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
-           "largest_piece", "member_pixels", "label_counts", "relabel"]
+           "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -309,25 +309,35 @@ def block_means(xyz, stride, min_count):
     return sums, counts
 
 @njit(cache=True, nogil=True)
-def largest_piece(idx, width):
-    """The flat pixel indices ``idx`` (increasing) of the largest 4-connected piece they form.
+def piece_ids(idx, width):
+    """The 4-connected pieces that the flat pixel indices ``idx`` (increasing) form.
 
-    Ties go to the piece holding the first pixel in raster order, as with OpenCV's labels.
+    Returns ``(ids, sizes)``: ``ids[p]`` the piece of ``idx[p]`` (int32), pieces numbered
+    from 0 in the raster order of their first pixel (as OpenCV's connected components
+    number them), and each piece's pixel count.
     """
     n = idx.shape[0]
+    piece = np.full(n, -1, np.int32)
+    sizes = np.zeros(n, np.int64)
     if n == 0:
-        return idx.copy()
-    top, bottom, left, right = idx[0] // width, idx[n - 1] // width, width, 0
+        return piece, sizes
+    # rows and columns without a division per pixel: idx increases, so the row does too
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    row, row_start = idx[0] // width, (idx[0] // width) * width
+    left, right = width, 0
     for p in range(n):
-        c = idx[p] % width
-        left, right = min(left, c), max(right, c)
-    h, w = bottom - top + 1, right - left + 1
+        while idx[p] >= row_start + width:
+            row += 1
+            row_start += width
+        rows[p], cols[p] = row, idx[p] - row_start
+        left, right = min(left, cols[p]), max(right, cols[p])
+    top = rows[0]
+    h, w = rows[n - 1] - top + 1, right - left + 1
     slot = np.full(h * w, -1, np.int64)  # position in idx of each patch pixel, -1 if none
     for p in range(n):
-        slot[(idx[p] // width - top) * w + idx[p] % width - left] = p
-    piece = np.full(n, -1, np.int64)
+        slot[(rows[p] - top) * w + cols[p] - left] = p
     stack = np.empty(n, np.int64)
-    best, best_size, pieces = 0, 0, 0
+    pieces = 0
     for start in range(n):
         if piece[start] >= 0:
             continue
@@ -337,8 +347,8 @@ def largest_piece(idx, width):
             depth -= 1
             p = stack[depth]
             size += 1
-            cell = (idx[p] // width - top) * w + idx[p] % width - left
-            r, c = cell // w, cell % w
+            r, c = rows[p] - top, cols[p] - left
+            cell = r * w + c
             for step in range(4):
                 if step == 0:
                     other = cell - w if r > 0 else -1
@@ -352,12 +362,23 @@ def largest_piece(idx, width):
                     piece[slot[other]] = pieces
                     stack[depth] = slot[other]
                     depth += 1
-        if size > best_size:
-            best, best_size = pieces, size
+        sizes[pieces] = size
         pieces += 1
-    out = np.empty(best_size, idx.dtype)
+    return piece, sizes[:pieces]
+
+@njit(cache=True, nogil=True)
+def largest_piece(idx, width):
+    """The flat pixel indices ``idx`` (increasing) of the largest 4-connected piece they form.
+
+    Ties go to the piece holding the first pixel in raster order, as with OpenCV's labels.
+    """
+    piece, sizes = piece_ids(idx, width)
+    if sizes.shape[0] == 0:
+        return idx.copy()
+    best = np.argmax(sizes)  # the first of equal sizes
+    out = np.empty(sizes[best], idx.dtype)
     m = 0
-    for p in range(n):
+    for p in range(idx.shape[0]):
         if piece[p] == best:
             out[m] = idx[p]
             m += 1

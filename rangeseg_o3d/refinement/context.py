@@ -9,7 +9,7 @@ import numpy as np
 from ..fitting.region_fitter import RegionFitter
 from ..fitting.robust import trimmed_fit
 
-__all__ = ["Context", "blob_patch", "touching"]
+__all__ = ["Context", "blob_patch", "touching", "without"]
 
 
 def blob_patch(idx: np.ndarray, shape: tuple[int, int], margin: int):
@@ -21,6 +21,14 @@ def blob_patch(idx: np.ndarray, shape: tuple[int, int], margin: int):
     patch = np.zeros((bottom - top, right - left), np.uint8)
     patch[rows - top, cols - left] = 1
     return patch, (top, left), (rows, cols)
+
+
+def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
+    """The pixels of ``pool`` not in ``piece``, both increasing, ``piece`` a subset of ``pool``
+    (``pool[~np.isin(pool, piece)]`` by a binary search of the few, not a sort of all)."""
+    keep = np.ones(pool.size, bool)
+    keep[np.searchsorted(pool, piece)] = False
+    return pool[keep]
 
 
 def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
@@ -53,13 +61,14 @@ class Context:
         pixels, smallest first."""
         if idx.size < self.min_size:
             return []
-        from ..kernels import group_by_label
+        from ..kernels import group_by_label, piece_ids
 
-        patch, (top, left), (rows, cols) = blob_patch(idx, (idx.max() // self.width + 1, self.width), 0)
-        n, comp = cv2.connectedComponents(patch, connectivity=4, ltype=cv2.CV_32S)
+        ids, sizes = piece_ids(np.ascontiguousarray(idx, dtype=np.int64), self.width)
         # the pixels of each piece in idx's order: a counting sort of their piece numbers
-        order, starts = group_by_label(np.ascontiguousarray(comp[rows - top, cols - left]), n)
-        pieces = [idx[order[a:b]] for a, b in zip(starts[1:-1], starts[2:]) if b - a >= self.min_size]
+        order, starts = group_by_label(ids, sizes.shape[0])
+        # (a pool can hold thousands of pieces under the floor: they are skipped in numpy)
+        big = np.flatnonzero(sizes >= self.min_size)
+        pieces = [idx[order[a:b]] for a, b in zip(starts[big].tolist(), starts[big + 1].tolist())]
         return sorted(pieces, key=len)
 
     def dominant_piece(self, pool: np.ndarray):

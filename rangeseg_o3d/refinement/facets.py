@@ -22,7 +22,7 @@ import numpy as np
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from .context import Context
+from .context import Context, without
 
 __all__ = ["planes_for_curved"]
 
@@ -73,7 +73,7 @@ def _planes_of(ctx: Context, idx: np.ndarray, max_rms: float) -> list[tuple[np.n
         if piece is None:
             continue
         found.append((piece, plane))
-        pools.extend(planar.pieces(pool[~np.isin(pool, piece, assume_unique=True)]))
+        pools.extend(planar.pieces(without(pool, piece)))
         pools.sort(key=len)
     return found
 
@@ -90,7 +90,8 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     if not curved:
         return labels, fits
-    regions = region_indices(np.where(np.isin(labels, curved), labels, 0))
+    wanted = set(curved)
+    regions = {k: idx for k, idx in region_indices(labels).items() if k in wanted}
     labels, fits = labels.copy(), dict(fits)
     flat = labels.ravel()
     next_label = int(labels.max(initial=0)) + 1

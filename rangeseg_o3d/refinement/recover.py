@@ -105,7 +105,8 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     """
     from .split import split_regions
 
-    labels, fits = np.where(candidates > 0, candidates, labels).astype(np.int32), dict(fits)
+    # the candidates' numbers are above every label: one maximum puts them in
+    labels, fits = np.maximum(candidates, labels).astype(np.int32, copy=False), dict(fits)
     flat = labels.ravel()
     regions = region_indices(candidates)
     # blobs that are one plane need no search (one batched pass settles them)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.region_fitter import region_indices
-from .context import Context
+from .context import Context, without
 
 __all__ = ["split_regions"]
 
@@ -37,9 +37,8 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     labels, fits = labels.copy(), dict(fits)
     flat = labels.ravel()
     if pixels is None:
-        regions = region_indices(np.where(np.isin(labels, failed), labels, 0))
-    else:
-        regions = {k: pixels[k] for k in sorted(failed)}
+        pixels = region_indices(labels)
+    regions = {k: pixels[k] for k in sorted(failed) if k in pixels}
     next_label = int(labels.max(initial=0)) + 1
     for k, idx in regions.items():
         label, found = k, False
@@ -57,6 +56,6 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
             flat[piece] = label
             fits[label] = model
             label, next_label = next_label, next_label + 1
-            pools.extend(ctx.pieces(pool[~np.isin(pool, piece, assume_unique=True)]))
+            pools.extend(ctx.pieces(without(pool, piece)))
             pools.sort(key=len)
     return labels, fits

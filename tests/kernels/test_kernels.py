@@ -323,3 +323,25 @@ def test_batched_planes_of_a_few_blobs_in_a_large_image_are_those_of_the_blobs_a
         np.testing.assert_array_equal(sparse[k].normal, dense[k].normal)
         assert (sparse[k].d, sparse[k].rms, sparse[k].inliers) == (dense[k].d, dense[k].rms, dense[k].inliers)
         assert sparse[k].inliers == 300 and sparse[k].rms < 0.003
+
+
+def test_piece_ids_number_the_pieces_as_opencv_does():
+    import cv2
+
+    from rangeseg_o3d.kernels import largest_piece, piece_ids
+
+    rng = np.random.default_rng(7)
+    for density in (0.3, 0.5, 0.6, 0.9):
+        mask = (rng.random((30, 41)) < density).astype(np.uint8)
+        idx = np.flatnonzero(mask)
+        ids, sizes = piece_ids(idx, mask.shape[1])
+        n, comp = cv2.connectedComponents(mask, connectivity=4, ltype=cv2.CV_32S)
+        assert np.array_equal(ids, comp.ravel()[idx] - 1)
+        assert np.array_equal(sizes, np.bincount(comp.ravel()[idx] - 1, minlength=n - 1))
+        biggest = np.flatnonzero(comp.ravel() == 1 + int(np.argmax(sizes)))
+        assert np.array_equal(largest_piece(idx, mask.shape[1]), biggest)
+    ids, sizes = piece_ids(np.array([], np.int64), 5)
+    assert ids.size == 0 and sizes.size == 0
+    ids, sizes = piece_ids(np.array([12], np.int64), 5)
+    assert ids.tolist() == [0] and sizes.tolist() == [1]
+    assert largest_piece(np.array([], np.int64), 5).size == 0

@@ -30,3 +30,16 @@ def test_pieces_are_every_connected_piece_above_the_floor_smallest_first(context
     assert [p.tolist() for p in ctx.pieces(one)] == [one.tolist()]  # a one-pixel piece
     assert ctx.pieces(np.array([], np.int64)) == []
     assert context(cloud, min_size=10).pieces(np.arange(5)) == []  # under the floor
+
+
+def test_without_is_the_set_difference_of_a_pool_and_its_piece():
+    from rangeseg_o3d.refinement.context import without
+
+    rng = np.random.default_rng(2)
+    for size in (1, 2, 50, 3000):
+        pool = np.unique(rng.integers(0, 10 * size, size))
+        for share in (0.0, 0.3, 1.0):
+            piece = np.sort(rng.choice(pool, int(share * pool.size), replace=False))
+            assert np.array_equal(without(pool, piece), pool[~np.isin(pool, piece)])
+    empty = np.array([], np.int64)
+    assert without(empty, empty).size == 0
