@@ -12,10 +12,12 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    band swallowed whole) become regions when a model explains most of them, and take
    back their rims. Running after ``grow``, it sees only what no neighbour explains.
 4. :mod:`.facets`: a curved model whose residuals exceed the sensor's noise (a cylinder
-   over the crease of two faces) gives way to the planes that explain its region (before
-   the merge, which joins them to the rest of their faces).
+   over the crease of two faces, a pipe that took its end cap) gives way to the planes, or
+   failing them the surfaces of any kind, that explain its region (before the merge,
+   which joins them to the rest of their faces).
 5. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
-   are merged (the paper's "merging of patches that belong to the same surface").
+   are merged (the paper's "merging of patches that belong to the same surface"); then a
+   strip of a sphere or cylinder that another kind took goes back to it.
 6. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
    that explain them.
 7. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
@@ -39,7 +41,7 @@ from .context import Context
 from .dissolve import dissolve_small
 from .facets import planes_for_curved
 from .grow import grow_regions
-from .merge import merge_regions, region_adjacency
+from .merge import merge_into_curved, merge_regions, region_adjacency
 from .polish import polish_models
 from .recover import recover_leftovers, recover_pixels
 from .split import split_regions
@@ -107,6 +109,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
             ctx, labels, fits, adjacency, max_angle_deg=config.merge_angle_deg,
             tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
             rms_factor=config.merge_rms_factor)
+        labels, fits, adjacency = merge_into_curved(ctx, labels, fits, adjacency,
+                                                    rms_factor=config.merge_rms_factor)
     timer.lap("merge")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)

@@ -1,5 +1,5 @@
 """Step 4, ``facets``: a curved model that fits worse than the sensor's noise is tested
-against planes.
+against planes, then against the fitter's own split.
 
 A cylinder bent over the crease of two block faces (or a sphere over a corner of three)
 fits their pixels within the fitter's tolerance, but its residuals are far larger than
@@ -10,7 +10,10 @@ are split into planes (the split's sequential trimmed extraction with a planes-o
 judge), and the planes replace the curved model when they explain the region at least
 as closely as it did and at the noise (facets of a truly curved surface, a tunnel, do
 not): on a sensor whose curved surfaces fit at their noise (a laser's pipes and balls)
-nothing runs.
+nothing runs. When planes do not do it, the same split with the pipeline's fitter as the
+judge (any kind, each within the curved model's rms) is held to the same rules: a pipe
+whose region took its end cap (or a box face beside it) comes back as its cylinder and
+the plane.
 """
 
 from __future__ import annotations
@@ -54,16 +57,29 @@ class _PlaneJudge:
         return self.fitter.points(xyz_flat, idx)
 
 
+class _BoundJudge(_PlaneJudge):
+    """The pipeline's fitter (any kind), refusing a model whose rms exceeds ``max_rms``."""
+
+    def fit(self, points: np.ndarray):
+        model = self.fitter.fit(points)
+        return model if model and model.rms <= self.max_rms else None
+
+    def refit(self, points: np.ndarray, model):
+        refit = self.fitter.refit(points, model)
+        return refit if refit and refit.rms <= self.max_rms else None
+
+
 def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
     explains (chi-square: ``rms^2 / sigma^2`` has mean 1 and deviation ``sqrt(2 / n)``)."""
     return rms * rms > sigma * sigma * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n, 1)))
 
 
-def _planes_of(ctx: Context, idx: np.ndarray, max_rms: float) -> list[tuple[np.ndarray, Plane]]:
-    """The planes a sequential trimmed split finds in the pixels ``idx``, with their pixels."""
+def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:
+    """The surfaces a sequential trimmed split with ``judge`` finds in the pixels ``idx``,
+    with their pixels."""
     planar = copy.copy(ctx)  # the same points, noise and size floor
-    planar.fitter = _PlaneJudge(ctx.fitter, max_rms)
+    planar.fitter = judge
     found, pools = [], planar.pieces(idx)
     for _ in range(_MAX_ATTEMPTS):
         if not pools:
@@ -79,10 +95,10 @@ def _planes_of(ctx: Context, idx: np.ndarray, max_rms: float) -> list[tuple[np.n
 
 
 def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
-    """Replace each curved model that fits worse than the noise by the planes that explain
-    its region (returns new ``(labels, fits)``).
+    """Replace each curved model that fits worse than the noise by the planes (failing them,
+    the surfaces of any kind) that explain its region (returns new ``(labels, fits)``).
 
-    The planes must take ``PLANES_COVER`` of the region's pixels with a pooled rms no
+    The planes (surfaces) must take ``PLANES_COVER`` of the region's pixels with a pooled rms no
     larger than the curved model's on the same pixels and within the noise's chi-square
     bound; the first keeps the label, the others take new labels, the pixels none takes
     are freed.
@@ -102,20 +118,29 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
         rms = float(np.sqrt(np.mean(distances * distances)))
         if not beyond_noise(rms, sigma, idx.size):
             continue
-        planes = _planes_of(ctx, idx, max_rms=rms)
-        taken = sum(piece.size for piece, _ in planes)
-        if not planes or taken < PLANES_COVER * idx.size:
+        for judge in (_PlaneJudge(ctx.fitter, rms), _BoundJudge(ctx.fitter, rms)):
+            surfaces = _surfaces_of(ctx, idx, judge)
+            if _explains(ctx, model, idx, surfaces, sigma):
+                break
+        else:
             continue
-        squares = sum(float(np.sum(plane.distances(ctx.xyz[piece]) ** 2)) for piece, plane in planes)
-        covered = np.concatenate([piece for piece, _ in planes])
-        if squares > float(np.sum(model.distances(ctx.xyz[covered]) ** 2)):
-            continue
-        if beyond_noise(np.sqrt(squares / taken), sigma, taken):
-            continue  # facets of a curved surface: the planes do not fit at the noise either
         flat[idx] = 0
-        for i, (piece, plane) in enumerate(planes):
+        for i, (piece, surface) in enumerate(surfaces):
             label = k if i == 0 else next_label
             next_label += i > 0
             flat[piece] = label
-            fits[label] = plane
+            fits[label] = surface
     return labels, fits
+
+
+def _explains(ctx: Context, model, idx: np.ndarray, surfaces: list, sigma: float) -> bool:
+    # the surfaces take PLANES_COVER of the pixels, no farther from them than ``model`` and
+    # at the noise (facets of a truly curved surface do not fit at the noise either)
+    taken = sum(piece.size for piece, _ in surfaces)
+    if not surfaces or taken < PLANES_COVER * idx.size:
+        return False
+    squares = sum(float(np.sum(surface.distances(ctx.xyz[piece]) ** 2)) for piece, surface in surfaces)
+    covered = np.concatenate([piece for piece, _ in surfaces])
+    if squares > float(np.sum(model.distances(ctx.xyz[covered]) ** 2)):
+        return False
+    return not beyond_noise(np.sqrt(squares / taken), sigma, taken)

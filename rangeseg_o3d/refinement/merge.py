@@ -15,7 +15,7 @@ from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
 from .context import Context
 
-__all__ = ["merge_regions", "merge_candidates", "region_adjacency", "similar_models"]
+__all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
 
 # the merge's answer for a union of planes whose least-squares plane is over the merge limit
 _NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
@@ -229,3 +229,52 @@ class _Unions:
         for k in self.root:
             lut[k] = self.find(k)
         return lut
+
+
+def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
+                      rms_factor: float):
+    """Pieces of a curved surface taken by another kind go back to it: returns new
+    ``(labels, fits, adjacency)``.
+
+    A sphere or cylinder cut by an edge line can leave a strip that a plane (a flat-looking
+    band of a column, the bottom of a ball) or the other curved kind fits on its own;
+    :func:`merge_regions` pairs only regions of one kind, so the strip stays apart. Each
+    adjacent pair of different kinds whose larger region is curved is tried, smallest
+    piece first: the larger region's model refitted to the union must keep its kind, fit
+    within ``rms_factor`` of the larger part's rms and at the noise (the chi-square bound of
+    :func:`rangeseg_o3d.refinement.facets.beyond_noise`: a face of a box beside a column
+    is not explained by the column's cylinder).
+    """
+    from .facets import beyond_noise
+
+    regions = region_indices(labels)
+    sizes = {k: idx.size for k, idx in regions.items()}
+    pairs = []
+    for a, b in adjacency:
+        ma, mb = fits.get(a), fits.get(b)
+        if not (ma and mb) or ma.kind == mb.kind or a not in sizes or b not in sizes:
+            continue
+        big, small = (a, b) if sizes[a] >= sizes[b] else (b, a)
+        if not isinstance(fits[big], Plane):
+            pairs.append((sizes[small], big, small))
+    if not pairs:
+        return labels, fits, adjacency
+    fits = dict(fits)
+    lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
+    for _, big, small in sorted(pairs):
+        if lut[big] != big or lut[small] != small:
+            continue  # one of them was merged already
+        union_idx = np.concatenate([regions[big], regions[small]])
+        union = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, union_idx), fits[big])
+        if not union or union.kind != fits[big].kind:
+            continue
+        if union.rms > rms_factor * max(fits[big].rms, fits[small].rms):
+            continue
+        if beyond_noise(union.rms, float(np.median(ctx.sigma[union_idx])), union_idx.size):
+            continue
+        fits[big] = union
+        del fits[small]
+        regions[big] = union_idx
+        lut[small] = big
+    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+    return lut[labels], fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}

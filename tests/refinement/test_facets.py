@@ -84,3 +84,27 @@ def test_a_curved_region_planes_cannot_cover_is_kept(context):
     out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, 0.0002)),
                                              np.ones(cloud.shape, np.int32), {1: cylinder})
     assert out_fits == {1: cylinder} and (out_labels == 1).all()
+
+
+def test_a_cylinder_that_took_a_flat_face_gives_it_back(context):
+    # a pipe and its neighbouring face in one region: the cylinder fitted to both is beyond
+    # the noise, no set of planes covers the arc, so the fitter's own split (a cylinder,
+    # then a plane) replaces it
+    from test_merge import _arc
+
+    xyz, flank = _arc()
+    cloud = rs.OrganizedCloud(xyz)
+    cylinder = fit_cylinder(xyz.reshape(-1, 3))
+    assert cylinder and cylinder.rms > 2 * SIGMA  # the premise: one model is not enough
+    labels = np.ones(cloud.shape, np.int32)
+    out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, SIGMA)),
+                                             labels, {1: cylinder})
+    truth = np.where(flank, 2, 1)
+    kinds = {}
+    for k in (1, 2):
+        best, share = best_overlap(out_labels, truth, k)
+        assert best > 0 and share >= 0.85
+        assert (truth[out_labels == best] == k).mean() >= 0.95
+        kinds[k] = out_fits[best]
+    assert kinds[1].kind == "cylinder" and abs(kinds[1].radius - 0.3) < 0.003
+    assert kinds[2].kind == "plane" and kinds[2].rms < 1.5 * SIGMA

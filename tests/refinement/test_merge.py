@@ -61,3 +61,51 @@ def test_merge_regions_only_pairs_with_the_labels_named(context):
                                    max_angle_deg=3.0, tolerance=0.05, disjoint=True, rms_factor=1.3,
                                    only={3})
     assert (out == labels).all() and all(merged[k] is fits[k] for k in fits) and set(merged) == set(fits)
+
+
+def _arc(noise=0.001, seed=0):
+    """A 40 x 60 grid on a cylinder of radius 0.3 m (axis along y) over 100 degrees, then
+    (``flank``) a plane leaving its last column at a 50-degree crease: ``(xyz, flank)``."""
+    v, u = np.mgrid[0:40, 0:60].astype(float)
+    angle = np.radians(-50.0 + 100.0 * np.minimum(u, 44) / 59.0)
+    rng = np.random.default_rng(seed)
+    radius = 0.3
+    x, z = radius * np.sin(angle), 3.0 - radius * np.cos(angle)
+    # beyond column 44, a plane leaving the arc 50 degrees off its tangent there
+    edge = np.radians(-50.0 + 100.0 * 44 / 59.0) + np.radians(50.0)
+    run = (u - 44).clip(min=0) * 0.012
+    x, z = x + run * np.cos(edge), z + run * np.sin(edge)
+    normal_noise = rng.normal(0.0, noise, u.shape)
+    return np.dstack([x, v * 0.02, z + normal_noise]), u > 44
+
+
+def test_a_strip_of_a_cylinder_fitted_as_a_plane_goes_back_to_it(context):
+    from rangeseg_o3d.fitting import fit_cylinder
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+
+    xyz, _ = _arc()
+    xyz = xyz[:, :45]  # the arc alone
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.ones(cloud.shape, np.int32)
+    labels[:, 37:] = 2  # an 8-column strip, ~13 degrees of arc: flat to a plane's eye
+    fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    assert fits[1].kind == "cylinder" and fits[2].kind == "plane"
+    ctx = context(cloud, sigma=np.full(cloud.shape, 0.001))
+    out, out_fits, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3)
+    assert (out == 1).all() and set(out_fits) == {1} and adjacency == set()
+    assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
+    assert set(fits) == {1, 2} and (labels[:, 37:] == 2).all()  # inputs left alone
+
+
+def test_a_plane_at_a_crease_beside_a_cylinder_stays_apart(context):
+    from rangeseg_o3d.fitting import fit_cylinder
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+
+    xyz, flank = _arc()
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.where(flank, 2, 1).astype(np.int32)
+    fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    assert fits[1].kind == "cylinder" and fits[2].kind == "plane" and fits[2].rms < 0.002
+    ctx = context(cloud, sigma=np.full(cloud.shape, 0.001))
+    out, out_fits, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3)
+    assert (out == labels).all() and out_fits == fits and adjacency == {(1, 2)}
