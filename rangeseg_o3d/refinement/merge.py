@@ -154,7 +154,19 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
             unions.join(ra, rb, union)
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    return lut[labels], fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    # lut[labels] (a new int32 array); a copy when no union changed a label, one compiled
+    # pass for a label image, instead of numpy's gather over the frame
+    from ..kernels import relabel
+
+    if np.array_equal(lut, np.arange(lut.size)):
+        return labels.astype(np.int32)
+    if labels.ndim == 2 and labels.dtype == np.int32:
+        return relabel(labels, lut)
+    return lut[labels]
 
 
 class _Unions:

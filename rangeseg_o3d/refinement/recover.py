@@ -149,6 +149,18 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     return labels, fits
 
 
+def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
+    # kernels.member_pixels (flat indices, increasing) of the pixels within ``box``
+    # (top, bottom, left, right; clipped to the grid): every member pixel must lie in it
+    from ..kernels import member_pixels
+
+    top, bottom = max(int(box[0]), 0), min(int(box[1]), labels.shape[0])
+    left, right = max(int(box[2]), 0), min(int(box[3]), labels.shape[1])
+    rows, cols = np.divmod(member_pixels(np.ascontiguousarray(labels[top:bottom, left:right]), members),
+                           right - left)
+    return (rows + top) * labels.shape[1] + cols + left
+
+
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
@@ -185,7 +197,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                     np.ascontiguousarray(sigma).ravel(), challengers, iterations, float(config.k_sigma),
                     np.array(box, np.int64))
         if config.merge:  # a recovered piece of a surface the tile grid already has
-            claimed = member_pixels(labels, challengers)
+            claimed = _members_in_box(labels, challengers, box)
             owner = labels.ravel()[claimed]
             regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
             near = {(min(k, j), max(k, j)) for k, idx in regions.items()

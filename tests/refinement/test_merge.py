@@ -109,3 +109,15 @@ def test_a_plane_at_a_crease_beside_a_cylinder_stays_apart(context):
     ctx = context(cloud, sigma=np.full(cloud.shape, 0.001))
     out, out_fits, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3)
     assert (out == labels).all() and out_fits == fits and adjacency == {(1, 2)}
+
+
+def test_relabelled_is_the_look_up_as_a_new_int32_array():
+    from rangeseg_o3d.refinement.merge import _relabelled
+
+    rng = np.random.default_rng(6)
+    labels = rng.integers(0, 5, (20, 30)).astype(np.int32)
+    for lut in (np.arange(5, dtype=np.int32), np.array([0, 1, 1, 3, 1], np.int32)):
+        for image in (labels, labels.astype(np.int64), labels[:, ::2], labels[0]):
+            out = _relabelled(image, lut)
+            assert out.dtype == np.int32 and np.array_equal(out, lut[image])
+            assert not np.shares_memory(out, image)

@@ -106,3 +106,17 @@ def test_split_blobs_frees_a_blob_no_model_explains(context):
     out, fits = split_blobs(context(cloud, min_size=50, sigma=np.full((30, 30), 0.001)),
                             np.zeros((30, 30), np.int32), {2: None}, candidates)
     assert not out.any() and 9 not in fits and 2 in fits
+
+
+def test_members_in_a_box_are_the_members_of_the_grid_when_the_box_holds_them():
+    from rangeseg_o3d.kernels import member_pixels
+    from rangeseg_o3d.refinement.recover import _members_in_box
+
+    rng = np.random.default_rng(4)
+    labels = rng.integers(0, 6, (30, 40)).astype(np.int32)
+    members = np.array([False, False, True, False, False, True])
+    labels[(labels == 2) | (labels == 5)] = 1
+    labels[10:14, 20:27] = np.where(rng.random((4, 7)) < 0.5, 2, 5)  # the members, in a box
+    for box in ((10, 14, 20, 27), (7, 17, 17, 30), (-3, 40, -3, 50)):  # tight, grown, clipped
+        assert np.array_equal(_members_in_box(labels, members, box), member_pixels(labels, members))
+    assert _members_in_box(np.ones((5, 5), np.int32), members, (0, 5, 0, 5)).size == 0
