@@ -227,15 +227,9 @@ def crease_mask(normals, tolerance, offset):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _ray_angle(xyz, r0, c0, r1, c1):
-    # angle between the viewing directions of two pixels; NaN when either is invalid
-    ax, ay, az = xyz[r0, c0, 0], xyz[r0, c0, 1], xyz[r0, c0, 2]
-    bx, by, bz = xyz[r1, c1, 0], xyz[r1, c1, 1], xyz[r1, c1, 2]
-    na = math.sqrt(ax * ax + ay * ay + az * az)
-    nb = math.sqrt(bx * bx + by * by + bz * bz)
-    if not (na > 0.0 and nb > 0.0):
-        return np.nan
-    dx, dy, dz = ax / na - bx / nb, ay / na - by / nb, az / na - bz / nb
+def _chord_angle(ux, uy, uz, r0, c0, r1, c1):
+    # angle between two unit viewing directions (NaN components: NaN)
+    dx, dy, dz = ux[r0, c0] - ux[r1, c1], uy[r0, c0] - uy[r1, c1], uz[r0, c0] - uz[r1, c1]
     # the chord between unit vectors is 2 sin(angle / 2): exact for tiny angles too
     return 2.0 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
 
@@ -246,13 +240,23 @@ def ray_steps(xyz):
     next column's, ``(2, H, W)`` (the last row / column repeats the one before; NaN where
     either pixel is invalid)."""
     h, w = xyz.shape[0], xyz.shape[1]
+    # each pixel's viewing direction once (NaN for an invalid or zero point)
+    ux, uy, uz = np.empty((h, w)), np.empty((h, w)), np.empty((h, w))
+    for r in range(h):
+        for c in range(w):
+            x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+            norm = math.sqrt(x * x + y * y + z * z)
+            if norm > 0.0:
+                ux[r, c], uy[r, c], uz[r, c] = x / norm, y / norm, z / norm
+            else:
+                ux[r, c], uy[r, c], uz[r, c] = np.nan, np.nan, np.nan
     out = np.full((2, h, w), np.nan)
     for r in range(h):
         for c in range(w):
             if h > 1:
                 ra = min(r, h - 2)
-                out[0, r, c] = _ray_angle(xyz, ra, c, ra + 1, c)
+                out[0, r, c] = _chord_angle(ux, uy, uz, ra, c, ra + 1, c)
             if w > 1:
                 ca = min(c, w - 2)
-                out[1, r, c] = _ray_angle(xyz, r, ca, r, ca + 1)
+                out[1, r, c] = _chord_angle(ux, uy, uz, r, ca, r, ca + 1)
     return out

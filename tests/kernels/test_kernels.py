@@ -345,3 +345,38 @@ def test_piece_ids_number_the_pieces_as_opencv_does():
     ids, sizes = piece_ids(np.array([12], np.int64), 5)
     assert ids.tolist() == [0] and sizes.tolist() == [1]
     assert largest_piece(np.array([], np.int64), 5).size == 0
+
+
+def _reference_ray_steps(xyz):
+    # the angles between neighbouring viewing directions, pair by pair in numpy
+    def angle(a, b):
+        na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chord = np.linalg.norm(a / na[..., None] - b / nb[..., None], axis=-1)
+            out = 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+        return np.where((na > 0) & (nb > 0), out, np.nan)
+
+    h, w = xyz.shape[:2]
+    out = np.full((2, h, w), np.nan)
+    if h > 1:
+        out[0, :-1] = angle(xyz[:-1], xyz[1:])
+        out[0, -1] = out[0, -2]
+    if w > 1:
+        out[1, :, :-1] = angle(xyz[:, :-1], xyz[:, 1:])
+        out[1, :, -1] = out[1, :, -2]
+    return out
+
+
+def test_ray_steps_equal_the_pairwise_angles_with_invalid_and_zero_points():
+    from rangeseg_o3d.kernels import ray_steps
+
+    rng = np.random.default_rng(8)
+    for shape in ((12, 17), (1, 9), (9, 1), (2, 2), (1, 1)):
+        xyz = rng.normal(0.0, 1.0, (*shape, 3)) + (0.0, 0.0, 3.0)
+        xyz[rng.random(shape) < 0.2] = np.nan
+        xyz[rng.random(shape) < 0.1] = 0.0  # a zero point has no direction
+        got, want = ray_steps(xyz), _reference_ray_steps(xyz)
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        assert np.allclose(got[~np.isnan(got)], want[~np.isnan(want)], rtol=1e-9, atol=1e-12)
+    opposite = np.array([[[1.0, 0, 0], [-2.0, 0, 0]]])  # antiparallel: pi, chord clipped
+    assert ray_steps(opposite)[1, 0, 0] == pytest.approx(np.pi)
