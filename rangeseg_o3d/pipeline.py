@@ -208,8 +208,14 @@ class Pipeline:
         pixels moves a plane's normal by far less than its error); :meth:`_assemble`
         reports the rms of the pixels' distances.
         """
-        ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
-        sigma = self.sensor.noise.sigma(ranges)
+        from .kernels import ranges_and_noise
+
+        # NaN-masked ranges and the noise there in one compiled pass (numpy took four
+        # whole-frame temporaries: the where, the square, the product, the sum)
+        noise = self.sensor.noise
+        ranges, sigma = ranges_and_noise(np.ascontiguousarray(cloud.range_image(), dtype=np.float64),
+                                         np.ascontiguousarray(cloud.valid), float(noise.sigma0),
+                                         float(noise.sigma_quadratic))
         refine = settings.refine
         labels, stats = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS)

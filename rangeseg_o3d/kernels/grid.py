@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
-           "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel"]
+           "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -425,3 +425,17 @@ def relabel(labels, lut):
         for c in range(w):
             out[r, c] = lut[labels[r, c]]
     return out
+
+@njit(cache=True, nogil=True)
+def ranges_and_noise(ranges, valid, sigma0, quadratic):
+    """``np.where(valid, ranges, nan)`` and the noise ``sigma0 + quadratic * r**2`` there, for
+    2-D images, in one pass (NaN where invalid; the same operations as numpy's, in order)."""
+    h, w = ranges.shape
+    out = np.empty((h, w))
+    noise = np.empty((h, w))
+    for r in range(h):
+        for c in range(w):
+            value = ranges[r, c] if valid[r, c] else np.nan
+            out[r, c] = value
+            noise[r, c] = sigma0 + quadratic * (value * value)
+    return out, noise

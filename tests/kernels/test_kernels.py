@@ -380,3 +380,20 @@ def test_ray_steps_equal_the_pairwise_angles_with_invalid_and_zero_points():
         assert np.allclose(got[~np.isnan(got)], want[~np.isnan(want)], rtol=1e-9, atol=1e-12)
     opposite = np.array([[[1.0, 0, 0], [-2.0, 0, 0]]])  # antiparallel: pi, chord clipped
     assert ray_steps(opposite)[1, 0, 0] == pytest.approx(np.pi)
+
+
+def test_ranges_and_noise_equal_numpys_where_and_noise_model_bit_for_bit():
+    from rangeseg_o3d.kernels import ranges_and_noise
+    from rangeseg_o3d.sensor import NoiseModel
+
+    rng = np.random.default_rng(9)
+    ranges = rng.uniform(0.3, 9.0, (37, 23))
+    valid = rng.random(ranges.shape) < 0.8
+    ranges[~valid & (rng.random(ranges.shape) < 0.5)] = np.nan  # invalid pixels hold anything
+    for model in (NoiseModel(0.001, 0.001425), NoiseModel(0.005, 0.0), NoiseModel(0.0, 2.5e-3)):
+        got_ranges, got_sigma = ranges_and_noise(ranges, valid, model.sigma0, model.sigma_quadratic)
+        want_ranges = np.where(valid, ranges, np.nan)
+        assert np.array_equal(got_ranges, want_ranges, equal_nan=True)
+        assert np.array_equal(got_sigma, model.sigma(want_ranges), equal_nan=True)
+    none = ranges_and_noise(ranges, np.zeros(ranges.shape, bool), 0.001, 0.0)
+    assert np.isnan(none[0]).all() and np.isnan(none[1]).all()
