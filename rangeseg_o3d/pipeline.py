@@ -213,8 +213,8 @@ class Pipeline:
         # NaN-masked ranges and the noise there in one compiled pass (numpy took four
         # whole-frame temporaries: the where, the square, the product, the sum)
         noise = self.sensor.noise
-        ranges, sigma = ranges_and_noise(np.ascontiguousarray(cloud.range_image(), dtype=np.float64),
-                                         np.ascontiguousarray(cloud.valid), float(noise.sigma0),
+        ranges, sigma = ranges_and_noise(_read_only(cloud.range_image(), np.float64),
+                                         _read_only(cloud.valid, np.bool_), float(noise.sigma0),
                                          float(noise.sigma_quadratic))
         refine = settings.refine
         labels, stats = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
@@ -244,6 +244,14 @@ class Pipeline:
             stages = dict(stages)
         return Result(labels=regions.labels, features=features, unfitted=unfitted,
                       timings=clock.timings, stages=stages)
+
+
+def _read_only(array: np.ndarray, dtype) -> np.ndarray:
+    # a C-contiguous read-only view (or copy): a compiled kernel then sees one array type
+    # whether the cloud stored its ranges and mask writeable or not (one machine code)
+    view = np.ascontiguousarray(array, dtype=dtype).view()
+    view.flags.writeable = False
+    return view
 
 
 def _renumber(regions: Regions) -> tuple[Regions, np.ndarray, np.ndarray]:
@@ -307,4 +315,9 @@ def warm_up() -> float:
     angle = np.linspace(0.0, np.pi, 12)
     arc = np.stack([np.cos(angle), np.sin(angle), np.tile([0.0, 1.0], 6)], axis=1)
     fit_plane(arc), fit_sphere(arc), fit_cylinder(arc)
+    # kernels that only some scans reach (a pool split into pieces, recovered thin surfaces)
+    from .kernels import member_pixels, piece_ids
+
+    piece_ids(np.arange(4, dtype=np.int64), 2)
+    member_pixels(np.zeros((2, 2), np.int32), np.zeros(1, bool))
     return time.perf_counter() - start
