@@ -36,6 +36,8 @@ class SensorConfig(BaseModel):
     wrap_columns : the columns close a full turn (360-degree scanners).
     row_spacing_deg, column_spacing_deg : angular step between rows / columns, if known.
     min_range, max_range : working ranges (m), for the unit plausibility check.
+    depth_step : the depth quantisation step (m) of a sensor that reports depth in steps
+        (8-bit structured light); 0 for none.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
@@ -48,6 +50,7 @@ class SensorConfig(BaseModel):
     column_spacing_deg: float | None = Field(None, gt=0, le=360)
     min_range: float = Field(0.01, ge=0, description="shortest working range, m")
     max_range: float = Field(1000.0, gt=0, description="longest working range, m")
+    depth_step: float = Field(0.0, ge=0, description="depth quantisation step, m (0: none)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -62,7 +65,7 @@ class SensorConfig(BaseModel):
         return Sensor(noise=NoiseModel(self.sigma0, self.sigma_quadratic), units=self.units,
                       wrap_columns=self.wrap_columns, row_spacing_deg=self.row_spacing_deg,
                       column_spacing_deg=self.column_spacing_deg, min_range=self.min_range,
-                      max_range=self.max_range)
+                      max_range=self.max_range, depth_step=self.depth_step)
 
 
 class StageConfig(BaseModel):

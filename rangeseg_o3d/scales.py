@@ -37,6 +37,14 @@ scan's median range, ``sigma = sigma(r)``):
   so large that fewer than ``MIN_GRID_CELLS`` cells remain across the grid's shorter side.
   ``TILE_NOISE_RATIO`` was read off the sensor matrix's depth-camera rows (random scenes:
   on the Kinect row a 3-pixel tile lost a whole scan, 5-6 pixels did not).
+  A sensor that reports depth in steps of ``q`` (``sensor.depth_step``, 8-bit structured
+  light) needs, besides, a window that spans one step: the 3x3 window of the working grid
+  spans ``WINDOW_STEPS`` tile steps, over which a face at 45 degrees to the viewing ray
+  changes its depth by ``WINDOW_STEPS t r delta``; a smaller window sits on one terrace of
+  the quantised depth and sees it flat, whatever the face's slope, so its residual and
+  normals say nothing about creases. Hence ``t >= q / (WINDOW_STEPS r delta)``, whether
+  or not the noise asks for a tile (the quantisation's rms ``q / sqrt(12)`` may well be
+  under the spacing while its steps are over it: ABW's 1.26-1.29 mm against 0.4-0.6 mm).
 
 This module imports numpy only (the spacing measurement imports :mod:`rangeseg_o3d.segmentation.edges`).
 """
@@ -51,7 +59,7 @@ import numpy as np
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
            "with_derived_refinement",
            "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
-           "MIN_GRID_CELLS", "MAX_TILE"]
+           "MIN_GRID_CELLS", "MAX_TILE", "WINDOW_STEPS"]
 
 #: A range step over one pixel larger than a surface at ~9.5 deg from grazing makes is a jump.
 GRAZING_TAN = 1.0 / 6.0
@@ -69,6 +77,8 @@ TILE_NOISE_RATIO = 0.1
 MIN_GRID_CELLS = 48
 #: Largest derived tile.
 MAX_TILE = 8
+#: Tile steps a 3x3 window of the working grid spans (its depth must change by a quantisation step).
+WINDOW_STEPS = 2
 # The measurements look at a sub-grid of about this many pixels.
 _SAMPLE_PIXELS = 4096
 
@@ -178,7 +188,7 @@ def derive_scales(sensor, *, typical_range: float, spacing_rad: tuple[float, flo
     delta = math.sqrt(row_step * col_step)
     sigma = float(sensor.noise.sigma(np.float64(typical_range)))
     if tile is None:
-        tile = _crease_tile(typical_range * delta, sigma, shape)
+        tile = _crease_tile(typical_range * delta, sigma, shape, sensor.depth_step)
     return Scales(
         tile=int(tile),
         jump_ratio=delta / GRAZING_TAN,
@@ -193,14 +203,19 @@ def derive_scales(sensor, *, typical_range: float, spacing_rad: tuple[float, flo
     )
 
 
-def _crease_tile(spacing_m: float, sigma: float, shape) -> int:
+def _crease_tile(spacing_m: float, sigma: float, shape, depth_step: float = 0.0) -> int:
     # 1 where the spacing is at least the noise, else the smallest t with
-    # sigma / t <= TILE_NOISE_RATIO * t * spacing, within MAX_TILE and the grid
-    if sigma <= spacing_m:
+    # sigma / t <= TILE_NOISE_RATIO * t * spacing; at least the tile whose window spans a
+    # depth step (module docstring); within MAX_TILE and the grid
+    needed = 1
+    if sigma > spacing_m:
+        needed = math.ceil(math.sqrt(sigma / (TILE_NOISE_RATIO * spacing_m)) - 1e-9)
+    if depth_step > 0:
+        needed = max(needed, math.ceil(depth_step / (WINDOW_STEPS * spacing_m) - 1e-9))
+    if needed <= 1:
         return 1
     largest = MAX_TILE if shape is None else max(1, min(MAX_TILE, min(shape) // MIN_GRID_CELLS))
-    needed = math.ceil(math.sqrt(sigma / (TILE_NOISE_RATIO * spacing_m)) - 1e-9)
-    return int(min(max(needed, 1), largest))
+    return int(min(needed, largest))
 
 
 #: The refinement settings (RefineConfig fields) that None leaves to the sensor.

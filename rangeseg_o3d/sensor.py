@@ -102,6 +102,9 @@ class Sensor:
     row_spacing_deg, column_spacing_deg : angular step between rows / columns, when known.
     min_range, max_range : the sensor's working ranges (m): a scan whose median range lies
         far outside them is taken for a unit mistake (:func:`check_plausible`).
+    depth_step : the depth quantisation step (m; 0 for none): an 8-bit structured-light
+        camera reports depth in steps, and a window too small to span one sees a flat
+        terrace instead of its surface's slope (:mod:`rangeseg_o3d.scales`).
     """
 
     noise: NoiseModel = NoiseModel()
@@ -111,6 +114,7 @@ class Sensor:
     column_spacing_deg: float | None = None
     min_range: float = 0.01
     max_range: float = 1000.0
+    depth_step: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.noise, NoiseModel):
@@ -124,6 +128,9 @@ class Sensor:
                 and 0 <= self.min_range < self.max_range):
             raise ValueError("min_range and max_range must be finite with 0 <= min_range < max_range; "
                              f"got {self.min_range!r}, {self.max_range!r}")
+        if not (isinstance(self.depth_step, (int, float)) and math.isfinite(self.depth_step)
+                and self.depth_step >= 0):
+            raise ValueError(f"depth_step must be a finite number of metres >= 0; got {self.depth_step!r}")
 
     @property
     def scale(self) -> float:

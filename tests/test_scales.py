@@ -1,6 +1,7 @@
 """Scale-dependent settings follow the sensor (rangeseg_o3d.scales), as its docstring documents."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.config import load_config
 from rangeseg_o3d.scales import (GRAZING_TAN, JUMP_SIGMAS, MAX_TILE, MERGE_SIGMAS, MIN_CELLS,
-                                 MIN_GRID_CELLS, MIN_PIXELS, TILE_NOISE_RATIO, derive_scales,
+                                 MIN_GRID_CELLS, MIN_PIXELS, TILE_NOISE_RATIO, WINDOW_STEPS, derive_scales,
                                  measured_spacing, scales_for_cloud)
 from rangeseg_o3d.sensor import NoiseModel, Sensor
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
@@ -75,6 +76,28 @@ def test_tile_keeps_enough_cells_across_a_short_grid():
     assert derive_scales(lidar, typical_range=2.0).tile > 1     # 5 cm noise over 1.7 cm spacing
     assert derive_scales(lidar, typical_range=2.0, shape=(64, 1024)).tile == 64 // MIN_GRID_CELLS
     assert derive_scales(lidar, typical_range=2.0, shape=(32, 1024)).tile == 1
+
+
+def test_a_quantised_depth_asks_for_a_window_that_spans_one_step():
+    # ABW's camera: 0.025 x 0.036 deg pixels, 0.36 mm quantisation rms in 1.29 mm steps
+    plain = Sensor(noise=NoiseModel(0.00036), row_spacing_deg=0.025, column_spacing_deg=0.036)
+    stepped = replace(plain, depth_step=0.00129)
+    spacing = 0.95 * math.sqrt(math.radians(0.025) * math.radians(0.036))  # 0.50 mm at 0.95 m
+    assert derive_scales(plain, typical_range=0.95).tile == 1  # the rms is under the spacing
+    tile = derive_scales(stepped, typical_range=0.95).tile
+    assert tile == math.ceil(0.00129 / (WINDOW_STEPS * spacing)) == 2
+    # the window of tiles spans a step; one tile less does not
+    assert WINDOW_STEPS * tile * spacing >= 0.00129 > WINDOW_STEPS * (tile - 1) * spacing
+    # over ABW's working ranges (0.77-1.11 m) the rule gives the same tile
+    assert {derive_scales(stepped, typical_range=r).tile for r in (0.77, 0.9, 1.11)} == {2}
+    # a coarser step asks for more; the noise rule still wins where it asks for more
+    assert derive_scales(replace(plain, depth_step=0.0035), typical_range=0.95).tile == 4  # 3.5 / 1.0 mm
+    noisy = replace(stepped, noise=NoiseModel(0.002))
+    assert derive_scales(noisy, typical_range=0.95).tile == derive_scales(
+        replace(noisy, depth_step=0.0), typical_range=0.95).tile > 2
+    assert load_config("abw").sensor.resolve().depth_step == pytest.approx(0.00129)
+    with pytest.raises(ValueError, match="depth_step"):
+        Sensor(depth_step=-0.001)
 
 
 def test_a_preset_value_wins_over_the_derived_one():
@@ -152,9 +175,10 @@ def test_derive_scales_refuses_what_it_cannot_use():
 
 
 def test_shipped_presets_leave_the_scales_to_the_sensor():
-    for name in ("lms200", "spinning_lidar", "rgbd_vga"):
+    for name in ("lms200", "spinning_lidar", "rgbd_vga", "abw"):
         config = load_config(name)
         params = config.segmenter.params
         assert (params["jump_ratio"], params["jump_min"], params["min_region_size"]) == (None, None, None), name
         assert config.refine.merge_tolerance is None, name
     assert load_config("rgbd_vga").tile == 6  # the one scale still set (see the preset)
+    assert load_config("abw").tile is None
