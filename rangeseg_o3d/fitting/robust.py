@@ -14,10 +14,20 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["trimmed_fit"]
+__all__ = ["trimmed_fit", "beyond_noise", "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
 _MANY_POINTS = 5000
+
+#: Standard deviations of the chi-square law above which a fit's mean square residual is
+#: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
+CHI_SQUARE_SIGMAS = 4.0
+
+
+def beyond_noise(rms: float, sigma: float, n: int) -> bool:
+    """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
+    explains (chi-square: ``rms^2 / sigma^2`` has mean 1 and deviation ``sqrt(2 / n)``)."""
+    return rms * rms > sigma * sigma * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n, 1)))
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
@@ -69,7 +79,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     # three-point planes before one lies on a single surface
     trials = 64 if size < _MANY_POINTS else 256
     proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0)
-    best, best_mask, best_score = None, None, -1
+    best, best_mask, best_score = None, None, (False, -1)
     # the proposal near more points first: often the only one judged
     for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
         if near.sum() * step < min_points:
@@ -83,9 +93,13 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         inliers = distances <= 3.0 * max(sigma, judged.rms)
         # Candidates are compared within one tolerance: with each model's own, a worse
         # fit (a cylinder bent over the crease of two planes) would win by its larger rms.
-        score = int(np.count_nonzero(distances <= 3.0 * sigma))
+        # One that fits at the noise beats one that does not, whatever their counts: the
+        # bent cylinder takes more points within the tolerance (some of either face) than
+        # the plane of one face, but its residuals are not noise.
+        score = (not beyond_noise(judged.rms, sigma, int(near.sum())),
+                 int(np.count_nonzero(distances <= 3.0 * sigma)))
         if inliers.sum() >= min_points and score > best_score:
             best, best_mask, best_score = judged, inliers, score
-            if score >= enough * size:
+            if score[0] and score[1] >= enough * size:
                 break
     return best, best_mask

@@ -25,13 +25,11 @@ import numpy as np
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
+from ..fitting.robust import beyond_noise
 from .context import Context, without
 
 __all__ = ["planes_for_curved"]
 
-#: Standard deviations of the chi-square law above which a fit's mean square residual is
-#: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
-CHI_SQUARE_SIGMAS = 4.0
 #: Share of the region's pixels the planes must take (the crease band between them is left).
 PLANES_COVER = 0.9
 #: Searches per region (bounds the time; a crease region holds two or three faces).
@@ -67,12 +65,6 @@ class _BoundJudge(_PlaneJudge):
     def refit(self, points: np.ndarray, model):
         refit = self.fitter.refit(points, model)
         return refit if refit and refit.rms <= self.max_rms else None
-
-
-def beyond_noise(rms: float, sigma: float, n: int) -> bool:
-    """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
-    explains (chi-square: ``rms^2 / sigma^2`` has mean 1 and deviation ``sqrt(2 / n)``)."""
-    return rms * rms > sigma * sigma * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n, 1)))
 
 
 def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:
