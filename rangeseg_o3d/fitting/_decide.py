@@ -20,7 +20,7 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape
-from ..kernels.linalg import DEGENERATE_RATIO, collinear
+from ..kernels.linalg import DEGENERATE_RATIO, collinear, plane_tolerance
 from ._common import RADIUS_LIMIT
 from ._compiled import (
     cylinder_core,
@@ -201,7 +201,7 @@ def _other_curved(kind):
 def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, plane_rms,
                        cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
                        curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
-                       max_iterations):
+                       max_iterations, noise_floor=0.0):
     """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points.
 
     Returns the fields of :class:`Decision` in order (call it through :func:`decide`).
@@ -209,7 +209,7 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     n_bad, centroid, scale, q, eigvals, eigvecs = prepare_points(points)
     n = q.shape[0]
     extra = rms_per_range2 * (centroid @ centroid)
-    plane_tol = plane_rms + extra
+    plane_tol = plane_tolerance(plane_rms, noise_floor, n) + extra
     codes = np.full(4, -1, np.int64)
     curved = np.full((4, CURVED_SIZE), np.nan)
     if n_bad:
@@ -221,12 +221,17 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     if not ok:
         return NONE, COLLINEAR, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     plane_ok = rms <= plane_tol
+    # A plane over the noise itself, accepted only within its chi-square spread, is no
+    # better explained than a curved model that stays within the noise: the curved ones are
+    # tried too and need only to beat it (a far cylinder whose curvature the noise hides).
+    marginal = plane_ok and rms > max(plane_rms, noise_floor) + extra
     # The floor keeps rounding-level residuals of exact planes from looking "curved".
     gain, roundness = 1.0, 0.5
     if rms > 0.1 * plane_tol:
         gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
-    if plane_ok and gain < curvature_gain:
+    if plane_ok and gain < curvature_gain and not marginal:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
+    needed_gain = 1.0 if marginal else curvature_gain
     # Principal curvatures pick the likely model: tried first, the other only if it fails.
     first, decisive = CYLINDER, False
     if roundness <= roundness_cylinder:
@@ -240,7 +245,7 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
         codes[kind], curved[kind] = _curved_try(
             kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
             max_iterations, inlier_factor * tolerance, no_start, tolerance, max_radius, min_arc,
-            curvature_gain, rms)
+            needed_gain, rms)
         if codes[kind] == ACCEPTED:
             if curved[kind, RMS] < best_rms:
                 best, best_rms = kind, curved[kind, RMS]

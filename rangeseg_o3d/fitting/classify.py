@@ -40,6 +40,7 @@ from ._common import Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import UNDETERMINED, plane_from_prepared
+from ..kernels.linalg import plane_tolerance
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
@@ -109,6 +110,7 @@ def fit_primitive(
     max_radius: float = 5.0,
     min_arc_deg: float = 30.0,
     curvature_gain: float = 1.5,
+    noise_floor: float = 0.0,
 ) -> Plane | Cylinder | Sphere | FitFailure:
     """Explain a region's points by a plane, a cylinder or a sphere (paper Fig. 2).
 
@@ -134,6 +136,10 @@ def fit_primitive(
         cover, degrees: a curved model of a nearly flat patch subtends a tiny arc.
     curvature_gain : float
         Factor by which a curved model must lower the plane's rms (>= 1).
+    noise_floor : float
+        The sensor's constant range noise (m; 0: none): the plane threshold is at least
+        what this noise alone gives a plane fitted to the points, up its chi-square
+        (:func:`rangeseg_o3d.kernels.linalg.plane_tolerance`).
 
     Returns
     -------
@@ -158,7 +164,7 @@ def fit_primitive(
     decision = decide(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
-        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS)
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(noise_floor))
     if decision.status == NON_FINITE:
         return _non_finite(pts, "primitive")
     if decision.status == COLLINEAR:
@@ -170,7 +176,8 @@ def fit_primitive(
         return cylinder_model(decision.curved[CYLINDER], decision.centroid, decision.scale)
     if decision.kind == SPHERE:
         return sphere_model(decision.curved[SPHERE], decision.centroid, decision.scale)
-    extra = decision.plane_tolerance - plane_rms  # every threshold grows by the same amount with range
+    # every threshold grows by the same amount with range
+    extra = rms_per_range2 * float(decision.centroid @ decision.centroid)
     reasons = [f"plane rms {decision.plane_rms:.3g} > {decision.plane_tolerance:.3g}"]
     for kind in (decision.first, decision.other_curved()):
         if decision.codes[kind] >= 0:
@@ -197,6 +204,7 @@ def refit_primitive(
     max_radius: float,
     min_arc_deg: float,
     curvature_gain: float,
+    noise_floor: float,
 ) -> Plane | Cylinder | Sphere | FitFailure:
     """Fit ``points`` with a model of ``model``'s kind, judged as :func:`fit_primitive` would.
 
@@ -214,7 +222,8 @@ def refit_primitive(
         base = Prepared(pts, "plane", 3, None)
         if base.n_bad:  # counted by the preparation already
             return input_failure(model.kind, len(pts), base.n_bad, 3)
-        plane_tol = plane_rms + rms_per_range2 * float(base.centroid @ base.centroid)
+        plane_tol = (plane_tolerance(plane_rms, noise_floor, len(pts))
+                     + rms_per_range2 * float(base.centroid @ base.centroid))
         plane = plane_from_prepared(base.specialise("plane", 3, INLIER_FACTOR * plane_tol))
         if not plane:
             return FitFailure(model.kind, f"plane: {plane.reason}")
@@ -242,8 +251,9 @@ def refit_primitive(
         min_arc=min_arc, curvature_gain=curvature_gain))
 
 
-def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float) -> np.ndarray:
-    return plane_rms + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
+def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float, noise_floor: float) -> np.ndarray:
+    floor = np.array([plane_tolerance(plane_rms, noise_floor, float(n)) for n in np.atleast_1d(planes.count)])
+    return floor + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
 
 
 @defaults_of(fit_primitive)
@@ -255,13 +265,14 @@ def fit_planes_batch(
     rms_per_range2: float,
     min_points: int,
     curvature_gain: float,
+    noise_floor: float,
     **_curved,
 ) -> dict[int, Plane]:
     """Every region of a label image that :func:`fit_primitive` would call a plane, at once.
 
     One pass over the pixels gives each label's moments, hence its plane; the regions
-    whose plane passes step 2 of the decision rule (rms within ``plane_rms + rms_per_range2
-    R^2`` and no significant curvature by the batched quadric test) are returned. The
+    whose plane passes step 2 of the decision rule (rms within ``plane_rms`` or the
+    ``noise_floor`` bound, plus ``rms_per_range2 R^2``, and no significant curvature by the batched quadric test) are returned. The
     others (curved, too few or collinear points) are left to :func:`fit_primitive`.
     Keywords for the curved models are accepted and ignored.
 
@@ -283,7 +294,7 @@ def fit_planes_batch(
     n = int(labels.max(initial=0)) + 1
     settled, normal, d, rms, inliers = settle_planes(
         xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
-        INLIER_FACTOR)
+        INLIER_FACTOR, float(noise_floor))
     normal.setflags(write=False)  # rows pass into the Planes as they are, without a copy each
     d, rms, inliers = d.tolist(), rms.tolist(), inliers.tolist()
     return {k: Plane(normal=normal[k], d=d[k], rms=rms[k], inliers=inliers[k])
@@ -298,6 +309,7 @@ def refit_planes_from_moments(
     plane_rms: float,
     rms_per_range2: float,
     min_points: int,
+    noise_floor: float,
     **_curved,
 ) -> list:
     """:func:`refit_primitive` for the planes among ``models``, from label-wise moments.
@@ -318,7 +330,7 @@ def refit_planes_from_moments(
     planes = planes_from_moments(moments)
     minimum = max(int(min_points), 3)
     # Python scalars and read-only normal rows: per row, numpy scalars cost more than the test
-    tol = _plane_tolerances(planes, plane_rms, rms_per_range2).tolist()
+    tol = _plane_tolerances(planes, plane_rms, rms_per_range2, noise_floor).tolist()
     count, ok, rms, d = planes.count.tolist(), planes.ok.tolist(), planes.rms.tolist(), planes.d.tolist()
     normal = planes.normal
     normal.setflags(write=False)
@@ -356,21 +368,25 @@ PrimitiveFitterConfig = params_model(fit_primitive, dict(
     defaults), with ``range_growth`` in place of ``rms_per_range2`` (see :func:`bind_sensor`).""")
 
 
-# No rms threshold is under this many times the sensor's constant noise term: a noisier
-# sensor's surfaces are not refused for the noise itself. One sigma, not the defaults' two
-# (1 cm for the LMS200's 5 mm): at two, a 3 cm spinning lidar's thresholds of 6 cm took
-# cylinders for planes (8 false fittings on the matrix's 4 scans, 0 at one sigma).
+# No curved model's rms threshold is under this many times the sensor's constant noise
+# term: a noisier sensor's surfaces are not refused for the noise itself. One sigma, not the
+# defaults' two (1 cm for the LMS200's 5 mm): at two, a 3 cm spinning lidar's thresholds of
+# 6 cm took cylinders for planes (8 false fittings on the matrix's 4 scans, 0 at one sigma).
 RMS_NOISE_FACTOR = 1.0
 
 
 def bind_sensor(params: dict, sensor) -> dict:
-    """:func:`fit_primitive`'s keywords for ``sensor``: every rms threshold is at least
-    ``RMS_NOISE_FACTOR`` times the sensor's constant noise ``sigma0``, and the thresholds
-    grow with range as ``range_growth`` times its quadratic noise term."""
+    """:func:`fit_primitive`'s keywords for ``sensor``: a plane's rms threshold is at least
+    what the sensor's constant noise ``sigma0`` gives a plane of as many points, up its
+    chi-square (``noise_floor``; at one flat sigma a wall seen head-on, whose rms is the
+    noise itself within 2 %, was refused half of the time), a curved model's at least
+    ``RMS_NOISE_FACTOR`` times ``sigma0``, and the thresholds grow with range as
+    ``range_growth`` times its quadratic noise term."""
     kwargs = dict(params)
     floor = RMS_NOISE_FACTOR * sensor.noise.sigma0
-    for key in ("plane_rms", "cylinder_rms", "sphere_rms"):
+    for key in ("cylinder_rms", "sphere_rms"):
         kwargs[key] = max(kwargs[key], floor)
+    kwargs["noise_floor"] = float(sensor.noise.sigma0)
     kwargs["rms_per_range2"] = kwargs.pop("range_growth") * sensor.noise.sigma_quadratic
     return kwargs
 

@@ -8,7 +8,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .grid import group_by_label
 from .inline import _distance
 from .kinds import PARAM_SLOTS, PLANE
-from .linalg import collinear, hesse_form, solve
+from .linalg import collinear, hesse_form, plane_tolerance, solve
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats"]
@@ -274,11 +274,14 @@ def _labelled_only(xyz, labels, count):
     return points, kept
 
 @njit(cache=True, nogil=True)
-def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor):
+def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor,
+                  noise_floor=0.0):
     """The batched plane test of ``classify.fit_planes_batch`` in one call.
 
     Per label ``1..n-1``: the plane from its moments, accepted when it is determined, has
-    at least ``min_points`` points, an rms within ``plane_rms + rms_per_range2 |centroid|^2``
+    at least ``min_points`` points, an rms within ``max(plane_rms, noise_floor) +
+    rms_per_range2 |centroid|^2`` (a plane over that, within the chi-square spread of
+    :func:`.linalg.plane_tolerance`, is left to the full decision)
     and no significant curvature (quadric gain below ``curvature_gain``; not tested when
     the rms is under a tenth of the threshold). Returns ``(settled, normal, d, rms,
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
@@ -301,8 +304,12 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     active = np.zeros(n, np.bool_)
     inv_spread = np.ones(n)
     for k in range(1, n):
-        tolerance[k] = plane_rms + rms_per_range2 * (centroid[k] @ centroid[k])
-        candidate[k] = ok[k] and moments[k, 0] >= max(min_points, 3) and rms[k] <= tolerance[k]
+        extra = rms_per_range2 * (centroid[k] @ centroid[k])
+        tolerance[k] = plane_tolerance(plane_rms, noise_floor, moments[k, 0]) + extra
+        # a plane over the noise itself, within its chi-square spread only, is left to the
+        # full decision (which tries the curved models against it)
+        candidate[k] = (ok[k] and moments[k, 0] >= max(min_points, 3)
+                        and rms[k] <= min(tolerance[k], max(plane_rms, noise_floor) + extra))
         # The floor keeps rounding-level residuals of exact planes from looking "curved".
         active[k] = candidate[k] and rms[k] > 0.1 * tolerance[k]
         spread = np.sqrt(eigvals[k, 1] + eigvals[k, 2])

@@ -71,3 +71,21 @@ def hesse_form(normal, d, scale):
 def collinear(eigvals):
     """The ascending scatter eigenvalues of coincident or collinear points (no plane, no curve)."""
     return eigvals[2] <= 0.0 or eigvals[1] <= DEGENERATE_RATIO * DEGENERATE_RATIO * eigvals[2]
+
+
+#: A plane's mean squared distance is refused beyond this many standard deviations of the
+#: chi-square spread the sensor's noise alone gives it.
+NOISE_CHI2_SIGMAS = 3.0
+
+
+@njit(cache=True, nogil=True)
+def plane_tolerance(plane_rms, noise_floor, n):
+    """A plane's rms threshold over ``n`` points: ``plane_rms``, or what range noise of
+    ``noise_floor`` (m) alone gives the fit when larger, ``NOISE_CHI2_SIGMAS`` standard
+    deviations up its chi-square over ``n - 3`` degrees of freedom:
+    ``noise_floor sqrt(1 + NOISE_CHI2_SIGMAS sqrt(2 / (n - 3)))``. The bound tightens as
+    the points grow (a thousand-pixel wall: 1.07 noise sigmas, a hundred points 1.20, twenty 1.42)."""
+    if noise_floor <= 0.0:
+        return plane_rms
+    dof = max(n - 3.0, 1.0)
+    return max(plane_rms, noise_floor * np.sqrt(1.0 + NOISE_CHI2_SIGMAS * np.sqrt(2.0 / dof)))

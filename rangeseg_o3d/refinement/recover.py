@@ -132,7 +132,8 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
                       k_sigma: float, jump_ratio: float, jump_min: float):
-    """Turn the compact leftover blobs a model explains into regions; returns new ``(labels, fits)``.
+    """Turn the compact leftover blobs into one region per surface they hold (:func:`split_blobs`);
+    returns new ``(labels, fits)``.
 
     ``valid`` and ``jumps`` are (H, W) masks (no blob crosses a jump edge); ``xyz``,
     ``ranges`` and ``sigma`` the grids the rims grow on (see
@@ -140,9 +141,11 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     """
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
-    # A blob at a junction of surfaces can pass for a small curved patch; a real
-    # swallowed object makes up most of its blob.
-    labels, fits = explain_blobs(ctx, labels, fits, candidates, min_share=0.7)
+    # A blob may hold several faces: a box far away whose faces are narrower than the
+    # closed edge band around them (the closing fills gaps of up to four pixels) is one
+    # blob of two or three faces, and explaining it by its dominant surface alone would
+    # drop the others. Each blob is split into every surface it holds.
+    labels, fits = split_blobs(ctx, labels, fits, candidates)
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
