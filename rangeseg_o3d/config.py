@@ -30,6 +30,9 @@ class SensorConfig(BaseModel):
     """The ``sensor:`` section: facts about the scanner, resolved into a :class:`Sensor`.
 
     sigma0, sigma_quadratic : range noise ``sigma(r) = sigma0 + sigma_quadratic r^2`` (m).
+    noise_correlation_px : neighbouring returns err together over this many pixels square
+        (stereo matching averages disparity over a window); means of tiles then average
+        fewer independent returns (:meth:`rangeseg_o3d.sensor.NoiseModel.mean_scale`).
     units : unit of the coordinates in the sensor's ``.pcd`` / ``.npz`` files; inputs are
         converted to metres when read (formats with a unit of their own, such as 3DTK's
         ``.3d`` in cm, are converted by their reader).
@@ -44,6 +47,8 @@ class SensorConfig(BaseModel):
 
     sigma0: float = Field(0.005, ge=0, description="constant range noise, m")
     sigma_quadratic: float = Field(0.0, ge=0, description="range noise growth, 1/m (sigma += this * r^2)")
+    noise_correlation_px: int = Field(1, ge=1, le=64, description="returns err together over this many "
+                                      "pixels square (a stereo camera's matching window)")
     units: Literal[tuple(UNIT_SCALES)] = Field("m", description="unit of the input coordinates")
     wrap_columns: bool = Field(False, description="first and last column are neighbours (360 deg)")
     row_spacing_deg: float | None = Field(None, gt=0, le=360)
@@ -62,7 +67,7 @@ class SensorConfig(BaseModel):
 
     def resolve(self) -> Sensor:
         """The immutable :class:`Sensor` every stage receives."""
-        return Sensor(noise=NoiseModel(self.sigma0, self.sigma_quadratic), units=self.units,
+        return Sensor(noise=NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px), units=self.units,
                       wrap_columns=self.wrap_columns, row_spacing_deg=self.row_spacing_deg,
                       column_spacing_deg=self.column_spacing_deg, min_range=self.min_range,
                       max_range=self.max_range, depth_step=self.depth_step)

@@ -20,7 +20,7 @@ from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
 from .scales import Scales, scales_for_cloud
-from .sensor import Sensor, check_plausible
+from .sensor import Sensor, check_plausible, noise_excess
 
 __all__ = ["Pipeline", "warm_up"]
 
@@ -109,6 +109,19 @@ class Pipeline:
             update={k: getattr(scales, k) for k in self._derived_refine})
         return _Settings(scales.tile, args, refine)
 
+    def _fitter_for(self, work: OrganizedCloud) -> RegionFitter:
+        """The fitter for ``work``'s points. On a tile grid they are means of ``tile x tile``
+        returns, and the thresholds follow the noise of those means
+        (:meth:`rangeseg_o3d.sensor.Sensor.of_means`): under the single returns' noise, the
+        tile means of a cylinder or of two faces meeting at a shallow crease pass for a
+        plane. Means that scatter more than the model says (real cameras' returns err
+        together) widen them by the measured excess (:func:`rangeseg_o3d.sensor.noise_excess`)."""
+        if work.tile <= 1:
+            return self.fitter
+        means = self.sensor.of_means(work.tile * work.tile, excess=noise_excess(work, self.sensor))
+        return RegionFitter(self.fitter.plugin, self.config.fitter.params, self.config.max_fit_points,
+                            sensor=means)
+
     def __repr__(self) -> str:
         return (f"Pipeline({self.config.name!r}, segmenter={self.segmenter.name!r}, "
                 f"fitter={self.fitter.plugin.name!r})")
@@ -142,10 +155,11 @@ class Pipeline:
         clock.timings.update(segmentation.timings)
         clock.lap("segment")
         labels = segmentation.labels
-        regions = Regions(labels, self.fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
+        fitter = self._fitter_for(work)
+        regions = Regions(labels, fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
         clock.lap("fit")
         regions, sigma = self._refine(work, regions, segmentation.jumps, clock.timings,
-                                      settings.refine)
+                                      settings.refine, fitter)
         clock.lap("refine")
         stages, stats = segmentation.stages, None
         if work is not cloud:
@@ -188,12 +202,13 @@ class Pipeline:
         return Segmentation(np.where(work.valid, labels, 0).astype(np.int32), seg.stages, seg.timings,
                             jumps=None if jumps is None else np.asarray(jumps, dtype=bool))
 
-    def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict, refine):
+    def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict, refine,
+                fitter: RegionFitter):
         """The refined regions (``regions`` when refinement is off) and the noise per pixel of ``work``."""
         ranges = np.where(work.valid, work.range_image(), np.nan)
         sigma = self.sensor.noise.sigma(ranges, work.samples)
         if refine.enabled:
-            regions = refine_regions(work, regions, fitter=self.fitter, config=refine,
+            regions = refine_regions(work, regions, fitter=fitter, config=refine,
                                      sensor=self.sensor, ranges=ranges, sigma=sigma, jumps=jumps,
                                      timings=timings)
         return regions, sigma

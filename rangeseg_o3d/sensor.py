@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -20,6 +20,7 @@ __all__ = [
     "UNIT_SCALES",
     "UnitsWarning",
     "check_plausible",
+    "noise_excess",
     "noise_sigma",
     "unit_scale",
 ]
@@ -70,6 +71,7 @@ class NoiseModel:
 
     sigma0: float = 0.005
     sigma_quadratic: float = 0.0
+    correlation_px: int = 1
 
     def __post_init__(self):
         for name in ("sigma0", "sigma_quadratic"):
@@ -78,14 +80,33 @@ class NoiseModel:
                 raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
         if self.sigma0 == 0 and self.sigma_quadratic == 0:
             raise ValueError("sigma0 and sigma_quadratic cannot both be 0 (the noise model would be zero)")
+        if not (isinstance(self.correlation_px, (int, np.integer)) and self.correlation_px >= 1):
+            raise ValueError(f"correlation_px must be an integer >= 1; got {self.correlation_px!r}")
+
+    def mean_scale(self, samples):
+        """Factor on the range-dependent term for means of ``samples`` returns: one over the
+        square root of the independent returns among them. Returns that err together over
+        ``correlation_px`` x ``correlation_px`` pixels (a stereo camera's matching window)
+        count once per such block: ``samples / correlation_px**2``, at least 1."""
+        independent = np.maximum(np.asarray(samples, dtype=np.float64) / self.correlation_px ** 2, 1.0)
+        return 1.0 / np.sqrt(independent)
 
     def sigma(self, ranges: np.ndarray, samples: np.ndarray | None = None) -> np.ndarray:
         """Noise per pixel (m) at ``ranges``; for means of ``samples`` returns the
-        range-dependent term is divided by ``sqrt(samples)``."""
+        range-dependent term is multiplied by :meth:`mean_scale`."""
         quadratic = self.sigma_quadratic
         if samples is not None:
-            quadratic = quadratic / np.sqrt(np.maximum(samples, 1))
+            quadratic = quadratic * self.mean_scale(samples)
         return noise_sigma(ranges, sigma0=self.sigma0, sigma_quadratic=quadratic)
+
+    def of_means(self, samples: int, excess: float = 1.0) -> "NoiseModel":
+        """The noise of means of ``samples`` returns (a tile grid's points): the
+        range-dependent term times :meth:`mean_scale` and ``excess`` (>= 1, the measured
+        excess scatter of such means: :func:`noise_excess`); the means err independently."""
+        if not (math.isfinite(excess) and excess >= 1.0):
+            raise ValueError(f"excess must be a finite number >= 1; got {excess!r}")
+        scale = float(self.mean_scale(samples)) * excess
+        return NoiseModel(self.sigma0, self.sigma_quadratic * scale, 1)
 
 
 @dataclass(frozen=True)
@@ -137,6 +158,11 @@ class Sensor:
         """Metres per unit of the sensor's files."""
         return unit_scale(self.units)
 
+    def of_means(self, samples: int, excess: float = 1.0) -> "Sensor":
+        """This sensor as seen through means of ``samples`` returns (its tile grid): the same
+        sensor with the noise of the means (:meth:`NoiseModel.of_means`)."""
+        return replace(self, noise=self.noise.of_means(samples, excess))
+
 
 def _unit_hint(median_m: float, sensor: Sensor) -> str:
     """Which unit mistake puts the median range nearest the middle of the working ranges.
@@ -171,12 +197,34 @@ def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
     if min(xyz.shape[:2]) < 3:
         return float("nan")
     samples = None if cloud.samples is None else cloud.samples[::step, ::step]
-    scale = 1.0 if samples is None else 1.0 / np.sqrt(np.maximum(samples, 1))
+    scale = 1.0 if samples is None else sensor.noise.mean_scale(samples)
     residual, _ = residual_image(xyz, sigma0=sensor.noise.sigma0,
                                  sigma_quadratic=sensor.noise.sigma_quadratic,
                                  with_normals=False, noise_scale=scale)
     finite = residual[np.isfinite(residual)]
     return float(np.median(finite)) if finite.size else float("nan")
+
+
+def _check_step(cloud) -> int:
+    # every k-th row and column: a sub-grid of about _CHECK_PIXELS pixels
+    return max(1, round(math.sqrt(cloud.shape[0] * cloud.shape[1] / _CHECK_PIXELS)))
+
+
+def noise_excess(cloud, sensor: Sensor) -> float:
+    """How much more the cloud's points scatter about their local planes than ``sensor``'s
+    noise model says, as a factor on the noise (at least 1).
+
+    The square root of the median noise-normalised residual of the 3x3 windows of a
+    sub-grid of about 1024 points spread over the grid (about 1 when the model holds: most
+    windows lie on one surface). On a tile grid it measures the means' noise against
+    :meth:`NoiseModel.mean_scale`: real depth cameras' returns err together (block
+    matching, disparity quantisation terraces, calibration ripple), so their means average
+    less noise away than independent returns would; errors that run over several tiles
+    show at the sub-grid's spacing, as they do in the fit of a region spanning many tiles.
+    1 when the model holds or over-states the noise, or no window is valid.
+    """
+    scatter = _median_scatter(cloud, sensor, _check_step(cloud))
+    return float(math.sqrt(scatter)) if math.isfinite(scatter) and scatter > 1.0 else 1.0
 
 
 def check_plausible(cloud, sensor: Sensor, *, name: str = "the sensor") -> None:
@@ -198,7 +246,7 @@ def check_plausible(cloud, sensor: Sensor, *, name: str = "the sensor") -> None:
         metres under a sensor with a long reach, or a preset for another sensor).
     """
     # A sub-grid of about 32 x 32 pixels says as much as the whole scan, in about 0.1 ms.
-    step = max(1, round(math.sqrt(cloud.shape[0] * cloud.shape[1] / _CHECK_PIXELS)))
+    step = _check_step(cloud)
     if cloud.ranges is not None:
         ranges = np.asarray(cloud.ranges[::step, ::step], dtype=np.float64)
     else:

@@ -49,6 +49,49 @@ def test_noise_model_is_the_documented_formula_and_averages_only_the_range_term(
         NoiseModel(float("nan"))
 
 
+def test_correlated_returns_average_less_noise_away():
+    # a stereo camera's depths err together over its 3 x 3 matching window: a 6 x 6 tile
+    # mean averages 4 independent errors, not 36
+    stereo = NoiseModel(sigma0=0.001, sigma_quadratic=0.003, correlation_px=3)
+    np.testing.assert_allclose(stereo.mean_scale(np.array([36, 9, 4, 0])), [0.5, 1.0, 1.0, 1.0], rtol=1e-15)
+    ranges, tile = np.array([2.0]), np.array([36])
+    assert stereo.sigma(ranges, samples=tile)[0] == pytest.approx(0.001 + 0.003 * 4 / 2, rel=1e-12)
+    independent = NoiseModel(sigma0=0.001, sigma_quadratic=0.003)
+    assert independent.sigma(ranges, samples=tile)[0] == pytest.approx(0.001 + 0.003 * 4 / 6, rel=1e-12)
+    # the tile grid's own noise model: the means err independently of each other
+    assert stereo.of_means(36) == NoiseModel(0.001, 0.003 / 2, 1)
+    widened = independent.of_means(36, excess=1.5)
+    assert widened.sigma_quadratic == pytest.approx(0.003 * 1.5 / 6, rel=1e-12)
+    assert (widened.sigma0, widened.correlation_px) == (0.001, 1)
+    sensor = Sensor(noise=stereo, row_spacing_deg=0.09, column_spacing_deg=0.09)
+    assert sensor.of_means(36).noise == stereo.of_means(36) and sensor.of_means(36).row_spacing_deg == 0.09
+    with pytest.raises(ValueError, match="correlation_px"):
+        NoiseModel(0.001, correlation_px=0)
+    with pytest.raises(ValueError, match="excess"):
+        stereo.of_means(36, excess=0.5)
+    config = load_config({"sensor": {"sigma0": 0.001, "sigma_quadratic": 0.003, "noise_correlation_px": 3}})
+    assert Pipeline(config).sensor.noise == stereo
+    assert Pipeline("rgbd_vga").sensor.noise.correlation_px == 1  # the default: independent returns
+    with pytest.raises(ValueError, match="noise_correlation_px"):
+        load_config({"sensor": {"noise_correlation_px": 0}})
+
+
+def test_noise_excess_measures_how_much_more_points_scatter_than_the_model():
+    from rangeseg_o3d.sensor import noise_excess
+
+    rng = np.random.default_rng(3)
+    rows, cols = np.mgrid[0:64, 0:64]
+    xyz = np.stack([0.01 * cols, 0.01 * rows, np.full(rows.shape, 2.0)], axis=-1)
+    noisy = xyz.copy()
+    noisy[..., 2] += rng.normal(0.0, 0.006, rows.shape)  # 3 x the model's 2 mm
+    model = Sensor(noise=NoiseModel(sigma0=0.002))
+    assert 2.5 <= noise_excess(rs.OrganizedCloud(noisy), model) <= 3.3
+    xyz[..., 2] += rng.normal(0.0, 0.002, rows.shape)  # as the model says
+    assert noise_excess(rs.OrganizedCloud(xyz), model) == pytest.approx(1.0, abs=0.15)
+    # a model that over-states the noise is not scaled down
+    assert noise_excess(rs.OrganizedCloud(xyz), Sensor(noise=NoiseModel(sigma0=0.02))) == 1.0
+
+
 def test_sensor_validates_units_and_ranges():
     assert unit_scale("cm") == 0.01 and Sensor(units="mm").scale == 0.001
     with pytest.raises(ValueError, match="units must be one of"):

@@ -83,7 +83,7 @@ def segment_residual_edges(
     t0 = time.perf_counter()
     tile = cloud.tile
     xyz, ranges = cloud.xyz, cloud.range_image()
-    noise_scale = 1.0 if cloud.samples is None else 1.0 / np.sqrt(np.maximum(cloud.samples, 1))
+    noise_scale = 1.0 if cloud.samples is None else noise.mean_scale(cloud.samples)
     valid = cloud.valid
     residual, _ = residual_image(
         xyz, window=window, min_valid=min_valid, ranges=ranges, sigma0=noise.sigma0,

@@ -63,7 +63,8 @@ class SensorSpec:
     region_growing: dict = field(default_factory=dict)  # overrides of the baseline's parameters
 
     def sensor_facts(self, quick: bool = False) -> dict:
-        """``{sigma0, sigma_quadratic, row_spacing_deg, column_spacing_deg}`` of the (quick) grid."""
+        """``{sigma0, sigma_quadratic[, noise_correlation_px], row_spacing_deg, column_spacing_deg}``
+        of the (quick) grid."""
         rows, cols = self.spacing(quick)
         return {**self.noise, "row_spacing_deg": float(rows), "column_spacing_deg": float(cols)}
 
@@ -190,7 +191,7 @@ SENSORS: tuple[SensorSpec, ...] = (
     SensorSpec("kinect_640x480", "depth", "rgbd_vga", {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE}, 6,
                *_camera(640, 480, 62.0), "Kinect, 62 deg horizontal, 1.425e-3 z^2"),
     SensorSpec("stereo_1280x720", "depth", "rgbd_vga",
-               {"sigma0": 0.001, "sigma_quadratic": float(_STEREO_COEFF)}, 4,
+               {"sigma0": 0.001, "sigma_quadratic": float(_STEREO_COEFF), "noise_correlation_px": 3}, 4,
                *_camera(1280, 720, _STEREO_HFOV, noise_coeff=float(_STEREO_COEFF), noise_correlation=3),
                f"stereo, 90 deg horizontal, {_STEREO_COEFF:.2e} z^2 correlated over 3 px"),
     SensorSpec("tabletop_abw", "tabletop", "abw", {"sigma0": 0.0005, "sigma_quadratic": 0.0}, 6,
