@@ -95,13 +95,16 @@ def test_abw_images_reach_a_floor():
     correct = total = over = under = 0
     for path in paths:
         image = load_abw(path)
+        # the preset leaves the tile to the camera's 1.29 mm depth step: 2 x 2 at 0.77-1.11 m
+        assert pipe.scales(image.cloud).tile == 2
         labels = pipe.run(image.cloud).labels
         score = hoover(image.truth_ids, labels, tolerance=0.8, min_region=1, count_unlabelled=True)
         correct += score.n_correct
         total += score.n_truth
         over += score.n_over
         under += score.n_under
-    # SegComp rules; today 150/192 (78.1 %) on the ten images, over 0.6 and under 0.1 per
-    # image (targets: 90 %, 0.5, 0.3: the correct rate is not met). UE got 88.1 % in 1996.
-    assert 100.0 * correct / total >= 72.0
+    # SegComp rules; today 160/192 (83.3 %) on the ten images, over 0.6 and under 0.1 per
+    # image (targets: 90 %, 0.5, 0.3: the correct rate and over-segmentation are not met).
+    # UE got 88.1 % in 1996.
+    assert 100.0 * correct / total >= 78.0
     assert over / len(paths) <= 1.0 and under / len(paths) <= 0.5
