@@ -8,8 +8,8 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _distance, _neighbour
 
-__all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "block_means",
-           "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel", "ranges_and_noise"]
+__all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
+           "block_means", "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -274,6 +274,60 @@ def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations,
         if changed == 0:
             break
         labels[r0:r1, c0:c1] = new[r0:r1, c0:c1]
+        moved += changed
+    return moved
+
+@njit(cache=True, nogil=True)
+def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma, margin,
+                   jump_ratio, jump_min):
+    """Move border pixels to the neighbouring region whose model explains them clearly better (in place).
+
+    Per iteration, a labelled pixel 4-adjacent to another region (no range jump between
+    them: ``<= max(jump_min, jump_ratio * r)``) joins the neighbour whose model is within
+    ``k_sigma`` and more than ``margin`` nearer than its own region's, both in units of
+    ``max(sigma, rms)``; the best such neighbour wins. Decisions are taken on the labels
+    as they were at the iteration's start; the models do not change, so a pixel never
+    moves back. Returns the number of pixels moved.
+    """
+    h, w = labels.shape
+    n = kinds.shape[0]
+    moved = 0
+    new = labels.copy()
+    for _ in range(iterations):
+        changed = 0
+        for r in range(h):
+            for c in range(w):
+                own = labels[r, c]
+                if own <= 0 or own >= n or kinds[own] == 0:
+                    continue
+                up = labels[r - 1, c] if r > 0 else own
+                down = labels[r + 1, c] if r < h - 1 else own
+                left = labels[r, c - 1] if c > 0 else own
+                right = labels[r, c + 1] if c < w - 1 else own
+                if up == own and down == own and left == own and right == own:
+                    continue
+                i = r * w + c
+                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+                best, best_score = 0, min(own_score - margin, k_sigma)
+                for step in range(4):
+                    j = _neighbour(i, step, h, w)
+                    if j < 0:
+                        continue
+                    k = labels[j // w, j % w]
+                    if k == own or k <= 0 or k >= n or kinds[k] == 0:
+                        continue
+                    if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
+                        continue
+                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+                    if score < best_score:
+                        best, best_score = k, score
+                if best > 0:
+                    new[r, c] = best
+                    changed += 1
+        if changed == 0:
+            break
+        labels[:, :] = new
         moved += changed
     return moved
 

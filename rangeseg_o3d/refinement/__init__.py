@@ -18,9 +18,12 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 5. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
    are merged (the paper's "merging of patches that belong to the same surface"); then a
    strip of a sphere or cylinder that another kind took goes back to it.
-6. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
+6. ``settle`` (:func:`.grow.settle_regions`): border pixels go to the neighbouring region
+   whose surface explains them clearly better (the band one surface took from another
+   while growing first).
+7. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
    that explain them.
-7. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
+8. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
    are refitted from moments whenever they change, which costs nothing).
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
@@ -40,7 +43,7 @@ from ..sensor import Sensor
 from .context import Context
 from .dissolve import dissolve_small
 from .facets import planes_for_curved
-from .grow import grow_regions
+from .grow import grow_regions, settle_regions
 from .merge import merge_into_curved, merge_regions, region_adjacency
 from .polish import polish_models
 from .recover import recover_leftovers, recover_pixels
@@ -112,6 +115,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits, adjacency = merge_into_curved(ctx, labels, fits, adjacency,
                                                     rms_factor=config.merge_rms_factor)
     timer.lap("merge")
+    labels, fits = settle_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
+    timer.lap("settle")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
     timer.lap("dissolve")

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fitting.primitives import Plane
 from ..fitting.region_fitter import model_table, pixel_rms
 from .context import Context
 
-__all__ = ["grow_into_edges", "grow_regions", "refit_grown"]
+__all__ = ["grow_into_edges", "grow_regions", "refit_grown", "settle_regions"]
 
 
 def grow_into_edges(
@@ -89,3 +90,55 @@ def grow_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarra
     grown = grow_into_edges(xyz, labels, good, sigma, ranges, iterations=iterations,
                             k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
     return grown, refit_grown(ctx, labels, grown, fits)
+
+
+#: A border pixel changes region only when the neighbour's model is nearer than its own by
+#: more than this many noise sigmas: where two surfaces meet both explain it, and noise
+#: alone must not move the border.
+SETTLE_MARGIN = 1.0
+
+
+def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray, ranges: np.ndarray,
+                   sigma: np.ndarray, iterations: int, k_sigma: float, jump_ratio: float,
+                   jump_min: float):
+    """Border pixels go to the neighbouring region whose surface explains them clearly
+    better, up to ``iterations`` rings deep; returns new ``(labels, fits)``.
+
+    Growth hands a free pixel to any neighbour that explains it within ``k_sigma`` noise
+    sigmas; where a surface meets another at a crease, the one that grew first takes a
+    band of the other (a column the bottom of a box face beside it, the floor a box's
+    lowest rows, a pipe its end cap: within a few sigmas of the rim the cap is near the
+    cylinder too). Once every region has its model, a border pixel whose own model is
+    more than ``SETTLE_MARGIN`` sigmas farther than a 4-neighbouring region's (within
+    ``k_sigma``, no jump between them) moves there (:func:`rangeseg_o3d.kernels.settle_borders`);
+    the regions that changed are refitted, keeping their kind.
+    """
+    from ..kernels import settle_borders
+
+    good = {k: m for k, m in fits.items() if m}
+    if not (iterations and len(good) > 1):
+        return labels, fits
+    settled = np.array(labels, dtype=np.int32, order="C", copy=True)
+    n = int(settled.max(initial=0)) + 1
+    kinds, params, rms = model_table(good, n)
+    moved = settle_borders(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), settled, kinds,
+                           params, rms, np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+                           np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
+                           float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min))
+    if not moved:
+        return labels, fits
+    moved_mask = settled != labels
+    touched = np.bincount(np.concatenate([labels[moved_mask], settled[moved_mask]]), minlength=n)
+    sizes = np.bincount(settled.ravel(), minlength=n)
+    fits = dict(fits)
+    # planes refit from moments (nothing to gather); a curved model only where its region
+    # changed by more than 5 % (a few border pixels move nothing; LM refits cost)
+    planes = [k for k in np.flatnonzero(touched).tolist() if isinstance(fits.get(k), Plane)]
+    curved = [k for k in np.flatnonzero(touched > 0.05 * np.maximum(sizes, 1)).tolist()
+              if fits.get(k) and not isinstance(fits[k], Plane)]
+    refits = ctx.fitter.refit_regions(ctx.xyz, settled, fits, planes, from_points=False)
+    refits.update(ctx.fitter.refit_regions(ctx.xyz, settled, fits, curved, from_moments=False))
+    for k, refit in refits.items():
+        if refit and refit.kind == fits[k].kind:
+            fits[k] = refit
+    return settled, fits

@@ -67,3 +67,43 @@ def test_grow_regions_without_iterations_changes_nothing(context):
                        sigma=np.full((10, 10), 0.002), iterations=0, k_sigma=3.0, jump_ratio=0.08,
                        jump_min=0.05)
     assert out[0] is labels and out[1] is fits
+
+
+def test_settle_gives_a_band_back_to_the_surface_that_explains_it_clearly_better(context):
+    from rangeseg_o3d.refinement.grow import SETTLE_MARGIN, settle_regions
+
+    # two planes at a 30-degree crease (column 30); region 1 took 4 columns of plane 2
+    noise = 0.002
+    xyz = plane_grid(30, 60, noise=noise, seed=4)
+    xyz[:, 30:, 2] += np.tan(np.radians(30.0)) * (xyz[:, 30:, 0] - xyz[0, 30, 0])
+    cloud = rs.OrganizedCloud(xyz)
+    truth = np.where(np.arange(60) < 30, 1, 2)[None, :].repeat(30, axis=0)
+    labels = truth.astype(np.int32).copy()
+    labels[:, 30:34] = 1
+    fits = {1: fit_plane(xyz[:, :30].reshape(-1, 3)), 2: fit_plane(xyz[:, 34:].reshape(-1, 3))}
+    sigma = np.full(cloud.shape, noise)
+    growth = dict(xyz=xyz, ranges=np.linalg.norm(xyz, axis=2), sigma=sigma, k_sigma=3.0,
+                  jump_ratio=0.1, jump_min=0.05)
+    out, out_fits = settle_regions(context(cloud, sigma=sigma), labels, fits, iterations=6, **growth)
+    assert (labels[:, 30:34] == 1).all()  # the input is left alone
+    # column 31 is 0.02 tan(30 deg) = 11.5 mm = 5.8 sigma off plane 1: every pixel beyond
+    # the crease column by more than the margin goes back to plane 2
+    assert SETTLE_MARGIN == 1.0
+    assert (out[:, 31:] == 2).all() and (out[:, :30] == 1).all()
+    assert out_fits[2].rms < 1.3 * noise and out_fits[1].rms < 1.3 * noise
+
+
+def test_settle_leaves_a_border_both_surfaces_explain(context):
+    from rangeseg_o3d.refinement.grow import settle_regions
+
+    # one plane cut into two regions anywhere: no pixel is explained clearly better
+    noise = 0.002
+    xyz = plane_grid(20, 40, noise=noise, seed=5)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.where(np.arange(40) < 17, 1, 2)[None, :].repeat(20, axis=0).astype(np.int32)
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    sigma = np.full(cloud.shape, noise)
+    out, out_fits = settle_regions(context(cloud, sigma=sigma), labels, fits, iterations=6, xyz=xyz,
+                                   ranges=np.linalg.norm(xyz, axis=2), sigma=sigma, k_sigma=3.0,
+                                   jump_ratio=0.1, jump_min=0.05)
+    assert (out == labels).mean() > 0.99 and out_fits.keys() == fits.keys()
