@@ -14,6 +14,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..kernels.linalg import noise_rms_bound
+
 __all__ = ["trimmed_fit", "beyond_noise", "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
@@ -26,8 +28,10 @@ CHI_SQUARE_SIGMAS = 4.0
 
 def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
-    explains (chi-square: ``rms^2 / sigma^2`` has mean 1 and deviation ``sqrt(2 / n)``)."""
-    return rms * rms > sigma * sigma * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n, 1)))
+    explains: over :func:`rangeseg_o3d.kernels.linalg.noise_rms_bound` with ``n`` degrees
+    of freedom and ``CHI_SQUARE_SIGMAS``."""
+    # the kernel's Python form: one scalar needs no compiled signature of its own
+    return rms > noise_rms_bound.py_func(float(sigma), float(n), CHI_SQUARE_SIGMAS)
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["DEGENERATE_RATIO", "solve", "hesse_form", "collinear"]
+__all__ = ["DEGENERATE_RATIO", "solve", "hesse_form", "collinear", "noise_rms_bound", "plane_tolerance"]
 
 # Relative size below which a spread is treated as exactly zero. Centred float64 data
 # keeps ~1e-16 relative precision and float32 input ~1e-7 of the coordinates, so a
@@ -79,13 +79,21 @@ NOISE_CHI2_SIGMAS = 3.0
 
 
 @njit(cache=True, nogil=True)
+def noise_rms_bound(sigma, dof, sigmas):
+    """The largest rms that noise of rms ``sigma`` alone gives a fit with ``dof`` degrees of
+    freedom, ``sigmas`` standard deviations up the chi-square law (the mean square over
+    ``sigma**2`` has mean 1 and deviation ``sqrt(2 / dof)``):
+    ``sigma sqrt(1 + sigmas sqrt(2 / dof))``, ``dof`` taken as at least 1."""
+    return sigma * np.sqrt(1.0 + sigmas * np.sqrt(2.0 / max(dof, 1.0)))
+
+
+@njit(cache=True, nogil=True)
 def plane_tolerance(plane_rms, noise_floor, n):
     """A plane's rms threshold over ``n`` points: ``plane_rms``, or what range noise of
     ``noise_floor`` (m) alone gives the fit when larger, ``NOISE_CHI2_SIGMAS`` standard
-    deviations up its chi-square over ``n - 3`` degrees of freedom:
-    ``noise_floor sqrt(1 + NOISE_CHI2_SIGMAS sqrt(2 / (n - 3)))``. The bound tightens as
-    the points grow (a thousand-pixel wall: 1.07 noise sigmas, a hundred points 1.20, twenty 1.42)."""
+    deviations up its chi-square over ``n - 3`` degrees of freedom
+    (:func:`noise_rms_bound`). The bound tightens as the points grow (a thousand-pixel
+    wall: 1.07 noise sigmas, a hundred points 1.20, twenty 1.42)."""
     if noise_floor <= 0.0:
         return plane_rms
-    dof = max(n - 3.0, 1.0)
-    return max(plane_rms, noise_floor * np.sqrt(1.0 + NOISE_CHI2_SIGMAS * np.sqrt(2.0 / dof)))
+    return max(plane_rms, noise_rms_bound(noise_floor, n - 3.0, NOISE_CHI2_SIGMAS))

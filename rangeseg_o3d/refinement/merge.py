@@ -13,6 +13,7 @@ import numpy as np
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
+from ..fitting.robust import beyond_noise
 from .context import Context
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
@@ -254,11 +255,9 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     adjacent pair of different kinds whose larger region is curved is tried, smallest
     piece first: the larger region's model refitted to the union must keep its kind, fit
     within ``rms_factor`` of the larger part's rms and at the noise (the chi-square bound of
-    :func:`rangeseg_o3d.refinement.facets.beyond_noise`: a face of a box beside a column
+    :func:`rangeseg_o3d.fitting.robust.beyond_noise`: a face of a box beside a column
     is not explained by the column's cylinder).
     """
-    from .facets import beyond_noise
-
     regions = region_indices(labels)
     sizes = {k: idx.size for k, idx in regions.items()}
     pairs = []
