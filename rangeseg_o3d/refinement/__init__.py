@@ -8,9 +8,9 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    takes is freed (the paper's "local checks that remove under-segmentation").
 2. :mod:`.grow`: edge-band pixels go back to the neighbouring region whose surface explains
    them (the paper's "re-add points left out by the edge band").
-3. :mod:`.recover`: compact blobs of unlabelled pixels (small curved objects that the edge
-   band swallowed whole) become regions when a model explains most of them, and take
-   back their rims. Running after ``grow``, it sees only what no neighbour explains.
+3. :mod:`.recover`: compact blobs of unlabelled pixels (small objects that the edge band
+   swallowed whole, far boxes whose faces are narrower than the band) are split into
+   every surface they hold, which become regions and take back their rims. Running after ``grow``, it sees only what no neighbour explains.
 4. :mod:`.facets`: a curved model whose residuals exceed the sensor's noise (a cylinder
    over the crease of two faces, a pipe that took its end cap) gives way to the planes, or
    failing them the surfaces of any kind, that explain its region (before the merge,

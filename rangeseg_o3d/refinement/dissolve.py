@@ -1,4 +1,4 @@
-"""Step 5, ``dissolve``: small blobs at junctions go to the larger neighbours that explain them.
+"""Step 7, ``dissolve``: small blobs at junctions go to the larger neighbours that explain them.
 
 A blob where surfaces meet can pass for a small curved patch; its kind differs from its
 neighbours', so the ``merge`` step never pairs it. Runs after ``merge`` on its adjacency.

@@ -4,6 +4,9 @@ The paper's own future work (Sec. 6, "re-add points left out by the edge band").
 and the 3x3 window leave a band of edge pixels around every region; small objects lose
 most of their pixels to it. Regions are grown back into that band, a ring of pixels at a
 time, wherever the region's fitted surface explains the pixel within the local noise.
+
+Step 6, ``settle`` (:func:`settle_regions`), lives here too: after the merge, border pixels
+move to the neighbouring region whose surface explains them clearly better.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Step 4, ``merge``: regions of one kind whose union one model explains as well as the parts are merged.
+"""Step 5, ``merge``: regions of one kind whose union one model explains as well as the parts are merged.
 
 The paper's "merging of patches that belong to the same surface" (Sec. 6). Candidates are
 pairs of adjacent regions of one kind, and with ``merge_disjoint`` regions apart whose

@@ -1,4 +1,4 @@
-"""Step 6, ``polish``: spheres and cylinders are refitted once on their final pixels.
+"""Step 8, ``polish``: spheres and cylinders are refitted once on their final pixels.
 
 Planes are refitted from moments whenever they change, which costs nothing; the other
 kinds keep the parameters of the points they were fitted to until here.

@@ -1,4 +1,4 @@
-"""Step 3, ``recover``: compact blobs of unlabelled pixels become regions when a model explains most of them.
+"""Step 3, ``recover``: compact blobs of unlabelled pixels are split into every surface they hold.
 
 Small curved objects far away have a residual above the threshold everywhere, so no
 region seeds them and growth cannot reach them: the edge band swallows them whole. Runs
@@ -18,7 +18,7 @@ from .context import Context, touching
 from .grow import grow_into_edges, grow_regions
 from .merge import merge_regions
 
-__all__ = ["leftover_candidates", "explain_blobs", "split_blobs", "recover_leftovers", "recover_pixels"]
+__all__ = ["leftover_candidates", "split_blobs", "recover_leftovers", "recover_pixels"]
 
 
 def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
@@ -51,32 +51,6 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     lut = np.zeros(n, np.int32)
     lut[keep] = np.arange(first_label, first_label + int(keep.sum()), dtype=np.int32)
     return lut[comp]
-
-
-def explain_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
-                  min_share: float):
-    """Give each candidate blob the model most of it lies on; free the other pixels.
-
-    ``candidates`` numbers the blobs (0 elsewhere). Blobs nothing explains, or whose
-    explained share is below ``min_share``, are dropped. Returns new ``(labels, fits)``.
-    """
-    labels, fits = labels.copy(), dict(fits)
-    flat = labels.ravel()
-    regions = region_indices(candidates)
-    # One batched pass settles the candidates that are planes outright.
-    settled = ctx.fitter.fit_batch(ctx.xyz, candidates) if regions else {}
-    for k, idx in regions.items():
-        flat[idx] = 0
-        fits.pop(k, None)
-        # A blob that is one plane needs no trimming (settled in the batch); for the
-        # others the trimmed fit's first answer is the plain fit's when it is clean.
-        chosen, model = _one_plane(ctx, idx, settled.get(k))
-        if chosen is None:
-            chosen, model = ctx.dominant_piece(idx)
-        if chosen is not None and model and chosen.size >= max(ctx.min_size, min_share * idx.size):
-            flat[chosen] = k
-            fits[k] = model
-    return labels, fits
 
 
 def _one_plane(ctx: Context, idx: np.ndarray, plain):

@@ -4,7 +4,7 @@ import numpy as np
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.refinement.recover import explain_blobs, leftover_candidates, recover_leftovers, split_blobs
+from rangeseg_o3d.refinement.recover import leftover_candidates, recover_leftovers, split_blobs
 from refinement_helpers import best_overlap, folded_strip, plane_grid
 
 
@@ -41,24 +41,6 @@ def _board_in_front_of_a_wall():
     labels = np.ones((40, 60), np.int32)
     labels[11:29, 35:53] = 0
     return xyz, board, labels
-
-
-def test_explain_blobs_keeps_what_a_model_explains_and_drops_the_rest(context):
-    xyz, board, _ = _board_in_front_of_a_wall()
-    rng = np.random.default_rng(0)
-    xyz[2:10, 2:10, 2] = 3.0 + rng.uniform(-0.3, 0.3, (8, 8))  # a blob of pure noise
-    cloud = rs.OrganizedCloud(xyz)
-    labels = np.zeros((40, 60), np.int32)
-    candidates = np.zeros((40, 60), np.int32)
-    candidates[board] = 7
-    candidates[2:10, 2:10] = 8
-    out, fits = explain_blobs(context(cloud, sigma=np.full((40, 60), 0.001)), labels, {}, candidates,
-                              min_share=0.7)
-    assert not labels.any()  # the input is left alone
-    assert set(fits) == {7} and fits[7].kind == "plane"
-    np.testing.assert_allclose(np.abs(fits[7].normal), np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0),
-                               atol=0.01)
-    assert (out[board] == 7).mean() > 0.95 and not out[2:10, 2:10].any()
 
 
 def test_recover_leftovers_turns_a_swallowed_board_into_a_region(context):
@@ -101,8 +83,8 @@ def test_split_blobs_gives_every_face_of_a_leftover_blob_its_region(context):
         assert share > 0.9 and fits[label].kind == "plane"
         assert abs(fits[label].normal @ normal) > 0.999
     assert len({best_overlap(out, truth, face)[0] for face in normals}) == 3
-    one, _ = explain_blobs(context(cloud, min_size=100, sigma=sigma), labels, {}, candidates, min_share=0.3)
-    assert (one > 0).mean() < 0.5  # the dominant surface alone
+    piece, _ = context(cloud, min_size=100, sigma=sigma).dominant_piece(np.arange(truth.size))
+    assert piece.size < 0.5 * truth.size  # the dominant surface alone would keep one face
 
 
 def test_split_blobs_frees_a_blob_no_model_explains(context):
