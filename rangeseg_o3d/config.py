@@ -67,10 +67,10 @@ class SensorConfig(BaseModel):
 
     def resolve(self) -> Sensor:
         """The immutable :class:`Sensor` every stage receives."""
-        return Sensor(noise=NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px), units=self.units,
-                      wrap_columns=self.wrap_columns, row_spacing_deg=self.row_spacing_deg,
-                      column_spacing_deg=self.column_spacing_deg, min_range=self.min_range,
-                      max_range=self.max_range, depth_step=self.depth_step)
+        noise = NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px)
+        return Sensor(noise=noise, units=self.units, wrap_columns=self.wrap_columns,
+                      row_spacing_deg=self.row_spacing_deg, column_spacing_deg=self.column_spacing_deg,
+                      min_range=self.min_range, max_range=self.max_range, depth_step=self.depth_step)
 
 
 class StageConfig(BaseModel):

@@ -272,8 +272,9 @@ def fit_planes_batch(
 
     One pass over the pixels gives each label's moments, hence its plane; the regions
     whose plane passes step 2 of the decision rule (rms within ``plane_rms`` or the
-    ``noise_floor`` bound, plus ``rms_per_range2 R^2``, and no significant curvature by the batched quadric test) are returned. The
-    others (curved, too few or collinear points) are left to :func:`fit_primitive`.
+    ``noise_floor`` bound, plus ``rms_per_range2 R^2``, and no significant curvature by
+    the batched quadric test) are returned. The others (curved, too few or collinear
+    points) are left to :func:`fit_primitive`.
     Keywords for the curved models are accepted and ignored.
 
     Parameters

@@ -10,7 +10,8 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    them (the paper's "re-add points left out by the edge band").
 3. :mod:`.recover`: compact blobs of unlabelled pixels (small objects that the edge band
    swallowed whole, far boxes whose faces are narrower than the band) are split into
-   every surface they hold, which become regions and take back their rims. Running after ``grow``, it sees only what no neighbour explains.
+   every surface they hold, which become regions and take back their rims. Running
+   after ``grow``, it sees only what no neighbour explains.
 4. :mod:`.facets`: a curved model whose residuals exceed the sensor's noise (a cylinder
    over the crease of two faces, a pipe that took its end cap) gives way to the planes, or
    failing them the surfaces of any kind, that explain its region (before the merge,
