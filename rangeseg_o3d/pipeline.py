@@ -20,7 +20,8 @@ from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
 from .scales import Scales, scales_for_cloud
-from .sensor import Sensor, check_plausible, noise_excess
+from .sensor import Sensor
+from .sensor_checks import check_plausible, noise_excess
 
 __all__ = ["Pipeline", "warm_up"]
 
@@ -143,7 +144,7 @@ class Pipeline:
             ``cloud`` is not an OrganizedCloud.
         ValueError
             The cloud has no valid point, its ranges do not fit the sensor's working
-            ranges (a unit mistake: see :func:`rangeseg_o3d.sensor.check_plausible`,
+            ranges (a unit mistake: see :func:`rangeseg_o3d.sensor_checks.check_plausible`,
             which also warns when no window looks planar), or the segmenter returned
             malformed labels.
         """

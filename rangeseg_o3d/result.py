@@ -177,6 +177,17 @@ class Feature:
                    _cache=cache)
 
 
+def _parameter_text(f: Feature) -> str:
+    if f.kind == "plane":
+        return f"n=({f.normal[0]:+.3f}, {f.normal[1]:+.3f}, {f.normal[2]:+.3f}) d={f.d:+.3f} m"
+    if f.kind == "sphere":
+        c = f.center
+        return f"c=({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f}) r={f.radius:.3f} m"
+    a, p = f.axis, f.point
+    return (f"axis=({a[0]:+.3f}, {a[1]:+.3f}, {a[2]:+.3f}) "
+            f"p=({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f}) r={f.radius:.3f} m")
+
+
 @dataclass(frozen=True)
 class Unfitted:
     """A region no model explained, and why."""
@@ -220,6 +231,22 @@ class Result:
             out[feat.kind] += 1
         out["unfitted"] = len(self.unfitted)
         return out
+
+    def table(self, *, title: str = "") -> str:
+        """A readable table of the features and unfitted regions, with timings."""
+        lines = [title] if title else []
+        lines.append(f"{'label':>5}  {'kind':<8} {'pixels':>6} {'rms mm':>7}  parameters")
+        for f in self.features:
+            lines.append(f"{f.label:>5}  {f.kind:<8} {f.n_pixels:>6} {f.rms * 1e3:>7.2f}  {_parameter_text(f)}")
+        for u in self.unfitted:
+            lines.append(f"{u.label:>5}  {'unfitted':<8} {u.n_pixels:>6} {'':>7}  {u.reason}")
+        counts = self.counts()
+        lines.append(
+            f"{counts['plane']} planes, {counts['cylinder']} cylinders, {counts['sphere']} spheres, "
+            f"{counts['unfitted']} unfitted"
+        )
+        lines.append("timings: " + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in self.timings.items()))
+        return "\n".join(lines)
 
     def to_dict(self) -> dict:
         """Everything but the per-pixel labels and stage images, as JSON-ready values.

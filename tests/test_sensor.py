@@ -77,7 +77,7 @@ def test_correlated_returns_average_less_noise_away():
 
 
 def test_noise_excess_measures_how_much_more_points_scatter_than_the_model():
-    from rangeseg_o3d.sensor import noise_excess
+    from rangeseg_o3d.sensor_checks import noise_excess
 
     rng = np.random.default_rng(3)
     rows, cols = np.mgrid[0:64, 0:64]

@@ -15,9 +15,15 @@ from __future__ import annotations
 
 import logging
 
-__all__ = ["LoggedTransport"]
+__all__ = ["LoggedTransport", "port_name"]
 
 log = logging.getLogger(__name__)
+
+
+def port_name(transport) -> str:
+    """A human-readable name for error messages."""
+    name = getattr(transport, "port", None) or getattr(transport, "name", None)
+    return str(name) if name else type(transport).__name__
 
 
 class LoggedTransport:
@@ -35,8 +41,6 @@ class LoggedTransport:
             inner = inner.inner
         object.__setattr__(self, "_inner", inner)
         if name is None:
-            from .transport import port_name
-
             name = port_name(inner)
         object.__setattr__(self, "_name", str(name))
 

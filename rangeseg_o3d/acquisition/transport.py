@@ -5,6 +5,8 @@ from __future__ import annotations
 import select
 import time
 
+from .logged_transport import LoggedTransport, port_name
+
 __all__ = ["open_transport", "port_name", "read_some"]
 
 _REQUIRED = ("read", "write")
@@ -29,8 +31,6 @@ def open_transport(port, *, baudrate: int, timeout: float = 0.05):
     :class:`~rangeseg_o3d.acquisition.logged_transport.LoggedTransport`: every write and
     every read that returned bytes is logged at DEBUG level.
     """
-    from .logged_transport import LoggedTransport
-
     if isinstance(port, str):
         import serial  # only drivers that open real ports need pyserial
 
@@ -42,12 +42,6 @@ def open_transport(port, *, baudrate: int, timeout: float = 0.05):
             f"got {type(port).__name__} without {', '.join(missing)}"
         )
     return LoggedTransport(port)
-
-
-def port_name(transport) -> str:
-    """A human-readable name for error messages."""
-    name = getattr(transport, "port", None) or getattr(transport, "name", None)
-    return str(name) if name else type(transport).__name__
 
 
 def _descriptor(transport) -> int | None:

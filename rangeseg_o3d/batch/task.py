@@ -278,9 +278,7 @@ def segment_input(task: InputTask, options: SegmentOptions, pipeline=None, *,
     row.total_s = time.perf_counter() - start
     row.cpu_s = time.process_time() - cpu_start
     if options.table:
-        from ..cli import format_table
-
-        row.table = format_table(result, title=(
+        row.table = result.table(title=(
             f"{task.path} ({row.height}x{row.width}, {row.n_valid} valid points, "
             f"preset {options.config.name})"))
     if options.keep_result:

@@ -17,7 +17,7 @@ from .args import finite_float, positive_int
 
 log = logging.getLogger(__name__)
 
-__all__ = ["main", "format_table", "add_config_arguments", "config_from_args"]
+__all__ = ["main", "add_config_arguments", "config_from_args"]
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, *, preset: bool = True,
@@ -42,32 +42,6 @@ def config_from_args(args, source=None):
 
     return load_config(args.config if source is None else source,
                        overrides=parse_overrides(getattr(args, "overrides", None) or []))
-
-
-def format_table(result, *, title: str = "") -> str:
-    """A readable table of a Result's features and unfitted regions, with timings."""
-    lines = [title] if title else []
-    lines.append(f"{'label':>5}  {'kind':<8} {'pixels':>6} {'rms mm':>7}  parameters")
-    for f in result.features:
-        if f.kind == "plane":
-            params = f"n=({f.normal[0]:+.3f}, {f.normal[1]:+.3f}, {f.normal[2]:+.3f}) d={f.d:+.3f} m"
-        elif f.kind == "sphere":
-            c = f.center
-            params = f"c=({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f}) r={f.radius:.3f} m"
-        else:
-            a, p = f.axis, f.point
-            params = (f"axis=({a[0]:+.3f}, {a[1]:+.3f}, {a[2]:+.3f}) "
-                      f"p=({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f}) r={f.radius:.3f} m")
-        lines.append(f"{f.label:>5}  {f.kind:<8} {f.n_pixels:>6} {f.rms * 1e3:>7.2f}  {params}")
-    for u in result.unfitted:
-        lines.append(f"{u.label:>5}  {'unfitted':<8} {u.n_pixels:>6} {'':>7}  {u.reason}")
-    counts = result.counts()
-    lines.append(
-        f"{counts['plane']} planes, {counts['cylinder']} cylinders, {counts['sphere']} spheres, "
-        f"{counts['unfitted']} unfitted"
-    )
-    lines.append("timings: " + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in result.timings.items()))
-    return "\n".join(lines)
 
 
 def write_json(path: Path, payload: dict) -> None:
@@ -234,7 +208,7 @@ def cmd_demo(args) -> int:
     first = pipeline.run(cloud).timings["total"]
     rec = _recording(args)
     result = pipeline.run(cloud, recording=rec, light_log=bool(getattr(args, "light", False)))
-    print(format_table(result, title=f"demo: {source}\n{cloud!r}, preset {pipeline.config.name}"))
+    print(result.table(title=f"demo: {source}\n{cloud!r}, preset {pipeline.config.name}"))
     print(f"(timings of a second run; the first, which loads the compiled kernels, took "
           f"{first * 1e3:.0f} ms)")
     payload = {"input": str(scan_path), "source": source,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import rangeseg_o3d as rs
-from rangeseg_o3d.sensor import noise_excess
+from rangeseg_o3d.sensor_checks import noise_excess
 from rangeseg_o3d.synthetic.depth_camera import KINECT_NOISE, simulate_depth_camera
 from rangeseg_o3d.synthetic.suite import rgbd_scenes
 

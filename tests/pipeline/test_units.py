@@ -10,7 +10,8 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.cli import main
 from rangeseg_o3d.config import load_config
 from rangeseg_o3d.io.datasets import default_data_root, load_andreashaus
-from rangeseg_o3d.sensor import NoiseModel, Sensor, UnitsWarning, check_plausible
+from rangeseg_o3d.sensor import NoiseModel, Sensor
+from rangeseg_o3d.sensor_checks import UnitsWarning, check_plausible
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.suite import default_scene
 
