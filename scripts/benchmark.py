@@ -24,6 +24,12 @@ per frame, and ``OrganizedCloud.from_depth`` on the CAPE frame.
 
 Run: python scripts/benchmark.py --frames [--repeats 20]
 
+The same frames for other programs (``--export-frames DIR``): each frame's points as raw
+float32 and a manifest of sizes and intrinsics (see :func:`export_frames`), nothing timed;
+docs/benchmarks.md times CAPE and PEAC on them.
+
+Run: python scripts/benchmark.py --export-frames DIR
+
 Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
      [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT]
 """
@@ -225,6 +231,69 @@ def real_rows(repeats: int, limit: int | None, names=None) -> list[dict]:
             "cpu_ms": 1000 * cpu,
         })
     return rows
+
+
+#: Header of the manifest :func:`export_frames` writes.
+EXPORT_MANIFEST_HEADER = "# name rows cols fx fy cx cy  (<name>.xyz: float32 little-endian, rows x cols x 3, metres, NaN = no return)"
+
+
+def export_frames(directory, items) -> Path:
+    """Write real frames for programs outside Python: ``<name>.xyz`` and ``frames.txt``.
+
+    ``items`` are :class:`rangeseg_o3d.io.datasets.RealCloud` (anything with ``name`` and
+    ``load()``). Each frame's points are written as they load (the loaders' own unit and
+    validity conversions), as raw little-endian float32, row-major ``rows x cols x 3``,
+    metres, all three coordinates NaN where the sensor had no return. ``frames.txt`` has
+    one line ``name rows cols fx fy cx cy`` per frame (``nan`` intrinsics when the cloud
+    carries no pinhole geometry). Files are written atomically.
+
+    Returns
+    -------
+    Path of the manifest.
+
+    Raises
+    ------
+    ValueError
+        If ``directory`` exists and is not a directory, or a name has whitespace or a path
+        separator (the manifest is whitespace-separated).
+    """
+    from rangeseg_o3d.geometry import PinholeGeometry
+    from rangeseg_o3d.io.atomic import atomic_write
+
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ValueError(f"--export-frames expects a directory; {directory} is a file")
+    directory.mkdir(parents=True, exist_ok=True)
+    lines = [EXPORT_MANIFEST_HEADER]
+    for item in items:
+        name = str(item.name)
+        if not name or any(ch.isspace() or ch in "/\\" for ch in name):
+            raise ValueError(f"frame names must be non-empty without spaces or slashes; got {name!r}")
+        cloud = item.load()
+        with atomic_write(directory / f"{name}.xyz", "wb") as fh:
+            fh.write(np.ascontiguousarray(cloud.xyz, dtype="<f4").tobytes())
+        geometry = cloud.geometry if isinstance(cloud.geometry, PinholeGeometry) else None
+        intrinsics = ((geometry.fx, geometry.fy, geometry.cx, geometry.cy) if geometry is not None
+                      else (float("nan"),) * 4)
+        rows, cols = cloud.shape
+        lines.append(f"{name} {rows} {cols} " + " ".join(repr(float(v)) for v in intrinsics))
+    manifest = directory / "frames.txt"
+    with atomic_write(manifest, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")
+    return manifest
+
+
+def run_export(directory: Path) -> int:
+    """``--export-frames``: the six real VGA frames present, for the C++ peers' drivers."""
+    from rangeseg_o3d.io.datasets import real_clouds
+
+    items = [item for item in real_clouds() if item.name in VGA_FRAMES]
+    if not items:
+        print("no real 640x480 frame found in ../shared/data: nothing exported")
+        return 1
+    manifest = export_frames(directory, items)
+    print(f"wrote {len(items)} frames ({', '.join(item.name for item in items)}) and {manifest}")
+    return 0
 
 
 # -- printing ---------------------------------------------------------------------------
@@ -579,6 +648,9 @@ def main(argv=None) -> int:
                         help="the paper's pipeline alone: segmentation and first fits, refinement off")
     parser.add_argument("--frames", action="store_true",
                         help="only the six real 640x480 frames (every stage) and from_depth's time")
+    parser.add_argument("--export-frames", type=Path, metavar="DIR",
+                        help="write the six real 640x480 frames as raw float32 + frames.txt to DIR "
+                             "(for timing other programs on them) and stop")
     parser.add_argument("--matrix", action="store_true",
                         help="the sensor matrix (both methods, every sensor, ABW) instead of the suites")
     parser.add_argument("--sensor", action="append", metavar="NAME",
@@ -592,6 +664,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
+    if args.export_frames is not None:
+        try:
+            return run_export(args.export_frames)
+        except ValueError as exc:
+            parser.error(str(exc))
     if args.matrix or args.sensor:
         return run_matrix(args, parser)
     if args.frames:
