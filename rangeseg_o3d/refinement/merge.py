@@ -84,14 +84,42 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
     return False
 
 
+def pieces_on_planes(normals: np.ndarray, offsets: np.ndarray, rms: np.ndarray,
+                     moments: np.ndarray, rms_factor: float) -> np.ndarray:
+    """(K, K) bool: the points of the smaller region of a pair of planes lie on the larger's
+    plane within ``rms_factor`` times the larger of their rms (from label-wise moments:
+    no point is touched).
+
+    A thin strip of a wall seen between two columns has a normal its few pixels across
+    hardly determine, so comparing normals rejects it; the mean square distance of its
+    points to the wall's plane, ``(sum (n.x)^2 - 2 d sum n.x + N d^2) / N``, does not
+    depend on its own fit. Those are exactly the pairs whose union passes the merge's rms
+    test whatever the parts' normals.
+    """
+    count = np.maximum(moments[:, 0], 1.0)
+    sums = moments[:, 1:4]
+    second = moments[:, [4, 5, 6, 5, 7, 8, 6, 8, 9]].reshape(-1, 3, 3)
+    # msd[i, j]: mean square distance of region i's points to plane j
+    projected = np.einsum("ja,iab,jb->ij", normals, second, normals)
+    along = sums @ normals.T
+    msd = (projected - 2.0 * offsets[None, :] * along + count[:, None] * offsets[None, :] ** 2) / count[:, None]
+    limit = (rms_factor * np.maximum(rms[:, None], rms[None, :])) ** 2
+    smaller = count[:, None] <= count[None, :]
+    on = smaller & (msd <= limit)
+    return on | on.T
+
+
 def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
-                     adjacency: set[tuple[int, int]], disjoint: bool = True) -> list[tuple[int, int]]:
+                     adjacency: set[tuple[int, int]], disjoint: bool = True,
+                     moments: np.ndarray | None = None, rms_factor: float = 1.3) -> list[tuple[int, int]]:
     """Pairs of labels worth a union fit, cheapest first (by the parts' rms sum).
 
     Adjacent regions of one kind are always candidates: two pieces of one small cylinder
     can disagree on their axes more than any parameter test would allow, and the union
     fit decides. Regions that do not touch are candidates only with ``disjoint`` and when
-    :func:`similar_models` says their parameters agree.
+    :func:`similar_models` says their parameters agree, or, for planes with the regions'
+    label-wise ``moments`` (row = label), when the smaller one's points lie on the larger
+    one's plane (:func:`pieces_on_planes` with ``rms_factor``).
     """
     keys = sorted(models)
     out = []
@@ -104,6 +132,12 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
         sign = np.where(dots >= 0, 1.0, -1.0)
         close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
         close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
+        if moments is not None:
+            rows = np.zeros((len(planes), moments.shape[1]))
+            inside = np.array(planes) < len(moments)
+            rows[inside] = moments[np.array(planes)[inside]]
+            close |= pieces_on_planes(normals, offsets, np.array([models[k].rms for k in planes]),
+                                      rows, rms_factor)
         wanted = close if disjoint else np.zeros_like(close)
         position = {k: i for i, k in enumerate(planes)}
         for a, b in adjacency:
@@ -136,13 +170,14 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     """
     fits = dict(fits)
     good = {k: m for k, m in fits.items() if m}
+    unions = _Unions(ctx, labels, fits, rms_factor)
     pairs = merge_candidates(good, max_angle_deg=max_angle_deg, tolerance=tolerance,
-                             adjacency=adjacency, disjoint=disjoint)
+                             adjacency=adjacency, disjoint=disjoint,
+                             moments=unions.moments if disjoint else None, rms_factor=rms_factor)
     if only is not None:
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
     if not pairs:
         return labels, fits, adjacency
-    unions = _Unions(ctx, labels, fits, rms_factor)
     unions.add(pairs)
     for i, (a, b) in enumerate(pairs):
         ra, rb = unions.find(a), unions.find(b)

@@ -1,6 +1,7 @@
 """The merge step: which regions touch, which pairs are worth a union fit."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
@@ -121,3 +122,38 @@ def test_relabelled_is_the_look_up_as_a_new_int32_array():
             out = _relabelled(image, lut)
             assert out.dtype == np.int32 and np.array_equal(out, lut[image])
             assert not np.shares_memory(out, image)
+
+
+def _wall_and_strips(seed):
+    # a wall (columns 0-39), a strip of it two pixels wide ten columns away (a piece seen
+    # between two columns), and a strip as thin 3 cm in front of the wall (another surface)
+    xyz = plane_grid(30, 60, noise=0.005, seed=seed)
+    xyz[:, 56:, 2] -= 0.03
+    labels = np.zeros((30, 60), np.int32)
+    labels[:, :40], labels[:, 50:52], labels[:, 56:58] = 1, 2, 3
+    return xyz, labels, {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
+
+
+@pytest.mark.parametrize("seed", [1, 2, 4, 6])
+def test_merge_regions_joins_a_thin_strip_whose_points_lie_on_the_wall(context, seed):
+    # Two pixels across, the strip's own normal is off by more than the merge angle, so the
+    # parameter test misses it; its points' mean square distance to the wall's plane
+    # (from the moments) is the noise's, and the union passes the rms test.
+    from rangeseg_o3d.fitting.batch_planes import region_moments
+    from rangeseg_o3d.refinement.merge import pieces_on_planes
+
+    xyz, labels, fits = _wall_and_strips(seed)
+    assert not similar_models(fits[1], fits[2], max_angle_deg=3.0, tolerance=0.05)
+
+    moments = region_moments(xyz.reshape(-1, 3), labels.ravel())
+    on = pieces_on_planes(np.array([fits[k].normal for k in (1, 2, 3)]), np.array([fits[k].d for k in (1, 2, 3)]),
+                          np.array([fits[k].rms for k in (1, 2, 3)]), moments[1:], 1.3)
+    assert on[0, 1] and on[1, 0] and not on[0, 2] and not on[1, 2]
+    out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, region_adjacency(labels),
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=True, rms_factor=1.3)
+    assert (out[:, :40] == 1).all() and (out[:, 50:52] == 1).all() and (out[:, 56:58] == 3).all()
+    assert set(merged) == {1, 3}
+    # without the disjoint merge the strip stays apart
+    out, _, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, region_adjacency(labels),
+                              max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
+    assert (out[:, 50:52] == 2).all()
