@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _codes as d
+from ._codes import FLAT, RADIUS_LIMIT
 from .primitives import FitFailure
 
 
@@ -32,11 +34,6 @@ def check_tolerance(value, name: str) -> float | None:
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a positive number or None; got {value!r}")
     return value
-
-
-# A radius above this many times the rms spread of the points means a cap of under
-# ~0.1 deg: the points are flat, and Levenberg-Marquardt would chase r -> infinity.
-RADIUS_LIMIT = 1e3
 
 
 def input_failure(kind: str, n: int, n_bad: int, minimum: int) -> FitFailure | None:
@@ -94,8 +91,6 @@ def refusal(kind: str, code: int, result=None, *, scale: float = 1.0, plane_rms:
     ``plane_rms`` the plane's rms it was compared with (metres). Codes up to ``FLAT`` are
     the fit's own failures, the others the decision's thresholds.
     """
-    from . import _decide as d
-
     if code == d.TOO_FEW:
         return f"a {kind} fit needs at least {minimum} points; got {n}"
     if code == d.COLLINEAR:
@@ -135,8 +130,6 @@ def decision_reason(kind: str, code: int, result, *, eigen_rms: float, plane_rms
     The fit's curvature test compares with the plane rms from the smallest eigenvalue
     (``eigen_rms``), the decision's gain test with the plane's own (``plane_rms``).
     """
-    from ._decide import FLAT
-
     if code <= FLAT:
         return f"{kind}: {refusal(kind, code, result, plane_rms=eigen_rms, **numbers)}"
     return refusal(kind, code, result, plane_rms=plane_rms, **numbers)

@@ -16,7 +16,7 @@ import numpy as np
 from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 
 from ..kernels.linalg import collinear, hesse_form, solve
-from ._common import RADIUS_LIMIT
+from ._codes import RADIUS_LIMIT
 
 __all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
 

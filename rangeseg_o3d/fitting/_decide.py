@@ -1,14 +1,15 @@
 """Compiled checks of the curved fits and the plane -> cylinder -> sphere decision.
 
-Every test that refuses a model lives here, as a code (:data:`ACCEPTED` or the reason);
-:func:`rangeseg_o3d.fitting._common.refusal` words a code and its numbers. The public
-sphere and cylinder fits (:mod:`.sphere`, :mod:`.cylinder`) and the decision of
-:func:`rangeseg_o3d.fitting.classify.fit_primitive` (:func:`primitive_decision`) call the
-same checks, so a model passes or fails for the same reason on every path. The decision
-runs as one call: a few hundred points cost tens of microseconds, where the same steps as
-separate numpy calls cost several times that in call overhead; :func:`decide` hands its
-answer back as a :class:`Decision` with named fields. Model kinds are those of
-:mod:`rangeseg_o3d.kernels.kinds` (PLANE, SPHERE, CYLINDER; NONE for no model).
+Every test that refuses a model lives here, as a code of :mod:`._codes` (``ACCEPTED`` or
+the reason); :func:`rangeseg_o3d.fitting._common.refusal` words a code and its numbers.
+The public sphere and cylinder fits (:mod:`.sphere`, :mod:`.cylinder`) and the decision
+of :func:`rangeseg_o3d.fitting.classify.fit_primitive` (:func:`primitive_decision`) call
+the same checks, so a model passes or fails for the same reason on every path. The
+decision runs as one call: a few hundred points cost tens of microseconds, where the
+same steps as separate numpy calls cost several times that in call overhead;
+:func:`decide` hands its answer back as a :class:`Decision` with named fields. Model
+kinds are those of :mod:`rangeseg_o3d.kernels.kinds` (PLANE, SPHERE, CYLINDER; NONE for
+no model).
 """
 
 from __future__ import annotations
@@ -21,7 +22,11 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape
 from ..kernels.linalg import DEGENERATE_RATIO, collinear, plane_tolerance
-from ._common import RADIUS_LIMIT
+from ._codes import (  # noqa: F401 -- callers and tests read the codes as _decide.X too
+    ACCEPTED, ARC, ARC_UNDER, COLLINEAR, CONVERGED, COPLANAR, CURVED_SIZE, DIVERGED, FLAT,
+    GAIN_UNDER, INLIERS, MIN_POINTS, NON_FINITE, NOT_CONVERGED, NO_BETTER, RADIUS,
+    RADIUS_LIMIT, RADIUS_OVER, RMS, RMS_OVER, RUNAWAY, SINGULAR, TOO_FEW,
+)
 from ._compiled import (
     cylinder_core,
     cylinder_refine,
@@ -30,29 +35,6 @@ from ._compiled import (
     sphere_core,
     sphere_refine,
 )
-
-ACCEPTED = 0
-TOO_FEW = 1  # fewer points than the model needs
-COLLINEAR = 2  # points coincident or collinear
-COPLANAR = 3  # points coplanar: no curvature to fit
-SINGULAR = 4  # the algebraic sphere system is singular
-RUNAWAY = 5  # the radius ran beyond RADIUS_LIMIT x the patch size
-NOT_CONVERGED = 6  # Levenberg-Marquardt did not converge
-DIVERGED = 7  # non-finite parameters or a radius <= 0
-NO_BETTER = 8  # rms not below the plane's
-FLAT = 9  # sagitta not above the rms: the curvature is noise
-RMS_OVER = 10  # rms over the kind's threshold
-RADIUS_OVER = 11  # radius over max_radius
-ARC_UNDER = 12  # arc (cylinder) or cap (sphere) under min_arc
-GAIN_UNDER = 13  # not curvature_gain x better than the plane
-NON_FINITE = 14  # a point is NaN or infinite (the wrappers word it with the count)
-
-MIN_POINTS = (0, 3, 4, 5)  # points each kind needs at least, indexed by kind (NONE, PLANE, SPHERE, CYLINDER)
-
-# Rows of a curved result (:func:`cylinder_checked`, :func:`sphere_checked`): parameters
-# in the scaled frame, then statistics. A sphere uses slots 0-2 for its centre.
-CURVED_SIZE = 11
-RADIUS, RMS, INLIERS, ARC, CONVERGED = 6, 7, 8, 9, 10
 
 
 @njit(cache=True, nogil=True)
