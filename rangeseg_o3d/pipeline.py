@@ -239,6 +239,8 @@ class Pipeline:
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+        if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
+            labels, fits, stats = _absorb_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
         return labels, fits, sigma, stats
 
     @staticmethod
@@ -260,6 +262,22 @@ class Pipeline:
             stages = dict(stages)
         return Result(labels=regions.labels, features=features, unfitted=unfitted,
                       timings=clock.timings, stages=stages)
+
+
+def _absorb_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
+                    sigma: np.ndarray, k_sigma: float):
+    """:func:`rangeseg_o3d.refinement.dissolve.absorb_ripples` at full resolution, each
+    plane's scatter the rms of its pixels about it; ``(labels, fits, stats)`` after it."""
+    from .refinement.dissolve import absorb_ripples
+
+    counts = stats.counts
+    scatter = {k: float(np.sqrt(stats.squares[k] / counts[k])) for k in fits
+               if 0 < k < counts.size and counts[k] > 0}
+    labels, fits, changed = absorb_ripples(cloud.xyz.reshape(-1, 3), labels, fits, sigma.ravel(),
+                                           scatter, k_sigma=k_sigma, sizes=counts)
+    if changed:
+        stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS, known=stats, stale=changed)
+    return labels, fits, stats
 
 
 def _read_only(array: np.ndarray, dtype) -> np.ndarray:

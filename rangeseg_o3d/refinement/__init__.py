@@ -23,7 +23,8 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    whose surface explains them clearly better (the band one surface took from another
    while growing first).
 7. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
-   that explain them.
+   that explain them, and curved patches into a neighbouring plane that explains them
+   within its own rms (a ripple of the camera's error, not a surface).
 8. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
    are refitted from moments whenever they change, which costs nothing).
 
@@ -42,7 +43,7 @@ from ..result import Regions
 from ..scales import with_derived_refinement
 from ..sensor import Sensor
 from .context import Context
-from .dissolve import dissolve_small
+from .dissolve import absorb_ripples, dissolve_small
 from .facets import planes_for_curved
 from .grow import grow_regions, settle_regions
 from .merge import merge_into_curved, merge_regions, region_adjacency
@@ -62,6 +63,17 @@ class _Timer:
         now = time.perf_counter()
         self.timings[f"refine.{name}"] = now - self.last
         self.last = now
+
+
+def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float):
+    # curved patches a neighbouring plane explains within its rms (dissolve.absorb_ripples);
+    # the planes that took them refitted from moments
+    labels, fits, changed = absorb_ripples(ctx.xyz, labels, fits, ctx.sigma, {}, k_sigma=k_sigma)
+    hosts = [k for k in changed if k in fits]
+    for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, hosts, from_points=False).items():
+        if refit and refit.kind == fits[k].kind:
+            fits[k] = refit
+    return labels, fits
 
 
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,
@@ -120,6 +132,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     timer.lap("settle")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
+    labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma)
     timer.lap("dissolve")
     fits = polish_models(ctx, labels, fits)
     timer.lap("polish")

@@ -2,16 +2,20 @@
 
 A blob where surfaces meet can pass for a small curved patch; its kind differs from its
 neighbours', so the ``merge`` step never pairs it. Runs after ``merge`` on its adjacency.
+
+:func:`absorb_ripples` does the same for curved patches inside a plane, whatever their
+size: a bump of the camera's large-scale error that a curved model happened to fit.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from .context import Context
+from .context import Context, touching
 
-__all__ = ["dissolve_small"]
+__all__ = ["absorb_ripples", "dissolve_small"]
 
 
 def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *, k_sigma: float):
@@ -62,3 +66,131 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
         if refit:
             fits[k] = refit
     return labels, fits
+
+
+def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray,
+                   scatter: dict, *, k_sigma: float,
+                   sizes: np.ndarray | None = None) -> tuple[np.ndarray, dict, set]:
+    """Curved regions that a larger plane within two pixels explains within that plane's
+    own scatter go to the plane: a ripple of the surface, not a surface.
+
+    A real camera errs by more than its per-pixel noise: calibration ripple and depth
+    quantisation bend a large plane by about its rms over patches of tens to hundreds of
+    pixels (the ABW table: pixel rms 0.6 mm against 0.36 mm of quantisation, bumps of
+    1.2-1.6 mm). A curved model fits such a bump better than the plane through it, yet
+    the surrounding plane explains it as well as it explains its own pixels, that error
+    being what the plane's rms measured. So a curved region whose pixels lie, at the
+    median, within ``k_sigma max(sigma, scatter)`` of such a plane (``scatter`` the
+    plane's rms) is handed to the plane explaining it best; its pixels beyond that become
+    unlabelled. A real column or ball stands out of the planes around it by about its
+    radius, many times their scatter.
+
+    ``xyz`` (N, 3) and ``sigma`` (N,) are flat; ``scatter`` maps a plane's label to the
+    rms of its pixels about it (its model's rms where absent); ``sizes`` is the pixel
+    count per label when known (one pass less). Returns ``(labels, fits, changed)``: the
+    new labels (``labels`` itself when nothing changed), ``fits`` without the absorbed
+    regions, and the labels whose pixels changed (absorbed regions and the planes that
+    took them).
+    """
+    from ..kernels import label_counts
+
+    n = int(labels.max(initial=0)) + 1
+    planes = [k for k, m in fits.items() if isinstance(m, Plane) and 0 < k < n]
+    curved = [k for k, m in fits.items() if m and not isinstance(m, Plane) and 0 < k < n]
+    if not (curved and planes):
+        return labels, fits, set()
+    labels = np.ascontiguousarray(labels, dtype=np.int32)
+    sizes = label_counts(labels) if sizes is None else np.asarray(sizes)
+    table = _PlaneTable(planes, fits, scatter, sizes)
+    # only a patch smaller than some plane can be one's ripple (a frame-wide column is
+    # skipped without looking at its pixels)
+    candidates = np.zeros(n, bool)
+    candidates[[k for k in curved if sizes[k] < table.sizes.max()]] = True
+    if not candidates.any():
+        return labels, fits, set()
+    out, kept, changed = labels, fits, set()
+    regions = _candidate_pixels(xyz, labels, candidates, sizes, table, sigma, k_sigma)
+    for k in sorted(regions, key=lambda k: regions[k].size):
+        idx = regions[k]
+        host = _ripple_host(xyz, out, idx, table, sigma, k_sigma)
+        if host is None:
+            continue
+        if out is labels:  # the first ripple: the inputs stay as they are
+            out, kept = labels.copy(), dict(fits)
+        plane = kept[host]
+        spread = np.maximum(sigma[idx], scatter.get(host, plane.rms))
+        explained = np.abs(plane.distances(xyz[idx])) <= k_sigma * spread
+        out.ravel()[idx] = np.where(explained, host, 0)
+        del kept[k]
+        changed |= {k, host}
+    return out, kept, changed
+
+
+class _PlaneTable:
+    """The planes a ripple may join, as arrays: labels, normals, offsets, scatter, sizes."""
+
+    def __init__(self, planes: list, fits: dict, scatter: dict, sizes: np.ndarray):
+        self.labels = np.array(planes, np.int64)
+        self.normals = np.array([fits[k].normal for k in planes])
+        self.offsets = np.array([fits[k].d for k in planes])
+        self.scatter = np.array([scatter.get(k, fits[k].rms) for k in planes])
+        self.sizes = sizes[self.labels]
+
+
+def _grouped(pixels: np.ndarray, labels: np.ndarray) -> dict:
+    # the flat pixels grouped by their label (each group increasing)
+    owner = labels.ravel()[pixels]
+    order = np.argsort(owner, kind="stable")
+    present, starts = np.unique(owner[order], return_index=True)
+    return dict(zip(present.tolist(), np.split(pixels[order], starts[1:])))
+
+
+#: A curved patch of more pixels is looked at through every ``_RIPPLE_STRIDE``-th row and
+#: column first: its pixels are gathered only when that sample may pass.
+_RIPPLE_LARGE = 4096
+_RIPPLE_STRIDE = 4
+
+
+def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k_sigma) -> dict:
+    """The flat pixels, by label, of the candidate patches that may be ripples: the small
+    ones, and the large ones whose sample on a coarser grid does not rule it out. The
+    sample rules a plane out when even its quantile ``0.5 - 1.5 / sqrt(m)`` (m samples: the
+    median's three-sigma binomial bound) is beyond ``k_sigma``; a column filling half of a
+    frame then costs a sixteenth of its pixels."""
+    from ..kernels import member_pixels
+
+    large = candidates & (sizes[:candidates.size] >= _RIPPLE_LARGE)
+    wanted = candidates & ~large
+    if large.any():
+        grid = labels[::_RIPPLE_STRIDE, ::_RIPPLE_STRIDE]
+        rows, cols = np.divmod(np.flatnonzero(large[grid]), grid.shape[1])
+        sampled = (rows * labels.shape[1] + cols) * _RIPPLE_STRIDE
+        for k, sample in _grouped(sampled, labels).items():
+            bigger = table.sizes > sizes[k]
+            level = max(0.0, 0.5 - 1.5 / np.sqrt(sample.size))
+            wanted[k] = bigger.any() and bool(np.any(
+                np.quantile(_scores(xyz, sample, table, bigger, sigma), level, axis=0) <= k_sigma))
+    return _grouped(member_pixels(labels, wanted), labels) if wanted.any() else {}
+
+
+def _scores(xyz, idx, table: _PlaneTable, which, sigma) -> np.ndarray:
+    # (pixels, planes) distances of the pixels idx from the planes ``which`` of the table,
+    # in units of max(sigma, the plane's scatter)
+    distances = np.abs(xyz[idx] @ table.normals[which].T - table.offsets[which])
+    return distances / np.maximum(sigma[idx][:, None], table.scatter[which][None, :])
+
+
+def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
+    """The label of the larger plane within two pixels of the patch ``idx`` whose scatter
+    explains it best at the median, within ``k_sigma``; None when there is none."""
+    larger = table.sizes > idx.size
+    if not larger.any():
+        return None
+    middle = np.median(_scores(xyz, idx, table, larger, sigma), axis=0)
+    passing = middle <= k_sigma
+    if not passing.any():  # most curved regions: no adjacency to look up
+        return None
+    near = touching(labels, idx, reach=2)
+    hosts = [(m, h) for m, h in zip(middle[passing].tolist(), table.labels[larger][passing].tolist())
+             if h in near]
+    return min(hosts)[1] if hosts else None

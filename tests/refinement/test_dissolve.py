@@ -4,8 +4,8 @@ import numpy as np
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.fitting.primitives import Sphere
-from rangeseg_o3d.refinement.dissolve import dissolve_small
+from rangeseg_o3d.fitting.primitives import Cylinder, Sphere
+from rangeseg_o3d.refinement.dissolve import absorb_ripples, dissolve_small
 from refinement_helpers import plane_grid
 
 
@@ -47,3 +47,70 @@ def test_no_small_region_returns_the_inputs(context):
     ctx = context(rs.OrganizedCloud(xyz), min_size=10)
     out, same = dissolve_small(ctx, labels, fits, {(1, 2)}, k_sigma=3.0)
     assert out is labels and same is fits
+
+
+# -- ripples: curved patches a neighbouring plane explains within its own scatter ----------
+NOISE = 0.0005
+
+
+def _rippled_plane(bump: float):
+    # a 40 x 60 plane with 0.5 mm noise and a 2.8 mm swell over its width (its rms then
+    # ~2 mm: the large-scale error a real camera adds to a flat surface), and an 8 x 8
+    # patch (2) on a crest, fitted as a small cylinder; ``bump`` lifts the patch off it
+    xyz = plane_grid(40, 60, noise=NOISE, seed=7)
+    xyz[..., 2] += 0.002 * np.sqrt(2.0) * np.sin(np.arange(60) / 60 * 4 * np.pi)[None, :]
+    labels = np.ones((40, 60), np.int32)
+    labels[16:24, 34:42] = 2  # the crest at column 37.5
+    xyz[16:24, 34:42, 2] -= bump
+    host = fit_plane(xyz[labels == 1])
+    patch = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.75, 0.4, 2.9]), radius=0.1,
+                     rms=0.0005, inliers=64)
+    return xyz, labels, {1: host, 2: patch}
+
+
+def test_a_curved_ripple_inside_a_plane_joins_it():
+    xyz, labels, fits = _rippled_plane(bump=0.0)
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    assert fits[1].rms > 1.8e-3  # the swell is in the plane's rms, not in the noise
+    out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0)
+    assert (labels[16:24, 34:42] == 2).all() and 2 in fits  # the inputs are left alone
+    assert changed == {1, 2} and set(kept) == {1} and kept[1] is fits[1]
+    # the patch's pixels within three of the plane's rms join it; here all of them
+    assert (out[16:24, 34:42] == 1).all() and (out == 1).all()
+
+
+def test_a_ripple_measured_against_a_tight_plane_stays():
+    # the same patch, but the plane's pixels scatter by the noise only (``scatter``): then
+    # the ~2.5 mm crest is no ripple of it
+    xyz, labels, fits = _rippled_plane(bump=0.0)
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    distances = np.abs(fits[1].distances(xyz[16:24, 34:42].reshape(-1, 3)))
+    assert np.median(distances) > 3 * NOISE
+    out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {1: NOISE}, k_sigma=3.0)
+    assert (out == labels).all() and set(kept) == {1, 2} and changed == set()
+
+
+def test_a_patch_standing_out_of_the_plane_stays():
+    # lifted 2 cm towards the sensor: ten times the plane's rms, a surface of its own
+    xyz, labels, fits = _rippled_plane(bump=0.02)
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0)
+    assert (out == labels).all() and set(kept) == {1, 2} and changed == set()
+
+
+def test_a_plane_smaller_than_the_patch_takes_nothing():
+    xyz, labels, fits = _rippled_plane(bump=0.0)
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    small = labels.copy()
+    small[small == 1] = 0
+    small[16:24, 42:44] = 1  # a 16-pixel plane beside the 64-pixel patch
+    out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), small, fits, sigma, {}, k_sigma=3.0)
+    assert (out == small).all() and 2 in kept and changed == set()
+
+
+def test_without_curved_regions_the_inputs_come_back():
+    xyz, labels, fits = _rippled_plane(bump=0.0)
+    fits[2] = fit_plane(xyz[labels == 2])
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0)
+    assert out is labels and kept is fits and changed == set()
