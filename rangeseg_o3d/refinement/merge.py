@@ -293,12 +293,15 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     :func:`rangeseg_o3d.fitting.robust.beyond_noise`: a face of a box beside a column
     is not explained by the column's cylinder).
     """
+    mixed = [(a, b) for a, b in adjacency
+             if fits.get(a) and fits.get(b) and fits[a].kind != fits[b].kind]
+    if not mixed:  # no curved region touches another kind: no pass over the grid
+        return labels, fits, adjacency
     regions = region_indices(labels)
     sizes = {k: idx.size for k, idx in regions.items()}
     pairs = []
-    for a, b in adjacency:
-        ma, mb = fits.get(a), fits.get(b)
-        if not (ma and mb) or ma.kind == mb.kind or a not in sizes or b not in sizes:
+    for a, b in mixed:
+        if a not in sizes or b not in sizes:
             continue
         big, small = (a, b) if sizes[a] >= sizes[b] else (b, a)
         if not isinstance(fits[big], Plane):
@@ -323,4 +326,4 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
         regions[big] = union_idx
         lut[small] = big
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    return lut[labels], fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}

@@ -16,7 +16,7 @@ import numpy as np
 from ..fitting.region_fitter import model_table, region_indices
 from .context import Context, touching
 from .grow import grow_into_edges, grow_regions
-from .merge import merge_regions
+from .merge import merge_into_curved, merge_regions
 
 __all__ = ["leftover_candidates", "split_blobs", "recover_leftovers", "recover_pixels"]
 
@@ -179,7 +179,12 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
             near = {(min(k, j), max(k, j)) for k, idx in regions.items()
                     for j in touching(labels, idx, reach=2) if j != k}
-            labels, fits, _ = merge_regions(ctx, labels, fits, near, max_angle_deg=config.merge_angle_deg,
-                                            tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
-                                            rms_factor=config.merge_rms_factor, only=set(new))
+            labels, fits, near = merge_regions(ctx, labels, fits, near, max_angle_deg=config.merge_angle_deg,
+                                               tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
+                                               rms_factor=config.merge_rms_factor, only=set(new))
+            # The side of a column or pipe turning away from the camera: the tile means
+            # there straddle the turn, so the tile grid left it, and at full resolution
+            # its strip fits a plane within the noise. It rejoins the curved region when
+            # that model, refitted to both, keeps its kind and fits at the noise.
+            labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor)
     return labels, fits
