@@ -27,7 +27,7 @@ import numpy as np
 from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats", "leftover_blob_labels"]
+           "region_stats", "leftover_blob_labels", "with_pixel_rms"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -152,6 +152,11 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
                                       first_label=int(labels.max(initial=0)) + 1)
     if candidates is None:
         return labels, fits, stats
+    # The tile models carry the rms of the tile means (a tile of t x t returns averages
+    # the range noise down by up to t); from here on they are compared with models fitted
+    # to pixels (the merge's rms test, the claim's noise floor), so they carry the rms of
+    # their pixels, as the Result reports it.
+    fits = with_pixel_rms(fits, stats)
     before, fits_before = labels.copy(), fits
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma,
@@ -161,6 +166,19 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
     stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=stale)
     return labels, fits, stats
+
+
+def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
+    """``fits`` with each model's rms replaced by the rms distance of its region's pixels
+    (``stats``, in the same labels); a model whose region has no pixel keeps its own."""
+    from dataclasses import replace
+
+    out = dict(fits)
+    counts = stats.counts
+    for k, model in fits.items():
+        if model and 0 <= k < counts.size and counts[k] > 0:
+            out[k] = replace(model, rms=float(np.sqrt(stats.squares[k] / counts[k])))
+    return out
 
 
 def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
