@@ -280,7 +280,7 @@ class _Unions:
 
 
 def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
-                      rms_factor: float):
+                      rms_factor: float, only: set | None = None, near_sigmas: float | None = None):
     """Pieces of a curved surface taken by another kind go back to it: returns new
     ``(labels, fits, adjacency)``.
 
@@ -291,10 +291,14 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     piece first: the larger region's model refitted to the union must keep its kind, fit
     within ``rms_factor`` of the larger part's rms and at the noise (the chi-square bound of
     :func:`rangeseg_o3d.fitting.robust.beyond_noise`: a face of a box beside a column
-    is not explained by the column's cylinder).
+    is not explained by the column's cylinder). With ``only``, just pairs involving those
+    labels (the others were tried before). With ``near_sigmas``, a piece is refitted with the
+    curved region only when the curved model as it stands lies within that many noise sigmas
+    of the piece's pixels at the median (a refit is the step's cost).
     """
     mixed = [(a, b) for a, b in adjacency
-             if fits.get(a) and fits.get(b) and fits[a].kind != fits[b].kind]
+             if fits.get(a) and fits.get(b) and fits[a].kind != fits[b].kind
+             and (only is None or a in only or b in only)]
     if not mixed:  # no curved region touches another kind: no pass over the grid
         return labels, fits, adjacency
     regions = region_indices(labels)
@@ -313,6 +317,10 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     for _, big, small in sorted(pairs):
         if lut[big] != big or lut[small] != small:
             continue  # one of them was merged already
+        if near_sigmas is not None:
+            piece = regions[small]
+            if np.median(np.abs(fits[big].distances(ctx.xyz[piece]))) > near_sigmas * np.median(ctx.sigma[piece]):
+                continue
         union_idx = np.concatenate([regions[big], regions[small]])
         union = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, union_idx), fits[big])
         if not union or union.kind != fits[big].kind:

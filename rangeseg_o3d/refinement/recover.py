@@ -185,6 +185,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             # The side of a column or pipe turning away from the camera: the tile means
             # there straddle the turn, so the tile grid left it, and at full resolution
             # its strip fits a plane within the noise. It rejoins the curved region when
-            # that model, refitted to both, keeps its kind and fits at the noise.
-            labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor)
+            # that model, refitted to both, keeps its kind and fits at the noise (pairs of
+            # tile regions were tried on the tile grid).
+            labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor,
+                                                only=set(new), near_sigmas=config.k_sigma)
     return labels, fits

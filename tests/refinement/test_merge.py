@@ -157,3 +157,47 @@ def test_merge_regions_joins_a_thin_strip_whose_points_lie_on_the_wall(context, 
     out, _, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, region_adjacency(labels),
                               max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
     assert (out[:, 50:52] == 2).all()
+
+
+class _CountingFitter:
+    """The context's fitter, counting its refits."""
+
+    def __init__(self, fitter):
+        self.fitter, self.refits = fitter, 0
+
+    def refit(self, points, model):
+        self.refits += 1
+        return self.fitter.refit(points, model)
+
+    def points(self, xyz, idx):
+        return self.fitter.points(xyz, idx)
+
+
+@pytest.mark.parametrize("flank", [True, False])
+def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context, flank):
+    # With near_sigmas, a piece is refitted with the cylinder only when the cylinder as it
+    # stands lies within that many noise sigmas of its pixels at the median: the strip of
+    # the arc (within 1 sigma) still goes back to it, the flank beyond the crease (tens of
+    # sigmas off) costs no refit and stays apart.
+    from rangeseg_o3d.fitting import fit_cylinder
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+
+    xyz, flank_mask = _arc()
+    if flank:
+        labels = np.where(flank_mask, 2, 1).astype(np.int32)
+    else:
+        xyz = xyz[:, :45]
+        labels = np.ones(xyz.shape[:2], np.int32)
+        labels[:, 37:] = 2
+    cloud = rs.OrganizedCloud(xyz)
+    fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    ctx = context(cloud, sigma=np.full(cloud.shape, 0.001))
+    ctx.fitter = _CountingFitter(ctx.fitter)
+    out, out_fits, _ = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3, near_sigmas=3.0)
+    if flank:
+        assert ctx.fitter.refits == 0 and (out == labels).all()
+    else:
+        assert ctx.fitter.refits == 1 and (out == 1).all() and out_fits[1].kind == "cylinder"
+    # only= leaves out the pairs of other labels
+    _, _, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3, only={3})
+    assert adjacency == {(1, 2)}
