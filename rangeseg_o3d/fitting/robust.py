@@ -36,7 +36,7 @@ def beyond_noise(rms: float, sigma: float, n: int) -> bool:
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
                 rounds: int = 5, keep_fraction: float = 0.6, max_points: int = 600,
-                enough: float = 0.9, pool: np.ndarray | None = None):
+                enough: float = 0.9, pool: np.ndarray | None = None, starts: bool = False):
     """The dominant surface of ``points`` as judged by the fitter, and its inliers.
 
     Two proposals: a plane started from the best random three-point plane and refitted on
@@ -46,6 +46,15 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     a sphere. The fitter judges the points near each, the larger set first; the answer
     with most inliers wins, and one with ``enough`` of the points ends the search.
     Both proposals come from one compiled call (:func:`rangeseg_o3d.kernels.trimmed_proposals`).
+
+    With ``starts``, the proposals are quadrics grown from local starts instead
+    (:func:`rangeseg_o3d.kernels.local_proposals`: seeds spread over the points, each
+    started on its nearest eighth of them), the largest distinct ones judged first, at
+    most four, and only an answer that fits at the noise counts; fewer than
+    ``2 min_points`` points get none (no room for two surfaces). For points holding
+    several surfaces of about equal size (a floor and the two columns standing on it)
+    the global proposals straddle them: the best random plane is the one tangent to both
+    columns, and the quadric bends over all three; a start on one surface does not.
 
     Parameters
     ----------
@@ -60,12 +69,13 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     enough : a share of inliers at which the first answer is taken without trying more.
     pool : indices into ``points``: fit ``points[pool]`` (gathered only when a model is
         judged, the subsample before: a large pool no model explains costs no gather).
+    starts : the local starts' proposals (above) instead of the global ones.
 
     Returns
     -------
     (model, inliers) or (None, None) when the fitter accepts nothing.
     """
-    from ..kernels import trimmed_proposals
+    from ..kernels import local_proposals, trimmed_proposals
 
     if pool is None:
         pool = slice(None)
@@ -77,23 +87,73 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
     step = -(-size // max_points)
     pts = np.ascontiguousarray(points[pool][::step] if isinstance(pool, slice) else points[pool[::step]],
                                dtype=float)
-    all_pts = None
-    keep = max(int(keep_fraction * len(pts)), 6)
-    # a pool of many surfaces (a region that leaked through a whole room) needs more random
-    # three-point planes before one lies on a single surface
-    trials = 64 if size < _MANY_POINTS else 256
-    proposals = trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0)
-    best, best_mask, best_score = None, None, (False, -1)
-    # the proposal near more points first: often the only one judged
-    for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
-        if near.sum() * step < min_points:
-            continue
-        judged = judge(pts[near])
+    search = _Search(points, pool, judge, sigma, min_points, step, pts, enough * size)
+    if not starts:
+        keep = max(int(keep_fraction * len(pts)), 6)
+        # a pool of many surfaces (a region that leaked through a whole room) needs more
+        # random three-point planes before one lies on a single surface
+        trials = 64 if size < _MANY_POINTS else 256
+        search.judge_all(trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0))
+        return search.best, search.best_mask
+    if size < 2 * min_points:  # no room for two surfaces of min_points: the global answer stands
+        return None, None
+    # seeds spread over the points (a pool's pixels come in raster order: over the image)
+    seeds = np.linspace(0, len(pts) - 1, _LOCAL_SEEDS).astype(np.int64)
+    local = local_proposals(pts, float(sigma), int(rounds), seeds, max(len(pts) // _LOCAL_SEEDS, 6))
+    if search.judge_all(_distinct(local), limit=_LOCAL_JUDGED, first_at_noise=True):
+        return search.best, search.best_mask
+    return None, None
+
+
+# Seeds of the local proposals, and how many distinct ones the fitter judges at most.
+_LOCAL_SEEDS = 8
+_LOCAL_JUDGED = 4
+
+
+def _distinct(masks) -> list[np.ndarray]:
+    """The masks, largest first, without those mostly covered by a larger one (starts on
+    one surface find the same points)."""
+    out = []
+    for mask in sorted(masks, key=lambda m: -int(m.sum())):
+        count = int(mask.sum())
+        if count and all(np.count_nonzero(mask & kept) < 0.8 * count for kept in out):
+            out.append(mask)
+    return out
+
+
+class _Search:
+    """The best answer so far of :func:`trimmed_fit` over the proposals judged."""
+
+    def __init__(self, points, pool, judge, sigma, min_points, step, pts, enough):
+        self.points, self.pool, self.judge, self.sigma = points, pool, judge, sigma
+        self.min_points, self.step, self.pts, self.enough = min_points, step, pts, enough
+        self.all_pts = None
+        self.best, self.best_mask, self.best_score = None, None, (False, -1)
+
+    def judge_all(self, proposals, limit: int | None = None, first_at_noise: bool = False) -> bool:
+        """Judge ``proposals`` (the one near more points first: often the only one judged),
+        at most ``limit``; True when an answer fits at the noise. The search stops after
+        one at the noise with ``enough`` points, or (``first_at_noise``) any at the noise."""
+        judged_count = 0
+        for near in sorted(proposals, key=lambda mask: -int(mask.sum())):
+            if near.sum() * self.step < self.min_points:
+                continue
+            if limit is not None and judged_count >= limit:
+                break
+            judged_count += 1
+            if self._judge(near) or (first_at_noise and self.best_score[0]):
+                break
+        return self.best_score[0]
+
+    def _judge(self, near) -> bool:
+        # True when this answer ends the search
+        judged = self.judge(self.pts[near])
         if not judged:
-            continue
-        if all_pts is None:
-            all_pts = np.asarray(points[pool], dtype=float)
-        distances = np.abs(judged.distances(all_pts))
+            return False
+        if self.all_pts is None:
+            self.all_pts = np.asarray(self.points[self.pool], dtype=float)
+        sigma = self.sigma
+        distances = np.abs(judged.distances(self.all_pts))
         inliers = distances <= 3.0 * max(sigma, judged.rms)
         # Candidates are compared within one tolerance: with each model's own, a worse
         # fit (a cylinder bent over the crease of two planes) would win by its larger rms.
@@ -102,8 +162,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         # the plane of one face, but its residuals are not noise.
         score = (not beyond_noise(judged.rms, sigma, int(near.sum())),
                  int(np.count_nonzero(distances <= 3.0 * sigma)))
-        if inliers.sum() >= min_points and score > best_score:
-            best, best_mask, best_score = judged, inliers, score
-            if score[0] and score[1] >= enough * size:
-                break
-    return best, best_mask
+        if inliers.sum() >= self.min_points and score > self.best_score:
+            self.best, self.best_mask, self.best_score = judged, inliers, score
+            return score[0] and score[1] >= self.enough
+        return False

@@ -34,7 +34,7 @@ _SOURCES = {
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
     "tiles": ("label_pixels", "leftover_blobs"),
-    "trimmed": ("trimmed_proposals",),
+    "trimmed": ("trimmed_proposals", "local_proposals"),
     "window": ("window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"),
 }
 _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}

@@ -7,7 +7,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .linalg import solve
 
-__all__ = ["trimmed_proposals"]
+__all__ = ["trimmed_proposals", "local_proposals"]
 
 @njit(cache=True, nogil=True)
 def _plane_frame(pts, support):
@@ -172,3 +172,43 @@ def _same(a, b):
         if a[i] != b[i]:
             return False
     return True
+
+
+@njit(cache=True, nogil=True)
+def local_proposals(pts, sigma, rounds, seeds, support_size):
+    """Points near a quadric grown from each of ``seeds`` (indices into ``pts``).
+
+    Each start is the ``support_size`` points nearest the seed (one surface, unless the
+    seed lies at a crease); the quadratic height field fitted to them is refitted
+    ``rounds`` times on the points within ``3 max(sigma, rms)`` of it (the band capped as
+    the plane proposal's), so the support spreads over the seed's surface and no
+    further. Where a region holds several surfaces of about equal size (a floor and the
+    two columns standing on it), the global proposals straddle them; a start on one
+    surface does not. Returns a (len(seeds), N) boolean array of the points near each.
+    """
+    n = pts.shape[0]
+    out = np.zeros((seeds.shape[0], n), np.bool_)
+    dist = np.empty(n)
+    support = np.empty(n, np.bool_)
+    following = np.empty(n, np.bool_)
+    m = min(max(support_size, 6), n)
+    for s in range(seeds.shape[0]):
+        i = seeds[s]
+        for p in range(n):
+            dx, dy, dz = pts[p, 0] - pts[i, 0], pts[p, 1] - pts[i, 1], pts[p, 2] - pts[i, 2]
+            dist[p] = dx * dx + dy * dy + dz * dz
+        cut = np.partition(dist, m - 1)[m - 1]
+        for p in range(n):
+            support[p] = dist[p] <= cut
+        for _ in range(rounds):
+            if support.sum() < 6:
+                break
+            _quadric_distances(pts, support, dist)
+            _within_spread(dist, support, sigma, _PLANE_SPREAD_CAP, following)
+            if _same(following, support):
+                break
+            support[:] = following
+        if support.sum() >= 6:
+            _quadric_distances(pts, support, dist)
+            _within_spread(dist, support, sigma, _PLANE_SPREAD_CAP, out[s])
+    return out

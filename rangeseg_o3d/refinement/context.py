@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
-from ..fitting.robust import trimmed_fit
+from ..fitting.robust import beyond_noise, trimmed_fit
 
 __all__ = ["Context", "blob_patch", "touching", "without"]
 
@@ -37,6 +37,11 @@ def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
     patch = labels[top:top + blob.shape[0], left:left + blob.shape[1]]
     near = cv2.dilate(blob, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
     return {int(k) for k in np.unique(patch[near]) if k > 0}
+
+
+#: Inliers whose largest 4-connected piece holds less than this share of them are not one
+#: piece of a surface (the model is refitted to the piece, or searched for again).
+_ONE_PIECE = 0.9
 
 
 class Context:
@@ -73,18 +78,31 @@ class Context:
 
     def dominant_piece(self, pool: np.ndarray):
         """The largest connected piece of the dominant surface of the flat pixels ``pool``
-        and its model, or ``(None, None)`` when no model explains ``min_size`` of them."""
+        and its model, or ``(None, None)`` when no model explains ``min_size`` of them.
+
+        When the trimmed fit's answer is no surface (nothing, or a model beyond the noise
+        whose inliers are not one connected piece: the plane tangent to two columns
+        standing on a floor takes a strip of each), the search starts again from local
+        starts (:func:`rangeseg_o3d.fitting.robust.trimmed_fit` with ``starts``), whose
+        answer at the noise replaces it."""
         if pool.size < self.min_size:
             return None, None
         noise = self.sigma[pool]
-        model, inliers = trimmed_fit(self.xyz, self.fitter.fit, pool=pool,
-                                     sigma=float(np.partition(noise, noise.size // 2)[noise.size // 2]),
+        sigma = float(np.partition(noise, noise.size // 2)[noise.size // 2])
+        model, inliers = trimmed_fit(self.xyz, self.fitter.fit, pool=pool, sigma=sigma,
                                      min_points=self.min_size)
+        piece = None if model is None else self.largest_piece(pool[inliers])
+        if model is None or (piece.size < _ONE_PIECE * inliers.sum()
+                             and beyond_noise(model.rms, sigma, int(inliers.sum()))):
+            local, near = trimmed_fit(self.xyz, self.fitter.fit, pool=pool, sigma=sigma,
+                                      min_points=self.min_size, starts=True)
+            if local is not None:
+                model, inliers = local, near
+                piece = self.largest_piece(pool[inliers])
         if model is None:
             return None, None
-        piece = self.largest_piece(pool[inliers])
         if piece.size < self.min_size:
             return None, None
-        if piece.size < 0.9 * inliers.sum():  # a piece was cut off: fit the piece itself
+        if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
             model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
         return (piece, model) if model else (None, None)

@@ -152,3 +152,44 @@ def test_trimmed_fit_takes_the_model_at_the_noise_over_one_beyond_it():
     # where the noise model says neither fits at the noise, the count decides as before
     model, inliers = trimmed_fit(points, _bent_first_then_planes(2 * sigma), sigma=sigma / 4, min_points=80)
     assert isinstance(model, _BentOverTheCrease) and inliers.all()
+
+
+def _floor_and_two_columns(seed):
+    # two columns standing on a floor (r = 0.15 m, axes along z, the halves facing the
+    # sensor at the origin seen) and the floor in front of them; the columns hold more
+    # points than the floor, and the plane tangent to both columns' fronts is near more
+    # points than the floor's own: the global proposals straddle the surfaces
+    rng = np.random.default_rng(seed)
+    floor = np.c_[rng.uniform(-1, 1, 250), rng.uniform(1.2, 1.5, 250), rng.normal(-1.0, 0.005, 250)]
+    columns = []
+    for x in (-0.4, 0.4):
+        t = rng.uniform(-0.95 * np.pi, -0.05 * np.pi, 500)  # the half facing -y
+        column = np.c_[x + 0.15 * np.cos(t), 1.65 + 0.15 * np.sin(t), rng.uniform(-1.0, 0.0, 500)]
+        columns.append(column + rng.normal(0, 0.005, column.shape))
+    return np.vstack([floor, *columns]), (slice(0, 250), slice(250, 750), slice(750, 1250))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_trimmed_fit_from_local_starts_takes_one_surface_of_a_floor_and_two_columns(seed):
+    # No global proposal fits at the noise (the tangent plane over both columns, a quadric
+    # bent over all three); a local start takes one surface whole, at the noise.
+    from rangeseg_o3d.fitting.robust import beyond_noise
+
+    points, parts = _floor_and_two_columns(seed)
+    fitter = rs.Pipeline("lms200").fitter
+    straddling, near = trimmed_fit(points, fitter.fit, sigma=0.005, min_points=20)
+    assert straddling is None or beyond_noise(straddling.rms, 0.005, int(near.sum()))
+    model, inliers = trimmed_fit(points, fitter.fit, sigma=0.005, min_points=20, starts=True)
+    assert model is not None and not beyond_noise(model.rms, 0.005, int(inliers.sum()))
+    shares = [inliers[part].mean() for part in parts]
+    assert max(shares) > 0.9 and sorted(shares)[1] < 0.1, shares
+    if model.kind == "cylinder":
+        assert model.radius == pytest.approx(0.15, abs=0.01)
+
+
+def test_trimmed_fit_from_local_starts_answers_only_at_the_noise():
+    # uniform noise: no start finds a surface, and a model beyond the noise is no answer
+    rng = np.random.default_rng(5)
+    judge = rs.registry.get("fitter", "primitives").run
+    assert trimmed_fit(rng.uniform(0, 1, (300, 3)), judge, sigma=0.003, min_points=30,
+                       starts=True) == (None, None)
