@@ -148,10 +148,11 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
-    candidates = leftover_blob_labels(labels, cloud.valid, min_size=min_size,
-                                      first_label=int(labels.max(initial=0)) + 1)
-    if candidates is None:
+    first = int(labels.max(initial=0)) + 1
+    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first, with_boxes=True)
+    if found is None:
         return labels, fits, stats
+    candidates, boxes = found
     # The tile models carry the rms of the tile means (a tile of t x t returns averages
     # the range noise down by up to t); from here on they are compared with models fitted
     # to pixels (the merge's rms test, the claim's noise floor), so they carry the rms of
@@ -160,7 +161,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     before, fits_before = labels.copy(), fits
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma,
-                                  candidates=candidates, min_size=min_size)
+                                  candidates=candidates, min_size=min_size, boxes=boxes)
     moved = before != labels
     stale = set(np.unique(before[moved]).tolist()) | set(np.unique(labels[moved]).tolist())
     stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
@@ -182,9 +183,10 @@ def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
 
 
 def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
-                         first_label: int) -> np.ndarray | None:
+                         first_label: int, with_boxes: bool = False):
     """Every blob of valid unlabelled pixels, numbered from ``first_label``, or None if there
-    are none.
+    are none (with ``with_boxes``: ``(candidates, boxes)``, blob ``first_label + j``'s
+    bounding box ``(row0, row1, col0, col1)``, half-open, in row ``j``).
 
     The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no
     jump mask), found by one compiled pass that stops as soon as it sees nothing is left over.
@@ -193,7 +195,9 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
 
     candidates, boxes = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
                                        int(min_size), int(first_label))
-    return candidates if boxes.shape[0] else None
+    if not boxes.shape[0]:
+        return None
+    return (candidates, boxes) if with_boxes else candidates
 
 
 def _flat_points(cloud) -> np.ndarray:

@@ -354,4 +354,10 @@ def warm_up() -> float:
 
     piece_ids(np.arange(4, dtype=np.int64), 2)
     member_pixels(np.zeros((2, 2), np.int32), np.zeros(1, bool))
+    # the trimmed fit: the fitter's compiled search and the generic one's inlier count
+    from .fitting.robust import trimmed_fit
+
+    fitter = Pipeline("rgbd_vga").fitter
+    fitter.trimmed(arc, np.arange(len(arc)), sigma=0.01, min_points=6)
+    trimmed_fit(arc, fit_plane, sigma=0.01, min_points=6, pool=np.arange(len(arc)))
     return time.perf_counter() - start

@@ -131,6 +131,11 @@ class Plugin:
     parameters into the keywords of ``run``, ``refit``, ``fit_batch`` and ``refit_moments``
     for a :class:`~rangeseg_o3d.sensor.Sensor`, once per pipeline (thresholds that grow
     with the sensor's noise)."""
+    trimmed: Callable | None = None
+    """Optional, fitters only: ``trimmed(xyz, pool, *, sigma, min_inliers, max_rms, fit_max_points,
+    **params) -> (model, inliers)``: :func:`rangeseg_o3d.fitting.robust.trimmed_fit` of
+    ``xyz[pool]`` (``min_points=min_inliers``) judged by ``run`` on at most ``fit_max_points`` points, models over
+    ``max_rms`` refused, all in one call (the refinement's splits run it often)."""
 
 
 _BUILTIN: dict[str, dict[str, str]] = {

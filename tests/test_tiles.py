@@ -126,6 +126,68 @@ def test_claim_rings_moves_only_pixels_the_challenger_explains_better():
     assert (labels[:, :9] == 1).all()
 
 
+def _claim_rings_by_scans(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, box):
+    # the rule of kernels.claim_rings as stated, by whole scans of the box per ring (numpy)
+    h, w = labels.shape
+    n = len(kinds)
+    r0, r1, c0, c1 = max(box[0], 0), min(box[1], h), max(box[2], 0), min(box[3], w)
+    moved = 0
+    for _ in range(iterations):
+        new = labels.copy()
+        for r in range(r0, r1):
+            for c in range(c0, c1):
+                own = labels[r, c]
+                if own <= 0 or challengers[own]:
+                    continue
+                near = [labels[rr, cc] for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
+                        if 0 <= rr < h and 0 <= cc < w]
+                if not any(0 < k < n and challengers[k] for k in near):
+                    continue
+                point = xyz[r * w + c]
+                model = {k: Plane(params[k, :3], params[k, 3], rms[k], 0) for k in range(1, n)}
+                score = {k: abs(model[k].distances(point[None])[0]) / max(sigma[r * w + c], rms[k])
+                         for k in range(1, n)}
+                best, best_score = 0, min(score[own], k_sigma)
+                for k in near:
+                    if 0 < k < n and challengers[k] and score[k] < best_score:
+                        best, best_score = k, score[k]
+                if best:
+                    new[r, c] = best
+        changed = int((new != labels).sum())
+        if not changed:
+            break
+        labels[:] = new
+        moved += changed
+    return moved
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_rings_equals_the_scan_of_every_pixel_every_ring(seed):
+    # random tilted planes in random blocks, some of them challengers: the kernel, which decides
+    # only the pixels next to those just moved, moves exactly the pixels whole scans move
+    from rangeseg_o3d.kernels import claim_rings
+
+    rng = np.random.default_rng(seed)
+    h, w, n = 24, 30, 7
+    blocks = rng.integers(1, n, (4, 5))
+    labels = np.kron(blocks, np.ones((6, 6), np.int32)).astype(np.int32)
+    labels[rng.random((h, w)) < 0.05] = 0
+    fits = {k: Plane([0.0, 0.0, 1.0], 2.0 + rng.uniform(-0.006, 0.006), 0.001, 1) for k in range(1, n)}
+    kinds, params, rms = model_table(fits, n)
+    xyz = _wall(h, w)
+    xyz[..., 2] += rng.normal(0, 0.006, (h, w))
+    sigma = np.full(h * w, 0.004)
+    challengers = np.zeros(n, bool)
+    challengers[rng.choice(np.arange(1, n), 2, replace=False)] = True
+    box = np.array([2, h - 3, 1, w - 4], np.int64)
+    expected = labels.copy()
+    want = _claim_rings_by_scans(xyz.reshape(-1, 3), expected, kinds, params, rms, sigma, challengers, 4, 3.0, box)
+    moved = claim_rings(np.ascontiguousarray(xyz.reshape(-1, 3)), labels, kinds, params, rms, sigma,
+                        challengers, 4, 3.0, box)
+    assert want > 5 and moved == want
+    assert np.array_equal(labels, expected)
+
+
 def test_cloud_points_are_c_ordered_and_ranges_computed_once():
     # a transposed (Fortran-ordered) input must not make every flat view a copy
     xyz = np.asfortranarray(_wall(8, 9, z=2.0))
@@ -135,3 +197,26 @@ def test_cloud_points_are_c_ordered_and_ranges_computed_once():
     ranges = cloud.range_image()
     np.testing.assert_allclose(ranges, np.linalg.norm(xyz, axis=2), rtol=1e-12)
     assert cloud.range_image() is ranges and not ranges.flags["WRITEABLE"]
+
+
+def test_box_members_gathers_each_blob_from_its_box_as_region_indices_does():
+    # the full-resolution recovery takes each leftover blob's pixels from its bounding box;
+    # they must be region_indices' (every pixel of the blob, increasing), blobs interleaved
+    from rangeseg_o3d.fitting.region_fitter import region_indices
+    from rangeseg_o3d.kernels import box_members
+
+    rng = np.random.default_rng(5)
+    labels = np.zeros((40, 50), np.int32)
+    labels[rng.random(labels.shape) < 0.3] = 9  # a label below the blobs': left out
+    labels[5:20, 3:30][rng.random((15, 27)) < 0.6] = 12
+    labels[10:35, 20:45][rng.random((25, 25)) < 0.5] = 13  # boxes overlap the first
+    labels[38:40, 0:2] = 14
+    first, boxes = 12, []
+    for k in (12, 13, 14):
+        rows, cols = np.nonzero(labels == k)
+        boxes.append([rows.min(), rows.max() + 1, cols.min(), cols.max() + 1])
+    order, starts = box_members(labels, np.array(boxes, np.int64), first)
+    expected = region_indices(labels)
+    for j, k in enumerate((12, 13, 14)):
+        np.testing.assert_array_equal(order[starts[j]:starts[j + 1]], expected[k])
+    assert starts[-1] == sum(expected[k].size for k in (12, 13, 14))

@@ -31,6 +31,8 @@ the 1 cm that suits a 5 mm one).
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 from pydantic import ConfigDict, Field
 
@@ -43,7 +45,7 @@ from .plane import UNDETERMINED, plane_from_prepared
 from ..kernels.linalg import plane_tolerance
 from .sphere import sphere_model
 
-__all__ = ["fit_primitive", "refit_primitive", "fit_planes_batch", "refit_planes_from_moments",
+__all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "fit_planes_batch", "refit_planes_from_moments",
            "PrimitiveFitterConfig", "PLUGIN", "quadric_shape", "bind_sensor"]
 
 INLIER_FACTOR = 3.0
@@ -169,13 +171,8 @@ def fit_primitive(
         return _non_finite(pts, "primitive")
     if decision.status == COLLINEAR:
         return FitFailure("primitive", f"plane: {UNDETERMINED}")
-    if decision.kind == PLANE:
-        return Plane(normal=decision.normal, d=decision.d, rms=decision.plane_rms,
-                     inliers=int(decision.plane_inliers))
-    if decision.kind == CYLINDER:
-        return cylinder_model(decision.curved[CYLINDER], decision.centroid, decision.scale)
-    if decision.kind == SPHERE:
-        return sphere_model(decision.curved[SPHERE], decision.centroid, decision.scale)
+    if decision.kind in (PLANE, CYLINDER, SPHERE):
+        return model_of_decision(decision)
     # every threshold grows by the same amount with range
     extra = rms_per_range2 * float(decision.centroid @ decision.centroid)
     reasons = [f"plane rms {decision.plane_rms:.3g} > {decision.plane_tolerance:.3g}"]
@@ -188,6 +185,55 @@ def fit_primitive(
                 max_iterations=MAX_ITERATIONS, tolerance=tolerance, max_radius=max_radius, min_arc=min_arc,
                 curvature_gain=curvature_gain))
     return FitFailure("primitive", "; ".join(reasons))
+
+
+def model_of_decision(decision) -> Plane | Cylinder | Sphere:
+    """The model of an accepted decision (:class:`rangeseg_o3d.fitting._decide.Decision` of
+    kind PLANE, CYLINDER or SPHERE), as :func:`fit_primitive` returns it."""
+    if decision.kind == PLANE:
+        return Plane(normal=decision.normal, d=decision.d, rms=decision.plane_rms,
+                     inliers=int(decision.plane_inliers))
+    if decision.kind == CYLINDER:
+        return cylinder_model(decision.curved[CYLINDER], decision.centroid, decision.scale)
+    return sphere_model(decision.curved[SPHERE], decision.centroid, decision.scale)
+
+
+def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: float, fit_max_points: int,
+                      planes_only: bool = False, **params):
+    """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of the points ``xyz[pool]`` judged by
+    :func:`fit_primitive` with the keywords ``params`` on at most ``fit_max_points`` points (as a
+    :class:`rangeseg_o3d.fitting.region_fitter.RegionFitter` judges), refusing models with an
+    rms over ``max_rms``, in one compiled call (:mod:`._trimmed`): the same ``(model, inliers)``
+    (``min_inliers`` is ``trimmed_fit``'s ``min_points``). With ``planes_only`` the judge is
+    :func:`rangeseg_o3d.fitting.plane.fit_plane` on all the points instead (``params`` unused).
+
+    ``xyz`` a C-ordered float64 (N, 3) array, ``pool`` int64 indices into it.
+    """
+    from ._decide import Decision
+    from ._trimmed import trimmed_decision
+    from .robust import CHI_SQUARE_SIGMAS, ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS
+
+    p = {**_PRIMITIVE_DEFAULTS, **params}
+    found, ints, floats, centroid, normal, codes, curved, inliers = trimmed_decision(
+        xyz, pool, float(sigma), int(min_inliers), ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS,
+        CHI_SQUARE_SIGMAS, bool(planes_only), int(fit_max_points), 3 if planes_only else int(p["min_points"]),
+        float(max_rms), _NO_HINT, *_search_grids(),
+        float(p["plane_rms"]), float(p["cylinder_rms"]), float(p["sphere_rms"]), float(p["rms_per_range2"]),
+        float(p["max_radius"]), float(np.radians(p["min_arc_deg"])), float(p["curvature_gain"]), INLIER_FACTOR,
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(p["noise_floor"]))
+    if not found:
+        return None, None
+    kind, status, first, plane_inliers = ints.tolist()
+    scale, d, plane_rms, plane_tol, eigen_rms = floats.tolist()
+    decision = Decision(kind, status, first, centroid, scale, normal, d, plane_rms, plane_tol, eigen_rms,
+                        plane_inliers, codes, curved)
+    return model_of_decision(decision), inliers
+
+
+_NO_HINT = np.full(3, np.nan)  # no cylinder axis hint (read only by the compiled code)
+_PRIMITIVE_DEFAULTS = {name: parameter.default for name, parameter in
+                       inspect.signature(fit_primitive).parameters.items()
+                       if parameter.kind == inspect.Parameter.KEYWORD_ONLY}
 
 
 @defaults_of(fit_primitive)
@@ -401,4 +447,5 @@ PLUGIN = Plugin(
     fit_batch=fit_planes_batch,
     refit_moments=refit_planes_from_moments,
     bind_sensor=bind_sensor,
+    trimmed=trimmed_primitive,
 )

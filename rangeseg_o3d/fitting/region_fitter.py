@@ -7,7 +7,7 @@ import numpy as np
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
-__all__ = ["RegionFitter", "region_indices", "model_table", "pixel_rms"]
+__all__ = ["RegionFitter", "region_indices", "model_table", "model_row", "pixel_rms"]
 
 
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -23,16 +23,31 @@ def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     for k, model in fits.items():
         if not 0 < k < n or not model:
             continue
-        if isinstance(model, Plane):
-            kinds[k], params[k, :3], params[k, 3] = PLANE, model.normal, model.d
-        elif isinstance(model, Sphere):
-            kinds[k], params[k, :3], params[k, 3] = SPHERE, model.center, model.radius
-        elif isinstance(model, Cylinder):
-            kinds[k], params[k, :3], params[k, 3:6], params[k, 6] = CYLINDER, model.axis, model.point, model.radius
-        else:
-            continue
-        rms[k] = model.rms
+        kinds[k] = _fill_row(model, params[k])
+        if kinds[k] != NONE:
+            rms[k] = model.rms
     return kinds, params, rms
+
+
+def model_row(model) -> tuple[int, np.ndarray]:
+    """``(kind, params)`` of one model as a row of :func:`model_table` (NONE and zeros for a
+    failure or another plugin's model type)."""
+    row = np.zeros(PARAM_SLOTS)
+    return (_fill_row(model, row) if model else NONE), row
+
+
+def _fill_row(model, row: np.ndarray) -> int:
+    # write the model's parameters into ``row``; returns its kind (NONE: not a known type)
+    if isinstance(model, Plane):
+        row[:3], row[3] = model.normal, model.d
+        return PLANE
+    if isinstance(model, Sphere):
+        row[:3], row[3] = model.center, model.radius
+        return SPHERE
+    if isinstance(model, Cylinder):
+        row[:3], row[3:6], row[6] = model.axis, model.point, model.radius
+        return CYLINDER
+    return NONE
 
 
 def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
@@ -98,6 +113,24 @@ class RegionFitter:
             return self.plugin.run(self._subsample(points), **self.params)
         except ValueError as exc:
             return FitFailure(kind="any", reason=str(exc))
+
+    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
+                max_rms: float = np.inf):
+        """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of ``xyz_flat[pool]`` judged by
+        :meth:`fit` (models over ``max_rms`` refused) in the plugin's one call, or None when
+        the plugin has none (or the points are not a C-ordered float64 array): the caller
+        then runs ``trimmed_fit`` itself."""
+        if (self.plugin.trimmed is None or xyz_flat.dtype != np.float64 or xyz_flat.ndim != 2
+                or not xyz_flat.flags.c_contiguous):
+            return None
+        xyz_flat = xyz_flat.view()
+        xyz_flat.flags.writeable = False  # as a cloud's points are: one compiled signature
+        try:
+            return self.plugin.trimmed(xyz_flat, np.ascontiguousarray(pool, dtype=np.int64), sigma=sigma,
+                                       min_inliers=min_points, max_rms=max_rms, fit_max_points=self.max_points,
+                                       **self.params)
+        except ValueError:  # as fit: a bad region is no answer
+            return None, None
 
     def fit_batch(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
         """The regions the plugin's batch fit settles at once ({} without one)."""

@@ -14,12 +14,16 @@ from typing import Callable
 
 import numpy as np
 
+from ..kernels.kinds import NONE
 from ..kernels.linalg import noise_rms_bound
+from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "beyond_noise", "CHI_SQUARE_SIGMAS"]
+__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
-_MANY_POINTS = 5000
+MANY_POINTS = 5000
+# trimmed_fit's defaults (also those of the compiled search, fitting._trimmed)
+ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH = 5, 0.6, 600, 0.9
 
 #: Standard deviations of the chi-square law above which a fit's mean square residual is
 #: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
@@ -35,8 +39,8 @@ def beyond_noise(rms: float, sigma: float, n: int) -> bool:
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,
-                rounds: int = 5, keep_fraction: float = 0.6, max_points: int = 600,
-                enough: float = 0.9, pool: np.ndarray | None = None, starts: bool = False):
+                rounds: int = ROUNDS, keep_fraction: float = KEEP_FRACTION, max_points: int = MAX_POINTS,
+                enough: float = ENOUGH, pool: np.ndarray | None = None, starts: bool = False):
     """The dominant surface of ``points`` as judged by the fitter, and its inliers.
 
     Two proposals: a plane started from the best random three-point plane and refitted on
@@ -92,7 +96,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         keep = max(int(keep_fraction * len(pts)), 6)
         # a pool of many surfaces (a region that leaked through a whole room) needs more
         # random three-point planes before one lies on a single surface
-        trials = 64 if size < _MANY_POINTS else 256
+        trials = 64 if size < MANY_POINTS else 256
         search.judge_all(trimmed_proposals(pts, float(sigma), int(rounds), min(keep, len(pts)), trials, 0))
         return search.best, search.best_mask
     if size < 2 * min_points:  # no room for two surfaces of min_points: the global answer stands
@@ -150,19 +154,53 @@ class _Search:
         judged = self.judge(self.pts[near])
         if not judged:
             return False
-        if self.all_pts is None:
-            self.all_pts = np.asarray(self.points[self.pool], dtype=float)
+        if self.all_pts is None:  # the pool's points, as pool_inliers reads them
+            self.all_pts = _pool_points(self.points, None if isinstance(self.pool, slice) else self.pool)
+        xyz, indices = self.all_pts
         sigma = self.sigma
-        distances = np.abs(judged.distances(self.all_pts))
-        inliers = distances <= 3.0 * max(sigma, judged.rms)
         # Candidates are compared within one tolerance: with each model's own, a worse
         # fit (a cylinder bent over the crease of two planes) would win by its larger rms.
         # One that fits at the noise beats one that does not, whatever their counts: the
         # bent cylinder takes more points within the tolerance (some of either face) than
         # the plane of one face, but its residuals are not noise.
-        score = (not beyond_noise(judged.rms, sigma, int(near.sum())),
-                 int(np.count_nonzero(distances <= 3.0 * sigma)))
-        if inliers.sum() >= self.min_points and score > self.best_score:
+        kind, row = model_row(judged)
+        if kind != NONE:  # one compiled pass: the models' distances, counted twice
+            from ..kernels import pool_inliers
+
+            inliers, n_inliers, n_noise = pool_inliers(xyz, indices, kind, row, 3.0 * max(sigma, judged.rms),
+                                                       3.0 * sigma)
+        else:  # another plugin's model type: its own distances
+            distances = np.abs(judged.distances(xyz[indices]))
+            inliers = distances <= 3.0 * max(sigma, judged.rms)
+            n_inliers, n_noise = int(inliers.sum()), int(np.count_nonzero(distances <= 3.0 * sigma))
+        score = (not beyond_noise(judged.rms, sigma, int(near.sum())), n_noise)
+        if n_inliers >= self.min_points and score > self.best_score:
             self.best, self.best_mask, self.best_score = judged, inliers, score
             return score[0] and score[1] >= self.enough
         return False
+
+
+def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
+                  max_rms: float = np.inf):
+    """``trimmed_fit(points, judge, pool=pool, ...)`` with ``judge`` the least-squares plane
+    (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over ``max_rms``, in one compiled
+    call (:mod:`rangeseg_o3d.fitting._trimmed`): the same ``(model, inliers)``."""
+    from .classify import trimmed_primitive
+
+    xyz, indices = _pool_points(points, pool)
+    return trimmed_primitive(xyz, indices, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
+                             fit_max_points=max(len(indices), 1), planes_only=True)
+
+
+def _pool_points(points: np.ndarray, pool: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    # ``(xyz, indices)`` with xyz[indices] the pool's points: the points themselves when they
+    # are a C-ordered float array (no gather of a large pool), else the gathered pool; xyz
+    # read-only either way (a cloud's points are: one compiled signature of pool_inliers)
+    if pool is not None and points.dtype == np.float64 and points.flags.c_contiguous and points.ndim == 2:
+        xyz, indices = points.view(), np.ascontiguousarray(pool, dtype=np.int64)
+    else:
+        xyz = np.ascontiguousarray(points if pool is None else points[pool], dtype=float)
+        xyz = xyz.view()
+        indices = np.arange(len(xyz))
+    xyz.flags.writeable = False
+    return xyz, indices

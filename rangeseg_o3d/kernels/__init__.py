@@ -29,12 +29,12 @@ import importlib
 
 _SOURCES = {
     "grid": ("adjacency_matrix", "block_means", "claim_rings", "settle_borders", "group_by_label", "label_counts",
-             "relabel", "grow_rings", "jump_mask", "largest_piece", "member_pixels", "piece_ids",
+             "relabel", "grow_rings", "jump_mask", "largest_piece", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
     "tiles": ("label_pixels", "leftover_blobs"),
-    "trimmed": ("trimmed_proposals", "local_proposals"),
+    "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"),
 }
 _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}

@@ -135,9 +135,28 @@ class KernelCacheLocator(caching._SourceFileBackedLocatorMixin, caching._CacheLo
         self._py_file = py_file
         self._lineno = py_func.__code__.co_firstlineno
         self._cache_path = kernel_cache_dir(os.path.dirname(os.path.abspath(py_file)))
+        folder = os.path.dirname(os.path.abspath(py_file))
+        self._depends = [os.path.normpath(os.path.join(folder, name))
+                         for name in py_func.__globals__.get("CACHE_DEPENDS", ())]
 
     def get_cache_path(self):
         return self._cache_path
+
+    def get_source_stamp(self):
+        """The module's stamp, and those of the files it names in ``CACHE_DEPENDS``.
+
+        numba checks a cached kernel against its own file only; a module whose kernels
+        compile others' code into themselves (``fitting._trimmed`` holds the whole
+        decision) lists those files, so that editing them recompiles it too.
+        """
+        own = super().get_source_stamp()
+        if not self._depends:
+            return own
+        stamps = [own]
+        for path in self._depends:  # by content, as numba's own (a wheel's installed copies match)
+            st = os.stat(path)
+            stamps.append(caching._hash_source_file(path, st.st_mtime, st.st_size))
+        return tuple(stamps)
 
     @classmethod
     def from_function(cls, py_func, py_file):

@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "member_pixels", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -237,45 +237,100 @@ def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations,
     Returns the number of pixels moved.
     """
     h, w = labels.shape
+    flat = labels.ravel()
     n = kinds.shape[0]
-    moved = 0
-    new = labels.copy()
     r0, r1, c0, c1 = max(box[0], 0), min(box[1], h), max(box[2], 0), min(box[3], w)
-    for _ in range(iterations):
+    if r1 <= r0 or c1 <= c0:
+        return 0
+    # The pixels to decide: those touching a challenger (the first ring's are the
+    # neighbours of the challengers' pixels within a pixel of the box). A pixel whose label
+    # and 4 neighbours did not change keeps its answer, so each later ring decides only
+    # the neighbours of the pixels just moved.
+    front = np.empty((r1 - r0) * (c1 - c0), np.int64)
+    stamp = np.zeros(h * w, np.int32)  # ring + 1 when a pixel was listed for that ring
+    n_front = 0
+    for r in range(max(r0 - 1, 0), min(r1 + 1, h)):
+        for c in range(max(c0 - 1, 0), min(c1 + 1, w)):
+            k = flat[r * w + c]
+            if k <= 0 or k >= n or not challengers[k]:
+                continue
+            n_front = _list_claimable(flat, r * w + c, h, w, n, challengers, (r0, r1, c0, c1), stamp, 1,
+                                      front, n_front)
+    chosen = np.empty(front.shape[0], np.int32)
+    following = np.empty_like(front)
+    moved = 0
+    for ring in range(iterations):
+        # decide every listed pixel from the labels as they were at the ring's start
         changed = 0
-        for r in range(r0, r1):
-            for c in range(c0, c1):
-                own = labels[r, c]
-                if own <= 0 or own >= n or challengers[own]:
-                    continue
-                # integer tests first: most pixels touch no challenger
-                up = labels[r - 1, c] if r > 0 else 0
-                down = labels[r + 1, c] if r < h - 1 else 0
-                left = labels[r, c - 1] if c > 0 else 0
-                right = labels[r, c + 1] if c < w - 1 else 0
-                if not ((0 < up < n and challengers[up]) or (0 < down < n and challengers[down])
-                        or (0 < left < n and challengers[left]) or (0 < right < n and challengers[right])):
-                    continue
-                i = r * w + c
-                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-                own_score = np.inf
-                if kinds[own] > 0:
-                    own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
-                best, best_score = 0, min(own_score, k_sigma)
-                for k in (up, down, left, right):
-                    if k <= 0 or k >= n or not challengers[k] or kinds[k] == 0:
-                        continue
-                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
-                    if score < best_score:
-                        best, best_score = k, score
-                if best > 0:
-                    new[r, c] = best
-                    changed += 1
+        for f in range(n_front):
+            i = front[f]
+            chosen[f] = _claimant(flat, xyz, i, h, w, n, kinds, params, rms, sigma, challengers, k_sigma)
+            changed += chosen[f] > 0
         if changed == 0:
             break
-        labels[r0:r1, c0:c1] = new[r0:r1, c0:c1]
+        for f in range(n_front):
+            if chosen[f] > 0:
+                flat[front[f]] = chosen[f]
         moved += changed
+        n_next = 0
+        for f in range(n_front):
+            if chosen[f] > 0:
+                n_next = _list_claimable(flat, front[f], h, w, n, challengers, (r0, r1, c0, c1), stamp, ring + 2,
+                                         following, n_next)
+        front, following, n_front = following, front, n_next
     return moved
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _list_claimable(flat, i, h, w, n, challengers, box, stamp, mark, out, count):
+    # append to out[count:] the claimable 4-neighbours of pixel i within box not yet
+    # stamped ``mark``, stamping them; returns the new count
+    for step in range(4):
+        j = _neighbour(i, step, h, w)
+        if j < 0 or stamp[j] == mark:
+            continue
+        r, c = j // w, j % w
+        if box[0] <= r < box[1] and box[2] <= c < box[3] and _claimable(flat, j, h, w, n, challengers):
+            stamp[j] = mark
+            out[count] = j
+            count += 1
+    return count
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _claimable(flat, i, h, w, n, challengers):
+    # a pixel of a non-challenger region with a challenger among its 4 neighbours
+    own = flat[i]
+    if own <= 0 or own >= n or challengers[own]:
+        return False
+    for step in range(4):
+        j = _neighbour(i, step, h, w)
+        if j >= 0 and 0 < flat[j] < n and challengers[flat[j]]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _claimant(flat, xyz, i, h, w, n, kinds, params, rms, sigma, challengers, k_sigma):
+    # the challenger that takes pixel i (0: none): nearest in units of max(sigma, rms), within
+    # k_sigma and nearer than the pixel's own region
+    own = flat[i]
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    own_score = np.inf
+    if kinds[own] > 0:
+        own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+    best, best_score = 0, min(own_score, k_sigma)
+    for step in range(4):  # up, down, left, right
+        j = _neighbour(i, step, h, w)
+        if j < 0:
+            continue
+        k = flat[j]
+        if k <= 0 or k >= n or not challengers[k] or kinds[k] == 0:
+            continue
+        score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+        if score < best_score:
+            best, best_score = k, score
+    return best
 
 @njit(cache=True, nogil=True)
 def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma, margin,
@@ -456,6 +511,31 @@ def member_pixels(labels, members):
             out[m] = i
             m += 1
     return out
+
+@njit(cache=True, nogil=True)
+def box_members(labels, boxes, first_label):
+    """``group_by_label`` for the labels ``first_label + j`` found within their boxes alone:
+    ``(order, starts)``, ``order[starts[j]:starts[j + 1]]`` the flat indices (increasing) of
+    label ``first_label + j``, which must lie within ``boxes[j] = (row0, row1, col0, col1)``
+    (half-open). Costs the boxes' area, not the grid's."""
+    h, w = labels.shape
+    n = boxes.shape[0]
+    starts = np.zeros(n + 1, np.int64)
+    for j in range(n):
+        k = first_label + j
+        for r in range(max(boxes[j, 0], 0), min(boxes[j, 1], h)):
+            for c in range(max(boxes[j, 2], 0), min(boxes[j, 3], w)):
+                starts[j + 1] += labels[r, c] == k
+    starts = np.cumsum(starts)
+    order = np.empty(starts[n], np.int64)
+    for j in range(n):
+        k, m = first_label + j, starts[j]
+        for r in range(max(boxes[j, 0], 0), min(boxes[j, 1], h)):
+            for c in range(max(boxes[j, 2], 0), min(boxes[j, 3], w)):
+                if labels[r, c] == k:
+                    order[m] = r * w + c
+                    m += 1
+    return order, starts
 
 @njit(cache=True, nogil=True)
 def label_counts(labels):

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
+from .kinds import CYLINDER, PLANE, SPHERE
 from .linalg import solve
 
-__all__ = ["trimmed_proposals", "local_proposals"]
+__all__ = ["trimmed_proposals", "local_proposals", "pool_inliers"]
 
 @njit(cache=True, nogil=True)
 def _plane_frame(pts, support):
@@ -104,6 +105,9 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
     n = pts.shape[0]
     np.random.seed(seed)
     tol = 3.0 * sigma
+    # the coordinates as three rows: the count below is then one vectorised pass
+    columns = np.ascontiguousarray(pts.T)
+    xs, ys, zs = columns[0], columns[1], columns[2]
     best_count, best_n, best_d = -1, np.zeros(3), 0.0
     for _ in range(trials):
         i, j, k = np.random.randint(0, n), np.random.randint(0, n), np.random.randint(0, n)
@@ -117,8 +121,7 @@ def trimmed_proposals(pts, sigma, rounds, keep, trials, seed):
         d = nx * pts[i, 0] + ny * pts[i, 1] + nz * pts[i, 2]
         count = 0
         for p in range(n):
-            if abs(nx * pts[p, 0] + ny * pts[p, 1] + nz * pts[p, 2] - d) <= tol:
-                count += 1
+            count += abs(nx * xs[p] + ny * ys[p] + nz * zs[p] - d) <= tol
         if count > best_count:
             best_count = count
             best_n[0], best_n[1], best_n[2], best_d = nx, ny, nz, d
@@ -212,3 +215,39 @@ def local_proposals(pts, sigma, rounds, seeds, support_size):
             _quadric_distances(pts, support, dist)
             _within_spread(dist, support, sigma, _PLANE_SPREAD_CAP, out[s])
     return out
+
+
+@njit(cache=True, nogil=True)
+def pool_inliers(xyz, pool, kind, prm, tolerance, noise_tolerance):
+    """A model's inliers among the points ``xyz[pool]`` (the trimmed fit's count, one pass).
+
+    ``kind`` and ``prm`` as a row of a model table (:mod:`.kinds`). Distances are
+    computed as the models' own ``distances`` methods do (the same operations in the same
+    order). Returns ``(inliers, n_inliers, n_noise)``: the mask of the pool's points within
+    ``tolerance`` of the model, their number, and the number within ``noise_tolerance``.
+    A kind without a model has no inliers.
+    """
+    m = pool.shape[0]
+    inliers = np.zeros(m, np.bool_)
+    n_inliers, n_noise = 0, 0
+    for i in range(m):
+        p = pool[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        if kind == PLANE:
+            dist = abs((x * prm[0] + y * prm[1] + z * prm[2]) - prm[3])
+        elif kind == SPHERE:
+            dx, dy, dz = x - prm[0], y - prm[1], z - prm[2]
+            dist = abs(np.sqrt(dx * dx + dy * dy + dz * dz) - prm[3])
+        elif kind == CYLINDER:
+            rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
+            along = rx * prm[0] + ry * prm[1] + rz * prm[2]
+            qx, qy, qz = rx - along * prm[0], ry - along * prm[1], rz - along * prm[2]
+            dist = abs(np.sqrt(qx * qx + qy * qy + qz * qz) - prm[6])
+        else:
+            continue
+        if dist <= tolerance:
+            inliers[i] = True
+            n_inliers += 1
+        if dist <= noise_tolerance:
+            n_noise += 1
+    return inliers, n_inliers, n_noise

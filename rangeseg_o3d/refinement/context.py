@@ -89,8 +89,11 @@ class Context:
             return None, None
         noise = self.sigma[pool]
         sigma = float(np.partition(noise, noise.size // 2)[noise.size // 2])
-        model, inliers = trimmed_fit(self.xyz, self.fitter.fit, pool=pool, sigma=sigma,
-                                     min_points=self.min_size)
+        # the fitter's own compiled search when it has one (the same answer)
+        found = (self.fitter.trimmed(self.xyz, pool, sigma=sigma, min_points=self.min_size)
+                 if hasattr(self.fitter, "trimmed") else None)
+        model, inliers = found if found is not None else trimmed_fit(
+            self.xyz, self.fitter.fit, pool=pool, sigma=sigma, min_points=self.min_size)
         piece = None if model is None else self.largest_piece(pool[inliers])
         if model is None or (piece.size < _ONE_PIECE * inliers.sum()
                              and beyond_noise(model.rms, sigma, int(inliers.sum()))):

@@ -23,6 +23,7 @@ import copy
 import numpy as np
 
 from ..fitting.plane import fit_plane
+from ..fitting.robust import trimmed_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
 from ..fitting.robust import beyond_noise
@@ -54,6 +55,10 @@ class _PlaneJudge:
     def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
         return self.fitter.points(xyz_flat, idx)
 
+    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int):
+        # trimmed_fit with this judge in one compiled call (what Context.dominant_piece asks)
+        return trimmed_plane(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms)
+
 
 class _BoundJudge(_PlaneJudge):
     """The pipeline's fitter (any kind), refusing a model whose rms exceeds ``max_rms``."""
@@ -65,6 +70,10 @@ class _BoundJudge(_PlaneJudge):
     def refit(self, points: np.ndarray, model):
         refit = self.fitter.refit(points, model)
         return refit if refit and refit.rms <= self.max_rms else None
+
+    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int):
+        # the fitter's compiled trimmed fit with this judge's bound (None: it has none)
+        return self.fitter.trimmed(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms)
 
 
 def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:

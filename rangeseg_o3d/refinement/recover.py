@@ -67,7 +67,8 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain):
     return chosen, model
 
 
-def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray):
+def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
+                regions: dict | None = None):
     """Split each candidate blob into every surface it holds; free what none explains.
 
     ``candidates`` numbers the blobs (0 elsewhere, numbers above every label). A blob
@@ -75,14 +76,16 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     the tile grid could not see): the ``split`` step's sequential robust extraction
     (:func:`rangeseg_o3d.refinement.split.split_regions`) gives each its region, where
     explaining the blob by one dominant surface would drop the rest. Returns new
-    ``(labels, fits)``; the first surface of a blob keeps the blob's number.
+    ``(labels, fits)``; the first surface of a blob keeps the blob's number. ``regions``
+    (optional): each blob's flat pixels (increasing), when the caller has them.
     """
     from .split import split_regions
 
     # the candidates' numbers are above every label: one maximum puts them in
     labels, fits = np.maximum(candidates, labels).astype(np.int32, copy=False), dict(fits)
     flat = labels.ravel()
-    regions = region_indices(candidates)
+    if regions is None:
+        regions = region_indices(candidates)
     # blobs that are one plane need no search (one batched pass settles them)
     settled = ctx.fitter.fit_batch(ctx.xyz, candidates) if regions else {}
     mixed = []
@@ -139,7 +142,7 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
 
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
-                   sigma: np.ndarray, candidates: np.ndarray, min_size: int):
+                   sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
@@ -150,11 +153,22 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     numbered above every label: :func:`rangeseg_o3d.fullres.leftover_blob_labels`), are each
     split into every surface they hold (:func:`split_blobs`). At grazing angles every
     pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
-    rim their regions take back are limited by it: the model distance decides.
+    rim their regions take back are limited by it: the model distance decides. ``boxes``
+    (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then gathered
+    from it, not from the whole grid).
     """
     first = int(labels.max(initial=0)) + 1
     ctx = Context(cloud, fitter, sigma, min_size)
-    labels, fits = split_blobs(ctx, labels, fits, candidates)
+    regions = None
+    if boxes is not None:
+        from ..kernels import box_members
+
+        order, starts = box_members(np.ascontiguousarray(candidates, dtype=np.int32),
+                                    np.ascontiguousarray(boxes, dtype=np.int64), first)
+        bounds = starts.tolist()
+        regions = {first + j: order[bounds[j]:bounds[j + 1]] for j in range(len(boxes))
+                   if bounds[j + 1] > bounds[j]}
+    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions)
     new = {k: m for k, m in fits.items() if k >= first and m}
     if new:
         from ..kernels import claim_rings, member_pixels

@@ -193,3 +193,75 @@ def test_trimmed_fit_from_local_starts_answers_only_at_the_noise():
     judge = rs.registry.get("fitter", "primitives").run
     assert trimmed_fit(rng.uniform(0, 1, (300, 3)), judge, sigma=0.003, min_points=30,
                        starts=True) == (None, None)
+
+def _mixed_sets():
+    # (points, sigma, min_points) of every kind of answer: a corner's face, the floor under a
+    # cylinder, a clean cylinder, a large pool (strided proposals), a sphere cap, noise
+    rng = np.random.default_rng(7)
+    floor, cylinder = _floor_and_resting_cylinder(1)
+    corner, _ = _block_corner(3, noise=0.0006)
+    angle = rng.uniform(0, 2 * np.pi, 400)
+    polar = rng.uniform(0, 0.6, 400)
+    cap = 0.3 * np.c_[np.sin(polar) * np.cos(angle), np.sin(polar) * np.sin(angle), -np.cos(polar)]
+    big = np.vstack([floor] * 9) + rng.normal(0, 0.002, (9 * len(floor), 3))
+    return [(np.vstack([floor, cylinder]), 0.004, 30), (cylinder, 0.004, 30), (corner, 0.00036, 80),
+            (big, 0.004, 30), (cap + rng.normal(0, 0.001, cap.shape) + [0, 0, 2], 0.001, 30),
+            (rng.uniform(0, 1, (300, 3)), 0.003, 30)]
+
+
+@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("max_rms", [np.inf, 0.003])
+def test_the_fitters_compiled_trimmed_fit_answers_as_trimmed_fit(case, max_rms):
+    # RegionFitter.trimmed (one compiled call) against trimmed_fit judged by the same fitter
+    # (refusing models over max_rms, as the facets step's bounded judge does): equal models
+    # and inliers, on a pool given as indices into a larger array
+    from rangeseg_o3d.refinement.facets import _BoundJudge
+
+    points, sigma, min_points = _mixed_sets()[case]
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    judge = _BoundJudge(fitter, max_rms)
+    rng = np.random.default_rng(case)
+    xyz = np.ascontiguousarray(np.vstack([rng.uniform(5, 6, (50, 3)), points]))
+    pool = np.arange(50, len(xyz))
+    model, inliers = judge.trimmed(xyz, pool, sigma=sigma, min_points=min_points)
+    expected, expected_inliers = trimmed_fit(xyz, judge.fit, pool=pool, sigma=sigma, min_points=min_points)
+    if expected is None:
+        assert model is None and inliers is None
+        return
+    assert type(model) is type(expected) and repr(model) == repr(expected)
+    np.testing.assert_array_equal(inliers, expected_inliers)
+    assert model.rms <= max_rms
+
+
+def test_the_compiled_trimmed_fit_finds_what_each_case_holds():
+    # the answers themselves (not only their agreement): a plane, a cylinder, a sphere, none
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    kinds = []
+    for points, sigma, min_points in _mixed_sets():
+        pts = np.ascontiguousarray(points)
+        model, _ = fitter.trimmed(pts, np.arange(len(pts)), sigma=sigma, min_points=min_points)
+        kinds.append(None if model is None else model.kind)
+    assert kinds[0] == "plane" and kinds[1] == "cylinder" and kinds[3] == "plane" and kinds[5] is None
+    assert kinds[4] == "sphere"
+
+
+@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("max_rms", [np.inf, 0.003])
+def test_the_compiled_planes_only_trimmed_fit_answers_as_trimmed_fit(case, max_rms):
+    # the facets step's planes-only judge: fitting.robust.trimmed_plane against trimmed_fit
+    # judged by fit_plane refused over max_rms
+    from rangeseg_o3d.fitting.robust import trimmed_plane
+    from rangeseg_o3d.refinement.facets import _PlaneJudge
+
+    points, sigma, min_points = _mixed_sets()[case]
+    judge = _PlaneJudge(rs.Pipeline("rgbd_vga").fitter, max_rms)
+    xyz = np.ascontiguousarray(np.vstack([np.full((20, 3), 7.0), points]))
+    pool = np.arange(20, len(xyz))
+    model, inliers = trimmed_plane(xyz, pool, sigma=sigma, min_points=min_points, max_rms=max_rms)
+    expected, expected_inliers = trimmed_fit(xyz, judge.fit, pool=pool, sigma=sigma, min_points=min_points)
+    assert judge.trimmed(xyz, pool, sigma=sigma, min_points=min_points)[0].__repr__() == repr(model)
+    if expected is None:
+        assert model is None and inliers is None
+        return
+    assert model.kind == "plane" and repr(model) == repr(expected) and model.rms <= max_rms
+    np.testing.assert_array_equal(inliers, expected_inliers)

@@ -103,3 +103,33 @@ def test_module_documents_every_candidate():
     doc = kernel_cache.__doc__
     for name in ("NUMBA_CACHE_DIR", "__pycache__", "RANGESEG_CACHE_DIR", "XDG_CACHE_HOME", "rangeseg_o3d-<uid>"):
         assert name in doc
+
+
+def test_a_kernel_stamp_follows_the_files_it_names_as_dependencies(tmp_path):
+    # numba checks a cached kernel against its own file; one that compiles another file's
+    # kernels into itself (fitting._trimmed) names it in CACHE_DEPENDS, and an edit there
+    # changes its stamp (by content: a rewrite with the same text does not)
+    own, other = tmp_path / "mod.py", tmp_path / "dep.py"
+    own.write_text("x = 1\n")
+    other.write_text("y = 1\n")
+    namespace = {"CACHE_DEPENDS": ("dep.py",)}
+    exec(compile("def kernel():\n    return 1\n", str(own), "exec"), namespace)
+    locator = KernelCacheLocator(namespace["kernel"], str(own))
+    before = locator.get_source_stamp()
+    other.write_text("y = 1\n")
+    assert KernelCacheLocator(namespace["kernel"], str(own)).get_source_stamp() == before
+    other.write_text("y = 2\n")
+    after = KernelCacheLocator(namespace["kernel"], str(own)).get_source_stamp()
+    assert after != before and after[0] == before[0]
+    # a kernel without dependencies keeps numba's own stamp
+    plain = {}
+    exec(compile("def kernel():\n    return 1\n", str(own), "exec"), plain)
+    assert KernelCacheLocator(plain["kernel"], str(own)).get_source_stamp() == before[0]
+
+
+def test_the_trimmed_search_names_the_files_it_compiles_in():
+    from rangeseg_o3d.fitting import _trimmed
+
+    folder = Path(_trimmed.__file__).parent
+    assert all((folder / name).resolve().is_file() for name in _trimmed.CACHE_DEPENDS)
+    assert {"_decide.py", "_compiled.py"} <= set(_trimmed.CACHE_DEPENDS)
