@@ -186,11 +186,13 @@ def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
     larger = table.sizes > idx.size
     if not larger.any():
         return None
+    # only the planes within two pixels can host it: their columns alone are scored (each
+    # plane's median is its own column's)
+    near = touching(labels, idx, reach=2)
+    larger &= np.isin(table.labels, list(near))
+    if not larger.any():
+        return None
     middle = np.median(_scores(xyz, idx, table, larger, sigma), axis=0)
     passing = middle <= k_sigma
-    if not passing.any():  # most curved regions: no adjacency to look up
-        return None
-    near = touching(labels, idx, reach=2)
-    hosts = [(m, h) for m, h in zip(middle[passing].tolist(), table.labels[larger][passing].tolist())
-             if h in near]
+    hosts = list(zip(middle[passing].tolist(), table.labels[larger][passing].tolist()))
     return min(hosts)[1] if hosts else None
