@@ -20,14 +20,14 @@ that follows, each piece only where it is needed:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats", "leftover_blob_labels", "with_pixel_rms"]
+           "region_stats", "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -180,6 +180,70 @@ def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
         if model and 0 <= k < counts.size and counts[k] > 0:
             out[k] = replace(model, rms=float(np.sqrt(stats.squares[k] / counts[k])))
     return out
+
+
+#: Pixels of a region on which :func:`planes_for_unresolved` tests its curvature (an even
+#: subsample: a resolved curvature shows on a thousand pixels by orders of magnitude).
+UNRESOLVED_TEST_PIXELS = 1024
+
+
+def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *,
+                          sigma: np.ndarray, inlier_factor: float, tile_labels: np.ndarray | None = None,
+                          tile: int = 1) -> tuple[dict, PixelStats]:
+    """Each cylinder or sphere whose curvature its pixels do not resolve becomes their plane.
+
+    A curved model fitted to tile means can follow means that straddle an edge (a tile
+    half on a plane, half on the surface behind), bending over a flat face; its pixels
+    then show no curvature: their plane explains them as well, or better, than the curved
+    model (:func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the F-test of the drop
+    in squared distances against the curved model's own residuals), on an even subsample
+    of at most ``UNRESOLVED_TEST_PIXELS`` of the region's pixels. Returns ``(fits, stats)``,
+    the statistics of replaced models measured again; untouched when no model is curved.
+    With ``tile_labels`` (the tile grid the models came from, ``tile`` pixels a side) a
+    region's pixels are looked for in its tiles' box grown by a tile (pixels take only the
+    models of their tile and the 8 around it), not in the whole frame.
+    """
+    from .fitting.plane import fit_plane
+    from .fitting.primitives import Plane
+    from .fitting.robust import curvature_resolved
+
+    curved = [k for k, m in fits.items()
+              if m and not isinstance(m, Plane) and 0 < k < stats.counts.size and stats.counts[k] > 0]
+    if not curved:
+        return fits, stats
+    fits, replaced = dict(fits), []
+    for k in curved:
+        points = _region_sample(cloud, labels, k, _pixel_box(labels, k, tile_labels, tile))
+        plane = fit_plane(points) if len(points) >= 6 else None
+        if not plane:
+            continue
+        squares = float(np.sum(fits[k].distances(points) ** 2))
+        if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
+            continue
+        fits[k] = replace(plane, inliers=int(stats.counts[k]))
+        replaced.append(k)
+    if replaced:
+        stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
+    return fits, stats
+
+
+def _pixel_box(labels: np.ndarray, k: int, tile_labels: np.ndarray | None, tile: int) -> tuple[slice, slice]:
+    """Rows and columns of the sensor grid holding every pixel of label ``k``."""
+    rows, cols = np.nonzero(tile_labels == k) if tile_labels is not None else ((), ())
+    if len(rows):
+        return (slice(max(int(rows.min()) - 1, 0) * tile, (int(rows.max()) + 2) * tile),
+                slice(max(int(cols.min()) - 1, 0) * tile, (int(cols.max()) + 2) * tile))
+    rows, cols = np.nonzero(labels == k)  # a region the tiles did not have (recovered pixels)
+    return slice(int(rows.min()), int(rows.max()) + 1), slice(int(cols.min()), int(cols.max()) + 1)
+
+
+def _region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -> np.ndarray:
+    """The valid points of label ``k`` in ``box`` on an even grid of about
+    ``UNRESOLVED_TEST_PIXELS`` pixels."""
+    window = labels[box]
+    step = max(int(np.ceil(np.sqrt(window.size / UNRESOLVED_TEST_PIXELS))), 1)
+    points = cloud.xyz[box][::step, ::step][window[::step, ::step] == k]
+    return points[np.isfinite(points).all(axis=1)]
 
 
 def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int,

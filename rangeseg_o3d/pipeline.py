@@ -15,7 +15,8 @@ from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
-from .fullres import ExpandedStages, PixelStats, label_pixels, recover_thin_surfaces, region_stats
+from .fullres import (ExpandedStages, PixelStats, label_pixels, planes_for_unresolved, recover_thin_surfaces,
+                      region_stats)
 from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
@@ -221,8 +222,10 @@ class Pipeline:
         Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
         :class:`rangeseg_o3d.fullres.PixelStats` of the labels. The models stay those
         fitted to the tile means (each averages all the region's pixels; refitting the
-        pixels moves a plane's normal by far less than its error); :meth:`_assemble`
-        reports the rms of the pixels' distances.
+        pixels moves a plane's normal by far less than its error), except a curved one
+        whose curvature its pixels do not resolve, which becomes their plane
+        (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
+        rms of the pixels' distances.
         """
         from .kernels import ranges_and_noise
 
@@ -241,6 +244,9 @@ class Pipeline:
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
+                                                inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
+                                                tile=settings.tile)
         return labels, fits, sigma, stats
 
     @staticmethod

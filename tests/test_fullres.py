@@ -9,8 +9,8 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting.primitives import Plane
-from rangeseg_o3d.fullres import (ExpandedStages, expand, label_pixels, recover_thin_surfaces,
-                                  region_stats, leftover_blob_labels)
+from rangeseg_o3d.fullres import (ExpandedStages, expand, label_pixels, planes_for_unresolved,
+                                  recover_thin_surfaces, region_stats, leftover_blob_labels)
 from rangeseg_o3d.kernels import distance_stats
 from rangeseg_o3d.refinement.recover import leftover_candidates
 from rangeseg_o3d.result import INLIER_SIGMAS
@@ -272,3 +272,60 @@ def test_a_recovered_near_band_of_a_floor_joins_the_floors_tile_region():
     owners, counts = np.unique(out[floor], return_counts=True)
     assert counts.max() / floor.sum() > 0.98, dict(zip(owners.tolist(), counts.tolist()))
     assert models[int(owners[np.argmax(counts)])].kind == "plane"
+
+
+def _column_and_wall(rng, sigma=0.004):
+    """A 60 x 80 grid: the left half a wall at z = 2, the right half a column of radius
+    0.3 (axis y) seen over +-60 deg; Gaussian noise ``sigma`` along z."""
+    h, w = 60, 80
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.dstack([(u - w / 4) * 0.01, (v - h / 2) * 0.01, np.full((h, w), 2.0)])
+    angle = (u[:, w // 2:] - 3 * w / 4) / (w / 4) * np.radians(60)
+    xyz[:, w // 2:, 0] = 1.0 + 0.3 * np.sin(angle)
+    xyz[:, w // 2:, 2] = 2.3 - 0.3 * np.cos(angle)
+    xyz[..., 2] += rng.normal(0.0, sigma, (h, w))
+    labels = np.zeros((h, w), np.int32)
+    labels[:, : w // 2] = 1
+    labels[:, w // 2:] = 2
+    return xyz, labels
+
+
+def test_planes_for_unresolved_gives_a_bent_wall_its_plane_and_keeps_the_column():
+    from rangeseg_o3d.fitting.primitives import Cylinder
+
+    rng = np.random.default_rng(3)
+    xyz, labels = _column_and_wall(rng)
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full(labels.shape, 0.004)
+    # the wall with a cylinder of 2 m radius touching it (as tile means over an edge give);
+    # the column with its own model
+    fits = {1: Cylinder(axis=[0, 1, 0], point=[0.0, 0.0, 4.0], radius=2.0, rms=0.004, inliers=0),
+            2: Cylinder(axis=[0, 1, 0], point=[1.0, 0.0, 2.3], radius=0.3, rms=0.004, inliers=0)}
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    new_fits, new_stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
+                                                inlier_factor=INLIER_SIGMAS)
+    wall = new_fits[1]
+    assert isinstance(wall, Plane)
+    assert abs(abs(wall.normal[2]) - 1.0) < 1e-3 and abs(wall.d - 2.0) < 0.004
+    assert wall.rms < 1.2 * 0.004
+    assert new_fits[2] is fits[2]  # the column's curvature is resolved
+    # the wall's statistics are measured again under its plane, the column's kept
+    assert new_stats.squares[1] < 0.5 * stats.squares[1]
+    assert new_stats.inliers[1] >= 0.93 * (labels == 1).sum()  # within 2 sigma: 95.4 % of Gaussian noise
+    assert new_stats.squares[2] == stats.squares[2]
+    # summed over the tile boxes of a 2 x 2 tile grid: the same plane
+    boxed, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
+                                     tile_labels=labels[::2, ::2], tile=2)
+    assert np.allclose(boxed[1].normal, wall.normal) and boxed[1].d == pytest.approx(wall.d)
+
+
+def test_planes_for_unresolved_leaves_planes_alone():
+    rng = np.random.default_rng(4)
+    xyz, labels = _column_and_wall(rng)
+    labels[:, 40:] = 0
+    plane = Plane(normal=np.array([0.0, 0.0, 1.0]), d=2.0, rms=0.004, inliers=0)
+    fits = {1: plane}
+    stats = region_stats(xyz, labels, fits, np.full(labels.shape, 0.004), INLIER_SIGMAS)
+    out, out_stats = planes_for_unresolved(rs.OrganizedCloud(xyz), labels, fits, stats,
+                                           sigma=np.full(labels.shape, 0.004), inlier_factor=INLIER_SIGMAS)
+    assert out is fits and out_stats is stats

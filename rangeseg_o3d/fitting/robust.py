@@ -18,7 +18,7 @@ from ..kernels.kinds import NONE
 from ..kernels.linalg import noise_rms_bound
 from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "CHI_SQUARE_SIGMAS"]
+__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "curvature_resolved", "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
 MANY_POINTS = 5000
@@ -36,6 +36,24 @@ def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     of freedom and ``CHI_SQUARE_SIGMAS``."""
     # the kernel's Python form: one scalar needs no compiled signature of its own
     return rms > noise_rms_bound.py_func(float(sigma), float(n), CHI_SQUARE_SIGMAS)
+
+
+def curvature_resolved(plane_squares: float, curved_squares: float, n: int, extra: int = 2) -> bool:
+    """Whether a curved model, with ``extra`` parameters more than a plane, lowers the sum
+    of squared distances of ``n`` points by more than noise alone would (an F-test).
+
+    Were the points a plane, the drop from its ``plane_squares`` to the curved model's
+    ``curved_squares`` would be the noise variance times a chi-square of ``extra``
+    degrees of freedom; the variance is estimated from the curved model's own residuals,
+    so the test needs no noise model (no incidence factor, no tile-mean scaling). The
+    drop must exceed that chi-square's mean by ``CHI_SQUARE_SIGMAS`` of its deviations.
+    With no degree of freedom left the curvature counts as resolved (nothing to test).
+    """
+    dof = n - 3 - extra
+    if dof <= 0:
+        return True
+    variance = curved_squares / dof
+    return plane_squares - curved_squares > (extra + CHI_SQUARE_SIGMAS * np.sqrt(2.0 * extra)) * variance
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,

@@ -26,13 +26,15 @@ from ..fitting.plane import fit_plane
 from ..fitting.robust import trimmed_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise
+from ..fitting.robust import beyond_noise, curvature_resolved
 from .context import Context, without
 
 __all__ = ["planes_for_curved"]
 
 #: Share of the region's pixels the planes must take (the crease band between them is left).
 PLANES_COVER = 0.9
+#: Parameters of each curved kind (a plane has 3): what the curvature test weighs.
+CURVED_PARAMETERS = {"cylinder": 5, "sphere": 4}
 #: Searches per region (bounds the time; a crease region holds two or three faces).
 _MAX_ATTEMPTS = 6
 
@@ -135,13 +137,20 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
 
 
 def _explains(ctx: Context, model, idx: np.ndarray, surfaces: list, sigma: float) -> bool:
-    # the surfaces take PLANES_COVER of the pixels, no farther from them than ``model`` and
-    # at the noise (facets of a truly curved surface do not fit at the noise either)
+    # The surfaces take PLANES_COVER of the pixels. One plane (two parameters fewer than the
+    # curved model) replaces it when the curved model does not resolve a curvature over the
+    # pixels the plane takes (the F-test of curvature_resolved, on the model's own residuals:
+    # mixed pixels or an oblique view do not enter). Several surfaces must be no farther from
+    # the pixels than ``model`` and at the noise (facets of a truly curved surface do not
+    # fit at the noise).
     taken = sum(piece.size for piece, _ in surfaces)
     if not surfaces or taken < PLANES_COVER * idx.size:
         return False
     squares = sum(float(np.sum(surface.distances(ctx.xyz[piece]) ** 2)) for piece, surface in surfaces)
     covered = np.concatenate([piece for piece, _ in surfaces])
-    if squares > float(np.sum(model.distances(ctx.xyz[covered]) ** 2)):
+    model_squares = float(np.sum(model.distances(ctx.xyz[covered]) ** 2))
+    if len(surfaces) == 1 and isinstance(surfaces[0][1], Plane):
+        return not curvature_resolved(squares, model_squares, taken, CURVED_PARAMETERS[model.kind] - 3)
+    if squares > model_squares:
         return False
     return not beyond_noise(np.sqrt(squares / taken), sigma, taken)

@@ -265,3 +265,46 @@ def test_the_compiled_planes_only_trimmed_fit_answers_as_trimmed_fit(case, max_r
         return
     assert model.kind == "plane" and repr(model) == repr(expected) and model.rms <= max_rms
     np.testing.assert_array_equal(inliers, expected_inliers)
+
+
+def _arc(radius, span, n, sigma, rng, length=1.0):
+    """``n`` points on a cylinder of ``radius`` (axis y) over ``span`` radians, noise ``sigma``
+    along the radius."""
+    angle = rng.uniform(-span / 2, span / 2, n)
+    y = rng.uniform(0, length, n)
+    r = radius + rng.normal(0.0, sigma, n)
+    return np.column_stack([r * np.sin(angle), y, 3.0 - r * np.cos(angle)]), radius
+
+
+def _squares(points, radius):
+    from rangeseg_o3d.fitting.plane import fit_plane
+
+    rho = np.hypot(points[:, 0], points[:, 2] - 3.0)
+    return len(points) * fit_plane(points).rms ** 2, float(np.sum((rho - radius) ** 2))
+
+
+def test_curvature_resolved_by_a_column_not_by_noise_on_a_wall():
+    from rangeseg_o3d.fitting.robust import curvature_resolved
+
+    rng = np.random.default_rng(5)
+    # a 20 cm column over 90 deg under 1 cm noise: the plane leaves a sagitta of ~6 cm
+    points, radius = _arc(0.2, np.pi / 2, 400, 0.01, rng)
+    assert curvature_resolved(*_squares(points, radius), len(points))
+    # a wall: a curved model that only follows the noise lowers the squares by ~2 variances
+    flat = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(0, 1, 400), 3.0 + rng.normal(0, 0.01, 400)])
+    plane_squares = float(np.sum((flat[:, 2] - flat[:, 2].mean()) ** 2))
+    variance = 0.01 ** 2
+    assert not curvature_resolved(plane_squares, plane_squares - 3.0 * variance, 400)
+    assert curvature_resolved(plane_squares, plane_squares - 12.0 * variance, 400)
+    # a model that fits worse than the plane resolves nothing; no degree of freedom left: untested
+    assert not curvature_resolved(plane_squares, plane_squares * 1.1, 400)
+    assert curvature_resolved(1.0, 1.0, 5)
+
+
+def test_curvature_of_a_far_shallow_arc_is_not_resolved_under_its_noise():
+    from rangeseg_o3d.fitting.robust import curvature_resolved
+
+    rng = np.random.default_rng(6)
+    # 5 m radius over 4 deg: sagitta 3 mm under 2 cm noise
+    points, radius = _arc(5.0, np.radians(4.0), 300, 0.02, rng)
+    assert not curvature_resolved(*_squares(points, radius), len(points))
