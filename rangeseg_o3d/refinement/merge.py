@@ -12,6 +12,7 @@ import numpy as np
 
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+from ..fitting.region_fitter import region_indices
 from ..fitting.robust import beyond_noise
 from .context import Context
 
@@ -253,7 +254,7 @@ class _Unions:
         union = self.cache.get((ra, rb))
         if union is None:
             if self.regions is None:
-                self.regions = _LabelPixels(self.labels)
+                self.regions = region_indices(self.labels)
             union_idx = np.concatenate([self.regions[ra], self.regions[rb]])
             union = self.ctx.fitter.refit(self.ctx.fitter.points(self.ctx.xyz, union_idx), self.fits[ra])
         return union
@@ -278,34 +279,6 @@ class _Unions:
         return lut
 
 
-class _LabelPixels(dict):
-    """:func:`rangeseg_o3d.fitting.region_fitter.region_indices` of ``labels``, gathered label
-    by label as asked (one compiled pass over the grid each: a merge at full resolution
-    needs the pixels of a few labels, not a sort of the whole grid). A label without
-    pixels raises KeyError, as there."""
-
-    def __init__(self, labels: np.ndarray):
-        super().__init__()
-        self.labels = np.ascontiguousarray(labels, dtype=np.int32)
-
-    def __missing__(self, k: int) -> np.ndarray:
-        from ..kernels import member_pixels
-
-        members = np.zeros(max(int(k) + 1, 1), bool)
-        if k > 0:
-            members[k] = True
-        idx = member_pixels(self.labels, members) if k > 0 else np.empty(0, np.int64)
-        if idx.size == 0:
-            raise KeyError(k)
-        self[k] = idx
-        return idx
-
-    def pop(self, k, *default):
-        if k not in self:
-            self[k]  # noqa: B018 -- gathered now, as region_indices would have it
-        return super().pop(k, *default)
-
-
 def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
                       rms_factor: float, only: set | None = None, near_sigmas: float | None = None):
     """Pieces of a curved surface taken by another kind go back to it: returns new
@@ -328,11 +301,8 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
              and (only is None or a in only or b in only)]
     if not mixed:  # no curved region touches another kind: no pass over the grid
         return labels, fits, adjacency
-    from ..kernels import label_counts
-
-    counts = label_counts(np.ascontiguousarray(labels, dtype=np.int32))
-    sizes = {k: int(counts[k]) for k in np.flatnonzero(counts).tolist() if k > 0}
-    regions = _LabelPixels(labels)  # only the pairs' pixels are gathered
+    regions = region_indices(labels)
+    sizes = {k: idx.size for k, idx in regions.items()}
     pairs = []
     for a, b in mixed:
         if a not in sizes or b not in sizes:

@@ -201,23 +201,3 @@ def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context
     # only= leaves out the pairs of other labels
     _, _, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3, only={3})
     assert adjacency == {(1, 2)}
-
-
-def test_label_pixels_gathers_as_region_indices_label_by_label():
-    # the merge's pixels per label, gathered only for the labels asked: the same arrays
-    from rangeseg_o3d.fitting.region_fitter import region_indices
-    from rangeseg_o3d.refinement.merge import _LabelPixels
-
-    rng = np.random.default_rng(2)
-    labels = rng.integers(0, 6, (30, 40)).astype(np.int32)
-    labels[labels == 4] = 0  # a label without pixels
-    expected = region_indices(labels)
-    lazy = _LabelPixels(labels)
-    assert len(lazy) == 0
-    np.testing.assert_array_equal(lazy[3], expected[3])
-    assert list(lazy) == [3]  # only what was asked
-    np.testing.assert_array_equal(lazy.pop(5), expected[5])
-    assert 5 not in lazy
-    for k in (4, 0):
-        with pytest.raises(KeyError):
-            lazy[k]
