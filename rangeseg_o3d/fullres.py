@@ -172,8 +172,6 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
 def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
     """``fits`` with each model's rms replaced by the rms distance of its region's pixels
     (``stats``, in the same labels); a model whose region has no pixel keeps its own."""
-    from dataclasses import replace
-
     out = dict(fits)
     counts = stats.counts
     for k, model in fits.items():
