@@ -42,7 +42,7 @@ from ._common import Prepared, as_points, decision_reason, input_failure
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import UNDETERMINED, plane_from_prepared
-from ..kernels.linalg import plane_tolerance
+from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound, plane_tolerance
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "fit_planes_batch", "refit_planes_from_moments",
@@ -298,7 +298,11 @@ def refit_primitive(
 
 
 def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float, noise_floor: float) -> np.ndarray:
-    floor = np.array([plane_tolerance(plane_rms, noise_floor, float(n)) for n in np.atleast_1d(planes.count)])
+    # plane_tolerance over every region at once
+    counts = np.atleast_1d(planes.count).astype(np.float64)
+    floor = np.full(counts.shape, float(plane_rms))
+    if noise_floor > 0.0:
+        floor = np.maximum(floor, noise_rms_bound.py_func(float(noise_floor), counts - 3.0, NOISE_CHI2_SIGMAS))
     return floor + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
 
 

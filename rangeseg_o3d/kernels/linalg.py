@@ -83,8 +83,9 @@ def noise_rms_bound(sigma, dof, sigmas):
     """The largest rms that noise of rms ``sigma`` alone gives a fit with ``dof`` degrees of
     freedom, ``sigmas`` standard deviations up the chi-square law (the mean square over
     ``sigma**2`` has mean 1 and deviation ``sqrt(2 / dof)``):
-    ``sigma sqrt(1 + sigmas sqrt(2 / dof))``, ``dof`` taken as at least 1."""
-    return sigma * np.sqrt(1.0 + sigmas * np.sqrt(2.0 / max(dof, 1.0)))
+    ``sigma sqrt(1 + sigmas sqrt(2 / dof))``, ``dof`` taken as at least 1. Its ``py_func``
+    takes an array of ``dof`` too (one bound per region)."""
+    return sigma * np.sqrt(1.0 + sigmas * np.sqrt(2.0 / np.maximum(dof, 1.0)))
 
 
 @njit(cache=True, nogil=True)
