@@ -243,7 +243,7 @@ class Pipeline:
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
-            labels, fits, stats = _absorb_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
@@ -270,8 +270,8 @@ class Pipeline:
                       timings=clock.timings, stages=stages)
 
 
-def _absorb_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
-                    sigma: np.ndarray, k_sigma: float):
+def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
+                          sigma: np.ndarray, k_sigma: float):
     """:func:`rangeseg_o3d.refinement.dissolve.absorb_ripples` at full resolution, each
     plane's scatter the rms of its pixels about it; ``(labels, fits, stats)`` after it."""
     from .refinement.dissolve import absorb_ripples

@@ -23,10 +23,9 @@ import copy
 import numpy as np
 
 from ..fitting.plane import fit_plane
-from ..fitting.robust import trimmed_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise, curvature_resolved
+from ..fitting.robust import beyond_noise, curvature_resolved, trimmed_plane
 from .context import Context, without
 
 __all__ = ["planes_for_curved"]
