@@ -75,6 +75,13 @@ class PixelStats:
     squares: np.ndarray
     counts: np.ndarray
 
+    def rms(self, label: int) -> float | None:
+        """The rms distance of label ``label``'s pixels from its model; None when it has no
+        pixel with a finite distance (or is beyond the table)."""
+        if not 0 <= label < self.counts.size or self.counts[label] <= 0:
+            return None
+        return float(np.sqrt(self.squares[label] / self.counts[label]))
+
 
 def label_pixels(cloud, tile_labels: np.ndarray, fits: dict, *, tile: int, sigma: np.ndarray,
                  k_sigma: float, inlier_factor: float) -> tuple[np.ndarray, PixelStats]:
@@ -173,10 +180,10 @@ def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
     """``fits`` with each model's rms replaced by the rms distance of its region's pixels
     (``stats``, in the same labels); a model whose region has no pixel keeps its own."""
     out = dict(fits)
-    counts = stats.counts
     for k, model in fits.items():
-        if model and 0 <= k < counts.size and counts[k] > 0:
-            out[k] = replace(model, rms=float(np.sqrt(stats.squares[k] / counts[k])))
+        rms = stats.rms(k) if model else None
+        if rms is not None:
+            out[k] = replace(model, rms=rms)
     return out
 
 

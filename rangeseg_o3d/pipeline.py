@@ -276,11 +276,9 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
     plane's scatter the rms of its pixels about it; ``(labels, fits, stats)`` after it."""
     from .refinement.dissolve import absorb_ripples
 
-    counts = stats.counts
-    scatter = {k: float(np.sqrt(stats.squares[k] / counts[k])) for k in fits
-               if 0 < k < counts.size and counts[k] > 0}
+    scatter = {k: rms for k in fits if k > 0 and (rms := stats.rms(k)) is not None}
     labels, fits, changed = absorb_ripples(cloud.xyz.reshape(-1, 3), labels, fits, sigma.ravel(),
-                                           scatter, k_sigma=k_sigma, sizes=counts)
+                                           scatter, k_sigma=k_sigma, sizes=stats.counts)
     if changed:
         stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS, known=stats, stale=changed)
     return labels, fits, stats
@@ -315,7 +313,7 @@ def _features(regions: Regions, sizes: np.ndarray, stats: PixelStats, sigma: np.
     """A Feature per fitted region (``stats`` give the inliers over all its pixels and,
     with ``pixel_rms``, the rms of its pixels' distances) and an Unfitted per failure."""
     labels, xyz_flat = regions.labels, xyz.reshape(-1, 3)
-    inliers, squares, counts = stats.inliers.copy(), stats.squares, stats.counts
+    inliers = stats.inliers.copy()
     source = PatchSource(xyz, labels)  # patch geometry is computed on demand from it
     features, unfitted = [], []
     for label, model in regions.models.items():
@@ -329,8 +327,8 @@ def _features(regions: Regions, sizes: np.ndarray, stats: PixelStats, sigma: np.
             tol = INLIER_SIGMAS * sigma.ravel()[idx]
             inliers[label] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
         model = replace(model, inliers=int(inliers[label]))
-        if pixel_rms and counts[label] > 0:  # fitted on tile means: report the pixels' rms
-            model = replace(model, rms=float(np.sqrt(squares[label] / counts[label])))
+        if pixel_rms and stats.rms(label) is not None:  # fitted on tile means: the pixels' rms
+            model = replace(model, rms=stats.rms(label))
         features.append(Feature(label=label, model=model, n_pixels=int(sizes[label]), source=source))
     return features, unfitted
 

@@ -329,3 +329,13 @@ def test_planes_for_unresolved_leaves_planes_alone():
     out, out_stats = planes_for_unresolved(rs.OrganizedCloud(xyz), labels, fits, stats,
                                            sigma=np.full(labels.shape, 0.004), inlier_factor=INLIER_SIGMAS)
     assert out is fits and out_stats is stats
+
+
+def test_pixel_stats_rms_per_label_and_none_without_pixels():
+    from rangeseg_o3d.fullres import PixelStats
+
+    stats = PixelStats(inliers=np.array([0, 3, 0]), squares=np.array([0.0, 4 * 0.002 ** 2, 0.0]),
+                       counts=np.array([0, 4, 0]))
+    assert stats.rms(1) == pytest.approx(0.002, rel=1e-12)
+    assert stats.rms(2) is None  # a label with no pixel
+    assert stats.rms(3) is None and stats.rms(-1) is None  # beyond the table
