@@ -135,7 +135,8 @@ class Plugin:
     """Optional, fitters only: ``trimmed(xyz, pool, *, sigma, min_inliers, max_rms, fit_max_points,
     **params) -> (model, inliers)``: :func:`rangeseg_o3d.fitting.robust.trimmed_fit` of
     ``xyz[pool]`` (``min_points=min_inliers``) judged by ``run`` on at most ``fit_max_points`` points, models over
-    ``max_rms`` refused, all in one call (the refinement's splits run it often)."""
+    ``max_rms`` refused, all in one call (the refinement's splits run it often). Called with
+    ``starts=True`` only when the fitter's ``trimmed_fit(..., starts=True)`` (local starts) is wanted."""
 
 
 _BUILTIN: dict[str, dict[str, str]] = {

@@ -18,7 +18,7 @@ import numpy as np
 from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 from ..kernels.linalg import noise_rms_bound
-from ..kernels.trimmed import pool_inliers, trimmed_proposals
+from ..kernels.trimmed import local_proposals, pool_inliers, trimmed_proposals
 from ._compiled import plane_of, prepare_points
 from ._decide import ACCEPTED, CURVED_SIZE, RADIUS, RMS, primitive_decision
 
@@ -81,13 +81,19 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
                      hemi_u,
                      hemi_v, hemi_s, cones, plane_rms, cylinder_rms, sphere_rms, rms_per_range2, max_radius,
                      min_arc, curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
-                     max_iterations, noise_floor):
+                     max_iterations, noise_floor, seeds):
     """``trimmed_fit(xyz, judge, pool=pool, ...)`` with ``judge`` the region fitter's
     ``fit`` (points subsampled to ``fit_max_points``, at least ``fit_min_points`` of them,
     then ``primitive_decision`` with the arguments after ``max_rms``), refusing a model
     whose rms is over ``max_rms`` (inf: none). With ``planes_only`` the judge is
     ``fit_plane`` instead (the least-squares plane of all the points; the decision's
     arguments are not read).
+
+    With ``seeds`` (indices into the pool's even subsample, as ``trimmed_fit(...,
+    starts=True)`` spreads them; empty: the global search) the proposals are the local
+    starts' quadrics (:func:`rangeseg_o3d.kernels.local_proposals`): the distinct ones,
+    largest first, at most :data:`LOCAL_JUDGED` judged, the first answer at the noise
+    ends the search and only an answer at the noise counts.
 
     Returns ``(found, ints, floats, centroid, normal, codes, curved, inliers)``: whether a
     model won, its decision packed (:data:`DECISION_INTS`, :data:`DECISION_FLOATS` and the
@@ -100,25 +106,37 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
     curved = np.full((4, CURVED_SIZE), np.nan)
     best_mask = np.zeros(pool.shape[0], np.bool_)
     size = pool.shape[0]
-    if size < max(min_points, 6):
+    local = seeds.shape[0] > 0
+    if size < max(min_points, 6) or (local and size < 2 * min_points):
         return False, ints, floats, centroid, normal, codes, curved, best_mask
     step = -(-size // max_points)
     m = -(-size // step)
     pts = np.empty((m, 3))
     for i in range(m):
         pts[i] = xyz[pool[i * step]]
-    keep = max(int(keep_fraction * m), 6)
-    trials = 64 if size < many_points else 256
-    plane_near, quad_near = trimmed_proposals(pts, sigma, rounds, min(keep, m), trials, 0)
-    n_plane, n_quad = plane_near.sum(), quad_near.sum()
-    found, best_noise, best_count = False, False, -1
+    if local:
+        proposals = _distinct(local_proposals(pts, sigma, rounds, seeds, max(m // seeds.shape[0], 6)))
+        limit = LOCAL_JUDGED
+    else:
+        keep = max(int(keep_fraction * m), 6)
+        trials = 64 if size < many_points else 256
+        plane_near, quad_near = trimmed_proposals(pts, sigma, rounds, min(keep, m), trials, 0)
+        # the proposal near more points first (the plane's on a tie)
+        proposals = np.empty((2, m), np.bool_)
+        first_quad = quad_near.sum() > plane_near.sum()
+        proposals[0] = quad_near if first_quad else plane_near
+        proposals[1] = plane_near if first_quad else quad_near
+        limit = 2
+    found, best_noise, best_count, judged = False, False, -1, 0
     row = np.zeros(PARAM_SLOTS)
-    # the proposal near more points first (the plane's on a tie)
-    for turn in range(2):
-        quadric = (turn == 0) == (n_quad > n_plane)
-        near, count = (quad_near, n_quad) if quadric else (plane_near, n_plane)
+    for turn in range(proposals.shape[0]):
+        near = proposals[turn]
+        count = near.sum()
         if count * step < min_points:
             continue
+        if judged >= limit:
+            break
+        judged += 1
         chosen = np.empty((count, 3))
         j = 0
         for i in range(m):
@@ -167,4 +185,41 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
                 _pack(decision, ints, floats, centroid, normal, codes, curved)
             if at_noise and n_noise >= enough * size:
                 break
+        if local and best_noise:  # the local starts take the first answer at the noise
+            break
+    if local and not best_noise:  # and only an answer at the noise
+        found = False
     return found, ints, floats, centroid, normal, codes, curved, best_mask
+
+
+#: Distinct local proposals the fitter judges at most (``trimmed_fit``'s ``_LOCAL_JUDGED``).
+LOCAL_JUDGED = 4
+
+
+@njit(cache=True, nogil=True)
+def _distinct(masks):
+    """The rows of ``masks``, largest first (a stable order), without empty ones and those
+    mostly covered by a larger one kept (``fitting.robust._distinct``)."""
+    k = masks.shape[0]
+    counts = np.empty(k, np.int64)
+    for s in range(k):
+        counts[s] = masks[s].sum()
+    order = np.argsort(-counts, kind="mergesort")
+    kept = np.empty(k, np.int64)
+    n_kept = 0
+    for s in order:
+        count = counts[s]
+        if count == 0:
+            continue
+        distinct = True
+        for t in range(n_kept):
+            if np.count_nonzero(masks[s] & masks[kept[t]]) >= 0.8 * count:
+                distinct = False
+                break
+        if distinct:
+            kept[n_kept] = s
+            n_kept += 1
+    out = np.empty((n_kept, masks.shape[1]), np.bool_)
+    for t in range(n_kept):
+        out[t] = masks[kept[t]]
+    return out

@@ -199,28 +199,30 @@ def model_of_decision(decision) -> Plane | Cylinder | Sphere:
 
 
 def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: float, fit_max_points: int,
-                      planes_only: bool = False, **params):
+                      planes_only: bool = False, starts: bool = False, **params):
     """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of the points ``xyz[pool]`` judged by
     :func:`fit_primitive` with the keywords ``params`` on at most ``fit_max_points`` points (as a
     :class:`rangeseg_o3d.fitting.region_fitter.RegionFitter` judges), refusing models with an
     rms over ``max_rms``, in one compiled call (:mod:`._trimmed`): the same ``(model, inliers)``
     (``min_inliers`` is ``trimmed_fit``'s ``min_points``). With ``planes_only`` the judge is
     :func:`rangeseg_o3d.fitting.plane.fit_plane` on all the points instead (``params`` unused).
+    With ``starts``, ``trimmed_fit(..., starts=True)``: the proposals grown from local starts.
 
     ``xyz`` a C-ordered float64 (N, 3) array, ``pool`` int64 indices into it.
     """
     from ._decide import Decision
     from ._trimmed import trimmed_decision
-    from .robust import CHI_SQUARE_SIGMAS, ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS
+    from .robust import CHI_SQUARE_SIGMAS, ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS, local_seeds
 
     p = {**_PRIMITIVE_DEFAULTS, **params}
+    seeds = local_seeds(len(pool), MAX_POINTS) if starts else _NO_SEEDS
     found, ints, floats, centroid, normal, codes, curved, inliers = trimmed_decision(
         xyz, pool, float(sigma), int(min_inliers), ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS,
         CHI_SQUARE_SIGMAS, bool(planes_only), int(fit_max_points), 3 if planes_only else int(p["min_points"]),
         float(max_rms), _NO_HINT, *_search_grids(),
         float(p["plane_rms"]), float(p["cylinder_rms"]), float(p["sphere_rms"]), float(p["rms_per_range2"]),
         float(p["max_radius"]), float(np.radians(p["min_arc_deg"])), float(p["curvature_gain"]), INLIER_FACTOR,
-        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(p["noise_floor"]))
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(p["noise_floor"]), seeds)
     if not found:
         return None, None
     kind, status, first, plane_inliers = ints.tolist()
@@ -231,6 +233,7 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
 
 
 _NO_HINT = np.full(3, np.nan)  # no cylinder axis hint (read only by the compiled code)
+_NO_SEEDS = np.zeros(0, np.int64)  # the global search (no local starts)
 _PRIMITIVE_DEFAULTS = {name: parameter.default for name, parameter in
                        inspect.signature(fit_primitive).parameters.items()
                        if parameter.kind == inspect.Parameter.KEYWORD_ONLY}

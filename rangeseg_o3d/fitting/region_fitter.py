@@ -115,11 +115,11 @@ class RegionFitter:
             return FitFailure(kind="any", reason=str(exc))
 
     def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
-                max_rms: float = np.inf):
+                max_rms: float = np.inf, starts: bool = False):
         """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of ``xyz_flat[pool]`` judged by
-        :meth:`fit` (models over ``max_rms`` refused) in the plugin's one call, or None when
-        the plugin has none (or the points are not a C-ordered float64 array): the caller
-        then runs ``trimmed_fit`` itself."""
+        :meth:`fit` (models over ``max_rms`` refused; with ``starts``, from local starts) in
+        the plugin's one call, or None when the plugin has none (or the points are not a
+        C-ordered float64 array): the caller then runs ``trimmed_fit`` itself."""
         if (self.plugin.trimmed is None or xyz_flat.dtype != np.float64 or xyz_flat.ndim != 2
                 or not xyz_flat.flags.c_contiguous):
             return None
@@ -128,7 +128,7 @@ class RegionFitter:
         try:
             return self.plugin.trimmed(xyz_flat, np.ascontiguousarray(pool, dtype=np.int64), sigma=sigma,
                                        min_inliers=min_points, max_rms=max_rms, fit_max_points=self.max_points,
-                                       **self.params)
+                                       **({"starts": True} if starts else {}), **self.params)
         except ValueError:  # as fit: a bad region is no answer
             return None, None
 

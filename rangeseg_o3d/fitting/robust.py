@@ -119,17 +119,25 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         return search.best, search.best_mask
     if size < 2 * min_points:  # no room for two surfaces of min_points: the global answer stands
         return None, None
-    # seeds spread over the points (a pool's pixels come in raster order: over the image)
-    seeds = np.linspace(0, len(pts) - 1, _LOCAL_SEEDS).astype(np.int64)
+    seeds = local_seeds(size, max_points)
     local = local_proposals(pts, float(sigma), int(rounds), seeds, max(len(pts) // _LOCAL_SEEDS, 6))
     if search.judge_all(_distinct(local), limit=_LOCAL_JUDGED, first_at_noise=True):
         return search.best, search.best_mask
     return None, None
 
 
-# Seeds of the local proposals, and how many distinct ones the fitter judges at most.
+# Seeds of the local proposals, and how many distinct ones the fitter judges at most
+# (fitting._trimmed.LOCAL_JUDGED, the compiled search's, is the same).
 _LOCAL_SEEDS = 8
 _LOCAL_JUDGED = 4
+
+
+def local_seeds(size: int, max_points: int = MAX_POINTS) -> np.ndarray:
+    """The local starts' seeds of a pool of ``size`` points: ``_LOCAL_SEEDS`` indices spread
+    evenly over its subsample of at most ``max_points`` (a pool's pixels come in raster
+    order: over the image)."""
+    step = -(-size // max_points)
+    return np.linspace(0, -(-size // step) - 1, _LOCAL_SEEDS).astype(np.int64)
 
 
 def _distinct(masks) -> list[np.ndarray]:
@@ -199,15 +207,16 @@ class _Search:
 
 
 def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
-                  max_rms: float = np.inf):
-    """``trimmed_fit(points, judge, pool=pool, ...)`` with ``judge`` the least-squares plane
-    (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over ``max_rms``, in one compiled
-    call (:mod:`rangeseg_o3d.fitting._trimmed`): the same ``(model, inliers)``."""
+                  max_rms: float = np.inf, starts: bool = False):
+    """``trimmed_fit(points, judge, pool=pool, starts=starts, ...)`` with ``judge`` the
+    least-squares plane (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over
+    ``max_rms``, in one compiled call (:mod:`rangeseg_o3d.fitting._trimmed`): the same
+    ``(model, inliers)``."""
     from .classify import trimmed_primitive
 
     xyz, indices = _pool_points(points, pool)
     return trimmed_primitive(xyz, indices, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
-                             fit_max_points=max(len(indices), 1), planes_only=True)
+                             fit_max_points=max(len(indices), 1), planes_only=True, starts=starts)
 
 
 def _pool_points(points: np.ndarray, pool: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

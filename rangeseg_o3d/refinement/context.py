@@ -97,8 +97,10 @@ class Context:
         piece = None if model is None else self.largest_piece(pool[inliers])
         if model is None or (piece.size < _ONE_PIECE * inliers.sum()
                              and beyond_noise(model.rms, sigma, int(inliers.sum()))):
-            local, near = trimmed_fit(self.xyz, self.fitter.fit, pool=pool, sigma=sigma,
-                                      min_points=self.min_size, starts=True)
+            found = (self.fitter.trimmed(self.xyz, pool, sigma=sigma, min_points=self.min_size, starts=True)
+                     if hasattr(self.fitter, "trimmed") else None)
+            local, near = found if found is not None else trimmed_fit(
+                self.xyz, self.fitter.fit, pool=pool, sigma=sigma, min_points=self.min_size, starts=True)
             if local is not None:
                 model, inliers = local, near
                 piece = self.largest_piece(pool[inliers])

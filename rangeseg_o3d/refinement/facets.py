@@ -56,9 +56,11 @@ class _PlaneJudge:
     def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
         return self.fitter.points(xyz_flat, idx)
 
-    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int):
+    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
+                starts: bool = False):
         # trimmed_fit with this judge in one compiled call (what Context.dominant_piece asks)
-        return trimmed_plane(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms)
+        return trimmed_plane(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms,
+                             starts=starts)
 
 
 class _BoundJudge(_PlaneJudge):
@@ -72,9 +74,11 @@ class _BoundJudge(_PlaneJudge):
         refit = self.fitter.refit(points, model)
         return refit if refit and refit.rms <= self.max_rms else None
 
-    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int):
+    def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
+                starts: bool = False):
         # the fitter's compiled trimmed fit with this judge's bound (None: it has none)
-        return self.fitter.trimmed(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms)
+        return self.fitter.trimmed(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms,
+                                   starts=starts)
 
 
 def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:

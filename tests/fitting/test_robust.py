@@ -267,6 +267,54 @@ def test_the_compiled_planes_only_trimmed_fit_answers_as_trimmed_fit(case, max_r
     np.testing.assert_array_equal(inliers, expected_inliers)
 
 
+def _local_start_sets():
+    # the mixed sets plus floors with two columns on them (where local starts find an answer)
+    sets = _mixed_sets()
+    for seed in range(3):
+        sets.append((_floor_and_two_columns(seed)[0], 0.005, 20))
+    return sets
+
+
+@pytest.mark.parametrize("case", range(9))
+@pytest.mark.parametrize("judge_kind", ["fitter", "bound", "planes"])
+def test_the_compiled_local_starts_answer_as_trimmed_fit_from_local_starts(case, judge_kind):
+    # trimmed(..., starts=True) in one compiled call against trimmed_fit(..., starts=True)
+    # with the same judge: the fitter, the fitter refusing models over 1 cm, fit_plane so bounded
+    from rangeseg_o3d.refinement.facets import _BoundJudge, _PlaneJudge
+
+    points, sigma, min_points = _local_start_sets()[case]
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    judge = {"fitter": fitter, "bound": _BoundJudge(fitter, 0.01), "planes": _PlaneJudge(fitter, 0.01)}[judge_kind]
+    rng = np.random.default_rng(case)
+    xyz = np.ascontiguousarray(np.vstack([rng.uniform(5, 6, (30, 3)), points]))
+    pool = np.arange(30, len(xyz))
+    model, inliers = judge.trimmed(xyz, pool, sigma=sigma, min_points=min_points, starts=True)
+    expected, expected_inliers = trimmed_fit(xyz, judge.fit, pool=pool, sigma=sigma, min_points=min_points,
+                                             starts=True)
+    if expected is None:
+        assert model is None and inliers is None
+        return
+    assert type(model) is type(expected) and repr(model) == repr(expected)
+    np.testing.assert_array_equal(inliers, expected_inliers)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_compiled_local_starts_take_one_surface_of_a_floor_and_two_columns(seed):
+    # the answer itself: one of the three surfaces nearly whole, at the noise, and (noise)
+    # no answer at all
+    from rangeseg_o3d.fitting.robust import beyond_noise
+
+    points, parts = _floor_and_two_columns(seed)
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    pts = np.ascontiguousarray(points)
+    model, inliers = fitter.trimmed(pts, np.arange(len(pts)), sigma=0.005, min_points=20, starts=True)
+    assert model is not None and not beyond_noise(model.rms, 0.005, int(inliers.sum()))
+    shares = sorted(inliers[part].mean() for part in parts)
+    assert shares[-1] > 0.9 and shares[1] < 0.1, shares
+    noise = np.ascontiguousarray(np.random.default_rng(5).uniform(0, 1, (300, 3)))
+    assert fitter.trimmed(noise, np.arange(300), sigma=0.003, min_points=30, starts=True) == (None, None)
+
+
 def _arc(radius, span, n, sigma, rng, length=1.0):
     """``n`` points on a cylinder of ``radius`` (axis y) over ``span`` radians, noise ``sigma``
     along the radius."""
