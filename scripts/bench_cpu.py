@@ -6,7 +6,8 @@ CPU time (``time.process_time``, one thread) moves far less. Each scan of the LM
 (``lms200``) and of the RGB-D suite (``rgbd_vga``) runs once untimed, then ``--repeats``
 timed rounds; printed: the median over scans of each scan's median, and their sum (ms).
 
-Usage: PYTHONPATH=<tree> python scripts/bench_cpu.py [--repeats 10]
+Usage: PYTHONPATH=<tree> python scripts/bench_cpu.py [--repeats 10] [--suite lms200] [--per-scan]
+(``--per-scan`` also prints each scan's median and names the slowest)
 (run it alternately on the two trees being compared, several times each)
 """
 
@@ -36,6 +37,9 @@ def cpu_medians(pipeline, scans, repeats: int) -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--suite", choices=("lms200", "rgbd_vga"), action="append",
+                        help="only this suite (repeatable); default both")
+    parser.add_argument("--per-scan", action="store_true", help="print every scan's median too")
     args = parser.parse_args()
     import cv2
 
@@ -43,10 +47,15 @@ def main() -> None:
     import rangeseg_o3d as rs
     from rangeseg_o3d.synthetic.suite import lms200_suite, rgbd_suite
 
-    for preset, suite in (("lms200", lms200_suite(seed=0)), ("rgbd_vga", rgbd_suite(seed=0))):
+    suites = {"lms200": lms200_suite, "rgbd_vga": rgbd_suite}
+    for preset in args.suite or suites:
+        suite = suites[preset](seed=0)
         ms = [1000 * t for t in cpu_medians(rs.Pipeline(preset), [scan for _, scan in suite], args.repeats)]
+        slowest = max(range(len(ms)), key=ms.__getitem__)
         print(f"{preset}: {len(ms)} scans, CPU ms per scan median {statistics.median(ms):.2f}, "
-              f"sum {sum(ms):.1f} (medians of {args.repeats} runs)")
+              f"sum {sum(ms):.1f}, slowest {suite[slowest][0]} {ms[slowest]:.2f} (medians of {args.repeats} runs)")
+        if args.per_scan:
+            print("  " + ", ".join(f"{name} {t:.2f}" for (name, _), t in zip(suite, ms)))
 
 
 if __name__ == "__main__":

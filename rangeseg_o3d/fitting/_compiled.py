@@ -441,7 +441,10 @@ def sphere_refine(q, center, radius, max_iterations, inlier_distance, give_up_rm
         squares += dist * dist
         if abs(dist) <= inlier_distance:
             inliers += 1
-    return True, center, radius, converged, np.sqrt(squares / n), cap_angle(q, center), inliers
+    # the cap is judged only for a converged model (_decide._outcome_code): its O(n) pass is
+    # spared for the refused ones (NaN in their row)
+    cap = cap_angle(q, center) if converged == 1 else np.nan
+    return True, center, radius, converged, np.sqrt(squares / n), cap, inliers
 
 
 # inline: as sphere_core
@@ -472,7 +475,10 @@ def cylinder_refine(q, axis, point, radius, max_iterations, inlier_distance, giv
         squares += dist * dist
         if abs(dist) <= inlier_distance:
             inliers += 1
-    return axis, point, radius, converged, np.sqrt(squares / n), arc_around_axis(q, axis, point), inliers
+    # the arc is judged only for a converged model (_decide._outcome_code): its sort of the
+    # angles is spared for the refused ones (NaN in their row; most failed unions of a merge)
+    arc = arc_around_axis(q, axis, point) if converged == 1 else np.nan
+    return axis, point, radius, converged, np.sqrt(squares / n), arc, inliers
 
 
 @njit(cache=True, nogil=True)

@@ -180,12 +180,34 @@ def _scores(xyz, idx, table: _PlaneTable, which, sigma) -> np.ndarray:
     return distances / np.maximum(sigma[idx][:, None], table.scatter[which][None, :])
 
 
+#: Scores of a patch against every larger plane are computed before looking for the planes
+#: within two pixels when there are at most this many (a small grid's patches: the look
+#: costs more than the scores).
+_PRESCORE_BUDGET = 16384
+
+
+def median_may_pass(scores: np.ndarray, limit: float) -> np.ndarray:
+    """Per column of ``scores`` (pixels, planes): False where ``np.median`` of the column is
+    certainly over ``limit`` (fewer than half of its values, rounded up, are at most
+    ``limit``), True where it may not be.
+
+    The median of n values is at least its ``ceil(n / 2)``-th smallest (the mean of the two
+    middle ones for even n is at least the lower one, in floating point too), so a column
+    with fewer values at most ``limit`` has its median over it: a necessary test, one
+    comparison and one count per value instead of a partition per column.
+    """
+    return np.count_nonzero(scores <= limit, axis=0) >= (scores.shape[0] + 1) // 2
+
+
 def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
     """The label of the larger plane within two pixels of the patch ``idx`` whose scatter
     explains it best at the median, within ``k_sigma``; None when there is none."""
     larger = table.sizes > idx.size
     if not larger.any():
         return None
+    if idx.size * np.count_nonzero(larger) <= _PRESCORE_BUDGET and not np.any(
+            median_may_pass(_scores(xyz, idx, table, larger, sigma), k_sigma)):
+        return None  # no larger plane anywhere explains it at the median: none nearby does
     # only the planes within two pixels can host it: their columns alone are scored (each
     # plane's median is its own column's)
     near = touching(labels, idx, reach=2)

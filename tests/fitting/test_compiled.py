@@ -78,3 +78,27 @@ def test_lm_gives_up_only_when_creeping_far_above_the_bound():
     d = rng.normal(size=(200, 3))
     sphere = 0.5 * d / np.linalg.norm(d, axis=1, keepdims=True)
     assert sphere_lm(sphere, np.array([0.05, 0.0, 0.0]), 0.45, 50, 1e-6)[2] == 1
+
+
+def test_a_refused_refinement_skips_the_arc_and_a_converged_one_has_it():
+    from rangeseg_o3d.fitting._compiled import cylinder_refine, sphere_refine
+
+    t = np.linspace(0.0, np.pi, 120)
+    along = np.tile(np.linspace(-0.5, 0.5, 6), 20)
+    arc = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), along], axis=1)
+    axis, point = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    *_, converged, rms, got_arc, inliers = cylinder_refine(arc, axis, point, 0.29, 30, 0.01)
+    assert converged == 1 and rms < 1e-9 and inliers == 120
+    assert got_arc == pytest.approx(np.pi, rel=1e-9)  # a half circle: the gap is the other half
+    # a union of the arc and a far wall: Levenberg-Marquardt gives up (converged -1), the row's
+    # arc is NaN (never judged for a refused model), its rms is still measured
+    wall = np.stack([np.full(60, 3.0), np.linspace(-1, 1, 60), np.tile([-0.5, 0.5], 30)], axis=1)
+    both = np.concatenate([arc, wall])
+    *_, converged, rms, got_arc, _ = cylinder_refine(both, axis, point, 0.3, 30, 0.01, 0.001)
+    assert converged == -1 and np.isnan(got_arc) and rms > 0.1
+    ball = np.stack([np.cos(t) * 0.5, np.sin(t) * 0.5, np.zeros_like(t)], axis=1)
+    ok, _, _, converged, _, cap, _ = sphere_refine(np.concatenate([ball, wall]), np.zeros(3), 0.5, 30, 0.01,
+                                                   0.0001)
+    assert ok and converged == -1 and np.isnan(cap)
+    ok, _, _, converged, _, cap, _ = sphere_refine(ball + [0.0, 0.0, 1e-3], np.zeros(3), 0.5, 30, 0.01)
+    assert ok and converged == 1 and np.isfinite(cap)

@@ -114,3 +114,49 @@ def test_without_curved_regions_the_inputs_come_back():
     sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
     out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0)
     assert out is labels and kept is fits and changed == set()
+
+
+def test_median_may_pass_is_false_only_where_the_median_is_over_the_limit():
+    from rangeseg_o3d.refinement.dissolve import median_may_pass
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 4, 7, 8, 51, 200):
+        scores = rng.exponential(2.0, size=(n, 40))
+        scores[:, :5] = np.round(scores[:, :5])  # ties at the limit
+        for limit in (0.5, 1.0, 2.0, 3.0):
+            may = median_may_pass(scores, limit)
+            passes = np.median(scores, axis=0) <= limit
+            assert not np.any(passes & ~may)  # never rules out a column that passes
+            # it is the count test: columns with fewer than ceil(n/2) values at the limit are out
+            below = np.count_nonzero(scores <= limit, axis=0)
+            np.testing.assert_array_equal(may, below >= (n + 1) // 2)
+    # even n: two of four values at the limit, the median between them decides
+    column = np.array([[1.0], [1.0], [1.2], [5.0]])
+    assert median_may_pass(column, 1.0)[0] and not np.median(column) <= 1.0
+    assert not median_may_pass(np.array([[0.5], [2.0], [3.0]]), 1.0)[0]
+
+
+def test_a_column_far_from_every_larger_plane_is_refused_as_before():
+    # the pre-score path (a small patch) and the looked-up path give the same answer
+    from rangeseg_o3d.refinement import dissolve
+
+    xyz, labels, fits = _rippled_plane(bump=0.02)
+    sigma = np.full(xyz.shape[0] * xyz.shape[1], NOISE)
+    budget = dissolve._PRESCORE_BUDGET
+    answers = []
+    for value in (budget, 0):
+        dissolve._PRESCORE_BUDGET = value
+        try:
+            answers.append(absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0))
+        finally:
+            dissolve._PRESCORE_BUDGET = budget
+    for out, kept, changed in answers:
+        assert (out == labels).all() and set(kept) == {1, 2} and changed == set()
+    xyz, labels, fits = _rippled_plane(bump=0.0)  # a ripple: both paths hand it to the plane
+    for value in (budget, 0):
+        dissolve._PRESCORE_BUDGET = value
+        try:
+            out, kept, changed = absorb_ripples(xyz.reshape(-1, 3), labels, fits, sigma, {}, k_sigma=3.0)
+        finally:
+            dissolve._PRESCORE_BUDGET = budget
+        assert changed == {1, 2} and (out == 1).all()
