@@ -50,9 +50,13 @@ def _fill_row(model, row: np.ndarray) -> int:
     return NONE
 
 
-def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
-    """Flat pixel indices (increasing) of every positive label: one counting sort of the grid."""
-    from ..kernels import group_by_label
+def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
+    """Flat pixel indices (increasing) of every positive label: one counting sort of the grid.
+
+    With ``only`` (labels), just those labels' (a label without pixels is left out, as
+    always): the other pixels are read, not sorted.
+    """
+    from ..kernels import group_by_label, group_members
 
     flat = np.ascontiguousarray(labels.ravel())
     if flat.size == 0:
@@ -60,7 +64,12 @@ def region_indices(labels: np.ndarray) -> dict[int, np.ndarray]:
     if flat.dtype != np.int32:
         flat = flat.astype(np.int32)
     n = int(flat.max()) + 1
-    order, starts = group_by_label(flat, n)
+    if only is not None:
+        members = np.zeros(n, bool)
+        members[[k for k in only if 0 < k < n]] = True
+        order, starts = group_members(flat, members)
+    else:
+        order, starts = group_by_label(flat, n)
     present = np.flatnonzero(np.diff(starts[1:]) > 0) + 1
     return {int(k): order[starts[k]:starts[k + 1]] for k in present}
 

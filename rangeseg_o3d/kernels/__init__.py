@@ -28,7 +28,8 @@ from __future__ import annotations
 import importlib
 
 _SOURCES = {
-    "grid": ("adjacency_matrix", "block_means", "claim_rings", "settle_borders", "group_by_label", "label_counts",
+    "grid": ("adjacency_matrix", "block_means", "claim_rings", "settle_borders", "group_by_label", "group_members",
+             "label_counts",
              "relabel", "grow_rings", "jump_mask", "largest_piece", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",

@@ -49,6 +49,28 @@ def group_by_label(labels, n):
     return order, starts
 
 @njit(cache=True, nogil=True)
+def group_members(labels, members):
+    """:func:`group_by_label` of the labels ``k`` with ``members[k]`` only (``0 < k <
+    len(members)``): ``order[starts[k]:starts[k + 1]]`` are label ``k``'s flat indices in
+    increasing order (empty for the others). Pixels of other labels are only read."""
+    n = members.shape[0]
+    counts = np.zeros(n + 1, np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 < k < n and members[k]:
+            counts[k + 1] += 1
+    starts = np.cumsum(counts)
+    fill = starts[:-1].copy()
+    order = np.empty(starts[-1], np.int64)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if 0 < k < n and members[k]:
+            order[fill[k]] = i
+            fill[k] += 1
+    return order, starts
+
+
+@njit(cache=True, nogil=True)
 def _continues(ranges, r, c, dr, dc, step, continuation):
     # Is the step ``step`` from (r, c) to (r + dr, c + dc) continued on both sides along
     # the same line by steps within ``continuation`` of it (a surface seen at a grazing

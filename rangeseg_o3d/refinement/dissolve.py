@@ -211,7 +211,7 @@ def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
     # only the planes within two pixels can host it: their columns alone are scored (each
     # plane's median is its own column's)
     near = touching(labels, idx, reach=2)
-    larger &= np.isin(table.labels, list(near))
+    larger &= np.fromiter((k in near for k in table.labels.tolist()), bool, count=table.labels.size)
     if not larger.any():
         return None
     middle = np.median(_scores(xyz, idx, table, larger, sigma), axis=0)

@@ -170,7 +170,10 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     """
     fits = dict(fits)
     good = {k: m for k, m in fits.items() if m}
-    unions = _Unions(ctx, labels, fits, rms_factor)
+    # Moments serve pairs of planes only: with ``only`` holding no plane, every pair left is
+    # refitted from its points, and the pass over the pixels for them is not needed.
+    with_moments = only is None or any(isinstance(fits.get(k), Plane) for k in only)
+    unions = _Unions(ctx, labels, fits, rms_factor, with_moments=with_moments)
     pairs = merge_candidates(good, max_angle_deg=max_angle_deg, tolerance=tolerance,
                              adjacency=adjacency, disjoint=disjoint,
                              moments=unions.moments if disjoint else None, rms_factor=rms_factor)
@@ -209,12 +212,15 @@ class _Unions:
     """Union-find over the labels of ``fits`` (which it updates: a root holds its union's
     model) and the models of candidate unions, cached until a part merges."""
 
-    def __init__(self, ctx: Context, labels: np.ndarray, fits: dict, rms_factor: float):
+    def __init__(self, ctx: Context, labels: np.ndarray, fits: dict, rms_factor: float, *,
+                 with_moments: bool = True):
         self.ctx, self.labels, self.fits, self.rms_factor = ctx, labels, fits, rms_factor
-        self.moments = ctx.fitter.moments(ctx.xyz, labels)  # None: the fitter needs points
+        # None: the fitter needs points (or no pair of planes is wanted)
+        self.moments = ctx.fitter.moments(ctx.xyz, labels) if with_moments else None
         self.root = {k: k for k in fits}
         self.cache: dict = {}
         self.regions = None  # flat pixels per label, gathered when a union needs its points
+        self.paired: set = set()  # the labels of the candidate pairs (add)
 
     def find(self, k: int) -> int:
         while self.root[k] != k:
@@ -226,6 +232,7 @@ class _Unions:
         one call; None where the kind needs its points (or there are no moments)."""
         fits = self.fits
         keys = []
+        self.paired.update(k for pair in pairs for k in pair)
         for a, b in pairs:
             key = (self.find(a), self.find(b))
             if key[0] != key[1] and key not in self.cache and fits.get(key[0]) and fits.get(key[1]):
@@ -253,8 +260,8 @@ class _Unions:
         """The union's model: the cached one, else a refit of the union's points."""
         union = self.cache.get((ra, rb))
         if union is None:
-            if self.regions is None:
-                self.regions = region_indices(self.labels)
+            if self.regions is None:  # the pixels of every label a pair may join
+                self.regions = region_indices(self.labels, only=self.paired)
             union_idx = np.concatenate([self.regions[ra], self.regions[rb]])
             union = self.ctx.fitter.refit(self.ctx.fitter.points(self.ctx.xyz, union_idx), self.fits[ra])
         return union
@@ -301,7 +308,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
              and (only is None or a in only or b in only)]
     if not mixed:  # no curved region touches another kind: no pass over the grid
         return labels, fits, adjacency
-    regions = region_indices(labels)
+    regions = region_indices(labels, only={k for pair in mixed for k in pair})
     sizes = {k: idx.size for k, idx in regions.items()}
     pairs = []
     for a, b in mixed:

@@ -305,6 +305,33 @@ def test_group_by_label_matches_a_stable_sort(seed):
     assert empty_order.size == 0 and (empty_starts == 0).all()
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_group_members_and_region_indices_of_some_labels_match_the_full_grouping(seed):
+    # only the member labels are grouped (each in increasing order); others, 0, negative
+    # labels and labels beyond the mask are left out; region_indices(only=) is the full
+    # grouping's restriction, a wanted label without pixels absent as in the full one
+    from rangeseg_o3d.fitting.region_fitter import region_indices
+    from rangeseg_o3d.kernels import group_members
+
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(1, 40, 400)
+    labels = np.repeat(rng.integers(-2, 12, runs.size), runs).astype(np.int32)
+    members = np.zeros(9, bool)
+    members[[0, 2, 5, 8]] = True
+    order, starts = group_members(labels, members)
+    for k in range(9):
+        expected = np.flatnonzero(labels == k) if k in (2, 5, 8) else np.zeros(0, np.int64)
+        np.testing.assert_array_equal(order[starts[k]:starts[k + 1]], expected)
+    assert starts[-1] == np.count_nonzero(np.isin(labels, [2, 5, 8]))
+    grid = labels[:(labels.size // 20) * 20].reshape(-1, 20)
+    grid = np.where(grid == 7, 0, grid)
+    full = region_indices(grid)
+    some = region_indices(grid, only={3, 7, 11, 40})
+    assert sorted(some) == [k for k in (3, 11) if k in full]
+    for k, idx in some.items():
+        np.testing.assert_array_equal(idx, full[k])
+
+
 def test_batched_planes_of_a_few_blobs_in_a_large_image_are_those_of_the_blobs_alone():
     # Mostly unlabelled images (refinement's leftovers) are summed over their labelled
     # pixels only: the answer must be the one for those pixels given on their own.
