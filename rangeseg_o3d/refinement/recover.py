@@ -15,10 +15,11 @@ import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
 from .context import Context, touching
-from .grow import grow_into_edges, grow_regions
+from .grow import grow_into_edges, grow_regions, refit_grown
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["leftover_candidates", "split_blobs", "recover_leftovers", "recover_pixels"]
+__all__ = ["leftover_candidates", "split_blobs", "claim_occluded_strips", "recover_leftovers",
+           "recover_pixels"]
 
 
 def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
@@ -106,6 +107,78 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     return labels, fits
 
 
+def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid: np.ndarray,
+                          k_sigma: float):
+    """Unlabelled strips that lie on a plane region's surface join that region; returns
+    new ``(labels, fits)``.
+
+    A wall seen between two columns standing in front of it can be a strip one or two
+    pixels wide: its far side of the occlusions is marked as a jump, the 3x3 window there
+    straddles the columns, and no growth reaches it across the jumps, while the blobs of
+    :func:`leftover_candidates` erode it away. Such a strip is a piece of a surface the
+    scan already has. The unlabelled valid pixels that a plane region's model explains
+    within ``k_sigma x max(sigma, rms)`` (no jump or adjacency test: the occluder is in
+    between) form connected pieces; each piece goes to the plane explaining most of it,
+    and its pixels that plane explains join the region where they make a connected part
+    of at least ``min_size`` (isolated pixels near some plane's extension stay free).
+    Planes only: a strip of a curved surface cannot be told from its extension this way.
+    """
+    from ..kernels import piece_ids
+
+    planes = [k for k, m in fits.items() if m and m.kind == "plane"]
+    free = np.flatnonzero((valid & (labels == 0)).ravel())
+    if not planes or free.size < ctx.min_size:
+        return labels, fits
+    normals = np.array([fits[k].normal for k in planes])
+    offsets = np.array([fits[k].d for k in planes])
+    rms = np.array([fits[k].rms for k in planes])
+    # which planes explain which free pixel (pixels x planes)
+    within = (np.abs(ctx.xyz[free] @ normals.T - offsets)
+              <= k_sigma * np.maximum(ctx.sigma[free, None], rms))
+    near = np.flatnonzero(within.any(axis=1))
+    if near.size < ctx.min_size:
+        return labels, fits
+    # connected pieces first, then their plane (the one explaining most of the piece):
+    # coplanar regions not merged yet (pieces of one wall) would otherwise share a strip
+    # between them, each part under the floor
+    ids, _ = piece_ids(free[near], ctx.width)
+    at, plane = np.nonzero(within[near])
+    n_pieces = int(ids.max()) + 1
+    votes = np.bincount(ids[at] * len(planes) + plane,
+                        minlength=n_pieces * len(planes)).reshape(n_pieces, len(planes))
+    plane_of = np.argmax(votes, axis=1)[ids]
+    member = within[near, plane_of]
+    # the members of different pieces never touch: one pass finds their connected parts
+    pixels, owner = free[near[member]], np.asarray(planes)[plane_of[member]]
+    parts, sizes = piece_ids(pixels, ctx.width)
+    # a part touching a region whose plane explains it is growth's to judge (its jump test
+    # guards that border)
+    column = np.full(int(labels.max()) + 1, -1)
+    column[planes] = np.arange(len(planes))
+    touching = _touches_explaining(labels, pixels, within[near[member]], column)
+    touches = np.bincount(parts, weights=touching, minlength=sizes.size) > 0
+    kept = (sizes >= ctx.min_size)[parts] & ~touches[parts]
+    if not kept.any():
+        return labels, fits
+    grown = labels.copy()
+    grown.ravel()[pixels[kept]] = owner[kept]
+    return grown, refit_grown(ctx, labels, grown, fits)
+
+
+def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarray,
+                        column: np.ndarray) -> np.ndarray:
+    # whether each flat pixel has a 4-neighbour in a region whose plane explains it
+    # (``within[p, column[label]]``; ``column`` -1 for labels that are no plane)
+    rows, cols = np.divmod(pixels, labels.shape[1])
+    hit = np.zeros(pixels.size, bool)
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        r, c = rows + dr, cols + dc
+        inside = np.flatnonzero((r >= 0) & (r < labels.shape[0]) & (c >= 0) & (c < labels.shape[1]))
+        j = column[labels[r[inside], c[inside]]]
+        hit[inside] |= (j >= 0) & within[inside, np.maximum(j, 0)]
+    return hit
+
+
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
                       k_sigma: float, jump_ratio: float, jump_min: float):
@@ -126,7 +199,7 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
-    return labels, fits
+    return claim_occluded_strips(ctx, labels, fits, valid=valid, k_sigma=k_sigma)
 
 
 def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
