@@ -27,7 +27,8 @@ import numpy as np
 from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats", "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved"]
+           "region_stats", "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
+           "merge_touching_planes"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -230,6 +231,112 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     if replaced:
         stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
     return fits, stats
+
+
+def grow_into_free(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,
+                   ranges: np.ndarray, k_sigma: float, jump_ratio: float, jump_min: float,
+                   inlier_factor: float) -> tuple[np.ndarray, PixelStats, np.ndarray]:
+    """Every region grows into the free pixels next to it that its model explains, ring after
+    ring until none joins (:func:`rangeseg_o3d.kernels.grow_free`).
+
+    A pixel takes only the models of its tile's region and the 8 around it
+    (:func:`label_pixels`): a face a few pixels wide between creases, or where a tile
+    straddled an occluding edge, keeps a strip of free pixels farther than a tile from its
+    region's tiles, and two pieces of one face the tile grid kept apart stay apart. The test is
+    :func:`label_pixels`' (the model within ``k_sigma`` noise sigmas, ``sigma`` the sensor's
+    at each pixel, the model's rms the floor) plus the sensor's jump test between the pixel
+    and the neighbour it joins, so growth stops at occluding edges and where the surface
+    leaves the model. ``stats`` take the pixels that join (no second pass).
+
+    Returns ``(labels, stats, touch)``, ``touch`` the (n, n) bool matrix of labels the
+    grown pixels made 4-neighbours. ``labels`` (C-contiguous int32) is changed in place.
+    """
+    from .kernels import grow_free
+
+    if labels.dtype != np.int32 or not labels.flags.c_contiguous or not labels.flags.writeable:
+        raise ValueError(f"labels must be a writeable C-contiguous int32 image; got {labels.dtype}, "
+                         f"contiguous={labels.flags.c_contiguous}, writeable={labels.flags.writeable}")
+    n = max(int(labels.max(initial=0)) + 1, stats.counts.size)
+    kinds, params, rms = model_table(fits, n)
+    grown = PixelStats(*(np.zeros(n, a.dtype) for a in (stats.inliers, stats.squares, stats.counts)))
+    for mine, theirs in zip((grown.inliers, grown.squares, grown.counts),
+                            (stats.inliers, stats.squares, stats.counts)):
+        mine[:theirs.size] = theirs
+    touch = np.zeros((n, n), np.bool_)
+    grow_free(_flat_points(cloud), labels, kinds, params, rms,
+              np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+              np.ascontiguousarray(ranges, dtype=np.float64).ravel(), float(k_sigma), float(jump_ratio),
+              float(jump_min), float(inlier_factor), grown.inliers, grown.squares, grown.counts, touch)
+    return labels, grown, touch
+
+
+def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, touch: np.ndarray, *,
+                          sigma: np.ndarray, max_angle_deg: float, rms_factor: float, inlier_factor: float,
+                          near: np.ndarray | None = None):
+    """Planes that meet at full resolution and whose union one plane explains become one region.
+
+    The merge on the tile grid pairs regions whose tiles touch; two pieces of one face the
+    tile grid kept apart (a band of tiles straddling a false crease, a narrow stretch of a
+    face at a grazing angle) meet only once every pixel is labelled and the regions have
+    grown (:func:`grow_into_free`, whose ``touch`` says which labels it made 4-neighbours;
+    ``near``, same shape, optional: pairs whose pixels may be, looked for in their box). A
+    touching pair of planes whose normals agree within ``max_angle_deg`` merges when the
+    least-squares plane of both pieces' pixels (an even sample of about
+    ``UNRESOLVED_TEST_PIXELS`` in the pieces' box) has an rms at most ``rms_factor`` times
+    the larger of the pieces' own planes' on the same sample: the tile merge's rule, on
+    pixels. A region merges at most once per call. Returns ``(labels, fits, stats)``;
+    ``labels`` is changed in place.
+    """
+    from .fitting.plane import fit_plane
+    from .fitting.primitives import Plane
+    from .kernels import label_boxes, labels_touch
+
+    planes = [k for k, m in fits.items() if isinstance(m, Plane) and 0 < k < touch.shape[0]
+              and 0 < k < stats.counts.size and stats.counts[k] > 0]
+    if len(planes) < 2:
+        return labels, fits, stats
+    normals = np.array([fits[k].normal for k in planes])
+    close = np.abs(normals @ normals.T) >= np.cos(np.radians(max_angle_deg)) - 1e-12
+    maybe = touch if near is None else touch | near
+    close &= maybe[np.ix_(planes, planes)]
+    first, second = np.nonzero(np.triu(close, 1))
+    if not first.size:
+        return labels, fits, stats
+    pairs = sorted(((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist())),
+                   key=lambda ab: (stats.rms(ab[0]) + stats.rms(ab[1]), ab))
+    boxes = label_boxes(labels, touch.shape[0])
+    fits, merged, box_of = dict(fits), set(), {}
+    for a, b in pairs:
+        if a in merged or b in merged:
+            continue
+        box = (slice(int(min(boxes[a, 0], boxes[b, 0])), int(max(boxes[a, 1], boxes[b, 1]))),
+               slice(int(min(boxes[a, 2], boxes[b, 2])), int(max(boxes[a, 3], boxes[b, 3]))))
+        if not touch[a, b] and not labels_touch(labels, a, b, box[0].start, box[0].stop,
+                                                box[1].start, box[1].stop):
+            continue
+        window = labels[box]
+        step = max(int(np.ceil(np.sqrt(window.size / UNRESOLVED_TEST_PIXELS))), 1)
+        sparse, points = window[::step, ::step], cloud.xyz[box][::step, ::step]
+        sample_a, sample_b = points[sparse == a], points[sparse == b]
+        if min(len(sample_a), len(sample_b)) < 6:
+            continue
+        part_a, part_b = fit_plane(sample_a), fit_plane(sample_b)
+        union = fit_plane(np.vstack([sample_a, sample_b]))
+        if not (part_a and part_b and union) or union.rms > rms_factor * max(part_a.rms, part_b.rms):
+            continue
+        window[window == b] = a
+        fits[a] = replace(union, inliers=int(stats.counts[a] + stats.counts[b]))
+        del fits[b]
+        merged.update((a, b))
+        box_of[a] = box
+    if merged:
+        stats = PixelStats(*(a.copy() for a in (stats.inliers, stats.squares, stats.counts)))
+        for k in merged - set(box_of):  # merged into another: no pixels left
+            stats.inliers[k], stats.squares[k], stats.counts[k] = 0, 0.0, 0
+    for a, box in box_of.items():  # every pixel of a merged region lies in its pair's box
+        inside = region_stats(cloud.xyz[box], labels[box], {a: fits[a]}, sigma[box], inlier_factor)
+        stats.inliers[a], stats.squares[a], stats.counts[a] = inside.inliers[a], inside.squares[a], inside.counts[a]
+    return labels, fits, stats
 
 
 def _pixel_box(labels: np.ndarray, k: int, tile_labels: np.ndarray | None, tile: int) -> tuple[slice, slice]:

@@ -15,7 +15,8 @@ from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
-from .fullres import (ExpandedStages, PixelStats, label_pixels, planes_for_unresolved, recover_thin_surfaces,
+from .fullres import (ExpandedStages, PixelStats, grow_into_free, label_pixels, merge_touching_planes,
+                      planes_for_unresolved, recover_thin_surfaces,
                       region_stats)
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -244,6 +245,8 @@ class Pipeline:
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            if refine.close_gaps:
+                labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels)
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
@@ -281,6 +284,32 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
                                            scatter, k_sigma=k_sigma, sizes=stats.counts)
     if changed:
         stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS, known=stats, stale=changed)
+    return labels, fits, stats
+
+
+def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
+                sigma: np.ndarray, ranges: np.ndarray, refine, tile_labels: np.ndarray):
+    """Regions grow into the free pixels their models explain
+    (:func:`rangeseg_o3d.fullres.grow_into_free`), then pieces of one plane that meet merge
+    (:func:`rangeseg_o3d.fullres.merge_touching_planes`); ``(labels, fits, stats)``.
+
+    Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
+    three tiles of each other: a pixel takes the region of its tile or of one of the 8
+    around it (:func:`rangeseg_o3d.fullres.label_pixels`), so the pixels of two such
+    regions can be neighbours (a pass over the tile grid, not the frame)."""
+    from .kernels import adjacency_matrix
+
+    if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
+        labels = np.array(labels, dtype=np.int32, order="C")
+    labels, stats, touch = grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
+                                          k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
+                                          jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)
+    if refine.merge:
+        near = adjacency_matrix(np.ascontiguousarray(tile_labels, dtype=np.int32), touch.shape[0], 3)
+        labels, fits, stats = merge_touching_planes(cloud, labels, fits, stats, touch, sigma=sigma,
+                                                    max_angle_deg=refine.merge_angle_deg,
+                                                    rms_factor=refine.merge_rms_factor,
+                                                    inlier_factor=INLIER_SIGMAS, near=near)
     return labels, fits, stats
 
 

@@ -34,7 +34,7 @@ _SOURCES = {
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
-    "tiles": ("label_pixels", "leftover_blobs"),
+    "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"),
 }

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance, _neighbour
+from .inline import _distance, _nearest_neighbour_model, _neighbour
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
            "block_means", "largest_piece", "piece_ids", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
@@ -178,7 +178,6 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
     """
     h, w = labels.shape
     flat = labels.ravel()
-    n = kinds.shape[0]
     total = 0
     # frontier: free valid pixels next to a labelled one
     frontier = np.empty(h * w, np.int64)
@@ -199,23 +198,8 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
             break
         # decide every frontier pixel from the labels as they were at the ring's start
         for f in range(n_front):
-            i = frontier[f]
-            best, best_score = 0, k_sigma
-            for step in range(4):
-                j = _neighbour(i, step, h, w)
-                if j < 0:
-                    continue
-                k = flat[j]
-                if k <= 0 or k >= n or kinds[k] == 0:
-                    continue
-                ri, rj = ranges[i], ranges[j]
-                if not (abs(ri - rj) <= max(jump_min, jump_ratio * min(ri, rj))):
-                    continue
-                score = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2]) / max(
-                    sigma[i], rms[k])
-                if score <= best_score and (best == 0 or score < best_score):
-                    best, best_score = k, score
-            chosen[f] = best
+            chosen[f] = _nearest_neighbour_model(frontier[f], flat, h, w, xyz, kinds, params, rms, sigma,
+                                                 ranges, k_sigma, jump_ratio, jump_min)[0]
         grown = 0
         for f in range(n_front):
             if chosen[f] > 0:

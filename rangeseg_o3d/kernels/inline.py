@@ -34,3 +34,29 @@ def _neighbour(i, step, h, w):
     if step == 2:
         return i - 1 if c > 0 else -1
     return i + 1 if c < w - 1 else -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio,
+                             jump_min):
+    # Growth's test for free pixel i: among its 4-neighbours' regions with a model and no
+    # range jump to them (step <= max(jump_min, jump_ratio * r)), the one whose model is
+    # nearest in units of max(sigma, rms), within k_sigma (the first of equals); returns
+    # (label, distance), label 0 when none.
+    n = kinds.shape[0]
+    best, best_score, best_dist = 0, k_sigma, 0.0
+    for step in range(4):
+        j = _neighbour(i, step, h, w)
+        if j < 0:
+            continue
+        k = flat[j]
+        if k <= 0 or k >= n or kinds[k] == 0:
+            continue
+        ri, rj = ranges[i], ranges[j]
+        if not (abs(ri - rj) <= max(jump_min, jump_ratio * min(ri, rj))):
+            continue
+        dist = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2])
+        score = dist / max(sigma[i], rms[k])
+        if score <= best_score and (best == 0 or score < best_score):
+            best, best_score, best_dist = k, score, dist
+    return best, best_dist

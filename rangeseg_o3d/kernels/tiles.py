@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance
+from .inline import _distance, _nearest_neighbour_model, _neighbour
 
-__all__ = ["label_pixels", "leftover_blobs"]
+__all__ = ["label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
 
 
 @njit(cache=True, nogil=True)
@@ -260,3 +260,132 @@ def _number_pieces(marks, n_marked):
                     rows[depth], cols[depth] = pr, pc + 1
                     depth += 1
     return pieces
+
+
+@njit(cache=True, nogil=True)
+def _grown(array, size):
+    # ``array`` with room for at least ``size`` items (doubled), its items kept
+    if size <= array.shape[0]:
+        return array
+    out = np.empty(max(size, 2 * array.shape[0]), array.dtype)
+    out[: array.shape[0]] = array
+    return out
+
+
+@njit(cache=True, nogil=True)
+def grow_free(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio, jump_min,
+              inlier_factor, inliers, squares, counts, touch):
+    """Grow regions into free valid pixels, ring after ring until no pixel joins (in place).
+
+    A free pixel joins the 4-neighbouring region whose model is within
+    ``k_sigma * max(sigma, rms)`` of it, the nearest in those units when several are, when
+    the range step to that neighbour is no jump (``<= max(jump_min, jump_ratio * r)``);
+    each ring is decided on the labels as they were at its start. Regions with
+    ``kinds[k] == 0`` do not grow. ``inliers``, ``squares`` and ``counts`` (per label, as
+    :func:`label_pixels` returns them) take each pixel that joins. A pixel is looked at
+    again only when a neighbour joined a region in the ring before (nothing else changes its
+    answer). ``touch`` (n x n bool, n = ``kinds.shape[0]``) is set for every pair of labels
+    below n that a pixel which joined made 4-neighbours. Returns the number of pixels added.
+    The work arrays grow with the frontier (a frame-sized one per call costs more than the
+    growth on a frame with few free pixels).
+    """
+    h, w = labels.shape
+    flat = labels.ravel()
+    n = kinds.shape[0]
+    front = np.empty(1024, np.int64)
+    n_front = 0
+    # one pass: the first frontier, free valid pixels next to a labelled one; a listed
+    # pixel is marked -1 in ``labels`` until its ring decides it
+    for r in range(h):
+        for c in range(w):
+            if labels[r, c] != 0:
+                continue
+            i = r * w + c
+            if not np.isfinite(xyz[i, 2]):
+                continue
+            if ((r > 0 and labels[r - 1, c] > 0) or (r < h - 1 and labels[r + 1, c] > 0)
+                    or (c > 0 and labels[r, c - 1] > 0) or (c < w - 1 and labels[r, c + 1] > 0)):
+                front = _grown(front, n_front + 1)
+                front[n_front] = i
+                n_front += 1
+    for f in range(n_front):
+        flat[front[f]] = -1
+    following = np.empty(front.shape[0], np.int64)
+    chosen = np.empty(front.shape[0], np.int32)
+    gaps = np.empty(front.shape[0])
+    added = np.empty(1024, np.int64)
+    total = 0
+    while n_front > 0:
+        chosen = _grown(chosen, n_front)
+        gaps = _grown(gaps, n_front)
+        for f in range(n_front):
+            chosen[f], gaps[f] = _nearest_neighbour_model(front[f], flat, h, w, xyz, kinds, params, rms, sigma,
+                                                          ranges, k_sigma, jump_ratio, jump_min)
+        for f in range(n_front):
+            i = front[f]
+            k = chosen[f]
+            flat[i] = k  # 0 again when nothing took it
+            if k == 0:
+                continue
+            added = _grown(added, total + 1)
+            added[total] = i
+            total += 1
+            counts[k] += 1
+            squares[k] += gaps[f] * gaps[f]
+            if gaps[f] <= inlier_factor * sigma[i]:
+                inliers[k] += 1
+        n_next = 0
+        for f in range(n_front):
+            if chosen[f] == 0:
+                continue
+            i = front[f]
+            for step in range(4):
+                j = _neighbour(i, step, h, w)
+                if j >= 0 and flat[j] == 0 and np.isfinite(xyz[j, 2]):
+                    flat[j] = -1
+                    following = _grown(following, n_next + 1)
+                    following[n_next] = j
+                    n_next += 1
+        front, following = following, front
+        n_front = n_next
+    for a in range(total):  # the pairs the grown pixels made
+        i = added[a]
+        k = flat[i]
+        for step in range(4):
+            j = _neighbour(i, step, h, w)
+            if j >= 0 and 0 < flat[j] < n and flat[j] != k:
+                touch[k, flat[j]] = touch[flat[j], k] = True
+    return total
+
+
+@njit(cache=True, nogil=True)
+def label_boxes(labels, n):
+    """(n, 4) int64: label ``k``'s bounding box ``(row0, row1, col0, col1)`` (half-open) in
+    row ``k``; ``(h, 0, w, 0)`` for a label without pixels (and for labels >= n)."""
+    h, w = labels.shape
+    boxes = np.empty((n, 4), np.int64)
+    boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
+    for r in range(h):
+        for c in range(w):
+            k = labels[r, c]
+            if 0 < k < n:
+                boxes[k, 0] = min(boxes[k, 0], r)
+                boxes[k, 1] = max(boxes[k, 1], r + 1)
+                boxes[k, 2] = min(boxes[k, 2], c)
+                boxes[k, 3] = max(boxes[k, 3], c + 1)
+    return boxes
+
+
+@njit(cache=True, nogil=True)
+def labels_touch(labels, a, b, row0, row1, col0, col1):
+    """Whether a pixel of label ``a`` and one of label ``b`` are 4-neighbours within rows
+    ``row0:row1`` and columns ``col0:col1`` (stops at the first such pair)."""
+    for r in range(row0, row1):
+        for c in range(col0, col1):
+            k = labels[r, c]
+            if k != a and k != b:
+                continue
+            other = b if k == a else a
+            if (c + 1 < col1 and labels[r, c + 1] == other) or (r + 1 < row1 and labels[r + 1, c] == other):
+                return True
+    return False
