@@ -19,6 +19,11 @@ def _vec(value) -> np.ndarray:
     return arr
 
 
+def _unit_rows(vectors: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return np.divide(vectors, norms, out=np.zeros_like(vectors), where=norms > 0)
+
+
 @dataclass(frozen=True, eq=False)
 class Plane:
     """Plane ``normal . p = d`` (unit normal); rms of orthogonal distances; inlier count."""
@@ -35,6 +40,10 @@ class Plane:
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Signed orthogonal distances of ``(N, 3)`` points."""
         return np.asarray(points, dtype=float) @ self.normal - self.d
+
+    def normals(self, points: np.ndarray) -> np.ndarray:
+        """Unit surface normals at the feet of ``(N, 3)`` points (the plane's, repeated)."""
+        return np.broadcast_to(self.normal, (len(points), 3))
 
     def params(self) -> dict:
         return {"normal": self.normal.tolist(), "d": float(self.d)}
@@ -55,6 +64,11 @@ class Sphere:
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         return np.linalg.norm(np.asarray(points, dtype=float) - self.center, axis=1) - self.radius
+
+    def normals(self, points: np.ndarray) -> np.ndarray:
+        """Unit surface normals at the feet of ``(N, 3)`` points (from the centre out; a
+        point at the centre gets a zero vector)."""
+        return _unit_rows(np.asarray(points, dtype=float) - self.center)
 
     def params(self) -> dict:
         return {"center": self.center.tolist(), "radius": float(self.radius)}
@@ -79,6 +93,12 @@ class Cylinder:
         rel = np.asarray(points, dtype=float) - self.point
         radial = rel - np.outer(rel @ self.axis, self.axis)
         return np.linalg.norm(radial, axis=1) - self.radius
+
+    def normals(self, points: np.ndarray) -> np.ndarray:
+        """Unit surface normals at the feet of ``(N, 3)`` points (radial, away from the axis;
+        a point on the axis gets a zero vector)."""
+        rel = np.asarray(points, dtype=float) - self.point
+        return _unit_rows(rel - np.outer(rel @ self.axis, self.axis))
 
     def params(self) -> dict:
         return {

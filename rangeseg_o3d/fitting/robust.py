@@ -18,7 +18,8 @@ from ..kernels.kinds import NONE
 from ..kernels.linalg import noise_rms_bound
 from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "curvature_resolved", "CHI_SQUARE_SIGMAS"]
+__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "curvature_resolved", "distance_noise",
+           "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
 MANY_POINTS = 5000
@@ -36,6 +37,22 @@ def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     of freedom and ``CHI_SQUARE_SIGMAS``."""
     # the kernel's Python form: one scalar needs no compiled signature of its own
     return rms > noise_rms_bound.py_func(float(sigma), float(n), CHI_SQUARE_SIGMAS)
+
+
+def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per point, the noise of its distance to ``model`` when the model is right: range
+    noise ``sigma`` moves a point along its ray (from the sensor at the origin), which
+    changes its distance to the surface by the cosine of the incidence only.
+
+    A wall seen head-on keeps the whole range noise; the flanks of a column or pipe, seen
+    at grazing incidence, almost none. A model's rms over its region is thus compared with
+    the rms of these values, not with the range noise (a cylinder over its end cap is
+    beyond this noise while well within the range noise).
+    """
+    points = np.asarray(points, dtype=float)
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    cosines = np.abs(np.einsum("ij,ij->i", rays, model.normals(points)))
+    return np.asarray(sigma, dtype=float) * cosines
 
 
 def curvature_resolved(plane_squares: float, curved_squares: float, n: int, extra: int = 2) -> bool:

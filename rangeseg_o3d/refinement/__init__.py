@@ -116,7 +116,12 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
                                          **growth)
     timer.lap("recover")
+    before = fits
     labels, fits = planes_for_curved(ctx, labels, fits)
+    # the surfaces split off a curved region (a pipe's end cap) take back the band growth gave it
+    split_off = fits.keys() - before.keys()
+    if split_off:
+        labels, fits = grow_regions(ctx, labels, fits, iterations=config.grow_iterations, only=split_off, **growth)
     timer.lap("facets")
     adjacency = set()
     if config.merge:

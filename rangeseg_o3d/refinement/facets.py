@@ -22,11 +22,14 @@ import copy
 
 import numpy as np
 
+from ..fitting.classify import INLIER_FACTOR
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise, curvature_resolved, trimmed_plane
+from ..fitting.robust import (CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise,
+                              trimmed_plane)
 from .context import Context, without
+from .grow import SETTLE_MARGIN
 
 __all__ = ["planes_for_curved"]
 
@@ -100,6 +103,39 @@ def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray,
     return found
 
 
+def _nearest(ctx: Context, surfaces: list) -> list[tuple[np.ndarray, object]]:
+    """``surfaces`` with a pixel they took moved to another whose model is nearer by more
+    than SETTLE_MARGIN times the noise of its distance to its own (each cut to its largest
+    connected piece). The sequential split hands the first surface every pixel within its
+    inlier band, the rim of a pipe's end cap with it; the margin leaves the pixels on the
+    crease line, which both explain, where they were (as the settle step does)."""
+    if len(surfaces) < 2:
+        return surfaces
+    pixels = np.concatenate([piece for piece, _ in surfaces])
+    owner = np.repeat(np.arange(len(surfaces)), [piece.size for piece, _ in surfaces])
+    points = ctx.xyz[pixels]
+    distances = np.stack([np.abs(model.distances(points)) for _, model in surfaces])
+    nearest = np.argmin(distances, axis=0)
+    move = np.flatnonzero(nearest != owner)
+    # those nearer another by more than the margin: the noise of their distance to their own
+    # model (the range noise along the ray), one model at a time
+    gain = distances[owner[move], move] - distances[nearest[move], move]
+    for i, (_, model) in enumerate(surfaces):
+        mine = owner[move] == i
+        gain[mine] -= SETTLE_MARGIN * distance_noise(model, points[move[mine]], ctx.sigma[pixels[move[mine]]])
+    move = move[gain > 0]
+    if not move.size:
+        return surfaces
+    owner[move] = nearest[move]
+    kept = []
+    for i, (_, model) in enumerate(surfaces):
+        mine = np.sort(pixels[owner == i])
+        piece = np.sort(ctx.largest_piece(mine)) if mine.size else mine
+        if piece.size >= ctx.min_size:
+            kept.append((piece, model))
+    return kept
+
+
 def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     """Replace each curved model that fits worse than the noise by the planes (failing them,
     the surfaces of any kind) that explain its region (returns new ``(labels, fits)``).
@@ -107,7 +143,12 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     The planes (surfaces) must take ``PLANES_COVER`` of the region's pixels with a pooled rms no
     larger than the curved model's on the same pixels and within the noise's chi-square
     bound; the first keeps the label, the others take new labels, the pixels none takes
-    are freed.
+    are freed; a pixel the surfaces took goes to a clearly nearer one (:func:`_nearest`). A
+    curved model within the range noise but beyond the noise of its distances
+    (:func:`rangeseg_o3d.fitting.robust.distance_noise`: range noise moves a point along
+    its ray, and the flanks of a pipe are seen at grazing incidence), with a connected
+    region's worth of pixels far beyond it, holds another surface too (a pipe and its end
+    cap): there the surfaces of any kind are tried, held to the noise of their distances.
     """
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     if not curved:
@@ -122,11 +163,18 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
         sigma = float(np.median(ctx.sigma[idx]))
         distances = model.distances(ctx.xyz[idx])
         rms = float(np.sqrt(np.mean(distances * distances)))
-        if not beyond_noise(rms, sigma, idx.size):
+        if beyond_noise(rms, sigma, idx.size):
+            judges, noise = (_PlaneJudge(ctx.fitter, rms), _BoundJudge(ctx.fitter, rms)), sigma
+        elif _holds_another(ctx, model, idx, distances, rms):
+            judges, noise = (_BoundJudge(ctx.fitter, rms),), None  # the model's own kind and the other's
+        else:
             continue
-        for judge in (_PlaneJudge(ctx.fitter, rms), _BoundJudge(ctx.fitter, rms)):
+        for judge in judges:
             surfaces = _surfaces_of(ctx, idx, judge)
-            if _explains(ctx, model, idx, surfaces, sigma):
+            if not _covers(surfaces, idx):
+                continue
+            surfaces = _nearest(ctx, surfaces)
+            if _explains(ctx, idx, distances, surfaces, noise, model.kind):
                 break
         else:
             continue
@@ -139,21 +187,54 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     return labels, fits
 
 
-def _explains(ctx: Context, model, idx: np.ndarray, surfaces: list, sigma: float) -> bool:
+def _holds_another(ctx: Context, model, idx: np.ndarray, distances: np.ndarray, rms: float) -> bool:
+    """Whether ``model``'s region (its ``distances``, their ``rms``) is beyond the noise of its
+    distances and its pixels beyond CHI_SQUARE_SIGMAS of that noise hold a connected piece
+    of ``ctx.min_size``: another surface, not a model a little off everywhere (a tapered
+    mug) or the noise's tail."""
+    # cheap first: a region's worth of the model's outliers (beyond INLIER_FACTOR x its rms)
+    if np.count_nonzero(np.abs(distances) > INLIER_FACTOR * rms) < ctx.min_size:
+        return False
+    noise = distance_noise(model, ctx.xyz[idx], ctx.sigma[idx])
+    if not beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), idx.size):
+        return False
+    far = idx[np.abs(distances) > CHI_SQUARE_SIGMAS * noise]
+    return far.size >= ctx.min_size and ctx.largest_piece(far).size >= ctx.min_size
+
+
+def _noise_rms(ctx: Context, surfaces: list) -> float:
+    """The rms distance noise of the pixels of ``surfaces`` (``(pixels, model)`` pairs) about
+    their models were those right: the range noise times each pixel's incidence cosine."""
+    squares = sum(float(np.sum(distance_noise(model, ctx.xyz[idx], ctx.sigma[idx]) ** 2))
+                  for idx, model in surfaces)
+    return float(np.sqrt(squares / max(sum(idx.size for idx, _ in surfaces), 1)))
+
+
+def _covers(surfaces: list, idx: np.ndarray) -> bool:
+    """Whether ``surfaces`` take PLANES_COVER of the pixels ``idx``."""
+    return bool(surfaces) and sum(piece.size for piece, _ in surfaces) >= PLANES_COVER * idx.size
+
+
+def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: list, noise: float | None,
+              kind: str) -> bool:
     # The surfaces take PLANES_COVER of the pixels. One plane (two parameters fewer than the
     # curved model) replaces it when the curved model does not resolve a curvature over the
     # pixels the plane takes (the F-test of curvature_resolved, on the model's own residuals:
     # mixed pixels or an oblique view do not enter). Several surfaces must be no farther from
-    # the pixels than ``model`` and at the noise (facets of a truly curved surface do not
-    # fit at the noise).
-    taken = sum(piece.size for piece, _ in surfaces)
-    if not surfaces or taken < PLANES_COVER * idx.size:
+    # the pixels than the curved model (of ``kind``, its ``distances`` to the pixels ``idx``)
+    # and at the noise (facets of a truly curved surface do not fit at the noise): ``noise``,
+    # the range noise, or (None: a region beyond the noise of its distances only) that of the
+    # surfaces' distances, _noise_rms.
+    if not _covers(surfaces, idx):
         return False
+    taken = sum(piece.size for piece, _ in surfaces)
     squares = sum(float(np.sum(surface.distances(ctx.xyz[piece]) ** 2)) for piece, surface in surfaces)
     covered = np.concatenate([piece for piece, _ in surfaces])
-    model_squares = float(np.sum(model.distances(ctx.xyz[covered]) ** 2))
+    model_squares = float(np.sum(distances[np.searchsorted(idx, covered)] ** 2))  # the curved model's
     if len(surfaces) == 1 and isinstance(surfaces[0][1], Plane):
-        return not curvature_resolved(squares, model_squares, taken, CURVED_PARAMETERS[model.kind] - 3)
+        return not curvature_resolved(squares, model_squares, taken, CURVED_PARAMETERS[kind] - 3)
     if squares > model_squares:
         return False
-    return not beyond_noise(np.sqrt(squares / taken), sigma, taken)
+    if noise is None:
+        noise = _noise_rms(ctx, surfaces)
+    return not beyond_noise(np.sqrt(squares / taken), noise, taken)

@@ -81,13 +81,15 @@ def refit_grown(ctx: Context, labels: np.ndarray, grown: np.ndarray, fits: dict)
 
 
 def grow_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray, ranges: np.ndarray,
-                 sigma: np.ndarray, iterations: int, k_sigma: float, jump_ratio: float, jump_min: float):
-    """Grow every fitted region by up to ``iterations`` rings and refit; returns new ``(labels, fits)``.
+                 sigma: np.ndarray, iterations: int, k_sigma: float, jump_ratio: float, jump_min: float,
+                 only=None):
+    """Grow every fitted region (or those of ``only``) by up to ``iterations`` rings and
+    refit; returns new ``(labels, fits)``.
 
     ``xyz``, ``ranges`` and ``sigma`` are the (H, W) grids; see :func:`grow_into_edges`
     for the acceptance test.
     """
-    good = {k: m for k, m in fits.items() if m}
+    good = {k: m for k, m in fits.items() if m and (only is None or k in only)}
     if not (iterations and good):
         return labels, fits
     grown = grow_into_edges(xyz, labels, good, sigma, ranges, iterations=iterations,

@@ -1,0 +1,47 @@
+"""Model normals and the noise of a point's distance to a model (range noise along the ray)."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
+from rangeseg_o3d.fitting.robust import distance_noise
+
+
+def test_normals_are_the_surfaces_unit_normals_at_the_points():
+    plane = Plane(normal=(0, 0, 1), d=2.0, rms=0.0, inliers=0)
+    points = np.array([[1.0, 2.0, 2.1], [-3.0, 0.5, 1.9]])
+    np.testing.assert_allclose(plane.normals(points), [[0, 0, 1], [0, 0, 1]])
+    sphere = Sphere(center=(1, 1, 1), radius=0.5, rms=0.0, inliers=0)
+    np.testing.assert_allclose(sphere.normals(np.array([[1.0, 1.0, 2.0], [1.0, 0.0, 1.0]])),
+                               [[0, 0, 1], [0, -1, 0]], atol=1e-12)
+    cylinder = Cylinder(axis=(0, 0, 1), point=(2, 0, 0), radius=0.3, rms=0.0, inliers=0)
+    # radial, whatever the height along the axis; a point on the axis has none
+    np.testing.assert_allclose(cylinder.normals(np.array([[2.3, 0.0, 5.0], [2.0, -0.2, -1.0], [2.0, 0.0, 3.0]])),
+                               [[1, 0, 0], [0, -1, 0], [0, 0, 0]], atol=1e-12)
+
+
+def test_range_noise_moves_a_point_along_its_ray_by_the_incidence_cosine():
+    # A wall 4 m ahead seen head-on keeps the whole range noise; at 60 deg incidence, half.
+    wall = Plane(normal=(1, 0, 0), d=4.0, rms=0.0, inliers=0)
+    head_on = np.array([[4.0, 0.0, 0.0]])
+    oblique = np.array([[4.0, 4.0 * np.tan(np.deg2rad(60)), 0.0]])
+    np.testing.assert_allclose(distance_noise(wall, head_on, np.array([0.02])), [0.02])
+    np.testing.assert_allclose(distance_noise(wall, oblique, np.array([0.02])), [0.01], rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_distance_noise_predicts_the_rms_of_noisy_points_about_their_true_model(seed):
+    # Points of a column seen from the origin, their ranges disturbed by sigma: the rms of
+    # their distances to the column is the rms of distance_noise, far below sigma (the
+    # flanks are seen at grazing incidence).
+    rng = np.random.default_rng(seed)
+    column = Cylinder(axis=(0, 0, 1), point=(3, 0, 0), radius=0.3, rms=0.0, inliers=0)
+    angles = np.linspace(np.pi / 2 + 0.05, 3 * np.pi / 2 - 0.05, 4000)  # the half facing the origin
+    exact = np.stack([3 + 0.3 * np.cos(angles), 0.3 * np.sin(angles), rng.uniform(-1, 1, angles.size)], axis=1)
+    rays = exact / np.linalg.norm(exact, axis=1, keepdims=True)
+    sigma = np.full(angles.size, 0.01)
+    noisy = exact + rays * rng.normal(0, 0.01, angles.size)[:, None]
+    measured = np.sqrt(np.mean(column.distances(noisy) ** 2))
+    predicted = np.sqrt(np.mean(distance_noise(column, exact, sigma) ** 2))
+    assert predicted < 0.85 * 0.01
+    assert abs(measured - predicted) < 0.05 * predicted
