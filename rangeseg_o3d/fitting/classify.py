@@ -45,7 +45,8 @@ from .plane import UNDETERMINED, plane_from_prepared
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound, plane_tolerance
 from .sphere import sphere_model
 
-__all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "fit_planes_batch", "refit_planes_from_moments",
+__all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "trimmed_plane",
+           "fit_planes_batch", "refit_planes_from_moments",
            "PrimitiveFitterConfig", "PLUGIN", "quadric_shape", "bind_sensor"]
 
 INLIER_FACTOR = 3.0
@@ -230,6 +231,19 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
     decision = Decision(kind, status, first, centroid, scale, normal, d, plane_rms, plane_tol, eigen_rms,
                         plane_inliers, codes, curved)
     return model_of_decision(decision), inliers
+
+
+def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
+                  max_rms: float = np.inf, starts: bool = False):
+    """``trimmed_fit(points, judge, pool=pool, starts=starts, ...)`` with ``judge`` the
+    least-squares plane (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over
+    ``max_rms``, in one compiled call (:func:`trimmed_primitive`): the same
+    ``(model, inliers)``."""
+    from .robust import pool_points
+
+    xyz, indices = pool_points(points, pool)
+    return trimmed_primitive(xyz, indices, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
+                             fit_max_points=max(len(indices), 1), planes_only=True, starts=starts)
 
 
 _NO_HINT = np.full(3, np.nan)  # no cylinder axis hint (read only by the compiled code)

@@ -18,7 +18,7 @@ from ..kernels.kinds import NONE
 from ..kernels.linalg import noise_rms_bound
 from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "trimmed_plane", "beyond_noise", "curvature_resolved", "distance_noise",
+__all__ = ["trimmed_fit", "beyond_noise", "curvature_resolved", "distance_noise",
            "CHI_SQUARE_SIGMAS"]
 
 # Pools of at least this many points get four times the random three-point planes.
@@ -198,7 +198,7 @@ class _Search:
         if not judged:
             return False
         if self.all_pts is None:  # the pool's points, as pool_inliers reads them
-            self.all_pts = _pool_points(self.points, None if isinstance(self.pool, slice) else self.pool)
+            self.all_pts = pool_points(self.points, None if isinstance(self.pool, slice) else self.pool)
         xyz, indices = self.all_pts
         sigma = self.sigma
         # Candidates are compared within one tolerance: with each model's own, a worse
@@ -223,23 +223,12 @@ class _Search:
         return False
 
 
-def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
-                  max_rms: float = np.inf, starts: bool = False):
-    """``trimmed_fit(points, judge, pool=pool, starts=starts, ...)`` with ``judge`` the
-    least-squares plane (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over
-    ``max_rms``, in one compiled call (:mod:`rangeseg_o3d.fitting._trimmed`): the same
-    ``(model, inliers)``."""
-    from .classify import trimmed_primitive
+def pool_points(points: np.ndarray, pool: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(xyz, indices)`` with ``xyz[indices]`` the pool's points, ``xyz`` read-only.
 
-    xyz, indices = _pool_points(points, pool)
-    return trimmed_primitive(xyz, indices, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
-                             fit_max_points=max(len(indices), 1), planes_only=True, starts=starts)
-
-
-def _pool_points(points: np.ndarray, pool: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    # ``(xyz, indices)`` with xyz[indices] the pool's points: the points themselves when they
-    # are a C-ordered float array (no gather of a large pool), else the gathered pool; xyz
-    # read-only either way (a cloud's points are: one compiled signature of pool_inliers)
+    The points themselves when they are a C-ordered float array (no gather of a large
+    pool), else the gathered pool."""
+    # read-only either way: a cloud's points are, and the compiled pool_inliers then has one signature
     if pool is not None and points.dtype == np.float64 and points.flags.c_contiguous and points.ndim == 2:
         xyz, indices = points.view(), np.ascontiguousarray(pool, dtype=np.int64)
     else:

@@ -22,12 +22,11 @@ import copy
 
 import numpy as np
 
-from ..fitting.classify import INLIER_FACTOR
+from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import (CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise,
-                              trimmed_plane)
+from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from .context import Context, without
 from .grow import SETTLE_MARGIN
 

@@ -248,9 +248,9 @@ def test_the_compiled_trimmed_fit_finds_what_each_case_holds():
 @pytest.mark.parametrize("case", range(6))
 @pytest.mark.parametrize("max_rms", [np.inf, 0.003])
 def test_the_compiled_planes_only_trimmed_fit_answers_as_trimmed_fit(case, max_rms):
-    # the facets step's planes-only judge: fitting.robust.trimmed_plane against trimmed_fit
+    # the facets step's planes-only judge: fitting.classify.trimmed_plane against trimmed_fit
     # judged by fit_plane refused over max_rms
-    from rangeseg_o3d.fitting.robust import trimmed_plane
+    from rangeseg_o3d.fitting.classify import trimmed_plane
     from rangeseg_o3d.refinement.facets import _PlaneJudge
 
     points, sigma, min_points = _mixed_sets()[case]
