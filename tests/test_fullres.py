@@ -148,6 +148,26 @@ def test_leftover_blobs_equal_the_whole_image_computation():
     assert found >= 2
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_leftover_blobs_and_their_boxes_equal_the_whole_image_computation(seed):
+    # leftovers scattered over a frame (as at region borders, a few percent of the pixels),
+    # blobs at the grid's corners and edges: labels as OpenCV's computation, and each
+    # blob's bounding box as its pixels give it
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(1, 4, (90, 130)).astype(np.int32)
+    labels[rng.random(labels.shape) < 0.03] = 0  # scattered single leftovers: no core
+    for r, c in ((0, 0), (0, 120), (80, 0), (84, 124), (40, 60)):
+        labels[r:r + rng.integers(4, 12), c:c + rng.integers(4, 12)] = 0
+    valid = rng.random(labels.shape) > 0.01
+    expected = leftover_candidates(labels, valid, np.zeros(labels.shape, bool), min_size=12, first_label=5)
+    got, boxes = leftover_blob_labels(labels, valid, min_size=12, first_label=5, with_boxes=True)
+    np.testing.assert_array_equal(got, expected)
+    assert len(boxes) == len(np.unique(expected[expected > 0])) >= 3
+    for j, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
+        rows, cols = np.nonzero(expected == 5 + j)
+        assert (r0, r1, c0, c1) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+
+
 def test_nothing_left_over_skips_the_recovery():
     labels = np.ones((30, 40), np.int32)
     valid = np.ones(labels.shape, bool)

@@ -168,13 +168,17 @@ def adjacency_matrix(labels, n, reach):
 
 @njit(cache=True, nogil=True)
 def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma,
-               jump_ratio, jump_min):
+               jump_ratio, jump_min, row0=0, row1=-1, col0=0, col1=-1):
     """Grow regions into free valid pixels, one 4-connected ring per iteration (in place).
 
     A free pixel joins the 4-neighbouring region whose model is within
     ``k_sigma * max(sigma, rms)`` of it, the best-fitting one when several are, provided
     the range step to that neighbour is no jump (``<= max(jump_min, jump_ratio * r)``).
     Regions with ``kinds[k] == 0`` do not grow. Returns the number of pixels added.
+
+    The first ring is looked for in rows ``row0:row1`` and columns ``col0:col1`` only (-1:
+    to the grid's end): a caller that knows every growing region lies in a box, and passes
+    it grown by ``iterations``, gets the same answer without a pass over the whole grid.
     """
     h, w = labels.shape
     flat = labels.ravel()
@@ -183,15 +187,19 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
     frontier = np.empty(h * w, np.int64)
     n_front = 0
     mark = np.zeros(h * w, np.uint8)
-    for i in range(h * w):
-        if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
-            continue
-        r, c = i // w, i % w
-        if ((r > 0 and flat[i - w] > 0) or (r < h - 1 and flat[i + w] > 0)
-                or (c > 0 and flat[i - 1] > 0) or (c < w - 1 and flat[i + 1] > 0)):
-            frontier[n_front] = i
-            n_front += 1
-            mark[i] = 1
+    r0, c0 = max(row0, 0), max(col0, 0)
+    r1 = h if row1 < 0 else min(row1, h)
+    c1 = w if col1 < 0 else min(col1, w)
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            i = r * w + c
+            if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
+                continue
+            if ((r > 0 and flat[i - w] > 0) or (r < h - 1 and flat[i + w] > 0)
+                    or (c > 0 and flat[i - 1] > 0) or (c < w - 1 and flat[i + 1] > 0)):
+                frontier[n_front] = i
+                n_front += 1
+                mark[i] = 1
     chosen = np.empty(h * w, np.int32)
     for _ in range(iterations):
         if n_front == 0:

@@ -144,7 +144,7 @@ def _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor):
 @njit(cache=True, nogil=True)
 def leftover_blobs(labels, valid, min_size, first_label):
     """Compact blobs of valid, unlabelled pixels: :func:`rangeseg_o3d.refinement.recover.leftover_candidates`
-    without a jump mask, in compiled passes that stop after the first when no pixel is left.
+    without a jump mask, in one pass over the grid and then work on the leftover pixels only.
 
     Cores are the leftover pixels whose 3x3 neighbourhood is all leftover (the grid border
     replicated); 4-connected cores are numbered in raster order of their first pixel, each
@@ -166,32 +166,33 @@ def leftover_blobs(labels, valid, min_size, first_label):
             n_free += f
     if n_free == 0:
         return candidates, none
-    # cores: a separable 3x3 erosion (min along rows, then along columns), border replicated
-    across = _min3_rows(free)
-    core = np.zeros((h, w), np.int32)  # -1: a core pixel not yet numbered
-    n_core_pixels = 0
+    # the leftover pixels in raster order (a few percent of a frame): all later work is theirs
+    rows = np.empty(n_free, np.int64)
+    cols = np.empty(n_free, np.int64)
+    m = 0
     for r in range(h):
-        up, down = max(r - 1, 0), min(r + 1, h - 1)
-        for c in range(w):
-            if across[up, c] & across[r, c] & across[down, c]:
-                core[r, c] = -1
-                n_core_pixels += 1
-    if n_core_pixels == 0:
-        return candidates, none
-    n_cores = _number_pieces(core, n_core_pixels)
-    # every leftover pixel takes the largest core number around it (a separable 3x3 max)
-    across_max = np.empty((h, w), np.int32)
-    for r in range(h):
-        for c in range(w):
-            across_max[r, c] = max(core[r, max(c - 1, 0)], core[r, c], core[r, min(c + 1, w - 1)])
-    sizes = np.zeros(n_cores + 1, np.int64)
-    for r in range(h):
-        up, down = max(r - 1, 0), min(r + 1, h - 1)
         for c in range(w):
             if free[r, c]:
-                k = max(across_max[up, c], across_max[r, c], across_max[down, c])
-                candidates[r, c] = k
-                sizes[k] += 1
+                rows[m], cols[m] = r, c
+                m += 1
+    # cores: leftover pixels whose 3x3 neighbourhood (border replicated) is all leftover
+    core = np.zeros((h, w), np.int32)  # -1: a core pixel not yet numbered
+    n_core_pixels = 0
+    for j in range(n_free):
+        r, c = rows[j], cols[j]
+        if _all_free_around(free, r, c, h, w):
+            core[r, c] = -1
+            n_core_pixels += 1
+    if n_core_pixels == 0:
+        return candidates, none
+    n_cores = _number_listed(core, rows, cols, n_core_pixels)
+    # every leftover pixel takes the largest core number around it (3x3, border replicated)
+    sizes = np.zeros(n_cores + 1, np.int64)
+    for j in range(n_free):
+        r, c = rows[j], cols[j]
+        k = _max_around(core, r, c, h, w)
+        candidates[r, c] = k
+        sizes[k] += 1
     lut = np.zeros(n_cores + 1, np.int32)
     kept = 0
     for k in range(1, n_cores + 1):
@@ -200,65 +201,75 @@ def leftover_blobs(labels, valid, min_size, first_label):
             kept += 1
     boxes = np.empty((kept, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
-    for r in range(h):
-        for c in range(w):
-            k = candidates[r, c]
-            if k == 0:
-                continue
-            k = lut[k]
-            candidates[r, c] = k
-            if k:
-                j = k - first_label
-                boxes[j, 0], boxes[j, 1] = min(boxes[j, 0], r), max(boxes[j, 1], r + 1)
-                boxes[j, 2], boxes[j, 3] = min(boxes[j, 2], c), max(boxes[j, 3], c + 1)
+    for j in range(n_free):
+        r, c = rows[j], cols[j]
+        k = candidates[r, c]
+        if k == 0:
+            continue
+        k = lut[k]
+        candidates[r, c] = k
+        if k:
+            b = k - first_label
+            boxes[b, 0], boxes[b, 1] = min(boxes[b, 0], r), max(boxes[b, 1], r + 1)
+            boxes[b, 2], boxes[b, 3] = min(boxes[b, 2], c), max(boxes[b, 3], c + 1)
     return candidates, boxes
 
 
-@njit(cache=True, nogil=True)
-def _min3_rows(image):
-    # min over each pixel and its left and right neighbours, the row's ends replicated
-    h, w = image.shape
-    out = np.empty_like(image)
-    for r in range(h):
-        for c in range(w):
-            out[r, c] = image[r, max(c - 1, 0)] & image[r, c] & image[r, min(c + 1, w - 1)]
-    return out
+@njit(cache=True, nogil=True, inline="always")
+def _all_free_around(free, r, c, h, w):
+    # every pixel of the 3x3 neighbourhood of (r, c) free, the grid's border replicated
+    for rr in (max(r - 1, 0), r, min(r + 1, h - 1)):
+        for cc in (max(c - 1, 0), c, min(c + 1, w - 1)):
+            if not free[rr, cc]:
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _max_around(image, r, c, h, w):
+    # the largest value of the 3x3 neighbourhood of (r, c), the grid's border replicated
+    best = image[r, c]
+    for rr in (max(r - 1, 0), r, min(r + 1, h - 1)):
+        for cc in (max(c - 1, 0), c, min(c + 1, w - 1)):
+            best = max(best, image[rr, cc])
+    return best
 
 
 @njit(cache=True, nogil=True)
-def _number_pieces(marks, n_marked):
-    # Number the 4-connected pieces of the pixels marked -1 as 1, 2, ... in raster order of
-    # their first pixel (OpenCV's order); returns how many there are.
+def _number_listed(marks, rows, cols, n_marked):
+    # Number the 4-connected pieces of the pixels marked -1 (all among the listed pixels,
+    # listed in raster order) as 1, 2, ... in raster order of their first pixel (OpenCV's
+    # order); returns how many there are.
     h, w = marks.shape
-    rows = np.empty(n_marked, np.int64)
-    cols = np.empty(n_marked, np.int64)
+    stack_r = np.empty(n_marked, np.int64)
+    stack_c = np.empty(n_marked, np.int64)
     pieces = 0
-    for r in range(h):
-        for c in range(w):
-            if marks[r, c] != -1:
-                continue
-            pieces += 1
-            marks[r, c] = pieces
-            rows[0], cols[0], depth = r, c, 1
-            while depth:
-                depth -= 1
-                pr, pc = rows[depth], cols[depth]
-                if pr > 0 and marks[pr - 1, pc] == -1:
-                    marks[pr - 1, pc] = pieces
-                    rows[depth], cols[depth] = pr - 1, pc
-                    depth += 1
-                if pr < h - 1 and marks[pr + 1, pc] == -1:
-                    marks[pr + 1, pc] = pieces
-                    rows[depth], cols[depth] = pr + 1, pc
-                    depth += 1
-                if pc > 0 and marks[pr, pc - 1] == -1:
-                    marks[pr, pc - 1] = pieces
-                    rows[depth], cols[depth] = pr, pc - 1
-                    depth += 1
-                if pc < w - 1 and marks[pr, pc + 1] == -1:
-                    marks[pr, pc + 1] = pieces
-                    rows[depth], cols[depth] = pr, pc + 1
-                    depth += 1
+    for j in range(rows.shape[0]):
+        r, c = rows[j], cols[j]
+        if marks[r, c] != -1:
+            continue
+        pieces += 1
+        marks[r, c] = pieces
+        stack_r[0], stack_c[0], depth = r, c, 1
+        while depth:
+            depth -= 1
+            pr, pc = stack_r[depth], stack_c[depth]
+            if pr > 0 and marks[pr - 1, pc] == -1:
+                marks[pr - 1, pc] = pieces
+                stack_r[depth], stack_c[depth] = pr - 1, pc
+                depth += 1
+            if pr < h - 1 and marks[pr + 1, pc] == -1:
+                marks[pr + 1, pc] = pieces
+                stack_r[depth], stack_c[depth] = pr + 1, pc
+                depth += 1
+            if pc > 0 and marks[pr, pc - 1] == -1:
+                marks[pr, pc - 1] = pieces
+                stack_r[depth], stack_c[depth] = pr, pc - 1
+                depth += 1
+            if pc < w - 1 and marks[pr, pc + 1] == -1:
+                marks[pr, pc + 1] = pieces
+                stack_r[depth], stack_c[depth] = pr, pc + 1
+                depth += 1
     return pieces
 
 

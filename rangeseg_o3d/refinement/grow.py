@@ -31,6 +31,7 @@ def grow_into_edges(
     k_sigma: float = 3.0,
     jump_ratio: float = 0.08,
     jump_min: float = 0.05,
+    box=None,
 ) -> np.ndarray:
     """Hand unlabelled valid pixels to the adjacent region whose model fits them best.
 
@@ -43,6 +44,9 @@ def grow_into_edges(
     ranges : (H, W) ranges, for the no-jump test between a pixel and its neighbour.
     iterations : rings of pixels to add at most.
     k_sigma : accept a pixel within ``k_sigma * max(sigma, model.rms)`` of the surface.
+    box : optional ``(row0, row1, col0, col1)`` (half-open) holding every pixel of the
+        regions in ``models`` grown by ``iterations`` pixels: the growth is looked for there
+        only (the same answer, no pass over the whole grid).
 
     Returns
     -------
@@ -56,7 +60,8 @@ def grow_into_edges(
     grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
                np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
                np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
-               int(iterations), float(k_sigma), float(jump_ratio), float(jump_min))
+               int(iterations), float(k_sigma), float(jump_ratio), float(jump_min),
+               *((0, -1, 0, -1) if box is None else (int(b) for b in box)))
     return labels
 
 

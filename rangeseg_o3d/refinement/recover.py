@@ -214,6 +214,11 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     return (rows + top) * labels.shape[1] + cols + left
 
 
+def _grown(box, by: int) -> tuple[int, int, int, int]:
+    # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side (not clipped)
+    return box[0] - by, box[1] + by, box[2] - by, box[3] + by
+
+
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
@@ -246,17 +251,25 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     if new:
         from ..kernels import claim_rings, member_pixels
 
-        labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=2,
-                                 k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf)
+        # The surfaces found are pieces of the blobs: with the blobs' boxes known, each
+        # step below looks only in their box grown by the rings it may add (same answers).
+        rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
+        blobs = None if boxes is None or not len(boxes) else (
+            int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
+        labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=rim,
+                                 k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
+                                 box=None if blobs is None else _grown(blobs, rim))
         # the tile models took what they could explain before these regions existed
         n = int(labels.max(initial=0)) + 1
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True
-        rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
-        iterations = 3  # the box grows by the rings the challengers may take
-        box = (rows.min() - iterations, rows.max() + iterations + 1,
-               cols.min() - iterations, cols.max() + iterations + 1)
+        if blobs is not None:
+            box = _grown(blobs, rim + iterations)
+        else:
+            rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
+            box = (rows.min() - iterations, rows.max() + iterations + 1,
+                   cols.min() - iterations, cols.max() + iterations + 1)
         claim_rings(np.ascontiguousarray(cloud.xyz.reshape(-1, 3)), labels, kinds, params, rms,
                     np.ascontiguousarray(sigma).ravel(), challengers, iterations, float(config.k_sigma),
                     np.array(box, np.int64))

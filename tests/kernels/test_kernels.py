@@ -176,6 +176,36 @@ def test_grow_rings_adds_one_ring_per_iteration_and_respects_the_model():
     assert labels[0, 0] == 0 and (labels.ravel()[1:] == 1).all()
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_grow_rings_in_a_box_holding_the_growing_regions_equals_the_whole_grid(seed):
+    # regions that do not grow all over a plane, leftovers everywhere, two growing blobs:
+    # looking for the growth in the blobs' box grown by the rings gives the same labels,
+    # and a box that cuts the blobs off grows nothing beyond it
+    rng = np.random.default_rng(seed)
+    h, w = 40, 60
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.dstack([u * 0.01, v * 0.01, 2.0 + rng.normal(0, 0.001, (h, w))])
+    labels = rng.integers(1, 4, (h, w)).astype(np.int32)
+    labels[rng.random((h, w)) < 0.3] = 0
+    labels[10:16, 20:27] = 0
+    labels[12:14, 22:25] = 7
+    labels[20:24, 30:33] = 8
+    models = {k: Plane([0, 0, 1], 2.0, 0.001, 1) for k in (7, 8)}
+    kinds, params, rms = model_table(models, 9)
+    sigma = np.full(h * w, 0.002)
+    ranges = np.linalg.norm(xyz, axis=2).ravel()
+    whole = labels.copy()
+    added = grow_rings(xyz.reshape(-1, 3), whole, kinds, params, rms, sigma, ranges, 2, 3.0, 0.1, 0.05)
+    boxed = labels.copy()
+    again = grow_rings(xyz.reshape(-1, 3), boxed, kinds, params, rms, sigma, ranges, 2, 3.0, 0.1, 0.05,
+                       12 - 2, 24 + 2, 22 - 2, 33 + 2)
+    assert added > 10 and again == added
+    np.testing.assert_array_equal(boxed, whole)
+    cut = labels.copy()
+    grow_rings(xyz.reshape(-1, 3), cut, kinds, params, rms, sigma, ranges, 1, 3.0, 0.1, 0.05, 0, 18, 0, w)
+    assert (cut[18:] == labels[18:]).all() and (cut == 7).sum() > (labels == 7).sum()
+
+
 @pytest.mark.parametrize("layout", ["speckle", "blocks"])
 def test_adjacency_matrix_agrees_with_shifted_pairs(layout):
     rng = np.random.default_rng(7)

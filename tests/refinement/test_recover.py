@@ -209,3 +209,22 @@ def test_recovered_strip_of_a_pipe_rejoins_its_cylinder(seed):
     assert models[owner].kind == "cylinder"
     assert abs(models[owner].radius - 0.2) < 0.02
     assert np.isin(out[pipe], [0, owner]).all()  # no piece of the pipe in another region
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_recover_pixels_with_the_blobs_boxes_answers_as_without(seed):
+    # with the blobs' boxes the rims, the claim and the merge look only around the blobs:
+    # the same labels and models as the whole-grid passes give
+    from rangeseg_o3d.fullres import leftover_blob_labels
+    from rangeseg_o3d.refinement.recover import recover_pixels
+
+    scan, pipeline, labels, fits, config, ranges, sigma = _pipe_top_lost_by_the_tiles(seed)
+    candidates, boxes = leftover_blob_labels(labels, scan.cloud.valid, min_size=100, first_label=3,
+                                             with_boxes=True)
+    answers = [recover_pixels(scan.cloud, labels, dict(fits), fitter=pipeline.fitter, config=config,
+                              sensor=pipeline.sensor, ranges=ranges, sigma=sigma, candidates=candidates,
+                              min_size=100, boxes=given) for given in (None, boxes)]
+    (whole, whole_models), (boxed, boxed_models) = answers
+    assert (whole != labels).sum() > 100  # a strip was recovered (it rejoins the pipe)
+    np.testing.assert_array_equal(boxed, whole)
+    assert {k: repr(m) for k, m in boxed_models.items()} == {k: repr(m) for k, m in whole_models.items()}
