@@ -7,6 +7,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _distance, _nearest_neighbour_model, _neighbour
+from .kinds import PLANE
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
            "block_means", "largest_piece", "piece_ids", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
@@ -348,13 +349,15 @@ def _claimant(flat, xyz, i, h, w, n, kinds, params, rms, sigma, challengers, k_s
 
 @njit(cache=True, nogil=True)
 def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma, margin,
-                   jump_ratio, jump_min):
+                   jump_ratio, jump_min, plane_margin, wrap):
     """Move border pixels to the neighbouring region whose model explains them clearly better (in place).
 
     Per iteration, a labelled pixel 4-adjacent to another region (no range jump between
     them: ``<= max(jump_min, jump_ratio * r)``) joins the neighbour whose model is within
     ``k_sigma`` and more than ``margin`` nearer than its own region's, both in units of
-    ``max(sigma, rms)``; the best such neighbour wins. Decisions are taken on the labels
+    ``max(sigma, rms)`` (``plane_margin`` instead when its own model is curved and the
+    neighbour's a plane); the best such neighbour wins. With ``wrap`` (a 360-degree grid)
+    the first and last columns are neighbours. Decisions are taken on the labels
     as they were at the iteration's start; the models do not change, so a pixel never
     moves back. Returns the number of pixels moved.
     """
@@ -371,16 +374,18 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
                     continue
                 up = labels[r - 1, c] if r > 0 else own
                 down = labels[r + 1, c] if r < h - 1 else own
-                left = labels[r, c - 1] if c > 0 else own
-                right = labels[r, c + 1] if c < w - 1 else own
+                left = labels[r, c - 1] if c > 0 else (labels[r, w - 1] if wrap else own)
+                right = labels[r, c + 1] if c < w - 1 else (labels[r, 0] if wrap else own)
                 if up == own and down == own and left == own and right == own:
                     continue
                 i = r * w + c
                 x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
                 own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
-                best, best_score = 0, min(own_score - margin, k_sigma)
+                best, best_score = 0, k_sigma
                 for step in range(4):
                     j = _neighbour(i, step, h, w)
+                    if j < 0 and wrap and step >= 2:  # across the seam of a full turn
+                        j = i + w - 1 if step == 2 else i - w + 1
                     if j < 0:
                         continue
                     k = labels[j // w, j % w]
@@ -389,7 +394,8 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
                     if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
                         continue
                     score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
-                    if score < best_score:
+                    need = plane_margin if (kinds[own] != PLANE and kinds[k] == PLANE) else margin
+                    if score < best_score and score < own_score - need:
                         best, best_score = k, score
                 if best > 0:
                     new[r, c] = best

@@ -133,7 +133,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits, adjacency = merge_into_curved(ctx, labels, fits, adjacency,
                                                     rms_factor=config.merge_rms_factor)
     timer.lap("merge")
-    labels, fits = settle_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
+    labels, fits = settle_regions(ctx, labels, fits, iterations=config.grow_iterations,
+                                  wrap_columns=sensor.wrap_columns, **growth)
     timer.lap("settle")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)

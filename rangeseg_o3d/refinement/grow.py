@@ -106,11 +106,15 @@ def grow_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarra
 #: more than this many noise sigmas: where two surfaces meet both explain it, and noise
 #: alone must not move the border.
 SETTLE_MARGIN = 1.0
+#: From a curved region to a plane, nearer is enough: a cylinder or sphere fitted over the
+#: rim of a neighbouring face (a pipe's end cap, the floor around a column) is pulled towards
+#: that rim, so its own distances there are biased low; the simpler model takes the ties.
+PLANE_MARGIN = 0.0
 
 
 def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray, ranges: np.ndarray,
                    sigma: np.ndarray, iterations: int, k_sigma: float, jump_ratio: float,
-                   jump_min: float):
+                   jump_min: float, wrap_columns: bool = False):
     """Border pixels go to the neighbouring region whose surface explains them clearly
     better, up to ``iterations`` rings deep; returns new ``(labels, fits)``.
 
@@ -121,7 +125,9 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
     cylinder too). Once every region has its model, a border pixel whose own model is
     more than ``SETTLE_MARGIN`` sigmas farther than a 4-neighbouring region's (within
     ``k_sigma``, no jump between them) moves there (:func:`rangeseg_o3d.kernels.settle_borders`);
-    the regions that changed are refitted, keeping their kind.
+    from a curved region to a plane, ``PLANE_MARGIN`` (nearer is enough). With
+    ``wrap_columns`` (a 360-degree grid) the first and last columns are neighbours. The
+    regions that changed are refitted, keeping their kind.
     """
     from ..kernels import settle_borders
 
@@ -134,7 +140,8 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
     moved = settle_borders(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), settled, kinds,
                            params, rms, np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
                            np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
-                           float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min))
+                           float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min), PLANE_MARGIN,
+                           bool(wrap_columns))
     if not moved:
         return labels, fits
     moved_mask = settled != labels

@@ -454,3 +454,47 @@ def test_ranges_and_noise_equal_numpys_where_and_noise_model_bit_for_bit():
         assert np.array_equal(got_sigma, model.sigma(want_ranges), equal_nan=True)
     none = ranges_and_noise(ranges, np.zeros(ranges.shape, bool), 0.001, 0.0)
     assert np.isnan(none[0]).all() and np.isnan(none[1]).all()
+
+
+def _settle_row(points, labels, *, margin=1.0, plane_margin=0.0, wrap=False, sigma=0.01):
+    """settle_borders on a 1 x n row: label 1 the cylinder sqrt(x^2 + z^2) = 1 (axis y),
+    label 2 the plane z = 1 (they touch along x = 0, z = 1); returns the new labels."""
+    from rangeseg_o3d.fitting.primitives import Cylinder
+    from rangeseg_o3d.kernels import settle_borders
+
+    models = {1: Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.zeros(3), radius=1.0, rms=0.0, inliers=0),
+              2: Plane(normal=np.array([0.0, 0.0, 1.0]), d=1.0, rms=0.0, inliers=0)}
+    kinds, params, rms = model_table(models, 3)
+    out = np.array([labels], dtype=np.int32)
+    n = out.shape[1]
+    settle_borders(np.asarray(points, dtype=np.float64), out, kinds, params, rms, np.full(n, sigma),
+                   np.ones(n), 1, 3.0, margin, 0.1, 0.05, plane_margin, wrap)
+    return out[0].tolist()
+
+
+def _off_cylinder(off):  # on the plane z = 1, `off` from the cylinder
+    return [np.sqrt((1 + off) ** 2 - 1), 0.0, 1.0]
+
+
+def _off_plane(off):  # on the cylinder, `off` below the plane
+    return [np.sqrt(1 - (1 - off) ** 2), 0.0, 1 - off]
+
+
+def test_settle_borders_gives_ties_between_a_curved_region_and_a_plane_to_the_plane():
+    sigma = 0.01
+    # column 1 (the cylinder's) lies on the plane, half a sigma off the cylinder; column 2
+    # (the plane's) on the cylinder, half a sigma off the plane
+    row = [_off_plane(0.2), _off_cylinder(0.5 * sigma), _off_plane(0.5 * sigma), _off_cylinder(0.2)]
+    assert _settle_row(row, [1, 1, 2, 2], plane_margin=0.0) == [1, 2, 2, 2]
+    # with the margin both ways nothing moves; a plane never gives a tie to a curved region
+    assert _settle_row(row, [1, 1, 2, 2], plane_margin=1.0) == [1, 1, 2, 2]
+    assert _settle_row(row, [1, 1, 2, 2], margin=0.0, plane_margin=0.0) == [1, 2, 1, 2]
+
+
+def test_settle_borders_crosses_the_seam_of_a_full_turn_only_when_asked():
+    sigma = 0.01
+    # the last column (the cylinder's) lies on the plane 3 sigmas off the cylinder; its
+    # neighbour across the seam is the plane's first column
+    row = [_off_cylinder(0.2), _off_cylinder(0.2), _off_plane(0.2), _off_cylinder(3 * sigma)]
+    assert _settle_row(row, [2, 2, 1, 1], wrap=False) == [2, 2, 1, 1]
+    assert _settle_row(row, [2, 2, 1, 1], wrap=True) == [2, 2, 1, 2]
