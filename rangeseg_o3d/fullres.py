@@ -217,9 +217,9 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
               if m and not isinstance(m, Plane) and 0 < k < stats.counts.size and stats.counts[k] > 0]
     if not curved:
         return fits, stats
-    fits, replaced = dict(fits), []
+    fits, replaced, boxes = dict(fits), [], _LabelBoxes(labels)
     for k in curved:
-        points = _region_sample(cloud, labels, k, _pixel_box(labels, k, tile_labels, tile))
+        points = _region_sample(cloud, labels, k, _pixel_box(boxes, k, tile_labels, tile))
         plane = fit_plane(points) if len(points) >= 6 else None
         if not plane:
             continue
@@ -339,14 +339,34 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     return labels, fits, stats
 
 
-def _pixel_box(labels: np.ndarray, k: int, tile_labels: np.ndarray | None, tile: int) -> tuple[slice, slice]:
-    """Rows and columns of the sensor grid holding every pixel of label ``k``."""
+class _LabelBoxes:
+    """Every label's bounding box on the sensor grid, found by one compiled pass on first use
+    (:func:`rangeseg_o3d.kernels.label_boxes`): a pass per label costs a full-frame
+    comparison and its ``nonzero`` each."""
+
+    def __init__(self, labels: np.ndarray):
+        self.labels = labels
+        self._boxes = None
+
+    def __call__(self, k: int) -> tuple[slice, slice]:
+        """Rows and columns holding every pixel of label ``k`` (which has pixels)."""
+        if self._boxes is None:
+            from .kernels import label_boxes
+
+            labels = np.ascontiguousarray(self.labels, dtype=np.int32)
+            self._boxes = label_boxes(labels, int(labels.max(initial=0)) + 1)
+        row0, row1, col0, col1 = self._boxes[k].tolist()
+        return slice(row0, row1), slice(col0, col1)
+
+
+def _pixel_box(boxes: _LabelBoxes, k: int, tile_labels: np.ndarray | None, tile: int) -> tuple[slice, slice]:
+    """Rows and columns of the sensor grid holding every pixel of label ``k`` (``boxes``: the
+    labels' own boxes, for a region the tiles did not have)."""
     rows, cols = np.nonzero(tile_labels == k) if tile_labels is not None else ((), ())
     if len(rows):
         return (slice(max(int(rows.min()) - 1, 0) * tile, (int(rows.max()) + 2) * tile),
                 slice(max(int(cols.min()) - 1, 0) * tile, (int(cols.max()) + 2) * tile))
-    rows, cols = np.nonzero(labels == k)  # a region the tiles did not have (recovered pixels)
-    return slice(int(rows.min()), int(rows.max()) + 1), slice(int(cols.min()), int(cols.max()) + 1)
+    return boxes(k)  # a region the tiles did not have (recovered pixels)
 
 
 def _region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -> np.ndarray:

@@ -337,6 +337,13 @@ def test_planes_for_unresolved_gives_a_bent_wall_its_plane_and_keeps_the_column(
     boxed, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
                                      tile_labels=labels[::2, ::2], tile=2)
     assert np.allclose(boxed[1].normal, wall.normal) and boxed[1].d == pytest.approx(wall.d)
+    # a region the tile grid did not have (recovered at full resolution): its own pixels' box,
+    # the same sample as the whole grid's
+    recovered = labels[::2, ::2].copy()
+    recovered[recovered == 1] = 0
+    alone, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
+                                     tile_labels=recovered, tile=2)
+    assert np.array_equal(alone[1].normal, wall.normal) and alone[1].d == wall.d and alone[1].rms == wall.rms
 
 
 def test_planes_for_unresolved_leaves_planes_alone():

@@ -213,17 +213,12 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
     """
     from ._decide import Decision
     from ._trimmed import trimmed_decision
-    from .robust import CHI_SQUARE_SIGMAS, ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS, local_seeds
 
-    p = {**_PRIMITIVE_DEFAULTS, **params}
-    seeds = local_seeds(len(pool), MAX_POINTS) if starts else _NO_SEEDS
+    search, judge = _trimmed_arguments(bool(planes_only), tuple(params.items()))
+    seeds = _local_seeds(len(pool)) if starts else _NO_SEEDS
     found, ints, floats, centroid, normal, codes, curved, inliers = trimmed_decision(
-        xyz, pool, float(sigma), int(min_inliers), ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS,
-        CHI_SQUARE_SIGMAS, bool(planes_only), int(fit_max_points), 3 if planes_only else int(p["min_points"]),
-        float(max_rms), _NO_HINT, *_search_grids(),
-        float(p["plane_rms"]), float(p["cylinder_rms"]), float(p["sphere_rms"]), float(p["rms_per_range2"]),
-        float(p["max_radius"]), float(np.radians(p["min_arc_deg"])), float(p["curvature_gain"]), INLIER_FACTOR,
-        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(p["noise_floor"]), seeds)
+        xyz, pool, float(sigma), int(min_inliers), *search, int(fit_max_points), judge[0], float(max_rms),
+        *judge[1:], seeds)
     if not found:
         return None, None
     kind, status, first, plane_inliers = ints.tolist()
@@ -231,6 +226,43 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
     decision = Decision(kind, status, first, centroid, scale, normal, d, plane_rms, plane_tol, eigen_rms,
                         plane_inliers, codes, curved)
     return model_of_decision(decision), inliers
+
+
+#: The constant arguments of the compiled trimmed search, per judge (planes only or not) and
+#: fitter keywords: built once, not per call (a split runs dozens of searches per frame).
+_TRIMMED_ARGUMENTS: dict = {}
+
+
+def _trimmed_arguments(planes_only: bool, params: tuple) -> tuple[tuple, tuple]:
+    """``(search, judge)``: the search's arguments after ``min_points`` up to ``planes_only``,
+    and the judge's, ``fit_min_points`` first, then those after ``max_rms`` (the decision's)."""
+    key = (planes_only, params)
+    try:
+        known = _TRIMMED_ARGUMENTS.get(key)
+    except TypeError:  # a keyword value that cannot be hashed: built for this call only
+        key, known = None, None
+    if known is not None:
+        return known
+    from .robust import CHI_SQUARE_SIGMAS, ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS
+
+    p = {**_PRIMITIVE_DEFAULTS, **dict(params)}
+    search = (ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH, MANY_POINTS, CHI_SQUARE_SIGMAS, planes_only)
+    judge = (3 if planes_only else int(p["min_points"]), _NO_HINT, *_search_grids(),
+             float(p["plane_rms"]), float(p["cylinder_rms"]), float(p["sphere_rms"]), float(p["rms_per_range2"]),
+             float(p["max_radius"]), float(np.radians(p["min_arc_deg"])), float(p["curvature_gain"]), INLIER_FACTOR,
+             ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(p["noise_floor"]))
+    if key is not None:
+        if len(_TRIMMED_ARGUMENTS) >= 64:  # fitters come and go (tests): keep the table small
+            _TRIMMED_ARGUMENTS.clear()
+        _TRIMMED_ARGUMENTS[key] = search, judge
+    return search, judge
+
+
+def _local_seeds(size: int) -> np.ndarray:
+    # robust.local_seeds of a pool of ``size`` (lazily imported: robust is not needed before)
+    from .robust import MAX_POINTS, local_seeds
+
+    return local_seeds(size, MAX_POINTS)
 
 
 def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,

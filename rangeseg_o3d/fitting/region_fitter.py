@@ -132,12 +132,17 @@ class RegionFitter:
         if (self.plugin.trimmed is None or xyz_flat.dtype != np.float64 or xyz_flat.ndim != 2
                 or not xyz_flat.flags.c_contiguous):
             return None
-        xyz_flat = xyz_flat.view()
-        xyz_flat.flags.writeable = False  # as a cloud's points are: one compiled signature
+        if xyz_flat.flags.writeable:
+            xyz_flat = xyz_flat.view()
+            xyz_flat.flags.writeable = False  # as a cloud's points are: one compiled signature
+        if pool.dtype != np.int64 or not pool.flags.c_contiguous:
+            pool = np.ascontiguousarray(pool, dtype=np.int64)
         try:
-            return self.plugin.trimmed(xyz_flat, np.ascontiguousarray(pool, dtype=np.int64), sigma=sigma,
-                                       min_inliers=min_points, max_rms=max_rms, fit_max_points=self.max_points,
-                                       **({"starts": True} if starts else {}), **self.params)
+            if starts:
+                return self.plugin.trimmed(xyz_flat, pool, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
+                                           fit_max_points=self.max_points, starts=True, **self.params)
+            return self.plugin.trimmed(xyz_flat, pool, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
+                                       fit_max_points=self.max_points, **self.params)
         except ValueError:  # as fit: a bad region is no answer
             return None, None
 

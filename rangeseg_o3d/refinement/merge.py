@@ -182,12 +182,14 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     if not pairs:
         return labels, fits, adjacency
     unions.add(pairs)
-    for i, (a, b) in enumerate(pairs):
+    for a, b in pairs:
         ra, rb = unions.find(a), unions.find(b)
         if ra == rb or not fits[ra] or not fits[rb]:
             continue
-        if (ra, rb) not in unions.cache:  # a part merged since: its pairs' unions are new
-            unions.add(pairs[i:])
+        # a part merged since: this union is new (each other new one is computed on its
+        # turn, from the same moments: the parts' rows change only when they merge)
+        if (ra, rb) not in unions.cache:
+            unions.add([(ra, rb)])
         union = unions.model(ra, rb)
         if union and union.kind == fits[ra].kind and union.rms <= rms_factor * max(fits[ra].rms, fits[rb].rms):
             unions.join(ra, rb, union)

@@ -356,3 +356,14 @@ def test_curvature_of_a_far_shallow_arc_is_not_resolved_under_its_noise():
     # 5 m radius over 4 deg: sagitta 3 mm under 2 cm noise
     points, radius = _arc(5.0, np.radians(4.0), 300, 0.02, rng)
     assert not curvature_resolved(*_squares(points, radius), len(points))
+
+
+@pytest.mark.parametrize("max_points", [6, 50, 600])
+def test_local_seeds_are_linspace_truncated(max_points):
+    from rangeseg_o3d.fitting.robust import local_seeds
+
+    for size in [*range(1, 700), 1719, 2287, 5000, 123457]:
+        step = -(-size // max_points)
+        expected = np.linspace(0, -(-size // step) - 1, 8).astype(np.int64)
+        seeds = local_seeds(size, max_points)
+        assert seeds.dtype == np.int64 and np.array_equal(seeds, expected), size
