@@ -92,7 +92,9 @@ class RefineConfig(BaseModel):
         ring per round; no crossing of jump edges).
     k_sigma : acceptance distance in units of the local noise.
     merge : merge regions of the same kind whose union is explained as well as the parts.
-    merge_disjoint : also merge regions that do not touch (one wall split by an occluder).
+    merge_disjoint : also merge regions that do not touch (one wall split by an occluder); and
+        let the recover step give unlabelled strips a plane region's surface passes through,
+        apart from it, to that region (``refinement.recover.claim_occluded_strips``).
     merge_angle_deg : maximum angle between normals / axes of merge candidates.
     merge_rms_factor : the union's rms may exceed the larger part's rms by this factor.
     merge_tolerance : metres; offsets, radii and centres of merge candidates must agree within

@@ -114,7 +114,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     if config.recover_leftovers:
         labels, fits = recover_leftovers(ctx, labels, fits, valid=cloud.valid,
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
-                                         **growth)
+                                         claim_strips=config.merge_disjoint, **growth)  # a strip is a piece apart
     timer.lap("recover")
     before = fits
     labels, fits = planes_for_curved(ctx, labels, fits)

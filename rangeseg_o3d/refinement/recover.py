@@ -181,13 +181,19 @@ def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarr
 
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
-                      k_sigma: float, jump_ratio: float, jump_min: float):
+                      k_sigma: float, jump_ratio: float, jump_min: float, claim_strips: bool = True):
     """Turn the compact leftover blobs into one region per surface they hold (:func:`split_blobs`);
     returns new ``(labels, fits)``.
 
     ``valid`` and ``jumps`` are (H, W) masks (no blob crosses a jump edge); ``xyz``,
     ``ranges`` and ``sigma`` the grids the rims grow on (see
-    :func:`rangeseg_o3d.refinement.grow.grow_into_edges`).
+    :func:`rangeseg_o3d.refinement.grow.grow_into_edges`). ``claim_strips``: then the
+    unlabelled strips on a plane region's surface that touch no region explaining them
+    join it (:func:`claim_occluded_strips`). Such a strip is a piece of the region apart
+    from it, so the caller asks for this only where pieces of one surface apart are one
+    region (``merge_disjoint``): where they are not (SegComp's ABW truth labels each
+    connected patch), a strip would join whichever region's plane passes through it,
+    however far (a face of another block in line with it).
     """
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
@@ -199,6 +205,8 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
+    if not claim_strips:
+        return labels, fits
     return claim_occluded_strips(ctx, labels, fits, valid=valid, k_sigma=k_sigma)
 
 

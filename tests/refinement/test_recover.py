@@ -109,6 +109,24 @@ def test_claim_occluded_strips_gives_wall_strips_between_columns_to_the_wall(con
         assert abs(abs(model.normal[2]) - 1) < 1e-3 and abs(abs(model.d) - 3.0) < 3e-3
 
 
+def test_recover_leftovers_leaves_strips_apart_free_without_claim_strips(context):
+    # merge_disjoint false (SegComp's truth: each connected patch its own label): the wall
+    # strips between the columns are pieces of the wall apart from its regions, left free
+    xyz, labels, columns = _wall_behind_columns()
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full((40, 60), 0.001)
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    common = dict(xyz=xyz, valid=cloud.valid, jumps=columns, ranges=cloud.range_image(), sigma=sigma,
+                  k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    claimed, _ = recover_leftovers(context(cloud, min_size=20, sigma=sigma), labels, fits, **common)
+    apart, apart_fits = recover_leftovers(context(cloud, min_size=20, sigma=sigma), labels, fits,
+                                          claim_strips=False, **common)
+    strip = (slice(None), slice(26, 28))
+    assert (claimed[strip] > 0).all()  # the strip is claimed by default
+    assert (apart[strip] == 0).all()
+    assert set(np.unique(apart[labels > 0])) == {1, 2} and set(apart_fits) >= {1, 2}
+
+
 def test_claim_occluded_strips_leaves_labels_without_planes_alone(context):
     xyz, labels, _ = _wall_behind_columns()
     cloud = rs.OrganizedCloud(xyz)
