@@ -25,6 +25,11 @@ def label_moments(xyz, labels, n):
     threshold test needs.
     """
     out = np.zeros((n, N_MOMENTS))
+    # Labels come in runs along the rows: a run's sums stay in registers (loaded from the
+    # label's row when the run starts, stored when it ends: the same additions in the same
+    # order), where a store and reload per pixel would chain each pixel to the last.
+    last = -1
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
     for i in range(labels.shape[0]):
         k = labels[i]
         if k <= 0 or k >= n:
@@ -32,18 +37,31 @@ def label_moments(xyz, labels, n):
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
         if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
             continue
-        o = out[k]
-        o[0] += 1.0
-        o[1] += x
-        o[2] += y
-        o[3] += z
-        o[4] += x * x
-        o[5] += x * y
-        o[6] += x * z
-        o[7] += y * y
-        o[8] += y * z
-        o[9] += z * z
+        if k != last:
+            if last > 0:
+                _store_moments(out[last], s0, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+            o = out[k]
+            s0, s1, s2, s3, s4, s5, s6, s7, s8, s9 = o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[8], o[9]
+            last = k
+        s0 += 1.0
+        s1 += x
+        s2 += y
+        s3 += z
+        s4 += x * x
+        s5 += x * y
+        s6 += x * z
+        s7 += y * y
+        s8 += y * z
+        s9 += z * z
+    if last > 0:
+        _store_moments(out[last], s0, s1, s2, s3, s4, s5, s6, s7, s8, s9)
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _store_moments(row, s0, s1, s2, s3, s4, s5, s6, s7, s8, s9):
+    row[0], row[1], row[2], row[3], row[4] = s0, s1, s2, s3, s4
+    row[5], row[6], row[7], row[8], row[9] = s5, s6, s7, s8, s9
 
 @njit(cache=True, nogil=True)
 def planes_from_moment_rows(moments):
@@ -224,6 +242,8 @@ def distance_stats(xyz, labels, kinds, params, rms, sigma, factor):
     inliers = np.zeros(n, np.int64)
     squares = np.zeros(n)
     counts = np.zeros(n, np.int64)
+    # a run of one label sums in registers (as label_moments: the same additions in order)
+    last, taken, total, near = -1, 0, 0.0, 0
     for i in range(labels.shape[0]):
         k = labels[i]
         if k <= 0 or k >= n or kinds[k] == 0:
@@ -231,10 +251,16 @@ def distance_stats(xyz, labels, kinds, params, rms, sigma, factor):
         dist = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2])
         if not np.isfinite(dist):
             continue
-        counts[k] += 1
-        squares[k] += dist * dist
+        if k != last:
+            if last > 0:
+                counts[last], squares[last], inliers[last] = taken, total, near
+            last, taken, total, near = k, counts[k], squares[k], inliers[k]
+        taken += 1
+        total += dist * dist
         if dist <= factor * max(sigma[i], rms[k]):
-            inliers[k] += 1
+            near += 1
+    if last > 0:
+        counts[last], squares[last], inliers[last] = taken, total, near
     return inliers, squares, counts
 
 @njit(cache=True, nogil=True)

@@ -100,6 +100,9 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 k = table[tr, tc, 0]
                 kind, prm, floor = kinds[k], params[k], rms[k]
                 ties = k == own  # the own region wins ties
+                # the region's statistics in registers along the tile's row (the same
+                # additions in the same order as _take's)
+                taken, total, near = counts[k], squares[k], inliers[k]
                 for c in range(c0, c1):
                     i = r * width + c
                     z = xyz[i, 2]
@@ -109,7 +112,12 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     dist = _distance(kind, prm, xyz[i, 0], xyz[i, 1], z)
                     score = dist / max(noise, floor)
                     if score < k_sigma or (ties and score <= k_sigma):
-                        _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor)
+                        out[r, c] = k
+                        taken += 1
+                        total += dist * dist
+                        if dist <= inlier_factor * max(noise, 0.0):
+                            near += 1
+                counts[k], squares[k], inliers[k] = taken, total, near
                 continue
             own_first = table[tr, tc, 0] == own
             for c in range(c0, c1):

@@ -85,18 +85,22 @@ class _BoundJudge(_PlaneJudge):
 
 def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:
     """The surfaces a sequential trimmed split with ``judge`` finds in the pixels ``idx``,
-    with their pixels."""
+    with their pixels; the split stops as soon as they cannot take PLANES_COVER of ``idx``
+    (:func:`_covers` then refuses what it found anyway)."""
     planar = copy.copy(ctx)  # the same points, noise and size floor
     planar.fitter = judge
     found, pools = [], planar.pieces(idx)
+    taken, needed = 0, PLANES_COVER * idx.size
     for _ in range(_MAX_ATTEMPTS):
-        if not pools:
+        # every surface still to be found is a piece of a pool left, and the pieces are disjoint
+        if not pools or taken + sum(pool.size for pool in pools) < needed:
             break
         pool = pools.pop()
         piece, plane = planar.dominant_piece(pool)
         if piece is None:
             continue
         found.append((piece, plane))
+        taken += piece.size
         pools.extend(planar.pieces(without(pool, piece)))
         pools.sort(key=len)
     return found

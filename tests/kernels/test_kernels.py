@@ -498,3 +498,49 @@ def test_settle_borders_crosses_the_seam_of_a_full_turn_only_when_asked():
     row = [_off_cylinder(0.2), _off_cylinder(0.2), _off_plane(0.2), _off_cylinder(3 * sigma)]
     assert _settle_row(row, [2, 2, 1, 1], wrap=False) == [2, 2, 1, 1]
     assert _settle_row(row, [2, 2, 1, 1], wrap=True) == [2, 2, 1, 2]
+
+
+def _runs_of_labels(rng, n_pixels=3000, n_labels=6):
+    # label runs of random lengths (as along image rows), zeros and NaN points among them
+    labels = np.repeat(rng.integers(0, n_labels, 200), rng.integers(1, 40, 200))[:n_pixels].astype(np.int32)
+    pts = rng.normal(0.0, 3.0, (labels.size, 3))
+    pts[rng.random(labels.size) < 0.05] = np.nan
+    return pts, labels
+
+
+def test_label_moments_sum_in_pixel_order_exactly():
+    # the kernel keeps a run's sums in registers: the same additions, in pixel order, as one by one
+    from rangeseg_o3d.kernels import label_moments
+
+    pts, labels = _runs_of_labels(np.random.default_rng(5))
+    expected = np.zeros((6, 10))
+    for (x, y, z), k in zip(pts.tolist(), labels.tolist()):
+        if k > 0 and np.isfinite([x, y, z]).all():
+            row = expected[k]
+            for j, value in enumerate((1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z)):
+                row[j] = row[j] + value
+    assert np.array_equal(label_moments(pts, labels, 6), expected)
+
+
+def test_distance_stats_sum_in_pixel_order_exactly():
+    from rangeseg_o3d.kernels import distance_stats
+
+    rng = np.random.default_rng(6)
+    pts, labels = _runs_of_labels(rng)
+    models = {1: Plane(normal=np.array([0.0, 0.0, 1.0]), d=1.0, rms=0.5, inliers=0),
+              2: Plane(normal=np.array([0.6, 0.8, 0.0]), d=0.5, rms=2.0, inliers=0),
+              4: Plane(normal=np.array([1.0, 0.0, 0.0]), d=2.0, rms=1.0, inliers=0)}  # 3, 5: no model
+    kinds, params, rms = model_table(models, 6)
+    sigma = rng.uniform(0.5, 3.0, labels.size)
+    inliers, squares, counts = distance_stats(pts, labels, kinds, params, rms, sigma, 2.0)
+    expected_in, expected_sq, expected_n = np.zeros(6, np.int64), np.zeros(6), np.zeros(6, np.int64)
+    for i, ((x, y, z), k) in enumerate(zip(pts.tolist(), labels.tolist())):
+        if k not in models or not np.isfinite([x, y, z]).all():
+            continue
+        a, b, c = params[k, :3].tolist()
+        dist = abs((x * a + y * b + z * c) - float(params[k, 3]))  # the kernel's operations, in order
+        expected_n[k] += 1
+        expected_sq[k] = expected_sq[k] + dist * dist
+        expected_in[k] += dist <= 2.0 * max(float(sigma[i]), float(rms[k]))
+    assert np.array_equal(counts, expected_n) and np.array_equal(inliers, expected_in)
+    assert np.array_equal(squares, expected_sq)
