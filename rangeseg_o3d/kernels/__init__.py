@@ -36,7 +36,8 @@ _SOURCES = {
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
-    "window": ("window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"),
+    "window": ("window_moments", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
+               "ray_steps", "blind_spacing"),
 }
 _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
 

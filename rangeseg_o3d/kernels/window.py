@@ -15,7 +15,8 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["window_moments", "smallest_eigenvalues", "eigenvectors", "crease_mask", "ray_steps"]
+__all__ = ["window_moments", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
+           "ray_steps", "blind_spacing"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -143,6 +144,35 @@ def smallest_eigenvalues(scatter):
 
 
 @njit(cache=True, nogil=True)
+def window_residuals(xyz, window, min_valid, ranges, sigma0, quadratic):
+    """The noise-normalised residual image: ``(H, W)``, ``inf`` where invalid.
+
+    Per pixel: the smallest eigenvalue of its window's scatter (:func:`window_moments`,
+    :func:`smallest_eigenvalues`) over ``max(count - 3, 1) sigma^2``, ``sigma = sigma0 +
+    quadratic r^2`` (``quadratic`` per pixel, ``ranges`` r); ``inf`` where the pixel is
+    invalid, the window has under ``min_valid`` points or the ratio is not finite. The same
+    values as those steps in numpy (``segmentation.residual.residual_image``'s), without
+    their whole-grid temporaries.
+    """
+    h, w = xyz.shape[0], xyz.shape[1]
+    count, _, scatter = window_moments(xyz, window)
+    values = smallest_eigenvalues(scatter.reshape(6, h * w)).reshape(h, w)
+    out = np.full((h, w), np.inf)
+    for r in range(h):
+        for c in range(w):
+            n = count[r, c]
+            if xyz[r, c, 2] != xyz[r, c, 2] or not n >= min_valid:
+                continue
+            sigma = sigma0 + quadratic[r, c] * (ranges[r, c] * ranges[r, c])
+            scale = max(n - 3.0, 1.0) * sigma * sigma
+            if scale > 0.0:  # else (0 or NaN) the ratio is not finite
+                residual = values[r, c] / scale
+                if residual - residual == 0.0:  # finite
+                    out[r, c] = residual
+    return out
+
+
+@njit(cache=True, nogil=True)
 def eigenvectors(scatter, values):
     """Unit eigenvector (N, 3) of each packed matrix (6, N) for its eigenvalue ``values[i]``.
 
@@ -235,12 +265,9 @@ def _chord_angle(ux, uy, uz, r0, c0, r1, c1):
 
 
 @njit(cache=True, nogil=True)
-def ray_steps(xyz):
-    """Angle (radians) between each pixel's viewing direction and the next row's and the
-    next column's, ``(2, H, W)`` (the last row / column repeats the one before; NaN where
-    either pixel is invalid)."""
+def _directions(xyz):
+    # each pixel's unit viewing direction (NaN for an invalid or zero point), as three grids
     h, w = xyz.shape[0], xyz.shape[1]
-    # each pixel's viewing direction once (NaN for an invalid or zero point)
     ux, uy, uz = np.empty((h, w)), np.empty((h, w)), np.empty((h, w))
     for r in range(h):
         for c in range(w):
@@ -250,6 +277,16 @@ def ray_steps(xyz):
                 ux[r, c], uy[r, c], uz[r, c] = x / norm, y / norm, z / norm
             else:
                 ux[r, c], uy[r, c], uz[r, c] = np.nan, np.nan, np.nan
+    return ux, uy, uz
+
+
+@njit(cache=True, nogil=True)
+def ray_steps(xyz):
+    """Angle (radians) between each pixel's viewing direction and the next row's and the
+    next column's, ``(2, H, W)`` (the last row / column repeats the one before; NaN where
+    either pixel is invalid)."""
+    h, w = xyz.shape[0], xyz.shape[1]
+    ux, uy, uz = _directions(xyz)
     out = np.full((2, h, w), np.nan)
     for r in range(h):
         for c in range(w):
@@ -260,3 +297,58 @@ def ray_steps(xyz):
                 ca = min(c, w - 2)
                 out[1, r, c] = _chord_angle(ux, uy, uz, r, ca, r, ca + 1)
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chord_bound(ux, uy, uz, r0, c0, r1, c1):
+    # a lower bound of _chord_angle for the same pixels, NaN exactly where it is NaN:
+    # 2 asin(x) >= 2 x on [0, 1] (the factor covers asin's last-bit rounding)
+    dx, dy, dz = ux[r0, c0] - ux[r1, c1], uy[r0, c0] - uy[r1, c1], uz[r0, c0] - uz[r1, c1]
+    return 2.0 * min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0) * (1.0 - 1e-9)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fmin(a, b):
+    # np.fmin of two floats: the smaller, a NaN only when both are
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a < b else b
+
+
+@njit(cache=True, nogil=True)
+def blind_spacing(xyz, ranges, sigma, visible_ratio):
+    """The grid's spacing where it is under ``visible_ratio`` noise sigmas: ``(spacing, count)``.
+
+    The spacing of a pixel is its range times the smaller of its angular steps to the next
+    row and column (:func:`ray_steps`, NaN ones skipped as ``np.fmin`` does); ``spacing``
+    holds it where it is finite, positive and under ``visible_ratio * sigma`` (the crease
+    test's blind pixels), NaN elsewhere; ``count`` is the number of those pixels. The same
+    values as ``ranges * np.fmin(*ray_steps(xyz))`` there, without its arc sines where a
+    lower bound of the steps (the chord) already puts the spacing over the limit.
+    """
+    h, w = xyz.shape[0], xyz.shape[1]
+    ux, uy, uz = _directions(xyz)
+    spacing = np.full((h, w), np.nan)
+    count = 0
+    for r in range(h):
+        ra = min(r, h - 2)
+        for c in range(w):
+            reach = ranges[r, c]
+            if not (reach > 0.0 and reach < np.inf):  # a spacing 0, negative or not finite
+                continue
+            limit = visible_ratio * sigma[r, c]
+            ca = min(c, w - 2)
+            low_row = _chord_bound(ux, uy, uz, ra, c, ra + 1, c) if h > 1 else np.nan
+            low_col = _chord_bound(ux, uy, uz, r, ca, r, ca + 1) if w > 1 else np.nan
+            low = _fmin(low_row, low_col)
+            if not reach * low < limit:  # over the limit (or NaN) with the bound already
+                continue
+            row = _chord_angle(ux, uy, uz, ra, c, ra + 1, c) if h > 1 else np.nan
+            col = _chord_angle(ux, uy, uz, r, ca, r, ca + 1) if w > 1 else np.nan
+            value = reach * _fmin(row, col)
+            if value > 0.0 and value < limit and value < np.inf:
+                spacing[r, c] = value
+                count += 1
+    return spacing, count

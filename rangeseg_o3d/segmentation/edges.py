@@ -133,18 +133,22 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
     (mask, window) : (H, W) bool crease pixels, and the window used (0 when the test did
     not run because the residual sees creases everywhere).
     """
-    from ..kernels import crease_mask
+    from ..kernels import blind_spacing, crease_mask
     from .residual import residual_image
 
-    ranges = np.asarray(ranges, dtype=np.float64)
-    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), ranges.shape)
-    row_step, col_step = angular_steps(xyz)
-    with np.errstate(invalid="ignore"):
-        # the worse-sampled direction sets how well a window's tilt is determined
-        spacing = ranges * np.fmin(row_step, col_step)
-        blind = np.isfinite(spacing) & (spacing > 0) & (spacing < visible_ratio * sigma)
-    if not blind.any():
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    if xyz.ndim != 3 or xyz.shape[2] != 3:
+        raise ValueError(f"xyz must have shape (H, W, 3); got {xyz.shape}")
+    ranges = np.ascontiguousarray(ranges, dtype=np.float64)
+    sigma = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma, dtype=np.float64), ranges.shape))
+    # The spacing is the range times the smaller angular step (angular_steps: the
+    # worse-sampled direction sets how well a window's tilt is determined), kept where it is
+    # blind; one compiled pass, which skips the steps' arc sines where the spacing is
+    # clearly over the noise (every pixel of a laser scanner's grid).
+    spacing, n_blind = blind_spacing(xyz, ranges, sigma, float(visible_ratio))
+    if n_blind == 0:
         return np.zeros(ranges.shape, bool), 0
+    blind = ~np.isnan(spacing)
     limit = np.sin(np.radians(min_angle_deg))
     middle = float(np.median(sigma[blind] / spacing[blind]))
     window = next((w for w in range(3, max_window + 1, 2)

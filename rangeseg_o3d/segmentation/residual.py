@@ -36,6 +36,13 @@ def _check_grid(xyz, window: int) -> np.ndarray:
     return view
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    # a read-only view: the kernel then has one specialisation whatever the caller passed
+    view = array.view()
+    view.flags.writeable = False
+    return view
+
+
 def neighbourhood_moments(xyz: np.ndarray, *, window: int = 3):
     """Count, centroid and centred scatter matrix of the valid points in every window.
 
@@ -132,14 +139,20 @@ def residual_image(
     xyz = _check_grid(xyz, window)
     if not 3 < min_valid <= window * window:
         raise ValueError(f"min_valid must be in 4..{window * window}; got {min_valid}")
-    count, _, scatter = neighbourhood_moments(xyz, window=window)
-    if with_normals:
-        eigenvalue, normals = smallest_eigenpairs(scatter)
-        normals = np.moveaxis(normals, 0, 2)
-    else:
-        eigenvalue, normals = smallest_eigenpairs(scatter, with_vectors=False), None
     if ranges is None:
         ranges = np.linalg.norm(xyz, axis=2)
+    if not with_normals:  # one compiled pass, the same values as the steps below
+        from ..kernels import window_residuals
+
+        shape = xyz.shape[:2]
+        ranges = np.ascontiguousarray(np.broadcast_to(np.asarray(ranges, dtype=np.float64), shape))
+        quadratic = np.ascontiguousarray(np.broadcast_to(
+            np.asarray(sigma_quadratic * noise_scale, dtype=np.float64), shape))
+        return window_residuals(xyz, int(window), int(min_valid), _read_only(ranges),
+                                float(sigma0), _read_only(quadratic)), None
+    count, _, scatter = neighbourhood_moments(xyz, window=window)
+    eigenvalue, normals = smallest_eigenpairs(scatter)
+    normals = np.moveaxis(normals, 0, 2)
     sigma = noise_sigma(np.asarray(ranges, dtype=np.float64), sigma0=sigma0,
                         sigma_quadratic=sigma_quadratic * noise_scale)
     with np.errstate(invalid="ignore", divide="ignore"):

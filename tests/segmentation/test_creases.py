@@ -81,3 +81,32 @@ def test_a_curved_surface_turning_steadily_is_no_crease():
     assert window == 9
     assert creases.mean() < 0.02
 
+
+
+def test_blind_spacing_equals_the_spacing_from_the_angular_steps_bit_for_bit():
+    # kernels.blind_spacing skips the arc sines where the chord bound already clears the
+    # limit: its pixels and values must be those of range x fmin(angular_steps) < ratio x sigma
+    from rangeseg_o3d.kernels import blind_spacing
+
+    rng = np.random.default_rng(5)
+    blind_pixels = clear_pixels = 0
+    for shape in ((12, 17), (1, 9), (9, 1), (2, 2), (1, 1), (30, 40)):
+        xyz = rng.normal(0.0, 1.0, (*shape, 3)) + (0.0, 0.0, 3.0)
+        xyz[rng.random(shape) < 0.2] = np.nan
+        xyz[rng.random(shape) < 0.1] = 0.0  # no direction
+        factor = rng.choice([1.0, -1.0, 0.0, np.inf], p=[0.85, 0.05, 0.05, 0.05], size=shape)
+        with np.errstate(invalid="ignore"):
+            ranges = np.linalg.norm(xyz, axis=2) * factor
+        sigma = rng.uniform(0.0, 4.0, shape)
+        sigma[rng.random(shape) < 0.05] = np.nan
+        ratio = float(rng.uniform(0.1, 3.0))
+        with np.errstate(invalid="ignore"):
+            spacing = ranges * np.fmin(*angular_steps(xyz))
+            blind = np.isfinite(spacing) & (spacing > 0) & (spacing < ratio * sigma)
+        got, count = blind_spacing(xyz, ranges, sigma, ratio)
+        assert count == np.count_nonzero(blind)
+        assert np.array_equal(~np.isnan(got), blind)
+        assert np.array_equal(got[blind], spacing[blind])
+        blind_pixels += count
+        clear_pixels += np.count_nonzero(np.isfinite(spacing) & ~blind)
+    assert blind_pixels > 100 and clear_pixels > 100  # both branches were taken

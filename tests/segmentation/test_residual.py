@@ -171,3 +171,26 @@ def test_tile_means_lower_the_random_noise_term_only():
                             ranges=np.full(counts.shape, 3.0))
     inner = res[1:-1, 1:-1]
     assert 0.6 < np.median(inner) < 1.4
+
+
+def test_residual_without_normals_equals_the_step_by_step_residual_bit_for_bit():
+    # with_normals=False runs one fused kernel (kernels.window_residuals); the residual must
+    # be the very values of the moments -> eigenvalue -> noise steps the normals path takes,
+    # also with invalid points, sparse windows, a zero noise, NaN ranges and per-pixel scales
+    rng = np.random.default_rng(21)
+    for trial in range(40):
+        h, w = rng.integers(1, 25, size=2)
+        xyz = rng.normal(0.0, 0.05, (h, w, 3)) + (0.0, 0.0, rng.uniform(0.5, 40.0))
+        if trial % 4 == 0:  # exact planes: repeated roots, the closed form's case
+            xyz[..., 2] = 2.0
+        xyz[rng.random((h, w)) < 0.2] = np.nan
+        ranges = np.linalg.norm(xyz, axis=2)
+        ranges[rng.random((h, w)) < 0.05] = np.nan
+        scale = rng.uniform(0.2, 1.0, (h, w)) if trial % 2 else 1.0
+        kwargs = dict(window=int(rng.choice([3, 5])), min_valid=4, ranges=ranges,
+                      sigma0=0.0 if trial % 5 == 0 else 0.003, sigma_quadratic=0.002, noise_scale=scale)
+        fused, normals = residual_image(xyz, with_normals=False, **kwargs)
+        stepwise, _ = residual_image(xyz, with_normals=True, **kwargs)
+        assert normals is None
+        assert np.array_equal(fused, stepwise)
+        assert np.isinf(fused[np.isnan(xyz[..., 2])]).all()
