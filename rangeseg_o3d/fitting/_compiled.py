@@ -18,7 +18,7 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 from ..kernels.linalg import collinear, hesse_form, solve
 from ._codes import RADIUS_LIMIT
 
-__all__ = ["sphere_lm", "cylinder_lm", "circle_scores"]
+__all__ = ["sphere_lm", "cylinder_lm", "circle_scores", "cylinder_union_reach", "sphere_union_reach"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -230,6 +230,67 @@ def cylinder_lm(q, axis, point, radius, max_iterations, give_up_rms=np.inf):
         else:
             damping *= 10.0
     return a, p0, r, 0
+
+
+@njit(cache=True, nogil=True)
+def _union_reach(cost_a, jtj_a, grad_a, cost_b, jtj_b, grad_b, budget, trusted):
+    # First-order lower bound of the distances (their root sum of squares) of part b over
+    # the models whose sum of squares over part a stays within ``budget``, both parts
+    # linearised at the same model (cost, J^T J and J^T r of each). Part a's models:
+    # (d - d0)^T H_a (d - d0) <= spread about its best step d0; part b's distances move by
+    # at most sqrt(lambda_max(H_a^-1 H_b) spread) <= sqrt(trace(H_a^-1 H_b) spread).
+    # -inf (no answer) when H_a is singular, no model keeps part a within the budget, or
+    # some parameter may move beyond ``trusted[k]`` (where the linearisation is trusted).
+    k_params = grad_a.shape[0]
+    shift, ok = solve(jtj_a, -grad_a, 1e-12)
+    if not ok:
+        return -np.inf
+    spread = budget - cost_a - grad_a @ shift
+    if not spread > 0.0:
+        return -np.inf
+    trace = 0.0
+    unit = np.zeros(k_params)
+    for k in range(k_params):
+        unit[:] = 0.0
+        unit[k] = 1.0
+        inverse, ok = solve(jtj_a, unit, 1e-12)  # column k of H_a^-1
+        if not ok or abs(shift[k]) + np.sqrt(max(inverse[k], 0.0) * spread) > trusted[k]:
+            return -np.inf
+        for j in range(k_params):  # (H_a^-1 H_b)_kk, H_a^-1 symmetric
+            trace += inverse[j] * jtj_b[j, k]
+    at_shift = max(cost_b + 2.0 * (grad_b @ shift) + shift @ (jtj_b @ shift), 0.0)
+    return np.sqrt(at_shift) - np.sqrt(max(trace, 0.0) * spread)
+
+
+@njit(cache=True, nogil=True)
+def cylinder_union_reach(points, first, axis, point, radius, budget, trusted_share):
+    """:func:`_union_reach` for a cylinder (world ``axis``, ``point``, ``radius``): the
+    points ``points[first:]`` against the cylinders that keep ``points[:first]`` within
+    ``budget`` (a sum of squared distances), linearised at the given one and trusted for
+    moves of the axis and radius up to ``trusted_share`` of the radius, tilts up to
+    ``trusted_share`` radians."""
+    a = axis / np.sqrt(axis @ axis)
+    p0 = point - (point @ a) * a
+    u, v = _frame(a)
+    cost_a, jtj_a, grad_a = _cylinder_normal_equations(points[:first], a, u, v, p0, radius)
+    cost_b, jtj_b, grad_b = _cylinder_normal_equations(points[first:], a, u, v, p0, radius)
+    # steps: axis point along u, v; axis tilt towards u, v; radius
+    move = trusted_share * radius
+    trusted = np.array([move, move, trusted_share, trusted_share, move])
+    return _union_reach(cost_a, jtj_a, grad_a, cost_b, jtj_b, grad_b, budget, trusted)
+
+
+@njit(cache=True, nogil=True)
+def sphere_union_reach(points, first, center, radius, budget, trusted_share):
+    """:func:`cylinder_union_reach` for a sphere (world ``center``, ``radius``; its centre
+    and radius trusted to move up to ``trusted_share`` of the radius)."""
+    params = np.empty(4)
+    params[:3] = center
+    params[3] = radius
+    cost_a, jtj_a, grad_a = _sphere_normal_equations(points[:first], params)
+    cost_b, jtj_b, grad_b = _sphere_normal_equations(points[first:], params)
+    return _union_reach(cost_a, jtj_a, grad_a, cost_b, jtj_b, grad_b, budget,
+                        np.full(4, trusted_share * radius))
 
 
 @njit(cache=True, nogil=True)

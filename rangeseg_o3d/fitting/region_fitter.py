@@ -112,6 +112,11 @@ class RegionFitter:
         step = -(-len(points) // self.max_points)
         return points[::step] if step > 1 else points
 
+    def kept(self, n: int, first: int) -> int:
+        """Of ``n`` pixels whose points :meth:`points` gathers, how many of the first ``first`` it keeps."""
+        step = -(-n // self.max_points)
+        return -(-first // step) if step > 1 else first
+
     def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """The points of pixels ``idx``, subsampled before gathering (large regions)."""
         return xyz_flat[self._subsample(idx)]

@@ -18,8 +18,8 @@ from ..kernels.kinds import NONE
 from ..kernels.linalg import noise_rms_bound
 from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "beyond_noise", "curvature_resolved", "distance_noise",
-           "CHI_SQUARE_SIGMAS"]
+__all__ = ["trimmed_fit", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
+           "CHI_SQUARE_SIGMAS", "REACH_MARGIN", "REACH_TRUSTED_SHARE"]
 
 # Pools of at least this many points get four times the random three-point planes.
 MANY_POINTS = 5000
@@ -30,6 +30,14 @@ ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH = 5, 0.6, 600, 0.9
 #: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
 CHI_SQUARE_SIGMAS = 4.0
 
+#: :func:`union_out_of_reach` refuses a union only when its first-order bound exceeds the
+#: limit by this factor: the bound linearises the distances over the moves a model fitting
+#: the first part within the limit can make, and the factor covers their curvature...
+REACH_MARGIN = 2.0
+#: ...while those moves stay under this share of the radius (axis tilts: radians); a model
+#: its region determines less well is left to the refit.
+REACH_TRUSTED_SHARE = 0.5
+
 
 def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     """Whether a fit's ``rms`` over ``n`` points is larger than noise of rms ``sigma``
@@ -37,6 +45,42 @@ def beyond_noise(rms: float, sigma: float, n: int) -> bool:
     of freedom and ``CHI_SQUARE_SIGMAS``."""
     # the kernel's Python form: one scalar needs no compiled signature of its own
     return rms > noise_rms_bound.py_func(float(sigma), float(n), CHI_SQUARE_SIGMAS)
+
+
+def union_out_of_reach(model, points: np.ndarray, first: int, max_rms: float) -> bool:
+    """Whether no cylinder or sphere near ``model`` (of its kind) fits ``points`` within
+    ``max_rms``, by a first-order bound that costs about one step of the refit.
+
+    ``model`` fits ``points[:first]`` (a region); ``points[first:]`` is a piece whose union
+    with it would be refitted. A model fitting the union within ``max_rms`` keeps the
+    region's sum of squared distances within ``n max_rms^2`` (``n`` all the points): with
+    the distances linearised at ``model``, that confines it to an ellipsoid about the
+    region's best step, over which the piece's distances change by at most
+    ``sqrt(trace(H_region^-1 H_piece) x spread)`` (``H = J^T J``). A piece farther than that
+    from every such model by :data:`REACH_MARGIN` times ``sqrt(n) max_rms`` leaves the
+    union beyond ``max_rms`` (a wall beside a column). A first-order rule, not a proof: it
+    answers only while the ellipsoid keeps the axis, centre and radius within
+    :data:`REACH_TRUSTED_SHARE` of the radius (tilts within as many radians), False for
+    other kinds or a model the region determines less well (the refit decides).
+    """
+    from ._compiled import cylinder_union_reach, sphere_union_reach
+    from .primitives import Cylinder, Sphere
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    n = len(points)
+    if not 0 < first < n:
+        return False
+    budget = n * max_rms * max_rms
+    if isinstance(model, Cylinder):
+        reach = cylinder_union_reach(points, int(first), np.asarray(model.axis, np.float64),
+                                     np.asarray(model.point, np.float64), float(model.radius), budget,
+                                     REACH_TRUSTED_SHARE)
+    elif isinstance(model, Sphere):
+        reach = sphere_union_reach(points, int(first), np.asarray(model.center, np.float64),
+                                   float(model.radius), budget, REACH_TRUSTED_SHARE)
+    else:
+        return False
+    return bool(reach > REACH_MARGIN * np.sqrt(budget))
 
 
 def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise
+from ..fitting.robust import beyond_noise, union_out_of_reach
 from .context import Context
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
@@ -300,8 +300,11 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     piece first: the larger region's model refitted to the union must keep its kind, fit
     within ``rms_factor`` of the larger part's rms and at the noise (the chi-square bound of
     :func:`rangeseg_o3d.fitting.robust.beyond_noise`: a face of a box beside a column
-    is not explained by the column's cylinder). With ``only``, just pairs involving those
-    labels (the others were tried before). With ``near_sigmas``, a piece is refitted with the
+    is not explained by the column's cylinder). A piece out of reach of every model near the
+    curved one that keeps the larger part within that rms
+    (:func:`rangeseg_o3d.fitting.robust.union_out_of_reach`, a first-order bound) is refused
+    without the refit. With ``only``, just pairs involving those labels (the others were
+    tried before). With ``near_sigmas``, a piece is refitted with the
     curved region only when the curved model as it stands lies within that many noise sigmas
     of the piece's pixels at the median (a refit is the step's cost).
     """
@@ -331,10 +334,16 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             if np.median(np.abs(fits[big].distances(ctx.xyz[piece]))) > near_sigmas * np.median(ctx.sigma[piece]):
                 continue
         union_idx = np.concatenate([regions[big], regions[small]])
-        union = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, union_idx), fits[big])
+        points = ctx.fitter.points(ctx.xyz, union_idx)
+        limit = rms_factor * max(fits[big].rms, fits[small].rms)
+        # a piece far beyond what any model near the curved one can reach (a wall beside
+        # a column) is refused without the refit, the step's cost
+        if union_out_of_reach(fits[big], points, ctx.fitter.kept(union_idx.size, regions[big].size), limit):
+            continue
+        union = ctx.fitter.refit(points, fits[big])
         if not union or union.kind != fits[big].kind:
             continue
-        if union.rms > rms_factor * max(fits[big].rms, fits[small].rms):
+        if union.rms > limit:
             continue
         if beyond_noise(union.rms, float(np.median(ctx.sigma[union_idx])), union_idx.size):
             continue

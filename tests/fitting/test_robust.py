@@ -367,3 +367,51 @@ def test_local_seeds_are_linspace_truncated(max_points):
         expected = np.linspace(0, -(-size // step) - 1, 8).astype(np.int64)
         seeds = local_seeds(size, max_points)
         assert seeds.dtype == np.int64 and np.array_equal(seeds, expected), size
+
+
+def _column_and_wall(synth, seed, arc=np.pi / 2):
+    # a column (radius 0.3 m, 1 mm noise) seen over ``arc`` facing -y, and a wall 0.4 m
+    # behind its axis
+    rng = np.random.default_rng(seed)
+    column, _ = synth.cylinder(rng, (0, 0, 1), (0, 0, 0), 0.3, n=600, arc=arc, start=-arc / 2 - np.pi / 2,
+                               noise=0.001)
+    wall = np.c_[rng.uniform(-1.0, 1.0, 300), 0.4 + rng.normal(0.0, 0.001, 300), rng.uniform(-0.5, 0.5, 300)]
+    return column, wall
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_union_out_of_reach_refuses_a_wall_and_leaves_a_strip_of_the_column(synth, seed):
+    from rangeseg_o3d.fitting.robust import union_out_of_reach
+
+    fitter = rs.Pipeline("lms200").fitter
+    column, wall = _column_and_wall(synth, seed)
+    model = rs.fit_cylinder(column)
+    assert model.kind == "cylinder" and abs(model.radius - 0.3) < 0.01
+    limit = 1.3 * model.rms
+    union = np.vstack([column, wall])
+    assert union_out_of_reach(model, union, len(column), limit)
+    refit = fitter.refit(union, model)  # what the refit would have said
+    assert not refit or refit.rms > limit
+    # a strip of the same column just beyond the arc seen: within reach, and the refit
+    # of the union keeps it within the limit
+    strip, _ = synth.cylinder(np.random.default_rng(seed + 10), (0, 0, 1), (0, 0, 0), 0.3, n=60,
+                              arc=0.2, start=-np.pi / 4 - np.pi / 2 - 0.2, noise=0.001)
+    union = np.vstack([column, strip])
+    assert not union_out_of_reach(model, union, len(column), limit)
+    refit = fitter.refit(union, model)
+    assert refit.kind == "cylinder" and refit.rms <= limit
+
+
+def test_union_out_of_reach_leaves_poorly_determined_models_and_other_kinds_to_the_refit(synth):
+    from rangeseg_o3d.fitting.robust import union_out_of_reach
+
+    column, wall = _column_and_wall(synth, 3)
+    model = rs.fit_cylinder(column)
+    points = np.vstack([column, wall])
+    # a limit so loose that the column's model could move by more than half its radius:
+    # the linearisation is not trusted there
+    assert not union_out_of_reach(model, points, len(column), 30.0 * model.rms)
+    plane = rs.fit_plane(wall)
+    assert not union_out_of_reach(plane, points, len(column), 1.3 * plane.rms)
+    assert not union_out_of_reach(model, column, len(column), 1.3 * model.rms)  # no piece
+    assert not union_out_of_reach(model, points, 0, 1.3 * model.rms)  # no region

@@ -172,15 +172,14 @@ class _CountingFitter:
     def points(self, xyz, idx):
         return self.fitter.points(xyz, idx)
 
+    def kept(self, n, first):
+        return self.fitter.kept(n, first)
 
-@pytest.mark.parametrize("flank", [True, False])
-def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context, flank):
-    # With near_sigmas, a piece is refitted with the cylinder only when the cylinder as it
-    # stands lies within that many noise sigmas of its pixels at the median: the strip of
-    # the arc (within 1 sigma) still goes back to it, the flank beyond the crease (tens of
-    # sigmas off) costs no refit and stays apart.
+
+def _arc_and_piece(context, flank: bool):
+    # (context with a counting fitter, labels, fits): the arc as a cylinder (label 1) and as
+    # label 2 either the flank beyond its crease or an 8-column strip of the arc, a plane each
     from rangeseg_o3d.fitting import fit_cylinder
-    from rangeseg_o3d.refinement.merge import merge_into_curved
 
     xyz, flank_mask = _arc()
     if flank:
@@ -193,6 +192,18 @@ def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context
     fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
     ctx = context(cloud, sigma=np.full(cloud.shape, 0.001))
     ctx.fitter = _CountingFitter(ctx.fitter)
+    return ctx, labels, fits
+
+
+@pytest.mark.parametrize("flank", [True, False])
+def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context, flank):
+    # With near_sigmas, a piece is refitted with the cylinder only when the cylinder as it
+    # stands lies within that many noise sigmas of its pixels at the median: the strip of
+    # the arc (within 1 sigma) still goes back to it, the flank beyond the crease (tens of
+    # sigmas off) costs no refit and stays apart.
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+
+    ctx, labels, fits = _arc_and_piece(context, flank)
     out, out_fits, _ = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3, near_sigmas=3.0)
     if flank:
         assert ctx.fitter.refits == 0 and (out == labels).all()
@@ -201,3 +212,18 @@ def test_merge_into_curved_refits_only_pieces_the_curved_model_lies_near(context
     # only= leaves out the pairs of other labels
     _, _, adjacency = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3, only={3})
     assert adjacency == {(1, 2)}
+
+
+@pytest.mark.parametrize("flank", [True, False])
+def test_merge_into_curved_refuses_a_piece_out_of_the_cylinders_reach_without_a_refit(context, flank):
+    # Without near_sigmas: the flank beyond the crease lies farther from every cylinder that
+    # keeps the arc's fit within the limit than the limit allows (fitting.robust.
+    # union_out_of_reach), so it costs no refit; the strip of the arc is refitted and joins.
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+
+    ctx, labels, fits = _arc_and_piece(context, flank)
+    out, out_fits, _ = merge_into_curved(ctx, labels, fits, {(1, 2)}, rms_factor=1.3)
+    if flank:
+        assert ctx.fitter.refits == 0 and (out == labels).all() and out_fits == fits
+    else:
+        assert ctx.fitter.refits == 1 and (out == 1).all() and out_fits[1].kind == "cylinder"
