@@ -21,7 +21,8 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape
-from ..kernels.linalg import DEGENERATE_RATIO, collinear, plane_tolerance
+from ..kernels.linalg import (CHI_SQUARE_SIGMAS, DEGENERATE_RATIO, NOISE_CHI2_SIGMAS, collinear, curvature_resolved,
+                              noise_rms_bound, plane_tolerance)
 from ._codes import (  # noqa: F401 -- callers and tests read the codes as _decide.X too
     ACCEPTED, ARC, ARC_UNDER, COLLINEAR, CONVERGED, COPLANAR, CURVED_SIZE, DIVERGED, FLAT,
     GAIN_UNDER, INLIERS, MIN_POINTS, NON_FINITE, NOT_CONVERGED, NO_BETTER, RADIUS,
@@ -207,6 +208,15 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     # better explained than a curved model that stays within the noise: the curved ones are
     # tried too and need only to beat it (a far cylinder whose curvature the noise hides).
     marginal = plane_ok and rms > max(plane_rms, noise_floor) + extra
+    # A plane accepted only by a threshold above the noise (a preset's plane_rms over a
+    # quiet sensor's noise), yet beyond what that noise gives n points, is no better
+    # explained either: a curved model within that bound needs only to beat it (a column
+    # piece whose curvature the plane threshold hides).
+    bound = np.inf  # the curved models' own thresholds
+    if plane_ok and not marginal and noise_floor > 0.0:
+        noise_bound = noise_rms_bound(noise_floor + extra, n - 3.0, NOISE_CHI2_SIGMAS)
+        if rms > noise_bound:
+            marginal, bound = True, noise_bound
     # The floor keeps rounding-level residuals of exact planes from looking "curved".
     gain, roundness = 1.0, 0.5
     if rms > 0.1 * plane_tol:
@@ -223,11 +233,18 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     no_start = np.full(7, np.nan)
     best, best_rms = NONE, np.inf
     for kind in (first, _other_curved(first)):
-        tolerance = (cylinder_rms if kind == CYLINDER else sphere_rms) + extra
+        tolerance = min((cylinder_rms if kind == CYLINDER else sphere_rms) + extra, bound)
         codes[kind], curved[kind] = _curved_try(
             kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
             max_iterations, inlier_factor * tolerance, no_start, tolerance, max_radius, min_arc,
             needed_gain, rms)
+        if codes[kind] == ACCEPTED and np.isfinite(bound):
+            # over a plane beyond the noise, a curvature the points resolve (not the
+            # bend of two more parameters over noise or a sliver of another face)
+            curved_rms = curved[kind, RMS] * scale
+            if not curvature_resolved(n * rms * rms, n * curved_rms * curved_rms, n,
+                                      2 if kind == CYLINDER else 1, CHI_SQUARE_SIGMAS):
+                codes[kind] = GAIN_UNDER
         if codes[kind] == ACCEPTED:
             if curved[kind, RMS] < best_rms:
                 best, best_rms = kind, curved[kind, RMS]

@@ -14,7 +14,14 @@ Rule (:func:`fit_primitive`):
    model to try first: ratio <= 0.35 cylinder, >= 0.65 sphere; if that one is
    acceptable it is kept without trying the other (saves the slow fit of the wrong
    model). Otherwise, or for ratios in between, both are tried and of the acceptable
-   ones the lower rms wins.
+   ones the lower rms wins. A plane that passed step 2 only by a margin over the
+   sensor's noise is no better explained than a curved model within the noise: over
+   ``noise_floor`` but within its chi-square spread, or beyond that spread but within a
+   ``plane_rms`` set above the noise (1 cm over a 5 mm laser's column piece), the
+   curved models are tried too and need only to beat the plane (no ``curvature_gain``);
+   in the second case they must also stay within the noise's bound and resolve their
+   curvature (an F-test of the drop in squared distances: not the bend of two more
+   parameters over noise).
 4. No acceptable curved model: the plane if it passed step 2's rms test, else a
    FitFailure listing why each model was refused.
 

@@ -15,7 +15,8 @@ from typing import Callable
 import numpy as np
 
 from ..kernels.kinds import NONE
-from ..kernels.linalg import noise_rms_bound
+from ..kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+from ..kernels.linalg import curvature_resolved as linalg_curvature_resolved
 from .region_fitter import model_row
 
 __all__ = ["trimmed_fit", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
@@ -26,9 +27,6 @@ MANY_POINTS = 5000
 # trimmed_fit's defaults (also those of the compiled search, fitting._trimmed)
 ROUNDS, KEEP_FRACTION, MAX_POINTS, ENOUGH = 5, 0.6, 600, 0.9
 
-#: Standard deviations of the chi-square law above which a fit's mean square residual is
-#: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
-CHI_SQUARE_SIGMAS = 4.0
 
 #: :func:`union_out_of_reach` refuses a union only when its first-order bound exceeds the
 #: limit by this factor: the bound linearises the distances over the moves a model fitting
@@ -107,14 +105,12 @@ def curvature_resolved(plane_squares: float, curved_squares: float, n: int, extr
     ``curved_squares`` would be the noise variance times a chi-square of ``extra``
     degrees of freedom; the variance is estimated from the curved model's own residuals,
     so the test needs no noise model (no incidence factor, no tile-mean scaling). The
-    drop must exceed that chi-square's mean by ``CHI_SQUARE_SIGMAS`` of its deviations.
-    With no degree of freedom left the curvature counts as resolved (nothing to test).
+    drop must exceed that chi-square's mean by ``CHI_SQUARE_SIGMAS`` of its deviations
+    (:func:`rangeseg_o3d.kernels.linalg.curvature_resolved`, which the fitter's decision
+    calls). With no degree of freedom left the curvature counts as resolved (nothing to test).
     """
-    dof = n - 3 - extra
-    if dof <= 0:
-        return True
-    variance = curved_squares / dof
-    return plane_squares - curved_squares > (extra + CHI_SQUARE_SIGMAS * np.sqrt(2.0 * extra)) * variance
+    return bool(linalg_curvature_resolved.py_func(float(plane_squares), float(curved_squares), int(n),
+                                                  int(extra), CHI_SQUARE_SIGMAS))
 
 
 def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points: int,

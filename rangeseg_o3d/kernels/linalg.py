@@ -77,6 +77,10 @@ def collinear(eigvals):
 #: chi-square spread the sensor's noise alone gives it.
 NOISE_CHI2_SIGMAS = 3.0
 
+#: Standard deviations of the chi-square law above which a fit's mean square residual is
+#: not the noise (4: a right model of any size exceeds it with probability < 1e-4).
+CHI_SQUARE_SIGMAS = 4.0
+
 
 @njit(cache=True, nogil=True)
 def noise_rms_bound(sigma, dof, sigmas):
@@ -86,6 +90,21 @@ def noise_rms_bound(sigma, dof, sigmas):
     ``sigma sqrt(1 + sigmas sqrt(2 / dof))``, ``dof`` taken as at least 1. Its ``py_func``
     takes an array of ``dof`` too (one bound per region)."""
     return sigma * np.sqrt(1.0 + sigmas * np.sqrt(2.0 / np.maximum(dof, 1.0)))
+
+
+@njit(cache=True, nogil=True)
+def curvature_resolved(plane_squares, curved_squares, n, extra, sigmas):
+    """Whether a curved model with ``extra`` parameters more than a plane lowers the sum
+    of squared distances of ``n`` points from ``plane_squares`` to ``curved_squares`` by
+    more than noise alone would (an F-test): were the points a plane, the drop would be
+    the noise variance, estimated from the curved model's own residuals, times a
+    chi-square of ``extra`` degrees of freedom; it must exceed that law's mean by
+    ``sigmas`` of its deviations. With no degree of freedom left it counts as resolved."""
+    dof = n - 3 - extra
+    if dof <= 0:
+        return True
+    variance = curved_squares / dof
+    return plane_squares - curved_squares > (extra + sigmas * np.sqrt(2.0 * extra)) * variance
 
 
 @njit(cache=True, nogil=True)
