@@ -157,7 +157,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
     first = int(labels.max(initial=0)) + 1
-    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first, with_boxes=True)
+    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first)
     if found is None:
         return labels, fits, stats
     candidates, boxes = found
@@ -378,11 +378,10 @@ def _region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) 
     return points[np.isfinite(points).all(axis=1)]
 
 
-def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int,
-                         first_label: int, with_boxes: bool = False):
-    """Every blob of valid unlabelled pixels, numbered from ``first_label``, or None if there
-    are none (with ``with_boxes``: ``(candidates, boxes)``, blob ``first_label + j``'s
-    bounding box ``(row0, row1, col0, col1)``, half-open, in row ``j``).
+def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int, first_label: int):
+    """Every blob of valid unlabelled pixels, numbered from ``first_label``, with its box:
+    ``(candidates, boxes)``, blob ``first_label + j``'s bounding box ``(row0, row1, col0,
+    col1)``, half-open, in row ``j``; None if there are none.
 
     The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no
     jump mask), found by one compiled pass that stops as soon as it sees nothing is left over.
@@ -393,7 +392,7 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
                                        int(min_size), int(first_label))
     if not boxes.shape[0]:
         return None
-    return (candidates, boxes) if with_boxes else candidates
+    return candidates, boxes
 
 
 def _flat_points(cloud) -> np.ndarray:
