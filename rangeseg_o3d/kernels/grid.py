@@ -19,55 +19,54 @@ def group_by_label(labels, n):
     ``order[starts[k]:starts[k + 1]]`` are the flat indices of label ``k`` in increasing
     order, for ``0 <= k < n``; labels outside that range are left out.
     """
-    # Labels come in runs along the rows: a run's count and write position are kept in
-    # registers, where a store and reload per pixel would chain each pixel to the last.
-    counts = np.zeros(n + 1, np.int64)
-    last, run = -1, 0
-    for i in range(labels.shape[0]):
-        k = labels[i]
-        if k != last:
-            if 0 <= last < n:
-                counts[last + 1] += run
-            last, run = k, 0
-        run += 1
-    if 0 <= last < n:
-        counts[last + 1] += run
-    starts = np.cumsum(counts)
-    fill = starts[:-1].copy()
-    order = np.empty(starts[-1], np.int64)
-    last, pos = -1, 0
-    for i in range(labels.shape[0]):
-        k = labels[i]
-        if k != last:
-            if 0 <= last < n:
-                fill[last] = pos
-            last = k
-            if 0 <= k < n:
-                pos = fill[k]
-        if 0 <= k < n:
-            order[pos] = i
-            pos += 1
-    return order, starts
+    return _sort_by_label(labels, np.ones(n, np.bool_))
+
 
 @njit(cache=True, nogil=True)
 def group_members(labels, members):
     """:func:`group_by_label` of the labels ``k`` with ``members[k]`` only (``0 < k <
     len(members)``): ``order[starts[k]:starts[k + 1]]`` are label ``k``'s flat indices in
     increasing order (empty for the others). Pixels of other labels are only read."""
-    n = members.shape[0]
+    keep = members.copy()
+    if keep.shape[0]:
+        keep[0] = False
+    return _sort_by_label(labels, keep)
+
+
+@njit(cache=True, nogil=True)
+def _sort_by_label(labels, keep):
+    # The counting sort of the labels k < len(keep) with keep[k]. Labels come in runs along
+    # the rows: a run's count and write position are kept in registers, where a store and
+    # reload per pixel would chain each pixel to the last.
+    n = keep.shape[0]
     counts = np.zeros(n + 1, np.int64)
+    last, run, kept = -1, 0, False
     for i in range(labels.shape[0]):
         k = labels[i]
-        if 0 < k < n and members[k]:
-            counts[k + 1] += 1
+        if k != last:
+            if kept:
+                counts[last + 1] += run
+            last, run = k, 0
+            kept = 0 <= k < n and keep[k]
+        run += 1
+    if kept:
+        counts[last + 1] += run
     starts = np.cumsum(counts)
     fill = starts[:-1].copy()
     order = np.empty(starts[-1], np.int64)
+    last, pos, kept = -1, 0, False
     for i in range(labels.shape[0]):
         k = labels[i]
-        if 0 < k < n and members[k]:
-            order[fill[k]] = i
-            fill[k] += 1
+        if k != last:
+            if kept:
+                fill[last] = pos
+            last = k
+            kept = 0 <= k < n and keep[k]
+            if kept:
+                pos = fill[k]
+        if kept:
+            order[pos] = i
+            pos += 1
     return order, starts
 
 
