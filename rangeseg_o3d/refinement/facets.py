@@ -13,7 +13,9 @@ not): on a sensor whose curved surfaces fit at their noise (a laser's pipes and 
 nothing runs. When planes do not do it, the same split with the pipeline's fitter as the
 judge (any kind, each within the curved model's rms) is held to the same rules: a pipe
 whose region took its end cap (or a box face beside it) comes back as its cylinder and
-the plane.
+the plane. Last, a cylinder's region is looked at for an end cap the distances cannot
+show (on a noisy or far sensor the whole cap lies within the noise of the cylinder): a
+disc across the axis, whose pixels share one axial coordinate (:func:`_cap_split`).
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ PLANES_COVER = 0.9
 CURVED_PARAMETERS = {"cylinder": 5, "sphere": 4}
 #: Searches per region (bounds the time; a crease region holds two or three faces).
 _MAX_ATTEMPTS = 6
+#: The last candidate split of a curved region: a cylinder and its end cap (:func:`_cap_split`).
+_END_CAP = object()
 
 
 class _PlaneJudge:
@@ -152,6 +156,8 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     its ray, and the flanks of a pipe are seen at grazing incidence), with a connected
     region's worth of pixels far beyond it, holds another surface too (a pipe and its end
     cap): there the surfaces of any kind are tried, held to the noise of their distances.
+    Failing all these, a cylinder and the end cap its region holds (:func:`_cap_split`),
+    held to the same rules.
     """
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     if not curved:
@@ -171,9 +177,13 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
         elif _holds_another(ctx, model, idx, distances, rms):
             judges, noise = (_BoundJudge(ctx.fitter, rms),), None  # the model's own kind and the other's
         else:
-            continue
-        for judge in judges:
-            surfaces = _surfaces_of(ctx, idx, judge)
+            judges, noise = (), None
+        # last, a cylinder and its end cap, held to the noise of their distances
+        for judge in judges + (_END_CAP,):
+            if judge is _END_CAP:
+                surfaces, noise = _cap_split(ctx, model, idx, distances), None
+            else:
+                surfaces = _surfaces_of(ctx, idx, judge)
             if not _covers(surfaces, idx):
                 continue
             surfaces = _nearest(ctx, surfaces)
@@ -241,3 +251,56 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     if noise is None:
         noise = _noise_rms(ctx, surfaces)
     return not beyond_noise(np.sqrt(squares / taken), noise, taken)
+
+
+def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> list:
+    """A cylinder's region split into the cylinder and its end cap (``[(pixels, model)]``,
+    empty when it holds no cap).
+
+    A pipe's end cap is a disc across the axis at one end of it: its pixels share one
+    axial coordinate (within the noise of the range along the axis, ``sigma |ray . axis|``),
+    so they pile up in one bin of the axial histogram, and near the rim they are within the
+    noise of the cylinder too (on a far or noisy sensor the whole cap is), where the
+    distance tests of :func:`_holds_another` see nothing. The pixels of the fullest bin's
+    plane (within CHI_SQUARE_SIGMAS of its noise) that are nearer to it than to the
+    cylinder, cut to their largest connected piece, are the cap when that plane lowers
+    their squared distances by more than noise would (the F-test of
+    :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
+    against the cylinder's none on those pixels); the cylinder is refitted to the rest.
+    """
+    from ..fitting.primitives import Cylinder
+
+    if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
+        return []
+    points = ctx.xyz[idx]
+    along = (points - model.point) @ model.axis
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    noise = ctx.sigma[idx] * np.abs(rays @ model.axis)  # range noise along the axis
+    width = 2.0 * float(np.median(noise))
+    if not width > 0:
+        return []
+    bins = np.floor((along - along.min()) / width).astype(np.int64)
+    counts = np.bincount(bins)
+    fullest = int(np.argmax(counts))
+    offset = float(np.median(along[bins == fullest]))
+    off_plane = np.abs(along - offset)
+    near = (off_plane <= CHI_SQUARE_SIGMAS * np.maximum(noise, 1e-12)) & (off_plane < np.abs(distances))
+    if np.count_nonzero(near) < ctx.min_size:
+        return []
+    piece = np.sort(ctx.largest_piece(idx[near]))
+    if piece.size < ctx.min_size or idx.size - piece.size < ctx.min_size:
+        return []
+    plane = fit_plane(ctx.xyz[piece])
+    if not plane:
+        return []
+    on_piece = np.searchsorted(idx, piece)
+    plane_squares = float(np.sum(plane.distances(ctx.xyz[piece]) ** 2))
+    cylinder_squares = float(np.sum(distances[on_piece] ** 2))
+    # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
+    if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):
+        return []
+    rest = without(idx, piece)
+    cylinder = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, rest), model)
+    if not cylinder or cylinder.kind != model.kind:
+        return []
+    return [(rest, cylinder), (piece, plane)]
