@@ -63,8 +63,10 @@ ROUNDNESS_CYLINDER = 0.35
 ROUNDNESS_SPHERE = 0.65
 """Principal-curvature ratios below/above which the patch is taken for a cylinder/sphere first."""
 
-MAX_ITERATIONS = 30
-"""Levenberg-Marquardt iterations of the sphere and cylinder fits."""
+MAX_ITERATIONS = 60
+"""Levenberg-Marquardt iterations of the sphere and cylinder fits (a short pipe seen end-on
+with its cap, at stereo noise, crawls along its axis for 30-60 before it converges; 30
+refused it and its region became a plane: a false fitting)."""
 
 
 def quadric_shape(points: np.ndarray, plane: Plane) -> tuple[float, float]:
