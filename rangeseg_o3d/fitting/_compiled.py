@@ -18,6 +18,9 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 from ..kernels.linalg import collinear, hesse_form, solve
 from ._codes import RADIUS_LIMIT
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("_codes.py", "../kernels/linalg.py")
+
 __all__ = ["sphere_lm", "cylinder_lm", "circle_scores", "cylinder_union_reach", "sphere_union_reach"]
 
 

@@ -37,6 +37,10 @@ from ._compiled import (
     sphere_refine,
 )
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("_codes.py", "_compiled.py", "../kernels/grid.py", "../kernels/inline.py", "../kernels/kinds.py",
+                 "../kernels/labelwise.py", "../kernels/linalg.py")
+
 
 @njit(cache=True, nogil=True)
 def flatness_code(eigvals):

@@ -9,6 +9,9 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .inline import _distance, _nearest_neighbour_model, _neighbour
 from .kinds import PLANE
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("inline.py", "kinds.py")
+
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
            "block_means", "largest_piece", "piece_ids", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 

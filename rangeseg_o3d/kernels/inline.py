@@ -7,6 +7,10 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .kinds import CYLINDER, PLANE, SPHERE
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("kinds.py",)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _distance(kind, prm, x, y, z):
     # Absolute orthogonal distance of (x, y, z) from the model (a row of a model table, see

@@ -10,6 +10,9 @@ from .inline import _distance
 from .kinds import PARAM_SLOTS, PLANE
 from .linalg import collinear, hesse_form, plane_tolerance, solve
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
+
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats"]
 

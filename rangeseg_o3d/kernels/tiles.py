@@ -14,6 +14,9 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _distance, _nearest_neighbour_model, _neighbour
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("inline.py", "kinds.py")
+
 __all__ = ["label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
 
 

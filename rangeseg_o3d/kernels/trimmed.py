@@ -8,6 +8,9 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .kinds import CYLINDER, PLANE, SPHERE
 from .linalg import solve
 
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("kinds.py", "linalg.py")
+
 __all__ = ["trimmed_proposals", "local_proposals", "pool_inliers"]
 
 @njit(cache=True, nogil=True)

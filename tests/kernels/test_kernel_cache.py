@@ -3,6 +3,7 @@ kernels compiled into the installation are reused (see rangeseg_o3d/kernels/cach
 
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import tempfile
@@ -127,9 +128,59 @@ def test_a_kernel_stamp_follows_the_files_it_names_as_dependencies(tmp_path):
     assert KernelCacheLocator(plain["kernel"], str(own)).get_source_stamp() == before[0]
 
 
-def test_the_trimmed_search_names_the_files_it_compiles_in():
+def _compiled_in(path: Path) -> set[Path]:
+    """The package files whose code or constants numba compiles into ``path``'s kernels: the
+    modules it imports from (relative imports at module level), and theirs, transitively;
+    the cache machinery (jit.py, cache.py) and packages' __init__ files are not compiled in."""
+    package = ROOT / "rangeseg_o3d"
+    found: set[Path] = set()
+    todo = [path]
+    while todo:
+        module = todo.pop()
+        for node in ast.parse(module.read_text()).body:
+            if not isinstance(node, ast.ImportFrom) or not node.level:
+                continue
+            base = module.parent
+            for _ in range(node.level - 1):
+                base = base.parent
+            target = base.joinpath(*node.module.split(".")).with_suffix(".py") if node.module else None
+            if target is None or not target.is_file() or target.name in ("jit.py", "cache.py"):
+                continue
+            if target.resolve().is_relative_to(package) and target.resolve() not in found:
+                found.add(target.resolve())
+                todo.append(target)
+    return found
+
+
+def _compiling_modules() -> list[Path]:
+    package = ROOT / "rangeseg_o3d"
+    return sorted(p for p in package.rglob("*.py") if "jit import njit" in p.read_text())
+
+
+def test_every_compiled_module_names_the_files_it_compiles_in():
+    # numba checks a cached kernel against its own file only: a module whose kernels call
+    # another file's kernels or read its constants must name that file in CACHE_DEPENDS,
+    # or after an edit there (a git pull) it would keep running the old code from its cache
+    import importlib
+
+    modules = _compiling_modules()
+    assert len(modules) >= 10  # kernels/* and fitting/_compiled, _decide, _trimmed
+    missing = {}
+    for path in modules:
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        declared = {(path.parent / d).resolve() for d in getattr(importlib.import_module(name), "CACHE_DEPENDS", ())}
+        assert all(d.is_file() for d in declared), f"{name} names a file that does not exist"
+        lacking = _compiled_in(path) - declared
+        if lacking:
+            missing[name] = sorted(str(d.relative_to(ROOT)) for d in lacking)
+    assert not missing, f"CACHE_DEPENDS lacks: {missing}"
+
+
+def test_the_dependency_finder_follows_imports_transitively():
     from rangeseg_o3d.fitting import _trimmed
 
-    folder = Path(_trimmed.__file__).parent
-    assert all((folder / name).resolve().is_file() for name in _trimmed.CACHE_DEPENDS)
-    assert {"_decide.py", "_compiled.py"} <= set(_trimmed.CACHE_DEPENDS)
+    deps = _compiled_in(Path(_trimmed.__file__))
+    names = {d.name for d in deps}
+    # _trimmed imports _decide, which imports kernels.labelwise, which imports kernels.grid
+    assert {"_decide.py", "_compiled.py", "labelwise.py", "grid.py", "inline.py", "kinds.py"} <= names
+    assert "jit.py" not in names and "cache.py" not in names
