@@ -21,12 +21,13 @@ disc across the axis, whose pixels share one axial coordinate (:func:`_cap_split
 from __future__ import annotations
 
 import copy
+import functools
 
 import numpy as np
 
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
-from ..fitting.primitives import Plane
+from ..fitting.primitives import Cylinder, Plane
 from ..fitting.region_fitter import region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from .context import Context, without
@@ -40,8 +41,6 @@ PLANES_COVER = 0.9
 CURVED_PARAMETERS = {"cylinder": 5, "sphere": 4}
 #: Searches per region (bounds the time; a crease region holds two or three faces).
 _MAX_ATTEMPTS = 6
-#: The last candidate split of a curved region: a cylinder and its end cap (:func:`_cap_split`).
-_END_CAP = object()
 
 
 class _PlaneJudge:
@@ -178,16 +177,16 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             judges, noise = (_BoundJudge(ctx.fitter, rms),), None  # the model's own kind and the other's
         else:
             judges, noise = (), None
-        # last, a cylinder and its end cap, held to the noise of their distances
-        for judge in judges + (_END_CAP,):
-            if judge is _END_CAP:
-                surfaces, noise = _cap_split(ctx, model, idx, distances), None
-            else:
-                surfaces = _surfaces_of(ctx, idx, judge)
+        # each split with the noise it is held to; last, a cylinder and its end cap, held to
+        # the noise of their distances
+        splits = [(functools.partial(_surfaces_of, ctx, idx, judge), noise) for judge in judges]
+        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None))
+        for split, split_noise in splits:
+            surfaces = split()
             if not _covers(surfaces, idx):
                 continue
             surfaces = _nearest(ctx, surfaces)
-            if _explains(ctx, idx, distances, surfaces, noise, model.kind):
+            if _explains(ctx, idx, distances, surfaces, split_noise, model.kind):
                 break
         else:
             continue
@@ -268,8 +267,6 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
     against the cylinder's none on those pixels); the cylinder is refitted to the rest.
     """
-    from ..fitting.primitives import Cylinder
-
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []
     points = ctx.xyz[idx]
