@@ -17,6 +17,7 @@ import numpy as np
 from ..kernels.kinds import NONE
 from ..kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from ..kernels.linalg import curvature_resolved as linalg_curvature_resolved
+from .primitives import Cylinder, Sphere
 from .region_fitter import model_row
 
 __all__ = ["trimmed_fit", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
@@ -62,7 +63,6 @@ def union_out_of_reach(model, points: np.ndarray, first: int, max_rms: float) ->
     other kinds or a model the region determines less well (the refit decides).
     """
     from ._compiled import cylinder_union_reach, sphere_union_reach
-    from .primitives import Cylinder, Sphere
 
     points = np.ascontiguousarray(points, dtype=np.float64)
     n = len(points)
