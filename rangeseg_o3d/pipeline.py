@@ -18,6 +18,7 @@ from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, grow_into_free, label_pixels, merge_touching_planes,
                       planes_for_unresolved, recover_thin_surfaces,
                       region_stats)
+from .memory import keep_freed_memory
 from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
@@ -70,6 +71,11 @@ class Pipeline:
     Parameters
     ----------
     config : PipelineConfig, preset name, YAML path, dict, or None (the lms200 preset).
+    keep_memory : fix glibc's malloc thresholds so that the memory a run frees stays in the
+        process for the next run (:func:`rangeseg_o3d.memory.keep_freed_memory`: process-wide,
+        a no-op off glibc or when the environment sets glibc's malloc). Otherwise glibc
+        starts handing each frame's large temporaries back to the system after a few
+        frames, and every later frame page-faults them again (4-5 ms of a VGA frame).
 
     Examples
     --------
@@ -81,8 +87,10 @@ class Pipeline:
     ((70, 131), ['cylinder', 'plane', 'sphere'])
     """
 
-    def __init__(self, config=None):
+    def __init__(self, config=None, *, keep_memory: bool = True):
         self.config: PipelineConfig = load_config(config)
+        if keep_memory:
+            keep_freed_memory()
         # The sensor, resolved once; every stage receives it (or what follows from it).
         self.sensor: Sensor = self.config.sensor.resolve()
         self.segmenter = registry.get("segmenter", self.config.segmenter.name)
