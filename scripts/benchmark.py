@@ -31,7 +31,11 @@ docs/benchmarks.md times CAPE and PEAC on them.
 Run: python scripts/benchmark.py --export-frames DIR
 
 Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
-     [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT]
+     [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT] [--surfaces]
+
+``--surfaces`` also lists, per scan, every surface not correctly detected (missed, over-
+or under-segmented) with where its pixels went: the regions holding them (label, kind,
+pixels, fraction of that region on the surface) and how many are in no region.
 """
 
 from __future__ import annotations
@@ -56,7 +60,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from rangeseg_o3d.config import load_config  # noqa: E402
-from rangeseg_o3d.evaluation import evaluate  # noqa: E402
+from rangeseg_o3d.evaluation import evaluate, surface_breakdown  # noqa: E402
 from rangeseg_o3d.pipeline import Pipeline  # noqa: E402
 from rangeseg_o3d.synthetic.suite import lms200_suite, rgbd_suite  # noqa: E402
 
@@ -411,19 +415,23 @@ def score_abw(image, result, tolerance: float = TOLERANCE) -> dict:
         if len(points) >= 3:
             cos = abs(float(_plane_normal(points) @ feature.model.normal))
             errors.append(float(np.degrees(np.arccos(min(1.0, cos)))))
+    surfaces = surface_breakdown(image.truth_ids, result.labels, score,
+                                 kinds={int(f.label): f.kind for f in result.features})
     sizes = np.bincount(image.truth_ids.ravel())
     by_size = {}
     for lo, hi in zip(ABW_SIZE_BINS, ABW_SIZE_BINS[1:] + (None,)):
         ids = [k for k in range(1, sizes.size) if sizes[k] >= lo and (hi is None or sizes[k] < hi)]
         by_size[f"{lo}-{hi or ''}"] = [sum(k in score.correct for k in ids), len(ids)]
     return {"hoover": score.counts(), "false_fittings": false_fittings, "normal_errors_deg": errors,
-            "by_size": by_size}
+            "by_size": by_size, "surfaces": surfaces}
 
 
 def score_synthetic(scan, result) -> dict:
     ev = evaluate(scan, result, tolerance=TOLERANCE, min_region=MIN_REGION)
+    surfaces = surface_breakdown(scan.truth_ids, result.labels, ev.hoover,
+                                 kinds={int(f.label): f.kind for f in result.features})
     return {"hoover": ev.hoover.counts(), "false_fittings": ev.false_fittings,
-            "normal_errors_deg": ev.errors("normal_error_deg", "plane").tolist()}
+            "normal_errors_deg": ev.errors("normal_error_deg", "plane").tolist(), "surfaces": surfaces}
 
 
 def run_method(config, clouds: list, repeats: int) -> tuple[list, list[float]]:
@@ -460,9 +468,11 @@ def method_summary(scores: list[dict], seconds: list[float]) -> dict:
 
 
 def matrix_row(name, description, preset, family, facts, rg_params, items, score,
-               repeats, rg_repeats) -> dict:
+               repeats, rg_repeats, surfaces: bool = False) -> dict:
     """Both methods on the same ``items`` (anything ``score(item, result)`` takes; ``.cloud``);
-    ``rg_repeats = 0`` leaves region growing out."""
+    ``rg_repeats = 0`` leaves region growing out. With ``surfaces`` each method also keeps,
+    per scan, the surfaces not correctly detected (``surface_breakdown``; printed by
+    :func:`print_surfaces`)."""
     residual, grow = matrix_configs(preset, facts, family, rg_params)
     clouds = [item.cloud for item in items]
     row = {"sensor": name, "description": description, "preset": preset,
@@ -470,7 +480,11 @@ def matrix_row(name, description, preset, family, facts, rg_params, items, score
     methods = [("residual_edges", residual, repeats)] + ([("region_growing", grow, rg_repeats)] if rg_repeats else [])
     for method, config, reps in methods:
         results, seconds = run_method(config, clouds, reps)
-        row[method] = method_summary([score(i, r) for i, r in zip(items, results)], seconds)
+        scores = [score(i, r) for i, r in zip(items, results)]
+        row[method] = method_summary(scores, seconds)
+        if surfaces:
+            row[method]["surfaces"] = [{"scan": getattr(item, "name", str(k)), "surfaces": s["surfaces"]}
+                                       for k, (item, s) in enumerate(zip(items, scores))]
     if "region_growing" in row:
         re_ms, rg_ms = row["residual_edges"]["median_ms"], row["region_growing"]["median_ms"]
         row["speed_ratio"] = rg_ms / re_ms if re_ms > 0 else float("nan")
@@ -478,8 +492,9 @@ def matrix_row(name, description, preset, family, facts, rg_params, items, score
 
 
 def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: int, rg_repeats: int,
-                  abw_limit: int | None = None) -> list[dict]:
-    """Every sensor row (or those in ``only``; ``"abw"`` names the ABW images), in order."""
+                  abw_limit: int | None = None, surfaces: bool = False) -> list[dict]:
+    """Every sensor row (or those in ``only``; ``"abw"`` names the ABW images), in order;
+    ``surfaces``: see :func:`matrix_row`."""
     from rangeseg_o3d.synthetic.matrix import SENSORS, matrix_rng
 
     known = [s.name for s in SENSORS] + ["abw"]
@@ -496,7 +511,7 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
         print(f"  {spec.name}: {count} scans of {'x'.join(map(str, scans[0].cloud.shape))} simulated "
               f"in {time.perf_counter() - start:.1f} s", flush=True)
         rows.append(matrix_row(spec.name, spec.description, spec.preset, spec.family, spec.sensor_facts(quick),
-                               spec.region_growing, scans, score_synthetic, repeats, rg_repeats))
+                               spec.region_growing, scans, score_synthetic, repeats, rg_repeats, surfaces))
     if not only or "abw" in only:
         from rangeseg_o3d.io.abw import abw_images, load_abw
 
@@ -509,7 +524,7 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
             images = [load_abw(p) for p in paths]
             rows.append(matrix_row("abw", f"{len(images)} ABW images (SegComp rules, every labelled surface)",
                                    "abw", "abw", None, ABW_REGION_GROWING, images,
-                                   score_abw, repeats, rg_repeats))
+                                   score_abw, repeats, rg_repeats, surfaces))
     return rows
 
 
@@ -537,6 +552,22 @@ def print_matrix(rows: list[dict]) -> None:
                 print(f"{'':<46} | {'':<6}correct by size (px): " + ", ".join(
                     f"{size}: {c}/{n}" for size, (c, n) in m["by_size"].items()))
     print("RE = residual_edges, RG = region_growing (same scans, same fitter and refinement)")
+
+
+def print_surfaces(rows: list[dict]) -> None:
+    """Per scan, each surface a method did not detect correctly and where its pixels went:
+    ``label+kind:pixels(share of that region)``, label 0 = in no region (``--surfaces``)."""
+    print("\n== surfaces not correctly detected: truth id, pixels, status -> largest shares "
+          "label+kind:pixels(fraction of that region on the surface); 0 = in no region ==")
+    for row in rows:
+        for method in (m for m in ("residual_edges", "region_growing") if m in row):
+            for scan in row[method].get("surfaces", []):
+                print(f"{row['sensor']} {'RE' if method == 'residual_edges' else 'RG'} scan {scan['scan']}: "
+                      f"{len(scan['surfaces'])} not correct")
+                for s in scan["surfaces"]:
+                    parts = ", ".join(f"{label}{kind[:1]}:{pixels}({share:.2f})"
+                                      for label, kind, pixels, share in s["parts"])
+                    print(f"  gt{s['truth_id']:<4}{s['pixels']:>7} px {s['status']:<7}-> {parts}")
 
 
 def code_version() -> str:
@@ -619,8 +650,10 @@ def run_matrix(args, parser) -> int:
     print(f"sensor matrix: seed {args.seed}, {'quick, ' if args.quick else ''}{repeats} timed runs per scan "
           f"(residual_edges), {args.rg_repeats} (region_growing), one thread; code {code_version()}", flush=True)
     rows = sensor_matrix(seed=args.seed, quick=args.quick, only=args.sensor, repeats=repeats,
-                         rg_repeats=args.rg_repeats)
+                         rg_repeats=args.rg_repeats, surfaces=args.surfaces)
     print_matrix(rows)
+    if args.surfaces:
+        print_surfaces(rows)
     out = args.json
     if out is None and not args.quick and not args.sensor and not args.no_baseline:
         out = REPO / "docs" / "benchmarks" / "matrix.json"
@@ -661,6 +694,9 @@ def main(argv=None) -> int:
                         help="timed runs per scan of region_growing in the matrix; default 1")
     parser.add_argument("--no-baseline", action="store_true",
                         help="matrix: residual_edges only (region growing takes most of the run's time)")
+    parser.add_argument("--surfaces", action="store_true",
+                        help="matrix: also list, per scan, every surface not correctly detected and "
+                             "where its pixels went (kept in --json too)")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")

@@ -1,5 +1,6 @@
 """scripts/benchmark.py --export-frames: real frames as raw float32 + a manifest, for timing
-other programs (CAPE, PEAC) on the very points rangeseg_o3d's loaders give."""
+other programs (CAPE, PEAC) on the very points rangeseg_o3d's loaders give; and the matrix's
+--surfaces listing."""
 
 import importlib.util
 import os
@@ -100,3 +101,15 @@ def test_export_of_the_six_real_frames(benchmark, tmp_path):
         # depth_0.png: 832 to 6990 mm where valid, 14.7 % of pixels without a return
         assert 0.83 <= valid_z.min() and valid_z.max() <= 6.991
         assert np.isnan(raw[..., 2]).mean() == pytest.approx(45256 / (480 * 640), abs=1e-4)
+
+
+def test_print_surfaces_lists_each_scan_and_surface(benchmark, capsys):
+    rows = [{"sensor": "abw", "residual_edges": {"surfaces": [
+        {"scan": "abw.test.4", "surfaces": [
+            {"truth_id": 16, "pixels": 79, "status": "under", "parts": [(17, "plane", 72, 0.0931), (0, "", 7, 0.0)]}]},
+        {"scan": "abw.test.5", "surfaces": []}]}}]
+    benchmark.print_surfaces(rows)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-3:] == ["abw RE scan abw.test.4: 1 not correct",
+                          "  gt16       79 px under  -> 17p:72(0.09), 0:7(0.00)",
+                          "abw RE scan abw.test.5: 0 not correct"]

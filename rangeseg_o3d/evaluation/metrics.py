@@ -43,7 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["HooverScore", "Evaluation", "RegionError", "hoover", "evaluate", "parameter_errors"]
+__all__ = ["HooverScore", "Evaluation", "RegionError", "hoover", "evaluate", "parameter_errors",
+           "surface_breakdown"]
 
 log = logging.getLogger(__name__)
 
@@ -244,6 +245,47 @@ def hoover(truth_ids, labels, *, tolerance: float = 0.8, min_region: int = 60,
         tolerance=float(tolerance),
         min_region=int(min_region),
     )
+
+
+def surface_breakdown(truth_ids, labels, score: HooverScore, *, kinds: dict | None = None,
+                      parts: int = 5) -> list[dict]:
+    """Where the pixels of each scored ground-truth surface that ``score`` does not count as
+    correctly detected went: the per-surface view behind the Hoover counts.
+
+    Returns one dict per such surface, in truth-id order: ``truth_id``, ``pixels`` (its
+    size), ``status`` (``"missed"``, ``"over"`` or ``"under"``) and ``parts``, its largest
+    ``parts`` shares, largest first, each ``(label, kind, pixels, share)``: label 0 (no
+    region) has kind ``""`` and share 0; otherwise ``kind`` is ``kinds[label]`` (``"?"``
+    when unknown) and ``share`` the fraction of that region's pixels lying on the surface.
+    A surface the score ignores (below its ``min_region``) is not listed.
+
+    Examples
+    --------
+    >>> t = np.repeat([[1] * 10 + [2] * 10], 10, axis=0)
+    >>> m = np.ones_like(t)                  # one region over both surfaces
+    >>> [(s["truth_id"], s["status"], s["parts"][0][2]) for s in
+    ...  surface_breakdown(t, m, hoover(t, m, min_region=1))]
+    [(1, 'under', 100), (2, 'under', 100)]
+    """
+    if parts < 1:
+        raise ValueError(f"parts must be at least 1; got {parts}")
+    t, m = _check_images(truth_ids, labels)
+    kinds = kinds or {}
+    status = {int(k): "missed" for k in score.missed}
+    status.update({int(k): "over" for k in score.over})
+    status.update({int(k): "under" for ids in score.under.values() for k in ids})
+    if not status:
+        return []
+    region_size = np.bincount(m.ravel())
+    out = []
+    for truth_id in sorted(status):
+        on = m[t == truth_id]
+        found, counts = np.unique(on, return_counts=True)
+        order = np.argsort(-counts, kind="stable")[:parts]
+        shares = [(int(found[i]), "" if found[i] == 0 else str(kinds.get(int(found[i]), "?")), int(counts[i]),
+                   0.0 if found[i] == 0 else float(counts[i] / region_size[found[i]])) for i in order]
+        out.append({"truth_id": truth_id, "pixels": int(on.size), "status": status[truth_id], "parts": shares})
+    return out
 
 
 # -- parameter errors -------------------------------------------------------------------

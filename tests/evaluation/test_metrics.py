@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.evaluation.metrics import evaluate, hoover, parameter_errors
+from rangeseg_o3d.evaluation.metrics import evaluate, hoover, parameter_errors, surface_breakdown
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.result import Feature, Result
 from rangeseg_o3d.synthetic.scene import SyntheticScan
@@ -230,6 +230,39 @@ def test_segcomp_under_and_over_segmentation_use_whole_region_sizes():
     s = hoover(t, m, min_region=1, count_unlabelled=True)
     assert s.over == {} and s.missed == [1] and sorted(s.noise) == [1, 3]
     assert s.correct == {2: 2}
+
+
+def test_surface_breakdown_lists_each_surface_not_correct_with_its_pixels():
+    t = np.zeros((20, 30), dtype=np.int32)
+    t[:, :10], t[:, 10:20], t[:, 20:] = 1, 2, 3  # three surfaces of 200 px
+    m = np.zeros_like(t)
+    m[:, :10] = 4                 # truth 1: correct
+    m[:10, 10:20] = 5             # truth 2: two halves -> over
+    m[10:, 10:20] = 6
+    m[:8, 20:] = 7                # truth 3: 80 px in region 7, 20 px in region 4's stray pixels,
+    m[8:10, 20:] = 4              # 100 px in no region -> missed
+    score = hoover(t, m)
+    assert score.correct == {1: 4} and score.over == {2: [5, 6]} and score.missed == [3]
+    rows = surface_breakdown(t, m, score, kinds={4: "plane", 5: "plane", 6: "cylinder"})
+    assert [(r["truth_id"], r["pixels"], r["status"]) for r in rows] == [(2, 200, "over"), (3, 200, "missed")]
+    assert rows[0]["parts"] == [(5, "plane", 100, 1.0), (6, "cylinder", 100, 1.0)]
+    # largest share first; label 0 has no kind and no share; region 4 (220 px) has 20 on truth 3;
+    # region 7 has no kind given
+    assert rows[1]["parts"] == [(0, "", 100, 0.0), (7, "?", 80, 1.0), (4, "plane", 20, pytest.approx(20 / 220))]
+    assert surface_breakdown(t, m, score, parts=1)[1]["parts"] == [(0, "", 100, 0.0)]
+
+
+def test_surface_breakdown_lists_under_segmented_surfaces_and_refuses_bad_input():
+    t = _truth_two_halves()
+    m = np.full_like(t, 5)
+    rows = surface_breakdown(t, m, hoover(t, m))
+    assert [(r["truth_id"], r["status"], r["parts"]) for r in rows] == [
+        (1, "under", [(5, "?", 200, 0.5)]), (2, "under", [(5, "?", 200, 0.5)])]
+    assert surface_breakdown(t, t, hoover(t, t)) == []  # everything correct: nothing to list
+    with pytest.raises(ValueError, match="parts must be at least 1; got 0"):
+        surface_breakdown(t, m, hoover(t, m), parts=0)
+    with pytest.raises(ValueError, match="labels must have the shape"):
+        surface_breakdown(t, m[:5], hoover(t, m))
 
 
 def test_the_evaluation_package_re_exports_the_metrics():
