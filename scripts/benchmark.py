@@ -31,7 +31,11 @@ docs/benchmarks.md times CAPE and PEAC on them.
 Run: python scripts/benchmark.py --export-frames DIR
 
 Run: python scripts/benchmark.py --matrix [--quick] [--sensor NAME ...] [--matrix-repeats 5]
-     [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT] [--surfaces]
+     [--rg-repeats 1 | --no-baseline] [--seed 0] [--json OUT] [--surfaces] [--connected-truth]
+
+``--connected-truth`` scores the simulated rows SegComp's way, as the ABW images are: each
+4-connected patch of a surface its own truth region (a simulated table split by an object
+standing on it is otherwise one surface; ABW's hand labels give each patch its own id).
 
 ``--surfaces`` also lists, per scan, every surface not correctly detected (missed, over-
 or under-segmented) with where its pixels went: the regions holding them (label, kind,
@@ -491,10 +495,23 @@ def matrix_row(name, description, preset, family, facts, rg_params, items, score
     return row
 
 
+def as_connected_patches(scan):
+    """``scan`` with its truth relabelled one id per 4-connected patch
+    (:func:`rangeseg_o3d.evaluation.connected_patches`), each patch carrying its surface's model."""
+    from dataclasses import replace
+
+    from rangeseg_o3d.evaluation import connected_patches
+
+    patches, origin = connected_patches(scan.truth_ids)
+    truth = {patch: scan.truth[int(surface)] for patch, surface in enumerate(origin.tolist()) if patch}
+    return replace(scan, truth_ids=patches, truth=truth)
+
+
 def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: int, rg_repeats: int,
-                  abw_limit: int | None = None, surfaces: bool = False) -> list[dict]:
+                  abw_limit: int | None = None, surfaces: bool = False, connected_truth: bool = False) -> list[dict]:
     """Every sensor row (or those in ``only``; ``"abw"`` names the ABW images), in order;
-    ``surfaces``: see :func:`matrix_row`."""
+    ``surfaces``: see :func:`matrix_row`; ``connected_truth``: the simulated scans scored
+    on :func:`as_connected_patches` (SegComp's rule, which the ABW truth follows)."""
     from rangeseg_o3d.synthetic.matrix import SENSORS, matrix_rng
 
     known = [s.name for s in SENSORS] + ["abw"]
@@ -508,6 +525,8 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
         count = spec.quick_scans if quick else spec.scans
         start = time.perf_counter()
         scans = [spec.simulate(matrix_rng(seed, spec.name, k), quick) for k in range(count)]
+        if connected_truth:
+            scans = [as_connected_patches(scan) for scan in scans]
         print(f"  {spec.name}: {count} scans of {'x'.join(map(str, scans[0].cloud.shape))} simulated "
               f"in {time.perf_counter() - start:.1f} s", flush=True)
         rows.append(matrix_row(spec.name, spec.description, spec.preset, spec.family, spec.sensor_facts(quick),
@@ -648,19 +667,22 @@ def run_matrix(args, parser) -> int:
     warnings.simplefilter("ignore", RuntimeWarning)
     repeats = 2 if args.quick else args.matrix_repeats
     print(f"sensor matrix: seed {args.seed}, {'quick, ' if args.quick else ''}{repeats} timed runs per scan "
-          f"(residual_edges), {args.rg_repeats} (region_growing), one thread; code {code_version()}", flush=True)
+          f"(residual_edges), {args.rg_repeats} (region_growing), one thread; code {code_version()}"
+          + ("; simulated truth as connected patches (--connected-truth)" if args.connected_truth else ""), flush=True)
     rows = sensor_matrix(seed=args.seed, quick=args.quick, only=args.sensor, repeats=repeats,
-                         rg_repeats=args.rg_repeats, surfaces=args.surfaces)
+                         rg_repeats=args.rg_repeats, surfaces=args.surfaces,
+                         connected_truth=args.connected_truth)
     print_matrix(rows)
     if args.surfaces:
         print_surfaces(rows)
     out = args.json
-    if out is None and not args.quick and not args.sensor and not args.no_baseline:
+    if out is None and not args.quick and not args.sensor and not args.no_baseline and not args.connected_truth:
         out = REPO / "docs" / "benchmarks" / "matrix.json"
     if out is not None:
         from rangeseg_o3d.io.atomic import atomic_write
 
         report = {"code": code_version(), "seed": args.seed, "quick": args.quick, "repeats": repeats,
+                  "connected_truth": args.connected_truth,
                   "rg_repeats": args.rg_repeats,
                   "tolerance": TOLERANCE, "min_region": MIN_REGION, "rows": rows}
         with atomic_write(out, "w", encoding="utf-8") as fh:
@@ -694,6 +716,9 @@ def main(argv=None) -> int:
                         help="timed runs per scan of region_growing in the matrix; default 1")
     parser.add_argument("--no-baseline", action="store_true",
                         help="matrix: residual_edges only (region growing takes most of the run's time)")
+    parser.add_argument("--connected-truth", action="store_true",
+                        help="matrix: score the simulated rows with each 4-connected patch of a surface as its "
+                             "own truth region (SegComp's rule, as on the ABW images)")
     parser.add_argument("--surfaces", action="store_true",
                         help="matrix: also list, per scan, every surface not correctly detected and "
                              "where its pixels went (kept in --json too)")

@@ -1,6 +1,6 @@
 """scripts/benchmark.py --export-frames: real frames as raw float32 + a manifest, for timing
 other programs (CAPE, PEAC) on the very points rangeseg_o3d's loaders give; and the matrix's
---surfaces listing."""
+--surfaces listing and --connected-truth relabelling."""
 
 import importlib.util
 import os
@@ -113,3 +113,18 @@ def test_print_surfaces_lists_each_scan_and_surface(benchmark, capsys):
     assert lines[-3:] == ["abw RE scan abw.test.4: 1 not correct",
                           "  gt16       79 px under  -> 17p:72(0.09), 0:7(0.00)",
                           "abw RE scan abw.test.5: 0 not correct"]
+
+
+def test_as_connected_patches_keeps_each_patch_s_model(benchmark):
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.synthetic.scene import SyntheticScan
+
+    t = np.zeros((4, 9), dtype=np.int32)
+    t[:, :3] = t[:, 6:] = 5
+    t[:, 3:6] = 9
+    floor, box = Plane(np.array([0.0, 0.0, 1.0]), 1.0, 0.0, 10), Plane(np.array([1.0, 0.0, 0.0]), 0.2, 0.0, 10)
+    scan = SyntheticScan(cloud=None, truth_ids=t, truth={5: floor, 9: box})
+    patched = benchmark.as_connected_patches(scan)
+    assert patched.truth_ids.tolist()[0] == [1, 1, 1, 3, 3, 3, 2, 2, 2]
+    assert patched.truth == {1: floor, 2: floor, 3: box}
+    assert scan.truth_ids[0, 6] == 5  # the scan itself is left alone

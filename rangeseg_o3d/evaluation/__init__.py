@@ -3,7 +3,8 @@
 * :mod:`.metrics`: segmentation quality against ground truth: the Hoover et al. (1996)
   classification (:func:`hoover`), the fitted parameters' errors (:func:`parameter_errors`)
   and both together (:func:`evaluate`); where each missed surface's pixels went
-  (:func:`surface_breakdown`).
+  (:func:`surface_breakdown`); truth relabelled SegComp's way, one id per connected patch
+  (:func:`connected_patches`).
 * :mod:`.compare`: every segmenter on the same scans (``rangeseg compare``,
   ``scripts/compare.py``): Hoover figures, false fittings, times, markdown and plots.
 
@@ -20,7 +21,7 @@ from .._lazy import lazy_attributes
 # public name -> the module that defines it; the modules themselves resolve too (evaluation.compare)
 _EXPORTS = {name: "metrics" for name in ("HooverScore", "Evaluation", "RegionError",
                                           "hoover", "evaluate", "parameter_errors",
-                                          "surface_breakdown")}
+                                          "surface_breakdown", "connected_patches")}
 
 __all__ = list(_EXPORTS)
 

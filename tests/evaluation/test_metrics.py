@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d.evaluation.metrics import evaluate, hoover, parameter_errors, surface_breakdown
+from rangeseg_o3d.evaluation.metrics import (connected_patches, evaluate, hoover, parameter_errors,
+                                             surface_breakdown)
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.result import Feature, Result
 from rangeseg_o3d.synthetic.scene import SyntheticScan
@@ -263,6 +264,28 @@ def test_surface_breakdown_lists_under_segmented_surfaces_and_refuses_bad_input(
         surface_breakdown(t, m, hoover(t, m), parts=0)
     with pytest.raises(ValueError, match="labels must have the shape"):
         surface_breakdown(t, m[:5], hoover(t, m))
+
+
+def test_connected_patches_gives_each_piece_of_a_surface_its_own_id():
+    t = np.zeros((6, 9), dtype=np.int32)
+    t[:, :3] = t[:, 6:] = 1      # one surface in two pieces (an object in front of it)
+    t[:, 3:6] = 2
+    t[0, 4] = 0                  # a don't-care pixel stays 0
+    t[5, 4] = 1                  # a one-pixel piece of surface 1 inside surface 2 (diagonal: not 4-connected)
+    patches, origin = connected_patches(t)
+    assert origin.tolist() == [0, 1, 1, 1, 2]
+    # a surface's patches in raster order of their first pixel, then the next surface's
+    assert set(np.unique(patches[:, :3]).tolist()) == {1} and set(np.unique(patches[:, 6:]).tolist()) == {2}
+    assert patches[5, 4] == 3 and patches[0, 4] == 0 and (patches[1:5, 3:6] == 4).all()
+    assert (origin[patches] == t).all()  # every pixel maps back to its surface
+    # scored against the patches, one region over both pieces is an under-segmentation, as SegComp counts it
+    m = np.where(t == 1, 7, np.where(t == 2, 8, 0))
+    assert hoover(t, m, min_region=1).correct == {1: 7, 2: 8}
+    assert hoover(patches, m, min_region=4).under == {7: [1, 2]}
+    with pytest.raises(ValueError, match="truth_ids must be a"):
+        connected_patches(np.ones((2, 2, 2), np.int32))
+    with pytest.raises(ValueError, match="truth_ids must be a"):
+        connected_patches(-np.ones((2, 2), np.int32))
 
 
 def test_the_evaluation_package_re_exports_the_metrics():
