@@ -351,7 +351,7 @@ class OrganizedCloud:
 
     @property
     def n_valid(self) -> int:
-        return int(self.valid.sum())
+        return int(np.count_nonzero(self.valid))
 
     def crop(self, rows: slice = slice(None), cols: slice = slice(None)) -> "OrganizedCloud":
         """The sub-grid ``[rows, cols]`` with its ranges, intensity, timestamps and geometry.

@@ -56,6 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._numeric import median
+
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
            "with_derived_refinement",
            "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
@@ -115,7 +117,7 @@ def median_range(cloud) -> float:
     ranges = ranges[np.isfinite(ranges) & (ranges > 0)]
     if ranges.size == 0:
         raise ValueError("the cloud has no valid range to derive its scales from")
-    return float(np.median(ranges))
+    return median(ranges)
 
 
 def measured_spacing(cloud) -> tuple[float, float]:
@@ -130,7 +132,7 @@ def measured_spacing(cloud) -> tuple[float, float]:
     out = []
     for steps in _sampled_steps(np.asarray(cloud.xyz, dtype=np.float64)):
         steps = steps[np.isfinite(steps) & (steps > 0)]
-        out.append(float(np.median(steps)) / cloud.tile if steps.size else None)
+        out.append(median(steps) / cloud.tile if steps.size else None)
     if out == [None, None]:
         raise ValueError("the cloud has no two valid neighbouring pixels to measure its "
                          "angular spacing from; give sensor.row_spacing_deg and column_spacing_deg")

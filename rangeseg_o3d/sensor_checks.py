@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 
+from ._numeric import median
 from .segmentation.residual import residual_image
 from .sensor import UNIT_SCALES, Sensor
 
@@ -68,7 +69,7 @@ def _median_scatter(cloud, sensor: Sensor, step: int) -> float:
                                  sigma_quadratic=sensor.noise.sigma_quadratic,
                                  with_normals=False, noise_scale=scale)
     finite = residual[np.isfinite(residual)]
-    return float(np.median(finite)) if finite.size else float("nan")
+    return median(finite) if finite.size else float("nan")
 
 
 def _check_step(cloud) -> int:
@@ -120,13 +121,13 @@ def check_plausible(cloud, sensor: Sensor, *, name: str = "the sensor") -> None:
     ranges = ranges[np.isfinite(ranges)]
     if ranges.size == 0:
         return
-    median = float(np.median(ranges))
+    median_m = median(ranges)
     low, high = sensor.min_range / _RANGE_SLACK, sensor.max_range * _RANGE_SLACK
-    if not low <= median <= high:
+    if not low <= median_m <= high:
         raise ValueError(
-            f"the scan's median range is {median:.3g} m, but {name} works at "
+            f"the scan's median range is {median_m:.3g} m, but {name} works at "
             f"{sensor.min_range:g}-{sensor.max_range:g} m: probably a unit problem, "
-            f"{_unit_hint(median, sensor)}")
+            f"{_unit_hint(median_m, sensor)}")
     scatter = _median_scatter(cloud, sensor, step)
     if scatter > _SCATTER_LIMIT:
         warnings.warn(

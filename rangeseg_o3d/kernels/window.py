@@ -300,11 +300,47 @@ def ray_steps(xyz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _chord_bound(ux, uy, uz, r0, c0, r1, c1):
-    # a lower bound of _chord_angle for the same pixels, NaN exactly where it is NaN:
-    # 2 asin(x) >= 2 x on [0, 1] (the factor covers asin's last-bit rounding)
-    dx, dy, dz = ux[r0, c0] - ux[r1, c1], uy[r0, c0] - uy[r1, c1], uz[r0, c0] - uz[r1, c1]
-    return 2.0 * min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0) * (1.0 - 1e-9)
+def _unit(xyz, r, c):
+    # the pixel's unit viewing direction, as _directions computes it (NaN: none)
+    x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm > 0.0:
+        return x / norm, y / norm, z / norm
+    return np.nan, np.nan, np.nan
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pixel_chord_angle(xyz, r0, c0, r1, c1):
+    # _chord_angle of two pixels, their directions computed on the spot (the same values)
+    ax, ay, az = _unit(xyz, r0, c0)
+    bx, by, bz = _unit(xyz, r1, c1)
+    dx, dy, dz = ax - bx, ay - by, az - bz
+    return 2.0 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
+
+
+#: The sine bound below is trusted where the angle's square is at least this (rad^2): far
+#: above the rounding of the chord and of the cross product, which grows as the angle shrinks.
+_SINE_FLOOR2 = 1e-12
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_clears(xyz, r0, c0, r1, c1, reach2, limit2):
+    # Whether the angle between two pixels' viewing directions is NaN (-1: a point without
+    # direction), certainly puts ``reach x angle`` at or over the limit (1), or may not (0).
+    # The angle is at least its sine, |a x b| / (|a| |b|): compared squared and multiplied
+    # out, without a square root or a division per pixel; the factor covers the roundings.
+    ax, ay, az = xyz[r0, c0, 0], xyz[r0, c0, 1], xyz[r0, c0, 2]
+    bx, by, bz = xyz[r1, c1, 0], xyz[r1, c1, 1], xyz[r1, c1, 2]
+    a2, b2 = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz
+    if not (a2 > 0.0 and b2 > 0.0):  # zero or NaN: no direction (the square root keeps both)
+        return -1
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    norms = a2 * b2
+    sine2 = (cx * cx + cy * cy + cz * cz) * (1.0 - 1e-6)
+    if not (0.0 < norms < np.inf and sine2 >= _SINE_FLOOR2 * norms):  # no bound trusted
+        return 0
+    over = reach2 * sine2
+    return 1 if over >= limit2 * norms and over < np.inf else 0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -325,11 +361,11 @@ def blind_spacing(xyz, ranges, sigma, visible_ratio):
     row and column (:func:`ray_steps`, NaN ones skipped as ``np.fmin`` does); ``spacing``
     holds it where it is finite, positive and under ``visible_ratio * sigma`` (the crease
     test's blind pixels), NaN elsewhere; ``count`` is the number of those pixels. The same
-    values as ``ranges * np.fmin(*ray_steps(xyz))`` there, without its arc sines where a
-    lower bound of the steps (the chord) already puts the spacing over the limit.
+    values as ``ranges * np.fmin(*ray_steps(xyz))`` there, without its square roots and
+    arc sines where a lower bound of the steps (their sines, squared) already puts the
+    spacing over the limit: a laser scanner's every pixel.
     """
     h, w = xyz.shape[0], xyz.shape[1]
-    ux, uy, uz = _directions(xyz)
     spacing = np.full((h, w), np.nan)
     count = 0
     for r in range(h):
@@ -339,14 +375,18 @@ def blind_spacing(xyz, ranges, sigma, visible_ratio):
             if not (reach > 0.0 and reach < np.inf):  # a spacing 0, negative or not finite
                 continue
             limit = visible_ratio * sigma[r, c]
-            ca = min(c, w - 2)
-            low_row = _chord_bound(ux, uy, uz, ra, c, ra + 1, c) if h > 1 else np.nan
-            low_col = _chord_bound(ux, uy, uz, r, ca, r, ca + 1) if w > 1 else np.nan
-            low = _fmin(low_row, low_col)
-            if not reach * low < limit:  # over the limit (or NaN) with the bound already
+            if not limit > 0.0:  # no spacing is under it (NaN: no test)
                 continue
-            row = _chord_angle(ux, uy, uz, ra, c, ra + 1, c) if h > 1 else np.nan
-            col = _chord_angle(ux, uy, uz, r, ca, r, ca + 1) if w > 1 else np.nan
+            ca = min(c, w - 2)
+            reach2, limit2 = reach * reach, limit * limit
+            if reach2 < np.inf and limit2 < np.inf:
+                # skipped where each step is over the limit by the bound, or has no direction
+                by_row = _step_clears(xyz, ra, c, ra + 1, c, reach2, limit2) if h > 1 else -1
+                by_col = _step_clears(xyz, r, ca, r, ca + 1, reach2, limit2) if w > 1 else -1
+                if by_row != 0 and by_col != 0:
+                    continue
+            row = _pixel_chord_angle(xyz, ra, c, ra + 1, c) if h > 1 else np.nan
+            col = _pixel_chord_angle(xyz, r, ca, r, ca + 1) if w > 1 else np.nan
             value = reach * _fmin(row, col)
             if value > 0.0 and value < limit and value < np.inf:
                 spacing[r, c] = value

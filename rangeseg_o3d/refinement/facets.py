@@ -25,6 +25,7 @@ import functools
 
 import numpy as np
 
+from .._numeric import median
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Cylinder, Plane
@@ -168,7 +169,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     next_label = int(labels.max(initial=0)) + 1
     for k, idx in regions.items():
         model = fits[k]
-        sigma = float(np.median(ctx.sigma[idx]))
+        sigma = median(ctx.sigma[idx])
         distances = model.distances(ctx.xyz[idx])
         rms = float(np.sqrt(np.mean(distances * distances)))
         if beyond_noise(rms, sigma, idx.size):
@@ -273,13 +274,13 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     along = (points - model.point) @ model.axis
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     noise = ctx.sigma[idx] * np.abs(rays @ model.axis)  # range noise along the axis
-    width = 2.0 * float(np.median(noise))
+    width = 2.0 * median(noise)
     if not width > 0:
         return []
     bins = np.floor((along - along.min()) / width).astype(np.int64)
     counts = np.bincount(bins)
     fullest = int(np.argmax(counts))
-    offset = float(np.median(along[bins == fullest]))
+    offset = median(along[bins == fullest])
     off_plane = np.abs(along - offset)
     near = (off_plane <= CHI_SQUARE_SIGMAS * np.maximum(noise, 1e-12)) & (off_plane < np.abs(distances))
     if np.count_nonzero(near) < ctx.min_size:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import median
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
@@ -331,7 +332,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             continue  # one of them was merged already
         if near_sigmas is not None:
             piece = regions[small]
-            if np.median(np.abs(fits[big].distances(ctx.xyz[piece]))) > near_sigmas * np.median(ctx.sigma[piece]):
+            if median(np.abs(fits[big].distances(ctx.xyz[piece]))) > near_sigmas * median(ctx.sigma[piece]):
                 continue
         union_idx = np.concatenate([regions[big], regions[small]])
         points = ctx.fitter.points(ctx.xyz, union_idx)
@@ -345,7 +346,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             continue
         if union.rms > limit:
             continue
-        if beyond_noise(union.rms, float(np.median(ctx.sigma[union_idx])), union_idx.size):
+        if beyond_noise(union.rms, median(ctx.sigma[union_idx]), union_idx.size):
             continue
         fits[big] = union
         del fits[small]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import median
+
 __all__ = ["jump_edges", "close_residual", "edge_mask", "angular_steps", "crease_edges"]
 
 # A range step that the steps before and after it on the same line continue within this
@@ -63,8 +65,9 @@ def close_residual(residual: np.ndarray, *, iterations: int = 2, kernel: int = 3
         raise ValueError(f"residual must have shape (H, W); got {res.shape}")
     if iterations < 0:
         raise ValueError(f"iterations must be >= 0; got {iterations}")
-    img = np.minimum(np.nan_to_num(res, nan=EDGE_CEILING, posinf=EDGE_CEILING), EDGE_CEILING)
-    img = img.astype(np.float32)
+    # fmin drops NaN for the ceiling; in float32 (rounding first, then the minimum, gives
+    # the same image: the ceiling is exact in float32) without whole-image temporaries
+    img = np.fmin(res, EDGE_CEILING, dtype=np.float32)
     if iterations == 0:
         return img
     import cv2  # here, not at module level: importing the stage stays light
@@ -150,7 +153,7 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
         return np.zeros(ranges.shape, bool), 0
     blind = ~np.isnan(spacing)
     limit = np.sin(np.radians(min_angle_deg))
-    middle = float(np.median(sigma[blind] / spacing[blind]))
+    middle = median(sigma[blind] / spacing[blind])
     window = next((w for w in range(3, max_window + 1, 2)
                    if k_sigma * np.sqrt(2.0) * _slope_noise(middle, 1.0, w) <= limit), max_window)
     if np.count_nonzero(blind) < window * window:  # too few to hide a surface's crease

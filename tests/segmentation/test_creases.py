@@ -83,11 +83,24 @@ def test_a_curved_surface_turning_steadily_is_no_crease():
 
 
 
-def test_blind_spacing_equals_the_spacing_from_the_angular_steps_bit_for_bit():
-    # kernels.blind_spacing skips the arc sines where the chord bound already clears the
-    # limit: its pixels and values must be those of range x fmin(angular_steps) < ratio x sigma
+def _check_blind_spacing(xyz, ranges, sigma, ratio):
+    # kernels.blind_spacing's pixels and values must be those of
+    # range x fmin(angular_steps) < ratio x sigma; returns (blind, clear) pixel counts
     from rangeseg_o3d.kernels import blind_spacing
 
+    with np.errstate(invalid="ignore"):
+        spacing = ranges * np.fmin(*angular_steps(xyz))
+        blind = np.isfinite(spacing) & (spacing > 0) & (spacing < ratio * sigma)
+    got, count = blind_spacing(xyz, ranges, sigma, ratio)
+    assert count == np.count_nonzero(blind)
+    assert np.array_equal(~np.isnan(got), blind)
+    assert np.array_equal(got[blind], spacing[blind])
+    return count, np.count_nonzero(np.isfinite(spacing) & ~blind)
+
+
+def test_blind_spacing_equals_the_spacing_from_the_angular_steps_bit_for_bit():
+    # kernels.blind_spacing skips the square roots and arc sines where a bound already
+    # clears the limit: random points, some without direction, odd ranges and noise
     rng = np.random.default_rng(5)
     blind_pixels = clear_pixels = 0
     for shape in ((12, 17), (1, 9), (9, 1), (2, 2), (1, 1), (30, 40)):
@@ -99,14 +112,21 @@ def test_blind_spacing_equals_the_spacing_from_the_angular_steps_bit_for_bit():
             ranges = np.linalg.norm(xyz, axis=2) * factor
         sigma = rng.uniform(0.0, 4.0, shape)
         sigma[rng.random(shape) < 0.05] = np.nan
-        ratio = float(rng.uniform(0.1, 3.0))
-        with np.errstate(invalid="ignore"):
-            spacing = ranges * np.fmin(*angular_steps(xyz))
-            blind = np.isfinite(spacing) & (spacing > 0) & (spacing < ratio * sigma)
-        got, count = blind_spacing(xyz, ranges, sigma, ratio)
-        assert count == np.count_nonzero(blind)
-        assert np.array_equal(~np.isnan(got), blind)
-        assert np.array_equal(got[blind], spacing[blind])
+        count, clear = _check_blind_spacing(xyz, ranges, sigma, float(rng.uniform(0.1, 3.0)))
         blind_pixels += count
-        clear_pixels += np.count_nonzero(np.isfinite(spacing) & ~blind)
+        clear_pixels += clear
     assert blind_pixels > 100 and clear_pixels > 100  # both branches were taken
+
+
+def test_blind_spacing_on_a_scanner_grid_equals_the_angular_steps_bit_for_bit():
+    # a nodding scanner's grid: steps of ~0.01 rad, where the sine bound decides nearly every
+    # pixel (near-duplicate points, whose sines are below the trusted floor, take the exact path)
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    xyz = np.array(simulate_lms200(default_scene(), seed=0).cloud.xyz)
+    xyz[5, 7] = xyz[5, 6] * (1.0 + 1e-9)  # an angle of ~0 to its neighbour
+    ranges = np.linalg.norm(xyz, axis=2)
+    sigma = np.full(ranges.shape, 0.005)
+    for ratio in (0.5, 1.0, 3.0, 10.0, 100.0):
+        _check_blind_spacing(xyz, ranges, sigma, ratio)
