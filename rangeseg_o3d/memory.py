@@ -9,8 +9,11 @@ docs/benchmarks.md, "Why office1 depends on what ran before it"). Fixing the two
 once (glibc's ``mallopt``) stops the adaptation: blocks up to :data:`MMAP_THRESHOLD_BYTES`
 come from the heap, and the heap keeps up to :data:`TRIM_THRESHOLD_BYTES` free at its top.
 
-:class:`rangeseg_o3d.pipeline.Pipeline` calls :func:`keep_freed_memory` when it is created
-(``Pipeline(..., keep_memory=False)`` does not). It does nothing on a C library other than
+:class:`rangeseg_o3d.pipeline.Pipeline` calls :func:`keep_freed_memory` when it first runs
+on a frame of at least :data:`LARGE_FRAME_PIXELS` pixels (``Pipeline(..., keep_memory=False)``
+never does): a smaller scan's whole-frame float64 arrays stay under glibc's smallest mmap
+threshold (128 KiB), always come from the heap and are not page-faulted again, so a process
+that only segments small scans keeps glibc's settings as they were. It does nothing on a C library other than
 glibc, nor when the process was started with glibc's own malloc settings in its
 environment (``MALLOC_TRIM_THRESHOLD_``, ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TOP_PAD_`` or
 a ``glibc.malloc`` tunable): the user's choice wins, e.g. a Dask worker's deliberate
@@ -22,7 +25,12 @@ from __future__ import annotations
 import ctypes
 import os
 
-__all__ = ["MMAP_THRESHOLD_BYTES", "TRIM_THRESHOLD_BYTES", "keep_freed_memory"]
+__all__ = ["LARGE_FRAME_PIXELS", "MMAP_THRESHOLD_BYTES", "TRIM_THRESHOLD_BYTES", "keep_freed_memory",
+           "large_frame"]
+
+#: A frame of this many pixels has float64 whole-frame arrays of glibc's default (and
+#: smallest) mmap threshold, 128 KiB: from there on its temporaries can leave the process.
+LARGE_FRAME_PIXELS = (128 << 10) // 8
 
 #: Blocks below this come from the heap, not from a mapping of their own that free()
 #: unmaps. 32 MiB is the largest value glibc accepts on 64-bit systems; a 1280 x 720
@@ -63,6 +71,12 @@ def _user_settings() -> bool:
     if any(name in os.environ for name in _GLIBC_MALLOC_ENV):
         return True
     return "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", "")
+
+
+def large_frame(shape: tuple[int, int]) -> bool:
+    """Whether a ``shape`` frame's whole-frame float64 arrays reach glibc's default mmap
+    threshold (:data:`LARGE_FRAME_PIXELS`): the frames :func:`keep_freed_memory` is for."""
+    return int(shape[0]) * int(shape[1]) >= LARGE_FRAME_PIXELS
 
 
 def keep_freed_memory() -> bool:

@@ -18,7 +18,7 @@ from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, grow_into_free, label_pixels, merge_touching_planes,
                       planes_for_unresolved, recover_thin_surfaces,
                       region_stats)
-from .memory import keep_freed_memory
+from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
@@ -71,11 +71,13 @@ class Pipeline:
     Parameters
     ----------
     config : PipelineConfig, preset name, YAML path, dict, or None (the lms200 preset).
-    keep_memory : fix glibc's malloc thresholds so that the memory a run frees stays in the
-        process for the next run (:func:`rangeseg_o3d.memory.keep_freed_memory`: process-wide,
-        a no-op off glibc or when the environment sets glibc's malloc). Otherwise glibc
-        starts handing each frame's large temporaries back to the system after a few
-        frames, and every later frame page-faults them again (4-5 ms of a VGA frame).
+    keep_memory : on the first frame of at least 128 KiB of float64 per whole-frame array
+        (:func:`rangeseg_o3d.memory.large_frame`; a VGA frame, not an LMS200 scan), fix glibc's
+        malloc thresholds so that the memory a run frees stays in the process for the next
+        run (:func:`rangeseg_o3d.memory.keep_freed_memory`: process-wide, a no-op off glibc
+        or when the environment sets glibc's malloc). Otherwise glibc starts handing each
+        frame's large temporaries back to the system after a few frames, and every later
+        frame page-faults them again (4-5 ms of a VGA frame).
 
     Examples
     --------
@@ -89,8 +91,7 @@ class Pipeline:
 
     def __init__(self, config=None, *, keep_memory: bool = True):
         self.config: PipelineConfig = load_config(config)
-        if keep_memory:
-            keep_freed_memory()
+        self.keep_memory = keep_memory
         # The sensor, resolved once; every stage receives it (or what follows from it).
         self.sensor: Sensor = self.config.sensor.resolve()
         self.segmenter = registry.get("segmenter", self.config.segmenter.name)
@@ -159,6 +160,8 @@ class Pipeline:
             malformed labels.
         """
         self._check(cloud)
+        if self.keep_memory and large_frame(cloud.shape):
+            keep_freed_memory()  # once per process: a no-op from the second call on
         clock = _Clock()
         settings = self._with_scales(self.scales(cloud))
         work = cloud.tile_means(settings.tile) if settings.tile > 1 else cloud

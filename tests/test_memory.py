@@ -113,9 +113,32 @@ def test_no_op_off_glibc(monkeypatch):
     assert memory.keep_freed_memory() is False
 
 
+def test_large_frame_is_one_of_128_kib_per_float64_array():
+    assert memory.LARGE_FRAME_PIXELS * 8 == 128 << 10
+    assert memory.large_frame((480, 640)) and memory.large_frame((128, 128))
+    assert not memory.large_frame((70, 131)) and not memory.large_frame((127, 128))
+
+
 @pytest.mark.parametrize("keep", [True, False])
-def test_pipeline_keeps_memory_unless_told_not_to(monkeypatch, keep):
+def test_pipeline_keeps_memory_on_a_large_frame_unless_told_not_to(monkeypatch, keep):
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+    from rangeseg_o3d.synthetic.suite import rgbd_scenes
+
     calls = []
     monkeypatch.setattr(pipeline_module, "keep_freed_memory", lambda: calls.append(True))
-    pipeline_module.Pipeline("lms200", keep_memory=keep)
+    cloud = simulate_depth_camera(rgbd_scenes()[1][1], seed=0).cloud
+    assert memory.large_frame(cloud.shape)
+    pipeline_module.Pipeline("rgbd_vga", keep_memory=keep).run(cloud)
     assert calls == ([True] if keep else [])
+
+
+def test_pipeline_leaves_malloc_alone_on_small_scans(monkeypatch):
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    calls = []
+    monkeypatch.setattr(pipeline_module, "keep_freed_memory", lambda: calls.append(True))
+    cloud = simulate_lms200(default_scene(), seed=0).cloud
+    assert not memory.large_frame(cloud.shape)
+    pipeline_module.Pipeline("lms200").run(cloud)
+    assert calls == []
