@@ -102,7 +102,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
     growth = dict(xyz=cloud.xyz, ranges=ranges, sigma=sigma, k_sigma=config.k_sigma,
                   jump_ratio=config.jump_ratio * tile, jump_min=config.jump_min)
-    ctx = Context(cloud, fitter, sigma, min_size)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
     labels, fits = regions.labels, regions.models
 
     failed = [k for k, m in fits.items() if not m]

@@ -47,28 +47,47 @@ _ONE_PIECE = 0.9
 class Context:
     """What every refinement step needs: points, noise, the fitter, the size floor."""
 
-    def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int):
+    def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int, *,
+                 wrap_columns: bool = False):
         self.xyz = cloud.xyz.reshape(-1, 3)
         self.sigma = sigma.ravel()
         self.width = cloud.shape[1]
         self.fitter = fitter
         self.min_size = min_size
+        #: a 360-degree grid: the first and last columns are neighbours
+        self.wrap_columns = bool(wrap_columns) and self.width > 2
+
+    def piece_ids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids, sizes)`` of the 4-connected pieces of the flat pixels ``idx`` (increasing),
+        as :func:`rangeseg_o3d.kernels.piece_ids` numbers them; on a 360-degree grid the
+        pieces that meet across the seam are one (the first one's number; others' sizes 0)."""
+        from ..kernels import piece_ids
+
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        ids, sizes = piece_ids(idx, self.width)
+        if self.wrap_columns and idx.size:
+            ids, sizes = _join_across_seam(idx, ids, sizes, self.width)
+        return ids, sizes
 
     def largest_piece(self, idx: np.ndarray) -> np.ndarray:
         """The largest 4-connected piece of the flat pixels ``idx`` (inliers can be
-        scattered over the grid)."""
-        from ..kernels import largest_piece
+        scattered over the grid; on a 360-degree grid across the seam too)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        if not self.wrap_columns:
+            from ..kernels import largest_piece
 
-        return largest_piece(np.ascontiguousarray(idx, dtype=np.int64), self.width)
+            return largest_piece(idx, self.width)
+        ids, sizes = self.piece_ids(idx)
+        return idx[ids == np.argmax(sizes)] if sizes.size else idx.copy()
 
     def pieces(self, idx: np.ndarray) -> list[np.ndarray]:
         """The 4-connected pieces of the flat pixels ``idx`` with at least ``min_size``
         pixels, smallest first."""
         if idx.size < self.min_size:
             return []
-        from ..kernels import group_by_label, piece_ids
+        from ..kernels import group_by_label
 
-        ids, sizes = piece_ids(np.ascontiguousarray(idx, dtype=np.int64), self.width)
+        ids, sizes = self.piece_ids(idx)
         # the pixels of each piece in idx's order: a counting sort of their piece numbers
         order, starts = group_by_label(ids, sizes.shape[0])
         # (a pool can hold thousands of pieces under the floor: they are skipped in numpy)
@@ -111,3 +130,31 @@ class Context:
         if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
             model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
         return (piece, model) if model else (None, None)
+
+
+def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width: int):
+    # pieces with a pixel in the last column beside one of another piece in the first
+    # column of the same row are one: each takes the smallest number of its group (the
+    # first in raster order), whose size becomes the group's, the others' 0
+    first = np.flatnonzero(idx % width == 0)
+    last = np.flatnonzero(idx % width == width - 1)
+    if not (first.size and last.size):
+        return ids, sizes
+    at = np.searchsorted(idx, idx[last] - (width - 1))
+    at = np.minimum(at, idx.size - 1)
+    meet = idx[at] == idx[last] - (width - 1)
+    pairs = np.unique(np.stack([ids[at[meet]], ids[last[meet]]], axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    if not pairs.size:
+        return ids, sizes
+    root = np.arange(sizes.size)
+    for a, b in pairs.tolist():  # a few seam crossings: a plain union-find
+        while root[a] != a:
+            a = root[a]
+        while root[b] != b:
+            b = root[b]
+        root[max(a, b)] = min(a, b)
+    for p in range(root.size):
+        root[p] = root[root[p]]
+    joined = np.bincount(root, weights=sizes, minlength=sizes.size).astype(sizes.dtype)
+    return root[ids].astype(ids.dtype), joined

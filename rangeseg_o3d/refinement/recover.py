@@ -123,8 +123,6 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     of at least ``min_size`` (isolated pixels near some plane's extension stay free).
     Planes only: a strip of a curved surface cannot be told from its extension this way.
     """
-    from ..kernels import piece_ids
-
     planes = [k for k, m in fits.items() if m and m.kind == "plane"]
     free = np.flatnonzero((valid & (labels == 0)).ravel())
     if not planes or free.size < ctx.min_size:
@@ -141,7 +139,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     # connected pieces first, then their plane (the one explaining most of the piece):
     # coplanar regions not merged yet (pieces of one wall) would otherwise share a strip
     # between them, each part under the floor
-    ids, _ = piece_ids(free[near], ctx.width)
+    ids, _ = ctx.piece_ids(free[near])
     at, plane = np.nonzero(within[near])
     n_pieces = int(ids.max()) + 1
     votes = np.bincount(ids[at] * len(planes) + plane,
@@ -150,7 +148,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     member = within[near, plane_of]
     # the members of different pieces never touch: one pass finds their connected parts
     pixels, owner = free[near[member]], np.asarray(planes)[plane_of[member]]
-    parts, sizes = piece_ids(pixels, ctx.width)
+    parts, sizes = ctx.piece_ids(pixels)
     # a part touching a region whose plane explains it is growth's to judge (its jump test
     # guards that border)
     column = np.full(int(labels.max()) + 1, -1)
@@ -244,7 +242,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     from it, not from the whole grid).
     """
     first = int(labels.max(initial=0)) + 1
-    ctx = Context(cloud, fitter, sigma, min_size)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
     regions = None
     if boxes is not None:
         from ..kernels import box_members

@@ -43,3 +43,53 @@ def test_without_is_the_set_difference_of_a_pool_and_its_piece():
             assert np.array_equal(without(pool, piece), pool[~np.isin(pool, piece)])
     empty = np.array([], np.int64)
     assert without(empty, empty).size == 0
+
+
+def _reference_wrapped_pieces(idx, shape, min_size):
+    # every piece of idx by a breadth-first search whose left/right neighbours wrap around
+    # the seam (a 360-degree grid), each increasing, smallest first (ties by first pixel)
+    h, w = shape
+    left = set(idx.tolist())
+    pieces = []
+    for start in idx.tolist():
+        if start not in left:
+            continue
+        left.discard(start)
+        todo, piece = [start], []
+        while todo:
+            i = todo.pop()
+            piece.append(i)
+            r, c = divmod(i, w)
+            for j in ((r - 1) * w + c if r > 0 else -1, (r + 1) * w + c if r < h - 1 else -1,
+                      r * w + (c - 1) % w, r * w + (c + 1) % w):
+                if j in left:
+                    left.discard(j)
+                    todo.append(j)
+        pieces.append(np.array(sorted(piece)))
+    return sorted((p for p in pieces if p.size >= min_size), key=lambda p: (p.size, p[0]))
+
+
+def test_on_a_360_degree_grid_pieces_meet_across_the_seam(pipeline):
+    from rangeseg_o3d.refinement.context import Context
+
+    rng = np.random.default_rng(8)
+    shape = (30, 40)
+    cloud = rs.OrganizedCloud(np.dstack([*np.mgrid[0:30, 0:40].astype(float), np.full(shape, 3.0)]))
+    sigma = np.full(shape, 0.01)
+    for density, min_size in ((0.45, 1), (0.55, 3), (0.7, 10)):
+        idx = np.flatnonzero(rng.random(shape).ravel() < density)
+        ctx = Context(cloud, pipeline.fitter, sigma, min_size, wrap_columns=True)
+        got, want = ctx.pieces(idx), _reference_wrapped_pieces(idx, shape, min_size)
+        assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
+        assert np.array_equal(ctx.largest_piece(idx), max(want, key=len))
+    # a band across the seam: two pieces on a plain grid, one when the columns wrap
+    band = np.zeros(shape, bool)
+    band[5:9, :4] = band[5:9, 33:] = True
+    band[20:22, 10:13] = True  # a smaller piece elsewhere
+    idx = np.flatnonzero(band.ravel())
+    plain = Context(cloud, pipeline.fitter, sigma, 1)
+    wrapped = Context(cloud, pipeline.fitter, sigma, 1, wrap_columns=True)
+    assert plain.largest_piece(idx).size == 4 * 7
+    assert wrapped.largest_piece(idx).size == 4 * 11
+    ids, sizes = wrapped.piece_ids(idx)
+    assert sorted(sizes[sizes > 0].tolist()) == [6, 44] and ids[0] == 0  # numbered from the first pixel
