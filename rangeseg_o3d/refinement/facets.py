@@ -180,13 +180,14 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             judges, noise = (), None
         # each split with the noise it is held to; last, a cylinder and its end cap, held to
         # the noise of their distances
-        splits = [(functools.partial(_surfaces_of, ctx, idx, judge), noise) for judge in judges]
-        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None))
-        for split, split_noise in splits:
+        splits = [(functools.partial(_surfaces_of, ctx, idx, judge), noise, True) for judge in judges]
+        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None, False))
+        for split, split_noise, settle in splits:
             surfaces = split()
             if not _covers(surfaces, idx):
                 continue
-            surfaces = _nearest(ctx, surfaces)
+            if settle:  # the cap split hands each pixel to its nearer model itself
+                surfaces = _nearest(ctx, surfaces)
             if _explains(ctx, idx, distances, surfaces, split_noise, model.kind):
                 break
         else:
@@ -263,7 +264,10 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     noise of the cylinder too (on a far or noisy sensor the whole cap is), where the
     distance tests of :func:`_holds_another` see nothing. The pixels of the fullest bin's
     plane (within CHI_SQUARE_SIGMAS of its noise) that are nearer to it than to the
-    cylinder, cut to their largest connected piece, are the cap when that plane lowers
+    cylinder, each distance in units of its own noise (along the axis for the plane, across
+    the cylinder's surface for it: the cap faces the sensor, the pipe's flanks graze it, so
+    a rim pixel a centimetre off the cylinder is many of its noise sigmas off while within
+    one of the plane's), cut to their largest connected piece, are the cap when that plane lowers
     their squared distances by more than noise would (the F-test of
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
     against the cylinder's none on those pixels); the cylinder is refitted to the rest.
@@ -282,11 +286,9 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     fullest = int(np.argmax(counts))
     offset = median(along[bins == fullest])
     off_plane = np.abs(along - offset)
-    near = (off_plane <= CHI_SQUARE_SIGMAS * np.maximum(noise, 1e-12)) & (off_plane < np.abs(distances))
-    if np.count_nonzero(near) < ctx.min_size:
-        return []
-    piece = np.sort(ctx.largest_piece(idx[near]))
-    if piece.size < ctx.min_size or idx.size - piece.size < ctx.min_size:
+    sigma = ctx.sigma[idx]
+    piece = _likelier_on_plane(ctx, idx, off_plane, noise, distances, model, points, sigma)
+    if piece is None:
         return []
     plane = fit_plane(ctx.xyz[piece])
     if not plane:
@@ -297,8 +299,50 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
     if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):
         return []
-    rest = without(idx, piece)
-    cylinder = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, rest), model)
+    cylinder = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, piece)), model)
     if not cylinder or cylinder.kind != model.kind:
         return []
-    return [(rest, cylinder), (piece, plane)]
+    # once more with the two fitted models: the rim pixels the cylinder fitted over the cap
+    # still explained go to the cap, the pipe's pixels it took at the junction come back
+    again = _likelier_on_plane(ctx, idx, np.abs(plane.distances(points)), distance_noise(plane, points, sigma),
+                               cylinder.distances(points), cylinder, points, sigma)
+    split = [(without(idx, piece), cylinder), (piece, plane)]
+    if again is not None and not np.array_equal(again, piece):
+        cap = fit_plane(ctx.xyz[again])
+        pipe = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, again)), cylinder)
+        if cap and pipe and pipe.kind == model.kind:
+            # kept when likelier: fewer squared noise sigmas over the region
+            other = [(without(idx, again), pipe), (again, cap)]
+            if _squared_sigmas(ctx, other) < _squared_sigmas(ctx, split):
+                split = other
+    return split
+
+
+def _squared_sigmas(ctx: Context, surfaces: list) -> float:
+    # the sum of squared distances of the surfaces' pixels, each in units of its noise
+    total = 0.0
+    for idx, model in surfaces:
+        points = ctx.xyz[idx]
+        noise = np.maximum(distance_noise(model, points, ctx.sigma[idx]), 1e-12)
+        total += float(np.sum((model.distances(points) / noise) ** 2))
+    return total
+
+
+def _likelier_on_plane(ctx: Context, idx: np.ndarray, off_plane: np.ndarray, plane_noise: np.ndarray,
+                       off_cylinder: np.ndarray, cylinder, points: np.ndarray, sigma: np.ndarray) -> np.ndarray | None:
+    # The largest connected piece of the pixels ``idx`` (``points``, range noise ``sigma``)
+    # within CHI_SQUARE_SIGMAS of the plane's noise and fewer noise sigmas off the plane
+    # than off ``cylinder`` (None when it, or what it leaves, is under the size floor).
+    plane_noise = np.maximum(plane_noise, 1e-12)
+    band = np.flatnonzero(off_plane <= CHI_SQUARE_SIGMAS * plane_noise)
+    if band.size < ctx.min_size:
+        return None
+    cylinder_noise = np.maximum(distance_noise(cylinder, points[band], sigma[band]), 1e-12)
+    near = band[off_plane[band] / plane_noise[band] < np.abs(off_cylinder[band]) / cylinder_noise]
+    if near.size < ctx.min_size:
+        return None
+    piece = np.sort(ctx.largest_piece(idx[near]))
+    if piece.size < ctx.min_size or idx.size - piece.size < ctx.min_size:
+        return None
+    return piece
+

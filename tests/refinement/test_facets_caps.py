@@ -41,7 +41,9 @@ def test_the_end_cap_split_finds_the_cap_and_refits_the_pipe(seed):
     assert [m.kind for _, m in surfaces] == ["cylinder", "plane"]
     (rest, pipe), (piece, cap) = surfaces
     flat = truth.ravel()
-    assert (flat[piece] == CAP).mean() > 0.95 and piece.size > 0.6 * (flat == CAP).sum()
+    # most of the cap, rim included (each pixel to the model it is fewer noise sigmas off),
+    # with a few of the pipe's pixels at the junction, which both explain
+    assert (flat[piece] == CAP).mean() > 0.95 and piece.size > 0.9 * (flat == CAP).sum()
     assert np.array_equal(np.sort(np.concatenate([rest, piece])), idx)  # a partition of the region
     assert abs(pipe.radius - 0.15) < abs(model.radius - 0.15)
     assert abs(float(cap.normal @ model.axis)) > np.cos(np.radians(5.0))  # across the axis
