@@ -1,10 +1,13 @@
-"""The polish step on its own: spheres and cylinders refitted on their final pixels."""
+"""The polish step on its own: spheres and cylinders refitted on their final pixels, and
+given up for a plane where they no longer resolve a curvature."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
-from rangeseg_o3d.fitting import fit_plane, fit_sphere
+from rangeseg_o3d.fitting import fit_cylinder, fit_plane, fit_sphere
 from rangeseg_o3d.refinement.polish import polish_models
+from refinement_helpers import folded_strip
 
 
 def _ball_beside_a_wall():
@@ -37,3 +40,17 @@ def test_a_sphere_that_kept_its_points_is_not_refitted(context):
     whole = fit_sphere(xyz[labels == 1])
     polished = polish_models(context(rs.OrganizedCloud(xyz)), labels, {1: whole})
     assert polished[1] is whole
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_cylinder_bent_over_a_crease_is_a_plane_on_the_flat_face_it_kept(context, seed):
+    # a cylinder fitted over a flat face and three columns of the 45-degree face beside it
+    # (5 mm noise, the lms200 sensor's); the region keeps only the flat face
+    xyz, truth, normals = folded_strip(0.005, seed)
+    columns = np.mgrid[0:60, 0:90][1]
+    bent = fit_cylinder(xyz[(truth == 1) | ((truth == 2) & (columns < 33))])
+    assert bent.kind == "cylinder" and bent.radius < 5.0  # the premise: a bend, not a plane
+    labels = np.where(truth == 1, 1, 0).astype(np.int32)
+    polished = polish_models(context(rs.OrganizedCloud(xyz)), labels, {1: bent})
+    assert polished[1].kind == "plane"
+    assert abs(float(polished[1].normal @ normals[1])) > np.cos(np.radians(0.5))
