@@ -70,8 +70,9 @@ def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
         order, starts = group_members(flat, members)
     else:
         order, starts = group_by_label(flat, n)
-    present = np.flatnonzero(np.diff(starts[1:]) > 0) + 1
-    return {int(k): order[starts[k]:starts[k + 1]] for k in present}
+    present = (np.flatnonzero(np.diff(starts[1:]) > 0) + 1).tolist()
+    bounds = starts.tolist()  # Python ints: slicing by numpy scalars costs more than the slice
+    return {k: order[bounds[k]:bounds[k + 1]] for k in present}
 
 
 def pixel_rms(xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray) -> dict:
