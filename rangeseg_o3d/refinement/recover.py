@@ -14,6 +14,8 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
+from ..fitting.robust import beyond_noise
+from ..scales import GRAZING_TAN
 from .context import Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .merge import merge_into_curved, merge_regions
@@ -121,6 +123,11 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     between) form connected pieces; each piece goes to the plane explaining most of it,
     and its pixels that plane explains join the region where they make a connected part
     of at least ``min_size`` (isolated pixels near some plane's extension stay free).
+    A part that touches its plane's region is growth's to judge, unless the plane is seen
+    there closer to grazing than the jump test allows (``scales.GRAZING_TAN``: a box top
+    a few degrees from grazing is a range jump at every row) and the part lies on it
+    within the noise of its distances (the range noise times the incidence cosine): then
+    it joins, whatever its size.
     Planes only: a strip of a curved surface cannot be told from its extension this way.
     """
     planes = [k for k, m in fits.items() if m and m.kind == "plane"]
@@ -156,11 +163,42 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     touching = _touches_explaining(labels, pixels, within[near[member]], column)
     touches = np.bincount(parts, weights=touching, minlength=sizes.size) > 0
     kept = (sizes >= ctx.min_size)[parts] & ~touches[parts]
+    # a part touching its plane's region across the range jumps the plane's own slant makes
+    # (a face seen closer to grazing than the jump test's angle, scales.GRAZING_TAN: growth
+    # stops at every row) joins it when all its pixels are seen that close to grazing and
+    # its rms distance to that plane is within the noise of their distances
+    if touches.any():
+        kept |= _grazing_on_plane(ctx, pixels, owner, fits, parts, touches)[parts]
     if not kept.any():
         return labels, fits
     grown = labels.copy()
     grown.ravel()[pixels[kept]] = owner[kept]
     return grown, refit_grown(ctx, labels, grown, fits)
+
+
+def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits: dict,
+                      parts: np.ndarray, asked: np.ndarray) -> np.ndarray:
+    # per part (``parts`` numbers the flat ``pixels``; False where not ``asked``): whether each of its pixels sees the
+    # plane of its region ``owner`` closer to grazing than atan(GRAZING_TAN), and their rms
+    # distance to it is within the noise's chi-square bound (fitting.robust.beyond_noise) of
+    # the rms of max(distance noise, the plane's rms) (distance noise: the range noise
+    # times the incidence cosine, fitting.robust.distance_noise)
+    points = ctx.xyz[pixels]
+    normals = np.array([fits[k].normal for k in owner]).reshape(-1, 3)
+    offsets = np.array([fits[k].d for k in owner])
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    cosines = np.abs(np.einsum("ij,ij->i", rays, normals))
+    distances = np.einsum("ij,ij->i", points, normals) - offsets
+    noise = np.maximum(ctx.sigma[pixels] * cosines, [fits[k].rms for k in owner])
+    n_parts = asked.size
+    steep = np.bincount(parts, weights=cosines > GRAZING_TAN / np.hypot(1.0, GRAZING_TAN), minlength=n_parts)
+    counts = np.bincount(parts, minlength=n_parts)
+    mean_squares = np.bincount(parts, weights=distances * distances, minlength=n_parts) / np.maximum(counts, 1)
+    noise_squares = np.bincount(parts, weights=noise * noise, minlength=n_parts) / np.maximum(counts, 1)
+    answer = np.zeros(n_parts, bool)
+    for i in np.flatnonzero(asked & (steep == 0) & (counts > 0)):
+        answer[i] = not beyond_noise(float(np.sqrt(mean_squares[i])), float(np.sqrt(noise_squares[i])), int(counts[i]))
+    return answer
 
 
 def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarray,

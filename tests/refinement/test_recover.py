@@ -246,3 +246,33 @@ def test_recover_pixels_with_the_blobs_boxes_answers_as_without(seed):
     assert (whole != labels).sum() > 100  # a strip was recovered (it rejoins the pipe)
     np.testing.assert_array_equal(boxed, whole)
     assert {k: repr(m) for k, m in boxed_models.items()} == {k: repr(m) for k, m in whole_models.items()}
+
+
+def _floor_seen_near_grazing(seed=0):
+    # a floor 10 cm below the sensor seen 1.5-2.5 degrees below the horizon (incidence
+    # 87.5-88.5 degrees, 2.3-3.8 m away), range noise 5 mm along the rays; the floor is one
+    # region except row 6 (free, as growth leaves it: each row is a range jump from the next)
+    # and row 7, whose points sit 2 cm (~120 distance-noise sigmas) above the floor
+    elevation = np.radians(np.linspace(-2.5, -1.5, 12))[:, None]
+    azimuth = np.radians(np.linspace(-10.0, 10.0, 40))[None, :]
+    rays = np.dstack(np.broadcast_arrays(np.sin(azimuth) * np.cos(elevation), np.sin(elevation),
+                                         np.cos(azimuth) * np.cos(elevation)))
+    ranges = 0.1 / -rays[..., 1]
+    ranges = ranges + np.random.default_rng(seed).normal(0.0, 0.005, ranges.shape)
+    xyz = rays * ranges[..., None]
+    xyz[7, :, 1] += 0.02
+    labels = np.ones((12, 40), np.int32)
+    labels[6:8] = 0
+    return xyz, labels
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_occluded_strips_gives_a_grazing_row_on_the_plane_to_its_region(context, seed):
+    xyz, labels = _floor_seen_near_grazing(seed)
+    cloud = rs.OrganizedCloud(xyz)
+    fits = {1: fit_plane(xyz[labels == 1])}
+    out, new_fits = claim_occluded_strips(context(cloud, min_size=20, sigma=np.full((12, 40), 0.005)),
+                                          labels, fits, valid=cloud.valid, k_sigma=3.0)
+    assert (out[6] == 1).all()  # on the floor within its distance noise: joins it, whatever its size
+    assert (out[7] == 0).all()  # 2 cm above it, within the range noise's 3 sigmas but not on it
+    assert abs(new_fits[1].normal[1]) > np.cos(np.radians(0.5))
