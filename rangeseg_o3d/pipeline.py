@@ -16,7 +16,7 @@ from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, grow_into_free, label_pixels, merge_touching_planes,
-                      planes_for_unresolved, recover_thin_surfaces,
+                      planes_for_unresolved, recover_thin_surfaces, refit_planes_to_pixels,
                       region_stats)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
@@ -302,7 +302,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                 sigma: np.ndarray, ranges: np.ndarray, refine, tile_labels: np.ndarray):
     """Regions grow into the free pixels their models explain
     (:func:`rangeseg_o3d.fullres.grow_into_free`), then pieces of one plane that meet merge
-    (:func:`rangeseg_o3d.fullres.merge_touching_planes`); ``(labels, fits, stats)``.
+    (:func:`rangeseg_o3d.fullres.merge_touching_planes`); ``(labels, fits, stats)``. A plane
+    whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
+    (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
 
     Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
     three tiles of each other: a pixel takes the region of its tile or of one of the 8
@@ -312,6 +314,8 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
 
     if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
         labels = np.array(labels, dtype=np.int32, order="C")
+    fits, stats = refit_planes_to_pixels(cloud, labels, fits, stats, sigma=sigma,
+                                         rms_factor=refine.merge_rms_factor, inlier_factor=INLIER_SIGMAS)
     labels, stats, touch = grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
                                           k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
                                           jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)

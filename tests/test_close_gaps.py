@@ -1,13 +1,14 @@
 """Closing the gaps the tile grid leaves (rangeseg_o3d.fullres.grow_into_free,
-merge_touching_planes; the abw preset's ``refine.close_gaps``): values against known
-geometry, and on the ABW images against their ground truth."""
+merge_touching_planes, refit_planes_to_pixels; the abw preset's ``refine.close_gaps``):
+values against known geometry, and on the ABW images against their ground truth."""
 
 import numpy as np
 import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import Plane
-from rangeseg_o3d.fullres import PixelStats, grow_into_free, merge_touching_planes, region_stats
+from rangeseg_o3d.fullres import (PixelStats, grow_into_free, merge_touching_planes, refit_planes_to_pixels,
+                                  region_stats)
 from rangeseg_o3d.result import INLIER_SIGMAS
 
 NOISE = 0.001
@@ -57,6 +58,75 @@ def test_regions_grow_over_free_strips_and_stop_at_the_step():
     np.testing.assert_allclose(after.squares[:3], again.squares[:3], rtol=1e-9)
     # the grown walls now meet at the step (the merge's union test keeps them apart)
     assert touch[1, 2] and touch[2, 1] and touch.sum() == 2
+
+
+def _grazing_plane(h=20, w=40, pitch=0.002, noise=0.0002, seed=1):
+    # pinhole rays (``pitch`` rad per pixel) onto the plane x - 0.1 z = -0.1, seen about 6 deg
+    # from edge-on at 0.7-1.6 m: the range steps by 1-4 cm from one column to the next;
+    # noise along z
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    rays = np.dstack([(u - w / 2) * pitch, (v - h / 2) * pitch, np.ones((h, w))])
+    norm = np.hypot(1.0, 0.1)
+    normal, d = np.array([1.0, 0.0, -0.1]) / norm, -0.1 / norm
+    xyz = rays * (d / (rays @ normal))[..., None]
+    xyz[..., 2] += rng.normal(0.0, noise, (h, w))
+    return xyz, Plane(normal, d, noise, 1)
+
+
+def test_growth_follows_a_grazing_plane_across_its_own_range_steps():
+    xyz, plane = _grazing_plane()
+    valid = np.isfinite(xyz).all(axis=2)
+    ranges = np.linalg.norm(xyz, axis=2)
+    start, stop = 4, 12
+    limit = np.maximum(0.003, 0.01 * np.minimum(ranges[:, start:stop - 1], ranges[:, start + 1:stop]))
+    steps = np.abs(np.diff(ranges[:, start:stop], axis=1))
+    assert (steps > limit).all()  # every step along the rows is a jump by the sensor's test alone
+    labels = np.zeros(xyz.shape[:2], np.int32)
+    labels[:, start:start + 2] = 1
+    sigma = np.full(xyz.shape[:2], 0.0002)
+    fits = {1: plane}
+    stats = _stats(xyz, labels, fits, sigma)
+    grown, after, _ = grow_into_free(rs.OrganizedCloud(xyz), labels.copy(), fits, stats, sigma=sigma,
+                                     ranges=ranges, k_sigma=3.0, jump_ratio=0.01, jump_min=0.003,
+                                     inlier_factor=INLIER_SIGMAS)
+    near = np.abs(plane.distances(np.nan_to_num(xyz).reshape(-1, 3))).reshape(xyz.shape[:2]) <= 3 * 0.0002
+    reach = np.zeros_like(near)
+    reach[:, start:stop] = True
+    assert (grown[near & reach & valid] == 1).mean() > 0.97
+    # a pixel moved 3 cm along its ray (~3 mm, 15 sigma, off the plane: a ray meets a grazing
+    # plane at ~6 deg) stays out; its neighbours still join
+    xyz2 = xyz.copy()
+    xyz2[5, start + 4] *= 1.0 + 0.03 / ranges[5, start + 4]
+    stats2 = _stats(xyz2, labels, fits, sigma)
+    grown2, _, _ = grow_into_free(rs.OrganizedCloud(xyz2), labels.copy(), fits, stats2, sigma=sigma,
+                                  ranges=np.linalg.norm(xyz2, axis=2), k_sigma=3.0, jump_ratio=0.01,
+                                  jump_min=0.003, inlier_factor=INLIER_SIGMAS)
+    assert grown2[5, start + 4] == 0 and grown2[6, start + 4] == 1
+
+
+def test_a_plane_its_pixels_fit_far_better_takes_their_plane_and_a_good_one_stays():
+    xyz = _scene(seed=5)
+    labels = np.zeros(xyz.shape[:2], np.int32)
+    labels[:, :40] = 1          # the front wall, z = 2
+    labels[:, 40:] = 2          # the back wall, z = 2.05
+    tilt = np.radians(2.0)      # region 1's model: the wall turned by 2 deg about its centre column
+    normal = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    centre = xyz[:, :40].reshape(-1, 3).mean(axis=0)
+    fits = {1: Plane(normal, float(normal @ centre), NOISE, 1), 2: Plane([0, 0, 1], 2.05, NOISE, 1)}
+    sigma = np.full(xyz.shape[:2], NOISE)
+    stats = _stats(xyz, labels, fits, sigma)
+    assert stats.rms(1) > 3 * NOISE and stats.rms(2) < 1.2 * NOISE
+    new_fits, new_stats = refit_planes_to_pixels(rs.OrganizedCloud(xyz), labels, fits, stats, sigma=sigma,
+                                                 rms_factor=1.3, inlier_factor=INLIER_SIGMAS)
+    assert new_fits[2] is fits[2] and fits[1].normal @ normal > 0.9999  # inputs untouched, region 2 kept
+    assert abs(new_fits[1].normal[2]) > np.cos(np.radians(0.2)) and new_fits[1].d == pytest.approx(2.0, abs=3 * NOISE)
+    assert new_stats.rms(1) == pytest.approx(NOISE, rel=0.2) and new_stats.counts[1] == stats.counts[1]
+    np.testing.assert_array_equal(new_stats.counts, _stats(xyz, labels, new_fits, sigma).counts)
+    # nothing better: the same objects back
+    same_fits, same_stats = refit_planes_to_pixels(rs.OrganizedCloud(xyz), labels, new_fits, new_stats,
+                                                   sigma=sigma, rms_factor=1.3, inlier_factor=INLIER_SIGMAS)
+    assert same_fits is new_fits and same_stats is new_stats
 
 
 def test_growth_rejects_a_label_image_it_cannot_change_in_place():

@@ -41,12 +41,27 @@ def _neighbour(i, step, h, w):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _plane_step_agrees(prm, xyz, i, j, ri, rj, limit):
+    # Whether the range step ri - rj between pixels i and j is the plane's own step between
+    # their rays within ``limit``: a plane seen at a grazing angle steps by far more than the
+    # sensor's jump threshold from one ray to the next (r = d / (n . u) along the unit ray u),
+    # with no discontinuity between them. False when a ray runs (nearly) parallel to the plane.
+    ci = prm[0] * xyz[i, 0] + prm[1] * xyz[i, 1] + prm[2] * xyz[i, 2]  # = (n . u_i) r_i
+    cj = prm[0] * xyz[j, 0] + prm[1] * xyz[j, 1] + prm[2] * xyz[j, 2]
+    if ci == 0.0 or cj == 0.0:
+        return False
+    plane_i, plane_j = prm[3] * ri / ci, prm[3] * rj / cj  # the plane's range along each ray
+    return abs((ri - rj) - (plane_i - plane_j)) <= limit
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio,
-                             jump_min):
+                             jump_min, plane_steps=False):
     # Growth's test for free pixel i: among its 4-neighbours' regions with a model and no
-    # range jump to them (step <= max(jump_min, jump_ratio * r)), the one whose model is
-    # nearest in units of max(sigma, rms), within k_sigma (the first of equals); returns
-    # (label, distance), label 0 when none.
+    # range jump to them (step <= max(jump_min, jump_ratio * r); with ``plane_steps`` also
+    # no jump when a plane's own step between the two rays accounts for it, see
+    # _plane_step_agrees), the one whose model is nearest in units of max(sigma, rms),
+    # within k_sigma (the first of equals); returns (label, distance), label 0 when none.
     n = kinds.shape[0]
     best, best_score, best_dist = 0, k_sigma, 0.0
     for step in range(4):
@@ -57,8 +72,10 @@ def _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, rang
         if k <= 0 or k >= n or kinds[k] == 0:
             continue
         ri, rj = ranges[i], ranges[j]
-        if not (abs(ri - rj) <= max(jump_min, jump_ratio * min(ri, rj))):
-            continue
+        limit = max(jump_min, jump_ratio * min(ri, rj))
+        if not (abs(ri - rj) <= limit):
+            if not (plane_steps and kinds[k] == PLANE and _plane_step_agrees(params[k], xyz, i, j, ri, rj, limit)):
+                continue
         dist = _distance(kinds[k], params[k], xyz[i, 0], xyz[i, 1], xyz[i, 2])
         score = dist / max(sigma[i], rms[k])
         if score <= best_score and (best == 0 or score < best_score):

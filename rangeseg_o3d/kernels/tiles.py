@@ -301,8 +301,8 @@ def grow_free(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_rati
 
     A free pixel joins the 4-neighbouring region whose model is within
     ``k_sigma * max(sigma, rms)`` of it, the nearest in those units when several are, when
-    the range step to that neighbour is no jump (``<= max(jump_min, jump_ratio * r)``);
-    each ring is decided on the labels as they were at its start. Regions with
+    the range step to that neighbour is no jump (``<= max(jump_min, jump_ratio * r)``, or,
+    into a plane, within that of the plane's own step between the two rays); each ring is decided on the labels as they were at its start. Regions with
     ``kinds[k] == 0`` do not grow. ``inliers``, ``squares`` and ``counts`` (per label, as
     :func:`label_pixels` returns them) take each pixel that joins. A pixel is looked at
     again only when a neighbour joined a region in the ring before (nothing else changes its
@@ -342,7 +342,7 @@ def grow_free(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_rati
         gaps = _grown(gaps, n_front)
         for f in range(n_front):
             chosen[f], gaps[f] = _nearest_neighbour_model(front[f], flat, h, w, xyz, kinds, params, rms, sigma,
-                                                          ranges, k_sigma, jump_ratio, jump_min)
+                                                          ranges, k_sigma, jump_ratio, jump_min, True)
         for f in range(n_front):
             i = front[f]
             k = chosen[f]
