@@ -13,7 +13,7 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitting.r
 Modules: ``labelwise`` (label-wise sums, planes, quadric test, distances to models),
 ``grid`` (grouping by label, jump edges, adjacency, growth, tile means), ``tiles`` (full-resolution
 labels from the tile grid with their distance statistics, leftover blobs),
-``trimmed`` (the trimmed fit's proposals), ``window`` (the residual image: every pixel's
+``trimmed`` (the trimmed fit's proposals), ``sides`` (a cylinder region as the two sides of a crease), ``window`` (the residual image: every pixel's
 window plane), ``project`` (points from ranges or depth, used by the cloud constructors), ``inline`` (inline helpers: model distances, grid neighbours), ``linalg``
 (small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
 kinds, plain Python). The package imports nothing from the rest of ``rangeseg_o3d``.
@@ -35,6 +35,7 @@ _SOURCES = {
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
+    "sides": ("crease_sides",),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
                "ray_steps", "blind_spacing"),

@@ -13,7 +13,10 @@ not): on a sensor whose curved surfaces fit at their noise (a laser's pipes and 
 nothing runs. When planes do not do it, the same split with the pipeline's fitter as the
 judge (any kind, each within the curved model's rms) is held to the same rules: a pipe
 whose region took its end cap (or a box face beside it) comes back as its cylinder and
-the plane. Last, a cylinder's region is looked at for an end cap the distances cannot
+the plane. A cylinder within the range noise that misfits its region in a pattern across
+its axis (a wall and a corner of what stands before it, seen obliquely) faces the two
+least-squares planes of its sides (:func:`_two_planes_across_the_axis`). Last, a
+cylinder's region is looked at for an end cap the distances cannot
 show (on a noisy or far sensor the whole cap lies within the noise of the cylinder): a
 disc across the axis, whose pixels share one axial coordinate (:func:`_cap_split`).
 """
@@ -42,6 +45,12 @@ PLANES_COVER = 0.9
 CURVED_PARAMETERS = {"cylinder": 5, "sphere": 4}
 #: Searches per region (bounds the time; a crease region holds two or three faces).
 _MAX_ATTEMPTS = 6
+#: Bins of angle about a cylinder's axis in which its mean distance is tested, on an even
+#: sample of at most MISFIT_SAMPLE of its pixels (:func:`_two_planes_across_the_axis`).
+ANGLE_BINS = 8
+MISFIT_SAMPLE = 256
+#: Equal-count cuts of a cylinder region by angle tried for the planes of its two sides.
+CUTS = 33
 
 
 class _PlaneJudge:
@@ -156,8 +165,10 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     its ray, and the flanks of a pipe are seen at grazing incidence), with a connected
     region's worth of pixels far beyond it, holds another surface too (a pipe and its end
     cap): there the surfaces of any kind are tried, held to the noise of their distances.
-    Failing all these, a cylinder and the end cap its region holds (:func:`_cap_split`),
-    held to the same rules.
+    A cylinder within the range noise that holds no other surface is tried against the two
+    planes of its sides when it misfits across its axis (:func:`_two_planes_across_the_axis`),
+    which must also resolve what it leaves (an F-test). Failing all these, a cylinder and
+    the end cap its region holds (:func:`_cap_split`), held to the same rules.
     """
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     if not curved:
@@ -178,17 +189,23 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             judges, noise = (_BoundJudge(ctx.fitter, rms),), None  # the model's own kind and the other's
         else:
             judges, noise = (), None
-        # each split with the noise it is held to; last, a cylinder and its end cap, held to
-        # the noise of their distances
-        splits = [(functools.partial(_surfaces_of, ctx, idx, judge), noise, True) for judge in judges]
-        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None, False))
-        for split, split_noise, settle in splits:
+        # each split with the noise it is held to and whether its surfaces must resolve what
+        # the curved model leaves; last, a cylinder and its end cap, held to the noise of
+        # their distances
+        splits = [(functools.partial(_surfaces_of, ctx, idx, judge), noise, True, False) for judge in judges]
+        if not judges:
+            # within the range noise, a cylinder that misfits across its axis faces the two
+            # planes of its sides, which must resolve what it leaves (a crease, not a curve)
+            splits.append((functools.partial(_two_planes_across_the_axis, ctx, model, idx, distances), None, True,
+                           True))
+        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None, False, False))
+        for split, split_noise, settle, resolve in splits:
             surfaces = split()
-            if not _covers(surfaces, idx):
+            if not _covers(surfaces, idx) or (resolve and len(surfaces) < 2):
                 continue
             if settle:  # the cap split hands each pixel to its nearer model itself
                 surfaces = _nearest(ctx, surfaces)
-            if _explains(ctx, idx, distances, surfaces, split_noise, model.kind):
+            if _explains(ctx, idx, distances, surfaces, split_noise, model.kind, resolve=resolve):
                 break
         else:
             continue
@@ -216,6 +233,54 @@ def _holds_another(ctx: Context, model, idx: np.ndarray, distances: np.ndarray, 
     return far.size >= ctx.min_size and ctx.largest_piece(far).size >= ctx.min_size
 
 
+def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> list:
+    """A cylinder region within the range noise cut at one angle about the axis into the
+    least-squares planes of its two sides (``[(pixels, plane)] * 2``, pixels increasing),
+    when the cylinder misfits it in a pattern across its axis; empty otherwise.
+
+    The pattern (:func:`rangeseg_o3d.kernels.crease_sides`, one compiled call): on an even
+    sample of at most MISFIT_SAMPLE pixels, the cylinder's rms is beyond the noise of its
+    distances (the range noise along each ray,
+    :func:`rangeseg_o3d.fitting.robust.distance_noise`), and so is its mean distance in each
+    of ANGLE_BINS equal-count bins of angle about the axis (a chi-square over the bins). An
+    arc bent over a crease seen obliquely (two box faces, a wall and a corner of what stands
+    before it) is off the same way along whole bands of angle; a right cylinder on a sensor
+    noisier than its model says is off at random. The cut is the one of CUTS equal-count
+    cuts by angle (each side ``ctx.min_size``) whose planes leave the fewest squared distances.
+    """
+    if not isinstance(model, Cylinder):
+        return []
+    from ..kernels import crease_sides
+
+    first = crease_sides(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64), distances, model.axis,
+                         model.point, ctx.min_size, ANGLE_BINS, MISFIT_SAMPLE, CUTS, CHI_SQUARE_SIGMAS)
+    if not first.size:
+        return []
+    sides = [idx[first], idx[~first]]
+    planes = [fit_plane(ctx.xyz[side]) for side in sides]
+    if not all(planes) or _cannot_explain(ctx, idx, distances, planes):
+        return []
+    return list(zip(sides, planes))
+
+
+def _cannot_explain(ctx: Context, idx: np.ndarray, distances: np.ndarray, planes: list) -> bool:
+    # A bound that spares _nearest and _explains on a true cylinder (its sides' planes leave
+    # many times its squared distances): whatever pixels _nearest moves or cuts off, the
+    # planes keep the PLANES_COVER share (``least`` pixels or more) at squared distances no
+    # smaller than each pixel's to the nearer plane, while the cylinder's over them are at
+    # most its sum over the region. When even the smallest ``least`` of the former beat the
+    # latter by the curvature test's margin, neither two planes nor one that _nearest
+    # leaves can pass _explains (for any surfaces taken >= least pixels).
+    least = int(np.ceil(PLANES_COVER * idx.size))
+    if least <= 3 + CURVED_PARAMETERS["cylinder"]:
+        return False
+    points = ctx.xyz[idx]
+    nearer = np.minimum(np.abs(planes[0].distances(points)), np.abs(planes[1].distances(points)))
+    floor = float(np.sum(np.partition(nearer * nearer, least - 1)[:least]))
+    return bool(curvature_resolved(floor, float(np.sum(distances * distances)), least,
+                                   CURVED_PARAMETERS["cylinder"] - 3))
+
+
 def _noise_rms(ctx: Context, surfaces: list) -> float:
     """The rms distance noise of the pixels of ``surfaces`` (``(pixels, model)`` pairs) about
     their models were those right: the range noise times each pixel's incidence cosine."""
@@ -230,7 +295,7 @@ def _covers(surfaces: list, idx: np.ndarray) -> bool:
 
 
 def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: list, noise: float | None,
-              kind: str) -> bool:
+              kind: str, *, resolve: bool = False) -> bool:
     # The surfaces take PLANES_COVER of the pixels. One plane (two parameters fewer than the
     # curved model) replaces it when the curved model does not resolve a curvature over the
     # pixels the plane takes (the F-test of curvature_resolved, on the model's own residuals:
@@ -238,7 +303,10 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     # the pixels than the curved model (of ``kind``, its ``distances`` to the pixels ``idx``)
     # and at the noise (facets of a truly curved surface do not fit at the noise): ``noise``,
     # the range noise, or (None: a region beyond the noise of its distances only) that of the
-    # surfaces' distances, _noise_rms.
+    # surfaces' distances, _noise_rms. With ``resolve`` (a curved model within the range
+    # noise) several surfaces must also lower the squared distances by more than their extra
+    # parameters would (the F-test, each plane's three and a border line between two,
+    # against the curved model's own).
     if not _covers(surfaces, idx):
         return False
     taken = sum(piece.size for piece, _ in surfaces)
@@ -248,6 +316,9 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     if len(surfaces) == 1 and isinstance(surfaces[0][1], Plane):
         return not curvature_resolved(squares, model_squares, taken, CURVED_PARAMETERS[kind] - 3)
     if squares > model_squares:
+        return False
+    extra = 4 * len(surfaces) - 1 - CURVED_PARAMETERS[kind]
+    if resolve and not curvature_resolved(model_squares, squares, taken, max(extra, 1)):
         return False
     if noise is None:
         noise = _noise_rms(ctx, surfaces)

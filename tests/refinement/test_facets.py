@@ -108,3 +108,39 @@ def test_a_cylinder_that_took_a_flat_face_gives_it_back(context):
         kinds[k] = out_fits[best]
     assert kinds[1].kind == "cylinder" and abs(kinds[1].radius - 0.3) < 0.003
     assert kinds[2].kind == "plane" and kinds[2].rms < 1.5 * SIGMA
+
+
+def _grazing_crease(seed=0, sigma=0.01):
+    """Two planes meeting at a 12-degree crease, seen at a grazing angle (a floor 1 m below
+    the sensor, 3-5 m ahead) with ``sigma`` of range noise along each ray: ``(xyz, truth)``."""
+    v, u = np.mgrid[0:50, 0:60].astype(float)
+    x, z = -0.6 + u * 0.02, 3.0 + v * 0.04
+    y = np.where(u < 30, -1.0, -1.0 + np.tan(np.radians(12.0)) * x)
+    xyz = np.dstack([x, y, z])
+    ranges = np.linalg.norm(xyz, axis=2, keepdims=True)
+    rng = np.random.default_rng(seed)
+    return xyz * (1.0 + rng.normal(0.0, sigma, ranges.shape) / ranges), np.where(u < 30, 1, 2)
+
+
+def test_a_cylinder_within_the_range_noise_over_a_grazing_crease_becomes_its_planes(context):
+    from rangeseg_o3d.fitting.robust import distance_noise
+
+    sigma = 0.01
+    xyz, truth = _grazing_crease(sigma=sigma)
+    cloud = rs.OrganizedCloud(xyz)
+    points = xyz.reshape(-1, 3)
+    cylinder = fit_cylinder(points)
+    # the premise: the cylinder is within the range noise, but seen this obliquely a right
+    # model leaves only about a quarter of it (the noise of the distances)
+    noise = float(np.sqrt(np.mean(distance_noise(cylinder, points, np.full(len(points), sigma)) ** 2)))
+    assert not beyond_noise(cylinder.rms, sigma, truth.size) and beyond_noise(cylinder.rms, noise, truth.size)
+    out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, sigma)),
+                                             np.ones(cloud.shape, np.int32), {1: cylinder})
+    for k in (1, 2):
+        best, share = best_overlap(out_labels, truth, k)
+        assert best > 0 and share >= 0.85 and (truth[out_labels == best] == k).mean() >= 0.95
+        assert out_fits[best].kind == "plane" and out_fits[best].rms < cylinder.rms
+    # the same crease on a sensor whose distances are as noisy as the cylinder leaves: kept
+    loud = context(cloud, sigma=np.full(cloud.shape, 4.0 * sigma))
+    out_labels, out_fits = planes_for_curved(loud, np.ones(cloud.shape, np.int32), {1: cylinder})
+    assert out_fits == {1: cylinder} and (out_labels == 1).all()

@@ -1,0 +1,190 @@
+"""A cylinder region seen as the two sides of a crease: whether the cylinder misfits it in a
+pattern across its axis, and the cut by angle about the axis into two least-squares planes.
+
+One compiled call per cylinder region (the refinement's facets step asks it of every
+cylinder within the range noise): in numpy the same test was some 25 small-array calls.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from .jit import njit  # numba.njit, with this package's cache locator installed
+
+from .linalg import noise_rms_bound
+from .window import smallest_eigenvalues
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("linalg.py", "window.py")
+
+__all__ = ["crease_sides"]
+
+
+@njit(cache=True, nogil=True)
+def _normals_and_noise(xyz, sigma, pixels, axis, point):
+    # Per pixel: the cylinder's unit radial normal at its foot (zero on the axis) and the
+    # variance of its distance to the cylinder from range noise along its ray
+    # (fitting.robust.distance_noise squared).
+    m = pixels.size
+    normals = np.zeros((m, 3))
+    variance = np.empty(m)
+    for j in range(m):
+        i = pixels[j]
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        rx, ry, rz = x - point[0], y - point[1], z - point[2]
+        along = rx * axis[0] + ry * axis[1] + rz * axis[2]
+        nx, ny, nz = rx - along * axis[0], ry - along * axis[1], rz - along * axis[2]
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm > 0.0:
+            normals[j, 0], normals[j, 1], normals[j, 2] = nx / norm, ny / norm, nz / norm
+        r = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+        cosine = x / r * normals[j, 0] + y / r * normals[j, 1] + z / r * normals[j, 2]
+        variance[j] = (sigma[i] * cosine) ** 2
+    return normals, variance
+
+
+@njit(cache=True, nogil=True)
+def _angle_order(normals, axis):
+    # The pixels' order by angle about the axis (stable), the angle measured from the mean
+    # of their normals: an arc short of a full turn does not straddle the branch cut.
+    m = normals.shape[0]
+    first = np.zeros(3)
+    for j in range(m):
+        for k in range(3):
+            first[k] += normals[j, k]
+    first /= max(m, 1)
+    second = np.array([axis[1] * first[2] - axis[2] * first[1], axis[2] * first[0] - axis[0] * first[2],
+                       axis[0] * first[1] - axis[1] * first[0]])
+    angles = np.empty(m)
+    for j in range(m):
+        angles[j] = math.atan2(normals[j, 0] * second[0] + normals[j, 1] * second[1] + normals[j, 2] * second[2],
+                               normals[j, 0] * first[0] + normals[j, 1] * first[1] + normals[j, 2] * first[2])
+    return np.argsort(angles, kind="mergesort")
+
+
+@njit(cache=True, nogil=True)
+def _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigmas):
+    # The gate: on an even sample of at most ``sample`` pixels, the rms is beyond the noise
+    # of the distances, and so is the mean distance in each of ``bins`` equal-count bins of
+    # angle (a chi-square over the bins, ``sigmas`` deviations up its law). Returns whether,
+    # and the sample's normals and angle order (empty when the rms is within the noise).
+    n = idx.size
+    picks = np.arange(0, n, max(1, n // sample))
+    m = picks.size
+    normals, variance = _normals_and_noise(xyz, sigma, idx[picks], axis, point)
+    squares, noise = 0.0, 0.0
+    for j in range(m):
+        squares += distances[picks[j]] ** 2
+        noise += variance[j]
+    if not math.sqrt(squares / m) > noise_rms_bound(math.sqrt(noise / m), float(m), sigmas):
+        return False, normals, np.zeros(0, np.int64)
+    order = _angle_order(normals, axis)
+    counts, means, spread = np.zeros(bins), np.zeros(bins), np.zeros(bins)
+    for j in range(m):
+        b = j * bins // m
+        counts[b] += 1.0
+        means[b] += distances[picks[order[j]]]
+        spread[b] += variance[order[j]]
+    chi_square = 0.0
+    for b in range(bins):
+        mean = means[b] / counts[b]
+        chi_square += counts[b] * mean * mean / max(spread[b] / counts[b], 1e-24)
+    return chi_square > bins + sigmas * math.sqrt(2.0 * bins), normals, order
+
+
+@njit(cache=True, nogil=True)
+def _cut_positions(n, min_size, cuts):
+    # ``cuts`` equal-count cut positions leaving each side ``min_size`` (np.linspace's values
+    # truncated, without repeats)
+    start, stop = float(min_size), float(n - min_size)
+    step = (stop - start) / (cuts - 1)
+    values = np.empty(cuts, np.int64)
+    for c in range(cuts):
+        values[c] = int(c * step + start) if c < cuts - 1 else int(stop)
+    return np.unique(values)
+
+
+@njit(cache=True, nogil=True)
+def _best_cut(points, order, positions):
+    # The cut position whose two sides' least-squares planes leave the fewest squared
+    # distances: per side the smallest eigenvalue of its scatter, from running sums of the
+    # centred points taken in angle order.
+    n = order.size
+    centre = np.zeros(3)
+    for j in range(n):
+        for k in range(3):
+            centre[k] += points[j, k]
+    centre /= n
+    sums, products = np.zeros((positions.size + 1, 3)), np.zeros((positions.size + 1, 6))
+    s, p = np.zeros(3), np.zeros(6)
+    c = 0
+    for j in range(n):
+        x, y, z = points[order[j], 0] - centre[0], points[order[j], 1] - centre[1], points[order[j], 2] - centre[2]
+        s[0] += x
+        s[1] += y
+        s[2] += z
+        p[0] += x * x
+        p[1] += y * y
+        p[2] += z * z
+        p[3] += x * y
+        p[4] += x * z
+        p[5] += y * z
+        while c < positions.size and positions[c] == j + 1:
+            sums[c], products[c] = s, p
+            c += 1
+    sums[positions.size], products[positions.size] = s, p  # the whole region
+    scatter = np.empty((6, 2 * positions.size))
+    pairs = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+    for c in range(positions.size):
+        left = float(positions[c])
+        right = n - left
+        for e in range(6):
+            a, b = pairs[e]
+            tail_a, tail_b = sums[positions.size, a] - sums[c, a], sums[positions.size, b] - sums[c, b]
+            scatter[e, 2 * c] = products[c, e] - sums[c, a] * sums[c, b] / left
+            scatter[e, 2 * c + 1] = products[positions.size, e] - products[c, e] - tail_a * tail_b / right
+    values = smallest_eigenvalues(scatter)
+    best, best_squares = 0, np.inf
+    for c in range(positions.size):
+        squares = values[2 * c] + values[2 * c + 1]
+        if squares < best_squares:
+            best, best_squares = c, squares
+    return positions[best]
+
+
+@njit(cache=True, nogil=True)
+def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample, cuts, sigmas):
+    """The first side of a cylinder region cut in two by angle about its axis, when the
+    cylinder misfits it in a pattern across the axis; an empty mask otherwise.
+
+    ``xyz`` (N, 3) and ``sigma`` (N,) are the scan's points and range noise, ``idx`` the
+    region's flat pixels, ``distances`` the cylinder's signed distances to them, ``axis``
+    (unit) and ``point`` the cylinder's. The gate, on an even sample of at most ``sample``
+    pixels: their rms is beyond the noise of their distances (range noise along each ray
+    times the incidence cosine, :func:`.linalg.noise_rms_bound` with ``sigmas``), and so
+    is their mean distance in each of ``bins`` equal-count bins of angle about the axis
+    (a chi-square over the bins beyond ``bins + sigmas sqrt(2 bins)``). Then among ``cuts``
+    equal-count cuts of all the pixels ordered by angle (each side at least ``min_size``),
+    the one whose sides' least-squares planes leave the fewest squared distances. Returns
+    a boolean mask over ``idx`` (True: the first side), of length 0 when the gate fails or
+    the region has under ``2 min_size`` pixels.
+    """
+    n = idx.size
+    none = np.zeros(0, np.bool_)
+    if n < 2 * bins:
+        return none
+    misfits, normals, order = _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigmas)
+    if not misfits or n < 2 * min_size:
+        return none
+    if normals.shape[0] < n:  # the gate saw a sample: the cut orders every pixel
+        normals, _ = _normals_and_noise(xyz, sigma, idx, axis, point)
+        order = _angle_order(normals, axis)
+    points = np.empty((n, 3))
+    for j in range(n):
+        points[j] = xyz[idx[j]]
+    cut = _best_cut(points, order, _cut_positions(n, min_size, cuts))
+    first = np.zeros(n, np.bool_)
+    for j in range(cut):
+        first[order[j]] = True
+    return first
