@@ -12,8 +12,8 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .linalg import noise_rms_bound
-from .window import smallest_eigenvalues
+from .linalg import curvature_resolved, noise_rms_bound
+from .window import eigenvectors, smallest_eigenvalues
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("linalg.py", "window.py")
@@ -154,7 +154,56 @@ def _best_cut(points, order, positions):
 
 
 @njit(cache=True, nogil=True)
-def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample, cuts, sigmas):
+def _sides_cannot_explain(points, order, cut, distances, cover, extra, sigmas):
+    # The sides' least-squares planes cannot replace the cylinder, whatever pixels a later
+    # step moves between them or drops: any ``cover`` share of the pixels (``least`` or more)
+    # keeps squared distances no smaller than each pixel's to the nearer plane, and the
+    # cylinder's over them are at most its sum over the region; when even the smallest
+    # ``least`` of the former beat the latter by the curvature test's margin (``extra``
+    # parameters), neither two planes nor one left of them pass it.
+    n = order.size
+    least = int(math.ceil(cover * n))
+    if least <= 6 + extra:
+        return False
+    means = np.zeros((2, 3))
+    for j in range(n):
+        side = 0 if j < cut else 1
+        for k in range(3):
+            means[side, k] += points[order[j], k]
+    means[0] /= cut
+    means[1] /= n - cut
+    scatter = np.zeros((6, 2))
+    for j in range(n):
+        side = 0 if j < cut else 1
+        x = points[order[j], 0] - means[side, 0]
+        y = points[order[j], 1] - means[side, 1]
+        z = points[order[j], 2] - means[side, 2]
+        scatter[0, side] += x * x
+        scatter[1, side] += y * y
+        scatter[2, side] += z * z
+        scatter[3, side] += x * y
+        scatter[4, side] += x * z
+        scatter[5, side] += y * z
+    normals = eigenvectors(scatter, smallest_eigenvalues(scatter))
+    if not (np.isfinite(normals[0, 0]) and np.isfinite(normals[1, 0])):
+        return False
+    nearer = np.empty(n)
+    total = 0.0
+    for j in range(n):
+        near = np.inf
+        for side in range(2):
+            off = 0.0
+            for k in range(3):
+                off += (points[j, k] - means[side, k]) * normals[side, k]
+            near = min(near, off * off)
+        nearer[j] = near
+        total += distances[j] * distances[j]
+    floor = np.sum(np.sort(nearer)[:least])
+    return curvature_resolved(floor, total, least, extra, sigmas)
+
+
+@njit(cache=True, nogil=True)
+def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample, cuts, sigmas, cover, extra):
     """The first side of a cylinder region cut in two by angle about its axis, when the
     cylinder misfits it in a pattern across the axis; an empty mask otherwise.
 
@@ -167,8 +216,10 @@ def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample
     (a chi-square over the bins beyond ``bins + sigmas sqrt(2 bins)``). Then among ``cuts``
     equal-count cuts of all the pixels ordered by angle (each side at least ``min_size``),
     the one whose sides' least-squares planes leave the fewest squared distances. Returns
-    a boolean mask over ``idx`` (True: the first side), of length 0 when the gate fails or
-    the region has under ``2 min_size`` pixels.
+    a boolean mask over ``idx`` (True: the first side), of length 0 when the gate fails,
+    the region has under ``2 min_size`` pixels, or no ``cover`` share of the pixels could
+    be explained by those planes (the curvature test of :func:`.linalg.curvature_resolved`
+    with ``extra`` parameters, a bound: see ``_sides_cannot_explain``).
     """
     n = idx.size
     none = np.zeros(0, np.bool_)
@@ -184,6 +235,8 @@ def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample
     for j in range(n):
         points[j] = xyz[idx[j]]
     cut = _best_cut(points, order, _cut_positions(n, min_size, cuts))
+    if _sides_cannot_explain(points, order, cut, distances, cover, extra, sigmas):
+        return none
     first = np.zeros(n, np.bool_)
     for j in range(cut):
         first[order[j]] = True

@@ -246,39 +246,23 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     arc bent over a crease seen obliquely (two box faces, a wall and a corner of what stands
     before it) is off the same way along whole bands of angle; a right cylinder on a sensor
     noisier than its model says is off at random. The cut is the one of CUTS equal-count
-    cuts by angle (each side ``ctx.min_size``) whose planes leave the fewest squared distances.
+    cuts by angle (each side ``ctx.min_size``) whose planes leave the fewest squared
+    distances; none when even the PLANES_COVER share of the pixels nearest those planes
+    leaves more than the cylinder's curvature test allows (a true cylinder: nothing
+    :func:`_nearest` or :func:`_explains` could accept).
     """
     if not isinstance(model, Cylinder):
         return []
     from ..kernels import crease_sides
 
     first = crease_sides(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64), distances, model.axis,
-                         model.point, ctx.min_size, ANGLE_BINS, MISFIT_SAMPLE, CUTS, CHI_SQUARE_SIGMAS)
+                         model.point, ctx.min_size, ANGLE_BINS, MISFIT_SAMPLE, CUTS, CHI_SQUARE_SIGMAS,
+                         PLANES_COVER, CURVED_PARAMETERS["cylinder"] - 3)
     if not first.size:
         return []
     sides = [idx[first], idx[~first]]
     planes = [fit_plane(ctx.xyz[side]) for side in sides]
-    if not all(planes) or _cannot_explain(ctx, idx, distances, planes):
-        return []
-    return list(zip(sides, planes))
-
-
-def _cannot_explain(ctx: Context, idx: np.ndarray, distances: np.ndarray, planes: list) -> bool:
-    # A bound that spares _nearest and _explains on a true cylinder (its sides' planes leave
-    # many times its squared distances): whatever pixels _nearest moves or cuts off, the
-    # planes keep the PLANES_COVER share (``least`` pixels or more) at squared distances no
-    # smaller than each pixel's to the nearer plane, while the cylinder's over them are at
-    # most its sum over the region. When even the smallest ``least`` of the former beat the
-    # latter by the curvature test's margin, neither two planes nor one that _nearest
-    # leaves can pass _explains (for any surfaces taken >= least pixels).
-    least = int(np.ceil(PLANES_COVER * idx.size))
-    if least <= 3 + CURVED_PARAMETERS["cylinder"]:
-        return False
-    points = ctx.xyz[idx]
-    nearer = np.minimum(np.abs(planes[0].distances(points)), np.abs(planes[1].distances(points)))
-    floor = float(np.sum(np.partition(nearer * nearer, least - 1)[:least]))
-    return bool(curvature_resolved(floor, float(np.sum(distances * distances)), least,
-                                   CURVED_PARAMETERS["cylinder"] - 3))
+    return list(zip(sides, planes)) if all(planes) else []
 
 
 def _noise_rms(ctx: Context, surfaces: list) -> float:

@@ -37,10 +37,10 @@ def _arc(sigma=0.001, range_noise=True, seed=0):
     return xyz + noise * radial / np.linalg.norm(radial, axis=1, keepdims=True)
 
 
-def _sides(points, sigma, cylinder, min_size=10):
+def _sides(points, sigma, cylinder, min_size=10, cover=0.9):
     idx = np.arange(len(points), dtype=np.int64)
     return crease_sides(points, np.full(len(points), sigma), idx, cylinder.distances(points), cylinder.axis,
-                        cylinder.point, min_size, BINS, SAMPLE, CUTS, CHI_SQUARE_SIGMAS)
+                        cylinder.point, min_size, BINS, SAMPLE, CUTS, CHI_SQUARE_SIGMAS, cover, 2)
 
 
 @pytest.mark.parametrize("rows", [50, 200])  # the gate on every pixel, and on a sample of 256
@@ -73,9 +73,12 @@ def test_a_cylinder_off_at_random_is_not_cut():
     sigma = 0.0007  # range noise; along the rays 0.57-0.7 mm of distance noise
     assert np.sqrt(np.mean(distances ** 2)) > 1.3 * sigma
     assert _sides(points, sigma, cylinder).size == 0
-    # four times: the bins' means are beyond that noise too; the cut is made (the facets
-    # step's F-test against the two planes, not this gate, keeps such a cylinder)
-    assert _sides(points, sigma / 4, cylinder).size == len(points)
+    # four times: the bins' means are beyond that noise too and the gate passes, but the
+    # planes of the best cut leave far more than the cylinder: refused by the bound (with
+    # no share to cover, no bound, the cut is returned)
+    assert _sides(points, sigma / 4, cylinder).size == 0
+    first = _sides(points, sigma / 4, cylinder, cover=0.0)
+    assert first.size == len(points) and 10 <= first.sum() <= len(points) - 10
 
 
 def test_a_region_too_small_to_cut_gives_nothing():
