@@ -28,7 +28,7 @@ from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats", "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
-           "merge_touching_planes", "refit_planes_to_pixels"]
+           "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -231,6 +231,31 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     if replaced:
         stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
     return fits, stats
+
+
+def drop_unresolvable_curves(labels: np.ndarray, fits: dict, *, depth_step: float) -> tuple[np.ndarray, dict]:
+    """Cylinders and spheres whose radius is at most ``RELIEF_STEPS`` depth steps are no
+    surfaces: their pixels become unlabelled and their models go.
+
+    A sensor that reports depth in steps of ``depth_step`` shows a curved surface of
+    radius ``R`` as at most ``R / depth_step`` terraces (:mod:`rangeseg_o3d.scales`); a
+    patch of the camera's error standing a few steps off a flat face makes as many, and a
+    cylinder of a few millimetres fits it (ABW: 2-3 mm cylinders of 60-120 pixels inside
+    faces). Returns ``(labels, fits)``, the inputs themselves when nothing is dropped (always
+    when ``depth_step`` is 0: the depth is not quantised).
+    """
+    from .fitting.primitives import Plane
+    from .scales import RELIEF_STEPS
+
+    if depth_step <= 0:
+        return labels, fits
+    limit = RELIEF_STEPS * depth_step
+    drop = [k for k, m in fits.items() if m and not isinstance(m, Plane) and m.radius <= limit]
+    if not drop:
+        return labels, fits
+    keep = np.arange(max(int(labels.max(initial=0)), max(drop)) + 1, dtype=labels.dtype)
+    keep[drop] = 0
+    return keep[labels], {k: m for k, m in fits.items() if k not in drop}
 
 
 def grow_into_free(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,

@@ -15,9 +15,9 @@ from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
-from .fullres import (ExpandedStages, PixelStats, grow_into_free, label_pixels, merge_touching_planes,
-                      planes_for_unresolved, recover_thin_surfaces, refit_planes_to_pixels,
-                      region_stats)
+from .fullres import (ExpandedStages, PixelStats, drop_unresolvable_curves, grow_into_free, label_pixels,
+                      merge_touching_planes, planes_for_unresolved, recover_thin_surfaces,
+                      refit_planes_to_pixels, region_stats)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -261,6 +261,8 @@ class Pipeline:
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
+            # a curved model within a few depth steps is the quantisation's, not a surface
+            labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
         return labels, fits, sigma, stats
 
     @staticmethod

@@ -45,6 +45,11 @@ scan's median range, ``sigma = sigma(r)``):
   normals say nothing about creases. Hence ``t >= q / (WINDOW_STEPS r delta)``, whether
   or not the noise asks for a tile (the quantisation's rms ``q / sqrt(12)`` may well be
   under the spacing while its steps are over it: ABW's 1.26-1.29 mm against 0.4-0.6 mm).
+* ``RELIEF_STEPS``: on such a sensor a cylinder or sphere of radius ``R`` changes its depth by
+  at most ``R`` over its visible half, i.e. over ``R / q`` terraces; at ``RELIEF_STEPS`` or
+  fewer its depth image is a few terraces that a bump of the camera's error makes as well
+  (ABW's 2-3 mm "cylinders" inside flat faces, 4 mm off them), so no curved model that
+  small is kept (:func:`rangeseg_o3d.fullres.drop_unresolvable_curves`).
 
 This module imports numpy only (the spacing measurement imports :mod:`rangeseg_o3d.segmentation.edges`).
 """
@@ -61,7 +66,7 @@ from ._numeric import median
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
            "with_derived_refinement",
            "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
-           "MIN_GRID_CELLS", "MAX_TILE", "WINDOW_STEPS"]
+           "MIN_GRID_CELLS", "MAX_TILE", "WINDOW_STEPS", "RELIEF_STEPS"]
 
 #: A range step over one pixel larger than a surface at ~9.5 deg from grazing makes is a jump.
 GRAZING_TAN = 1.0 / 6.0
@@ -81,6 +86,8 @@ MIN_GRID_CELLS = 48
 MAX_TILE = 8
 #: Tile steps a 3x3 window of the working grid spans (its depth must change by a quantisation step).
 WINDOW_STEPS = 2
+#: Depth steps a curved surface's radius must exceed to be told from the quantisation's terraces.
+RELIEF_STEPS = 3
 # The measurements look at a sub-grid of about this many pixels.
 _SAMPLE_PIXELS = 4096
 

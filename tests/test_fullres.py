@@ -8,8 +8,9 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.region_fitter import model_table
-from rangeseg_o3d.fitting.primitives import Plane
-from rangeseg_o3d.fullres import (ExpandedStages, expand, label_pixels, planes_for_unresolved,
+from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
+from rangeseg_o3d.fullres import (ExpandedStages, drop_unresolvable_curves, expand, label_pixels,
+                                  planes_for_unresolved,
                                   recover_thin_surfaces, region_stats, leftover_blob_labels)
 from rangeseg_o3d.kernels import distance_stats
 from rangeseg_o3d.refinement.recover import leftover_candidates
@@ -366,3 +367,35 @@ def test_pixel_stats_rms_per_label_and_none_without_pixels():
     assert stats.rms(1) == pytest.approx(0.002, rel=1e-12)
     assert stats.rms(2) is None  # a label with no pixel
     assert stats.rms(3) is None and stats.rms(-1) is None  # beyond the table
+
+
+def _curved_scene():
+    # a plane (1), a 2 mm cylinder (2), a 3 mm sphere (3) and a 9 mm cylinder (4) on a 6 x 8 grid
+    labels = np.repeat(np.array([[1, 1, 2, 2, 3, 3, 4, 4]], np.int32), 6, axis=0)
+    labels[0, 0] = 0
+    fits = {1: Plane(np.array([0.0, 0.0, 1.0]), 1.0, rms=0.0004, inliers=12),
+            2: Cylinder(np.array([0.0, 1.0, 0.0]), np.zeros(3), 0.002, rms=0.0004, inliers=12),
+            3: Sphere(np.zeros(3), 0.003, rms=0.0004, inliers=12),
+            4: Cylinder(np.array([0.0, 1.0, 0.0]), np.zeros(3), 0.009, rms=0.0004, inliers=12)}
+    return labels, fits
+
+
+def test_curved_models_within_a_few_depth_steps_lose_their_pixels():
+    labels, fits = _curved_scene()
+    step = 0.00129  # ABW's depth step: 3 steps are 3.87 mm
+    out, kept = drop_unresolvable_curves(labels, fits, depth_step=step)
+    assert sorted(kept) == [1, 4]
+    assert not np.isin(out, [2, 3]).any()
+    assert np.array_equal(out == 0, np.isin(labels, [0, 2, 3]))
+    assert np.array_equal(out[np.isin(labels, [1, 4])], labels[np.isin(labels, [1, 4])])
+    # a radius just over the limit is kept
+    fits[2] = Cylinder(np.array([0.0, 1.0, 0.0]), np.zeros(3), 1.05 * 3 * step, rms=0.0004, inliers=12)
+    assert 2 in drop_unresolvable_curves(labels, fits, depth_step=step)[1]
+
+
+def test_unquantised_depth_keeps_every_curved_model():
+    labels, fits = _curved_scene()
+    out, kept = drop_unresolvable_curves(labels, fits, depth_step=0.0)
+    assert out is labels and kept is fits
+    out, kept = drop_unresolvable_curves(labels, {1: fits[1], 4: fits[4]}, depth_step=0.00129)
+    assert out is labels
