@@ -344,22 +344,78 @@ def circle_scores(n, second, third, fourth, directions, u, v, s):
 @njit(cache=True, nogil=True)
 def _moments(q):
     # second (3x3), third (3x6) and fourth (6x6) moments of centred points, monomials
-    # x2 y2 z2 xy xz yz (as cylinder._Moments)
-    second = np.zeros((3, 3))
-    third = np.zeros((3, 6))
-    fourth = np.zeros((6, 6))
-    quad = np.empty(6)
+    # x2 y2 z2 xy xz yz (as cylinder._Moments). The sums in scalars (see
+    # _sphere_normal_equations), each the same products added in the same order as
+    # array entries updated point by point: the same values
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+    t00 = t01 = t02 = t03 = t04 = t05 = 0.0
+    t10 = t11 = t12 = t13 = t14 = t15 = 0.0
+    t20 = t21 = t22 = t23 = t24 = t25 = 0.0
+    f00 = f01 = f02 = f03 = f04 = f05 = f11 = f12 = f13 = f14 = f15 = 0.0
+    f22 = f23 = f24 = f25 = f33 = f34 = f35 = f44 = f45 = f55 = 0.0
     for i in range(q.shape[0]):
         x, y, z = q[i, 0], q[i, 1], q[i, 2]
-        quad[0], quad[1], quad[2], quad[3], quad[4], quad[5] = x * x, y * y, z * z, x * y, x * z, y * z
-        for a in range(3):
-            for b in range(3):
-                second[a, b] += q[i, a] * q[i, b]
-            for b in range(6):
-                third[a, b] += q[i, a] * quad[b]
-        for a in range(6):
-            for b in range(a, 6):
-                fourth[a, b] += quad[a] * quad[b]
+        xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
+        s00 += x * x
+        s01 += x * y
+        s02 += x * z
+        s11 += y * y
+        s12 += y * z
+        s22 += z * z
+        t00 += x * xx
+        t01 += x * yy
+        t02 += x * zz
+        t03 += x * xy
+        t04 += x * xz
+        t05 += x * yz
+        t10 += y * xx
+        t11 += y * yy
+        t12 += y * zz
+        t13 += y * xy
+        t14 += y * xz
+        t15 += y * yz
+        t20 += z * xx
+        t21 += z * yy
+        t22 += z * zz
+        t23 += z * xy
+        t24 += z * xz
+        t25 += z * yz
+        f00 += xx * xx
+        f01 += xx * yy
+        f02 += xx * zz
+        f03 += xx * xy
+        f04 += xx * xz
+        f05 += xx * yz
+        f11 += yy * yy
+        f12 += yy * zz
+        f13 += yy * xy
+        f14 += yy * xz
+        f15 += yy * yz
+        f22 += zz * zz
+        f23 += zz * xy
+        f24 += zz * xz
+        f25 += zz * yz
+        f33 += xy * xy
+        f34 += xy * xz
+        f35 += xy * yz
+        f44 += xz * xz
+        f45 += xz * yz
+        f55 += yz * yz
+    second = np.empty((3, 3))
+    second[0, 0], second[0, 1], second[0, 2] = s00, s01, s02
+    second[1, 0], second[1, 1], second[1, 2] = s01, s11, s12  # a product commutes exactly
+    second[2, 0], second[2, 1], second[2, 2] = s02, s12, s22
+    third = np.empty((3, 6))
+    third[0, 0], third[0, 1], third[0, 2], third[0, 3], third[0, 4], third[0, 5] = t00, t01, t02, t03, t04, t05
+    third[1, 0], third[1, 1], third[1, 2], third[1, 3], third[1, 4], third[1, 5] = t10, t11, t12, t13, t14, t15
+    third[2, 0], third[2, 1], third[2, 2], third[2, 3], third[2, 4], third[2, 5] = t20, t21, t22, t23, t24, t25
+    fourth = np.empty((6, 6))
+    fourth[0, 0], fourth[0, 1], fourth[0, 2], fourth[0, 3], fourth[0, 4], fourth[0, 5] = f00, f01, f02, f03, f04, f05
+    fourth[1, 1], fourth[1, 2], fourth[1, 3], fourth[1, 4], fourth[1, 5] = f11, f12, f13, f14, f15
+    fourth[2, 2], fourth[2, 3], fourth[2, 4], fourth[2, 5] = f22, f23, f24, f25
+    fourth[3, 3], fourth[3, 4], fourth[3, 5] = f33, f34, f35
+    fourth[4, 4], fourth[4, 5] = f44, f45
+    fourth[5, 5] = f55
     _symmetrise(fourth)
     return second, third, fourth
 
