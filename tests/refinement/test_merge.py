@@ -227,3 +227,36 @@ def test_merge_into_curved_refuses_a_piece_out_of_the_cylinders_reach_without_a_
         assert ctx.fitter.refits == 0 and (out == labels).all() and out_fits == fits
     else:
         assert ctx.fitter.refits == 1 and (out == 1).all() and out_fits[1].kind == "cylinder"
+
+
+def _table_and_small_face(noise=0.002):
+    # a 100 x 800 table (1) and, at its right end, a face 5 columns wide rising at 15
+    # degrees (2), up to 27 mm over the table's plane: a small face at a crease beside a
+    # large plane, its points 18 mm rms off the table's plane (9 noise sigmas)
+    xyz = plane_grid(100, 805, noise=noise, seed=5)
+    xyz[:, 800:, 2] += np.tan(np.radians(15.0)) * (xyz[:, 800:, 0] - xyz[0, 799, 0])
+    labels = np.ones((100, 805), np.int32)
+    labels[:, 800:] = 2
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    return xyz, labels, fits
+
+
+def test_a_small_face_at_a_crease_stays_apart_from_a_large_plane(context):
+    xyz, labels, fits = _table_and_small_face()
+    # the union's rms alone would take the face: it is within the merge's factor
+    union = fit_plane(xyz.reshape(-1, 3))
+    assert union.rms <= 1.3 * max(fits[1].rms, fits[2].rms)
+    out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, {(1, 2)},
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
+    assert set(merged) == {1, 2}
+    assert np.array_equal(out, labels)
+
+
+def test_a_piece_of_the_same_plane_beside_a_large_one_still_merges(context):
+    xyz = plane_grid(100, 805, noise=0.002, seed=5)
+    labels = np.ones((100, 805), np.int32)
+    labels[:, 800:] = 2
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, {(1, 2)},
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
+    assert set(merged) == {1} and (out == 1).all()
