@@ -419,16 +419,21 @@ def block_means(xyz, stride, min_count):
     h, w = (big_h + stride - 1) // stride, (big_w + stride - 1) // stride
     sums = np.zeros((h, w, 3))
     counts = np.zeros((h, w), np.int64)
+    # Block by block along each row, the block's sums in registers (loaded when the row
+    # enters the block, stored when it leaves: the same additions in the same order), where
+    # a division and a store and reload per pixel chained each pixel to the last.
     for r in range(big_h):
         br = r // stride
-        for c in range(big_w):
-            x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
-            if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
-                bc = c // stride
-                sums[br, bc, 0] += x
-                sums[br, bc, 1] += y
-                sums[br, bc, 2] += z
-                counts[br, bc] += 1
+        for bc in range(w):
+            sx, sy, sz, m = sums[br, bc, 0], sums[br, bc, 1], sums[br, bc, 2], counts[br, bc]
+            for c in range(bc * stride, min(bc * stride + stride, big_w)):
+                x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+                if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                    sx += x
+                    sy += y
+                    sz += z
+                    m += 1
+            sums[br, bc, 0], sums[br, bc, 1], sums[br, bc, 2], counts[br, bc] = sx, sy, sz, m
     for br in range(h):
         for bc in range(w):
             if counts[br, bc] >= max(min_count, 1):
