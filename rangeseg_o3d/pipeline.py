@@ -17,7 +17,7 @@ from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_unresolvable_curves, grow_into_free, label_pixels,
                       merge_touching_planes, planes_for_unresolved, recover_thin_surfaces,
-                      refit_planes_to_pixels, region_stats)
+                      refit_planes_to_pixels, region_stats, settle_creases)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -304,8 +304,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                 sigma: np.ndarray, ranges: np.ndarray, refine, tile_labels: np.ndarray):
     """Regions grow into the free pixels their models explain
     (:func:`rangeseg_o3d.fullres.grow_into_free`), then pieces of one plane that meet merge
-    (:func:`rangeseg_o3d.fullres.merge_touching_planes`); ``(labels, fits, stats)``. A plane
-    whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
+    (:func:`rangeseg_o3d.fullres.merge_touching_planes`), and the pixels beside a crease go to
+    the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`);
+    ``(labels, fits, stats)``. A plane whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
     (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
 
     Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
@@ -327,6 +328,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                                                     max_angle_deg=refine.merge_angle_deg,
                                                     rms_factor=refine.merge_rms_factor,
                                                     inlier_factor=INLIER_SIGMAS, near=near)
+    # the pixels beside a crease: the planes' rays decide where the noise cannot
+    labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
+                                   min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)
     return labels, fits, stats
 
 

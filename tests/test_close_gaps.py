@@ -208,3 +208,63 @@ def test_abw_surfaces_the_tile_grid_split_are_found_whole():
             score = hoover(image.truth_ids, labels, tolerance=0.8, min_region=1, count_unlabelled=True)
             found[key] = truth_id in score.correct
         assert found == {"with": True, "without": False}, (name, found)
+
+
+def _crease(slope, h=20, w=60, step=0.0005):
+    # rays of a camera at the origin (``step`` rad apart) onto a frontal plane A (z = 2 m,
+    # label 1) and a plane B through the line x = 0 of A (label 2): z = 2 - slope x. With
+    # slope > 0, B comes towards the camera (a concave crease: each region in front of the
+    # other's plane), with slope < 0 it recedes (convex). Each ray takes the face it meets
+    # (concave: the nearer plane, convex: the farther), so the truth follows the geometry.
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    rays = np.dstack([(u - w / 2 + 0.5) * step, (v - h / 2) * step, np.ones((h, w))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    t_a = 2.0 / rays[..., 2]
+    t_b = 2.0 / (rays[..., 2] + slope * rays[..., 0])
+    on_b = (t_b < t_a) if slope > 0 else (t_b > t_a)
+    truth = np.where(on_b, 2, 1).astype(np.int32)
+    xyz = rays * np.where(on_b, t_b, t_a)[..., None]
+    norm = np.hypot(1.0, slope)
+    fits = {1: Plane(np.array([0.0, 0.0, 1.0]), 2.0, 0.001, 100),
+            2: Plane(np.array([slope, 0.0, 1.0]) / norm, 2.0 / norm, 0.001, 100)}
+    return xyz, truth, fits
+
+
+@pytest.mark.parametrize("slope", [1.2, -1.2])
+def test_pixels_beside_a_crease_go_to_the_face_their_rays_meet(slope):
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(slope)
+    first_b = int(np.argmax(truth[0] == 2))  # B holds the columns right of the crease
+    assert 20 < first_b < 40 and (truth[:, first_b:] == 2).all() and (truth[:, :first_b] == 1).all()
+    # the noise's choice: B's two columns beside the crease given to A, and A's to B
+    labels = truth.copy()
+    labels[:, first_b:first_b + 2] = 1
+    labels[:5, first_b - 2:first_b] = 2
+    sigma = np.full(truth.shape, 0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    out, stats = settle_creases(cloud, labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                                k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert np.array_equal(out, truth)
+    np.testing.assert_array_equal(stats.counts[1:3], np.bincount(truth.ravel(), minlength=3)[1:3])
+
+
+def test_crease_settling_leaves_planes_turned_less_than_the_limit_and_far_pixels_alone():
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(0.03)  # 1.7 degrees between the planes
+    labels = truth.copy()
+    first_b = int(np.argmax(truth[0] == 2))
+    labels[:, first_b:first_b + 2] = 1
+    sigma = np.full(truth.shape, 0.001)
+    stats = _stats(xyz, labels, fits, sigma)
+    out, same = settle_creases(rs.OrganizedCloud(xyz), labels, fits, stats, sigma=sigma, k_sigma=3.0,
+                               min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert out is labels and same is stats
+    # at 50 degrees, pixels beyond the noise of the other plane stay where they are
+    xyz, truth, fits = _crease(1.2)
+    labels = truth.copy()
+    labels[:, :10] = 2  # far from the crease on A's side: B's plane is centimetres away
+    out, _ = settle_creases(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                            k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert (out[:, :7] == 2).all()
