@@ -13,7 +13,9 @@ import numpy as np
 
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
+from ..fitting.robust import curvature_resolved
 from .context import Context, touching
+from .merge import MODEL_PARAMETERS
 
 __all__ = ["absorb_ripples", "dissolve_small"]
 
@@ -52,7 +54,7 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
         ])
         best = np.argmin(score, axis=0)
         explained = score[best, np.arange(idx.size)] <= k_sigma
-        if explained.mean() < 0.8:
+        if explained.mean() < 0.8 or _stands_apart(pts, fits.get(small), [fits[k] for k in hosts], best):
             continue
         new_labels = np.where(explained, np.asarray(hosts)[best], 0)
         flat[idx] = new_labels
@@ -66,6 +68,20 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
         if refit:
             fits[k] = refit
     return labels, fits
+
+
+def _stands_apart(points: np.ndarray, own, hosts: list, best: np.ndarray) -> bool:
+    """Whether the region's ``own`` model, of a kind none of the ``hosts`` that would take
+    its ``points`` (``best``, per point) has, lowers their squared distances from those to
+    the hosts by more than its parameters would on noise (an F-test): a surface of its own
+    (a pipe's end cap, within a far stereo camera's range noise of the pipe's cylinder),
+    not a blob at a junction. Hosts of its own kind were weighed by the merge already (a
+    piece of a plane whose small fit a quantised camera tilts stays with its plane)."""
+    if not own or any(hosts[i].kind == own.kind for i in np.unique(best).tolist()):
+        return False
+    host_squares = sum(float(np.sum(host.distances(points[best == i]) ** 2)) for i, host in enumerate(hosts))
+    own_squares = float(np.sum(own.distances(points) ** 2))
+    return curvature_resolved(host_squares, own_squares, len(points), MODEL_PARAMETERS[own.kind])
 
 
 def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray,

@@ -121,35 +121,83 @@ def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray,
 
 def _nearest(ctx: Context, surfaces: list) -> list[tuple[np.ndarray, object]]:
     """``surfaces`` with a pixel they took moved to another whose model is nearer by more
-    than SETTLE_MARGIN times the noise of its distance to its own (each cut to its largest
-    connected piece). The sequential split hands the first surface every pixel within its
-    inlier band, the rim of a pipe's end cap with it; the margin leaves the pixels on the
-    crease line, which both explain, where they were (as the settle step does)."""
+    than SETTLE_MARGIN times the noise of its distance to its own, twice: a surface whose
+    pixels changed is refitted to them in between (the split's model was pulled towards the
+    pixels it took from its neighbour: a pipe's cylinder over the wall beside it) and at the
+    end. Each surface is then cut to its connected pieces of ``ctx.min_size``, a curved one
+    to its largest (a few pixels apart determine a plane, not a curvature). The sequential
+    split hands the first surface every pixel within its inlier band, the rim of a pipe's
+    end cap with it; the margin leaves the pixels on the crease line, which both explain,
+    where they were (as the settle step does)."""
     if len(surfaces) < 2:
         return surfaces
     pixels = np.concatenate([piece for piece, _ in surfaces])
-    owner = np.repeat(np.arange(len(surfaces)), [piece.size for piece, _ in surfaces])
+    start = np.repeat(np.arange(len(surfaces)), [piece.size for piece, _ in surfaces])
     points = ctx.xyz[pixels]
-    distances = np.stack([np.abs(model.distances(points)) for _, model in surfaces])
+    models = [model for _, model in surfaces]
+    owner = start
+    for _ in range(NEAREST_ROUNDS):
+        moved = _moved_to_nearer(ctx, pixels, points, owner, models)
+        if moved is None:
+            break
+        owner = moved
+        models = [_refit_to(ctx, np.sort(np.concatenate(_pieces_of(ctx, pixels[owner == i], model) or [pixels[:0]])),
+                            model) for i, model in enumerate(models)]
+    if owner is start:
+        return surfaces
+    kept = []
+    for i, model in enumerate(models):
+        pieces = _pieces_of(ctx, pixels[owner == i], model)
+        for piece in pieces:
+            own = _refit_to(ctx, np.sort(piece), model) if len(pieces) > 1 else model
+            if own and own.kind == model.kind:
+                kept.append((np.sort(piece), own))
+    return kept
+
+
+def _pieces_of(ctx: Context, idx: np.ndarray, model) -> list[np.ndarray]:
+    # the connected pieces of ``ctx.min_size`` of the pixels ``idx`` a surface holds; of a
+    # curved one only the largest (a few pixels apart determine a plane, not a curvature)
+    pieces = ctx.pieces(np.sort(idx))  # smallest first
+    return pieces if isinstance(model, Plane) else pieces[-1:]
+
+
+#: Rounds of :func:`_nearest` (each with the models refitted to the pixels the last one left them).
+NEAREST_ROUNDS = 2
+
+
+def _moved_to_nearer(ctx: Context, pixels: np.ndarray, points: np.ndarray, owner: np.ndarray, models: list):
+    # ``owner`` with each pixel nearer another model by more than SETTLE_MARGIN times the noise
+    # of its distance to its own (the range noise along the ray) given to it; None if none is
+    distances = np.stack([np.abs(model.distances(points)) for model in models])
     nearest = np.argmin(distances, axis=0)
     move = np.flatnonzero(nearest != owner)
-    # those nearer another by more than the margin: the noise of their distance to their own
-    # model (the range noise along the ray), one model at a time
     gain = distances[owner[move], move] - distances[nearest[move], move]
-    for i, (_, model) in enumerate(surfaces):
+    for i, model in enumerate(models):
         mine = owner[move] == i
         gain[mine] -= SETTLE_MARGIN * distance_noise(model, points[move[mine]], ctx.sigma[pixels[move[mine]]])
     move = move[gain > 0]
     if not move.size:
-        return surfaces
+        return None
+    owner = owner.copy()
     owner[move] = nearest[move]
-    kept = []
-    for i, (_, model) in enumerate(surfaces):
-        mine = np.sort(pixels[owner == i])
-        piece = np.sort(ctx.largest_piece(mine)) if mine.size else mine
-        if piece.size >= ctx.min_size:
-            kept.append((piece, model))
-    return kept
+    return owner
+
+
+def _refit_to(ctx: Context, idx: np.ndarray, model):
+    # ``model`` refitted to the pixels ``idx``: the refit from it or, for a curved model, the
+    # fitter's own fit from scratch, whichever of the model's kind fits closer (a refit
+    # started from a model pulled far off, a pipe's cylinder bent over the wall beside it,
+    # can stay in its valley); the model itself when neither keeps its kind or too few
+    # pixels are left
+    if idx.size < ctx.min_size:
+        return model
+    points = ctx.fitter.points(ctx.xyz, idx)
+    tries = [ctx.fitter.refit(points, model)]
+    if not isinstance(model, Plane):
+        tries.append(ctx.fitter.fit(points))
+    tries = [m for m in tries if m and m.kind == model.kind]
+    return min(tries, key=lambda m: m.rms) if tries else model
 
 
 def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):

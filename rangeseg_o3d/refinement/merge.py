@@ -14,7 +14,7 @@ from .._numeric import median
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise, union_out_of_reach
+from ..fitting.robust import beyond_noise, curvature_resolved, union_out_of_reach
 from .context import Context
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
@@ -80,10 +80,14 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
                 and abs(a.d - sign * b.d) <= tolerance)
     # the radius test first: two numbers, and it rejects most pairs
     if isinstance(a, Cylinder):
-        if abs(a.radius - b.radius) > tolerance or _angle_deg(a.axis, b.axis) > max_angle_deg:
+        if abs(a.radius - b.radius) > tolerance:
             return False
+        # each axis passes within the tolerance of the other's point (the axis point nearest
+        # its region): two pieces of one pipe seen apart agree where their pixels are, though
+        # the axis of a short or noisy piece is known only to several degrees
         rel = b.point - a.point
-        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= tolerance)
+        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= tolerance
+                    and np.linalg.norm(rel - (rel @ b.axis) * b.axis) <= tolerance)
     if isinstance(a, Sphere):
         return abs(a.radius - b.radius) <= tolerance and bool(np.linalg.norm(a.center - b.center) <= tolerance)
     return False
@@ -323,6 +327,23 @@ class _Unions:
         return lut
 
 
+#: Parameters of each kind's model: what the piece's own model is weighed by against the union's.
+MODEL_PARAMETERS = {"plane": 3, "sphere": 4, "cylinder": 5}
+
+
+def _own_model_resolves(ctx: Context, piece: np.ndarray, own, union) -> bool:
+    """Whether the piece's ``own`` model lowers the squared distances of its pixels ``piece``
+    from the ``union``'s by more than its parameters would on noise (the F-test of
+    :func:`rangeseg_o3d.fitting.robust.curvature_resolved`): a strip of the curved surface
+    lies on the union's model as closely as on its own, a pipe's end cap does not, though
+    on a far stereo camera both fit within the range noise (the cap faces the sensor, its
+    noise is the whole range noise; the pipe's flanks graze it)."""
+    points = ctx.xyz[piece]
+    own_squares = float(np.sum(own.distances(points) ** 2))
+    union_squares = float(np.sum(union.distances(points) ** 2))
+    return curvature_resolved(union_squares, own_squares, piece.size, MODEL_PARAMETERS[own.kind])
+
+
 def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
                       rms_factor: float, only: set | None = None, near_sigmas: float | None = None):
     """Pieces of a curved surface taken by another kind go back to it: returns new
@@ -381,6 +402,8 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
         if union.rms > limit:
             continue
         if beyond_noise(union.rms, median(ctx.sigma[union_idx]), union_idx.size):
+            continue
+        if _own_model_resolves(ctx, regions[small], fits[small], union):
             continue
         fits[big] = union
         del fits[small]
