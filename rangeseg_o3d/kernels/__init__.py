@@ -37,7 +37,7 @@ _SOURCES = {
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "sides": ("crease_sides",),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
-    "window": ("window_moments", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
+    "window": ("window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
                "ray_steps", "blind_spacing"),
 }
 _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}

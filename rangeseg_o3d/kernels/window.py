@@ -15,7 +15,7 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["window_moments", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
+__all__ = ["window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
            "ray_steps", "blind_spacing"]
 
 
@@ -29,6 +29,40 @@ def _reference(xyz, r0, r1, c0, c1, r, c):
             if xyz[i, j, 2] == xyz[i, j, 2]:
                 return i, j
     return r, c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _window_scatter(xyz, half, r, c):
+    # The valid points of the window of pixel (r, c), clipped at the grid border: (count,
+    # mean x, y, z, centred scatter xx, yy, zz, xy, xz, yz), summed about the window's
+    # reference point; NaN mean and zero scatter when it has none.
+    h, w = xyz.shape[0], xyz.shape[1]
+    r0, r1 = max(r - half, 0), min(r + half + 1, h)
+    c0, c1 = max(c - half, 0), min(c + half + 1, w)
+    rr, cc = _reference(xyz, r0, r1, c0, c1, r, c)
+    ox, oy, oz = xyz[rr, cc, 0], xyz[rr, cc, 1], xyz[rr, cc, 2]
+    n = 0.0
+    sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
+    for i in range(r0, r1):
+        for j in range(c0, c1):
+            z = xyz[i, j, 2]
+            if z == z:
+                x, y, z = xyz[i, j, 0] - ox, xyz[i, j, 1] - oy, z - oz
+                n += 1.0
+                sx += x
+                sy += y
+                sz += z
+                sxx += x * x
+                syy += y * y
+                szz += z * z
+                sxy += x * y
+                sxz += x * z
+                syz += y * z
+    if n == 0.0:
+        return n, np.nan, np.nan, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    mx, my, mz = sx / n, sy / n, sz / n
+    return (n, mx + ox, my + oy, mz + oz, sxx - sx * mx, syy - sy * my, szz - sz * mz,
+            sxy - sx * my, sxz - sx * mz, syz - sy * mz)
 
 
 @njit(cache=True, nogil=True)
@@ -45,40 +79,44 @@ def window_moments(xyz, window):
     mean = np.full((3, h, w), np.nan)
     scatter = np.zeros((6, h, w))
     for r in range(h):
-        r0, r1 = max(r - half, 0), min(r + half + 1, h)
         for c in range(w):
-            c0, c1 = max(c - half, 0), min(c + half + 1, w)
-            rr, cc = _reference(xyz, r0, r1, c0, c1, r, c)
-            ox, oy, oz = xyz[rr, cc, 0], xyz[rr, cc, 1], xyz[rr, cc, 2]
-            n = 0.0
-            sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
-            for i in range(r0, r1):
-                for j in range(c0, c1):
-                    z = xyz[i, j, 2]
-                    if z == z:
-                        x, y, z = xyz[i, j, 0] - ox, xyz[i, j, 1] - oy, z - oz
-                        n += 1.0
-                        sx += x
-                        sy += y
-                        sz += z
-                        sxx += x * x
-                        syy += y * y
-                        szz += z * z
-                        sxy += x * y
-                        sxz += x * z
-                        syz += y * z
-            if n == 0.0:
+            sums = _window_scatter(xyz, half, r, c)
+            if sums[0] == 0.0:
                 continue
-            mx, my, mz = sx / n, sy / n, sz / n
-            count[r, c] = n
-            mean[0, r, c], mean[1, r, c], mean[2, r, c] = mx + ox, my + oy, mz + oz
-            scatter[0, r, c] = sxx - sx * mx
-            scatter[1, r, c] = syy - sy * my
-            scatter[2, r, c] = szz - sz * mz
-            scatter[3, r, c] = sxy - sx * my
-            scatter[4, r, c] = sxz - sx * mz
-            scatter[5, r, c] = syz - sy * mz
+            count[r, c] = sums[0]
+            for k in range(3):
+                mean[k, r, c] = sums[1 + k]
+            for k in range(6):
+                scatter[k, r, c] = sums[4 + k]
     return count, mean, scatter
+
+
+@njit(cache=True, nogil=True)
+def window_normals(xyz, window, wanted):
+    """Unit normals ``(H, W, 3)`` of the windows of the pixels ``wanted`` ((H, W) bool), NaN
+    elsewhere (and where undefined): the values :func:`window_moments`,
+    :func:`smallest_eigenvalues` and :func:`eigenvectors` give those pixels over the whole
+    grid (each window's sums and eigenpair are its own), at the cost of those pixels only."""
+    h, w = xyz.shape[0], xyz.shape[1]
+    half = window // 2
+    rows = np.empty(h * w, np.int64)
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if wanted[r, c]:
+                rows[m] = r * w + c
+                m += 1
+    scatter = np.zeros((6, m))
+    for k in range(m):
+        sums = _window_scatter(xyz, half, rows[k] // w, rows[k] % w)
+        for i in range(6):
+            scatter[i, k] = sums[4 + i]
+    vectors = eigenvectors(scatter, smallest_eigenvalues(scatter))
+    out = np.full((h, w, 3), np.nan)
+    for k in range(m):
+        r, c = rows[k] // w, rows[k] % w
+        out[r, c, 0], out[r, c, 1], out[r, c, 2] = vectors[k, 0], vectors[k, 1], vectors[k, 2]
+    return out
 
 
 @njit(cache=True, nogil=True, inline="always")

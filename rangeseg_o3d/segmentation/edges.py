@@ -136,8 +136,8 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
     (mask, window) : (H, W) bool crease pixels, and the window used (0 when the test did
     not run because the residual sees creases everywhere).
     """
-    from ..kernels import blind_spacing, crease_mask
-    from .residual import residual_image
+    from ..kernels import blind_spacing, crease_mask, window_normals
+    from .residual import _check_grid
 
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
@@ -161,15 +161,15 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
     with np.errstate(invalid="ignore", divide="ignore"):
         tolerance = np.maximum(limit, k_sigma * np.sqrt(2.0) * _slope_noise(sigma, spacing, window))
     tolerance = np.where(blind, np.minimum(tolerance, 1.0), np.nan)
-    # window normals only where a test needs them: the blind pixels' box, a window around
+    # the test's grid: the blind pixels' box, a window around
     rows, cols = np.nonzero(blind)
     reach = window
     top, left = max(rows.min() - reach, 0), max(cols.min() - reach, 0)
     bottom, right = rows.max() + reach + 1, cols.max() + reach + 1
     box = (slice(top, bottom), slice(left, right))
-    _, normals = residual_image(xyz[box], window=window, min_valid=max(4, window * window // 2),
-                                ranges=ranges[box], sigma0=1.0, with_normals=True)
+    # window normals only at the blind pixels: crease_mask compares normals only where the
+    # tolerance is set (a third of a 2 cm laser's grid, none of most of a 5 mm one's)
+    normals = window_normals(_check_grid(xyz[box], window), int(window), np.ascontiguousarray(blind[box]))
     mask = np.zeros(ranges.shape, bool)
-    mask[box] = crease_mask(np.ascontiguousarray(normals), np.ascontiguousarray(tolerance[box]),
-                            window // 2)
+    mask[box] = crease_mask(normals, np.ascontiguousarray(tolerance[box]), window // 2)
     return mask, window

@@ -194,3 +194,34 @@ def test_residual_without_normals_equals_the_step_by_step_residual_bit_for_bit()
         assert normals is None
         assert np.array_equal(fused, stepwise)
         assert np.isinf(fused[np.isnan(xyz[..., 2])]).all()
+
+
+@pytest.mark.parametrize("window", [3, 5, 9])
+def test_window_normals_at_chosen_pixels_equal_the_whole_grids_bit_for_bit(window):
+    # the crease test asks for the normals of its blind pixels only: the same values as the
+    # whole grid's at those pixels (windows clipped at the border, invalid points, a window
+    # with no valid point), NaN at the others
+    from rangeseg_o3d.kernels import window_normals
+    from rangeseg_o3d.segmentation.residual import _check_grid
+
+    rng = np.random.default_rng(window)
+    rows, cols = np.mgrid[0:23, 0:31]
+    xyz = np.stack([cols * 0.01, rows * 0.01, 2.0 + 0.01 * np.sin(cols / 4.0) + 0.001 * rng.normal(size=rows.shape)],
+                   axis=-1)
+    xyz[rng.random(rows.shape) < 0.15] = np.nan
+    xyz[10:10 + window, 20:20 + window] = np.nan  # a window without a valid point
+    _, whole = residual_image(xyz, window=window, min_valid=4, with_normals=True)
+    wanted = rng.random(rows.shape) < 0.4
+    wanted[10 + window // 2, 20 + window // 2] = True
+    wanted[0, :] = wanted[:, -1] = True  # border windows
+    normals = window_normals(_check_grid(xyz, window), window, wanted)
+    assert np.array_equal(normals[wanted], whole[wanted], equal_nan=True)
+    assert np.isnan(normals[~wanted]).all()
+    assert np.isnan(normals[10 + window // 2, 20 + window // 2]).all()
+    assert np.isfinite(normals[wanted & np.isfinite(whole[..., 0])]).all()
+    # unit normals of the surface z = 2 + 0.01 sin(x / 0.04) (slope at most 0.25): near z
+    finite = wanted & np.isfinite(normals[..., 0])
+    assert np.allclose(np.linalg.norm(normals[finite], axis=1), 1.0, atol=1e-12)
+    assert np.median(np.abs(normals[finite][:, 2])) > 0.9
+    nothing = window_normals(_check_grid(xyz, window), window, np.zeros(rows.shape, bool))
+    assert nothing.shape == xyz.shape and np.isnan(nothing).all()
