@@ -104,6 +104,8 @@ class Pipeline:
         self._derived_segmenter = [k for k in _DERIVED_SEGMENTER
                                    if k in self._segmenter_args and self._segmenter_args[k] is None]
         self._derived_refine = [k for k in _DERIVED_REFINE if getattr(self.config.refine, k) is None]
+        # the settings of every run when no derived value depends on the cloud (set by the first run)
+        self._fixed_settings: _Settings | None = None
 
     def scales(self, cloud: OrganizedCloud) -> Scales | None:
         """The scales derived for ``cloud`` (:func:`rangeseg_o3d.scales.scales_for_cloud`),
@@ -120,6 +122,23 @@ class Pipeline:
         refine = self.config.refine.model_copy(
             update={k: getattr(scales, k) for k in self._derived_refine})
         return _Settings(scales.tile, args, refine)
+
+    def _settings(self, cloud: OrganizedCloud) -> _Settings:
+        """The run's settings for ``cloud``; computed once when they cannot depend on it."""
+        if self._fixed_settings is not None:
+            return self._fixed_settings
+        settings = self._with_scales(self.scales(cloud))
+        if self._scales_ignore_cloud():
+            self._fixed_settings = settings
+        return settings
+
+    def _scales_ignore_cloud(self) -> bool:
+        # The derived values read the cloud through its median range (only for the noise
+        # there: a constant without the noise's range term), its measured spacing (when the
+        # sensor gives none) and its shape (only for a tile the preset leaves to the sensor).
+        sensor = self.sensor
+        return (self.config.tile is not None and sensor.noise.sigma_quadratic == 0.0
+                and sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None)
 
     def _fitter_for(self, work: OrganizedCloud) -> RegionFitter:
         """The fitter for ``work``'s points. On a tile grid they are means of ``tile x tile``
@@ -163,7 +182,7 @@ class Pipeline:
         if self.keep_memory and large_frame(cloud.shape):
             keep_freed_memory()  # once per process: a no-op from the second call on
         clock = _Clock()
-        settings = self._with_scales(self.scales(cloud))
+        settings = self._settings(cloud)
         work = cloud.tile_means(settings.tile) if settings.tile > 1 else cloud
         segmentation = self._segment(work, settings)
         clock.timings.update(segmentation.timings)
@@ -219,8 +238,16 @@ class Pipeline:
     def _refine(self, work: OrganizedCloud, regions: Regions, jumps, timings: dict, refine,
                 fitter: RegionFitter):
         """The refined regions (``regions`` when refinement is off) and the noise per pixel of ``work``."""
-        ranges = np.where(work.valid, work.range_image(), np.nan)
-        sigma = self.sensor.noise.sigma(ranges, work.samples)
+        if work.samples is None:  # one compiled pass, the same values
+            from .kernels import ranges_and_noise
+
+            noise = self.sensor.noise
+            ranges, sigma = ranges_and_noise(_read_only(work.range_image(), np.float64),
+                                             _read_only(work.valid, np.bool_), float(noise.sigma0),
+                                             float(noise.sigma_quadratic))
+        else:
+            ranges = np.where(work.valid, work.range_image(), np.nan)
+            sigma = self.sensor.noise.sigma(ranges, work.samples)
         if refine.enabled:
             regions = refine_regions(work, regions, fitter=fitter, config=refine,
                                      sensor=self.sensor, ranges=ranges, sigma=sigma, jumps=jumps,

@@ -139,17 +139,21 @@ def residual_image(
     xyz = _check_grid(xyz, window)
     if not 3 < min_valid <= window * window:
         raise ValueError(f"min_valid must be in 4..{window * window}; got {min_valid}")
-    if ranges is None:
-        ranges = np.linalg.norm(xyz, axis=2)
     if not with_normals:  # one compiled pass, the same values as the steps below
         from ..kernels import window_residuals
 
         shape = xyz.shape[:2]
+        quadratic = np.asarray(sigma_quadratic * noise_scale, dtype=np.float64)
+        if ranges is None:
+            # the ranges enter through the quadratic term only: without it, sigma0 + 0 r^2 is
+            # sigma0 at any range (and the windows of non-finite points are edges either way)
+            ranges = np.linalg.norm(xyz, axis=2) if np.any(quadratic) else 0.0
         ranges = np.ascontiguousarray(np.broadcast_to(np.asarray(ranges, dtype=np.float64), shape))
-        quadratic = np.ascontiguousarray(np.broadcast_to(
-            np.asarray(sigma_quadratic * noise_scale, dtype=np.float64), shape))
+        quadratic = np.ascontiguousarray(np.broadcast_to(quadratic, shape))
         return window_residuals(xyz, int(window), int(min_valid), _read_only(ranges),
                                 float(sigma0), _read_only(quadratic)), None
+    if ranges is None:
+        ranges = np.linalg.norm(xyz, axis=2)
     count, _, scatter = neighbourhood_moments(xyz, window=window)
     eigenvalue, normals = smallest_eigenpairs(scatter)
     normals = np.moveaxis(normals, 0, 2)
