@@ -149,10 +149,11 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     from .scales import with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
-    # Twice the smallest region: a piece of a surface the tiles already have, left over
-    # where its model drifts from the noisy far pixels, is smaller; a surface the tiles
-    # could not see at all is not.
-    min_size = 2 * max(int(config.min_region_size), 10)
+    # The smallest region: a grazing face a few pixels wide (a box side) is no larger. The
+    # bands of other surfaces a blob this small may hold fit the plane along their viewing
+    # rays within the range noise; recover_pixels holds a recovered plane to the noise of
+    # its distances, which refuses them (a doubled floor kept them out, and those faces too).
+    min_size = max(int(config.min_region_size), 10)
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.

@@ -189,12 +189,15 @@ def test_abw_surfaces_the_tile_grid_split_are_found_whole():
     # pieces either side of a band (gt 21), the thin grazing face of image 3 (gt 10), a
     # grazing face of image 4 in two touching pieces (gt 8). With close_gaps each is one
     # region holding >= 80 % of the surface and >= 80 % of it on the surface (T = 0.8);
-    # without, none is.
+    # without, neither of the two in pieces is. The thin face of image 3 is recovered whole
+    # without close_gaps too: its leftover blob is above the recovery's floor, the smallest
+    # region (recover_thin_surfaces).
     from rangeseg_o3d.evaluation import hoover
     from rangeseg_o3d.io.abw import abw_images, load_abw
 
     paths = {p.name: p for p in abw_images()}
     wanted = {"abw.test.2.npz": 21, "abw.test.3.npz": 10, "abw.test.4.npz": 8}
+    without_finds = {"abw.test.3.npz"}
     if not set(wanted) <= set(paths):
         pytest.skip("no ABW images in ../shared/data/abw")
     config = rs.load_config("abw")
@@ -207,7 +210,7 @@ def test_abw_surfaces_the_tile_grid_split_are_found_whole():
             labels = rs.Pipeline(cfg).run(image.cloud).labels
             score = hoover(image.truth_ids, labels, tolerance=0.8, min_region=1, count_unlabelled=True)
             found[key] = truth_id in score.correct
-        assert found == {"with": True, "without": False}, (name, found)
+        assert found == {"with": True, "without": name in without_finds}, (name, found)
 
 
 def _crease(slope, h=20, w=60, step=0.0005):

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
-from ..fitting.robust import beyond_noise, trimmed_fit
+from ..fitting.robust import beyond_noise, distance_noise, trimmed_fit
 
 __all__ = ["Context", "blob_patch", "touching", "without"]
 
@@ -42,6 +42,8 @@ def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
 #: Inliers whose largest 4-connected piece holds less than this share of them are not one
 #: piece of a surface (the model is refitted to the piece, or searched for again).
 _ONE_PIECE = 0.9
+# a point within this many sigmas of its distance noise lies on the plane
+_TRIM_SIGMAS = 3.0
 
 
 class Context:
@@ -130,6 +132,38 @@ class Context:
         if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
             model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
         return (piece, model) if model else (None, None)
+
+    def within_distance_noise(self, pool: np.ndarray, model):
+        # the largest connected piece of ``pool`` within _TRIM_SIGMAS distance noises of the
+        # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
+        # floor and its refit plane explains it within that noise; else (None, None)
+        points = self.xyz[pool]
+        near = np.abs(model.distances(points)) <= _TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
+        piece = self.largest_piece(pool[near])
+        if piece.size < self.min_size:
+            return None, None
+        model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+        if not model or self.plane_along_rays(model, piece):
+            return None, None
+        return piece, model
+
+    def plane_along_rays(self, model, idx: np.ndarray) -> bool:
+        """Whether ``model`` is a plane whose distances to the flat pixels ``idx`` are
+        beyond the noise of those distances (the range noise times the incidence cosine,
+        :func:`rangeseg_o3d.fitting.robust.distance_noise`; chi-square bound).
+
+        A band a few rows thick of any surface lies within the range noise of the plane
+        through the viewing rays of its middle row: seen along its rays, that plane's
+        distances carry almost none of the range noise, so the band's spread across the
+        rays is what its rms measures. A true face, grazing or not, moves its points
+        along the rays only, by the noise its incidence cosine leaves.
+        """
+        if not model or model.kind != "plane" or idx.size < 3:
+            return False
+        points = self.xyz[idx]
+        noise = distance_noise(model, points, self.sigma[idx])
+        rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
+        return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size))
 
 
 def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width: int):

@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
-from ..fitting.robust import beyond_noise
+from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
+from ..kernels.linalg import noise_rms_bound
 from ..scales import GRAZING_TAN
 from .context import Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
@@ -143,16 +144,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     near = np.flatnonzero(within.any(axis=1))
     if near.size < ctx.min_size:
         return labels, fits
-    # connected pieces first, then their plane (the one explaining most of the piece):
-    # coplanar regions not merged yet (pieces of one wall) would otherwise share a strip
-    # between them, each part under the floor
-    ids, _ = ctx.piece_ids(free[near])
-    at, plane = np.nonzero(within[near])
-    n_pieces = int(ids.max()) + 1
-    votes = np.bincount(ids[at] * len(planes) + plane,
-                        minlength=n_pieces * len(planes)).reshape(n_pieces, len(planes))
-    plane_of = np.argmax(votes, axis=1)[ids]
-    member = within[near, plane_of]
+    member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
     # the members of different pieces never touch: one pass finds their connected parts
     pixels, owner = free[near[member]], np.asarray(planes)[plane_of[member]]
     parts, sizes = ctx.piece_ids(pixels)
@@ -174,6 +166,83 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     grown = labels.copy()
     grown.ravel()[pixels[kept]] = owner[kept]
     return grown, refit_grown(ctx, labels, grown, fits)
+
+
+def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray, n_planes: int):
+    # connected pieces of the flat ``pixels`` first, then their plane (the column of
+    # ``within``, pixels x planes, explaining most of the piece): coplanar regions not
+    # merged yet (pieces of one wall) would otherwise share a strip between them, each part
+    # under the floor. Returns (whether each pixel is explained by its piece's plane, that
+    # plane's column per pixel).
+    ids, _ = ctx.piece_ids(pixels)
+    at, plane = np.nonzero(within)
+    n_pieces = int(ids.max()) + 1
+    votes = np.bincount(ids[at] * n_planes + plane,
+                        minlength=n_pieces * n_planes).reshape(n_pieces, n_planes)
+    plane_of = np.argmax(votes, axis=1)[ids]
+    return within[np.arange(pixels.size), plane_of], plane_of
+
+
+def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: np.ndarray, *,
+                            k_sigma: float, apart: bool = True) -> np.ndarray:
+    """The free pixels of the flat ``pool`` that lie on a plane region's surface join it;
+    returns the labels (changed in place when C-contiguous).
+
+    A band of a far wall left over above an object, too thin for its own plane to be told
+    from the plane along its viewing rays, is a piece of a wall the scan already has. Each
+    free pixel within ``k_sigma`` noises of a plane (the noise of its distance: range noise
+    times the incidence cosine, or the plane's rms when larger) votes for it; each
+    connected piece goes to the plane most of it lies on, and its pixels on that plane join
+    the region where they make a connected part of at least the size floor whose rms
+    distance to it is within the chi-square bound of that noise; a smaller part joins only
+    a region it touches, and so does every part unless ``apart`` (pieces of one surface
+    apart are one region: see :func:`recover_leftovers`). Planes only, as in
+    :func:`claim_occluded_strips`.
+    """
+    planes = [k for k, m in fits.items() if m and m.kind == "plane"]
+    # a piece lying on two planes (a band across a room's corner) goes to the one most of
+    # it lies on first; what is left of it is a piece of its own the next time round
+    while planes and _claim_once(ctx, labels, fits, planes, pool, k_sigma, apart):
+        pass
+    return labels
+
+
+def _claim_once(ctx: Context, labels: np.ndarray, fits: dict, planes: list, pool: np.ndarray,
+                k_sigma: float, apart: bool) -> bool:
+    # one round of claim_on_distance_noise; whether it claimed any pixel
+    free = pool[labels.reshape(-1)[pool] == 0]
+    if free.size < ctx.min_size:
+        return False
+    points = ctx.xyz[free]
+    normals = np.array([fits[k].normal for k in planes])
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    noise = np.maximum(ctx.sigma[free, None] * np.abs(rays @ normals.T),
+                       np.array([fits[k].rms for k in planes]))
+    distances = points @ normals.T - np.array([fits[k].d for k in planes])
+    within = np.abs(distances) <= k_sigma * noise
+    near = np.flatnonzero(within.any(axis=1))
+    if near.size < ctx.min_size:
+        return False
+    member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
+    rows, columns = near[member], plane_of[member]
+    parts, sizes = ctx.piece_ids(free[rows])
+    counts = np.maximum(sizes, 1)
+    mean_squares = np.bincount(parts, weights=distances[rows, columns] ** 2, minlength=sizes.size) / counts
+    noise_squares = np.bincount(parts, weights=noise[rows, columns] ** 2, minlength=sizes.size) / counts
+    # a part smaller than the floor joins only the region it touches (growth's case)
+    column = np.full(int(labels.max()) + 1, -1)
+    column[planes] = np.arange(len(planes))
+    own = np.zeros(within[rows].shape, bool)
+    own[np.arange(rows.size), columns] = True
+    touches = np.bincount(parts, weights=_touches_explaining(labels, free[rows], own, column),
+                          minlength=sizes.size) > 0
+    bound = noise_rms_bound.py_func(np.sqrt(noise_squares), counts.astype(float), CHI_SQUARE_SIGMAS)
+    kept = (((sizes >= ctx.min_size) & apart) | touches) & (np.sqrt(mean_squares) <= bound)
+    if not kept.any():
+        return False
+    take = kept[parts]
+    labels.reshape(-1)[free[rows[take]]] = np.asarray(planes)[columns[take]]
+    return True
 
 
 def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits: dict,
@@ -275,9 +344,15 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     numbered above every label: :func:`rangeseg_o3d.fullres.leftover_blob_labels`), are each
     split into every surface they hold (:func:`split_blobs`). At grazing angles every
     pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
-    rim their regions take back are limited by it: the model distance decides. ``boxes``
-    (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then gathered
-    from it, not from the whole grid).
+    rim their regions take back are limited by it: the model distance decides. Before the
+    blobs are fitted, their pixels on a plane region's surface join it
+    (:func:`claim_on_distance_noise`; apart from it only with ``config.merge_disjoint``);
+    after, a recovered plane beyond the noise of its pixels' distances
+    (:func:`_planes_along_rays`) merges into no plane and, unless it rejoins a curved region,
+    keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
+    ``config.merge_disjoint`` the free pixels are offered to the planes once more.
+    ``boxes`` (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then
+    gathered from it, not from the whole grid).
     """
     first = int(labels.max(initial=0)) + 1
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
@@ -290,8 +365,22 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         bounds = starts.tolist()
         regions = {first + j: order[bounds[j]:bounds[j + 1]] for j in range(len(boxes))
                    if bounds[j + 1] > bounds[j]}
+    # a blob's pixels on the plane of a region the scan has (a piece of it left over where
+    # its tile model drifts from the noisy pixels) are that region's before any is fitted
+    labels = np.array(labels, dtype=np.int32, order="C")
+    pool = (np.flatnonzero(candidates.reshape(-1)) if regions is None
+            else np.sort(np.concatenate(list(regions.values()))))
+    claim_on_distance_noise(ctx, labels, fits, pool, k_sigma=config.k_sigma, apart=config.merge_disjoint)
+    claimed = labels.reshape(-1)[pool] > 0
+    if claimed.any():
+        candidates = candidates.copy()
+        candidates.reshape(-1)[pool[claimed]] = 0
+        if regions is not None:
+            regions = {k: kept for k, idx in regions.items() if (kept := idx[labels.reshape(-1)[idx] == 0]).size}
+    before = labels.copy()
     labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions)
     new = {k: m for k, m in fits.items() if k >= first and m}
+    refused = _planes_along_rays(ctx, labels, fits, new)
     if new:
         from ..kernels import claim_rings, member_pixels
 
@@ -323,9 +412,17 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
             near = {(min(k, j), max(k, j)) for k, idx in regions.items()
                     for j in touching(labels, idx, reach=2) if j != k}
-            labels, fits, near = merge_regions(ctx, labels, fits, near, max_angle_deg=config.merge_angle_deg,
+            # a plane beyond its distance noise would tilt the plane it merged into: it may
+            # only rejoin a curved region (below), as a strip of a pipe does
+            apart = {k: fits.pop(k) for k in refused}
+            labels, fits, near = merge_regions(ctx, labels, fits, {p for p in near if not apart.keys() & set(p)},
+                                               max_angle_deg=config.merge_angle_deg,
                                                tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
-                                               rms_factor=config.merge_rms_factor, only=set(new))
+                                               rms_factor=config.merge_rms_factor, only=set(new) - refused)
+            fits.update(apart)
+            # their neighbours as the merges left them
+            near = set(near) | {(min(k, j), max(k, j)) for k, idx in region_indices(labels, only=refused).items()
+                                for j in touching(labels, idx, reach=2) if j != k}
             # The side of a column or pipe turning away from the camera: the tile means
             # there straddle the turn, so the tile grid left it, and at full resolution
             # its strip fits a plane within the noise. It rejoins the curved region when
@@ -333,4 +430,56 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             # tile regions were tried on the tile grid).
             labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor,
                                                 only=set(new), near_sigmas=config.k_sigma)
+        labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused)
+    if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
+        labels = np.ascontiguousarray(labels)
+        labels = claim_on_distance_noise(ctx, labels, fits, np.flatnonzero((labels == 0) & cloud.valid),
+                                         k_sigma=config.k_sigma)
+    return labels, fits
+
+
+def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict) -> set:
+    """The planes found in the blobs (``new``) that do not explain their pixels within the
+    noise of their distances (:meth:`Context.plane_along_rays`).
+
+    A band a few pixels thick, of any surface or of two faces across a crease, lies within
+    the range noise of the plane through its viewing rays; the fitter, which holds a plane
+    to the range noise, takes it. Such a plane's distances carry almost none of the range
+    noise (its incidence cosine is near zero), so its rms is far beyond them.
+    """
+    planes = [k for k, m in new.items() if m.kind == "plane"]
+    if not planes:
+        return set()
+    pixels = region_indices(labels)
+    return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
+
+
+def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.ndarray, fits: dict,
+                                   refused: set):
+    """``(labels, fits)`` with each plane of ``refused`` that no curved region took cut to
+    the largest piece of its pixels within their distance noise of it, refitted, when that
+    piece keeps the size floor and is explained (a true face the band held beside a few
+    pixels of its neighbours, :meth:`Context.within_distance_noise`); its other pixels go
+    back to the regions they had ``before`` (free where that region is gone).
+    """
+    left = [k for k in refused if fits.get(k)]
+    if not left:
+        return labels, fits
+    labels = np.ascontiguousarray(labels)
+    pixels = region_indices(labels)
+    flat, old = labels.reshape(-1), before.reshape(-1)
+    alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
+    alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
+    for k in left:
+        idx = pixels.get(k)
+        if idx is None:
+            continue
+        piece, model = ctx.within_distance_noise(idx, fits[k])
+        previous = old[idx]
+        flat[idx] = np.where(alive[previous], previous, 0)
+        if piece is None:
+            del fits[k]
+        else:
+            flat[piece] = k
+            fits[k] = model
     return labels, fits

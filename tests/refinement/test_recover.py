@@ -276,3 +276,94 @@ def test_claim_occluded_strips_gives_a_grazing_row_on_the_plane_to_its_region(co
     assert (out[6] == 1).all()  # on the floor within its distance noise: joins it, whatever its size
     assert (out[7] == 0).all()  # 2 cm above it, within the range noise's 3 sigmas but not on it
     assert abs(new_fits[1].normal[1]) > np.cos(np.radians(0.5))
+
+
+def _band_of_a_ball(seed=0, rows=8):
+    # the top band of a ball (radius 0.4 m, 5.4 m away) seen by a 525-pixel pinhole camera
+    # over ``rows`` image rows, Kinect-type range noise along the rays (4 cm there): a
+    # band of a curved surface a few pixels thick. Returns (points, sigma per point).
+    focal, centre, radius = 525.0, np.array([0.0, 0.0, 5.4]), 0.4
+    top = -int(focal * radius / centre[2]) + 2
+    v, u = np.mgrid[top:top + rows, -40:41].astype(float)
+    rays = np.dstack([u / focal, v / focal, np.ones_like(u)])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    along = rays @ centre
+    inside = along ** 2 - (centre @ centre - radius ** 2)
+    hit = inside > 0
+    ranges = along[hit] - np.sqrt(inside[hit])
+    sigma = 0.001 + 1.425e-3 * ranges ** 2
+    ranges = ranges + np.random.default_rng(seed).normal(0.0, sigma)
+    return rays[hit] * ranges[:, None], sigma
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_plane_along_rays_refuses_the_ray_plane_of_a_thin_band_and_keeps_a_grazing_face(context, seed):
+    # The band's least-squares plane lies along its viewing rays and fits it within the
+    # range noise (what the fitter asks of a plane), though no plane is on the ball: its
+    # rms is far beyond the noise of its distances. A floor seen 1.5-2.5 degrees from
+    # grazing, the true plane of its pixels, is within that noise.
+    points, sigma = _band_of_a_ball(seed)
+    band = fit_plane(points)
+    assert band.rms < np.sqrt(np.mean(sigma ** 2))  # within the range noise
+    cloud = rs.OrganizedCloud(points.reshape(1, -1, 3))
+    ctx = context(cloud, sigma=sigma.reshape(1, -1))
+    assert ctx.plane_along_rays(band, np.arange(points.shape[0]))
+
+    xyz, labels = _floor_seen_near_grazing(seed)
+    floor_cloud = rs.OrganizedCloud(xyz)
+    floor = np.flatnonzero((labels == 1).ravel())
+    plane = fit_plane(xyz.reshape(-1, 3)[floor])
+    floor_ctx = context(floor_cloud, sigma=np.full((12, 40), 0.005))
+    assert not floor_ctx.plane_along_rays(plane, floor)
+    assert not floor_ctx.plane_along_rays(None, floor)  # no model, nothing to refuse
+
+
+def _wall_band_behind_a_box(seed=0, offset=0.0):
+    # a wall 6 m away (Kinect-type noise along the rays, 5 cm) seen by a 525-pixel pinhole
+    # camera; a box 2 m away hides rows 8-29; the wall above it is a free band of 8 rows
+    # (plus ``offset`` metres towards the camera: another surface), the wall below it its
+    # region. Returns (cloud, labels, fits, sigma).
+    from rangeseg_o3d.synthetic.depth_camera import KINECT_NOISE
+
+    focal = 525.0
+    v, u = np.mgrid[-30:30, -60:60].astype(float)
+    rays = np.dstack([u / focal, v / focal, np.ones_like(u)])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    depth = np.full(u.shape, 6.0)
+    depth[8:30] = 2.0
+    depth[:8] -= offset
+    ranges = depth / rays[..., 2]
+    sigma = 0.001 + KINECT_NOISE * ranges ** 2
+    ranges = ranges + np.random.default_rng(seed).normal(0.0, sigma)
+    xyz = rays * ranges[..., None]
+    labels = np.zeros(u.shape, np.int32)
+    labels[8:30] = 2
+    labels[30:] = 1
+    fits = {1: fit_plane(xyz[30:].reshape(-1, 3)), 2: fit_plane(xyz[8:30].reshape(-1, 3))}
+    return rs.OrganizedCloud(xyz), labels, fits, sigma
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_on_distance_noise_gives_a_wall_band_apart_from_its_region_to_it(context, seed):
+    from rangeseg_o3d.refinement.recover import claim_on_distance_noise
+
+    cloud, labels, fits, sigma = _wall_band_behind_a_box(seed)
+    out = claim_on_distance_noise(context(cloud, min_size=200, sigma=sigma), labels.copy(), fits,
+                                  np.flatnonzero(labels.ravel() == 0), k_sigma=3.0)
+    assert (out[:8] == 1).mean() > 0.97  # the band is the wall's, across the box
+    assert (out[8:] == labels[8:]).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_on_distance_noise_leaves_a_band_off_the_plane_free(context, seed):
+    # the band 15 cm in front of the wall (3 distance-noise sigmas) is another surface:
+    # many of its pixels lie within the wall's 3 sigmas, but not the band as a whole
+    from rangeseg_o3d.refinement.recover import claim_on_distance_noise
+
+    cloud, labels, fits, sigma = _wall_band_behind_a_box(seed, offset=0.15)
+    out = claim_on_distance_noise(context(cloud, min_size=200, sigma=sigma), labels.copy(), fits,
+                                  np.flatnonzero(labels.ravel() == 0), k_sigma=3.0)
+    assert (out[:8] == 0).all()
+    # an empty pool or no plane: nothing to claim
+    assert (claim_on_distance_noise(context(cloud, min_size=200, sigma=sigma), labels.copy(), {},
+                                    np.flatnonzero(labels.ravel() == 0), k_sigma=3.0) == labels).all()
