@@ -28,6 +28,29 @@ def _distance(kind, prm, x, y, z):
     return np.inf
 
 @njit(cache=True, nogil=True, inline="always")
+def _incidence(kind, prm, x, y, z):
+    # |cos| of the angle between the ray to (x, y, z) (from the sensor at the origin) and the
+    # model's normal at the point's foot; 1 for "no model"
+    r = np.sqrt(x * x + y * y + z * z)
+    if r == 0.0:
+        return 1.0
+    if kind == PLANE:
+        nx, ny, nz = prm[0], prm[1], prm[2]
+    elif kind == SPHERE:
+        nx, ny, nz = x - prm[0], y - prm[1], z - prm[2]
+    elif kind == CYLINDER:
+        rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
+        along = rx * prm[0] + ry * prm[1] + rz * prm[2]
+        nx, ny, nz = rx - along * prm[0], ry - along * prm[1], rz - along * prm[2]
+    else:
+        return 1.0
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if norm == 0.0:
+        return 1.0
+    return abs(nx * x + ny * y + nz * z) / (norm * r)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _neighbour(i, step, h, w):
     # Flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i; -1 off the grid.
     r, c = i // w, i % w

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance, _nearest_neighbour_model, _neighbour
+from .inline import _distance, _incidence, _nearest_neighbour_model, _neighbour
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py")
@@ -129,11 +129,20 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 if not np.isfinite(z):
                     continue
                 noise = sigma[i]
-                best, best_score, best_dist = 0, k_sigma, 0.0
+                best, best_score, best_dist = 0, np.inf, 0.0
                 for j in range(m):
                     k = table[tr, tc, j]
                     dist = _distance(kinds[k], params[k], x, y, z)
-                    score = dist / max(noise, rms[k])
+                    # explained within k_sigma (the own region at the bound too)...
+                    limit = k_sigma * max(noise, rms[k])
+                    if not (dist < limit or (j == 0 and own_first and dist <= limit)):
+                        continue
+                    # ...and of those, the one it is fewest noise sigmas off, each in the noise
+                    # of its own distances (range noise x incidence cosine: a pipe's end cap
+                    # faces the sensor, the pipe's flanks graze it; a box face seen edge-on
+                    # takes no pixel of the face beside it that the noise along the rays
+                    # could not have moved onto it)
+                    score = dist / max(noise * _incidence(kinds[k], params[k], x, y, z), rms[k])
                     # neighbours must beat what is found so far
                     if score < best_score or (j == 0 and own_first and score <= best_score):
                         best, best_score, best_dist = k, score, dist
