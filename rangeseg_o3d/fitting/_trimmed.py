@@ -81,7 +81,7 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
                      hemi_u,
                      hemi_v, hemi_s, cones, plane_rms, cylinder_rms, sphere_rms, rms_per_range2, max_radius,
                      min_arc, curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
-                     max_iterations, noise_floor, seeds):
+                     max_iterations, noise_floor, seeds, given):
     """``trimmed_fit(xyz, judge, pool=pool, ...)`` with ``judge`` the region fitter's
     ``fit`` (points subsampled to ``fit_max_points``, at least ``fit_min_points`` of them,
     then ``primitive_decision`` with the arguments after ``max_rms``), refusing a model
@@ -95,9 +95,14 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
     largest first, at most :data:`LOCAL_JUDGED` judged, the first answer at the noise
     ends the search and only an answer at the noise counts.
 
-    Returns ``(found, ints, floats, centroid, normal, codes, curved, inliers)``: whether a
-    model won, its decision packed (:data:`DECISION_INTS`, :data:`DECISION_FLOATS` and the
-    arrays of :class:`rangeseg_o3d.fitting._decide.Decision`) and its inliers among the pool.
+    The proposals depend on the pool's points, ``sigma`` and the seeds only, not on the
+    judge: ``given`` (a proposals array this search returned for the same pool, sigma and
+    seeds; no rows: none) is judged instead of computing them again.
+
+    Returns ``(found, ints, floats, centroid, normal, codes, curved, inliers, proposals)``:
+    whether a model won, its decision packed (:data:`DECISION_INTS`, :data:`DECISION_FLOATS`
+    and the arrays of :class:`rangeseg_o3d.fitting._decide.Decision`), its inliers among the
+    pool and the proposals judged (in order; what ``given`` takes).
     """
     ints = np.zeros(DECISION_INTS, np.int64)
     floats = np.zeros(DECISION_FLOATS)
@@ -108,15 +113,17 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
     size = pool.shape[0]
     local = seeds.shape[0] > 0
     if size < max(min_points, 6) or (local and size < 2 * min_points):
-        return False, ints, floats, centroid, normal, codes, curved, best_mask
+        return False, ints, floats, centroid, normal, codes, curved, best_mask, np.zeros((0, 0), np.bool_)
     step = -(-size // max_points)
     m = -(-size // step)
     pts = np.empty((m, 3))
     for i in range(m):
         pts[i] = xyz[pool[i * step]]
-    if local:
+    limit = LOCAL_JUDGED if local else 2
+    if given.shape[0] > 0:
+        proposals = given
+    elif local:
         proposals = _distinct(local_proposals(pts, sigma, rounds, seeds, max(m // seeds.shape[0], 6)))
-        limit = LOCAL_JUDGED
     else:
         keep = max(int(keep_fraction * m), 6)
         trials = 64 if size < many_points else 256
@@ -126,7 +133,6 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
         first_quad = quad_near.sum() > plane_near.sum()
         proposals[0] = quad_near if first_quad else plane_near
         proposals[1] = plane_near if first_quad else quad_near
-        limit = 2
     found, best_noise, best_count, judged = False, False, -1, 0
     row = np.zeros(PARAM_SLOTS)
     for turn in range(proposals.shape[0]):
@@ -189,7 +195,7 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
             break
     if local and not best_noise:  # and only an answer at the noise
         found = False
-    return found, ints, floats, centroid, normal, codes, curved, best_mask
+    return found, ints, floats, centroid, normal, codes, curved, best_mask, proposals
 
 
 #: Distinct local proposals the fitter judges at most (``trimmed_fit``'s ``_LOCAL_JUDGED``).

@@ -209,7 +209,7 @@ def model_of_decision(decision) -> Plane | Cylinder | Sphere:
 
 
 def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: float, fit_max_points: int,
-                      planes_only: bool = False, starts: bool = False, **params):
+                      planes_only: bool = False, starts: bool = False, proposals: dict | None = None, **params):
     """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of the points ``xyz[pool]`` judged by
     :func:`fit_primitive` with the keywords ``params`` on at most ``fit_max_points`` points (as a
     :class:`rangeseg_o3d.fitting.region_fitter.RegionFitter` judges), refusing models with an
@@ -217,6 +217,10 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
     (``min_inliers`` is ``trimmed_fit``'s ``min_points``). With ``planes_only`` the judge is
     :func:`rangeseg_o3d.fitting.plane.fit_plane` on all the points instead (``params`` unused).
     With ``starts``, ``trimmed_fit(..., starts=True)``: the proposals grown from local starts.
+    ``proposals``: a memo of the searches' proposals, which depend on the pool, ``sigma`` and
+    ``starts`` only (not on the judge), kept by a caller that searches the same pools of the
+    same ``xyz`` with several judges (the facets step); a search of a pool it holds judges
+    them without computing them again (the same answer).
 
     ``xyz`` a C-ordered float64 (N, 3) array, ``pool`` int64 indices into it.
     """
@@ -225,9 +229,13 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
 
     search, judge = _trimmed_arguments(bool(planes_only), tuple(params.items()))
     seeds = _local_seeds(len(pool)) if starts else _NO_SEEDS
-    found, ints, floats, centroid, normal, codes, curved, inliers = trimmed_decision(
+    key = None if proposals is None else (pool.tobytes(), float(sigma), bool(starts))
+    given = _NO_PROPOSALS if key is None else proposals.get(key, _NO_PROPOSALS)
+    found, ints, floats, centroid, normal, codes, curved, inliers, judged = trimmed_decision(
         xyz, pool, float(sigma), int(min_inliers), *search, int(fit_max_points), judge[0], float(max_rms),
-        *judge[1:], seeds)
+        *judge[1:], seeds, given)
+    if key is not None:
+        proposals[key] = judged
     if not found:
         return None, None
     kind, status, first, plane_inliers = ints.tolist()
@@ -275,20 +283,24 @@ def _local_seeds(size: int) -> np.ndarray:
 
 
 def trimmed_plane(points: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
-                  max_rms: float = np.inf, starts: bool = False):
+                  max_rms: float = np.inf, starts: bool = False, proposals: dict | None = None):
     """``trimmed_fit(points, judge, pool=pool, starts=starts, ...)`` with ``judge`` the
     least-squares plane (:func:`rangeseg_o3d.fitting.plane.fit_plane`) refused over
-    ``max_rms``, in one compiled call (:func:`trimmed_primitive`): the same
-    ``(model, inliers)``."""
+    ``max_rms``, in one compiled call (:func:`trimmed_primitive`, ``proposals`` its memo):
+    the same ``(model, inliers)``."""
     from .robust import pool_points
 
     xyz, indices = pool_points(points, pool)
+    if not np.may_share_memory(xyz, points):  # the pool's points gathered: indices name no pool of points
+        proposals = None
     return trimmed_primitive(xyz, indices, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
-                             fit_max_points=max(len(indices), 1), planes_only=True, starts=starts)
+                             fit_max_points=max(len(indices), 1), planes_only=True, starts=starts,
+                             proposals=proposals)
 
 
 _NO_HINT = np.full(3, np.nan)  # no cylinder axis hint (read only by the compiled code)
 _NO_SEEDS = np.zeros(0, np.int64)  # the global search (no local starts)
+_NO_PROPOSALS = np.zeros((0, 0), np.bool_)  # proposals not known: the search computes them
 _PRIMITIVE_DEFAULTS = {name: parameter.default for name, parameter in
                        inspect.signature(fit_primitive).parameters.items()
                        if parameter.kind == inspect.Parameter.KEYWORD_ONLY}

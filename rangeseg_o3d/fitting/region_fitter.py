@@ -130,11 +130,13 @@ class RegionFitter:
             return FitFailure(kind="any", reason=str(exc))
 
     def trimmed(self, xyz_flat: np.ndarray, pool: np.ndarray, *, sigma: float, min_points: int,
-                max_rms: float = np.inf, starts: bool = False):
+                max_rms: float = np.inf, starts: bool = False, proposals: dict | None = None):
         """:func:`rangeseg_o3d.fitting.robust.trimmed_fit` of ``xyz_flat[pool]`` judged by
         :meth:`fit` (models over ``max_rms`` refused; with ``starts``, from local starts) in
         the plugin's one call, or None when the plugin has none (or the points are not a
-        C-ordered float64 array): the caller then runs ``trimmed_fit`` itself."""
+        C-ordered float64 array): the caller then runs ``trimmed_fit`` itself. ``proposals``
+        (given only when not None): the plugin's memo of the searches' proposals
+        (:func:`rangeseg_o3d.fitting.classify.trimmed_primitive`)."""
         if (self.plugin.trimmed is None or xyz_flat.dtype != np.float64 or xyz_flat.ndim != 2
                 or not xyz_flat.flags.c_contiguous):
             return None
@@ -143,12 +145,12 @@ class RegionFitter:
             xyz_flat.flags.writeable = False  # as a cloud's points are: one compiled signature
         if pool.dtype != np.int64 or not pool.flags.c_contiguous:
             pool = np.ascontiguousarray(pool, dtype=np.int64)
+        extra = {} if proposals is None else {"proposals": proposals}
+        if starts:
+            extra["starts"] = True
         try:
-            if starts:
-                return self.plugin.trimmed(xyz_flat, pool, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
-                                           fit_max_points=self.max_points, starts=True, **self.params)
             return self.plugin.trimmed(xyz_flat, pool, sigma=sigma, min_inliers=min_points, max_rms=max_rms,
-                                       fit_max_points=self.max_points, **self.params)
+                                       fit_max_points=self.max_points, **extra, **self.params)
         except ValueError:  # as fit: a bad region is no answer
             return None, None
 

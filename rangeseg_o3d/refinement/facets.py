@@ -55,11 +55,15 @@ CUTS = 33
 
 class _PlaneJudge:
     """A planes-only stand-in for the pipeline's fitter (what :class:`Context` calls),
-    refusing a plane whose rms exceeds ``max_rms``."""
+    refusing a plane whose rms exceeds ``max_rms``. ``proposals``: the compiled searches'
+    memo of proposals (:func:`rangeseg_o3d.fitting.classify.trimmed_primitive`), shared by the
+    judges of one region: both split it from the same pools, and a pool's proposals do not
+    depend on the judge."""
 
-    def __init__(self, fitter, max_rms: float):
+    def __init__(self, fitter, max_rms: float, proposals: dict | None = None):
         self.fitter = fitter
         self.max_rms = max_rms
+        self.proposals = proposals
 
     def fit(self, points: np.ndarray):
         plane = fit_plane(points)
@@ -75,7 +79,7 @@ class _PlaneJudge:
                 starts: bool = False):
         # trimmed_fit with this judge in one compiled call (what Context.dominant_piece asks)
         return trimmed_plane(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms,
-                             starts=starts)
+                             starts=starts, proposals=self.proposals)
 
 
 class _BoundJudge(_PlaneJudge):
@@ -93,7 +97,7 @@ class _BoundJudge(_PlaneJudge):
                 starts: bool = False):
         # the fitter's compiled trimmed fit with this judge's bound (None: it has none)
         return self.fitter.trimmed(xyz_flat, pool, sigma=sigma, min_points=min_points, max_rms=self.max_rms,
-                                   starts=starts)
+                                   starts=starts, proposals=self.proposals)
 
 
 def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray, object]]:
@@ -232,7 +236,8 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
         distances = model.distances(ctx.xyz[idx])
         rms = float(np.sqrt(np.mean(distances * distances)))
         if beyond_noise(rms, sigma, idx.size):
-            judges, noise = (_PlaneJudge(ctx.fitter, rms), _BoundJudge(ctx.fitter, rms)), sigma
+            proposals = {}  # both judges search the same first pools
+            judges, noise = (_PlaneJudge(ctx.fitter, rms, proposals), _BoundJudge(ctx.fitter, rms, proposals)), sigma
         elif _holds_another(ctx, model, idx, distances, rms):
             judges, noise = (_BoundJudge(ctx.fitter, rms),), None  # the model's own kind and the other's
         else:
