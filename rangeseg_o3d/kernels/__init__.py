@@ -33,7 +33,7 @@ _SOURCES = {
              "relabel", "grow_rings", "jump_mask", "largest_piece", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
-                  "height_field_shape", "settle_planes", "count_inliers", "distance_stats"),
+                  "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise"),
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "sides": ("crease_sides",),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),

@@ -14,7 +14,7 @@ from .linalg import collinear, hesse_form, plane_tolerance, solve
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
-           "settle_planes", "count_inliers", "distance_stats"]
+           "settle_planes", "count_inliers", "distance_stats", "within_plane_noise"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -359,3 +359,25 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     inliers = distance_stats(xyz, labels, kinds, params, inlier_factor * tolerance, np.zeros(xyz.shape[0]),
                              1.0)[0]
     return settled, normal, d, rms, inliers
+
+
+@njit(cache=True, nogil=True)
+def within_plane_noise(points, sigma, normals, offsets, rms, k_sigma):
+    """(N, P) whether each point lies within ``k_sigma`` noises of each plane ``(normals[j],
+    offsets[j])``: the noise of its distance is the range noise ``sigma`` times the incidence
+    cosine, or the plane's ``rms`` when larger.
+
+    One pass without the (N, P) temporaries of the numpy expression; the same operations in
+    the same order (the dot product summed x, y, z; the norm as ``sqrt(x*x + y*y + z*z)``),
+    so the answer is numpy's to the bit.
+    """
+    n, p = points.shape[0], normals.shape[0]
+    out = np.empty((n, p), np.bool_)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+        for j in range(p):
+            along = x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
+            noise = max(sigma[i] * (abs(along) / norm), rms[j])
+            out[i, j] = abs(along - offsets[j]) <= k_sigma * noise
+    return out

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
+from ..kernels.labelwise import within_plane_noise
 from ..kernels.linalg import noise_rms_bound
 from ..scales import GRAZING_TAN
 from .context import Context, touching
@@ -215,22 +216,21 @@ def _claim_once(ctx: Context, labels: np.ndarray, fits: dict, planes: list, pool
         return False
     points = ctx.xyz[free]
     normals = np.array([fits[k].normal for k in planes])
-    # each point along each normal, summed per axis: a (pixels x 3) @ (3 x planes) product
-    # handed to BLAS costs 10-20 times more on a loaded machine (its threads wait)
-    along = sum(points[:, axis, None] * normals[None, :, axis] for axis in range(3))
-    cosines = np.abs(along) / np.maximum(np.linalg.norm(points, axis=1), 1e-12)[:, None]
-    noise = np.maximum(ctx.sigma[free, None] * cosines, np.array([fits[k].rms for k in planes]))
-    distances = along - np.array([fits[k].d for k in planes])
-    within = np.abs(distances) <= k_sigma * noise
+    offsets = np.array([fits[k].d for k in planes])
+    plane_rms = np.array([fits[k].rms for k in planes])
+    # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
+    within = within_plane_noise(points, ctx.sigma[free], normals, offsets, plane_rms, k_sigma)
     near = np.flatnonzero(within.any(axis=1))
     if near.size < ctx.min_size:
         return False
     member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
     rows, columns = near[member], plane_of[member]
+    distances, noise = _distance_and_noise(points[rows], ctx.sigma[free[rows]], normals[columns],
+                                           offsets[columns], plane_rms[columns])
     parts, sizes = ctx.piece_ids(free[rows])
     counts = np.maximum(sizes, 1)
-    mean_squares = np.bincount(parts, weights=distances[rows, columns] ** 2, minlength=sizes.size) / counts
-    noise_squares = np.bincount(parts, weights=noise[rows, columns] ** 2, minlength=sizes.size) / counts
+    mean_squares = np.bincount(parts, weights=distances ** 2, minlength=sizes.size) / counts
+    noise_squares = np.bincount(parts, weights=noise ** 2, minlength=sizes.size) / counts
     # a part smaller than the floor joins only the region it touches (growth's case)
     column = np.full(int(labels.max()) + 1, -1)
     column[planes] = np.arange(len(planes))
@@ -245,6 +245,16 @@ def _claim_once(ctx: Context, labels: np.ndarray, fits: dict, planes: list, pool
     take = kept[parts]
     labels.reshape(-1)[free[rows[take]]] = np.asarray(planes)[columns[take]]
     return True
+
+
+def _distance_and_noise(points: np.ndarray, sigma: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                        plane_rms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # each point's signed distance to its own plane (row of ``normals``, ``offsets``) and the
+    # noise of that distance (kernels.within_plane_noise's, the same operations in order)
+    along = points[:, 0] * normals[:, 0] + points[:, 1] * normals[:, 1] + points[:, 2] * normals[:, 2]
+    norms = np.sqrt(points[:, 0] * points[:, 0] + points[:, 1] * points[:, 1] + points[:, 2] * points[:, 2])
+    cosines = np.abs(along) / np.maximum(norms, 1e-12)
+    return along - offsets, np.maximum(sigma * cosines, plane_rms)
 
 
 def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits: dict,
