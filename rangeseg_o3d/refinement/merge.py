@@ -211,7 +211,11 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
             unions.add([(ra, rb)])
         union = unions.model(ra, rb)
         limit = rms_factor * max(fits[ra].rms, fits[rb].rms)
-        if union and union.kind == fits[ra].kind and union.rms <= limit and unions.parts_on(ra, rb, union, limit, max_angle_deg):
+        # the union against its parts' current pixels (part_rms); a part off the union's
+        # plane against the models' own limit (parts_on)
+        if (union and union.kind == fits[ra].kind
+                and union.rms <= rms_factor * max(unions.part_rms(ra), unions.part_rms(rb))
+                and unions.parts_on(ra, rb, union, limit, max_angle_deg)):
             unions.join(ra, rb, union)
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
@@ -243,6 +247,7 @@ class _Unions:
         self.cache: dict = {}
         self.regions = None  # flat pixels per label, gathered when a union needs its points
         self.paired: set = set()  # the labels of the candidate pairs (add)
+        self.current_rms: dict = {}  # plane roots: the rms of their current pixels' plane (part_rms)
 
     def find(self, k: int) -> int:
         while self.root[k] != k:
@@ -269,14 +274,26 @@ class _Unions:
         # meet at creases and end here.
         planar = np.array([isinstance(fits[a], Plane) and isinstance(fits[b], Plane) for a, b in keys])
         if planar.any():
-            limits = self.rms_factor * np.maximum([fits[a].rms for a, _ in keys],
-                                                  [fits[b].rms for _, b in keys])
+            limits = self.rms_factor * np.maximum([self.part_rms(a) for a, _ in keys],
+                                                  [self.part_rms(b) for _, b in keys])
             hopeless = planar & (planes_from_moments(rows).rms > limits)
             self.cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
             keys = [key for key, no in zip(keys, hopeless.tolist()) if not no]
             rows = rows[~hopeless]
         if keys:
             self.cache.update(zip(keys, self.ctx.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
+
+    def part_rms(self, k: int) -> float:
+        """The rms a union of root ``k`` is compared with: for a plane with moments, the
+        larger of its model's and its current pixels' least-squares plane's (growth adds
+        pixels without a refit, so the model's rms can be that of fewer, quieter pixels
+        than the union's, which holds them all); else its model's."""
+        model = self.fits[k]
+        if self.moments is None or not isinstance(model, Plane) or k >= len(self.moments):
+            return float(model.rms)
+        if k not in self.current_rms:
+            self.current_rms[k] = float(planes_from_moments(self.moments[k:k + 1]).rms[0])
+        return max(float(model.rms), self.current_rms[k])
 
     def model(self, ra: int, rb: int):
         """The union's model: the cached one, else a refit of the union's points."""
@@ -311,6 +328,7 @@ class _Unions:
         """Merge root ``rb`` into root ``ra``, whose model becomes ``union``."""
         self.root[rb] = ra
         self.fits[ra] = union
+        self.current_rms.pop(ra, None)
         self.fits.pop(rb)
         for key in [key for key in self.cache if ra in key or rb in key]:
             del self.cache[key]

@@ -260,3 +260,37 @@ def test_a_piece_of_the_same_plane_beside_a_large_one_still_merges(context):
     out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, {(1, 2)},
                                    max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
     assert set(merged) == {1} and (out == 1).all()
+
+
+def _grown_pieces(offset: float):
+    """One plane seen as two pieces apart (columns 0-19 and 40-59 of a 20 x 60 grid, the
+    second ``offset`` metres off the first's plane), each with quiet rows 0-9 (1 mm) and
+    noisy rows 10-19 (4 mm), and fitted on its quiet rows only: a region whose model
+    predates the band growth gave it. ``(xyz, labels, fits)``."""
+    xyz = plane_grid(20, 60, noise=0.001, seed=5)
+    xyz[10:, :, 2] += np.random.default_rng(6).normal(0.0, 0.004, (10, 60))
+    xyz[:, 40:, 2] += offset
+    labels = np.zeros((20, 60), np.int32)
+    labels[:, :20], labels[:, 40:] = 1, 2
+    fits = {k: fit_plane(xyz[:10][labels[:10] == k]) for k in (1, 2)}
+    return xyz, labels, fits
+
+
+def test_merge_regions_holds_a_union_to_its_parts_current_pixels(context):
+    xyz, labels, fits = _grown_pieces(0.0)
+    union = fit_plane(xyz[labels > 0])
+    # the premise: against the models' rms of their quiet rows the union looks twice as far
+    assert union.rms > 1.3 * max(fits[1].rms, fits[2].rms)
+    assert union.rms < 1.3 * min(fit_plane(xyz[labels == k]).rms for k in (1, 2))
+    out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, set(),
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1} and (out[labels > 0] == 1).all()
+    assert abs(merged[1].rms - union.rms) < 0.05 * union.rms
+
+
+def test_merge_regions_keeps_a_parallel_plane_apart_however_its_parts_grew(context):
+    # a plane 2 cm behind (five times the noisy rows' noise): not one surface
+    xyz, labels, fits = _grown_pieces(0.02)
+    out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, set(),
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1, 2} and (out == labels).all()
