@@ -140,34 +140,42 @@ def _nearest(ctx: Context, surfaces: list) -> list[tuple[np.ndarray, object]]:
     points = ctx.xyz[pixels]
     models = [model for _, model in surfaces]
     owner, held = start, [None] * len(surfaces)
-    for _ in range(NEAREST_ROUNDS):
+    for round_ in range(NEAREST_ROUNDS):
         moved = _moved_to_nearer(ctx, pixels, points, owner, models)
         if moved is None:
             break
         owner = moved
-        models, held = zip(*(_refit_held(ctx, pixels[owner == i], model, held[i]) for i, model in enumerate(models)))
+        last = round_ == NEAREST_ROUNDS - 1
+        models, held = zip(*(_refit_held(ctx, pixels[owner == i], model, held[i], last)
+                             for i, model in enumerate(models)))
     if owner is start:
         return surfaces
     kept = []
-    for (pieces, _), model in zip(held, models):  # the pieces each model was refitted to last
+    for (pieces, union, deferred), model in zip(held, models):  # the pieces each model was refitted to last
         for piece in pieces:
             own = _refit_to(ctx, np.sort(piece), model) if len(pieces) > 1 else model
+            if deferred and own is model:  # the piece's refit failed: its plane's refit to them all
+                own = _refit_to(ctx, union, model)
             if own and own.kind == model.kind:
                 kept.append((np.sort(piece), own))
     return kept
 
 
-def _refit_held(ctx: Context, idx: np.ndarray, model, held):
-    # ``(pieces, pixels)`` of the pixels ``idx`` a surface holds (:func:`_pieces_of`) and its
-    # model refitted to those pixels. ``held``: the same pair from the round before, when
-    # ``model`` is its refit; a plane refitted to the very pixels it was just refitted to is
-    # kept (a plane's refit does not start from the model: the same pixels give the same
-    # plane, or fail again and leave the model)
+def _refit_held(ctx: Context, idx: np.ndarray, model, held, last: bool):
+    # ``(pieces, pixels, deferred)`` of the pixels ``idx`` a surface holds (:func:`_pieces_of`)
+    # and its model refitted to those pixels. ``held``: the same triple from the round before,
+    # when ``model`` is its refit; a plane refitted to the very pixels it was just refitted to
+    # is kept (a plane's refit does not start from the model: the same pixels give the same
+    # plane, or fail again and leave the model). In the ``last`` round, a plane of several
+    # pieces is not refitted (deferred): each piece takes its own plane, and the refit to
+    # them all is only what a piece whose refit fails falls back to
     pieces = _pieces_of(ctx, idx, model)
     pixels = np.sort(np.concatenate(pieces or [idx[:0]]))
     if held is not None and isinstance(model, Plane) and np.array_equal(pixels, held[1]):
-        return model, (pieces, pixels)
-    return _refit_to(ctx, pixels, model), (pieces, pixels)
+        return model, (pieces, pixels, False)
+    if last and isinstance(model, Plane) and len(pieces) > 1:
+        return model, (pieces, pixels, True)
+    return _refit_to(ctx, pixels, model), (pieces, pixels, False)
 
 
 def _pieces_of(ctx: Context, idx: np.ndarray, model) -> list[np.ndarray]:
