@@ -14,7 +14,8 @@ from .linalg import collinear, hesse_form, plane_tolerance, solve
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
-           "settle_planes", "count_inliers", "distance_stats", "within_plane_noise"]
+           "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "rows_with_any",
+           "piece_votes"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -381,3 +382,33 @@ def within_plane_noise(points, sigma, normals, offsets, rms, k_sigma):
             noise = max(sigma[i] * (abs(along) / norm), rms[j])
             out[i, j] = abs(along - offsets[j]) <= k_sigma * noise
     return out
+
+
+@njit(cache=True, nogil=True)
+def rows_with_any(within):
+    """Indices (increasing) of the rows of the (N, P) bool ``within`` with a True:
+    ``np.flatnonzero(within.any(axis=1))`` in one pass that stops at a row's first True."""
+    n, p = within.shape
+    out = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        for j in range(p):
+            if within[i, j]:
+                out[m] = i
+                m += 1
+                break
+    return out[:m]
+
+
+@njit(cache=True, nogil=True)
+def piece_votes(ids, within, n_pieces):
+    """(n_pieces, P) int64: for each piece number of ``ids`` (one per row of the (N, P) bool
+    ``within``), how many of its rows have each column True (the bincount of
+    ``ids[row] * P + column`` over ``within``'s True entries, without their index arrays)."""
+    p = within.shape[1]
+    votes = np.zeros((n_pieces, p), np.int64)
+    for i in range(within.shape[0]):
+        for j in range(p):
+            if within[i, j]:
+                votes[ids[i], j] += 1
+    return votes

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
-from ..kernels.labelwise import within_plane_noise
+from ..kernels.labelwise import piece_votes, rows_with_any, within_plane_noise
 from ..kernels.linalg import noise_rms_bound
 from ..scales import GRAZING_TAN
 from .context import Context, touching
@@ -176,10 +176,7 @@ def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray, n_plane
     # under the floor. Returns (whether each pixel is explained by its piece's plane, that
     # plane's column per pixel).
     ids, _ = ctx.piece_ids(pixels)
-    at, plane = np.nonzero(within)
-    n_pieces = int(ids.max()) + 1
-    votes = np.bincount(ids[at] * n_planes + plane,
-                        minlength=n_pieces * n_planes).reshape(n_pieces, n_planes)
+    votes = piece_votes(ids, within, int(ids.max()) + 1)  # compiled: no index arrays of within's hits
     plane_of = np.argmax(votes, axis=1)[ids]
     return within[np.arange(pixels.size), plane_of], plane_of
 
@@ -201,26 +198,30 @@ def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: 
     :func:`claim_occluded_strips`.
     """
     planes = [k for k, m in fits.items() if m and m.kind == "plane"]
+    if not planes:
+        return labels
+    # the planes' table once: the rounds change labels, not models
+    table = (planes, np.array([fits[k].normal for k in planes]), np.array([fits[k].d for k in planes]),
+             np.array([fits[k].rms for k in planes]))
     # a piece lying on two planes (a band across a room's corner) goes to the one most of
     # it lies on first; what is left of it is a piece of its own the next time round
-    while planes and _claim_once(ctx, labels, fits, planes, pool, k_sigma, apart):
+    while _claim_once(ctx, labels, table, pool, k_sigma, apart):
         pass
     return labels
 
 
-def _claim_once(ctx: Context, labels: np.ndarray, fits: dict, planes: list, pool: np.ndarray,
+def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, pool: np.ndarray,
                 k_sigma: float, apart: bool) -> bool:
-    # one round of claim_on_distance_noise; whether it claimed any pixel
+    # one round of claim_on_distance_noise (``table``: the planes' labels, normals, offsets
+    # and rms); whether it claimed any pixel
+    planes, normals, offsets, plane_rms = table
     free = pool[labels.reshape(-1)[pool] == 0]
     if free.size < ctx.min_size:
         return False
     points = ctx.xyz[free]
-    normals = np.array([fits[k].normal for k in planes])
-    offsets = np.array([fits[k].d for k in planes])
-    plane_rms = np.array([fits[k].rms for k in planes])
     # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
     within = within_plane_noise(points, ctx.sigma[free], normals, offsets, plane_rms, k_sigma)
-    near = np.flatnonzero(within.any(axis=1))
+    near = rows_with_any(within)  # within.any(axis=1)'s rows without numpy's reduction over short rows
     if near.size < ctx.min_size:
         return False
     member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
@@ -234,9 +235,7 @@ def _claim_once(ctx: Context, labels: np.ndarray, fits: dict, planes: list, pool
     # a part smaller than the floor joins only the region it touches (growth's case)
     column = np.full(int(labels.max()) + 1, -1)
     column[planes] = np.arange(len(planes))
-    own = np.zeros(within[rows].shape, bool)
-    own[np.arange(rows.size), columns] = True
-    touches = np.bincount(parts, weights=_touches_explaining(labels, free[rows], own, column),
+    touches = np.bincount(parts, weights=_touches_own_plane(labels, free[rows], columns, column),
                           minlength=sizes.size) > 0
     bound = noise_rms_bound.py_func(np.sqrt(noise_squares), counts.astype(float), CHI_SQUARE_SIGMAS)
     kept = (((sizes >= ctx.min_size) & apart) | touches) & (np.sqrt(mean_squares) <= bound)
@@ -282,17 +281,33 @@ def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits:
     return answer
 
 
+def _neighbour_columns(labels: np.ndarray, pixels: np.ndarray, column: np.ndarray):
+    # for each 4-neighbour direction: the positions in ``pixels`` (flat) whose neighbour is on
+    # the grid, and ``column`` of that neighbour's label
+    rows, cols = np.divmod(pixels, labels.shape[1])
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        r, c = rows + dr, cols + dc
+        inside = np.flatnonzero((r >= 0) & (r < labels.shape[0]) & (c >= 0) & (c < labels.shape[1]))
+        yield inside, column[labels[r[inside], c[inside]]]
+
+
 def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarray,
                         column: np.ndarray) -> np.ndarray:
     # whether each flat pixel has a 4-neighbour in a region whose plane explains it
     # (``within[p, column[label]]``; ``column`` -1 for labels that are no plane)
-    rows, cols = np.divmod(pixels, labels.shape[1])
     hit = np.zeros(pixels.size, bool)
-    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        r, c = rows + dr, cols + dc
-        inside = np.flatnonzero((r >= 0) & (r < labels.shape[0]) & (c >= 0) & (c < labels.shape[1]))
-        j = column[labels[r[inside], c[inside]]]
+    for inside, j in _neighbour_columns(labels, pixels, column):
         hit[inside] |= (j >= 0) & within[inside, np.maximum(j, 0)]
+    return hit
+
+
+def _touches_own_plane(labels: np.ndarray, pixels: np.ndarray, own: np.ndarray,
+                       column: np.ndarray) -> np.ndarray:
+    # whether each flat pixel has a 4-neighbour in the region of its own plane (column
+    # ``own[p]`` >= 0): _touches_explaining with one plane per pixel, no (pixels x planes) array
+    hit = np.zeros(pixels.size, bool)
+    for inside, j in _neighbour_columns(labels, pixels, column):
+        hit[inside] |= j == own[inside]
     return hit
 
 
@@ -462,7 +477,7 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict) 
     planes = [k for k, m in new.items() if m.kind == "plane"]
     if not planes:
         return set()
-    pixels = region_indices(labels)
+    pixels = region_indices(labels, only=planes)  # only theirs sorted: the rest of the grid is read
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 
@@ -478,7 +493,7 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
     if not left:
         return labels, fits
     labels = np.ascontiguousarray(labels)
-    pixels = region_indices(labels)
+    pixels = region_indices(labels, only=left)
     flat, old = labels.reshape(-1), before.reshape(-1)
     alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
     alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
