@@ -203,30 +203,36 @@ def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: 
     # the planes' table once: the rounds change labels, not models
     table = (planes, np.array([fits[k].normal for k in planes]), np.array([fits[k].d for k in planes]),
              np.array([fits[k].rms for k in planes]))
+    free = pool[labels.reshape(-1)[pool] == 0]
+    if free.size < ctx.min_size:
+        return labels
+    # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
+    within = within_plane_noise(ctx.xyz[free], ctx.sigma[free], *table[1:], k_sigma)
+    # only a pixel within the noise of some plane can be claimed; the others still count
+    # towards the size floor of the free pool
+    near = rows_with_any(within)  # within.any(axis=1)'s rows without numpy's reduction over short rows
+    n_free, free, within = free.size, free[near], within[near]
     # a piece lying on two planes (a band across a room's corner) goes to the one most of
-    # it lies on first; what is left of it is a piece of its own the next time round
-    while _claim_once(ctx, labels, table, pool, k_sigma, apart):
-        pass
+    # it lies on first; what is left of it is a piece of its own the next time round (the
+    # models do not change: the pixels left keep their rows of ``within``)
+    while n_free >= ctx.min_size and _claim_once(ctx, labels, table, free, within, apart):
+        still = labels.reshape(-1)[free] == 0
+        n_free -= int(still.size - np.count_nonzero(still))
+        free, within = free[still], within[still]
     return labels
 
 
-def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, pool: np.ndarray,
-                k_sigma: float, apart: bool) -> bool:
-    # one round of claim_on_distance_noise (``table``: the planes' labels, normals, offsets
-    # and rms); whether it claimed any pixel
+def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, free: np.ndarray, within: np.ndarray,
+                apart: bool) -> bool:
+    # one round of claim_on_distance_noise over the free pixels ``free`` within the noise of
+    # a plane (``within``: pixels x planes, each row with a True; ``table``: the planes'
+    # labels, normals, offsets and rms); whether it claimed any pixel
     planes, normals, offsets, plane_rms = table
-    free = pool[labels.reshape(-1)[pool] == 0]
     if free.size < ctx.min_size:
         return False
-    points = ctx.xyz[free]
-    # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
-    within = within_plane_noise(points, ctx.sigma[free], normals, offsets, plane_rms, k_sigma)
-    near = rows_with_any(within)  # within.any(axis=1)'s rows without numpy's reduction over short rows
-    if near.size < ctx.min_size:
-        return False
-    member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
-    rows, columns = near[member], plane_of[member]
-    distances, noise = _distance_and_noise(points[rows], ctx.sigma[free[rows]], normals[columns],
+    member, plane_of = _voted_members(ctx, free, within, len(planes))
+    rows, columns = np.flatnonzero(member), plane_of[member]
+    distances, noise = _distance_and_noise(ctx.xyz[free[rows]], ctx.sigma[free[rows]], normals[columns],
                                            offsets[columns], plane_rms[columns])
     parts, sizes = ctx.piece_ids(free[rows])
     counts = np.maximum(sizes, 1)
