@@ -232,8 +232,8 @@ def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, free: np.ndarray
         return False
     member, plane_of = _voted_members(ctx, free, within, len(planes))
     rows, columns = np.flatnonzero(member), plane_of[member]
-    distances, noise = _distance_and_noise(ctx.xyz[free[rows]], ctx.sigma[free[rows]], normals[columns],
-                                           offsets[columns], plane_rms[columns])
+    distances, noise, _ = _distance_and_noise(ctx.xyz[free[rows]], ctx.sigma[free[rows]], normals[columns],
+                                              offsets[columns], plane_rms[columns])
     parts, sizes = ctx.piece_ids(free[rows])
     counts = np.maximum(sizes, 1)
     mean_squares = np.bincount(parts, weights=distances ** 2, minlength=sizes.size) / counts
@@ -253,13 +253,14 @@ def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, free: np.ndarray
 
 
 def _distance_and_noise(points: np.ndarray, sigma: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
-                        plane_rms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    # each point's signed distance to its own plane (row of ``normals``, ``offsets``) and the
-    # noise of that distance (kernels.within_plane_noise's, the same operations in order)
+                        plane_rms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # each point's signed distance to its own plane (row of ``normals``, ``offsets``), the
+    # noise of that distance (range noise times the incidence cosine, or the plane's rms when
+    # larger: kernels.within_plane_noise's, the same operations in order) and that cosine
     along = points[:, 0] * normals[:, 0] + points[:, 1] * normals[:, 1] + points[:, 2] * normals[:, 2]
     norms = np.sqrt(points[:, 0] * points[:, 0] + points[:, 1] * points[:, 1] + points[:, 2] * points[:, 2])
     cosines = np.abs(along) / np.maximum(norms, 1e-12)
-    return along - offsets, np.maximum(sigma * cosines, plane_rms)
+    return along - offsets, np.maximum(sigma * cosines, plane_rms), cosines
 
 
 def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits: dict,
@@ -269,13 +270,9 @@ def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits:
     # distance to it is within the noise's chi-square bound (fitting.robust.beyond_noise) of
     # the rms of max(distance noise, the plane's rms) (distance noise: the range noise
     # times the incidence cosine, fitting.robust.distance_noise)
-    points = ctx.xyz[pixels]
-    normals = np.array([fits[k].normal for k in owner]).reshape(-1, 3)
-    offsets = np.array([fits[k].d for k in owner])
-    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
-    cosines = np.abs(np.einsum("ij,ij->i", rays, normals))
-    distances = np.einsum("ij,ij->i", points, normals) - offsets
-    noise = np.maximum(ctx.sigma[pixels] * cosines, [fits[k].rms for k in owner])
+    distances, noise, cosines = _distance_and_noise(
+        ctx.xyz[pixels], ctx.sigma[pixels], np.array([fits[k].normal for k in owner]).reshape(-1, 3),
+        np.array([fits[k].d for k in owner]), np.array([fits[k].rms for k in owner]))
     n_parts = asked.size
     steep = np.bincount(parts, weights=cosines > GRAZING_TAN / np.hypot(1.0, GRAZING_TAN), minlength=n_parts)
     counts = np.bincount(parts, minlength=n_parts)
