@@ -6,7 +6,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import group_by_label
-from .inline import _distance
+from .inline import _distance, _incidence
 from .kinds import PARAM_SLOTS, PLANE
 from .linalg import collinear, hesse_form, plane_tolerance, solve
 
@@ -15,7 +15,7 @@ CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "rows_with_any",
-           "piece_votes"]
+           "piece_votes", "nearer_models"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -412,3 +412,29 @@ def piece_votes(ids, within, n_pieces):
             if within[i, j]:
                 votes[ids[i], j] += 1
     return votes
+
+
+@njit(cache=True, nogil=True)
+def nearer_models(points, sigma, owner, kinds, params, margin):
+    """``(owner, moved)``: ``owner`` (a row of the model table ``kinds, params`` per point) with
+    each point given to the model nearest it (the first of equals) when that is nearer than
+    its owner by more than ``margin`` times the noise of its distance to its owner (its range
+    noise ``sigma`` times the incidence cosine of its ray on the owner's surface), and how
+    many moved. One pass over the points and models, no (models x points) distances."""
+    out = owner.copy()
+    moved = 0
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        best, best_distance = 0, np.inf
+        for j in range(kinds.shape[0]):
+            d = _distance(kinds[j], params[j], x, y, z)
+            if d < best_distance:
+                best, best_distance = j, d
+        own = owner[i]
+        if best == own:
+            continue
+        noise = sigma[i] * _incidence(kinds[own], params[own], x, y, z)
+        if _distance(kinds[own], params[own], x, y, z) - best_distance - margin * noise > 0.0:
+            out[i] = best
+            moved += 1
+    return out, moved

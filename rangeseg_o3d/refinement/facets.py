@@ -32,7 +32,7 @@ from .._numeric import median
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Cylinder, Plane
-from ..fitting.region_fitter import region_indices
+from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from .context import Context, without
 from .grow import SETTLE_MARGIN
@@ -192,19 +192,14 @@ NEAREST_ROUNDS = 2
 def _moved_to_nearer(ctx: Context, pixels: np.ndarray, points: np.ndarray, owner: np.ndarray, models: list):
     # ``owner`` with each pixel nearer another model by more than SETTLE_MARGIN times the noise
     # of its distance to its own (the range noise along the ray) given to it; None if none is
-    distances = np.stack([np.abs(model.distances(points)) for model in models])
-    nearest = np.argmin(distances, axis=0)
-    move = np.flatnonzero(nearest != owner)
-    gain = distances[owner[move], move] - distances[nearest[move], move]
-    for i, model in enumerate(models):
-        mine = owner[move] == i
-        gain[mine] -= SETTLE_MARGIN * distance_noise(model, points[move[mine]], ctx.sigma[pixels[move[mine]]])
-    move = move[gain > 0]
-    if not move.size:
-        return None
-    owner = owner.copy()
-    owner[move] = nearest[move]
-    return owner
+    # (kernels.nearer_models: one pass, no (models x pixels) distances)
+    from ..kernels import nearer_models
+
+    kinds, params = zip(*(model_row(model) for model in models))
+    owner, moved = nearer_models(np.ascontiguousarray(points, dtype=np.float64), ctx.sigma[pixels],
+                                 np.ascontiguousarray(owner, dtype=np.int64), np.array(kinds, np.int8),
+                                 np.array(params), float(SETTLE_MARGIN))
+    return owner if moved else None
 
 
 def _refit_to(ctx: Context, idx: np.ndarray, model):

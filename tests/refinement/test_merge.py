@@ -172,6 +172,9 @@ class _CountingFitter:
     def points(self, xyz, idx):
         return self.fitter.points(xyz, idx)
 
+    def points_of(self, xyz, parts):
+        return self.fitter.points_of(xyz, parts)
+
     def kept(self, n, first):
         return self.fitter.kept(n, first)
 
@@ -294,3 +297,41 @@ def test_merge_regions_keeps_a_parallel_plane_apart_however_its_parts_grew(conte
     out, merged, _ = merge_regions(context(rs.OrganizedCloud(xyz)), labels, fits, set(),
                                    max_angle_deg=3.0, tolerance=0.05, disjoint=True, rms_factor=1.3)
     assert set(merged) == {1, 2} and (out == labels).all()
+
+
+def test_beyond_median_noise_is_the_median_test_of_the_union():
+    # the counts either side of the bound answer as the median would: noise values with
+    # ties (a quantised depth camera's), even and odd unions, rms at, near and far from the
+    # bound, a NaN (the median is NaN: not beyond)
+    from rangeseg_o3d._numeric import median
+    from rangeseg_o3d.fitting.robust import beyond_noise
+    from rangeseg_o3d.kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+    from rangeseg_o3d.refinement.merge import _beyond_median_noise
+
+    rng = np.random.default_rng(4)
+    answers = set()
+    for trial in range(3000):
+        sigma = np.round(rng.uniform(0.5, 4.0, 300), int(rng.integers(0, 3))) * 1e-3
+        if trial % 40 == 0:
+            sigma[rng.integers(0, 300)] = np.nan
+        parts = (rng.integers(0, 300, int(rng.integers(1, 80))), rng.integers(0, 300, int(rng.integers(0, 20))))
+        union = np.concatenate(parts)
+        at_bound = median(sigma[union]) * noise_rms_bound.py_func(1.0, float(union.size), CHI_SQUARE_SIGMAS)
+        rms = at_bound * (1.0 + rng.choice([0.0, 1e-12, -1e-12, 0.2, -0.2]))
+        want = beyond_noise(rms, median(sigma[union]), union.size)
+        assert _beyond_median_noise(rms, sigma, parts) == want
+        answers.add(want)
+    assert answers == {True, False}
+
+
+def test_points_of_parts_are_the_points_of_their_concatenation(pipeline):
+    from rangeseg_o3d.fitting.region_fitter import RegionFitter
+
+    rng = np.random.default_rng(5)
+    xyz = rng.random((500, 3))
+    for max_points in (1, 7, 64, 1000):
+        fitter = RegionFitter(pipeline.fitter.plugin, pipeline.config.fitter.params, max_points,
+                              sensor=pipeline.sensor)
+        for _ in range(50):
+            parts = [rng.integers(0, 500, int(rng.integers(0, 200))) for _ in range(int(rng.integers(1, 4)))]
+            np.testing.assert_array_equal(fitter.points_of(xyz, parts), fitter.points(xyz, np.concatenate(parts)))
