@@ -265,14 +265,14 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             # planes of its sides, which must resolve what it leaves (a crease, not a curve)
             splits.append((functools.partial(_two_planes_across_the_axis, ctx, model, idx, distances), None, True,
                            True))
-        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), None, False, False))
+        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), _EACH_SURFACE, False, False))
         for split, split_noise, settle, resolve in splits:
             surfaces = split()
             if not _covers(surfaces, idx) or (resolve and len(surfaces) < 2):
                 continue
             if settle:  # the cap split hands each pixel to its nearer model itself
                 surfaces = _nearest(ctx, surfaces)
-            if _explains(ctx, idx, distances, surfaces, split_noise, model.kind, resolve=resolve):
+            if _explains(ctx, idx, distances, surfaces, split_noise, model.kind, resolve=resolve, model=model):
                 break
         else:
             continue
@@ -345,8 +345,12 @@ def _covers(surfaces: list, idx: np.ndarray) -> bool:
     return bool(surfaces) and sum(piece.size for piece, _ in surfaces) >= PLANES_COVER * idx.size
 
 
-def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: list, noise: float | None,
-              kind: str, *, resolve: bool = False) -> bool:
+#: ``_explains``' noise for the cap split: each surface held to the noise of its own distances
+_EACH_SURFACE = "each surface"
+
+
+def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: list, noise,
+              kind: str, *, resolve: bool = False, model=None) -> bool:
     # The surfaces take PLANES_COVER of the pixels. One plane (two parameters fewer than the
     # curved model) replaces it when the curved model does not resolve a curvature over the
     # pixels the plane takes (the F-test of curvature_resolved, on the model's own residuals:
@@ -357,7 +361,11 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     # surfaces' distances, _noise_rms. With ``resolve`` (a curved model within the range
     # noise) several surfaces must also lower the squared distances by more than their extra
     # parameters would (the F-test, each plane's three and a border line between two,
-    # against the curved model's own).
+    # against the curved model's own). With ``noise`` _EACH_SURFACE (the cap split: a
+    # cylinder and the plane across its axis, no facets of a curve), surfaces beyond their
+    # pooled distance noise pass when each is at the noise of its own distances or, beyond
+    # it, no farther from its pixels in those units than the curved ``model``
+    # (:func:`_each_at_noise`).
     if not _covers(surfaces, idx):
         return False
     taken = sum(piece.size for piece, _ in surfaces)
@@ -371,9 +379,39 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     extra = 4 * len(surfaces) - 1 - CURVED_PARAMETERS[kind]
     if resolve and not curvature_resolved(model_squares, squares, taken, max(extra, 1)):
         return False
-    if noise is None:
+    each = noise is _EACH_SURFACE
+    if noise is None or each:
         noise = _noise_rms(ctx, surfaces)
-    return not beyond_noise(np.sqrt(squares / taken), noise, taken)
+    return not beyond_noise(np.sqrt(squares / taken), noise, taken) or (each and _each_at_noise(ctx, surfaces, model))
+
+
+def _each_at_noise(ctx: Context, surfaces: list, model) -> bool:
+    """Whether each of ``surfaces`` is at the noise of its own distances (its mean squared
+    distance in units of that noise within the chi-square bound) or, beyond it, within the
+    range noise of its pixels and no farther from them in units of their distance noise than
+    the curved ``model`` was. Pooled, a long pipe's flanks seen at grazing incidence (the
+    noise of their distances small, a model's bias large in its units) drown a cap that fits
+    at its noise; the pipe that keeps its pixels must still be at the range noise, the bound
+    a curved model's fit is held to (a cylinder bent over a crease of a quantising camera's
+    scene is many times its range noise off its pixels, and the plane piece the cap split
+    cuts from it is no end cap)."""
+    for idx, surface in surfaces:
+        points, sigma = ctx.xyz[idx], ctx.sigma[idx]
+        ratio = _mean_squared_sigmas(surface, points, sigma)
+        if not beyond_noise(np.sqrt(ratio), 1.0, idx.size):
+            continue
+        if model is None or ratio > _mean_squared_sigmas(model, points, sigma):
+            return False
+        rms = float(np.sqrt(np.mean(surface.distances(points) ** 2)))
+        if beyond_noise(rms, float(np.sqrt(np.mean(sigma * sigma))), idx.size):
+            return False
+    return True
+
+
+def _mean_squared_sigmas(model, points: np.ndarray, sigma: np.ndarray) -> float:
+    # the mean squared distance of ``points`` to ``model``, each in units of its distance noise
+    noise = np.maximum(distance_noise(model, points, sigma), 1e-12)
+    return float(np.mean((model.distances(points) / noise) ** 2))
 
 
 def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> list:

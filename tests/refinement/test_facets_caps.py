@@ -67,3 +67,53 @@ def test_the_end_cap_split_leaves_a_pipe_without_a_cap_alone():
     idx = np.flatnonzero(labels.ravel())
     assert model.kind == "cylinder" and abs(model.radius - 0.15) < 0.01
     assert _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx])) == []
+
+
+def _shifted_cylinder(model, dr: float):
+    from rangeseg_o3d.fitting.primitives import Cylinder
+
+    return Cylinder(axis=model.axis, point=model.point, radius=model.radius + dr, rms=model.rms,
+                    inliers=model.inliers)
+
+
+def test_the_cap_split_holds_each_surface_to_the_noise_of_its_own_distances():
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.fitting.robust import beyond_noise
+    from rangeseg_o3d.refinement.facets import _EACH_SURFACE, _explains, _mean_squared_sigmas
+
+    ctx, labels, model, truth = _pipe_in_one_region(0)
+    idx = np.flatnonzero(labels.ravel())
+    distances = model.distances(ctx.xyz[idx])
+    (rest, pipe), (piece, cap) = _cap_split(ctx, model, idx, distances)
+
+    def explains(surfaces, noise):
+        return _explains(ctx, idx, distances, surfaces, noise, "cylinder", model=model)
+
+    assert explains([(rest, pipe), (piece, cap)], _EACH_SURFACE)
+    # a pipe half the range noise wider than the refit one: beyond the noise of its flanks'
+    # distances (grazing: small) and so beyond the pooled noise, yet nearer its pixels in
+    # those units than the cylinder pulled in by the cap was
+    biased = _shifted_cylinder(pipe, NOISE / 2)
+    points, sigma = ctx.xyz[rest], ctx.sigma.ravel()[rest]
+    ratio = _mean_squared_sigmas(biased, points, sigma)
+    assert beyond_noise(np.sqrt(ratio), 1.0, rest.size) and ratio < _mean_squared_sigmas(model, points, sigma)
+    assert not explains([(rest, biased), (piece, cap)], None)
+    assert explains([(rest, biased), (piece, cap)], _EACH_SURFACE)
+    # a cap plane three noise sigmas off (along its normal, which faces the sensor): refused
+    off = Plane(normal=cap.normal, d=cap.d + 3 * NOISE, rms=cap.rms, inliers=cap.inliers)
+    assert not explains([(rest, pipe), (piece, off)], _EACH_SURFACE)
+    # a pipe farther from its pixels than the cylinder it replaces: refused
+    worse = _shifted_cylinder(model, model.radius - pipe.radius - NOISE)
+    assert _mean_squared_sigmas(worse, points, sigma) > _mean_squared_sigmas(model, points, sigma)
+    assert not explains([(rest, worse), (piece, cap)], _EACH_SURFACE)
+    # a pipe nearer its pixels than the cylinder it replaces but beyond the range noise
+    # (a cylinder bent over a crease, the cap split cutting a plane piece off it): refused
+    beyond = _shifted_cylinder(pipe, 2 * NOISE)
+    farther = _shifted_cylinder(pipe, 4 * NOISE)
+    rms = float(np.sqrt(np.mean(beyond.distances(points) ** 2)))
+    assert beyond_noise(rms, NOISE, rest.size)
+    assert _mean_squared_sigmas(beyond, points, sigma) < _mean_squared_sigmas(farther, points, sigma)
+    assert not _explains(ctx, idx, distances, [(rest, beyond), (piece, cap)], _EACH_SURFACE, "cylinder",
+                         model=farther)
+    # the same pipe half the range noise off passes against that model
+    assert _explains(ctx, idx, distances, [(rest, biased), (piece, cap)], _EACH_SURFACE, "cylinder", model=farther)
