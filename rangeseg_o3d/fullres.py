@@ -134,6 +134,45 @@ def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndar
     return merged
 
 
+def smallest_region(config, sensor, cloud) -> int:
+    """The fewest pixels of a full-resolution region: the refinement's ``min_region_size``
+    (derived from the sensor when the preset leaves it), at least 10.
+
+    A grazing face a few pixels wide (a box side) is no larger. The bands of other surfaces
+    a blob this small may hold fit the plane along their viewing rays within the range
+    noise; recover_pixels holds a recovered plane to the noise of its distances, which
+    refuses them (a doubled floor kept them out, and those faces too)."""
+    from .scales import with_derived_refinement
+
+    return max(int(with_derived_refinement(config, sensor, cloud).min_region_size), 10)
+
+
+def without_regions(labels: np.ndarray, fits: dict, drop: list) -> tuple[np.ndarray, dict]:
+    """``(labels, fits)`` with the regions in ``drop`` unlabelled and their models gone; the
+    inputs themselves when ``drop`` is empty."""
+    if not drop:
+        return labels, fits
+    keep = np.arange(max(int(labels.max(initial=0)), max(drop)) + 1, dtype=labels.dtype)
+    keep[drop] = 0
+    return keep[labels], {k: m for k, m in fits.items() if k not in drop}
+
+
+def drop_small_regions(labels: np.ndarray, fits: dict, stats: PixelStats, *,
+                       min_size: int) -> tuple[np.ndarray, dict]:
+    """Regions left with fewer than ``min_size`` pixels are no surfaces: their pixels
+    become unlabelled and their models go.
+
+    A tile model can take only a pixel or two of the frame (the pixels of its tiles lie
+    nearer other models); such a region is no surface any step creates, and one stray
+    pixel inside another surface makes that surface over-segmented. Returns ``(labels,
+    fits)``, the inputs themselves when nothing is dropped; ``stats`` hold the labels'
+    pixel counts.
+    """
+    counts = stats.counts
+    drop = [k for k in fits if 0 < k < counts.size and 0 < counts[k] < min_size]
+    return without_regions(labels, fits, drop)
+
+
 def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
                           config, sensor, ranges: np.ndarray, sigma: np.ndarray,
                           inlier_factor: float):
@@ -149,11 +188,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     from .scales import with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
-    # The smallest region: a grazing face a few pixels wide (a box side) is no larger. The
-    # bands of other surfaces a blob this small may hold fit the plane along their viewing
-    # rays within the range noise; recover_pixels holds a recovered plane to the noise of
-    # its distances, which refuses them (a doubled floor kept them out, and those faces too).
-    min_size = max(int(config.min_region_size), 10)
+    min_size = smallest_region(config, sensor, cloud)
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
@@ -252,11 +287,7 @@ def drop_unresolvable_curves(labels: np.ndarray, fits: dict, *, depth_step: floa
         return labels, fits
     limit = RELIEF_STEPS * depth_step
     drop = [k for k, m in fits.items() if m and not isinstance(m, Plane) and m.radius <= limit]
-    if not drop:
-        return labels, fits
-    keep = np.arange(max(int(labels.max(initial=0)), max(drop)) + 1, dtype=labels.dtype)
-    keep[drop] = 0
-    return keep[labels], {k: m for k, m in fits.items() if k not in drop}
+    return without_regions(labels, fits, drop)
 
 
 #: Pixel rings from a crease within which :func:`settle_creases` decides by the rays.

@@ -15,9 +15,9 @@ from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
-from .fullres import (ExpandedStages, PixelStats, drop_unresolvable_curves, grow_into_free, label_pixels,
-                      merge_touching_planes, planes_for_unresolved, recover_thin_surfaces,
-                      refit_planes_to_pixels, region_stats, settle_creases)
+from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
+                      label_pixels, merge_touching_planes, planes_for_unresolved, recover_thin_surfaces,
+                      refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -290,6 +290,8 @@ class Pipeline:
                                                 tile=settings.tile)
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
+            labels, fits = drop_small_regions(labels, fits, stats,
+                                              min_size=smallest_region(refine, self.sensor, cloud))
         return labels, fits, sigma, stats
 
     @staticmethod

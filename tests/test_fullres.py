@@ -406,6 +406,29 @@ def test_unquantised_depth_keeps_every_curved_model():
     assert out is labels
 
 
+def test_regions_under_the_smallest_region_lose_their_pixels():
+    # a tile model that took one pixel inside another region's surface is no surface
+    from rangeseg_o3d.fullres import PixelStats, drop_small_regions
+
+    labels, fits = _curved_scene()
+    labels[2, 1] = 5
+    fits[5] = Plane(np.array([0.0, 0.0, 1.0]), 1.02, rms=0.0004, inliers=1)
+    counts = np.bincount(labels.ravel(), minlength=6)
+    stats = PixelStats(inliers=counts.copy(), squares=np.zeros(6), counts=counts)
+    out, kept = drop_small_regions(labels, fits, stats, min_size=10)
+    assert sorted(kept) == [1, 2, 3, 4]
+    assert out[2, 1] == 0
+    assert np.array_equal(out[labels != 5], labels[labels != 5])
+    # regions of exactly min_size pixels (11 of label 1, 12 of the others) stay, and
+    # nothing is dropped then: the inputs come back
+    del fits[5]
+    labels[2, 1] = 1
+    counts = np.bincount(labels.ravel(), minlength=5)
+    stats = PixelStats(inliers=counts.copy(), squares=np.zeros(5), counts=counts)
+    out, kept = drop_small_regions(labels, fits, stats, min_size=int(counts[1:].min()))
+    assert out is labels and kept is fits
+
+
 def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_sigmas_off():
     # A wall facing the camera 2 m away, its pixels 8 mm behind its plane (range noise 1 cm),
     # in tiles of its region (columns 0-29) and of a plane x = 0 seen edge-on (30-59). Near
