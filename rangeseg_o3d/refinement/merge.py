@@ -452,9 +452,9 @@ def _beyond_median_noise(rms: float, sigma_flat: np.ndarray, parts) -> bool:
     n = sum(part.size for part in parts)
     half = n // 2
     at_bound = rms / noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS)
-    values = [sigma_flat[part] for part in parts]
     low, high = at_bound * (1.0 - _MEDIAN_MARGIN), at_bound * (1.0 + _MEDIAN_MARGIN)
-    if not any(np.isnan(v).any() for v in values):
+    values = [sigma_flat[part] for part in parts]
+    if high > low and not any(np.isnan(v).any() for v in values):  # (a NaN rms: the median decides)
         if sum(np.count_nonzero(v <= low) for v in values) > half and beyond_noise(rms, low, n):
             return True  # the middle values are at most ``low``
         if sum(np.count_nonzero(v >= high) for v in values) > n - half and not beyond_noise(rms, high, n):

@@ -357,6 +357,16 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     return (rows + top) * labels.shape[1] + cols + left
 
 
+def _regions_in_box(labels: np.ndarray, wanted, box) -> dict:
+    # region_indices(labels, only=wanted) of labels whose pixels all lie within ``box``
+    # (:func:`_members_in_box`): only the box is read
+    members = np.zeros(int(labels.max(initial=0)) + 1, bool)
+    members[[k for k in wanted if 0 < k < members.size]] = True
+    pixels = _members_in_box(labels, members, box)
+    owner = labels.reshape(-1)[pixels]
+    return {k: pixels[owner == k] for k in np.unique(owner).tolist()}
+
+
 def _grown(box, by: int) -> tuple[int, int, int, int]:
     # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side (not clipped)
     return box[0] - by, box[1] + by, box[2] - by, box[3] + by
@@ -410,15 +420,15 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     before = labels.copy()
     labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions)
     new = {k: m for k, m in fits.items() if k >= first and m}
-    refused = _planes_along_rays(ctx, labels, fits, new)
+    # The surfaces found are pieces of the blobs: with the blobs' boxes known, each step
+    # below looks only in their box grown by the rings it may add (same answers).
+    blobs = None if boxes is None or not len(boxes) else (
+        int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
+    refused = _planes_along_rays(ctx, labels, fits, new, box=blobs)
     if new:
         from ..kernels import claim_rings, member_pixels
 
-        # The surfaces found are pieces of the blobs: with the blobs' boxes known, each
-        # step below looks only in their box grown by the rings it may add (same answers).
         rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
-        blobs = None if boxes is None or not len(boxes) else (
-            int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
         labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=rim,
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
                                  box=None if blobs is None else _grown(blobs, rim))
@@ -450,8 +460,11 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                                tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
                                                rms_factor=config.merge_rms_factor, only=set(new) - refused)
             fits.update(apart)
-            # their neighbours as the merges left them
-            near = set(near) | {(min(k, j), max(k, j)) for k, idx in region_indices(labels, only=refused).items()
+            # their neighbours as the merges left them; their pixels are those claim_rings
+            # left them (the merges took none of them, and merge_into_curved below only
+            # moves a plane it merges, whose model then is gone)
+            kept_apart = {k: regions[k] for k in refused if k in regions}
+            near = set(near) | {(min(k, j), max(k, j)) for k, idx in kept_apart.items()
                                 for j in touching(labels, idx, reach=2) if j != k}
             # The side of a column or pipe turning away from the camera: the tile means
             # there straddle the turn, so the tile grid left it, and at full resolution
@@ -460,7 +473,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             # tile regions were tried on the tile grid).
             labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor,
                                                 only=set(new), near_sigmas=config.k_sigma)
-        labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused)
+        labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused,
+                                                      pixels=kept_apart if config.merge else None)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
         labels = claim_on_distance_noise(ctx, labels, fits, np.flatnonzero((labels == 0) & cloud.valid),
@@ -468,7 +482,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     return labels, fits
 
 
-def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict) -> set:
+def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, *, box=None) -> set:
     """The planes found in the blobs (``new``) that do not explain their pixels within the
     noise of their distances (:meth:`Context.plane_along_rays`).
 
@@ -480,23 +494,27 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict) 
     planes = [k for k, m in new.items() if m.kind == "plane"]
     if not planes:
         return set()
-    pixels = region_indices(labels, only=planes)  # only theirs sorted: the rest of the grid is read
+    # only theirs sorted: the rest of the grid (of ``box``, which holds them, when given) is read
+    pixels = region_indices(labels, only=planes) if box is None else _regions_in_box(labels, planes, box)
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 
 def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.ndarray, fits: dict,
-                                   refused: set):
+                                   refused: set, *, pixels: dict | None = None):
     """``(labels, fits)`` with each plane of ``refused`` that no curved region took cut to
     the largest piece of its pixels within their distance noise of it, refitted, when that
     piece keeps the size floor and is explained (a true face the band held beside a few
     pixels of its neighbours, :meth:`Context.within_distance_noise`); its other pixels go
-    back to the regions they had ``before`` (free where that region is gone).
+    back to the regions they had ``before`` (free where that region is gone). ``pixels``
+    (optional): the flat pixels (increasing) of each plane of ``refused`` still in ``fits``,
+    when the caller has them (saves a pass over the grid).
     """
     left = [k for k in refused if fits.get(k)]
     if not left:
         return labels, fits
     labels = np.ascontiguousarray(labels)
-    pixels = region_indices(labels, only=left)
+    if pixels is None:
+        pixels = region_indices(labels, only=left)
     flat, old = labels.reshape(-1), before.reshape(-1)
     alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
     alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
