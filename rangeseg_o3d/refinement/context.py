@@ -130,7 +130,27 @@ class Context:
         if piece.size < self.min_size:
             return None, None
         if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
-            model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+            refit = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+            if not refit and model.kind != "plane":
+                return self._face_plane(pool, sigma)
+            model = refit
+        return (piece, model) if model else (None, None)
+
+    def _face_plane(self, pool: np.ndarray, sigma: float):
+        # The largest connected piece of the dominant plane of ``pool`` (a planes-only trimmed
+        # search) and the fitter's refit of the plane to it, or (None, None). Asked when a
+        # curved model within the noise took pieces apart and fits none of them alone: on a
+        # noisy sensor a wide cylinder bends over a box corner and the wall beside it (each
+        # face's plane takes a band of its neighbours' pixels and so ranks below it)
+        from ..fitting.classify import trimmed_plane
+
+        plane, inliers = trimmed_plane(self.xyz, pool, sigma=sigma, min_points=self.min_size)
+        if plane is None:
+            return None, None
+        piece = self.largest_piece(pool[inliers])
+        if piece.size < self.min_size:
+            return None, None
+        model = self.fitter.refit(self.fitter.points(self.xyz, piece), plane)
         return (piece, model) if model else (None, None)
 
     def within_distance_noise(self, pool: np.ndarray, model):
