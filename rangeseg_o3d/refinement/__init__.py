@@ -17,7 +17,8 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    failing them the surfaces of any kind, that explain its region (before the merge,
    which joins them to the rest of their faces).
 5. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
-   are merged (the paper's "merging of patches that belong to the same surface"); then a
+   are merged (the paper's "merging of patches that belong to the same surface"); two
+   planes on the halves of a column seen through a noisy sensor become its cylinder; then a
    strip of a sphere or cylinder that another kind took goes back to it.
 6. ``settle`` (:func:`.grow.settle_regions`): border pixels go to the neighbouring region
    whose surface explains them clearly better (the band one surface took from another
@@ -46,7 +47,7 @@ from .context import Context
 from .dissolve import absorb_ripples, dissolve_small
 from .facets import planes_for_curved
 from .grow import grow_regions, settle_regions
-from .merge import merge_into_curved, merge_regions, region_adjacency
+from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
 from .recover import recover_leftovers, recover_pixels
 from .split import split_regions
@@ -130,6 +131,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
             ctx, labels, fits, adjacency, max_angle_deg=config.merge_angle_deg,
             tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
             rms_factor=config.merge_rms_factor)
+        labels, fits, adjacency = planes_into_curved(ctx, labels, fits, adjacency,
+                                                     max_angle_deg=config.merge_angle_deg)
         labels, fits, adjacency = merge_into_curved(ctx, labels, fits, adjacency,
                                                     rms_factor=config.merge_rms_factor)
     timer.lap("merge")

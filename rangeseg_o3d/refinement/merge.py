@@ -460,3 +460,104 @@ def _beyond_median_noise(rms: float, sigma_flat: np.ndarray, parts) -> bool:
         if sum(np.count_nonzero(v >= high) for v in values) > n - half and not beyond_noise(rms, high, n):
             return False  # the middle values are at least ``high``
     return beyond_noise(rms, median(np.concatenate(values)), n)
+
+
+#: The algebraic circle about a crease line leaves up to this factor more squared distances
+#: than the cylinder the fitter finds on the same arc (its fit is biased on a partial arc):
+#: a pair whose circle leaves more than this times the planes' is not tried.
+CIRCLE_SLACK = 2.0
+
+
+def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *, max_angle_deg: float):
+    """Touching planes that are pieces of one column (or ball) become one curved region:
+    returns new ``(labels, fits, adjacency)``.
+
+    On a noisy sensor the two halves of a column seen from one side each fit a plane
+    within the range noise, and the planes, turned from each other by more than
+    ``max_angle_deg``, are never merged. A pair is tried when the planes meet in a convex
+    crease as seen from the sensor (each region's centre beyond the other's plane: a column
+    seen from outside; a room's corners are concave) and one of them is beyond the noise
+    of its distances (:meth:`Context.plane_along_rays`: a flat face is not, the sagitta of
+    an arc is), largest union first. The circle about the planes' crease line through the
+    union's points must leave fewer than CIRCLE_SLACK times the planes' squared distances
+    (one linear solve: a box's faces are far off any such circle, and the fitter's fit is
+    the step's cost); then the fitter's own fit of the union must be curved, leave fewer
+    squared distances over the union's pixels than the two planes leave on theirs (with
+    fewer parameters) and fit at the noise.
+    """
+    pairs = [(a, b) for a, b in adjacency
+             if isinstance(fits.get(a), Plane) and isinstance(fits.get(b), Plane)
+             and _angle_deg(fits[a].normal, fits[b].normal) > max_angle_deg]
+    if not pairs:
+        return labels, fits, adjacency
+    regions = region_indices(labels, only={k for pair in pairs for k in pair})
+    centres = {k: ctx.xyz[idx].mean(axis=0) for k, idx in regions.items()}
+    pairs = [(a, b) for a, b in pairs if a in regions and b in regions
+             and _convex(fits[a], fits[b], centres[a], centres[b])]
+    bent = {k for k in {k for pair in pairs for k in pair} if ctx.plane_along_rays(fits[k], regions[k])}
+    pairs = [(regions[a].size + regions[b].size, a, b) for a, b in pairs if a in bent or b in bent]
+    if not pairs:
+        return labels, fits, adjacency
+    fits = dict(fits)
+    squares = {}  # each plane's sum of squared distances over its pixels
+    lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
+    for _, a, b in sorted(pairs, reverse=True):
+        if lut[a] != a or lut[b] != b or not isinstance(fits[a], Plane):
+            continue  # one of them was joined already
+        for k in (a, b):
+            if k not in squares:
+                squares[k] = float(np.sum(fits[k].distances(ctx.xyz[regions[k]]) ** 2))
+        planes = squares[a] + squares[b]
+        parts = (regions[a], regions[b])
+        points = ctx.fitter.points_of(ctx.xyz, parts)
+        n = parts[0].size + parts[1].size
+        if _crease_circle_mean_square(points, fits[a].normal, fits[b].normal) * n >= CIRCLE_SLACK * planes:
+            continue
+        union = ctx.fitter.fit(points)
+        if not union or isinstance(union, Plane):
+            continue
+        union_squares = sum(float(np.sum(union.distances(ctx.xyz[part]) ** 2)) for part in parts)
+        if union_squares >= planes or _beyond_median_noise(float(np.sqrt(union_squares / n)),
+                                                           ctx.sigma.reshape(-1), parts):
+            continue
+        fits[a] = union
+        del fits[b]
+        regions[a] = np.sort(np.concatenate(parts))
+        squares.pop(a, None)
+        lut[b] = a
+    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+    return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre: np.ndarray) -> bool:
+    # whether two planes meet in a convex crease as seen from the sensor (the origin): each
+    # region's centre lies beyond the other's plane, away from the sensor (a column or ball
+    # seen from outside; a room's corners and a tunnel are concave)
+    return _beyond_from_origin(first, second_centre) and _beyond_from_origin(second, first_centre)
+
+
+def _beyond_from_origin(plane: Plane, point: np.ndarray) -> bool:
+    # whether ``point`` lies on the far side of ``plane`` from the origin
+    side = float(plane.normal @ point - plane.d)  # the origin's is -d
+    return side * plane.d > 0.0
+
+
+def _crease_circle_mean_square(points: np.ndarray, first: np.ndarray, second: np.ndarray) -> float:
+    """The mean squared distance of ``points`` to the circle fitted to them (algebraic least
+    squares) in the plane across the crease line of two planes of normals ``first`` and
+    ``second``: the axis a cylinder both planes touch would have."""
+    axis = _cross(first, second)
+    axis /= np.linalg.norm(axis)
+    u = _cross(axis, first)
+    x, y = points @ first, points @ u
+    x0, y0 = float(np.mean(x)), float(np.mean(y))
+    x, y = x - x0, y - y0
+    design = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
+    (a, b, c), *_ = np.linalg.lstsq(design, x * x + y * y, rcond=None)
+    radius = np.sqrt(max(c + a * a + b * b, 0.0))
+    return float(np.mean((np.hypot(x - a, y - b) - radius) ** 2))
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    # the cross product of two 3-vectors (np.cross's generality costs more than the product)
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])

@@ -335,3 +335,56 @@ def test_points_of_parts_are_the_points_of_their_concatenation(pipeline):
         for _ in range(50):
             parts = [rng.integers(0, 500, int(rng.integers(0, 200))) for _ in range(int(rng.integers(1, 4)))]
             np.testing.assert_array_equal(fitter.points_of(xyz, parts), fitter.points(xyz, np.concatenate(parts)))
+
+
+def _seen_along_rays(xyz: np.ndarray, noise: float, seed: int) -> np.ndarray:
+    # ``xyz`` with range noise of ``noise`` along each ray from the origin
+    ranges = np.linalg.norm(xyz, axis=-1, keepdims=True)
+    return xyz * (1.0 + np.random.default_rng(seed).normal(0.0, noise, ranges.shape) / ranges)
+
+
+def _halves(surface: str, noise: float, seed: int):
+    """A 40 x 60 grid 3 m away, range noise ``noise``: a column of radius 0.25 m (axis along
+    y) over 100 degrees, or a box corner of two faces at 90 degrees, split down the middle
+    into two regions fitted with planes: ``(cloud, labels, fits)``."""
+    v, u = np.mgrid[0:40, 0:60].astype(float)
+    if surface == "column":
+        angle = np.radians(-50.0 + 100.0 * u / 59.0)
+        x, z = 0.25 * np.sin(angle), 3.0 - 0.25 * np.cos(angle)
+    else:  # the corner points at the sensor, each face 45 degrees from the view
+        s = (u - 29.5) * 0.012
+        x, z = s * np.cos(np.radians(45.0)), 3.0 - 0.3 + np.abs(s) * np.sin(np.radians(45.0))
+    xyz = _seen_along_rays(np.dstack([x, (v - 19.5) * 0.02, z]), noise, seed)
+    labels = np.where(u < 30, 1, 2).astype(np.int32)
+    return rs.OrganizedCloud(xyz), labels, {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_two_planes_on_the_halves_of_a_column_become_its_cylinder(seed):
+    from rangeseg_o3d.refinement.context import Context
+    from rangeseg_o3d.refinement.merge import planes_into_curved
+
+    noise = 0.02
+    pipe = rs.Pipeline(rs.load_config("lms200", overrides={"sensor.sigma0": noise}))
+    cloud, labels, fits = _halves("column", noise, seed)
+    ctx = Context(cloud, pipe.fitter, np.full(cloud.shape, noise), 10)
+    # the premise: each half fits its plane within the range noise
+    assert all(not rs.fitting.robust.beyond_noise(fits[k].rms, noise, int((labels == k).sum())) for k in fits)
+    out, out_fits, adjacency = planes_into_curved(ctx, labels, fits, {(1, 2)}, max_angle_deg=10.0)
+    assert (out == 1).all() and set(out_fits) == {1} and adjacency == set()
+    assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.25) < 0.05
+    assert set(fits) == {1, 2} and (labels[:, 30:] == 2).all()  # inputs left alone
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_two_faces_of_a_box_corner_stay_planes(seed):
+    from rangeseg_o3d.refinement.context import Context
+    from rangeseg_o3d.refinement.merge import planes_into_curved
+
+    noise = 0.02
+    pipe = rs.Pipeline(rs.load_config("lms200", overrides={"sensor.sigma0": noise}))
+    cloud, labels, fits = _halves("corner", noise, seed)
+    assert abs(fits[1].normal @ fits[2].normal) < 0.1  # 90 degrees apart
+    ctx = Context(cloud, pipe.fitter, np.full(cloud.shape, noise), 10)
+    out, out_fits, adjacency = planes_into_curved(ctx, labels, fits, {(1, 2)}, max_angle_deg=10.0)
+    assert (out == labels).all() and out_fits == fits and adjacency == {(1, 2)}
