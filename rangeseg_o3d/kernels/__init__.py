@@ -34,7 +34,7 @@ _SOURCES = {
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise",
-                  "rows_with_any", "piece_votes", "nearer_models"),
+                  "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "sides": ("crease_sides",),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),

@@ -457,50 +457,50 @@ def piece_ids(idx, width):
     sizes = np.zeros(n, np.int64)
     if n == 0:
         return piece, sizes
-    # rows and columns without a division per pixel: idx increases, so the row does too
-    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    row, row_start = idx[0] // width, (idx[0] // width) * width
-    left, right = width, 0
+    # Union-find over the positions in idx, each set's root its first position: idx
+    # increases, so a pixel's left neighbour is the position before it and its upper
+    # neighbour is found by a second cursor one row behind. No array of the pixels'
+    # bounding box (pixels spread over a frame would fill a frame-sized one per call).
+    root = np.empty(n, np.int64)
+    above = 0
     for p in range(n):
-        while idx[p] >= row_start + width:
-            row += 1
-            row_start += width
-        rows[p], cols[p] = row, idx[p] - row_start
-        left, right = min(left, cols[p]), max(right, cols[p])
-    top = rows[0]
-    h, w = rows[n - 1] - top + 1, right - left + 1
-    slot = np.full(h * w, -1, np.int64)  # position in idx of each patch pixel, -1 if none
-    for p in range(n):
-        slot[(rows[p] - top) * w + cols[p] - left] = p
-    stack = np.empty(n, np.int64)
+        root[p] = p
+        if p > 0 and idx[p] % width > 0 and idx[p - 1] == idx[p] - 1:
+            _union(root, p - 1, p)
+        up = idx[p] - width
+        while above < p and idx[above] < up:
+            above += 1
+        if above < p and idx[above] == up:
+            _union(root, above, p)
     pieces = 0
-    for start in range(n):
-        if piece[start] >= 0:
-            continue
-        piece[start] = pieces
-        stack[0], depth, size = start, 1, 0
-        while depth:
-            depth -= 1
-            p = stack[depth]
-            size += 1
-            r, c = rows[p] - top, cols[p] - left
-            cell = r * w + c
-            for step in range(4):
-                if step == 0:
-                    other = cell - w if r > 0 else -1
-                elif step == 1:
-                    other = cell + w if r < h - 1 else -1
-                elif step == 2:
-                    other = cell - 1 if c > 0 else -1
-                else:
-                    other = cell + 1 if c < w - 1 else -1
-                if other >= 0 and slot[other] >= 0 and piece[slot[other]] < 0:
-                    piece[slot[other]] = pieces
-                    stack[depth] = slot[other]
-                    depth += 1
-        sizes[pieces] = size
-        pieces += 1
+    for p in range(n):
+        r = _find(root, p)
+        if r == p:
+            piece[p] = pieces
+            pieces += 1
+        else:
+            piece[p] = piece[r]
+        sizes[piece[p]] += 1
     return piece, sizes[:pieces]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _find(root, p):
+    # the root of p's set, halving the path on the way
+    while root[p] != p:
+        root[p] = root[root[p]]
+        p = root[p]
+    return p
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _union(root, a, b):
+    # join the sets of a and b under the smaller root (each set's first position)
+    ra, rb = _find(root, a), _find(root, b)
+    if ra < rb:
+        root[rb] = ra
+    elif rb < ra:
+        root[ra] = rb
 
 @njit(cache=True, nogil=True)
 def largest_piece(idx, width):

@@ -8,14 +8,14 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .grid import group_by_label
 from .inline import _distance, _incidence
 from .kinds import PARAM_SLOTS, PLANE
-from .linalg import collinear, hesse_form, plane_tolerance, solve
+from .linalg import collinear, hesse_form, noise_rms_bound, plane_tolerance, solve
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "rows_with_any",
-           "piece_votes", "nearer_models"]
+           "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
@@ -438,3 +438,86 @@ def nearer_models(points, sigma, owner, kinds, params, margin):
             out[i] = best
             moved += 1
     return out, moved
+
+
+@njit(cache=True, nogil=True)
+def voted_columns(ids, within, n_pieces):
+    """For each row of the (N, P) bool ``within``: the column most rows of its piece
+    (``ids``, numbers below ``n_pieces``) have True (the first of equal counts, as
+    ``np.argmax`` of :func:`piece_votes`' rows), and whether the row itself has it True.
+    Returns ``(member, column)``."""
+    votes = piece_votes(ids, within, n_pieces)
+    best = np.zeros(n_pieces, np.int64)
+    for k in range(n_pieces):
+        for j in range(1, votes.shape[1]):
+            if votes[k, j] > votes[k, best[k]]:
+                best[k] = j
+    n = ids.shape[0]
+    member = np.empty(n, np.bool_)
+    column = np.empty(n, np.int64)
+    for i in range(n):
+        column[i] = best[ids[i]]
+        member[i] = within[i, column[i]]
+    return member, column
+
+
+@njit(cache=True, nogil=True)
+def claim_parts(labels, width, xyz, sigma, pixels, columns, parts, sizes, normals, offsets, plane_rms,
+                plane_labels, column_of, min_size, apart, sigmas):
+    """One claim of connected parts of free pixels by planes (``refinement.recover``'s
+    claim round after the vote), in one pass; returns whether a pixel was claimed.
+
+    ``pixels`` (flat, increasing) each lie within the noise of the plane of column
+    ``columns[i]`` (rows of ``normals``, ``offsets``, ``plane_rms``; region label
+    ``plane_labels[j]``) and form the 4-connected parts ``parts`` of ``sizes`` pixels. A
+    part is claimed when its rms distance to its pixels' planes is within the chi-square
+    bound (``sigmas``, :func:`.linalg.noise_rms_bound`) of the rms of their distance noise
+    (range noise ``sigma`` times the incidence cosine, or the plane's rms when larger)
+    and it has ``min_size`` pixels (with ``apart``) or a pixel whose 4-neighbour on the
+    grid is in the region of its own plane (``column_of[label]``, -1 or beyond it: no
+    plane). Its pixels then take their plane's label in ``labels`` (flat int, in place;
+    every test reads the labels as they were). The sums run in the pixels' order, the
+    arithmetic as numpy's per-pixel expressions: the same answer to the bit.
+    """
+    n_parts = sizes.shape[0]
+    squares = np.zeros(n_parts)
+    noise_squares = np.zeros(n_parts)
+    touches = np.zeros(n_parts, np.bool_)
+    n = labels.shape[0]
+    height = n // width
+    for i in range(pixels.shape[0]):
+        p, j, k = pixels[i], columns[i], parts[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        along = x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
+        norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+        noise = max(sigma[p] * (abs(along) / norm), plane_rms[j])
+        distance = along - offsets[j]
+        squares[k] += distance * distance
+        noise_squares[k] += noise * noise
+        if not touches[k]:
+            row, col = p // width, p % width
+            for step in range(4):
+                if step == 0:
+                    other = p - width if row > 0 else -1
+                elif step == 1:
+                    other = p + width if row < height - 1 else -1
+                elif step == 2:
+                    other = p - 1 if col > 0 else -1
+                else:
+                    other = p + 1 if col < width - 1 else -1
+                if other >= 0:
+                    label = labels[other]
+                    if 0 <= label < column_of.shape[0] and column_of[label] == j:
+                        touches[k] = True
+    kept = np.zeros(n_parts, np.bool_)
+    claimed = False
+    for k in range(n_parts):
+        count = float(max(sizes[k], 1))
+        bound = noise_rms_bound(np.sqrt(noise_squares[k] / count), count, sigmas)
+        kept[k] = ((sizes[k] >= min_size and apart) or touches[k]) and np.sqrt(squares[k] / count) <= bound
+        claimed |= kept[k]
+    if claimed:
+        for i in range(pixels.shape[0]):
+            if kept[parts[i]]:
+                labels[pixels[i]] = plane_labels[columns[i]]
+    return claimed

@@ -15,8 +15,7 @@ import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
-from ..kernels.labelwise import piece_votes, rows_with_any, within_plane_noise
-from ..kernels.linalg import noise_rms_bound
+from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
 from .context import Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
@@ -145,7 +144,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     near = np.flatnonzero(within.any(axis=1))
     if near.size < ctx.min_size:
         return labels, fits
-    member, plane_of = _voted_members(ctx, free[near], within[near], len(planes))
+    member, plane_of = _voted_members(ctx, free[near], within[near])
     # the members of different pieces never touch: one pass finds their connected parts
     pixels, owner = free[near[member]], np.asarray(planes)[plane_of[member]]
     parts, sizes = ctx.piece_ids(pixels)
@@ -169,16 +168,14 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     return grown, refit_grown(ctx, labels, grown, fits)
 
 
-def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray, n_planes: int):
+def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray):
     # connected pieces of the flat ``pixels`` first, then their plane (the column of
     # ``within``, pixels x planes, explaining most of the piece): coplanar regions not
     # merged yet (pieces of one wall) would otherwise share a strip between them, each part
     # under the floor. Returns (whether each pixel is explained by its piece's plane, that
     # plane's column per pixel).
     ids, _ = ctx.piece_ids(pixels)
-    votes = piece_votes(ids, within, int(ids.max()) + 1)  # compiled: no index arrays of within's hits
-    plane_of = np.argmax(votes, axis=1)[ids]
-    return within[np.arange(pixels.size), plane_of], plane_of
+    return voted_columns(ids, within, int(ids.max()) + 1)  # compiled: no (pieces x planes) argmax or gather
 
 
 def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: np.ndarray, *,
@@ -200,14 +197,17 @@ def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: 
     planes = [k for k, m in fits.items() if m and m.kind == "plane"]
     if not planes:
         return labels
-    # the planes' table once: the rounds change labels, not models
-    table = (planes, np.array([fits[k].normal for k in planes]), np.array([fits[k].d for k in planes]),
-             np.array([fits[k].rms for k in planes]))
+    # the planes' table once: the rounds change labels, not models (and each label's
+    # column in it, -1 for labels that are no plane)
+    column_of = np.full(max(planes) + 1, -1, np.int64)
+    column_of[planes] = np.arange(len(planes))
+    table = (np.array(planes, np.int64), np.array([fits[k].normal for k in planes]),
+             np.array([fits[k].d for k in planes]), np.array([fits[k].rms for k in planes]), column_of)
     free = pool[labels.reshape(-1)[pool] == 0]
     if free.size < ctx.min_size:
         return labels
     # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
-    within = within_plane_noise(ctx.xyz[free], ctx.sigma[free], *table[1:], k_sigma)
+    within = within_plane_noise(ctx.xyz[free], ctx.sigma[free], *table[1:4], k_sigma)
     # only a pixel within the noise of some plane can be claimed; the others still count
     # towards the size floor of the free pool
     near = rows_with_any(within)  # within.any(axis=1)'s rows without numpy's reduction over short rows
@@ -226,30 +226,19 @@ def _claim_once(ctx: Context, labels: np.ndarray, table: tuple, free: np.ndarray
                 apart: bool) -> bool:
     # one round of claim_on_distance_noise over the free pixels ``free`` within the noise of
     # a plane (``within``: pixels x planes, each row with a True; ``table``: the planes'
-    # labels, normals, offsets and rms); whether it claimed any pixel
-    planes, normals, offsets, plane_rms = table
+    # labels, normals, offsets and rms, and each label's column); whether it claimed any pixel
+    plane_labels, normals, offsets, plane_rms, column_of = table
     if free.size < ctx.min_size:
         return False
-    member, plane_of = _voted_members(ctx, free, within, len(planes))
-    rows, columns = np.flatnonzero(member), plane_of[member]
-    distances, noise, _ = _distance_and_noise(ctx.xyz[free[rows]], ctx.sigma[free[rows]], normals[columns],
-                                              offsets[columns], plane_rms[columns])
-    parts, sizes = ctx.piece_ids(free[rows])
-    counts = np.maximum(sizes, 1)
-    mean_squares = np.bincount(parts, weights=distances ** 2, minlength=sizes.size) / counts
-    noise_squares = np.bincount(parts, weights=noise ** 2, minlength=sizes.size) / counts
-    # a part smaller than the floor joins only the region it touches (growth's case)
-    column = np.full(int(labels.max()) + 1, -1)
-    column[planes] = np.arange(len(planes))
-    touches = np.bincount(parts, weights=_touches_own_plane(labels, free[rows], columns, column),
-                          minlength=sizes.size) > 0
-    bound = noise_rms_bound.py_func(np.sqrt(noise_squares), counts.astype(float), CHI_SQUARE_SIGMAS)
-    kept = (((sizes >= ctx.min_size) & apart) | touches) & (np.sqrt(mean_squares) <= bound)
-    if not kept.any():
-        return False
-    take = kept[parts]
-    labels.reshape(-1)[free[rows[take]]] = np.asarray(planes)[columns[take]]
-    return True
+    member, plane_of = _voted_members(ctx, free, within)
+    rows = np.flatnonzero(member)
+    pixels = free[rows]
+    parts, sizes = ctx.piece_ids(pixels)
+    # compiled: each part's rms distance and distance noise, whether it touches its plane's
+    # region, the bound and the labels in one pass (numpy took some thirty passes a round)
+    return claim_parts(labels.reshape(-1), labels.shape[1], ctx.xyz, ctx.sigma, pixels, plane_of[rows], parts,
+                       sizes, normals, offsets, plane_rms, plane_labels, column_of, ctx.min_size, bool(apart),
+                       CHI_SQUARE_SIGMAS)
 
 
 def _distance_and_noise(points: np.ndarray, sigma: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
@@ -304,16 +293,6 @@ def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarr
     return hit
 
 
-def _touches_own_plane(labels: np.ndarray, pixels: np.ndarray, own: np.ndarray,
-                       column: np.ndarray) -> np.ndarray:
-    # whether each flat pixel has a 4-neighbour in the region of its own plane (column
-    # ``own[p]`` >= 0): _touches_explaining with one plane per pixel, no (pixels x planes) array
-    hit = np.zeros(pixels.size, bool)
-    for inside, j in _neighbour_columns(labels, pixels, column):
-        hit[inside] |= j == own[inside]
-    return hit
-
-
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
                       k_sigma: float, jump_ratio: float, jump_min: float, claim_strips: bool = True):
@@ -357,14 +336,16 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     return (rows + top) * labels.shape[1] + cols + left
 
 
-def _regions_in_box(labels: np.ndarray, wanted, box) -> dict:
-    # region_indices(labels, only=wanted) of labels whose pixels all lie within ``box``
-    # (:func:`_members_in_box`): only the box is read
-    members = np.zeros(int(labels.max(initial=0)) + 1, bool)
-    members[[k for k in wanted if 0 < k < members.size]] = True
-    pixels = _members_in_box(labels, members, box)
-    owner = labels.reshape(-1)[pixels]
-    return {k: pixels[owner == k] for k in np.unique(owner).tolist()}
+def _grouped(pixels: np.ndarray, owner: np.ndarray, only) -> dict[int, np.ndarray]:
+    # the flat ``pixels`` (increasing) of each label of ``only`` by their labels ``owner``, as
+    # region_indices(labels, only=only) gives them when all those labels' pixels are among them
+    keep = np.isin(owner, list(only))
+    pixels, owner = pixels[keep], owner[keep]
+    order = np.argsort(owner, kind="stable")  # each label's pixels stay increasing
+    keys, starts = np.unique(owner[order], return_index=True)
+    bounds = starts.tolist() + [pixels.size]
+    pixels = pixels[order]
+    return {k: pixels[bounds[i]:bounds[i + 1]] for i, k in enumerate(keys.tolist())}
 
 
 def _grown(box, by: int) -> tuple[int, int, int, int]:
@@ -424,7 +405,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # below looks only in their box grown by the rings it may add (same answers).
     blobs = None if boxes is None or not len(boxes) else (
         int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
-    refused = _planes_along_rays(ctx, labels, fits, new, box=blobs)
+    refused = _planes_along_rays(ctx, labels, fits, new, pool)
     if new:
         from ..kernels import claim_rings, member_pixels
 
@@ -482,9 +463,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     return labels, fits
 
 
-def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, *, box=None) -> set:
-    """The planes found in the blobs (``new``) that do not explain their pixels within the
-    noise of their distances (:meth:`Context.plane_along_rays`).
+def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, pool: np.ndarray) -> set:
+    """The planes found in the blobs (``new``, their pixels among the flat ``pool``,
+    increasing) that do not explain their pixels within the noise of their distances
+    (:meth:`Context.plane_along_rays`).
 
     A band a few pixels thick, of any surface or of two faces across a crease, lies within
     the range noise of the plane through its viewing rays; the fitter, which holds a plane
@@ -494,8 +476,7 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
     planes = [k for k, m in new.items() if m.kind == "plane"]
     if not planes:
         return set()
-    # only theirs sorted: the rest of the grid (of ``box``, which holds them, when given) is read
-    pixels = region_indices(labels, only=planes) if box is None else _regions_in_box(labels, planes, box)
+    pixels = _grouped(pool, labels.reshape(-1)[pool], planes)  # the blobs' pixels read, not the grid
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 

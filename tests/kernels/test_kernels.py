@@ -397,6 +397,14 @@ def test_piece_ids_number_the_pieces_as_opencv_does():
         assert np.array_equal(sizes, np.bincount(comp.ravel()[idx] - 1, minlength=n - 1))
         biggest = np.flatnonzero(comp.ravel() == 1 + int(np.argmax(sizes)))
         assert np.array_equal(largest_piece(idx, mask.shape[1]), biggest)
+    # pixels scattered over a wide grid (no piece crosses a row's end), and one column
+    for shape, density in (((60, 640), 0.05), ((60, 640), 0.7), ((25, 1), 0.6)):
+        mask = (rng.random(shape) < density).astype(np.uint8)
+        idx = np.flatnonzero(mask)
+        ids, sizes = piece_ids(idx, shape[1])
+        n, comp = cv2.connectedComponents(mask, connectivity=4, ltype=cv2.CV_32S)
+        assert np.array_equal(ids, comp.ravel()[idx] - 1)
+        assert np.array_equal(sizes, np.bincount(comp.ravel()[idx] - 1, minlength=n - 1))
     ids, sizes = piece_ids(np.array([], np.int64), 5)
     assert ids.size == 0 and sizes.size == 0
     ids, sizes = piece_ids(np.array([12], np.int64), 5)
