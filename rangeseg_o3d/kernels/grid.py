@@ -13,7 +13,7 @@ from .kinds import PLANE
 CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "labels_near", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -519,6 +519,44 @@ def largest_piece(idx, width):
             out[m] = idx[p]
             m += 1
     return out
+
+@njit(cache=True, nogil=True)
+def labels_near(labels, idx, reach):
+    """The positive labels (increasing) of the 2-D ``labels`` within ``reach`` rows and
+    columns of the flat pixels ``idx`` (increasing): the labels under the pixels' mask
+    dilated by a ``2 reach + 1`` square. Each run of pixels along a row reads the
+    rectangle its squares cover once (no patch, dilation or sort of its bounding box)."""
+    h, w = labels.shape
+    found = np.zeros(16, np.int64)
+    m = 0
+    n = idx.shape[0]
+    start = 0
+    while start < n:
+        # a run: consecutive pixels of one row
+        end = start + 1
+        row = idx[start] // w
+        while end < n and idx[end] == idx[end - 1] + 1 and idx[end] // w == row:
+            end += 1
+        c0, c1 = idx[start] - row * w, idx[end - 1] - row * w
+        last = 0
+        for r in range(max(row - reach, 0), min(row + reach + 1, h)):
+            for c in range(max(c0 - reach, 0), min(c1 + reach + 1, w)):
+                k = labels[r, c]
+                if k <= 0 or k == last:
+                    continue
+                last = k
+                seen = False
+                for j in range(m):
+                    if found[j] == k:
+                        seen = True
+                        break
+                if not seen:
+                    if m == found.shape[0]:
+                        found = np.concatenate((found, np.zeros(m, np.int64)))
+                    found[m] = k
+                    m += 1
+        start = end
+    return np.sort(found[:m])
 
 @njit(cache=True, nogil=True)
 def member_pixels(labels, members):

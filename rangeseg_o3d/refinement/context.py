@@ -3,24 +3,12 @@ connected-piece helpers that split and recover share."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
 from ..fitting.robust import beyond_noise, distance_noise, trimmed_fit
 
-__all__ = ["Context", "blob_patch", "touching", "without"]
-
-
-def blob_patch(idx: np.ndarray, shape: tuple[int, int], margin: int):
-    """The flat pixels ``idx`` as a 0/1 uint8 patch of their bounding box grown by ``margin``
-    (clipped to ``shape``); returns ``(patch, (top, left), (rows, cols))``."""
-    rows, cols = np.divmod(idx, shape[1])
-    top, left = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    bottom, right = min(rows.max() + margin + 1, shape[0]), min(cols.max() + margin + 1, shape[1])
-    patch = np.zeros((bottom - top, right - left), np.uint8)
-    patch[rows - top, cols - left] = 1
-    return patch, (top, left), (rows, cols)
+__all__ = ["Context", "touching", "without"]
 
 
 def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
@@ -32,11 +20,12 @@ def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
 
 
 def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
-    """The labels within ``reach`` pixels of the flat pixels ``idx`` (from a bounding-box patch)."""
-    blob, (top, left), _ = blob_patch(idx, labels.shape, reach)
-    patch = labels[top:top + blob.shape[0], left:left + blob.shape[1]]
-    near = cv2.dilate(blob, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
-    return {int(k) for k in np.unique(patch[near]) if k > 0}
+    """The labels within ``reach`` pixels (rows and columns) of the flat pixels ``idx``
+    (increasing), in one compiled pass over their rows' runs (:func:`rangeseg_o3d.kernels.labels_near`)."""
+    from ..kernels import labels_near
+
+    return set(labels_near(np.ascontiguousarray(labels), np.ascontiguousarray(idx, dtype=np.int64),
+                           int(reach)).tolist())
 
 
 #: Inliers whose largest 4-connected piece holds less than this share of them are not one

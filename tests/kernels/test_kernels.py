@@ -412,6 +412,24 @@ def test_piece_ids_number_the_pieces_as_opencv_does():
     assert largest_piece(np.array([], np.int64), 5).size == 0
 
 
+def test_labels_near_are_the_labels_under_the_dilated_mask():
+    import cv2
+
+    from rangeseg_o3d.kernels import labels_near
+
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        h, w = rng.integers(1, 30), rng.integers(1, 40)
+        labels = rng.integers(0, rng.integers(1, 90), (h, w)).astype(np.int32)
+        mask = (rng.random((h, w)) < rng.uniform(0.01, 0.6)).astype(np.uint8)
+        idx = np.flatnonzero(mask)
+        for reach in (0, 1, 2, 3):
+            near = cv2.dilate(mask, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+            expected = np.unique(labels[near])
+            np.testing.assert_array_equal(labels_near(labels, idx, reach), expected[expected > 0])
+    assert labels_near(np.ones((3, 3), np.int32), np.array([], np.int64), 2).size == 0
+
+
 def _reference_ray_steps(xyz):
     # the angles between neighbouring viewing directions, pair by pair in numpy
     def angle(a, b):
