@@ -90,8 +90,11 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     flat = labels.ravel()
     if regions is None:
         regions = region_indices(candidates)
-    # blobs that are one plane need no search (one batched pass settles them)
-    settled = ctx.fitter.fit_batch(ctx.xyz, candidates) if regions else {}
+    # blobs that are one plane need no search (one batched pass settles them); the batch
+    # reads each blob's pixels in raster order, so the blobs' pixels alone give the same
+    # moments, planes and counts as the whole grid
+    pool = np.sort(np.concatenate(list(regions.values()))) if regions else None
+    settled = ctx.fitter.fit_batch(ctx.xyz[pool], candidates.reshape(-1)[pool]) if regions else {}
     mixed = []
     for k, idx in regions.items():
         chosen, model = _one_plane(ctx, idx, settled.get(k))
