@@ -206,8 +206,9 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma,
                                   candidates=candidates, min_size=min_size, boxes=boxes)
-    moved = before != labels
-    stale = set(np.unique(before[moved]).tolist()) | set(np.unique(labels[moved]).tolist())
+    from .kernels import moved_labels
+
+    stale = set(moved_labels(before, np.ascontiguousarray(labels, dtype=before.dtype)).tolist())
     stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
     stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=stale)
     return labels, fits, stats

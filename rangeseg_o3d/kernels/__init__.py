@@ -30,7 +30,7 @@ import importlib
 _SOURCES = {
     "grid": ("adjacency_matrix", "block_means", "claim_rings", "settle_borders", "group_by_label", "group_members",
              "label_counts",
-             "relabel", "grow_rings", "jump_mask", "largest_piece", "labels_near", "member_pixels", "box_members", "piece_ids",
+             "relabel", "grow_rings", "jump_mask", "largest_piece", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise",

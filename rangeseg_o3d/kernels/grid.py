@@ -13,7 +13,7 @@ from .kinds import PLANE
 CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["group_by_label", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "labels_near", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -525,11 +525,22 @@ def labels_near(labels, idx, reach):
     """The positive labels (increasing) of the 2-D ``labels`` within ``reach`` rows and
     columns of the flat pixels ``idx`` (increasing): the labels under the pixels' mask
     dilated by a ``2 reach + 1`` square. Each run of pixels along a row reads the
-    rectangle its squares cover once (no patch, dilation or sort of its bounding box)."""
+    rectangle its squares cover (no patch, dilation or sort of its bounding box): once for
+    the largest label there, once to mark them."""
+    top = _runs_near(labels, idx, reach, np.zeros(0, np.bool_))
+    seen = np.zeros(top + 1, np.bool_)
+    _runs_near(labels, idx, reach, seen)
+    return np.flatnonzero(seen[1:]) + 1
+
+
+@njit(cache=True, nogil=True)
+def _runs_near(labels, idx, reach, seen):
+    # over the rectangles the runs of idx cover, grown by reach: mark each label in ``seen``
+    # (when it has room for them), and return the largest label met
     h, w = labels.shape
-    found = np.zeros(16, np.int64)
-    m = 0
     n = idx.shape[0]
+    mark = seen.shape[0] > 0
+    top = 0
     start = 0
     while start < n:
         # a run: consecutive pixels of one row
@@ -538,25 +549,52 @@ def labels_near(labels, idx, reach):
         while end < n and idx[end] == idx[end - 1] + 1 and idx[end] // w == row:
             end += 1
         c0, c1 = idx[start] - row * w, idx[end - 1] - row * w
-        last = 0
         for r in range(max(row - reach, 0), min(row + reach + 1, h)):
             for c in range(max(c0 - reach, 0), min(c1 + reach + 1, w)):
                 k = labels[r, c]
-                if k <= 0 or k == last:
-                    continue
-                last = k
-                seen = False
-                for j in range(m):
-                    if found[j] == k:
-                        seen = True
-                        break
-                if not seen:
-                    if m == found.shape[0]:
-                        found = np.concatenate((found, np.zeros(m, np.int64)))
-                    found[m] = k
-                    m += 1
+                if k > top:
+                    top = k
+                if mark and k > 0:
+                    seen[k] = True
         start = end
-    return np.sort(found[:m])
+    return top
+
+
+@njit(cache=True, nogil=True)
+def free_pixels(labels, valid):
+    """Flat indices (increasing) of the valid pixels without a label:
+    ``np.flatnonzero((labels == 0) & valid)`` without its two whole-grid temporaries."""
+    flat, ok = labels.ravel(), valid.ravel()
+    count = 0
+    for i in range(flat.shape[0]):
+        if flat[i] == 0 and ok[i]:
+            count += 1
+    out = np.empty(count, np.int64)
+    m = 0
+    for i in range(flat.shape[0]):
+        if flat[i] == 0 and ok[i]:
+            out[m] = i
+            m += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def moved_labels(before, after):
+    """The labels (increasing, 0 included when present) that the pixels whose label differs
+    between the label images ``before`` and ``after`` (same shape) had or have:
+    ``np.union1d(before[moved], after[moved])`` without the whole-grid comparison array."""
+    a, b = before.ravel(), after.ravel()
+    count = 0
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            count += 1
+    values = np.empty(2 * count, np.int64)
+    m = 0
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            values[m], values[m + 1] = a[i], b[i]
+            m += 2
+    return np.unique(values)
 
 @njit(cache=True, nogil=True)
 def member_pixels(labels, members):

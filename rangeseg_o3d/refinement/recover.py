@@ -15,6 +15,7 @@ import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
+from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
 from .context import Context, touching
@@ -85,15 +86,17 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     """
     from .split import split_regions
 
-    # the candidates' numbers are above every label: one maximum puts them in
-    labels, fits = np.maximum(candidates, labels).astype(np.int32, copy=False), dict(fits)
-    flat = labels.ravel()
     if regions is None:
         regions = region_indices(candidates)
+    pool = np.sort(np.concatenate(list(regions.values()))) if regions else np.zeros(0, np.int64)
+    # the candidates' numbers are above every label: a maximum puts them in (at their pixels
+    # alone: elsewhere the candidates are 0)
+    labels, fits = np.array(labels, dtype=np.int32, order="C"), dict(fits)
+    flat = labels.ravel()
+    flat[pool] = np.maximum(candidates.reshape(-1)[pool], flat[pool])
     # blobs that are one plane need no search (one batched pass settles them); the batch
     # reads each blob's pixels in raster order, so the blobs' pixels alone give the same
     # moments, planes and counts as the whole grid
-    pool = np.sort(np.concatenate(list(regions.values()))) if regions else None
     settled = ctx.fitter.fit_batch(ctx.xyz[pool], candidates.reshape(-1)[pool]) if regions else {}
     mixed = []
     for k, idx in regions.items():
@@ -351,6 +354,13 @@ def _grouped(pixels: np.ndarray, owner: np.ndarray, only) -> dict[int, np.ndarra
     return {k: pixels[bounds[i]:bounds[i + 1]] for i, k in enumerate(keys.tolist())}
 
 
+def _read_only_bool(mask: np.ndarray) -> np.ndarray:
+    # a C-contiguous read-only bool view (or copy): one compiled signature whatever the cloud holds
+    view = np.ascontiguousarray(mask, dtype=np.bool_).view()
+    view.flags.writeable = False
+    return view
+
+
 def _grown(box, by: int) -> tuple[int, int, int, int]:
     # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side (not clipped)
     return box[0] - by, box[1] + by, box[2] - by, box[3] + by
@@ -461,7 +471,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                                       pixels=kept_apart if config.merge else None)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
-        labels = claim_on_distance_noise(ctx, labels, fits, np.flatnonzero((labels == 0) & cloud.valid),
+        labels = claim_on_distance_noise(ctx, labels, fits, free_pixels(labels, _read_only_bool(cloud.valid)),
                                          k_sigma=config.k_sigma)
     return labels, fits
 
