@@ -485,9 +485,10 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
     squared distances over the union's pixels than the two planes leave on theirs (with
     fewer parameters) and fit at the noise.
     """
+    turned = float(np.cos(np.radians(max_angle_deg)))  # _angle_deg(u, v) > max_angle_deg, without arccos
     pairs = [(a, b) for a, b in adjacency
              if isinstance(fits.get(a), Plane) and isinstance(fits.get(b), Plane)
-             and _angle_deg(fits[a].normal, fits[b].normal) > max_angle_deg]
+             and abs(float(fits[a].normal @ fits[b].normal)) < turned]
     if not pairs:
         return labels, fits, adjacency
     regions = region_indices(labels, only={k for pair in pairs for k in pair})
