@@ -28,7 +28,7 @@ from __future__ import annotations
 import importlib
 
 _SOURCES = {
-    "grid": ("adjacency_matrix", "block_means", "claim_rings", "settle_borders", "group_by_label", "group_members",
+    "grid": ("adjacency_matrix", "count_either_side", "block_means", "claim_rings", "settle_borders", "group_by_label", "group_members",
              "label_counts",
              "relabel", "grow_rings", "jump_mask", "largest_piece", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),

@@ -449,17 +449,20 @@ def _beyond_median_noise(rms: float, sigma_flat: np.ndarray, parts) -> bool:
     a median within that sliver (or a NaN, which makes the median NaN) needs the median
     (on a tunnel's 190000 pixels a partition costs four times the gather and counts).
     """
+    from ..kernels import count_either_side
+
     n = sum(part.size for part in parts)
     half = n // 2
     at_bound = rms / noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS)
     low, high = at_bound * (1.0 - _MEDIAN_MARGIN), at_bound * (1.0 + _MEDIAN_MARGIN)
-    values = [sigma_flat[part] for part in parts]
-    if high > low and not any(np.isnan(v).any() for v in values):  # (a NaN rms: the median decides)
-        if sum(np.count_nonzero(v <= low) for v in values) > half and beyond_noise(rms, low, n):
-            return True  # the middle values are at most ``low``
-        if sum(np.count_nonzero(v >= high) for v in values) > n - half and not beyond_noise(rms, high, n):
-            return False  # the middle values are at least ``high``
-    return beyond_noise(rms, median(np.concatenate(values)), n)
+    if high > low:  # (a NaN rms: the median decides)
+        counts = [count_either_side(sigma_flat, part, low, high) for part in parts]  # no gather
+        if not any(nan for _, _, nan in counts):
+            if sum(below for below, _, _ in counts) > half and beyond_noise(rms, low, n):
+                return True  # the middle values are at most ``low``
+            if sum(above for _, above, _ in counts) > n - half and not beyond_noise(rms, high, n):
+                return False  # the middle values are at least ``high``
+    return beyond_noise(rms, median(np.concatenate([sigma_flat[part] for part in parts])), n)
 
 
 #: The algebraic circle about a crease line leaves up to this factor more squared distances
