@@ -185,18 +185,26 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     the regions whose pixels or models changed are measured again.
     """
     from .refinement.recover import recover_pixels
-    from .scales import with_derived_refinement
+    from .scales import MIN_PIXELS, with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
     min_size = smallest_region(config, sensor, cloud)
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
     # window, small faces between creases it could not see, and faces the split left
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
+    # A face seen edge-on is a strip two or three pixels across: no 3x3 core, so it comes
+    # as a thin blob, whose floor is the fewest returns that tell a plane (the tile floor
+    # counts tile means, which never held it). With close_gaps only, as the other slivers:
+    # a VGA depth frame leaves 10-50 such strips along its edges, each fitted on its own
+    # (recover_pixels' CPU time doubled on the real frames, and kinect/stereo lost faces to
+    # strips of their edge bands taken as planes).
     first = int(labels.max(initial=0)) + 1
-    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first)
+    thin = min(MIN_PIXELS, min_size) if config.close_gaps else 0
+    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first,
+                                 thin_min_size=thin)
     if found is None:
         return labels, fits, stats
-    candidates, boxes = found
+    candidates, boxes, first_thin = found
     # The tile models carry the rms of the tile means (a tile of t x t returns averages
     # the range noise down by up to t); from here on they are compared with models fitted
     # to pixels (the merge's rms test, the claim's noise floor), so they carry the rms of
@@ -205,7 +213,8 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     before, fits_before = labels.copy(), fits
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma,
-                                  candidates=candidates, min_size=min_size, boxes=boxes)
+                                  candidates=candidates, min_size=min_size, boxes=boxes,
+                                  thin_from=first_thin)
     from .kernels import moved_labels
 
     stale = set(moved_labels(before, np.ascontiguousarray(labels, dtype=before.dtype)).tolist())
@@ -598,21 +607,25 @@ def _region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) 
     return points[np.isfinite(points).all(axis=1)]
 
 
-def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int, first_label: int):
+def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int, first_label: int,
+                         thin_min_size: int = 0):
     """Every blob of valid unlabelled pixels, numbered from ``first_label``, with its box:
-    ``(candidates, boxes)``, blob ``first_label + j``'s bounding box ``(row0, row1, col0,
-    col1)``, half-open, in row ``j``; None if there are none.
+    ``(candidates, boxes, first_thin)``, blob ``first_label + j``'s bounding box ``(row0, row1,
+    col0, col1)``, half-open, in row ``j``; None if there are none.
 
     The blobs are those of :func:`rangeseg_o3d.refinement.recover.leftover_candidates` (no
     jump mask), found by one compiled pass that stops as soon as it sees nothing is left over.
+    With ``thin_min_size``, the 4-connected pieces of at least that many leftover pixels that
+    no such blob took (strips too thin for a 3x3 core) follow them, numbered from ``first_thin``
+    (:func:`rangeseg_o3d.kernels.leftover_blobs`; without, ``first_thin`` is past the last blob).
     """
     from .kernels import leftover_blobs
 
-    candidates, boxes = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
-                                       int(min_size), int(first_label))
+    candidates, boxes, n_cored = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
+                                                int(min_size), int(first_label), int(thin_min_size))
     if not boxes.shape[0]:
         return None
-    return candidates, boxes
+    return candidates, boxes, int(first_label) + int(n_cored)
 
 
 def _flat_points(cloud) -> np.ndarray:

@@ -166,12 +166,58 @@ def test_leftover_blobs_and_their_boxes_equal_the_whole_image_computation(seed):
         labels[r:r + rng.integers(4, 12), c:c + rng.integers(4, 12)] = 0
     valid = rng.random(labels.shape) > 0.01
     expected = leftover_candidates(labels, valid, np.zeros(labels.shape, bool), min_size=12, first_label=5)
-    got, boxes = leftover_blob_labels(labels, valid, min_size=12, first_label=5)
+    got, boxes, first_thin = leftover_blob_labels(labels, valid, min_size=12, first_label=5)
     np.testing.assert_array_equal(got, expected)
     assert len(boxes) == len(np.unique(expected[expected > 0])) >= 3
+    assert first_thin == 5 + len(boxes)  # no thin blobs unless asked for
     for j, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
         rows, cols = np.nonzero(expected == 5 + j)
         assert (r0, r1, c0, c1) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_thin_leftovers_follow_the_cored_blobs_as_their_own_blobs(seed):
+    # strips too thin for a 3x3 core (a box side seen edge-on) and what is left of blobs
+    # under the floor: their 4-connected pieces of at least thin_min_size pixels, numbered
+    # after the cored blobs in raster order of their first pixel (OpenCV's order), each
+    # with its box; the cored blobs as without them
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(1, 4, (90, 130)).astype(np.int32)
+    labels[rng.random(labels.shape) < 0.03] = 0
+    for r, c in ((0, 0), (40, 60), (84, 124)):
+        labels[r:r + rng.integers(4, 12), c:c + rng.integers(4, 12)] = 0
+    for c in (20, 95):  # edge-on strips two pixels wide
+        labels[10:10 + rng.integers(15, 60), c:c + 2] = 0
+    valid = rng.random(labels.shape) > 0.01
+    cored, cored_boxes, _ = leftover_blob_labels(labels, valid, min_size=12, first_label=5)
+    got, boxes, first_thin = leftover_blob_labels(labels, valid, min_size=12, first_label=5, thin_min_size=10)
+    assert first_thin == 5 + len(cored_boxes)
+    np.testing.assert_array_equal(np.where(got < first_thin, got, 0), cored)
+    rest = (valid & (labels == 0) & (cored == 0)).astype(np.uint8)
+    n, pieces, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=4, ltype=cv2.CV_32S)
+    big = [j for j in range(1, n) if stats[j, cv2.CC_STAT_AREA] >= 10]
+    assert len(big) >= 2  # the two strips at least
+    expected = np.zeros_like(got)
+    for number, j in enumerate(big):
+        expected[pieces == j] = first_thin + number
+    np.testing.assert_array_equal(np.where(got >= first_thin, got, 0), expected)
+    for j, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
+        rows, cols = np.nonzero(got == 5 + j)
+        assert (r0, r1, c0, c1) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+
+
+def test_a_thin_strip_alone_is_a_thin_blob():
+    labels = np.ones((30, 40), np.int32)
+    valid = np.ones(labels.shape, bool)
+    labels[5:25, 10:12] = 0  # 40 pixels, no core
+    assert leftover_blob_labels(labels, valid, min_size=10, first_label=2) is None
+    assert leftover_blob_labels(labels, valid, min_size=10, first_label=2, thin_min_size=41) is None
+    got, boxes, first_thin = leftover_blob_labels(labels, valid, min_size=10, first_label=2, thin_min_size=40)
+    assert first_thin == 2
+    assert (got == 2).sum() == 40 and (got[labels == 0] == 2).all()
+    assert boxes.tolist() == [[5, 25, 10, 12]]
 
 
 def test_nothing_left_over_skips_the_recovery():

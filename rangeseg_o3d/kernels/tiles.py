@@ -162,17 +162,21 @@ def _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor):
 
 
 @njit(cache=True, nogil=True)
-def leftover_blobs(labels, valid, min_size, first_label):
+def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
     """Compact blobs of valid, unlabelled pixels: :func:`rangeseg_o3d.refinement.recover.leftover_candidates`
     without a jump mask, in one pass over the grid and then work on the leftover pixels only.
 
     Cores are the leftover pixels whose 3x3 neighbourhood is all leftover (the grid border
     replicated); 4-connected cores are numbered in raster order of their first pixel, each
     leftover pixel takes the largest core number in its 3x3 neighbourhood, and blobs of at
-    least ``min_size`` pixels are renumbered from ``first_label``.
+    least ``min_size`` pixels are renumbered from ``first_label``. With ``thin_min_size > 0``
+    the leftover pixels no such blob took (strips too thin for a core, and what is left of
+    blobs under ``min_size``) follow as thin blobs: their 4-connected pieces of at least
+    ``thin_min_size`` pixels, numbered on after the others in raster order of their first pixel.
 
-    Returns ``(candidates (H, W) int32, boxes (n, 4) int64)``: each blob's bounding box
-    ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``.
+    Returns ``(candidates (H, W) int32, boxes (n, 4) int64, n_cored)``: each blob's bounding box
+    ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``; the
+    first ``n_cored`` blobs are the cored ones.
     """
     h, w = labels.shape
     candidates = np.zeros((h, w), np.int32)
@@ -185,7 +189,7 @@ def leftover_blobs(labels, valid, min_size, first_label):
             free[r, c] = f
             n_free += f
     if n_free == 0:
-        return candidates, none
+        return candidates, none, 0
     # the leftover pixels in raster order (a few percent of a frame): all later work is theirs
     rows = np.empty(n_free, np.int64)
     cols = np.empty(n_free, np.int64)
@@ -203,9 +207,7 @@ def leftover_blobs(labels, valid, min_size, first_label):
         if _all_free_around(free, r, c, h, w):
             core[r, c] = -1
             n_core_pixels += 1
-    if n_core_pixels == 0:
-        return candidates, none
-    n_cores = _number_listed(core, rows, cols, n_core_pixels)
+    n_cores = _number_listed(core, rows, cols, n_core_pixels) if n_core_pixels else 0
     # every leftover pixel takes the largest core number around it (3x3, border replicated)
     sizes = np.zeros(n_cores + 1, np.int64)
     for j in range(n_free):
@@ -219,20 +221,47 @@ def leftover_blobs(labels, valid, min_size, first_label):
         if sizes[k] >= min_size:
             lut[k] = first_label + kept
             kept += 1
+    n_cored = kept
+    # the leftover pixels no kept blob took, marked -1 in ``thin`` (when asked for)
+    thin = np.zeros((h, w) if thin_min_size > 0 else (1, 1), np.int32)
+    n_thin_pixels = 0
+    for j in range(n_free):
+        r, c = rows[j], cols[j]
+        k = candidates[r, c]
+        if k != 0:
+            k = lut[k]
+            candidates[r, c] = k
+        if k == 0 and thin_min_size > 0:
+            thin[r, c] = -1
+            n_thin_pixels += 1
+    thin_lut = np.zeros(1, np.int32)
+    n_thin = _number_listed(thin, rows, cols, n_thin_pixels) if n_thin_pixels else 0
+    if n_thin:
+        thin_sizes = np.zeros(n_thin + 1, np.int64)
+        for j in range(n_free):
+            r, c = rows[j], cols[j]
+            if candidates[r, c] == 0:
+                thin_sizes[thin[r, c]] += 1
+        thin_lut = np.zeros(n_thin + 1, np.int32)
+        for k in range(1, n_thin + 1):
+            if thin_sizes[k] >= thin_min_size:
+                thin_lut[k] = first_label + kept
+                kept += 1
+    if kept == 0:
+        return candidates, none, 0
     boxes = np.empty((kept, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
     for j in range(n_free):
         r, c = rows[j], cols[j]
         k = candidates[r, c]
-        if k == 0:
-            continue
-        k = lut[k]
-        candidates[r, c] = k
+        if k == 0 and n_thin:
+            k = thin_lut[thin[r, c]]
+            candidates[r, c] = k
         if k:
             b = k - first_label
             boxes[b, 0], boxes[b, 1] = min(boxes[b, 0], r), max(boxes[b, 1], r + 1)
             boxes[b, 2], boxes[b, 3] = min(boxes[b, 2], c), max(boxes[b, 3], c + 1)
-    return candidates, boxes
+    return candidates, boxes, n_cored
 
 
 @njit(cache=True, nogil=True, inline="always")

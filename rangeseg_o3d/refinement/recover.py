@@ -14,11 +14,11 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import model_table, region_indices
-from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise
+from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise
 from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
-from .context import Context, touching
+from .context import _TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .merge import merge_into_curved, merge_regions
 
@@ -73,7 +73,7 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain):
 
 
 def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
-                regions: dict | None = None):
+                regions: dict | None = None, thin_from: int | None = None):
     """Split each candidate blob into every surface it holds; free what none explains.
 
     ``candidates`` numbers the blobs (0 elsewhere, numbers above every label). A blob
@@ -83,6 +83,12 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     explaining the blob by one dominant surface would drop the rest. Returns new
     ``(labels, fits)``; the first surface of a blob keeps the blob's number. ``regions``
     (optional): each blob's flat pixels (increasing), when the caller has them.
+
+    Blobs numbered from ``thin_from`` on are thin strips (no pixel of them has a 3x3
+    neighbourhood of leftover pixels: a box side seen edge-on): a strip two or three pixels
+    across resolves no curvature across it and holds no second surface a split could find,
+    so it becomes one plane, kept when that plane explains it as :func:`_one_plane` asks and
+    its piece has the fewest returns that tell a plane (``scales.MIN_PIXELS``), or is freed.
     """
     from .split import split_regions
 
@@ -100,6 +106,9 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     settled = ctx.fitter.fit_batch(ctx.xyz[pool], candidates.reshape(-1)[pool]) if regions else {}
     mixed = []
     for k, idx in regions.items():
+        if thin_from is not None and k >= thin_from:
+            _one_thin_plane(ctx, flat, fits, k, idx)
+            continue
         chosen, model = _one_plane(ctx, idx, settled.get(k))
         if chosen is None or not model or chosen.size < ctx.min_size:
             mixed.append(k)
@@ -114,6 +123,23 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         del fits[k]
         flat[regions[k]] = 0
     return labels, fits
+
+
+def _one_thin_plane(ctx: Context, flat: np.ndarray, fits: dict, k: int, idx: np.ndarray) -> None:
+    # the thin blob ``idx`` (numbered k in ``flat``) as one plane, or freed (in place); the
+    # fitter decides the kind (the batch's plane by moments would take a strip the decision
+    # calls curved: a border strip of a face turning into a crease)
+    from ..scales import MIN_PIXELS
+
+    floor = min(MIN_PIXELS, ctx.min_size)
+    model = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
+    chosen = None
+    if model and model.kind == "plane":
+        chosen, model = _one_plane(ctx, idx, model)
+    flat[idx] = 0
+    if chosen is not None and model and model.kind == "plane" and chosen.size >= floor:
+        flat[chosen] = k
+        fits[k] = model
 
 
 def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid: np.ndarray,
@@ -156,7 +182,8 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     parts, sizes = ctx.piece_ids(pixels)
     # a part touching a region whose plane explains it is growth's to judge (its jump test
     # guards that border)
-    column = np.full(int(labels.max()) + 1, -1)
+    # (a plane's region may have lost every pixel, its number above the labels')
+    column = np.full(max(int(labels.max()), max(planes)) + 1, -1)
     column[planes] = np.arange(len(planes))
     touching = _touches_explaining(labels, pixels, within[near[member]], column)
     touches = np.bincount(parts, weights=touching, minlength=sizes.size) > 0
@@ -367,7 +394,8 @@ def _grown(box, by: int) -> tuple[int, int, int, int]:
 
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
-                   sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None):
+                   sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None,
+                   thin_from: int | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
@@ -386,7 +414,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
     ``config.merge_disjoint`` the free pixels are offered to the planes once more.
     ``boxes`` (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then
-    gathered from it, not from the whole grid).
+    gathered from it, not from the whole grid). Blobs numbered from ``thin_from`` on are
+    thin strips, each one plane or none (:func:`split_blobs`). A plane found in the blobs
+    keeps the pixels it took after its fit (its rim, its claims) only within the noise of
+    their distances to it (:func:`_gains_within_distance_noise`).
     """
     first = int(labels.max(initial=0)) + 1
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
@@ -412,7 +443,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         if regions is not None:
             regions = {k: kept for k, idx in regions.items() if (kept := idx[labels.reshape(-1)[idx] == 0]).size}
     before = labels.copy()
-    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions)
+    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from)
+    found = labels.copy()
     new = {k: m for k, m in fits.items() if k >= first and m}
     # The surfaces found are pieces of the blobs: with the blobs' boxes known, each step
     # below looks only in their box grown by the rings it may add (same answers).
@@ -469,6 +501,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                                 only=set(new), near_sigmas=config.k_sigma)
         labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused,
                                                       pixels=kept_apart if config.merge else None)
+        labels = _gains_within_distance_noise(ctx, before, found, labels, fits, refused)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
         labels = claim_on_distance_noise(ctx, labels, fits, free_pixels(labels, _read_only_bool(cloud.valid)),
@@ -525,3 +558,42 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
             flat[piece] = k
             fits[k] = model
     return labels, fits
+
+
+def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.ndarray, labels: np.ndarray,
+                                 fits: dict, refused: set) -> np.ndarray:
+    """``labels`` with the pixels each plane region took after the blobs were fitted
+    (``found``: the labels then; by its rim, its claims, or a merge with a plane found in
+    them) that lie beyond ``_TRIM_SIGMAS`` times the noise of their distances to its plane
+    (range noise x incidence cosine, at least the plane's rms) given back to the regions
+    they had ``before`` (free where that region has no model). The planes of ``refused``
+    were cut to their distance noise already.
+
+    The rim and the claims test a pixel against ``k_sigma`` range-noise sigmas: a face seen
+    edge-on has its plane along the rays beside its image line, within that of the pixels
+    of the faces next to it (a box side took 97 pixels of the table and of the box's other
+    faces, tabletop_abw), while a pixel of the face itself moves off it by the range noise
+    times the incidence cosine only.
+    """
+    labels = np.ascontiguousarray(labels)
+    flat, old = labels.reshape(-1), before.reshape(-1)
+    # the few pixels whose label changed since the fit, not a pass per region over the grid
+    moved = np.flatnonzero(flat != found.reshape(-1))
+    owner = flat[moved]
+    order = np.argsort(owner, kind="stable")
+    moved, owner = moved[order], owner[order]
+    alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
+    alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
+    bounds = np.flatnonzero(np.diff(owner)) + 1
+    for first, idx in zip([0, *bounds.tolist()], np.split(moved, bounds)):
+        k = int(owner[first]) if idx.size else 0
+        model = fits.get(k) if k and k not in refused else None
+        if not model or model.kind != "plane":
+            continue
+        points = ctx.xyz[idx]
+        noise = np.maximum(distance_noise(model, points, ctx.sigma[idx]), model.rms)
+        far = idx[np.abs(model.distances(points)) > _TRIM_SIGMAS * noise]
+        if far.size:
+            previous = old[far]
+            flat[far] = np.where(alive[previous], previous, 0)
+    return labels

@@ -238,7 +238,7 @@ def test_recover_pixels_with_the_blobs_boxes_answers_as_without(seed):
     from rangeseg_o3d.refinement.recover import recover_pixels
 
     scan, pipeline, labels, fits, config, ranges, sigma = _pipe_top_lost_by_the_tiles(seed)
-    candidates, boxes = leftover_blob_labels(labels, scan.cloud.valid, min_size=100, first_label=3)
+    candidates, boxes, _ = leftover_blob_labels(labels, scan.cloud.valid, min_size=100, first_label=3)
     answers = [recover_pixels(scan.cloud, labels, dict(fits), fitter=pipeline.fitter, config=config,
                               sensor=pipeline.sensor, ranges=ranges, sigma=sigma, candidates=candidates,
                               min_size=100, boxes=given) for given in (None, boxes)]
