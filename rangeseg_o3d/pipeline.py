@@ -16,7 +16,8 @@ from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
-                      label_pixels, merge_touching_planes, planes_for_unresolved, recover_thin_surfaces,
+                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
+                      recover_thin_surfaces,
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
@@ -283,6 +284,12 @@ class Pipeline:
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            # a cylinder bent over a crease gives way to its two faces before the regions grow
+            labels, fits, stats = planes_for_creases(cloud, labels, fits, stats, sigma=sigma,
+                                                     k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS,
+                                                     min_size=smallest_region(refine, self.sensor, cloud),
+                                                     tile_labels=tile_labels, tile=settings.tile,
+                                                     fitter=self.fitter)
             if refine.close_gaps:
                 labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels)
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
