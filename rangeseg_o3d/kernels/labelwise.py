@@ -13,7 +13,7 @@ from .linalg import collinear, hesse_form, noise_rms_bound, plane_tolerance, sol
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["label_moments", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
+__all__ = ["label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "rows_with_any",
            "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
@@ -66,6 +66,27 @@ def label_moments(xyz, labels, n):
 def _store_moments(row, s0, s1, s2, s3, s4, s5, s6, s7, s8, s9):
     row[0], row[1], row[2], row[3], row[4] = s0, s1, s2, s3, s4
     row[5], row[6], row[7], row[8], row[9] = s5, s6, s7, s8, s9
+
+
+@njit(cache=True, nogil=True)
+def member_centres(xyz, labels, members):
+    """(len(members), 4): each member label's pixel count and the sums of its x, y and z.
+
+    Every pixel of a label with ``members[label]`` counts, in raster order and with no
+    finiteness test: the same additions, in the same order, as summing the label's rows of
+    ``xyz`` gathered at its increasing pixel indices (a NaN point makes its sums NaN).
+    """
+    out = np.zeros((members.shape[0], 4))
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if k <= 0 or k >= members.shape[0] or not members[k]:
+            continue
+        row = out[k]
+        row[0] += 1.0
+        row[1] += xyz[i, 0]
+        row[2] += xyz[i, 1]
+        row[3] += xyz[i, 2]
+    return out
 
 @njit(cache=True, nogil=True)
 def planes_from_moment_rows(moments):

@@ -494,12 +494,17 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
              and abs(float(fits[a].normal @ fits[b].normal)) < turned]
     if not pairs:
         return labels, fits, adjacency
-    regions = region_indices(labels, only={k for pair in pairs for k in pair})
-    centres = {k: ctx.xyz[idx].mean(axis=0) for k, idx in regions.items()}
-    pairs = [(a, b) for a, b in pairs if a in regions and b in regions
+    # the cheapest refusals first: the convex test needs the regions' centres alone (one
+    # compiled pass), the pixels are grouped only for the pairs it keeps
+    centres = _centres(ctx.xyz, labels, {k for pair in pairs for k in pair})
+    pairs = [(a, b) for a, b in pairs if a in centres and b in centres
              and _convex(fits[a], fits[b], centres[a], centres[b])]
-    bent = {k for k in {k for pair in pairs for k in pair} if ctx.plane_along_rays(fits[k], regions[k])}
-    pairs = [(regions[a].size + regions[b].size, a, b) for a, b in pairs if a in bent or b in bent]
+    if not pairs:
+        return labels, fits, adjacency
+    regions = region_indices(labels, only={k for pair in pairs for k in pair})
+    bent = {}  # whether each plane is beyond the noise of its distances, asked once and when needed
+    pairs = [(regions[a].size + regions[b].size, a, b) for a, b in pairs
+             if _bent(ctx, fits, regions, bent, a) or _bent(ctx, fits, regions, bent, b)]
     if not pairs:
         return labels, fits, adjacency
     fits = dict(fits)
@@ -531,6 +536,27 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         lut[b] = a
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
     return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _centres(xyz: np.ndarray, labels: np.ndarray, wanted: set) -> dict:
+    # each wanted label with pixels: the mean of its points (the sums in raster order, as the
+    # mean of its gathered points adds them)
+    from ..kernels import member_centres
+
+    flat = np.ascontiguousarray(labels.ravel())
+    if flat.dtype != np.int32:
+        flat = flat.astype(np.int32)
+    members = np.zeros(int(flat.max(initial=0)) + 1, bool)
+    members[[k for k in wanted if 0 < k < members.size]] = True
+    sums = member_centres(xyz, flat, members)
+    return {k: sums[k, 1:] / sums[k, 0] for k in np.flatnonzero(sums[:, 0] > 0).tolist()}
+
+
+def _bent(ctx: Context, fits: dict, regions: dict, bent: dict, k: int) -> bool:
+    # ctx.plane_along_rays of plane k over its pixels, remembered in ``bent``
+    if bent.get(k) is None:
+        bent[k] = ctx.plane_along_rays(fits[k], regions[k])
+    return bent[k]
 
 
 def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre: np.ndarray) -> bool:

@@ -565,6 +565,26 @@ def test_label_moments_sum_in_pixel_order_exactly():
     assert np.array_equal(label_moments(pts, labels, 6), expected)
 
 
+def test_member_centres_are_the_means_of_the_gathered_points_exactly():
+    # planes_into_curved's convex test reads these centres where it read the mean of each
+    # region's gathered points: the same sums, so the same labels; NaN points count (a NaN mean)
+    from rangeseg_o3d.kernels import member_centres
+
+    pts, labels = _runs_of_labels(np.random.default_rng(7))
+    pts = np.nan_to_num(pts) * 37.0 + 1000.0  # far from the origin: another order of additions would show
+    pts[np.flatnonzero(labels == 3)[:1]] = np.nan
+    members = np.array([False, True, False, True, True, True])
+    sums = member_centres(pts, labels, members)
+    for k in range(6):
+        idx = np.flatnonzero(labels == k)
+        if not members[k] or k == 0:
+            assert (sums[k] == 0).all()
+            continue
+        assert sums[k, 0] == idx.size > 0
+        assert np.array_equal(sums[k, 1:] / sums[k, 0], pts[idx].mean(axis=0), equal_nan=True)
+    assert np.isnan(sums[3, 1:]).all() and np.isfinite(sums[[1, 4, 5], 1:]).all()
+
+
 def test_distance_stats_sum_in_pixel_order_exactly():
     from rangeseg_o3d.kernels import distance_stats
 
