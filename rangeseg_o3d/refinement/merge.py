@@ -511,8 +511,8 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
     squares = {}  # each plane's sum of squared distances over its pixels
     lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
     for _, a, b in sorted(pairs, reverse=True):
-        if lut[a] != a or lut[b] != b or not isinstance(fits[a], Plane):
-            continue  # one of them was joined already
+        if lut[a] != a or lut[b] != b or not (isinstance(fits[a], Plane) and isinstance(fits[b], Plane)):
+            continue  # one of them was joined already (it may have kept its label: a pair's first)
         for k in (a, b):
             if k not in squares:
                 squares[k] = float(np.sum(fits[k].distances(ctx.xyz[regions[k]]) ** 2))

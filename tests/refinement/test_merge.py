@@ -388,3 +388,27 @@ def test_two_faces_of_a_box_corner_stay_planes(seed):
     ctx = Context(cloud, pipe.fitter, np.full(cloud.shape, noise), 10)
     out, out_fits, adjacency = planes_into_curved(ctx, labels, fits, {(1, 2)}, max_angle_deg=10.0)
     assert (out == labels).all() and out_fits == fits and adjacency == {(1, 2)}
+
+
+def test_planes_into_curved_skips_a_pair_whose_second_plane_was_joined_already():
+    # Region growing on a spinning lidar (the sensor matrix's spinning_32x1024 row, seed 0,
+    # scan 3, the fitter and refinement of the residual-edge pipeline) leaves a chain of
+    # touching planes on a ball: a pair's first plane becomes the sphere and keeps its
+    # label, and a later pair names that label second. It must be skipped, not read as a
+    # plane (it raised AttributeError: 'Sphere' object has no attribute 'normal').
+    from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
+    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+
+    spec = get_sensor("spinning_32x1024")
+    scan = spec.simulate(matrix_rng(0, spec.name, 3), False)
+    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
+    config = rs.load_config(spec.preset, overrides=facts).model_dump()
+    growing = rs.load_config("lms200_region_growing")
+    config["segmenter"] = {"name": "region_growing", "params": dict(growing.segmenter.params)}
+    config["tile"] = growing.tile
+    for key in ("min_region_size", "jump_ratio", "jump_min"):
+        config["refine"][key] = None
+    result = rs.Pipeline(rs.load_config(config)).run(scan.cloud)
+    curved = [f for f in result.features if isinstance(f.model, (Cylinder, Sphere))]
+    assert len(result.features) >= 10 and curved
+    assert all(isinstance(f.model, (Plane, Cylinder, Sphere)) for f in result.features)
