@@ -22,7 +22,7 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape
 from ..kernels.linalg import (CHI_SQUARE_SIGMAS, DEGENERATE_RATIO, NOISE_CHI2_SIGMAS, collinear, curvature_resolved,
-                              noise_rms_bound, plane_tolerance)
+                              flat_by_quadric, noise_rms_bound, plane_tolerance)
 from ._codes import (  # noqa: F401 -- callers and tests read the codes as _decide.X too
     ACCEPTED, ARC, ARC_UNDER, COLLINEAR, CONVERGED, COPLANAR, CURVED_SIZE, DIVERGED, FLAT,
     GAIN_UNDER, INLIERS, MIN_POINTS, NON_FINITE, NOT_CONVERGED, NO_BETTER, RADIUS,
@@ -225,7 +225,7 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     gain, roundness = 1.0, 0.5
     if rms > 0.1 * plane_tol:
         gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
-    if plane_ok and gain < curvature_gain and not marginal:
+    if plane_ok and flat_by_quadric(gain, curvature_gain, n) and not marginal:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     needed_gain = 1.0 if marginal else curvature_gain
     # Principal curvatures pick the likely model: tried first, the other only if it fails.

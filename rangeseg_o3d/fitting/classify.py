@@ -5,7 +5,9 @@ Rule (:func:`fit_primitive`):
 1. Fewer than ``min_points`` points, NaN/inf, or collinear points: FitFailure.
 2. Fit a plane. If its rms is within ``plane_rms`` and the patch shows no significant
    curvature (a quadratic height field over the plane does not lower the rms by
-   ``curvature_gain``), it is a plane.
+   ``curvature_gain``, with one standard error of that estimate from N points,
+   ``1 / sqrt(N)``, to spare: :func:`rangeseg_o3d.kernels.linalg.flat_by_quadric`), it is
+   a plane.
 3. Otherwise fit a cylinder and a sphere. A curved model is acceptable when its rms is
    within its threshold, its radius is at most ``max_radius``, the points cover an arc
    (cylinder cross-section) or cap (sphere) of at least ``min_arc_deg`` -- which bounds

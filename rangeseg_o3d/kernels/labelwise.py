@@ -8,7 +8,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .grid import group_by_label
 from .inline import _distance, _incidence
 from .kinds import PARAM_SLOTS, PLANE
-from .linalg import collinear, hesse_form, noise_rms_bound, plane_tolerance, solve
+from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, plane_tolerance, solve
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
@@ -333,7 +333,8 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     at least ``min_points`` points, an rms within ``max(plane_rms, noise_floor) +
     rms_per_range2 |centroid|^2`` (a plane over that, within the chi-square spread of
     :func:`.linalg.plane_tolerance`, is left to the full decision)
-    and no significant curvature (quadric gain below ``curvature_gain``; not tested when
+    and no significant curvature (quadric gain below ``curvature_gain`` by
+    :func:`.linalg.flat_by_quadric`; not tested when
     the rms is under a tenth of the threshold). Returns ``(settled, normal, d, rms,
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
@@ -370,7 +371,9 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     sums = quadric_sums(xyz, labels, centroid, frame[:, 1].copy(), frame[:, 2].copy(), normal, inv_spread,
                         active)
     gain, _ = quadric_shapes(sums, moments[:, 0].copy(), active)
-    settled = candidate & (gain < curvature_gain)
+    settled = np.zeros(n, np.bool_)
+    for k in range(n):
+        settled[k] = candidate[k] and flat_by_quadric(gain[k], curvature_gain, moments[k, 0])
     kinds = np.zeros(n, np.int8)
     params = np.zeros((n, PARAM_SLOTS))
     for k in range(n):
