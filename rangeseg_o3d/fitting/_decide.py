@@ -225,7 +225,9 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     gain, roundness = 1.0, 0.5
     if rms > 0.1 * plane_tol:
         gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
-    if plane_ok and flat_by_quadric(gain, curvature_gain, n) and not marginal:
+    # the quadric's gain is uncertain only where the plane's rms is the noise's
+    within = rms <= noise_floor + extra
+    if plane_ok and flat_by_quadric(gain, curvature_gain, n if within else np.inf) and not marginal:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     needed_gain = 1.0 if marginal else curvature_gain
     # Principal curvatures pick the likely model: tried first, the other only if it fails.

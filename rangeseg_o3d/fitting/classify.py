@@ -6,8 +6,8 @@ Rule (:func:`fit_primitive`):
 2. Fit a plane. If its rms is within ``plane_rms`` and the patch shows no significant
    curvature (a quadratic height field over the plane does not lower the rms by
    ``curvature_gain``, with one standard error of that estimate from N points,
-   ``1 / sqrt(N)``, to spare: :func:`rangeseg_o3d.kernels.linalg.flat_by_quadric`), it is
-   a plane.
+   ``1 / sqrt(N)``, to spare where the plane's rms is within the noise model:
+   :func:`rangeseg_o3d.kernels.linalg.flat_by_quadric`), it is a plane.
 3. Otherwise fit a cylinder and a sphere. A curved model is acceptable when its rms is
    within its threshold, its radius is at most ``max_radius``, the points cover an arc
    (cylinder cross-section) or cap (sphere) of at least ``min_arc_deg`` -- which bounds

@@ -373,7 +373,10 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     gain, _ = quadric_shapes(sums, moments[:, 0].copy(), active)
     settled = np.zeros(n, np.bool_)
     for k in range(n):
-        settled[k] = candidate[k] and flat_by_quadric(gain[k], curvature_gain, moments[k, 0])
+        # the quadric's gain is uncertain only where the plane's rms is the noise's
+        within = rms[k] <= noise_floor + rms_per_range2 * (centroid[k] @ centroid[k])
+        spread_points = moments[k, 0] if within else np.inf
+        settled[k] = candidate[k] and flat_by_quadric(gain[k], curvature_gain, spread_points)
     kinds = np.zeros(n, np.int8)
     params = np.zeros((n, PARAM_SLOTS))
     for k in range(n):

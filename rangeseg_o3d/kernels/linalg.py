@@ -115,7 +115,9 @@ def flat_by_quadric(gain, curvature_gain, n):
     about ``1 / sqrt(2 n)``), so it must stay one standard error of that ratio,
     ``1 / sqrt(n)``, below ``curvature_gain``. A large region is judged as before; a sliver
     of a few rows (a pipe's top at the grid's border: 71 points, gain 1.46 against a
-    cylinder's 1.51) gets the curved fit that decides it."""
+    cylinder's 1.51) gets the curved fit that decides it. The callers pass ``n = inf`` (no
+    margin) for a plane whose rms is over the sensor's noise model at its range: there the
+    residuals are the surface's shape, not noise, and the gain is no sampling estimate."""
     return gain * (1.0 + 1.0 / np.sqrt(max(n, 1.0))) < curvature_gain
 
 

@@ -98,6 +98,8 @@ def test_flat_by_quadric_trusts_the_quadric_gain_one_standard_error_below_the_bo
     # a 71-point sliver: a gain 3 % under the bound is within its spread (1 / sqrt(71) = 12 %)
     assert not flat_by_quadric(1.46, 1.5, 71.0)
     assert flat_by_quadric(1.5 / (1.0 + 1.0 / np.sqrt(71.0)) * 0.999, 1.5, 71.0)
+    # a plane over the noise (the callers pass n = inf): no margin
+    assert flat_by_quadric(1.46, 1.5, np.inf) and not flat_by_quadric(1.5, 1.5, np.inf)
     # no points: the margin is bounded, not a division by zero
     assert not flat_by_quadric(0.8, 1.5, 0.0) and flat_by_quadric(0.7, 1.5, 0.0)
 
