@@ -31,8 +31,9 @@ def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
 #: Inliers whose largest 4-connected piece holds less than this share of them are not one
 #: piece of a surface (the model is refitted to the piece, or searched for again).
 _ONE_PIECE = 0.9
-# a point within this many sigmas of its distance noise lies on the plane
-_TRIM_SIGMAS = 3.0
+#: A point within this many sigmas of its distance noise lies on the plane (refinement.context
+#: and recover.py's trims of a plane's pixels).
+TRIM_SIGMAS = 3.0
 
 
 class Context:
@@ -143,11 +144,11 @@ class Context:
         return (piece, model) if model else (None, None)
 
     def within_distance_noise(self, pool: np.ndarray, model):
-        # the largest connected piece of ``pool`` within _TRIM_SIGMAS distance noises of the
+        # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
         # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
         # floor and its refit plane explains it within that noise; else (None, None)
         points = self.xyz[pool]
-        near = np.abs(model.distances(points)) <= _TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
+        near = np.abs(model.distances(points)) <= TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
         piece = self.largest_piece(pool[near])
         if piece.size < self.min_size:
             return None, None

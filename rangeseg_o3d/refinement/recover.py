@@ -18,7 +18,7 @@ from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise
 from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
-from .context import _TRIM_SIGMAS, Context, touching
+from .context import TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .merge import merge_into_curved, merge_regions
 
@@ -564,7 +564,7 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
                                  fits: dict, refused: set) -> np.ndarray:
     """``labels`` with the pixels each plane region took after the blobs were fitted
     (``found``: the labels then; by its rim, its claims, or a merge with a plane found in
-    them) that lie beyond ``_TRIM_SIGMAS`` times the noise of their distances to its plane
+    them) that lie beyond ``TRIM_SIGMAS`` times the noise of their distances to its plane
     (range noise x incidence cosine, at least the plane's rms) given back to the regions
     they had ``before`` (free where that region has no model). The planes of ``refused``
     were cut to their distance noise already.
@@ -592,7 +592,7 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
             continue
         points = ctx.xyz[idx]
         noise = np.maximum(distance_noise(model, points, ctx.sigma[idx]), model.rms)
-        far = idx[np.abs(model.distances(points)) > _TRIM_SIGMAS * noise]
+        far = idx[np.abs(model.distances(points)) > TRIM_SIGMAS * noise]
         if far.size:
             previous = old[far]
             flat[far] = np.where(alive[previous], previous, 0)
