@@ -11,6 +11,19 @@ from .kinds import CYLINDER, PLANE, SPHERE
 CACHE_DEPENDS = ("kinds.py",)
 
 
+#: The ten moment sums a point adds to, in this order: count, x, y, z, xx, xy, xz, yy, yz, zz.
+NO_MOMENTS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_moments(m, x, y, z):
+    # The ten sums ``m`` (ordered as NO_MOMENTS) with the point (x, y, z) added: a tuple of
+    # scalars, so a kernel's running sums stay in registers (an array row updated per point
+    # costs several times the time); the same additions in the same order wherever it is used.
+    return (m[0] + 1.0, m[1] + x, m[2] + y, m[3] + z, m[4] + x * x, m[5] + x * y, m[6] + x * z,
+            m[7] + y * y, m[8] + y * z, m[9] + z * z)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _distance(kind, prm, x, y, z):
     # Absolute orthogonal distance of (x, y, z) from the model (a row of a model table, see

@@ -6,7 +6,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import group_by_label
-from .inline import _distance, _incidence
+from .inline import NO_MOMENTS, _add_moments, _distance, _incidence
 from .kinds import PARAM_SLOTS, PLANE
 from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, plane_tolerance, solve
 
@@ -33,7 +33,7 @@ def label_moments(xyz, labels, n):
     # label's row when the run starts, stored when it ends: the same additions in the same
     # order), where a store and reload per pixel would chain each pixel to the last.
     last = -1
-    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
+    sums = NO_MOMENTS
     for i in range(labels.shape[0]):
         k = labels[i]
         if k <= 0 or k >= n:
@@ -43,29 +43,20 @@ def label_moments(xyz, labels, n):
             continue
         if k != last:
             if last > 0:
-                _store_moments(out[last], s0, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+                _store_moments(out[last], sums)
             o = out[k]
-            s0, s1, s2, s3, s4, s5, s6, s7, s8, s9 = o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[8], o[9]
+            sums = (o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[8], o[9])
             last = k
-        s0 += 1.0
-        s1 += x
-        s2 += y
-        s3 += z
-        s4 += x * x
-        s5 += x * y
-        s6 += x * z
-        s7 += y * y
-        s8 += y * z
-        s9 += z * z
+        sums = _add_moments(sums, x, y, z)
     if last > 0:
-        _store_moments(out[last], s0, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+        _store_moments(out[last], sums)
     return out
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _store_moments(row, s0, s1, s2, s3, s4, s5, s6, s7, s8, s9):
-    row[0], row[1], row[2], row[3], row[4] = s0, s1, s2, s3, s4
-    row[5], row[6], row[7], row[8], row[9] = s5, s6, s7, s8, s9
+def _store_moments(row, sums):
+    for k in range(N_MOMENTS):
+        row[k] = sums[k]
 
 
 @njit(cache=True, nogil=True)

@@ -16,7 +16,7 @@ from .linalg import curvature_resolved, noise_rms_bound
 from .window import eigenvectors, smallest_eigenvalues
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("linalg.py", "window.py")
+CACHE_DEPENDS = ("inline.py", "kinds.py", "linalg.py", "window.py")
 
 __all__ = ["crease_sides"]
 

@@ -15,6 +15,11 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
+from .inline import NO_MOMENTS, _add_moments
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("inline.py", "kinds.py")
+
 __all__ = ["window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
            "ray_steps", "blind_spacing"]
 
@@ -41,23 +46,13 @@ def _window_scatter(xyz, half, r, c):
     c0, c1 = max(c - half, 0), min(c + half + 1, w)
     rr, cc = _reference(xyz, r0, r1, c0, c1, r, c)
     ox, oy, oz = xyz[rr, cc, 0], xyz[rr, cc, 1], xyz[rr, cc, 2]
-    n = 0.0
-    sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
+    m = NO_MOMENTS
     for i in range(r0, r1):
         for j in range(c0, c1):
             z = xyz[i, j, 2]
             if z == z:
-                x, y, z = xyz[i, j, 0] - ox, xyz[i, j, 1] - oy, z - oz
-                n += 1.0
-                sx += x
-                sy += y
-                sz += z
-                sxx += x * x
-                syy += y * y
-                szz += z * z
-                sxy += x * y
-                sxz += x * z
-                syz += y * z
+                m = _add_moments(m, xyz[i, j, 0] - ox, xyz[i, j, 1] - oy, z - oz)
+    n, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz = m
     if n == 0.0:
         return n, np.nan, np.nan, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     mx, my, mz = sx / n, sy / n, sz / n
