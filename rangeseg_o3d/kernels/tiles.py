@@ -425,14 +425,21 @@ def label_boxes(labels, n):
     h, w = labels.shape
     boxes = np.empty((n, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
+    # a row's runs of one label update its box once each (first and last column of the
+    # run), not once per pixel
     for r in range(h):
-        for c in range(w):
+        c = 0
+        while c < w:
             k = labels[r, c]
+            end = c + 1
+            while end < w and labels[r, end] == k:
+                end += 1
             if 0 < k < n:
                 boxes[k, 0] = min(boxes[k, 0], r)
                 boxes[k, 1] = max(boxes[k, 1], r + 1)
                 boxes[k, 2] = min(boxes[k, 2], c)
-                boxes[k, 3] = max(boxes[k, 3], c + 1)
+                boxes[k, 3] = max(boxes[k, 3], end)
+            c = end
     return boxes
 
 
