@@ -601,19 +601,20 @@ def member_pixels(labels, members):
     """Flat indices (increasing) of the pixels whose label ``k`` has ``members[k]`` (k > 0)."""
     flat = labels.ravel()
     n = members.shape[0]
-    count = 0
-    for i in range(flat.shape[0]):
-        k = flat[i]
-        if 0 < k < n and members[k]:
-            count += 1
-    out = np.empty(count, np.int64)
+    # one pass into a frame-sized buffer (only its written pages are touched), each label
+    # run's membership looked up once: a count pass and a fill pass read the labels twice
+    out = np.empty(flat.shape[0], np.int64)
     m = 0
+    last, inside = -1, False
     for i in range(flat.shape[0]):
         k = flat[i]
-        if 0 < k < n and members[k]:
+        if k != last:
+            last = k
+            inside = 0 < k < n and members[k]
+        if inside:
             out[m] = i
             m += 1
-    return out
+    return out[:m].copy()
 
 @njit(cache=True, nogil=True)
 def box_members(labels, boxes, first_label):

@@ -320,6 +320,28 @@ def test_member_pixels_are_the_flat_indices_of_the_chosen_labels():
     assert member_pixels(labels, np.zeros(6, bool)).size == 0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_member_pixels_and_label_boxes_on_runs_of_labels(seed):
+    # labels in runs along the rows, as a label image has them (the kernels take a run at a
+    # time), runs crossing row ends, labels 0, negative and beyond the table left out
+    from rangeseg_o3d.kernels import label_boxes, member_pixels
+
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(1, 30, 200)
+    flat = np.repeat(rng.integers(-1, 9, runs.size), runs)[:24 * 31].astype(np.int32)
+    labels = flat.reshape(24, 31)
+    members = rng.random(7) < 0.5
+    wanted = [k for k in range(1, 7) if members[k]]
+    np.testing.assert_array_equal(member_pixels(labels, members), np.flatnonzero(np.isin(labels, wanted)))
+    boxes = label_boxes(labels, 7)
+    for k in range(7):
+        rows, cols = np.nonzero(labels == k)
+        if k == 0 or not rows.size:
+            assert boxes[k].tolist() == [24, 0, 31, 0]
+        else:
+            assert boxes[k].tolist() == [rows.min(), rows.max() + 1, cols.min(), cols.max() + 1]
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_group_by_label_matches_a_stable_sort(seed):
     # runs of one label (as along image rows) and labels outside 0..n-1 (left out)
