@@ -268,6 +268,9 @@ class _Unions:
         if self.moments is None or not keys:
             self.cache.update(dict.fromkeys(keys))
             return
+        if len(keys) == 1:  # the merge loop's new unions come one at a time
+            self._add_one(*keys[0])
+            return
         a_idx, b_idx = np.array(keys).T
         rows = self.moments[a_idx] + self.moments[b_idx]
         # No plane fits a union better than its least-squares plane: where that is over
@@ -275,14 +278,36 @@ class _Unions:
         # meet at creases and end here.
         planar = np.array([isinstance(fits[a], Plane) and isinstance(fits[b], Plane) for a, b in keys])
         if planar.any():
+            # the parts' current planes not known yet, in the same call as the unions' (each
+            # row's plane is computed alone: the same values as a call per row)
+            parts = sorted({k for key, flat in zip(keys, planar.tolist()) if flat for k in key
+                            if k not in self.current_rms and k < len(self.moments)})
+            union_rms = planes_from_moments(np.concatenate([rows, self.moments[parts]]) if parts else rows).rms
+            self.current_rms.update(zip(parts, union_rms[len(rows):].tolist()))
             limits = self.rms_factor * np.maximum([self.part_rms(a) for a, _ in keys],
                                                   [self.part_rms(b) for _, b in keys])
-            hopeless = planar & (planes_from_moments(rows).rms > limits)
+            hopeless = planar & (union_rms[:len(rows)] > limits)
             self.cache.update((key, _NO_UNION) for key, no in zip(keys, hopeless.tolist()) if no)
             keys = [key for key, no in zip(keys, hopeless.tolist()) if not no]
             rows = rows[~hopeless]
         if keys:
             self.cache.update(zip(keys, self.ctx.fitter.refit_from_moments(rows, [fits[a] for a, _ in keys])))
+
+    def _add_one(self, a: int, b: int) -> None:
+        # add() for one union of roots with moments, in scalars: the same tests and values
+        # (a row's plane is computed alone whatever the call holds) without numpy's
+        # per-call overhead on one-element arrays
+        fits = self.fits
+        row = self.moments[a] + self.moments[b]
+        if isinstance(fits[a], Plane) and isinstance(fits[b], Plane):
+            parts = [k for k in (a, b) if k not in self.current_rms and k < len(self.moments)]
+            rms = planes_from_moments(np.stack([row, *(self.moments[k] for k in parts)])).rms.tolist()
+            self.current_rms.update(zip(parts, rms[1:]))
+            limit = self.rms_factor * np.maximum(self.part_rms(a), self.part_rms(b))
+            if rms[0] > limit:
+                self.cache[(a, b)] = _NO_UNION
+                return
+        self.cache[(a, b)] = self.ctx.fitter.refit_from_moments(row[None, :], [fits[a]])[0]
 
     def part_rms(self, k: int) -> float:
         """The rms a union of root ``k`` is compared with: for a plane with moments, the
