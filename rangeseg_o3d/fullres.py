@@ -29,7 +29,7 @@ from .fitting.region_fitter import model_table
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats", "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases",
-           "planes_for_creases"]
+           "planes_for_creases", "recovered_region_floor"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -159,19 +159,38 @@ def without_regions(labels: np.ndarray, fits: dict, drop: list) -> tuple[np.ndar
 
 
 def drop_small_regions(labels: np.ndarray, fits: dict, stats: PixelStats, *,
-                       min_size: int) -> tuple[np.ndarray, dict]:
+                       min_size: int, recovered_from: int | None = None,
+                       recovered_min_size: int | None = None) -> tuple[np.ndarray, dict]:
     """Regions left with fewer than ``min_size`` pixels are no surfaces: their pixels
     become unlabelled and their models go.
 
     A tile model can take only a pixel or two of the frame (the pixels of its tiles lie
     nearer other models); such a region is no surface any step creates, and one stray
-    pixel inside another surface makes that surface over-segmented. Returns ``(labels,
-    fits)``, the inputs themselves when nothing is dropped; ``stats`` hold the labels'
-    pixel counts.
+    pixel inside another surface makes that surface over-segmented. Regions numbered from
+    ``recovered_from`` on were found at full resolution, their models fitted to their
+    pixels (:func:`recover_thin_surfaces`, :func:`planes_for_creases`): they are held to
+    ``recovered_min_size``, the floor they were recovered under
+    (:func:`recovered_region_floor`), not to a floor that counts tile means they never had
+    (a 125-pixel box face recovered whole on a 4-pixel tile grid, whose floor is 128).
+    Returns ``(labels, fits)``, the inputs themselves when nothing is dropped; ``stats``
+    hold the labels' pixel counts.
     """
     counts = stats.counts
-    drop = [k for k in fits if 0 < k < counts.size and 0 < counts[k] < min_size]
+    first = np.iinfo(np.int64).max if recovered_from is None else int(recovered_from)
+    floor_recovered = min_size if recovered_min_size is None else int(recovered_min_size)
+    drop = [k for k in fits if 0 < k < counts.size
+            and 0 < counts[k] < (floor_recovered if k >= first else min_size)]
     return without_regions(labels, fits, drop)
+
+
+def recovered_region_floor(config, min_size: int) -> int:
+    """The fewest pixels of a region recovered at full resolution: with ``config.close_gaps``
+    the fewest returns that tell a plane (``scales.MIN_PIXELS``; the thin strips of a face
+    seen edge-on are recovered from there), else ``min_size`` (``smallest_region``), the
+    floor of the leftover blobs the recovery fits."""
+    from .scales import MIN_PIXELS
+
+    return min(MIN_PIXELS, min_size) if config.close_gaps else min_size
 
 
 def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
@@ -186,7 +205,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     the regions whose pixels or models changed are measured again.
     """
     from .refinement.recover import recover_pixels
-    from .scales import MIN_PIXELS, with_derived_refinement
+    from .scales import with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
     min_size = smallest_region(config, sensor, cloud)
@@ -200,7 +219,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # (recover_pixels' CPU time doubled on the real frames, and kinect/stereo lost faces to
     # strips of their edge bands taken as planes).
     first = int(labels.max(initial=0)) + 1
-    thin = min(MIN_PIXELS, min_size) if config.close_gaps else 0
+    thin = recovered_region_floor(config, min_size) if config.close_gaps else 0
     found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first,
                                  thin_min_size=thin)
     if found is None:

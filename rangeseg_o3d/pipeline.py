@@ -18,7 +18,8 @@ from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
                       recover_thin_surfaces,
-                      refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
+                      recovered_region_floor, refit_planes_to_pixels, region_stats, settle_creases,
+                      smallest_region)
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -278,6 +279,7 @@ class Pipeline:
         refine = settings.refine
         labels, stats = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS)
+        recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
@@ -297,8 +299,10 @@ class Pipeline:
                                                 tile=settings.tile)
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
-            labels, fits = drop_small_regions(labels, fits, stats,
-                                              min_size=smallest_region(refine, self.sensor, cloud))
+            min_size = smallest_region(refine, self.sensor, cloud)
+            labels, fits = drop_small_regions(labels, fits, stats, min_size=min_size,
+                                              recovered_from=recovered_from,
+                                              recovered_min_size=recovered_region_floor(refine, min_size))
         return labels, fits, sigma, stats
 
     @staticmethod

@@ -535,6 +535,41 @@ def test_regions_under_the_smallest_region_lose_their_pixels():
     assert out is labels and kept is fits
 
 
+def test_a_region_recovered_at_full_resolution_is_held_to_the_floor_it_was_recovered_under():
+    # labels 1-4 are tile regions; 5 and 6 were found at full resolution (recovered_from=5),
+    # their planes fitted to their pixels: 5 keeps its 3 pixels at the recovered floor of 3
+    # where the tile floor (8) would drop it; 6 has 2 pixels, under both floors
+    from rangeseg_o3d.fullres import PixelStats, drop_small_regions
+
+    labels, fits = _curved_scene()
+    labels[2, 1:4] = 5
+    labels[0, 0:2] = 6
+    for k in (5, 6):
+        fits[k] = Plane(np.array([0.0, 0.0, 1.0]), 1.02, rms=0.0004, inliers=int((labels == k).sum()))
+    counts = np.bincount(labels.ravel(), minlength=7)
+    assert counts[5] == 3 and counts[6] == 2 and counts[1:5].min() >= 8
+    stats = PixelStats(inliers=counts.copy(), squares=np.zeros(7), counts=counts)
+    out, kept = drop_small_regions(labels, fits, stats, min_size=8, recovered_from=5, recovered_min_size=3)
+    assert sorted(kept) == [1, 2, 3, 4, 5]
+    assert np.array_equal(out == 5, labels == 5) and not (out == 6).any()
+    assert np.array_equal(out[labels < 5], labels[labels < 5])
+    # without recovered_from every region is held to min_size: both go
+    out, kept = drop_small_regions(labels, fits, stats, min_size=8, recovered_min_size=3)
+    assert sorted(kept) == [1, 2, 3, 4]
+    assert not np.isin(out, [5, 6]).any()
+
+
+def test_the_recovered_floor_is_the_pixel_floor_only_where_thin_strips_are_recovered():
+    from types import SimpleNamespace
+
+    from rangeseg_o3d.fullres import recovered_region_floor
+    from rangeseg_o3d.scales import MIN_PIXELS
+
+    assert recovered_region_floor(SimpleNamespace(close_gaps=True), 128) == MIN_PIXELS
+    assert recovered_region_floor(SimpleNamespace(close_gaps=True), MIN_PIXELS - 5) == MIN_PIXELS - 5
+    assert recovered_region_floor(SimpleNamespace(close_gaps=False), 128) == 128
+
+
 def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_sigmas_off():
     # A wall facing the camera 2 m away, its pixels 8 mm behind its plane (range noise 1 cm),
     # in tiles of its region (columns 0-29) and of a plane x = 0 seen edge-on (30-59). Near
