@@ -417,31 +417,31 @@ def block_means(xyz, stride, min_count):
     """
     big_h, big_w = xyz.shape[0], xyz.shape[1]
     h, w = (big_h + stride - 1) // stride, (big_w + stride - 1) // stride
-    sums = np.zeros((h, w, 3))
+    sums = np.empty((h, w, 3))
     counts = np.zeros((h, w), np.int64)
-    # Block by block along each row, the block's sums in registers (loaded when the row
-    # enters the block, stored when it leaves: the same additions in the same order), where
-    # a division and a store and reload per pixel chained each pixel to the last.
-    for r in range(big_h):
-        br = r // stride
-        for bc in range(w):
-            sx, sy, sz, m = sums[br, bc, 0], sums[br, bc, 1], sums[br, bc, 2], counts[br, bc]
-            for c in range(bc * stride, min(bc * stride + stride, big_w)):
-                x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
-                if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
-                    sx += x
-                    sy += y
-                    sz += z
-                    m += 1
-            sums[br, bc, 0], sums[br, bc, 1], sums[br, bc, 2], counts[br, bc] = sx, sy, sz, m
+    least = max(min_count, 1)
+    # Block by block, its rows in turn: the block's sums stay in registers from its first
+    # pixel to its mean (the same additions in the same order: row by row, each row left
+    # to right), where a pass row by row across the frame stored and reloaded every
+    # block's sums once per row.
     for br in range(h):
+        r1 = min(br * stride + stride, big_h)
         for bc in range(w):
-            if counts[br, bc] >= max(min_count, 1):
-                for a in range(3):
-                    sums[br, bc, a] /= counts[br, bc]
+            c1 = min(bc * stride + stride, big_w)
+            sx, sy, sz, m = 0.0, 0.0, 0.0, 0
+            for r in range(br * stride, r1):
+                for c in range(bc * stride, c1):
+                    x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+                    if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                        sx += x
+                        sy += y
+                        sz += z
+                        m += 1
+            counts[br, bc] = m
+            if m >= least:
+                sums[br, bc, 0], sums[br, bc, 1], sums[br, bc, 2] = sx / m, sy / m, sz / m
             else:
-                for a in range(3):
-                    sums[br, bc, a] = np.nan
+                sums[br, bc, 0] = sums[br, bc, 1] = sums[br, bc, 2] = np.nan
     return sums, counts
 
 @njit(cache=True, nogil=True)

@@ -248,6 +248,12 @@ def test_block_means_are_nan_aware_tile_means():
             assert counts[br, bc] == ok.sum()
             if ok.any():
                 np.testing.assert_allclose(means[br, bc], tile[ok].mean(0), rtol=1e-12)
+                # bit for bit the sums in raster order (rows in turn, each left to right)
+                # over the count: the means the tile models were fitted on
+                sums = [0.0, 0.0, 0.0]
+                for point in tile[ok]:
+                    sums = [total + float(v) for total, v in zip(sums, point)]
+                assert means[br, bc].tolist() == [total / int(ok.sum()) for total in sums]
     assert np.isnan(means[0, 0]).all() and counts[0, 0] == 0
     half, half_counts = tile_means(xyz, 6, min_fraction=0.5)
     assert half_counts[1, 0] == 12 and np.isnan(half[1, 0]).all()
