@@ -650,8 +650,18 @@ def label_counts(labels):
     for i in range(flat.shape[0]):
         top = max(top, flat[i])
     counts = np.zeros(top + 1, np.int64)
+    # Labels come in runs along the rows: a run is counted in a register and added when it
+    # ends, where an increment per pixel would chain each pixel's store to the last's load.
+    last, run = -1, 0
     for i in range(flat.shape[0]):
-        counts[flat[i]] += 1
+        k = flat[i]
+        if k != last:
+            if run:
+                counts[last] += run
+            last, run = k, 0
+        run += 1
+    if run:
+        counts[last] += run
     return counts
 
 @njit(cache=True, nogil=True)

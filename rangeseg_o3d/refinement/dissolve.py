@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.primitives import Plane
-from ..fitting.region_fitter import region_indices
+from ..fitting.region_fitter import label_sizes, region_indices
 from ..fitting.robust import curvature_resolved
 from .context import Context, touching
 from .merge import MODEL_PARAMETERS
@@ -29,7 +29,7 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
     best and the rest become unlabelled; the neighbours are refitted where moments suffice
     (planes; spheres and cylinders in the ``polish`` step). Returns new ``(labels, fits)``.
     """
-    sizes = np.bincount(labels.ravel())
+    sizes = label_sizes(labels)
     if not np.any((sizes[1:] > 0) & (sizes[1:] < 3 * ctx.min_size)):
         return labels, fits
     labels, fits = labels.copy(), dict(fits)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.primitives import Plane
-from ..fitting.region_fitter import model_table, pixel_rms
+from ..fitting.region_fitter import label_sizes, model_table, pixel_rms
 from .context import Context
 
 __all__ = ["grow_into_edges", "grow_regions", "refit_grown", "settle_regions"]
@@ -73,8 +73,8 @@ def refit_grown(ctx: Context, labels: np.ndarray, grown: np.ndarray, fits: dict)
     step and take the rms of their grown pixels, which later steps compare.
     """
     fits = dict(fits)
-    before = np.bincount(labels.ravel(), minlength=grown.max(initial=0) + 1)
-    after = np.bincount(grown.ravel(), minlength=before.size)
+    before = label_sizes(labels, minlength=grown.max(initial=0) + 1)
+    after = label_sizes(grown, minlength=before.size)
     changed = [int(k) for k in np.flatnonzero(after > 1.05 * np.maximum(before, 1)) if k > 0]
     refits = ctx.fitter.refit_regions(ctx.xyz, grown, fits, changed, from_points=False)
     for k, refit in refits.items():
@@ -146,7 +146,7 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
         return labels, fits
     moved_mask = settled != labels
     touched = np.bincount(np.concatenate([labels[moved_mask], settled[moved_mask]]), minlength=n)
-    sizes = np.bincount(settled.ravel(), minlength=n)
+    sizes = label_sizes(settled, minlength=n)
     fits = dict(fits)
     # planes refit from moments (nothing to gather); a curved model only where its region
     # changed by more than 5 % (a few border pixels move nothing; LM refits cost)

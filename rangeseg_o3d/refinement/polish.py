@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.primitives import Plane
-from ..fitting.region_fitter import model_table, region_indices
+from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import curvature_resolved
 from .context import Context
 
@@ -31,7 +31,7 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
     """
     fits = dict(fits)
-    sizes = np.bincount(labels.ravel(), minlength=max(fits, default=0) + 1)
+    sizes = label_sizes(labels, minlength=max(fits, default=0) + 1)
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     grown = [k for k in curved if sizes[k] > 1.2 * max(fits[k].inliers, 1)]
     for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, grown, from_moments=False).items():

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..fitting.region_fitter import model_table, region_indices
+from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise
 from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
@@ -50,7 +50,7 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
     # Dilation takes the larger id where two cores meet; only leftover pixels may join.
     comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
-    sizes = np.bincount(comp.ravel(), minlength=n)
+    sizes = label_sizes(comp, minlength=n)
     keep = sizes >= min_size
     keep[0] = False
     lut = np.zeros(n, np.int32)
