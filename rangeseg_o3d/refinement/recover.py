@@ -44,7 +44,7 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     kernel = np.ones((3, 3), np.uint8)
     # The grid border is no edge: a surface seen only by the first rows must keep its core.
     cores = cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE)
-    n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S)
+    n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S) if cores.any() else (1, None)
     if n <= 1:
         return np.zeros(labels.shape, np.int32)
     grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
@@ -348,7 +348,8 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     # closed edge band around them (the closing fills gaps of up to four pixels) is one
     # blob of two or three faces, and explaining it by its dominant surface alone would
     # drop the others. Each blob is split into every surface it holds.
-    labels, fits = split_blobs(ctx, labels, fits, candidates)
+    if candidates.any():  # (no blob: nothing to split, no rim to take back)
+        labels, fits = split_blobs(ctx, labels, fits, candidates)
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
