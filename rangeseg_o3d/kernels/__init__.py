@@ -33,7 +33,7 @@ _SOURCES = {
              "relabel", "grow_rings", "jump_mask", "largest_piece", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "piece_ids",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
-                  "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise",
+                  "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
     "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "sides": ("crease_sides",),

@@ -14,7 +14,7 @@ from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, pla
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
-           "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "rows_with_any",
+           "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half", "rows_with_any",
            "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
 N_MOMENTS = 10  # count, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
@@ -399,6 +399,42 @@ def within_plane_noise(points, sigma, normals, offsets, rms, k_sigma):
             along = x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
             noise = max(sigma[i] * (abs(along) / norm), rms[j])
             out[i, j] = abs(along - offsets[j]) <= k_sigma * noise
+    return out
+
+
+@njit(cache=True, nogil=True)
+def planes_may_hold_half(xyz, sigma, idx, normals, offsets, scatter, limit, slack):
+    """Per plane ``j`` (rows of ``normals``, ``offsets``, ``scatter``): whether at least
+    ``ceil(n / 2)`` of the n pixels ``idx`` (rows of the flat ``xyz`` and ``sigma``) lie within
+    ``limit * max(sigma, scatter[j])`` of it, that bound widened by ``slack`` of itself and
+    of the terms of the distance (``|x nx| + |y ny| + |z nz| + |d|``): far above the rounding
+    of any way of computing it.
+
+    A necessary test for the median of the pixels' noise-scaled distances to be within
+    ``limit`` (fewer values within it put the median over it, whatever rounding the numpy
+    form's matrix product made): False only where that median is certainly over it. One
+    pass per plane that stops at the half, without gathering the points or a (pixels x
+    planes) array.
+    """
+    n, p = idx.shape[0], normals.shape[0]
+    need = (n + 1) // 2
+    out = np.zeros(p, np.bool_)
+    for j in range(p):
+        hits = 0
+        if need == 0:  # no pixel: no median to refuse (numpy's count test passes too)
+            out[j] = True
+            continue
+        for i in range(n):
+            q = idx[i]
+            tx, ty, tz = xyz[q, 0] * normals[j, 0], xyz[q, 1] * normals[j, 1], xyz[q, 2] * normals[j, 2]
+            along = tx + ty + tz
+            terms = abs(tx) + abs(ty) + abs(tz) + abs(offsets[j])
+            reach = limit * max(sigma[q], scatter[j]) * (1.0 + slack) + slack * terms
+            if abs(along - offsets[j]) <= reach:
+                hits += 1
+                if hits >= need:
+                    out[j] = True
+                    break
     return out
 
 

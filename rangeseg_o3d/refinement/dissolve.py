@@ -212,9 +212,27 @@ def median_may_pass(scores: np.ndarray, limit: float) -> np.ndarray:
     middle ones for even n is at least the lower one, in floating point too), so a column
     with fewer values at most ``limit`` has its median over it: a necessary test, one
     comparison and one count per value instead of a partition per column.
+    :func:`_ripple_host` asks it compiled, with a slack over the rounding
+    (:func:`_may_pass_somewhere`).
     """
     # a sum of the booleans: np.count_nonzero with an axis costs several times more
     return (scores <= limit).sum(axis=0) >= (scores.shape[0] + 1) // 2
+
+
+#: Relative slack of the compiled median test (:func:`_may_pass_somewhere`) over the
+#: rounding of numpy's scores: far above it, far below any noise.
+_SCORE_SLACK = 1e-9
+
+
+def _may_pass_somewhere(xyz, idx, table: _PlaneTable, which, sigma, k_sigma) -> bool:
+    """Whether the median of some plane's (``which``) column of :func:`_scores` of the pixels
+    ``idx`` may be within ``k_sigma`` (:func:`median_may_pass`, in one compiled pass with a
+    slack over the rounding: False only where numpy's answer is False too)."""
+    from ..kernels import planes_may_hold_half
+
+    return bool(planes_may_hold_half(xyz, sigma, np.ascontiguousarray(idx, dtype=np.int64),
+                                     table.normals[which], table.offsets[which], table.scatter[which],
+                                     float(k_sigma), _SCORE_SLACK).any())
 
 
 def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
@@ -223,8 +241,8 @@ def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
     larger = table.sizes > idx.size
     if not larger.any():
         return None
-    if idx.size * np.count_nonzero(larger) <= _PRESCORE_BUDGET and not np.any(
-            median_may_pass(_scores(xyz, idx, table, larger, sigma), k_sigma)):
+    if idx.size * np.count_nonzero(larger) <= _PRESCORE_BUDGET and not _may_pass_somewhere(
+            xyz, idx, table, larger, sigma, k_sigma):
         return None  # no larger plane anywhere explains it at the median: none nearby does
     # only the planes within two pixels can host it: their columns alone are scored (each
     # plane's median is its own column's)

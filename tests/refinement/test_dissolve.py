@@ -160,3 +160,35 @@ def test_a_column_far_from_every_larger_plane_is_refused_as_before():
         finally:
             dissolve._PRESCORE_BUDGET = budget
         assert changed == {1, 2} and (out == 1).all()
+
+
+def test_compiled_median_test_refuses_only_what_the_numpy_one_refuses():
+    # kernels.planes_may_hold_half against median_may_pass of numpy's scores: never False
+    # where numpy's is True (its slack is over the rounding), and the same answer away from
+    # the bound
+    from rangeseg_o3d.kernels import planes_may_hold_half
+    from rangeseg_o3d.refinement.dissolve import _SCORE_SLACK, median_may_pass
+
+    rng = np.random.default_rng(5)
+    same = 0
+    for trial in range(200):
+        n, p = int(rng.integers(1, 40)), int(rng.integers(1, 6))
+        xyz = rng.normal(size=(n + 10, 3)) * 3.0
+        sigma = rng.uniform(0.001, 0.02, n + 10)
+        idx = np.sort(rng.choice(n + 10, n, replace=False)).astype(np.int64)
+        normals = rng.normal(size=(p, 3))
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        offsets = rng.uniform(0.0, 3.0, p)
+        if trial % 2:  # points on the planes, some within the noise: answers either way
+            j = rng.integers(0, p, n)
+            xyz[idx] += (offsets[j] - np.sum(xyz[idx] * normals[j], axis=1))[:, None] * normals[j]
+            xyz[idx] += rng.normal(size=(n, 1)) * 0.02 * normals[j]
+        scatter = rng.uniform(0.0, 0.02, p)
+        scores = np.abs(xyz[idx] @ normals.T - offsets) / np.maximum(sigma[idx][:, None], scatter[None, :])
+        numpy_answer = median_may_pass(scores, 3.0)
+        compiled = planes_may_hold_half(xyz, sigma, idx, normals, offsets, scatter, 3.0, _SCORE_SLACK)
+        assert not np.any(numpy_answer & ~compiled)
+        same += int(np.array_equal(numpy_answer, compiled))
+    assert same == 200
+    empty = planes_may_hold_half(xyz, sigma, np.zeros(0, np.int64), normals, offsets, scatter, 3.0, _SCORE_SLACK)
+    assert empty.all() and median_may_pass(np.zeros((0, p)), 3.0).all()
