@@ -18,7 +18,7 @@ import numpy as np
 from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 from ..kernels.linalg import noise_rms_bound
-from ..kernels.trimmed import local_proposals, pool_inliers, trimmed_proposals
+from ..kernels.trimmed import local_proposals, pool_inliers, same_mask, trimmed_proposals
 from ._compiled import plane_of, prepare_points
 from ._decide import ACCEPTED, CURVED_SIZE, RADIUS, RMS, primitive_decision
 
@@ -134,6 +134,7 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
         proposals[0] = quad_near if first_quad else plane_near
         proposals[1] = plane_near if first_quad else quad_near
     found, best_noise, best_count, judged = False, False, -1, 0
+    previous = -1  # the proposal judged last
     row = np.zeros(PARAM_SLOTS)
     for turn in range(proposals.shape[0]):
         near = proposals[turn]
@@ -143,6 +144,11 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
         if judged >= limit:
             break
         judged += 1
+        # the same points again (a pool both proposals cover alike): the same decision, no
+        # better than itself
+        if previous >= 0 and same_mask(near, proposals[previous]):
+            continue
+        previous = turn
         chosen = np.empty((count, 3))
         j = 0
         for i in range(m):

@@ -415,3 +415,31 @@ def test_union_out_of_reach_leaves_poorly_determined_models_and_other_kinds_to_t
     assert not union_out_of_reach(plane, points, len(column), 1.3 * plane.rms)
     assert not union_out_of_reach(model, column, len(column), 1.3 * model.rms)  # no piece
     assert not union_out_of_reach(model, points, 0, 1.3 * model.rms)  # no region
+
+
+@pytest.mark.parametrize("planes_only", [False, True])
+def test_a_pool_both_proposals_cover_alike_is_judged_once_with_the_same_answer(planes_only):
+    # a small noisy plane patch: the plane's and the quadric's proposals take the same points;
+    # the compiled search judges them once (the same decision twice is no better than
+    # itself) and answers as trimmed_fit, which judges both
+    from rangeseg_o3d.fitting.classify import trimmed_primitive
+    from rangeseg_o3d.refinement.facets import _BoundJudge, _PlaneJudge
+
+    rng = np.random.default_rng(11)
+    uv = rng.uniform(-0.1, 0.1, (40, 2))
+    patch = np.c_[uv, 2.0 + 0.3 * uv[:, 0] + rng.normal(0, 0.001, 40)]
+    xyz = np.ascontiguousarray(np.vstack([rng.uniform(5, 6, (10, 3)), patch]))
+    pool = np.arange(10, len(xyz))
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    judge = (_PlaneJudge if planes_only else _BoundJudge)(fitter, np.inf)
+    memo = {}
+    trimmed_primitive(xyz, pool, sigma=0.003, min_inliers=20, max_rms=np.inf, fit_max_points=600,
+                      planes_only=planes_only, proposals=memo)
+    (proposals,) = memo.values()
+    assert proposals.shape[0] == 2 and np.array_equal(proposals[0], proposals[1]) and proposals[0].all()
+    model, inliers = judge.trimmed(xyz, pool, sigma=0.003, min_points=20)
+    expected, expected_inliers = trimmed_fit(xyz, judge.fit, pool=pool, sigma=0.003, min_points=20)
+    assert model is not None and model.kind == "plane"
+    assert type(model) is type(expected) and repr(model) == repr(expected)
+    np.testing.assert_array_equal(inliers, expected_inliers)
+    assert inliers.sum() == len(pool)
