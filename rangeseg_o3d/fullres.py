@@ -231,9 +231,12 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # their pixels, as the Result reports it.
     fits = with_pixel_rms(fits, stats)
     before, fits_before = labels.copy(), fits
+    # the blobs are at least min_size, the surfaces found in them are fitted to pixels: they
+    # are held to the floor of a recovered region (a box side beside the table's plane in one
+    # blob, fewer pixels than the tile grid's floor, is a surface all the same)
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
-                                  sensor=sensor, ranges=ranges, sigma=sigma,
-                                  candidates=candidates, min_size=min_size, boxes=boxes,
+                                  sensor=sensor, ranges=ranges, sigma=sigma, candidates=candidates,
+                                  min_size=recovered_region_floor(config, min_size), boxes=boxes,
                                   thin_from=first_thin)
     from .kernels import moved_labels
 

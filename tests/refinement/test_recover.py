@@ -155,6 +155,29 @@ def test_split_blobs_gives_every_face_of_a_leftover_blob_its_region(context):
     assert piece.size < 0.5 * truth.size  # the dominant surface alone would keep one face
 
 
+def test_split_blobs_finds_the_face_beside_a_plane_that_explains_most_of_the_blob(context):
+    # A blob of a wall (2400 px) and a board 2 cm in front of it (100 px): the blob's plane
+    # explains 95 % of it, the wall, and the board, over the size floor, is a surface of its
+    # own (it was freed with the rest of the blob the wall's plane left)
+    xyz = plane_grid(50, 50, z=3.0, noise=0.001, seed=7)
+    board = (slice(2, 12), slice(2, 12))
+    xyz[board + (2,)] -= 0.02
+    cloud = rs.OrganizedCloud(xyz)
+    truth = np.ones((50, 50), np.int32)
+    truth[board] = 2
+    candidates = np.full((50, 50), 4, np.int32)
+    out, fits = split_blobs(context(cloud, min_size=50, sigma=np.full((50, 50), 0.001)),
+                            np.zeros((50, 50), np.int32), {}, candidates)
+    wall, wall_share = best_overlap(out, truth, 1)
+    found, share = best_overlap(out, truth, 2)
+    assert wall_share > 0.95 and share > 0.9 and found not in (0, wall)
+    assert fits[found].kind == "plane" and abs(fits[wall].d - fits[found].d) == pytest.approx(0.02, abs=0.002)
+    # a floor over the board's size leaves the blob to the wall's plane alone: the board is freed
+    out, fits = split_blobs(context(cloud, min_size=200, sigma=np.full((50, 50), 0.001)),
+                            np.zeros((50, 50), np.int32), {}, candidates)
+    assert len(fits) == 1 and not out[board].any()
+
+
 def test_split_blobs_frees_a_blob_no_model_explains(context):
     xyz = plane_grid(30, 30, z=3.0, noise=0.001, seed=2)
     xyz[..., 2] += np.random.default_rng(3).uniform(-0.3, 0.3, (30, 30))
