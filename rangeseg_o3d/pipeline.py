@@ -16,7 +16,7 @@ from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
-                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
+                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved, recover_off_model,
                       recover_thin_surfaces,
                       recovered_region_floor, refit_planes_to_pixels, region_stats, settle_creases,
                       smallest_region)
@@ -142,16 +142,19 @@ class Pipeline:
         return (self.config.tile is not None and sensor.noise.sigma_quadratic == 0.0
                 and sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None)
 
-    def _fitter_for(self, work: OrganizedCloud) -> RegionFitter:
+    def _fitter_for(self, work: OrganizedCloud, excess: float | None = None) -> RegionFitter:
         """The fitter for ``work``'s points. On a tile grid they are means of ``tile x tile``
         returns, and the thresholds follow the noise of those means
         (:meth:`rangeseg_o3d.sensor.Sensor.of_means`): under the single returns' noise, the
         tile means of a cylinder or of two faces meeting at a shallow crease pass for a
         plane. Means that scatter more than the model says (real cameras' returns err
-        together) widen them by the measured excess (:func:`rangeseg_o3d.sensor.noise_excess`)."""
+        together) widen them by the measured excess ``excess``
+        (:func:`rangeseg_o3d.sensor_checks.noise_excess` of ``work``, measured when None)."""
         if work.tile <= 1:
             return self.fitter
-        means = self.sensor.of_means(work.tile * work.tile, excess=noise_excess(work, self.sensor))
+        if excess is None:
+            excess = noise_excess(work, self.sensor)
+        means = self.sensor.of_means(work.tile * work.tile, excess=excess)
         return RegionFitter(self.fitter.plugin, self.config.fitter.params, self.config.max_fit_points,
                             sensor=means)
 
@@ -190,7 +193,8 @@ class Pipeline:
         clock.timings.update(segmentation.timings)
         clock.lap("segment")
         labels = segmentation.labels
-        fitter = self._fitter_for(work)
+        excess = noise_excess(work, self.sensor) if work.tile > 1 else 1.0
+        fitter = self._fitter_for(work, excess)
         regions = Regions(labels, fitter.fit_regions(work.xyz.reshape(-1, 3), labels))
         clock.lap("fit")
         regions, sigma = self._refine(work, regions, segmentation.jumps, clock.timings,
@@ -198,7 +202,8 @@ class Pipeline:
         clock.lap("refine")
         stages, stats = segmentation.stages, None
         if work is not cloud:
-            labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models, settings)
+            labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models, settings,
+                                                               excess)
             regions = Regions(labels, fits)
             stages = ExpandedStages(stages, settings.tile, cloud.shape)
             clock.lap("full_resolution")
@@ -257,7 +262,7 @@ class Pipeline:
         return regions, sigma
 
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict,
-                         settings: _Settings):
+                         settings: _Settings, excess: float = 1.0):
         """Label every pixel by the models of its tile's region and the 8 around it.
 
         Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
@@ -277,13 +282,22 @@ class Pipeline:
                                          _read_only(cloud.valid, np.bool_), float(noise.sigma0),
                                          float(noise.sigma_quadratic))
         refine = settings.refine
-        labels, stats = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
-                                     k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS)
+        # how much more a tile's mean errs than one of independent returns (correlated
+        # returns, the tile means' measured excess scatter)
+        spread = excess * float(noise.mean_scale(settings.tile * settings.tile)) * settings.tile
+        labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
+                                             k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True)
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:
+            tile_fits = fits
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+            # pixels a model took one by one that lie beside it as a group: a surface of their own?
+            labels, fits, stats = recover_off_model(
+                cloud, labels, fits, stats, blocks=blocks, tile_fits=tile_fits, tile=settings.tile, spread=spread,
+                fitter=self.fitter, config=refine, sensor=self.sensor, ranges=ranges, sigma=sigma,
+                inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
             # a cylinder bent over a crease gives way to its two faces before the regions grow

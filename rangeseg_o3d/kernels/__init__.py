@@ -35,7 +35,7 @@ _SOURCES = {
     "labelwise": ("label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
-    "tiles": ("label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
+    "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "sides": ("crease_sides",),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",

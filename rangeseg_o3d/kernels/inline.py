@@ -28,17 +28,25 @@ def _add_moments(m, x, y, z):
 def _distance(kind, prm, x, y, z):
     # Absolute orthogonal distance of (x, y, z) from the model (a row of a model table, see
     # kinds.py); inf for "no model".
+    return abs(_signed_distance(kind, prm, x, y, z))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _signed_distance(kind, prm, x, y, z):
+    # Signed orthogonal distance of (x, y, z) from the model: along a plane's normal, out of
+    # a sphere or cylinder positive; inf for "no model".
     if kind == PLANE:
-        return abs(prm[0] * x + prm[1] * y + prm[2] * z - prm[3])
+        return prm[0] * x + prm[1] * y + prm[2] * z - prm[3]
     if kind == SPHERE:
         dx, dy, dz = x - prm[0], y - prm[1], z - prm[2]
-        return abs(np.sqrt(dx * dx + dy * dy + dz * dz) - prm[3])
+        return np.sqrt(dx * dx + dy * dy + dz * dz) - prm[3]
     if kind == CYLINDER:
         rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
         along = rx * prm[0] + ry * prm[1] + rz * prm[2]
         radial2 = rx * rx + ry * ry + rz * rz - along * along
-        return abs(np.sqrt(max(radial2, 0.0)) - prm[6])
+        return np.sqrt(max(radial2, 0.0)) - prm[6]
     return np.inf
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _incidence(kind, prm, x, y, z):

@@ -12,12 +12,13 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance, _incidence, _nearest_neighbour_model, _neighbour
+from .kinds import PLANE
+from .inline import _distance, _incidence, _nearest_neighbour_model, _neighbour, _signed_distance
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py")
 
-__all__ = ["label_pixels", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
+__all__ = ["label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
 
 
 @njit(cache=True, nogil=True)
@@ -72,10 +73,12 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     tile whose region has no model (``kinds == 0``) keep that region. ``xyz`` and
     ``sigma`` are flat (H*W).
 
-    Returns ``(labels (H, W) int32, inliers, squares, counts)``: per label, the pixels
-    within ``inlier_factor * sigma`` of its model, the sum of their squared distances and
-    the number of pixels with a finite distance (pixels taken in raster order, as
-    :func:`rangeseg_o3d.kernels.distance_stats` counts them with a zero rms).
+    Returns ``(labels (H, W) int32, inliers, squares, counts, blocks)``: per label, the
+    pixels within ``inlier_factor * sigma`` of its model, the sum of their squared distances
+    and the number of pixels with a finite distance (pixels taken in raster order, as
+    :func:`rangeseg_o3d.kernels.distance_stats` counts them with a zero rms); ``blocks`` the
+    sums per tile and label that tile's pixels joined, in the same pass (see
+    :func:`_block_sums_layout`): ``(first, owners, taken, sums, whole)``.
     """
     table, count = _tile_candidates(tile_labels, kinds)
     n = kinds.shape[0]
@@ -84,6 +87,9 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     inliers = np.zeros(n, np.int64)
     squares = np.zeros(n)
     counts = np.zeros(n, np.int64)
+    first, owners = _block_sums_layout(table, count)
+    taken_in = np.zeros(owners.size, np.int64)
+    sums = np.zeros((owners.size, _BLOCK_SUMS))
     # Row by row (the statistics sum in raster order), tile by tile along the row: no
     # division per pixel, and a pixel of a tile inside a region tests one model.
     for r in range(height):
@@ -99,6 +105,7 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     if np.isfinite(xyz[r * width + c, 2]):
                         out[r, c] = own
                 continue
+            slot = first[tr * tw + tc]
             if m == 1:
                 k = table[tr, tc, 0]
                 kind, prm, floor = kinds[k], params[k], rms[k]
@@ -106,13 +113,16 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 # the region's statistics in registers along the tile's row (the same
                 # additions in the same order as _take's)
                 taken, total, near = counts[k], squares[k], inliers[k]
+                before = taken
+                offset, sx, sy, sz, noise2 = 0.0, 0.0, 0.0, 0.0, 0.0
                 for c in range(c0, c1):
                     i = r * width + c
-                    z = xyz[i, 2]
+                    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
                     if not np.isfinite(z):
                         continue
                     noise = sigma[i]
-                    dist = _distance(kind, prm, xyz[i, 0], xyz[i, 1], z)
+                    signed = _signed_distance(kind, prm, x, y, z)
+                    dist = abs(signed)
                     score = dist / max(noise, floor)
                     if score < k_sigma or (ties and score <= k_sigma):
                         out[r, c] = k
@@ -120,7 +130,13 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                         total += dist * dist
                         if dist <= inlier_factor * max(noise, 0.0):
                             near += 1
+                        offset += signed
+                        sx += x
+                        sy += y
+                        sz += z
+                        noise2 += noise * noise
                 counts[k], squares[k], inliers[k] = taken, total, near
+                _add_block_row(taken_in, sums, slot, taken - before, offset, sx, sy, sz, noise2)
                 continue
             own_first = table[tr, tc, 0] == own
             for c in range(c0, c1):
@@ -129,7 +145,7 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 if not np.isfinite(z):
                     continue
                 noise = sigma[i]
-                best, best_score, best_dist = 0, np.inf, 0.0
+                best, best_j, best_score, best_dist = 0, 0, np.inf, 0.0
                 for j in range(m):
                     k = table[tr, tc, j]
                     dist = _distance(kinds[k], params[k], x, y, z)
@@ -145,10 +161,140 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     score = dist / max(noise * _incidence(kinds[k], params[k], x, y, z), rms[k])
                     # neighbours must beat what is found so far
                     if score < best_score or (j == 0 and own_first and score <= best_score):
-                        best, best_score, best_dist = k, score, dist
+                        best, best_j, best_score, best_dist = k, j, score, dist
                 if best != 0:
                     _take(out, inliers, squares, counts, r, c, best, best_dist, noise, inlier_factor)
-    return out, inliers, squares, counts
+                    signed = _signed_distance(kinds[best], params[best], x, y, z)
+                    _add_block_row(taken_in, sums, slot + best_j, 1, signed, x, y, z, noise * noise)
+    whole = _whole_tiles(taken_in, first, count, th, tw, tile, height, width)
+    return out, inliers, squares, counts, (first, owners, taken_in, sums, whole)
+
+
+#: Sums per tile and label (:func:`label_pixels`' ``blocks``): signed distance, x, y, z, noise**2.
+_BLOCK_SUMS = 5
+
+
+@njit(cache=True, nogil=True)
+def _block_sums_layout(table, count):
+    # one slot per tile and candidate model, tiles in raster order: tile t's slots are
+    # first[t]:first[t + 1], slot first[t] + j for its candidate table[t, j]
+    th, tw = count.shape
+    first = np.zeros(th * tw + 1, np.int64)
+    for t in range(th * tw):
+        first[t + 1] = first[t] + max(count[t // tw, t % tw], 0)
+    owners = np.empty(first[-1], np.int32)
+    for t in range(th * tw):
+        for j in range(first[t + 1] - first[t]):
+            owners[first[t] + j] = table[t // tw, t % tw, j]
+    return first, owners
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_block_row(taken_in, sums, slot, taken, offset, sx, sy, sz, noise2):
+    taken_in[slot] += taken
+    sums[slot, 0] += offset
+    sums[slot, 1] += sx
+    sums[slot, 2] += sy
+    sums[slot, 3] += sz
+    sums[slot, 4] += noise2
+
+
+@njit(cache=True, nogil=True)
+def _whole_tiles(taken_in, first, count, th, tw, tile, height, width):
+    # tiles inside the image whose every pixel one label took (a single candidate)
+    whole = np.zeros((th, tw), np.bool_)
+    for tr in range(th):
+        rows = min(tr * tile + tile, height) - tr * tile if tr < th - 1 else height - tr * tile
+        for tc in range(tw):
+            cols = min(tc * tile + tile, width) - tc * tile
+            t = tr * tw + tc
+            whole[tr, tc] = (count[tr, tc] == 1 and rows == tile and cols == tile
+                             and taken_in[first[t]] == tile * tile)
+    return whole
+
+
+#: The standard deviation of normal values over their median absolute value.
+MAD_SIGMA = 1.4826
+
+
+@njit(cache=True, nogil=True)
+def off_model_tiles(first, owners, taken_in, sums, whole, kinds, params, rms, usable, spread, floor, bound):
+    """The tiles and labels whose pixels lie, as a group, off the label's model: the tile
+    and label slots of :func:`label_pixels`' ``blocks`` whose mean signed distance is beyond
+    ``bound`` times the larger of its noise times ``spread``, ``floor`` and the label's
+    robust spread of such means (``MAD_SIGMA`` times their median absolute value).
+
+    Slots of tiles inside a region (the tile and the 8 around it each ``whole`` with one
+    label: a tile model takes a surface beside its own only where its tiles met another
+    region or the image's edge) and of labels not ``usable`` (no model, or a model that
+    changed since) are not tested. The noise of a mean: the root of the pixels' summed noise
+    squares (a plane's range noise times the incidence cosine at their centroid, a curved
+    model's range noise, at least ``rms``) over their count.
+
+    Returns ``(tiles, owners)`` of the slots beyond the bound, tiles as ``tr * tw + tc``.
+    """
+    th, tw = whole.shape
+    n = kinds.shape[0]
+    slots = owners.size
+    tested = np.zeros(slots, np.bool_)
+    offsets = np.zeros(slots)
+    noises = np.zeros(slots)
+    per_label = np.zeros(n + 1, np.int64)
+    for tr in range(th):
+        for tc in range(tw):
+            t = tr * tw + tc
+            if _inside_whole(whole, owners, first, tr, tc):
+                continue
+            for s in range(first[t], first[t + 1]):
+                k = owners[s]
+                m = taken_in[s]
+                if m == 0 or not usable[k]:
+                    continue
+                tested[s] = True
+                offsets[s] = abs(sums[s, 0]) / m
+                scale = 1.0
+                if kinds[k] == PLANE:
+                    scale = _incidence(kinds[k], params[k], sums[s, 1] / m, sums[s, 2] / m, sums[s, 3] / m)
+                noises[s] = np.sqrt(max(sums[s, 4] * scale * scale, m * rms[k] * rms[k])) / m
+                per_label[k + 1] += 1
+    # each label's tested means together, for the median of their absolute values
+    for k in range(n):
+        per_label[k + 1] += per_label[k]
+    gathered = np.empty(per_label[n])
+    filled = per_label[:n].copy()
+    for s in range(slots):
+        if tested[s]:
+            gathered[filled[owners[s]]] = offsets[s]
+            filled[owners[s]] += 1
+    spread_of = np.zeros(n)
+    for k in range(n):
+        if per_label[k + 1] > per_label[k]:
+            spread_of[k] = MAD_SIGMA * np.median(gathered[per_label[k]:per_label[k + 1]])
+    tiles = np.empty(slots, np.int64)
+    labels = np.empty(slots, np.int32)
+    found = 0
+    for t in range(th * tw):
+        for s in range(first[t], first[t + 1]):
+            if tested[s] and offsets[s] > bound * max(spread * noises[s], floor, spread_of[owners[s]]):
+                tiles[found], labels[found] = t, owners[s]
+                found += 1
+    return tiles[:found].copy(), labels[:found].copy()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _inside_whole(whole, owners, first, tr, tc):
+    # tile (tr, tc) and the 8 around it inside the image, each whole with the same label
+    th, tw = whole.shape
+    if tr == 0 or tc == 0 or tr == th - 1 or tc == tw - 1:
+        return False
+    k = owners[first[tr * tw + tc]] if whole[tr, tc] else -1
+    if k < 0:
+        return False
+    for rr in range(tr - 1, tr + 2):
+        for cc in range(tc - 1, tc + 2):
+            if not whole[rr, cc] or owners[first[rr * tw + cc]] != k:
+                return False
+    return True
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -159,6 +305,84 @@ def _take(out, inliers, squares, counts, r, c, k, dist, noise, inlier_factor):
     squares[k] += dist * dist
     if dist <= inlier_factor * max(noise, 0.0):
         inliers[k] += 1
+
+
+@njit(cache=True, nogil=True)
+def tile_groups(tiles, tiles_across):
+    """Groups of the entries ``tiles[j]`` (tiles row-major, ``tiles_across`` per row):
+    entries whose tiles are the same or touch (8-neighbours) share a group, numbered from 0
+    in order of their first entry. Returns the group of each entry."""
+    n = tiles.shape[0]
+    parent = np.arange(n)
+    for i in range(n):
+        ri, ci = tiles[i] // tiles_across, tiles[i] % tiles_across
+        for j in range(i + 1, n):
+            rj, cj = tiles[j] // tiles_across, tiles[j] % tiles_across
+            if abs(rj - ri) <= 1 and abs(cj - ci) <= 1:
+                a, b = i, j
+                while parent[a] != a:
+                    a = parent[a]
+                while parent[b] != b:
+                    b = parent[b]
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    group = np.empty(n, np.int64)
+    number = np.full(n, -1, np.int64)
+    count = 0
+    for i in range(n):
+        a = i
+        while parent[a] != a:
+            a = parent[a]
+        if number[a] < 0:
+            number[a] = count
+            count += 1
+        group[i] = number[a]
+    return group
+
+
+@njit(cache=True, nogil=True)
+def tile_members(labels, tile, tiles, owners):
+    """The pixels of label ``owners[j]`` in tile ``tiles[j]`` (row-major over the ``tile x
+    tile`` blocks of ``labels``), for every j: their flat indices and their entry j."""
+    h, w = labels.shape
+    tiles_across = (w + tile - 1) // tile
+    pixels = np.empty(tiles.shape[0] * tile * tile, np.int64)
+    entries = np.empty(tiles.shape[0] * tile * tile, np.int64)
+    count = 0
+    for j in range(tiles.shape[0]):
+        r0 = (tiles[j] // tiles_across) * tile
+        c0 = (tiles[j] % tiles_across) * tile
+        for r in range(r0, min(r0 + tile, h)):
+            for c in range(c0, min(c0 + tile, w)):
+                if labels[r, c] == owners[j]:
+                    pixels[count] = r * w + c
+                    entries[count] = j
+                    count += 1
+    return pixels[:count].copy(), entries[:count].copy()
+
+
+@njit(cache=True, nogil=True)
+def free_blocks(labels, tile, blocks, owners, released):
+    """Set to 0 the pixels of label ``owners[j]`` in block ``blocks[j]`` (row-major index over
+    the ``tile x tile`` blocks of ``labels``), for every j, and to ``owners[j]`` the same
+    pixels of ``released``; both are changed in place. Returns the flat indices of the
+    freed pixels, in raster order."""
+    h, w = labels.shape
+    blocks_across = (w + tile - 1) // tile
+    freed = np.empty(blocks.shape[0] * tile * tile, np.int64)
+    count = 0
+    for j in range(blocks.shape[0]):
+        r0 = (blocks[j] // blocks_across) * tile
+        c0 = (blocks[j] % blocks_across) * tile
+        k = owners[j]
+        for r in range(r0, min(r0 + tile, h)):
+            for c in range(c0, min(c0 + tile, w)):
+                if labels[r, c] == k:
+                    labels[r, c] = 0
+                    released[r, c] = k
+                    freed[count] = r * w + c
+                    count += 1
+    return np.sort(freed[:count])
 
 
 @njit(cache=True, nogil=True)

@@ -179,13 +179,16 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
 
 def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
                   max_angle_deg: float, tolerance: float, disjoint: bool, rms_factor: float,
-                  only: set | None = None):
+                  only: set | None = None, held: set | None = None):
     """Merge same-kind regions whose union one model explains (union-find over candidates).
 
     A union is accepted when its model keeps the kind and its rms is at most
     ``rms_factor`` times the larger of the parts'. Planes are tried from summed label-wise
     moments (no point is touched); other kinds refit the union's points. With ``only``,
-    just pairs involving those labels. Returns new ``(labels, fits, adjacency)``: merged
+    just pairs involving those labels. A pair ``(a < b)`` in ``held`` (a region found on
+    pixels that lay, as a group, off the other's plane) merges only when, besides, the
+    smaller part's mean distance to the union's plane is within the noise of a mean
+    (:meth:`_Unions.part_centred`). Returns new ``(labels, fits, adjacency)``: merged
     regions touch whatever their parts touched.
     """
     fits = dict(fits)
@@ -216,7 +219,8 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         # plane against the models' own limit (parts_on)
         if (union and union.kind == fits[ra].kind
                 and union.rms <= rms_factor * max(unions.part_rms(ra), unions.part_rms(rb))
-                and unions.parts_on(ra, rb, union, limit, max_angle_deg)):
+                and unions.parts_on(ra, rb, union, limit, max_angle_deg)
+                and ((a, b) not in (held or ()) or unions.part_centred(ra, rb, union))):
             unions.join(ra, rb, union)
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
@@ -349,6 +353,22 @@ class _Unions:
             return True
         reach = PART_SIGMAS * limit
         return bool(_mean_square_distances(self.moments[[small]], union.normal, union.d)[0] <= reach * reach)
+
+    def part_centred(self, ra: int, rb: int, union) -> bool:
+        """Whether the smaller part of a union of planes lies on the union's plane on the
+        mean: its mean signed distance (from its moments) within ``CHI_SQUARE_SIGMAS`` of
+        the noise of a mean of its points, its own model's rms over the root of their
+        number (True for other kinds or without moments). A strip of a wall beside the
+        corner it meets lies within the noise of the other wall point by point, and on one
+        side of it as a whole."""
+        if self.moments is None or not isinstance(union, Plane):
+            return True
+        small = ra if self.moments[ra, 0] <= self.moments[rb, 0] else rb
+        count = float(self.moments[small, 0])
+        if count <= 0:
+            return True
+        mean = float(self.moments[small, 1:4] @ union.normal) / count - union.d
+        return abs(mean) <= CHI_SQUARE_SIGMAS * float(self.fits[small].rms) / np.sqrt(count)
 
     def join(self, ra: int, rb: int, union) -> None:
         """Merge root ``rb`` into root ``ra``, whose model becomes ``union``."""

@@ -399,7 +399,7 @@ def _grown(box, by: int) -> tuple[int, int, int, int]:
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None,
-                   thin_from: int | None = None):
+                   thin_from: int | None = None, released: np.ndarray | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
@@ -421,7 +421,11 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     gathered from it, not from the whole grid). Blobs numbered from ``thin_from`` on are
     thin strips, each one plane or none (:func:`split_blobs`). A plane found in the blobs
     keeps the pixels it took after its fit (its rim, its claims) only within the noise of
-    their distances to it (:func:`_gains_within_distance_noise`).
+    their distances to it (:func:`_gains_within_distance_noise`). ``released`` (optional, (H, W)): the plane
+    each pixel was freed from because as a group it lay off that plane
+    (:func:`rangeseg_o3d.fullres.off_model_blocks`), 0 elsewhere; a surface found
+    on such pixels merges back into that plane only when it lies on the union's plane on
+    the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     """
     first = int(labels.max(initial=0)) + 1
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
@@ -488,7 +492,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             labels, fits, near = merge_regions(ctx, labels, fits, {p for p in near if not apart.keys() & set(p)},
                                                max_angle_deg=config.merge_angle_deg,
                                                tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
-                                               rms_factor=config.merge_rms_factor, only=set(new) - refused)
+                                               rms_factor=config.merge_rms_factor, only=set(new) - refused,
+                                               held=_released_from(regions, released))
             fits.update(apart)
             # their neighbours as the merges left them; their pixels are those claim_rings
             # left them (the merges took none of them, and merge_into_curved below only
@@ -511,6 +516,20 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         labels = claim_on_distance_noise(ctx, labels, fits, free_pixels(labels, _read_only_bool(cloud.valid)),
                                          k_sigma=config.k_sigma)
     return labels, fits
+
+
+def _released_from(regions: dict, released: np.ndarray | None) -> set:
+    """Pairs ``(min, max)`` of each region of ``regions`` (flat pixels per label) and every
+    plane some of its pixels were freed from (``released``, see :func:`recover_pixels`): as
+    a group they lay off that plane."""
+    if released is None:
+        return set()
+    flat, pairs = released.reshape(-1), set()
+    for k, idx in regions.items():
+        for source in np.unique(flat[idx]).tolist():
+            if source > 0 and source != k:
+                pairs.add((min(k, source), max(k, source)))
+    return pairs
 
 
 def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, pool: np.ndarray) -> set:
