@@ -15,7 +15,7 @@ from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
-from ..kernels.linalg import noise_rms_bound
+from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
 from .context import Context
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
@@ -95,7 +95,7 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
 
 
 def pieces_on_planes(normals: np.ndarray, offsets: np.ndarray, rms: np.ndarray,
-                     moments: np.ndarray, rms_factor: float) -> np.ndarray:
+                     moments: np.ndarray, rms_factor: float, noise: np.ndarray | None = None) -> np.ndarray:
     """(K, K) bool: the points of the smaller region of a pair of planes lie on the larger's
     plane within ``rms_factor`` times the larger of their rms (from label-wise moments:
     no point is touched).
@@ -104,7 +104,13 @@ def pieces_on_planes(normals: np.ndarray, offsets: np.ndarray, rms: np.ndarray,
     hardly determine, so comparing normals rejects it; the mean square distance of its
     points to the wall's plane, ``(sum (n.x)^2 - 2 d sum n.x + N d^2) / N``, does not
     depend on its own fit. Those are exactly the pairs whose union passes the merge's rms
-    test whatever the parts' normals.
+    test whatever the parts' normals. With ``noise`` (each row's mean range noise) the
+    smaller piece may also lie within what that noise alone leaves a plane fitted to as
+    many points (:func:`rangeseg_o3d.kernels.linalg.noise_rms_bound`, up its chi-square,
+    as the fitter's plane tolerance): the fits of a few tens of pixels fall under the noise,
+    and a strip of a wall with a mixed pixel or two at a jump lies off the wall's plane by
+    a fraction of a millimetre more than 1.3 times them. That bound is not widened by
+    ``rms_factor`` (on a 3 cm lidar 1.3 times it took a 34-pixel piece of another face).
     """
     count = np.maximum(moments[:, 0], 1.0)
     sums = moments[:, 1:4]
@@ -114,6 +120,10 @@ def pieces_on_planes(normals: np.ndarray, offsets: np.ndarray, rms: np.ndarray,
     along = sums @ normals.T
     msd = (projected - 2.0 * offsets[None, :] * along + count[:, None] * offsets[None, :] ** 2) / count[:, None]
     limit = (rms_factor * np.maximum(rms[:, None], rms[None, :])) ** 2
+    if noise is not None:
+        # row i (the smaller piece of the pair) also within its own noise's bound
+        floor = noise_rms_bound.py_func(noise, count - 3.0, NOISE_CHI2_SIGMAS)
+        limit = np.maximum(limit, (floor ** 2)[:, None])
     smaller = count[:, None] <= count[None, :]
     on = smaller & (msd <= limit)
     return on | on.T
@@ -131,7 +141,8 @@ def _mean_square_distances(moments: np.ndarray, normal: np.ndarray, d: float) ->
 
 def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
                      adjacency: set[tuple[int, int]], disjoint: bool = True,
-                     moments: np.ndarray | None = None, rms_factor: float = 1.3) -> list[tuple[int, int]]:
+                     moments: np.ndarray | None = None, rms_factor: float = 1.3,
+                     noise: np.ndarray | None = None) -> list[tuple[int, int]]:
     """Pairs of labels worth a union fit, cheapest first (by the parts' rms sum).
 
     Adjacent regions of one kind are always candidates: two pieces of one small cylinder
@@ -139,7 +150,8 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
     fit decides. Regions that do not touch are candidates only with ``disjoint`` and when
     :func:`similar_models` says their parameters agree, or, for planes with the regions'
     label-wise ``moments`` (row = label), when the smaller one's points lie on the larger
-    one's plane (:func:`pieces_on_planes` with ``rms_factor``).
+    one's plane (:func:`pieces_on_planes` with ``rms_factor`` and ``noise``, each label's
+    mean range noise by row as the moments, optional).
     """
     keys = sorted(models)
     out = []
@@ -156,8 +168,12 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
             rows = np.zeros((len(planes), moments.shape[1]))
             inside = np.array(planes) < len(moments)
             rows[inside] = moments[np.array(planes)[inside]]
+            own_noise = None
+            if noise is not None:
+                own_noise = np.zeros(len(planes))
+                own_noise[inside] = noise[np.array(planes)[inside]]
             close |= pieces_on_planes(normals, offsets, np.array([models[k].rms for k in planes]),
-                                      rows, rms_factor)
+                                      rows, rms_factor, own_noise)
         wanted = close if disjoint else np.zeros_like(close)
         position = {k: i for i, k in enumerate(planes)}
         for a, b in adjacency:
@@ -189,7 +205,11 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     pixels that lay, as a group, off the other's plane) merges only when, besides, the
     smaller part's mean distance to the union's plane is within the noise of a mean
     (:meth:`_Unions.part_centred`). Returns new ``(labels, fits, adjacency)``: merged
-    regions touch whatever their parts touched.
+    regions touch whatever their parts touched. Over the whole grid (no ``only``), a plane
+    apart is a candidate as far as its own range noise allows (:func:`pieces_on_planes`'
+    ``noise``, each label's mean); the recovery's merge of the pieces it found (``only``),
+    which holds them to the noise of their distances itself, does not pay a pass over the
+    frame's noise for it.
     """
     fits = dict(fits)
     good = {k: m for k, m in fits.items() if m}
@@ -199,7 +219,9 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     unions = _Unions(ctx, labels, fits, rms_factor, with_moments=with_moments)
     pairs = merge_candidates(good, max_angle_deg=max_angle_deg, tolerance=tolerance,
                              adjacency=adjacency, disjoint=disjoint,
-                             moments=unions.moments if disjoint else None, rms_factor=rms_factor)
+                             moments=unions.moments if disjoint else None, rms_factor=rms_factor,
+                             noise=_mean_noise(ctx, labels, unions.moments)
+                             if disjoint and only is None and unions.moments is not None else None)
     if only is not None:
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
     if not pairs:
@@ -225,6 +247,13 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
     return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _mean_noise(ctx: Context, labels: np.ndarray, moments: np.ndarray) -> np.ndarray:
+    # each label's mean range noise (row = label, as the moments)
+    sigma = np.where(np.isfinite(ctx.sigma), ctx.sigma, 0.0).ravel()
+    sums = np.bincount(labels.ravel(), weights=sigma, minlength=len(moments))[:len(moments)]
+    return sums / np.maximum(moments[:, 0], 1.0)
 
 
 def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:

@@ -412,3 +412,71 @@ def test_planes_into_curved_skips_a_pair_whose_second_plane_was_joined_already()
     curved = [f for f in result.features if isinstance(f.model, (Cylinder, Sphere))]
     assert len(result.features) >= 10 and curved
     assert all(isinstance(f.model, (Plane, Cylinder, Sphere)) for f in result.features)
+
+
+def _wall_and_noisy_pieces(sigma):
+    # a wall z = 2 (columns 0-39) and two pieces of 30 pixels apart from it: one on the wall
+    # with residuals of 1.2 noise sigmas in a checkerboard (no plane takes them up), one
+    # parallel 3 sigmas in front
+    v, u = np.mgrid[0:30, 0:60].astype(float)
+    xyz = np.dstack([u * 0.02, v * 0.02, np.full((30, 60), 2.0)])
+    labels = np.zeros((30, 60), np.int32)
+    labels[:, :40], labels[:10, 50:53], labels[:10, 56:59] = 1, 2, 3
+    xyz[:10, 50:53, 2] += 1.2 * sigma * np.where(np.arange(30) % 2 == 0, 1.0, -1.0).reshape(10, 3)
+    xyz[:10, 56:59, 2] -= 3.0 * sigma
+    return xyz, labels
+
+
+def _noisy_pieces_models(sigma):
+    # the fits of _wall_and_noisy_pieces, rms 0.8 sigma (fits of few points fall under the
+    # noise); the piece on the wall turned 5 degrees about its centre row, as its few
+    # pixels across hardly determine its normal
+    tilted = np.array([0.0, np.sin(np.radians(5.0)), np.cos(np.radians(5.0))])
+    flat = np.array([0.0, 0.0, 1.0])
+    return {1: Plane(normal=flat, d=2.0, rms=0.8 * sigma, inliers=1200),
+            2: Plane(normal=tilted, d=float(tilted @ [0.0, 0.09, 2.0]), rms=0.8 * sigma, inliers=30),
+            3: Plane(normal=flat, d=2.0 - 3.0 * sigma, rms=0.8 * sigma, inliers=30)}
+
+
+def test_pieces_on_planes_hold_a_small_piece_to_its_noise_not_to_fits_under_it():
+    # A wall z = 2 and two pieces of 30 points: one on the wall with residuals of 1.2 noise
+    # sigmas (a strip with a mixed pixel or two at a jump), one parallel 3 sigmas in front.
+    # Both fits say 0.8 sigma (fits of few points fall under the noise): against 1.3 times
+    # that the piece on the wall is refused; within what the noise leaves a plane of 30
+    # points (noise_rms_bound, 1.35 sigma) it is a candidate, and the parallel piece still is not.
+    from rangeseg_o3d.fitting.batch_planes import region_moments
+    from rangeseg_o3d.kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
+    from rangeseg_o3d.refinement.merge import pieces_on_planes
+
+    sigma = 0.002
+    xyz, labels = _wall_and_noisy_pieces(sigma)
+    moments = region_moments(xyz.reshape(-1, 3), labels.ravel())[1:]
+    normals, offsets = np.tile([0.0, 0.0, 1.0], (3, 1)), np.array([2.0, 2.0, 2.0 - 3.0 * sigma])
+    rms = np.full(3, 0.8 * sigma)
+    assert 3.0 * sigma > noise_rms_bound(sigma, 27.0, NOISE_CHI2_SIGMAS) > 1.2 * sigma > 1.3 * 0.8 * sigma
+    without = pieces_on_planes(normals, offsets, rms, moments, 1.3)
+    with_noise = pieces_on_planes(normals, offsets, rms, moments, 1.3, np.full(3, sigma))
+    assert not without[0, 1] and not without[0, 2]
+    assert with_noise[0, 1] and with_noise[1, 0] and not with_noise[0, 2] and not with_noise[2, 0]
+    # merge_candidates passes the rows' noise on (the piece's own normal 5 degrees off: no
+    # parameter test joins it)
+    models = _noisy_pieces_models(sigma)
+    table = np.vstack([np.zeros((1, moments.shape[1])), moments])
+    common = dict(max_angle_deg=3.0, tolerance=1e-4, adjacency=set(), moments=table)
+    assert merge_candidates(models, **common) == []
+    assert merge_candidates(models, **common, noise=np.full(4, sigma)) == [(1, 2)]
+
+
+def test_merge_regions_joins_a_piece_apart_within_its_noise_over_the_whole_grid_only(context):
+    # the pieces of the test above, their models' rms under the noise: the whole grid's merge
+    # takes each label's noise from the context and joins the piece on the wall (the parallel
+    # piece stays); the recovery's merge of named pieces (``only``) holds them to the fits' rms
+    sigma = 0.002
+    xyz, labels = _wall_and_noisy_pieces(sigma)
+    fits = _noisy_pieces_models(sigma)
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((30, 60), sigma))
+    common = dict(max_angle_deg=3.0, tolerance=1e-4, disjoint=True, rms_factor=1.3)
+    out, merged, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), **common)
+    assert (out[labels == 2] == 1).all() and (out[labels == 3] == 3).all() and set(merged) == {1, 3}
+    out, _, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), only={2, 3}, **common)
+    assert np.array_equal(out, labels)
