@@ -16,10 +16,10 @@ from .config import PipelineConfig, load_config
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
-                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved, recover_off_model,
-                      recover_thin_surfaces,
-                      recovered_region_floor, refit_planes_to_pixels, region_stats, settle_creases,
-                      smallest_region)
+                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
+                      recover_thin_surfaces, recovered_region_floor, refit_planes_to_pixels, region_stats,
+                      settle_creases, smallest_region)
+from .off_model import recover_off_model
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource

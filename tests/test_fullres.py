@@ -603,7 +603,7 @@ def _noisy_wall(h, w, sigma, seed, z=2.0):
 def _wall_release(xyz, fits, sigma, tile=6, spread=1.0, k_sigma=10.0, tile_fits=None, tile_labels=None):
     # label_pixels' labels and tile sums (every tile of label 1 unless given), then the release
     from rangeseg_o3d.cloud import OrganizedCloud
-    from rangeseg_o3d.fullres import off_model_blocks
+    from rangeseg_o3d.off_model import off_model_blocks
 
     cloud = OrganizedCloud(xyz)
     h, w = cloud.shape
@@ -736,7 +736,7 @@ def test_turned_groups_frees_only_groups_turned_from_their_model_and_large_enoug
     # two groups of tiles of label 1: one whose pixels lie on a face at right angles to its
     # plane (kept), one on the plane's orientation 3 mm off it (a bend: not kept); with a floor
     # above the first group's pixels, neither
-    from rangeseg_o3d.fullres import _turned_groups
+    from rangeseg_o3d.off_model import _turned_groups
 
     h, w, tile = 12, 36, 6
     xyz = np.zeros((h, w, 3))
@@ -771,7 +771,7 @@ def _patch(normal_axis, n, seed, spacing=0.004, sigma=0.002):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_turned_from_source_keeps_a_face_across_the_model_and_drops_a_bend_along_it(seed):
-    from rangeseg_o3d.fullres import _turned_from_source
+    from rangeseg_o3d.off_model import _turned_from_source
 
     # blob 5: pixels on a face at right angles to the plane they were freed from; blob 6: pixels
     # on that plane's orientation, 3 mm off it (a bend); blob 7: 2 pixels, no plane

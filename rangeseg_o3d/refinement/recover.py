@@ -423,7 +423,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     keeps the pixels it took after its fit (its rim, its claims) only within the noise of
     their distances to it (:func:`_gains_within_distance_noise`). ``released`` (optional, (H, W)): the plane
     each pixel was freed from because as a group it lay off that plane
-    (:func:`rangeseg_o3d.fullres.off_model_blocks`), 0 elsewhere; a surface found
+    (:func:`rangeseg_o3d.off_model.off_model_blocks`), 0 elsewhere; a surface found
     on such pixels merges back into that plane only when it lies on the union's plane on
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     """
