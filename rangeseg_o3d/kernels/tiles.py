@@ -13,7 +13,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .kinds import PLANE
-from .inline import _distance, _incidence, _nearest_neighbour_model, _neighbour, _signed_distance
+from .inline import _incidence, _nearest_neighbour_model, _neighbour, _signed_distance
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py")
@@ -60,6 +60,27 @@ def _tile_candidates(tile_labels, kinds):
                         m += 1
             count[tr, tc] = m
     return table, count
+
+
+#: Relative band about ``k_sigma * scale`` inside which :func:`_within_sigmas` divides: outside
+#: it the product's answer is the quotient's (rounding moves either by under 1e-15 of itself).
+_QUOTIENT_BAND = 1e-12
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _within_sigmas(dist, scale, k_sigma, ties):
+    # ``dist / scale < k_sigma`` (``<=`` with ``ties``), the quotient's answer bit for bit, by a
+    # product where the distance is clearly inside or outside the band (a division costs a
+    # pixel of a region's tile several multiplications); in the band, at a subnormal or
+    # non-finite product, and for NaN the quotient decides as before
+    limit = k_sigma * scale
+    if limit > 1e-290 and limit < np.inf:
+        if dist < limit * (1.0 - _QUOTIENT_BAND):
+            return True
+        if dist > limit * (1.0 + _QUOTIENT_BAND):
+            return False
+    score = dist / scale
+    return score < k_sigma or (ties and score <= k_sigma)
 
 
 @njit(cache=True, nogil=True)
@@ -123,8 +144,7 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     noise = sigma[i]
                     signed = _signed_distance(kind, prm, x, y, z)
                     dist = abs(signed)
-                    score = dist / max(noise, floor)
-                    if score < k_sigma or (ties and score <= k_sigma):
+                    if _within_sigmas(dist, max(noise, floor), k_sigma, ties):
                         out[r, c] = k
                         taken += 1
                         total += dist * dist
@@ -145,10 +165,11 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 if not np.isfinite(z):
                     continue
                 noise = sigma[i]
-                best, best_j, best_score, best_dist = 0, 0, np.inf, 0.0
+                best, best_j, best_score, best_dist, best_signed = 0, 0, np.inf, 0.0, 0.0
                 for j in range(m):
                     k = table[tr, tc, j]
-                    dist = _distance(kinds[k], params[k], x, y, z)
+                    signed = _signed_distance(kinds[k], params[k], x, y, z)  # kept for the block sums
+                    dist = abs(signed)  # _distance's value
                     # explained within k_sigma (the own region at the bound too)...
                     limit = k_sigma * max(noise, rms[k])
                     if not (dist < limit or (j == 0 and own_first and dist <= limit)):
@@ -161,11 +182,10 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     score = dist / max(noise * _incidence(kinds[k], params[k], x, y, z), rms[k])
                     # neighbours must beat what is found so far
                     if score < best_score or (j == 0 and own_first and score <= best_score):
-                        best, best_j, best_score, best_dist = k, j, score, dist
+                        best, best_j, best_score, best_dist, best_signed = k, j, score, dist, signed
                 if best != 0:
                     _take(out, inliers, squares, counts, r, c, best, best_dist, noise, inlier_factor)
-                    signed = _signed_distance(kinds[best], params[best], x, y, z)
-                    _add_block_row(taken_in, sums, slot + best_j, 1, signed, x, y, z, noise * noise)
+                    _add_block_row(taken_in, sums, slot + best_j, 1, best_signed, x, y, z, noise * noise)
     whole = _whole_tiles(taken_in, first, count, th, tw, tile, height, width)
     return out, inliers, squares, counts, (first, owners, taken_in, sums, whole)
 
