@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .fitting.primitives import with_statistics
 from .fitting.region_fitter import model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
@@ -262,7 +263,7 @@ def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:
     for k, model in fits.items():
         rms = stats.rms(k) if model else None
         if rms is not None:
-            out[k] = replace(model, rms=rms)
+            out[k] = with_statistics(model, rms=rms)
     return out
 
 

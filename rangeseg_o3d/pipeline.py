@@ -6,14 +6,13 @@ import inspect
 import logging
 import time
 from typing import NamedTuple
-from dataclasses import replace
 
 import numpy as np
 
 from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
-from .fitting.primitives import Cylinder, Plane, Sphere
+from .fitting.primitives import Cylinder, Plane, Sphere, with_statistics
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
@@ -430,9 +429,9 @@ def _features(regions: Regions, sizes: np.ndarray, stats: PixelStats, sigma: np.
             idx = np.flatnonzero(labels.ravel() == label)
             tol = INLIER_SIGMAS * sigma.ravel()[idx]
             inliers[label] = np.count_nonzero(np.abs(model.distances(xyz_flat[idx])) <= tol)
-        model = replace(model, inliers=int(inliers[label]))
+        model = with_statistics(model, inliers=int(inliers[label]))
         if pixel_rms and stats.rms(label) is not None:  # fitted on tile means: the pixels' rms
-            model = replace(model, rms=stats.rms(label))
+            model = with_statistics(model, rms=stats.rms(label))
         features.append(Feature(label=label, model=model, n_pixels=int(sizes[label]), source=source))
     return features, unfitted
 
