@@ -115,7 +115,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     if config.recover_leftovers:
         labels, fits = recover_leftovers(ctx, labels, fits, valid=cloud.valid,
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
-                                         claim_strips=config.merge_disjoint, **growth)  # a strip is a piece apart
+                                         claim_strips=config.merge_disjoint,  # a strip is a piece apart
+                                         thin_strips=tile == 1, **growth)  # (tile grid: see fullres)
     timer.lap("recover")
     before = fits
     labels, fits = planes_for_curved(ctx, labels, fits)

@@ -22,8 +22,8 @@ from .context import TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["leftover_candidates", "split_blobs", "claim_occluded_strips", "recover_leftovers",
-           "recover_pixels"]
+__all__ = ["leftover_candidates", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
+           "recover_leftovers", "recover_pixels"]
 
 
 def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
@@ -204,6 +204,35 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     return grown, refit_grown(ctx, labels, grown, fits)
 
 
+def claim_thin_strips(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
+                      valid: np.ndarray, k_sigma: float) -> np.ndarray:
+    """The leftover strips no blob took join a plane region they touch where they lie on its
+    surface within the noise of their distances; returns new labels (``labels`` is not changed).
+
+    The free pixels outside the blobs of ``candidates`` (:func:`leftover_candidates`: the
+    strips too thin for a 3x3 core), in 4-connected strips of at least the size floor, are
+    offered to the planes as :func:`claim_on_distance_noise` offers them (each connected
+    part within ``k_sigma`` noises of its distance to the plane most of its piece lies on,
+    its rms within the chi-square bound of that noise), to a region they touch only. A
+    face's border row or column beside a range step is marked a jump itself, and growth
+    never crosses a jump edge: that band stays free beside the region of its own surface,
+    too thin to be a blob (a box side five columns wide in front of a wall loses a fifth of
+    its pixels there; on a 32-row lidar a face seen in a few rows loses more).
+    """
+    free = valid & (labels == 0) & (candidates == 0)
+    if not free.any():
+        return labels
+    n, strips = cv2.connectedComponents(free.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    sizes = label_sizes(strips, minlength=n)
+    kept = sizes >= ctx.min_size
+    kept[0] = False
+    pool = np.flatnonzero(kept[strips].ravel())
+    if not pool.size:
+        return labels
+    return claim_on_distance_noise(ctx, np.array(labels, dtype=np.int32, order="C"), fits, pool,
+                                   k_sigma=k_sigma, apart=False)
+
+
 def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray):
     # connected pieces of the flat ``pixels`` first, then their plane (the column of
     # ``within``, pixels x planes, explaining most of the piece): coplanar regions not
@@ -331,7 +360,8 @@ def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarr
 
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
-                      k_sigma: float, jump_ratio: float, jump_min: float, claim_strips: bool = True):
+                      k_sigma: float, jump_ratio: float, jump_min: float, claim_strips: bool = True,
+                      thin_strips: bool = False):
     """Turn the compact leftover blobs into one region per surface they hold (:func:`split_blobs`);
     returns new ``(labels, fits)``.
 
@@ -343,10 +373,14 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     from it, so the caller asks for this only where pieces of one surface apart are one
     region (``merge_disjoint``): where they are not (SegComp's ABW truth labels each
     connected patch), a strip would join whichever region's plane passes through it,
-    however far (a face of another block in line with it).
+    however far (a face of another block in line with it). ``thin_strips``: first, the
+    leftover strips too thin for a blob join a plane region they touch and lie on
+    (:func:`claim_thin_strips`; asked at sensor resolution).
     """
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
+    if thin_strips:
+        labels = claim_thin_strips(ctx, labels, fits, candidates, valid=valid, k_sigma=k_sigma)
     # A blob may hold several faces: a box far away whose faces are narrower than the
     # closed edge band around them (the closing fills gaps of up to four pixels) is one
     # blob of two or three faces, and explaining it by its dominant surface alone would

@@ -390,3 +390,50 @@ def test_claim_on_distance_noise_leaves_a_band_off_the_plane_free(context, seed)
     # an empty pool or no plane: nothing to claim
     assert (claim_on_distance_noise(context(cloud, min_size=200, sigma=sigma), labels.copy(), {},
                                     np.flatnonzero(labels.ravel() == 0), k_sigma=3.0) == labels).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_thin_strips_gives_each_surface_its_border_column_at_a_step(context, seed):
+    # a board 0.5 m in front of a wall (2 mm noise); each region stops at its border column
+    # beside the step (marked a jump there, so never grown into): the board's column goes to
+    # the board, the wall's to the wall; a band 4 cm in front of the wall (20 sigma) stays
+    # free, and so do the pixels of a blob (the split's to fit)
+    from rangeseg_o3d.refinement.recover import claim_thin_strips
+
+    xyz = plane_grid(40, 60, z=3.0, noise=0.002, seed=seed)
+    xyz[:, 20:28, 2] -= 0.5
+    xyz[:, 40:42, 2] -= 0.04
+    labels = np.ones((40, 60), np.int32)
+    labels[:, 19:29] = 0
+    labels[:, 21:27] = 2
+    labels[:, 40:42] = 0
+    labels[10:17, 50:57] = 0  # a blob of the wall
+    candidates = np.zeros_like(labels)
+    candidates[10:17, 50:57] = 3
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full((40, 60), 0.002)
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    before = labels.copy()
+    out = claim_thin_strips(context(cloud, min_size=20, sigma=sigma), labels, fits, candidates,
+                            valid=cloud.valid, k_sigma=3.0)
+    assert (labels == before).all()  # the input is left alone
+    # (a pixel beyond 3 sigmas of its own plane stays free)
+    assert (out[:, [20, 27]] == 2).mean() > 0.95 and (out[:, [19, 28]] == 1).mean() > 0.95
+    assert (out[:, [20, 27]] != 1).all() and (out[:, [19, 28]] != 2).all()
+    assert (out[:, 40:42] == 0).all() and (out[10:17, 50:57] == 0).all()
+    assert (out[before > 0] == before[before > 0]).all()
+    # recover_leftovers asks for it with thin_strips (at sensor resolution), not otherwise
+    jumps = np.zeros(labels.shape, bool)
+    jumps[:, 19:21] = jumps[:, 27:29] = True
+    common = dict(xyz=xyz, valid=cloud.valid, jumps=jumps, ranges=cloud.range_image(), sigma=sigma,
+                  k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    no_blob = labels.copy()
+    no_blob[10:17, 50:57] = 1  # (a recovered blob's rim growth would take them)
+    for asked in (False, True):
+        got, _ = recover_leftovers(context(cloud, min_size=20, sigma=sigma), no_blob, fits, thin_strips=asked,
+                                   **common)
+        assert ((got[:, [20, 27]] == 2).mean() > 0.95) == asked
+    # strips under the size floor (the two columns beside each side of the step: 80 pixels) stay free
+    small = claim_thin_strips(context(cloud, min_size=81, sigma=sigma), labels, fits, candidates,
+                              valid=cloud.valid, k_sigma=3.0)
+    assert (small == labels).all()
