@@ -240,7 +240,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # to pixels (the merge's rms test, the claim's noise floor), so they carry the rms of
     # their pixels, as the Result reports it.
     fits = with_pixel_rms(fits, stats)
-    before, fits_before = labels.copy(), fits
+    before, fits_before = labels, fits  # recover_pixels changes a copy of the labels, not them
     # the blobs are at least min_size, the surfaces found in them are fitted to pixels: they
     # are held to the floor of a recovered region (a box side beside the table's plane in one
     # blob, fewer pixels than the tile grid's floor, is a surface all the same)

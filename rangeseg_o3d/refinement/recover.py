@@ -120,7 +120,7 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         flat[chosen] = k
         fits[k] = model
     labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed,
-                                 pixels={k: regions[k] for k in mixed})
+                                 pixels={k: regions[k] for k in mixed}, own=True)  # (its copy above)
     flat = labels.ravel()
     for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
@@ -484,9 +484,11 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         candidates.reshape(-1)[pool[claimed]] = 0
         if regions is not None:
             regions = {k: kept for k, idx in regions.items() if (kept := idx[labels.reshape(-1)[idx] == 0]).size}
-    before = labels.copy()
+    # the labels before and after the split, kept without a copy: split_blobs changes a copy of
+    # its input, and what it returns is not changed after (the growth below starts a new array)
+    before = labels
     labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from)
-    found = labels.copy()
+    found = labels
     new = {k: m for k, m in fits.items() if k >= first and m}
     # The surfaces found are pieces of the blobs: with the blobs' boxes known, each step
     # below looks only in their box grown by the rings it may add (same answers).

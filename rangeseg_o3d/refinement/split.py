@@ -19,7 +19,7 @@ _MAX_SPLIT_ATTEMPTS = 24
 
 
 def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int], *,
-                  pixels: dict | None = None):
+                  pixels: dict | None = None, own: bool = False):
     """Split every region of ``failed`` into all the surfaces it holds; returns new ``(labels, fits)``.
 
     Sequential robust extraction with connectivity kept: the dominant surface of a
@@ -32,9 +32,10 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     explained keeps its failure (reported as unfitted). The first surface found keeps the
     region's label, the others take new labels above the largest. ``pixels`` (optional):
     the flat pixels (increasing) of each failed region, when the caller has them (saves a
-    pass over the grid).
+    pass over the grid). ``own``: ``labels`` is the caller's own C-ordered int32 copy, which
+    this split may change in place and return (a frame-sized copy less at full resolution).
     """
-    labels, fits = labels.copy(), dict(fits)
+    labels, fits = (labels if own else labels.copy()), dict(fits)
     flat = labels.ravel()
     if pixels is None:
         pixels = region_indices(labels)

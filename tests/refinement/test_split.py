@@ -65,3 +65,18 @@ def test_split_with_the_failed_regions_pixels_given_equals_the_split_that_finds_
         for f in fields(model):  # a failure's rms is NaN in both
             mine, theirs = getattr(model, f.name), getattr(want_fits[k], f.name)
             assert np.array_equal(mine, theirs) or (mine != mine and theirs != theirs), f.name
+
+
+def test_a_split_of_the_callers_own_labels_changes_them_in_place_and_finds_the_same(context):
+    xyz, truth, _ = folded_strip(noise=0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    fits = {1: FitFailure("plane", "rms over the limit")}
+    ctx = context(cloud, min_size=10)
+    want_labels, want_fits = split_regions(ctx, np.ones(cloud.shape, np.int32), fits, [1])
+    own = np.ones(cloud.shape, np.int32)
+    got_labels, got_fits = split_regions(ctx, own, fits, [1], own=True)
+    assert got_labels is own  # no copy: the caller handed over its own array
+    assert np.array_equal(got_labels, want_labels) and len(np.unique(want_labels)) >= 3
+    assert got_fits.keys() == want_fits.keys() and list(fits) == [1]
+    for k, model in got_fits.items():
+        assert model.kind == want_fits[k].kind and model.rms == want_fits[k].rms
