@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
+
 
 __all__ = ["PlaneTable", "planes_from_moments", "region_moments", "quadric_gains"]
 
@@ -38,22 +40,18 @@ class PlaneTable:
 
 def region_moments(xyz_flat: np.ndarray, labels_flat: np.ndarray, n: int | None = None) -> np.ndarray:
     """(n, 10) moments (count, sums, sums of products) of the points of each label 1..n-1."""
-    from ..kernels import label_moments
-
     labels_flat = np.ascontiguousarray(labels_flat, dtype=np.int32)
     if n is None:
         n = int(labels_flat.max(initial=0)) + 1
-    return label_moments(np.ascontiguousarray(xyz_flat, dtype=np.float64), labels_flat, int(n))
+    return kernels.label_moments(np.ascontiguousarray(xyz_flat, dtype=np.float64), labels_flat, int(n))
 
 
 def planes_from_moments(moments: np.ndarray) -> PlaneTable:
     """Least-squares planes (Hesse form, ``d >= 0``) of every row of an (K, 10) moments array."""
-    from ..kernels import planes_from_moment_rows
-
     moments = np.ascontiguousarray(moments, dtype=np.float64)
     if moments.ndim != 2 or moments.shape[1] != 10:
         raise ValueError(f"moments must have shape (K, 10); got {moments.shape}")
-    centroid, normal, d, eigvals, frame, ok = planes_from_moment_rows(moments)
+    centroid, normal, d, eigvals, frame, ok = kernels.planes_from_moment_rows(moments)
     return PlaneTable(count=moments[:, 0], centroid=centroid, normal=normal, d=d,
                       rms=np.sqrt(eigvals[:, 0]), eigvals=eigvals, frame=frame, ok=ok)
 
@@ -67,15 +65,13 @@ def quadric_gains(xyz_flat: np.ndarray, labels_flat: np.ndarray, planes: PlaneTa
     plane is not), ``roundness`` the ratio of the principal curvatures (0 cylinder, 1
     sphere). Rows not ``active`` (or whose equations are singular) get ``(1.0, 0.5)``.
     """
-    from ..kernels import quadric_shapes, quadric_sums
-
     active = np.asarray(active, bool) & planes.ok
     if not active.any():
         return np.ones(len(planes.count)), np.full(len(planes.count), 0.5)
     spread = np.sqrt(planes.eigvals[:, 1] + planes.eigvals[:, 2])
     inv_spread = 1.0 / np.where(spread > 0, spread, 1.0)
-    sums = quadric_sums(np.ascontiguousarray(xyz_flat, dtype=np.float64),
-                        np.ascontiguousarray(labels_flat, dtype=np.int32),
-                        planes.centroid, np.ascontiguousarray(planes.frame[:, 1]),
-                        np.ascontiguousarray(planes.frame[:, 2]), planes.normal, inv_spread, active)
-    return quadric_shapes(sums, planes.count, active)
+    sums = kernels.quadric_sums(np.ascontiguousarray(xyz_flat, dtype=np.float64),
+                                np.ascontiguousarray(labels_flat, dtype=np.int32),
+                                planes.centroid, np.ascontiguousarray(planes.frame[:, 1]),
+                                np.ascontiguousarray(planes.frame[:, 2]), planes.normal, inv_spread, active)
+    return kernels.quadric_shapes(sums, planes.count, active)

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+# The kernels package, not its names: importing it loads no compiler (each name loads on first
+# use, PEP 562), and an attribute look-up costs a fraction of a from-import in each call (the
+# piece helpers below run a few hundred times a frame)
+from .. import kernels
 from ..fitting.region_fitter import RegionFitter
 from ..fitting.robust import beyond_noise, distance_noise, trimmed_fit
 
@@ -22,10 +26,8 @@ def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
 def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
     """The labels within ``reach`` pixels (rows and columns) of the flat pixels ``idx``
     (increasing), in one compiled pass over their rows' runs (:func:`rangeseg_o3d.kernels.labels_near`)."""
-    from ..kernels import labels_near
-
-    return set(labels_near(np.ascontiguousarray(labels), np.ascontiguousarray(idx, dtype=np.int64),
-                           int(reach)).tolist())
+    return set(kernels.labels_near(np.ascontiguousarray(labels), np.ascontiguousarray(idx, dtype=np.int64),
+                                   int(reach)).tolist())
 
 
 #: Inliers whose largest 4-connected piece holds less than this share of them are not one
@@ -53,10 +55,8 @@ class Context:
         """``(ids, sizes)`` of the 4-connected pieces of the flat pixels ``idx`` (increasing),
         as :func:`rangeseg_o3d.kernels.piece_ids` numbers them; on a 360-degree grid the
         pieces that meet across the seam are one (the first one's number; others' sizes 0)."""
-        from ..kernels import piece_ids
-
         idx = np.ascontiguousarray(idx, dtype=np.int64)
-        ids, sizes = piece_ids(idx, self.width)
+        ids, sizes = kernels.piece_ids(idx, self.width)
         if self.wrap_columns and idx.size:
             ids, sizes = _join_across_seam(idx, ids, sizes, self.width)
         return ids, sizes
@@ -66,9 +66,7 @@ class Context:
         scattered over the grid; on a 360-degree grid across the seam too)."""
         idx = np.ascontiguousarray(idx, dtype=np.int64)
         if not self.wrap_columns:
-            from ..kernels import largest_piece
-
-            return largest_piece(idx, self.width)
+            return kernels.largest_piece(idx, self.width)
         ids, sizes = self.piece_ids(idx)
         return idx[ids == np.argmax(sizes)] if sizes.size else idx.copy()
 
@@ -77,11 +75,9 @@ class Context:
         pixels, smallest first."""
         if idx.size < self.min_size:
             return []
-        from ..kernels import group_by_label
-
         ids, sizes = self.piece_ids(idx)
         # the pixels of each piece in idx's order: a counting sort of their piece numbers
-        order, starts = group_by_label(ids, sizes.shape[0])
+        order, starts = kernels.group_by_label(ids, sizes.shape[0])
         # (a pool can hold thousands of pieces under the floor: they are skipped in numpy)
         big = np.flatnonzero(sizes >= self.min_size)
         pieces = [idx[order[a:b]] for a, b in zip(starts[big].tolist(), starts[big + 1].tolist())]
