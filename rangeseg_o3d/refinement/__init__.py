@@ -27,7 +27,8 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    that explain them, and curved patches into a neighbouring plane that explains them
    within its own rms (a ripple of the camera's error, not a surface).
 8. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
-   are refitted from moments whenever they change, which costs nothing).
+   are refitted from moments whenever they change, which costs nothing), and a plane whose
+   final pixels the fitter no longer settles as one is decided anew on them.
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
 :mod:`.context` holds what the steps share (points, noise, fitter, size floor).
@@ -144,6 +145,10 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma)
     timer.lap("dissolve")
-    fits = polish_models(ctx, labels, fits)
+    # On a tile grid a kind decided anew on tile means goes to the pixels with the band of
+    # its neighbours' pixels the tile model takes there, and a piece of the same pipe
+    # recovered at full resolution then no longer merges with it (stereo: a pipe's flank
+    # left as planes): planes are decided again on a grid of pixels only.
+    fits = polish_models(ctx, labels, fits, decide_planes=tile == 1)
     timer.lap("polish")
     return Regions(labels, fits)

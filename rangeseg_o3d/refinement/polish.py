@@ -4,7 +4,9 @@ Planes are refitted from moments whenever they change, which costs nothing; the 
 kinds keep the parameters of the points they were fitted to until here. A curved model
 must also still earn its curvature on its final pixels: a cylinder fitted over a crease
 keeps its region once the settle step has handed the crease's far face back to its own
-plane, and on the face alone it is two parameters of noise (:func:`_still_flat`).
+plane, and on the face alone it is two parameters of noise (:func:`_still_flat`). A plane
+must still be one on its final pixels: its kind was decided on the pixels it had then (a
+pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`.
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ __all__ = ["polish_models"]
 EXTRA_PARAMETERS = {"cylinder": 2, "sphere": 1}
 
 
-def polish_models(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
+def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes: bool = True) -> dict:
     """``fits`` with the models moments cannot refit (spheres, cylinders) refitted on the
     pixels of ``labels``, and those that no longer resolve a curvature there replaced by
-    the plane the fitter's decision gives their pixels.
+    the plane the fitter's decision gives their pixels; planes whose pixels the fitter now
+    calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
@@ -43,7 +46,33 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
             decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
             if isinstance(decided, Plane):
                 fits[k] = decided
+    if decide_planes:
+        fits.update(_curved_planes(ctx, labels, fits))
     return fits
+
+
+def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
+    """The curved models the fitter's decision gives the plane regions of ``labels`` whose
+    final pixels it no longer settles as a plane.
+
+    A region's kind is decided once, on the pixels it had then (a split's trimmed piece, a
+    region before growth, the larger of two pieces a join put together); planes are refitted
+    from moments as their regions change, keeping their kind. On the final pixels the
+    batch plane test (:meth:`RegionFitter.fit_batch`: the fitter's own plane tolerance and
+    quadric curvature test, one pass) settles almost every plane again; only the others
+    are decided anew, and a curved answer replaces the plane (a pipe whose first piece was
+    flat within the noise, grown to its whole width)."""
+    planes = [k for k, m in fits.items() if isinstance(m, Plane)]
+    if not planes or ctx.fitter.plugin.fit_batch is None:  # a plugin without the batch test: as decided
+        return {}
+    settled = ctx.fitter.fit_batch(ctx.xyz, labels)
+    unsettled = [k for k in planes if k not in settled]
+    out = {}
+    for k, idx in (region_indices(labels, only=unsettled) if unsettled else {}).items():
+        decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
+        if decided and not isinstance(decided, Plane):
+            out[k] = decided
+    return out
 
 
 def _still_flat(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> list:
