@@ -33,6 +33,9 @@ def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:
 #: Inliers whose largest 4-connected piece holds less than this share of them are not one
 #: piece of a surface (the model is refitted to the piece, or searched for again).
 _ONE_PIECE = 0.9
+#: A pool whose distances to its plane carry less than this share of the range noise (its
+#: median; seen more than 60 degrees from head-on) is searched again at that distance noise.
+_GRAZING_NOISE = 0.5
 #: A point within this many sigmas of its distance noise lies on the plane (refinement.context
 #: and recover.py's trims of a plane's pixels).
 TRIM_SIGMAS = 3.0
@@ -42,7 +45,7 @@ class Context:
     """What every refinement step needs: points, noise, the fitter, the size floor."""
 
     def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int, *,
-                 wrap_columns: bool = False):
+                 wrap_columns: bool = False, grazing_search: bool = False):
         self.xyz = cloud.xyz.reshape(-1, 3)
         self.sigma = sigma.ravel()
         self.width = cloud.shape[1]
@@ -50,6 +53,11 @@ class Context:
         self.min_size = min_size
         #: a 360-degree grid: the first and last columns are neighbours
         self.wrap_columns = bool(wrap_columns) and self.width > 2
+        #: search a pool seen near grazing again at the noise of its distances
+        #: (:meth:`dominant_piece`); the pixels of a frame a tile grid lost only: on the tile
+        #: grid the search took a column's flank, its tile means within that noise of a
+        #: plane, as a plane piece beside the column (stereo seed 0 scan 0)
+        self.grazing_search = bool(grazing_search)
 
     def piece_ids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(ids, sizes)`` of the 4-connected pieces of the flat pixels ``idx`` (increasing),
@@ -111,6 +119,11 @@ class Context:
             if local is not None:
                 model, inliers = local, near
                 piece = self.largest_piece(pool[inliers])
+        if self.grazing_search and (model is None or piece.size < self.min_size
+                                    or self.seen_along_rays(model, piece)):
+            grazing = self.grazing_piece(pool, sigma, model)
+            if grazing is not None:
+                return grazing
         if model is None:
             return None, None
         if piece.size < self.min_size:
@@ -121,6 +134,50 @@ class Context:
                 return self._face_plane(pool, sigma)
             model = refit
         return (piece, model) if model else (None, None)
+
+    def seen_along_rays(self, model, piece: np.ndarray) -> bool:
+        """:meth:`plane_along_rays` of a plane seen more than 60 degrees from head-on at the
+        centre of its flat pixels ``piece`` (``_GRAZING_NOISE``); False for other planes and
+        models without computing the noise (a plane facing the sensor keeps most of the
+        range noise in its distances)."""
+        if model.kind != "plane":
+            return False
+        centre = self.xyz[piece[:: max(1, piece.size // 64)]].mean(axis=0)
+        cosine = abs(float(np.dot(model.normal, centre))) / max(float(np.linalg.norm(centre)), 1e-12)
+        return cosine < _GRAZING_NOISE and self.plane_along_rays(model, piece)
+
+    def grazing_piece(self, pool: np.ndarray, sigma: float, model):
+        """``(piece, model)`` of the search of ``pool`` at the noise of its distances, or None.
+
+        Faces seen near grazing (a box top far away) move their points along the rays by
+        the range noise, off their plane by only its incidence cosine. A search whose band
+        is three range-noise sigmas wide then takes two parallel faces a few centimetres
+        apart, or a strip of each, as one plane: beyond the noise of its distances, or
+        nothing the fitter accepts. When the pool's plane (``model`` when a plane, else its
+        least-squares plane) leaves its distances less than ``_GRAZING_NOISE`` of the range
+        noise, the pool is searched again with that distance noise as the band's sigma.
+        """
+        sample = pool[:: max(1, pool.size // 600)]  # the median of a few hundred is enough
+        points = self.xyz[sample]
+        plane = model if model is not None and model.kind == "plane" else _least_squares_plane(points)
+        if plane is None:
+            return None
+        narrow = float(np.median(distance_noise(plane, points, self.sigma[sample])))
+        if not 0.0 < narrow < _GRAZING_NOISE * sigma:
+            return None
+        found = (self.fitter.trimmed(self.xyz, pool, sigma=narrow, min_points=self.min_size)
+                 if hasattr(self.fitter, "trimmed") else None)
+        model, inliers = found if found is not None else trimmed_fit(
+            self.xyz, self.fitter.fit, pool=pool, sigma=narrow, min_points=self.min_size)
+        if model is None or model.kind != "plane":  # a face is sought: a curved answer stays the first search's
+            return None
+        piece = self.largest_piece(pool[inliers])
+        if piece.size < self.min_size:
+            return None
+        # each pixel held to the noise of its own distance (a strip of the next face across
+        # a crease lies within the band's median noise and tilts the plane)
+        piece, model = self.within_distance_noise(piece, model)
+        return None if piece is None else (piece, model)
 
     def _face_plane(self, pool: np.ndarray, sigma: float):
         # The largest connected piece of the dominant plane of ``pool`` (a planes-only trimmed
@@ -198,3 +255,16 @@ def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width
         root[p] = root[root[p]]
     joined = np.bincount(root, weights=sizes, minlength=sizes.size).astype(sizes.dtype)
     return root[ids].astype(ids.dtype), joined
+
+
+def _least_squares_plane(points: np.ndarray):
+    # the plane through the centroid of ``points`` normal to their smallest principal axis
+    # (what distance_noise reads of it; None when fewer than three finite points)
+    from ..fitting.primitives import Plane
+
+    points = points[np.isfinite(points).all(axis=1)]
+    if points.shape[0] < 3:
+        return None
+    centre = points.mean(axis=0)
+    _, vectors = np.linalg.eigh((points - centre).T @ (points - centre))
+    return Plane(vectors[:, 0], float(vectors[:, 0] @ centre), 0.0, points.shape[0])

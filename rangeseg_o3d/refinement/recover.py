@@ -58,9 +58,12 @@ def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray
     return lut[comp]
 
 
-def _one_plane(ctx: Context, idx: np.ndarray, plain):
+def _one_plane(ctx: Context, idx: np.ndarray, plain, *, thin: bool = False):
     """``(pixels, model)`` when the plane ``plain`` fitted to the blob ``idx`` explains 90 %
-    of it (its largest connected piece of them), else ``(None, None)``."""
+    of it (its largest connected piece of them), else ``(None, None)``; a plane seen near
+    grazing beyond the noise of its pixels' distances gives way to the plane a search at
+    that noise finds (:meth:`Context.grazing_piece`), when it finds one, unless the blob is
+    ``thin`` (a strip a few pixels across holds one face: the search takes a sliver of it)."""
     if not plain:
         return None, None
     near = np.abs(plain.distances(ctx.xyz[idx])) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
@@ -69,6 +72,12 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain):
     chosen, model = ctx.largest_piece(idx[near]), plain
     if chosen.size < 0.9 * near.sum():  # a piece was cut off: fit the piece itself
         model = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, chosen), plain)
+    if model and ctx.grazing_search and not thin and ctx.seen_along_rays(model, chosen):
+        # seen near grazing, the range-noise band holds what is not one plane (two parallel
+        # faces a few centimetres apart): the plane the blob's distance noise finds instead
+        grazing = ctx.grazing_piece(idx, float(np.median(ctx.sigma[idx])), model)
+        if grazing is not None:
+            return grazing
     return chosen, model
 
 
@@ -138,7 +147,7 @@ def _one_thin_plane(ctx: Context, flat: np.ndarray, fits: dict, k: int, idx: np.
     model = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
     chosen = None
     if model and model.kind == "plane":
-        chosen, model = _one_plane(ctx, idx, model)
+        chosen, model = _one_plane(ctx, idx, model, thin=True)
     flat[idx] = 0
     if chosen is not None and model and model.kind == "plane" and chosen.size >= floor:
         flat[chosen] = k
@@ -462,7 +471,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     """
     first = int(labels.max(initial=0)) + 1
-    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
     regions = None
     if boxes is not None:
         from ..kernels import box_members
