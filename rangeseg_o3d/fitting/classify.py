@@ -226,9 +226,7 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
 
     ``xyz`` a C-ordered float64 (N, 3) array, ``pool`` int64 indices into it.
     """
-    from ._decide import Decision
-    from ._trimmed import trimmed_decision
-
+    trimmed_decision, Decision = _compiled_search()
     search, judge = _trimmed_arguments(bool(planes_only), tuple(params.items()))
     seeds = _local_seeds(len(pool)) if starts else _NO_SEEDS
     key = None if proposals is None else (pool.tobytes(), float(sigma), bool(starts))
@@ -245,6 +243,22 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
     decision = Decision(kind, status, first, centroid, scale, normal, d, plane_rms, plane_tol, eigen_rms,
                         plane_inliers, codes, curved)
     return model_of_decision(decision), inliers
+
+
+_COMPILED_SEARCH: tuple = ()
+
+
+def _compiled_search() -> tuple:
+    """``(trimmed_decision, Decision)``, imported on the first search (numba loads then) and
+    kept: a from-import in each call costs a few microseconds, and the refinement of a
+    cluttered frame searches dozens of times."""
+    global _COMPILED_SEARCH
+    if not _COMPILED_SEARCH:
+        from ._decide import Decision
+        from ._trimmed import trimmed_decision
+
+        _COMPILED_SEARCH = (trimmed_decision, Decision)
+    return _COMPILED_SEARCH
 
 
 #: The constant arguments of the compiled trimmed search, per judge (planes only or not) and
