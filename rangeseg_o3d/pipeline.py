@@ -342,12 +342,15 @@ class Pipeline:
 def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
                           sigma: np.ndarray, k_sigma: float):
     """:func:`rangeseg_o3d.refinement.dissolve.absorb_ripples` at full resolution, each
-    plane's scatter the rms of its pixels about it; ``(labels, fits, stats)`` after it."""
+    plane's scatter the rms of its pixels about it, the range noise scaled by the incidence
+    cosine (at least ``scales.GRAZING_COSINE``; a depth camera's pixel moves along its ray);
+    ``(labels, fits, stats)`` after it."""
     from .refinement.dissolve import absorb_ripples
+    from .scales import GRAZING_COSINE
 
     scatter = {k: rms for k in fits if k > 0 and (rms := stats.rms(k)) is not None}
     labels, fits, changed = absorb_ripples(cloud.xyz.reshape(-1, 3), labels, fits, sigma.ravel(),
-                                           scatter, k_sigma=k_sigma, sizes=stats.counts)
+                                           scatter, k_sigma=k_sigma, sizes=stats.counts, min_cosine=GRAZING_COSINE)
     if changed:
         stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS, known=stats, stale=changed)
     return labels, fits, stats

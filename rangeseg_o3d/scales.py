@@ -65,11 +65,15 @@ from ._numeric import median
 
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
            "with_derived_refinement",
-           "GRAZING_TAN", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
+           "GRAZING_TAN", "GRAZING_COSINE", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
            "MIN_GRID_CELLS", "MAX_TILE", "WINDOW_STEPS", "RELIEF_STEPS"]
 
 #: A range step over one pixel larger than a surface at ~9.5 deg from grazing makes is a jump.
 GRAZING_TAN = 1.0 / 6.0
+#: The incidence cosine of a ray atan(GRAZING_TAN) from grazing: the smallest a plane's
+#: distance noise (range noise x incidence cosine) is scaled by where a tile's mean or a
+#: pixel spans the plane's depth (refinement.split's hold, refinement.dissolve's ripples).
+GRAZING_COSINE = float(np.sin(np.arctan(GRAZING_TAN)))
 #: The absolute jump floor, in constant-noise sigmas.
 JUMP_SIGMAS = 10.0
 #: Merge tolerance (offsets, radii, centres of merge candidates), in noise sigmas at the median range.

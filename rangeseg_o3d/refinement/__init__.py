@@ -42,7 +42,7 @@ import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
 from ..result import Regions
-from ..scales import with_derived_refinement
+from ..scales import GRAZING_COSINE, with_derived_refinement
 from ..sensor import Sensor
 from .context import Context
 from .dissolve import absorb_ripples, dissolve_small
@@ -67,10 +67,11 @@ class _Timer:
         self.last = now
 
 
-def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float):
+def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float, min_cosine: float):
     # curved patches a neighbouring plane explains within its rms (dissolve.absorb_ripples);
     # the planes that took them refitted from moments
-    labels, fits, changed = absorb_ripples(ctx.xyz, labels, fits, ctx.sigma, {}, k_sigma=k_sigma)
+    labels, fits, changed = absorb_ripples(ctx.xyz, labels, fits, ctx.sigma, {}, k_sigma=k_sigma,
+                                           min_cosine=min_cosine)
     hosts = [k for k in changed if k in fits]
     for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, hosts, from_points=False).items():
         if refit and refit.kind == fits[k].kind:
@@ -109,7 +110,13 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
 
     failed = [k for k, m in fits.items() if not m]
     if failed:
-        labels, fits = split_regions(ctx, labels, fits, failed)
+        # On tile means a plane found there is held to the noise of its own distances, at
+        # least half a depth step (a quantised camera's planes scatter by that much whatever
+        # their incidence): a tile's mean lies on its face but for the noise along its ray. A
+        # laser's single return seen near grazing spreads across the face (noise_20mm seed 0,
+        # nodding_0.25deg seed 71 lost faces to the hold).
+        held = 0.5 * sensor.depth_step if tile > 1 else None
+        labels, fits = split_regions(ctx, labels, fits, failed, held=held)
     timer.lap("split")
     labels, fits = grow_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
     timer.lap("grow")
@@ -143,7 +150,11 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     timer.lap("settle")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
-    labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma)
+    # on tile means a ripple is judged by the noise of its distances to the plane (range
+    # noise x incidence cosine): a tile's mean lies on its face but for the noise along its
+    # ray, while a laser's single return near grazing spreads across the face (3DTK scans
+    # and the laser rows keep the range noise)
+    labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
     timer.lap("dissolve")
     # On a tile grid a kind decided anew on tile means goes to the pixels with the band of
     # its neighbours' pixels the tile model takes there, and a piece of the same pipe

@@ -86,7 +86,7 @@ def _stands_apart(points: np.ndarray, own, hosts: list, best: np.ndarray) -> boo
 
 def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray,
                    scatter: dict, *, k_sigma: float,
-                   sizes: np.ndarray | None = None) -> tuple[np.ndarray, dict, set]:
+                   sizes: np.ndarray | None = None, min_cosine: float = 1.0) -> tuple[np.ndarray, dict, set]:
     """Curved regions that a larger plane within two pixels explains within that plane's
     own scatter go to the plane: a ripple of the surface, not a surface.
 
@@ -103,7 +103,10 @@ def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
 
     ``xyz`` (N, 3) and ``sigma`` (N,) are flat; ``scatter`` maps a plane's label to the
     rms of its pixels about it (its model's rms where absent); ``sizes`` is the pixel
-    count per label when known (one pass less). Returns ``(labels, fits, changed)``: the
+    count per label when known (one pass less). ``min_cosine`` below 1: the range noise is
+    scaled by each pixel's incidence cosine on the plane, at least ``min_cosine`` (the noise
+    of its distance to the plane, :func:`_ripple_spread`); 1 (default): the range noise
+    itself. Returns ``(labels, fits, changed)``: the
     new labels (``labels`` itself when nothing changed), ``fits`` without the absorbed
     regions, and the labels whose pixels changed (absorbed regions and the planes that
     took them).
@@ -126,17 +129,19 @@ def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
     if not candidates.any():
         return labels, fits, set()
     out, kept, changed = labels, fits, set()
-    regions = _candidate_pixels(xyz, labels, candidates, sizes, table, sigma, k_sigma)
+    regions = _candidate_pixels(xyz, labels, candidates, sizes, table, sigma, k_sigma, min_cosine)
     for k in sorted(regions, key=lambda k: regions[k].size):
         idx = regions[k]
-        host = _ripple_host(xyz, out, idx, table, sigma, k_sigma)
+        host = _ripple_host(xyz, out, idx, table, sigma, k_sigma, min_cosine)
         if host is None:
             continue
         if out is labels:  # the first ripple: the inputs stay as they are
             out, kept = labels.copy(), dict(fits)
         plane = kept[host]
-        spread = np.maximum(sigma[idx], scatter.get(host, plane.rms))
-        explained = np.abs(plane.distances(xyz[idx])) <= k_sigma * spread
+        points = xyz[idx]
+        spread = _ripple_spread(points, sigma[idx], plane.normal[None, :],
+                                np.array([scatter.get(host, plane.rms)]), min_cosine)[:, 0]
+        explained = np.abs(plane.distances(points)) <= k_sigma * spread
         out.ravel()[idx] = np.where(explained, host, 0)
         del kept[k]
         changed |= {k, host}
@@ -168,7 +173,7 @@ _RIPPLE_LARGE = 4096
 _RIPPLE_STRIDE = 4
 
 
-def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k_sigma) -> dict:
+def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k_sigma, min_cosine) -> dict:
     """The flat pixels, by label, of the candidate patches that may be ripples: the small
     ones, and the large ones whose sample on a coarser grid does not rule it out. The
     sample rules a plane out when even its quantile ``0.5 - 1.5 / sqrt(m)`` (m samples: the
@@ -186,15 +191,31 @@ def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma,
             bigger = table.sizes > sizes[k]
             level = max(0.0, 0.5 - 1.5 / np.sqrt(sample.size))
             wanted[k] = bigger.any() and bool(np.any(
-                np.quantile(_scores(xyz, sample, table, bigger, sigma), level, axis=0) <= k_sigma))
+                np.quantile(_scores(xyz, sample, table, bigger, sigma, min_cosine), level, axis=0) <= k_sigma))
     return _grouped(member_pixels(labels, wanted), labels) if wanted.any() else {}
 
 
-def _scores(xyz, idx, table: _PlaneTable, which, sigma) -> np.ndarray:
+def _scores(xyz, idx, table: _PlaneTable, which, sigma, min_cosine: float = 1.0) -> np.ndarray:
     # (pixels, planes) distances of the pixels idx from the planes ``which`` of the table,
-    # in units of max(sigma, the plane's scatter)
-    distances = np.abs(xyz[idx] @ table.normals[which].T - table.offsets[which])
-    return distances / np.maximum(sigma[idx][:, None], table.scatter[which][None, :])
+    # in units of their spread about each plane (:func:`_ripple_spread`)
+    points = xyz[idx]
+    distances = np.abs(points @ table.normals[which].T - table.offsets[which])
+    return distances / _ripple_spread(points, sigma[idx], table.normals[which], table.scatter[which], min_cosine)
+
+
+def _ripple_spread(points: np.ndarray, sigma: np.ndarray, normals: np.ndarray, scatter: np.ndarray,
+                   min_cosine: float = 1.0) -> np.ndarray:
+    """(pixels, planes) spread a ripple's pixels may have about each plane: the range noise
+    ``sigma`` times the incidence cosine of the pixel's ray on the plane (range noise moves
+    a point along its ray), the cosine at least ``min_cosine`` (1: the range noise itself),
+    and at least the plane's ``scatter``. A plane seen near grazing holds the rays beside
+    it: a ball or a box face behind it, a metre away along those rays, lies within the
+    range noise of it but not within the noise its incidence leaves."""
+    if min_cosine >= 1.0:
+        return np.maximum(sigma[:, None], scatter[None, :])
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    cosines = np.maximum(np.abs(rays @ normals.T), min_cosine)
+    return np.maximum(sigma[:, None] * cosines, scatter[None, :])
 
 
 #: Scores of a patch against every larger plane are computed before looking for the planes
@@ -235,9 +256,11 @@ def _may_pass_somewhere(xyz, idx, table: _PlaneTable, which, sigma, k_sigma) -> 
                                      float(k_sigma), _SCORE_SLACK).any())
 
 
-def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
+def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma, min_cosine: float = 1.0):
     """The label of the larger plane within two pixels of the patch ``idx`` whose scatter
-    explains it best at the median, within ``k_sigma``; None when there is none."""
+    explains it best at the median, within ``k_sigma`` (spreads: :func:`_ripple_spread`);
+    None when there is none. The compiled pre-test judges by the range noise, the largest
+    spread: what it refuses, the scores refuse too."""
     larger = table.sizes > idx.size
     if not larger.any():
         return None
@@ -250,7 +273,7 @@ def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma):
     larger &= np.fromiter((k in near for k in table.labels.tolist()), bool, count=table.labels.size)
     if not larger.any():
         return None
-    middle = np.median(_scores(xyz, idx, table, larger, sigma), axis=0)
+    middle = np.median(_scores(xyz, idx, table, larger, sigma, min_cosine), axis=0)
     passing = middle <= k_sigma
     hosts = list(zip(middle[passing].tolist(), table.labels[larger][passing].tolist()))
     return min(hosts)[1] if hosts else None

@@ -10,7 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.region_fitter import region_indices
-from .context import Context, without
+from ..fitting.robust import beyond_noise
+from ..scales import GRAZING_COSINE
+from .context import TRIM_SIGMAS, Context, without
 
 __all__ = ["split_regions"]
 
@@ -19,7 +21,7 @@ _MAX_SPLIT_ATTEMPTS = 24
 
 
 def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int], *,
-                  pixels: dict | None = None, own: bool = False):
+                  pixels: dict | None = None, own: bool = False, held: float | None = None):
     """Split every region of ``failed`` into all the surfaces it holds; returns new ``(labels, fits)``.
 
     Sequential robust extraction with connectivity kept: the dominant surface of a
@@ -34,6 +36,9 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     the flat pixels (increasing) of each failed region, when the caller has them (saves a
     pass over the grid). ``own``: ``labels`` is the caller's own C-ordered int32 copy, which
     this split may change in place and return (a frame-sized copy less at full resolution).
+    ``held`` (metres, None: not held): a plane found is held to the noise of its own
+    distances, at least ``held`` (:func:`_held_to_distance_noise`; the regions the
+    segmenter could not fit, where a face seen near grazing meets the faces beyond it).
     """
     labels, fits = (labels if own else labels.copy()), dict(fits)
     flat = labels.ravel()
@@ -51,6 +56,8 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
             piece, model = ctx.dominant_piece(pool)
             if piece is None:
                 continue
+            if held is not None:
+                piece, model = _held_to_distance_noise(ctx, piece, model, held)
             if not found:
                 flat[idx] = 0  # the failed region dissolves into what is found
                 found = True
@@ -60,3 +67,41 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
             pools.extend(ctx.pieces(without(pool, piece)))
             pools.sort(key=len)
     return labels, fits
+
+
+def _held_to_distance_noise(ctx: Context, piece: np.ndarray, model, floor: float):
+    """``(piece, model)`` as the search found them, or, for a plane whose distances to its
+    piece are beyond their noise (range noise x incidence cosine, the cosine at least
+    ``scales.GRAZING_COSINE``, the noise at least ``floor``; chi-square bound), the largest connected part of the piece
+    within ``TRIM_SIGMAS`` of that noise and the plane refitted to it, when that part keeps
+    the size floor. A face seen close to grazing has its plane along the rays beside it:
+    the face or ball behind it, a metre away along those rays, lies within the range noise
+    of that plane (the search's test) but not within the noise the incidence leaves."""
+    if model.kind != "plane":
+        return piece, model
+    distances, noise = _distances_and_noise(ctx, piece, model, floor)
+    if not _beyond(distances, noise):
+        return piece, model
+    held = ctx.largest_piece(piece[distances <= TRIM_SIGMAS * noise])
+    if held.size < ctx.min_size or ctx.largest_piece(without(piece, held)).size < ctx.min_size:
+        return piece, model  # no face of its own, or nothing but scattered pixels off it
+    refit = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, held), model)
+    if not refit or refit.kind != "plane" or _beyond(*_distances_and_noise(ctx, held, refit, floor)):
+        return piece, model  # no face within its noise there: the search's answer stands
+    return held, refit
+
+
+def _distances_and_noise(ctx: Context, idx: np.ndarray, plane, floor: float):
+    # the pixels' absolute distances to the plane and the noise of each (range noise x
+    # incidence cosine, the cosine at least scales.GRAZING_COSINE, the noise at least ``floor``)
+    points = ctx.xyz[idx]
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    noise = np.maximum(ctx.sigma[idx] * np.maximum(np.abs(rays @ plane.normal), GRAZING_COSINE), floor)
+    return np.abs(plane.distances(points)), noise
+
+
+def _beyond(distances: np.ndarray, noise: np.ndarray) -> bool:
+    # the distances' rms beyond the noise's (chi-square bound, fitting.robust.beyond_noise)
+    return beyond_noise(float(np.sqrt(np.mean(distances ** 2))), float(np.sqrt(np.mean(noise ** 2))),
+                        int(distances.size))
+
