@@ -91,9 +91,11 @@ class Context:
         pieces = [idx[order[a:b]] for a, b in zip(starts[big].tolist(), starts[big + 1].tolist())]
         return sorted(pieces, key=len)
 
-    def dominant_piece(self, pool: np.ndarray):
+    def dominant_piece(self, pool: np.ndarray, *, face_band: bool = False):
         """The largest connected piece of the dominant surface of the flat pixels ``pool``
         and its model, or ``(None, None)`` when no model explains ``min_size`` of them.
+        With ``face_band``, a pool neither search explains gets one more try
+        (:meth:`_face_in_noise`).
 
         When the trimmed fit's answer is no surface (nothing, or a model beyond the noise
         whose inliers are not one connected piece: the plane tangent to two columns
@@ -125,7 +127,7 @@ class Context:
             if grazing is not None:
                 return grazing
         if model is None:
-            return None, None
+            return self._face_in_noise(pool, sigma) if face_band else (None, None)
         if piece.size < self.min_size:
             return None, None
         if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
@@ -195,6 +197,24 @@ class Context:
             return None, None
         model = self.fitter.refit(self.fitter.points(self.xyz, piece), plane)
         return (piece, model) if model else (None, None)
+
+    def _face_in_noise(self, pool: np.ndarray, sigma: float):
+        # The dominant plane of ``pool`` found with a one-sigma band (a planes-only trimmed
+        # search at sigma / 3), cut to its largest piece within its distance noise and
+        # refitted (within_distance_noise), or (None, None). Two narrow faces meeting at a
+        # corner, a few noise sigmas wide each: the best three-point plane by the search's
+        # three-sigma band is the diagonal one through the corner, which takes most of both
+        # and which the fitter refuses; a band of one sigma holds most of one face and only
+        # a strip of the other along the corner.
+        from ..fitting.classify import trimmed_plane
+
+        plane, _ = trimmed_plane(self.xyz, pool, sigma=sigma / 3.0, min_points=self.min_size)
+        if plane is None:
+            return None, None
+        piece, model = self.within_distance_noise(pool, plane)
+        if piece is None or not model or model.kind != "plane":
+            return None, None
+        return piece, model
 
     def within_distance_noise(self, pool: np.ndarray, model):
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the

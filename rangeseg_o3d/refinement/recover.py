@@ -82,7 +82,7 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain, *, thin: bool = False):
 
 
 def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
-                regions: dict | None = None, thin_from: int | None = None):
+                regions: dict | None = None, thin_from: int | None = None, face_band: bool = False):
     """Split each candidate blob into every surface it holds; free what none explains.
 
     ``candidates`` numbers the blobs (0 elsewhere, numbers above every label). A blob
@@ -98,6 +98,7 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     across resolves no curvature across it and holds no second surface a split could find,
     so it becomes one plane, kept when that plane explains it as :func:`_one_plane` asks and
     its piece has the fewest returns that tell a plane (``scales.MIN_PIXELS``), or is freed.
+    ``face_band``: the split's (:meth:`Context.dominant_piece`).
     """
     from .split import split_regions
 
@@ -129,7 +130,8 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         flat[chosen] = k
         fits[k] = model
     labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed,
-                                 pixels={k: regions[k] for k in mixed}, own=True)  # (its copy above)
+                                 pixels={k: regions[k] for k in mixed}, own=True,  # (its copy above)
+                                 face_band=face_band)
     flat = labels.ravel()
     for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
@@ -382,9 +384,11 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     from it, so the caller asks for this only where pieces of one surface apart are one
     region (``merge_disjoint``): where they are not (SegComp's ABW truth labels each
     connected patch), a strip would join whichever region's plane passes through it,
-    however far (a face of another block in line with it). ``thin_strips``: first, the
-    leftover strips too thin for a blob join a plane region they touch and lie on
-    (:func:`claim_thin_strips`; asked at sensor resolution).
+    however far (a face of another block in line with it). ``thin_strips`` (asked at sensor
+    resolution): first, the leftover strips too thin for a blob join a plane region they
+    touch and lie on (:func:`claim_thin_strips`); and a blob piece neither trimmed search
+    explains is searched once more for a face (``face_band`` of :meth:`Context.dominant_piece`:
+    after growth, which gave the corner's pixels to the faces around the blob).
     """
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
@@ -395,7 +399,7 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     # blob of two or three faces, and explaining it by its dominant surface alone would
     # drop the others. Each blob is split into every surface it holds.
     if candidates.any():  # (no blob: nothing to split, no rim to take back)
-        labels, fits = split_blobs(ctx, labels, fits, candidates)
+        labels, fits = split_blobs(ctx, labels, fits, candidates, face_band=thin_strips)
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)

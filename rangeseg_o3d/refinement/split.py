@@ -21,7 +21,8 @@ _MAX_SPLIT_ATTEMPTS = 24
 
 
 def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int], *,
-                  pixels: dict | None = None, own: bool = False, held: float | None = None):
+                  pixels: dict | None = None, own: bool = False, held: float | None = None,
+                  face_band: bool = False):
     """Split every region of ``failed`` into all the surfaces it holds; returns new ``(labels, fits)``.
 
     Sequential robust extraction with connectivity kept: the dominant surface of a
@@ -39,6 +40,7 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     ``held`` (metres, None: not held): a plane found is held to the noise of its own
     distances, at least ``held`` (:func:`_held_to_distance_noise`; the regions the
     segmenter could not fit, where a face seen near grazing meets the faces beyond it).
+    ``face_band``: :meth:`Context.dominant_piece`'s.
     """
     labels, fits = (labels if own else labels.copy()), dict(fits)
     flat = labels.ravel()
@@ -53,7 +55,7 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
         while pools and attempts < _MAX_SPLIT_ATTEMPTS:
             attempts += 1
             pool = pools.pop()  # the largest piece (pools are kept sorted by size)
-            piece, model = ctx.dominant_piece(pool)
+            piece, model = ctx.dominant_piece(pool, face_band=face_band)
             if piece is None:
                 continue
             if held is not None:
