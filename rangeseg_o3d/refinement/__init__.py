@@ -156,10 +156,6 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # and the laser rows keep the range noise)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
     timer.lap("dissolve")
-    # On a tile grid a kind decided anew on tile means goes to the pixels with the band of
-    # its neighbours' pixels the tile model takes there, and a piece of the same pipe
-    # recovered at full resolution then no longer merges with it (stereo: a pipe's flank
-    # left as planes): planes are decided again on a grid of pixels only.
-    fits = polish_models(ctx, labels, fits, decide_planes=tile == 1)
+    fits = polish_models(ctx, labels, fits)
     timer.lap("polish")
     return Regions(labels, fits)

@@ -343,12 +343,21 @@ class _Unions:
         self.cache[(a, b)] = self.ctx.fitter.refit_from_moments(row[None, :], [fits[a]])[0]
 
     def part_rms(self, k: int) -> float:
-        """The rms a union of root ``k`` is compared with: for a plane with moments, the
-        larger of its model's and its current pixels' least-squares plane's (growth adds
-        pixels without a refit, so the model's rms can be that of fewer, quieter pixels
-        than the union's, which holds them all); else its model's."""
+        """The rms a union of root ``k`` is compared with: the larger of its model's and
+        that of its current pixels (growth adds pixels without a refit, so the model's rms
+        can be that of fewer, quieter pixels than the union's, which holds them all): for a
+        plane with moments their least-squares plane's; for a curved model its distances
+        to them (a pipe's tile model carried to its pixels, a flank recovered at full
+        resolution grown by its rings); a plane without moments, its model's."""
         model = self.fits[k]
-        if self.moments is None or not isinstance(model, Plane) or k >= len(self.moments):
+        if not isinstance(model, Plane):
+            if k not in self.current_rms:
+                if self.regions is None:
+                    self.regions = region_indices(self.labels, only=self.paired)
+                points = self.ctx.fitter.points(self.ctx.xyz, self.regions[k])
+                self.current_rms[k] = float(np.sqrt(np.mean(model.distances(points) ** 2)))
+            return max(float(model.rms), self.current_rms[k])
+        if self.moments is None or k >= len(self.moments):
             return float(model.rms)
         if k not in self.current_rms:
             self.current_rms[k] = float(planes_from_moments(self.moments[k:k + 1]).rms[0])

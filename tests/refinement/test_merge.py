@@ -480,3 +480,42 @@ def test_merge_regions_joins_a_piece_apart_within_its_noise_over_the_whole_grid_
     assert (out[labels == 2] == 1).all() and (out[labels == 3] == 3).all() and set(merged) == {1, 3}
     out, _, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), only={2, 3}, **common)
     assert np.array_equal(out, labels)
+
+
+def _grown_arc_pieces(offset: float):
+    """The arc of :func:`_arc` (radius 0.3 m) as two pieces (columns 0-19 and 25-44, the
+    second ``offset`` metres farther along z), each with quiet rows 0-19 (1 mm) and noisy
+    rows 20-39 (6 mm), and fitted on its quiet rows only: curved regions whose models
+    predate the pixels growth gave them. ``(xyz, labels, fits)``."""
+    from rangeseg_o3d.fitting import fit_cylinder
+
+    xyz, _ = _arc()
+    xyz = xyz[:, :45].copy()
+    xyz[20:, :, 2] += np.random.default_rng(7).normal(0.0, 0.006, (20, 45))
+    xyz[:, 25:, 2] += offset
+    labels = np.zeros((40, 45), np.int32)
+    labels[:, :20], labels[:, 25:] = 1, 2
+    fits = {k: fit_cylinder(xyz[:20][labels[:20] == k]) for k in (1, 2)}
+    return xyz, labels, fits
+
+
+def test_merge_regions_holds_a_curved_union_to_its_parts_current_pixels(context):
+    xyz, labels, fits = _grown_arc_pieces(0.0)
+    assert all(fits[k].kind == "cylinder" for k in (1, 2))
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((40, 45), 0.004))
+    union = ctx.fitter.refit(xyz[labels > 0], fits[1])
+    # the premise: against the models' rms of their quiet rows the union looks too far
+    assert union.kind == "cylinder" and union.rms > 1.3 * max(fits[1].rms, fits[2].rms)
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)},
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
+    assert set(merged) == {1} and (out[labels > 0] == 1).all()
+    assert merged[1].kind == "cylinder" and abs(merged[1].radius - 0.3) < 0.01
+
+
+def test_merge_regions_keeps_a_curved_piece_apart_however_its_parts_grew(context):
+    # the second piece 3 cm behind (five times the noisy rows' noise): not one surface
+    xyz, labels, fits = _grown_arc_pieces(0.03)
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((40, 45), 0.004))
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)},
+                                   max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
+    assert set(merged) == {1, 2} and (out == labels).all()
