@@ -9,6 +9,7 @@ import numpy as np
 # use, PEP 562), and an attribute look-up costs a fraction of a from-import in each call (the
 # piece helpers below run a few hundred times a frame)
 from .. import kernels
+from ..fitting.plane import fit_plane
 from ..fitting.region_fitter import RegionFitter
 from ..fitting.robust import beyond_noise, distance_noise, trimmed_fit
 
@@ -161,8 +162,9 @@ class Context:
         """
         sample = pool[:: max(1, pool.size // 600)]  # the median of a few hundred is enough
         points = self.xyz[sample]
-        plane = model if model is not None and model.kind == "plane" else _least_squares_plane(points)
-        if plane is None:
+        plane = (model if model is not None and model.kind == "plane"
+                 else fit_plane(points[np.isfinite(points).all(axis=1)]))
+        if not plane:  # a FitFailure: too few points, or all on a line
             return None
         narrow = float(np.median(distance_noise(plane, points, self.sigma[sample])))
         if not 0.0 < narrow < _GRAZING_NOISE * sigma:
@@ -276,15 +278,3 @@ def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width
     joined = np.bincount(root, weights=sizes, minlength=sizes.size).astype(sizes.dtype)
     return root[ids].astype(ids.dtype), joined
 
-
-def _least_squares_plane(points: np.ndarray):
-    # the plane through the centroid of ``points`` normal to their smallest principal axis
-    # (what distance_noise reads of it; None when fewer than three finite points)
-    from ..fitting.primitives import Plane
-
-    points = points[np.isfinite(points).all(axis=1)]
-    if points.shape[0] < 3:
-        return None
-    centre = points.mean(axis=0)
-    _, vectors = np.linalg.eigh((points - centre).T @ (points - centre))
-    return Plane(vectors[:, 0], float(vectors[:, 0] @ centre), 0.0, points.shape[0])

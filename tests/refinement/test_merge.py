@@ -271,11 +271,21 @@ def _grown_pieces(offset: float):
     noisy rows 10-19 (4 mm), and fitted on its quiet rows only: a region whose model
     predates the band growth gave it. ``(xyz, labels, fits)``."""
     xyz = plane_grid(20, 60, noise=0.001, seed=5)
-    xyz[10:, :, 2] += np.random.default_rng(6).normal(0.0, 0.004, (10, 60))
-    xyz[:, 40:, 2] += offset
-    labels = np.zeros((20, 60), np.int32)
-    labels[:, :20], labels[:, 40:] = 1, 2
-    fits = {k: fit_plane(xyz[:10][labels[:10] == k]) for k in (1, 2)}
+    return _two_grown_pieces(xyz, quiet_rows=10, noise=0.004, seed=6, second=40, offset=offset, fit=fit_plane)
+
+
+def _two_grown_pieces(xyz, *, quiet_rows: int, noise: float, seed: int, second: int, offset: float, fit):
+    """``xyz`` (changed in place) as two pieces, columns 0-19 (label 1) and ``second`` on
+    (label 2, moved ``offset`` metres along z), with rows from ``quiet_rows`` on given
+    ``noise`` more (a generator seeded ``seed``) and each piece's model ``fit`` to its quiet
+    rows only: regions whose models predate the pixels growth gave them.
+    ``(xyz, labels, fits)``."""
+    rows, cols = xyz.shape[:2]
+    xyz[quiet_rows:, :, 2] += np.random.default_rng(seed).normal(0.0, noise, (rows - quiet_rows, cols))
+    xyz[:, second:, 2] += offset
+    labels = np.zeros((rows, cols), np.int32)
+    labels[:, :20], labels[:, second:] = 1, 2
+    fits = {k: fit(xyz[:quiet_rows][labels[:quiet_rows] == k]) for k in (1, 2)}
     return xyz, labels, fits
 
 
@@ -490,13 +500,8 @@ def _grown_arc_pieces(offset: float):
     from rangeseg_o3d.fitting import fit_cylinder
 
     xyz, _ = _arc()
-    xyz = xyz[:, :45].copy()
-    xyz[20:, :, 2] += np.random.default_rng(7).normal(0.0, 0.006, (20, 45))
-    xyz[:, 25:, 2] += offset
-    labels = np.zeros((40, 45), np.int32)
-    labels[:, :20], labels[:, 25:] = 1, 2
-    fits = {k: fit_cylinder(xyz[:20][labels[:20] == k]) for k in (1, 2)}
-    return xyz, labels, fits
+    return _two_grown_pieces(xyz[:, :45].copy(), quiet_rows=20, noise=0.006, seed=7, second=25, offset=offset,
+                             fit=fit_cylinder)
 
 
 def test_merge_regions_holds_a_curved_union_to_its_parts_current_pixels(context):
