@@ -62,27 +62,6 @@ def _tile_candidates(tile_labels, kinds):
     return table, count
 
 
-#: Relative band about ``k_sigma * scale`` inside which :func:`_within_sigmas` divides: outside
-#: it the product's answer is the quotient's (rounding moves either by under 1e-15 of itself).
-_QUOTIENT_BAND = 1e-12
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _within_sigmas(dist, scale, k_sigma, ties):
-    # ``dist / scale < k_sigma`` (``<=`` with ``ties``), the quotient's answer bit for bit, by a
-    # product where the distance is clearly inside or outside the band (a division costs a
-    # pixel of a region's tile several multiplications); in the band, at a subnormal or
-    # non-finite product, and for NaN the quotient decides as before
-    limit = k_sigma * scale
-    if limit > 1e-290 and limit < np.inf:
-        if dist < limit * (1.0 - _QUOTIENT_BAND):
-            return True
-        if dist > limit * (1.0 + _QUOTIENT_BAND):
-            return False
-    score = dist / scale
-    return score < k_sigma or (ties and score <= k_sigma)
-
-
 @njit(cache=True, nogil=True)
 def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma,
                  inlier_factor):
@@ -111,8 +90,8 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     first, owners = _block_sums_layout(table, count)
     taken_in = np.zeros(owners.size, np.int64)
     sums = np.zeros((owners.size, _BLOCK_SUMS))
-    # Row by row (the statistics sum in raster order), tile by tile along the row: no
-    # division per pixel, and a pixel of a tile inside a region tests one model.
+    # Row by row (the statistics sum in raster order), tile by tile along the row: a pixel
+    # of a tile inside a region tests one model.
     for r in range(height):
         tr = min(r // tile, th - 1)
         for tc in range(tw):
@@ -144,7 +123,8 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     noise = sigma[i]
                     signed = _signed_distance(kind, prm, x, y, z)
                     dist = abs(signed)
-                    if _within_sigmas(dist, max(noise, floor), k_sigma, ties):
+                    score = dist / max(noise, floor)
+                    if score < k_sigma or (ties and score <= k_sigma):
                         out[r, c] = k
                         taken += 1
                         total += dist * dist
