@@ -110,12 +110,13 @@ def test_a_cylinder_that_took_a_flat_face_gives_it_back(context):
     assert kinds[2].kind == "plane" and kinds[2].rms < 1.5 * SIGMA
 
 
-def _grazing_crease(seed=0, sigma=0.01):
-    """Two planes meeting at a 12-degree crease, seen at a grazing angle (a floor 1 m below
-    the sensor, 3-5 m ahead) with ``sigma`` of range noise along each ray: ``(xyz, truth)``."""
-    v, u = np.mgrid[0:50, 0:60].astype(float)
-    x, z = -0.6 + u * 0.02, 3.0 + v * 0.04
-    y = np.where(u < 30, -1.0, -1.0 + np.tan(np.radians(12.0)) * x)
+def _grazing_crease(seed=0, sigma=0.01, rows=50, degrees=12.0):
+    """Two planes meeting at a crease of ``degrees``, seen at a grazing angle (a floor 1 m
+    below the sensor, 3-5 m ahead, ``rows`` x 60 pixels) with ``sigma`` of range noise along
+    each ray: ``(xyz, truth)``."""
+    v, u = np.mgrid[0:rows, 0:60].astype(float)
+    x, z = -0.6 + u * 0.02, 3.0 + v * 2.0 / rows
+    y = np.where(u < 30, -1.0, -1.0 + np.tan(np.radians(degrees)) * x)
     xyz = np.dstack([x, y, z])
     ranges = np.linalg.norm(xyz, axis=2, keepdims=True)
     rng = np.random.default_rng(seed)
@@ -144,3 +145,30 @@ def test_a_cylinder_within_the_range_noise_over_a_grazing_crease_becomes_its_pla
     loud = context(cloud, sigma=np.full(cloud.shape, 4.0 * sigma))
     out_labels, out_fits = planes_for_curved(loud, np.ones(cloud.shape, np.int32), {1: cylinder})
     assert out_fits == {1: cylinder} and (out_labels == 1).all()
+
+
+def test_a_shallow_grazing_crease_over_many_pixels_becomes_its_planes(context):
+    # a 3-degree crease seen at a grazing angle over 200 x 60 pixels: the cylinder bent over
+    # it misfits in a pattern across its axis that every pixel shows and a few hundred do not
+    # (the gate's chi-square bound tightens with the pixels it sees)
+    from rangeseg_o3d.kernels import crease_sides
+    from rangeseg_o3d.kernels.linalg import CHI_SQUARE_SIGMAS
+
+    sigma = 0.01
+    xyz, truth = _grazing_crease(sigma=sigma, rows=200, degrees=3.0)
+    cloud = rs.OrganizedCloud(xyz)
+    points = xyz.reshape(-1, 3)
+    cylinder = fit_cylinder(points)
+    assert cylinder.kind == "cylinder" and not beyond_noise(cylinder.rms, sigma, truth.size)
+    idx, distances = np.arange(len(points), dtype=np.int64), cylinder.distances(points)
+    noise = np.full(len(points), sigma)
+    # the premise: an even sample of 256 pixels does not show the misfit, all of them do
+    gate = [crease_sides(points, noise, idx, distances, cylinder.axis, cylinder.point, 10, 8, sample, 33,
+                         CHI_SQUARE_SIGMAS, 0.9, 2).size for sample in (256, len(points))]
+    assert gate == [0, len(points)]
+    out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, sigma)),
+                                             np.ones(cloud.shape, np.int32), {1: cylinder})
+    for k in (1, 2):  # 3 degrees apart, the planes are within the noise of each other for a few columns
+        best, share = best_overlap(out_labels, truth, k)
+        assert best > 0 and share >= 0.85 and (truth[out_labels == best] == k).mean() >= 0.9
+        assert out_fits[best].kind == "plane" and out_fits[best].rms < cylinder.rms
