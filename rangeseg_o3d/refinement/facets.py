@@ -34,6 +34,7 @@ from ..fitting.plane import fit_plane
 from ..fitting.primitives import Cylinder, Plane
 from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
+from ..kernels.linalg import noise_rms_bound
 from .context import Context, without
 from .grow import SETTLE_MARGIN
 
@@ -269,6 +270,8 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             surfaces = split()
             if not _covers(surfaces, idx) or (resolve and len(surfaces) < 2):
                 continue
+            if settle and isinstance(split_noise, float) and _settling_out_of_reach(ctx, idx, surfaces, split_noise):
+                continue  # refused before the reassignment, the split's costliest step
             if settle:  # the cap split hands each pixel to its nearer model itself
                 surfaces = _nearest(ctx, surfaces)
             if _explains(ctx, idx, distances, surfaces, split_noise, model.kind, resolve=resolve, model=model):
@@ -332,6 +335,40 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     sides = [idx[first], idx[~first]]
     planes = [fit_plane(ctx.xyz[side]) for side in sides]
     return list(zip(sides, planes)) if all(planes) else []
+
+
+def _settling_out_of_reach(ctx: Context, idx: np.ndarray, surfaces: list, noise: float) -> bool:
+    """Whether :func:`_nearest` cannot bring several ``surfaces`` (``(pixels, model)`` pairs
+    a split found in the pixels ``idx``) within the range ``noise`` :func:`_explains` holds
+    them to, so that the split is refused before its reassignment and refits (most of its
+    time on a truly curved region: a tunnel's facets).
+
+    What settles must take PLANES_COVER of ``idx`` (``needed`` pixels) from the surfaces'
+    own pixels. With the models held, no choice of that many pixels and owners leaves less
+    than the ``needed`` pixels nearest a surface, each at its distance to the nearest. The
+    refits move the models: were the surfaces right at the noise, refitting ``P``
+    parameters to the pixels takes about ``P noise^2`` off the squared distances (a
+    chi-square of ``P`` degrees of freedom, here up to CHI_SQUARE_SIGMAS deviations), with
+    ``P`` as many as the settled pieces can hold (each of ``ctx.min_size`` pixels, each
+    with a curved kind's parameters at most). Out of reach when those nearest squared
+    distances exceed the acceptance's noise bound at ``needed`` pixels (the loosest it
+    gives a cover: it tightens with more) by more than that. One surface is never out of
+    reach (:func:`_explains` judges one plane by the curvature test, not the noise)."""
+    if len(surfaces) < 2:
+        return False
+    pixels = np.concatenate([piece for piece, _ in surfaces])
+    needed = int(np.ceil(PLANES_COVER * idx.size))
+    if pixels.size < needed:
+        return False  # not a cover: _explains refuses it anyway
+    points = ctx.xyz[pixels]
+    nearest = np.abs(surfaces[0][1].distances(points))
+    for _, model in surfaces[1:]:
+        np.minimum(nearest, np.abs(model.distances(points)), out=nearest)
+    squares = np.partition(nearest * nearest, needed - 1)[:needed]
+    parameters = float(max(CURVED_PARAMETERS.values()) * (pixels.size // ctx.min_size))
+    bound = noise_rms_bound.py_func(noise, float(needed), CHI_SQUARE_SIGMAS)
+    refits = parameters * noise_rms_bound.py_func(noise, parameters, CHI_SQUARE_SIGMAS) ** 2
+    return float(np.sum(squares)) > needed * bound * bound + refits
 
 
 def _noise_rms(ctx: Context, surfaces: list) -> float:

@@ -172,3 +172,55 @@ def test_a_shallow_grazing_crease_over_many_pixels_becomes_its_planes(context):
         best, share = best_overlap(out_labels, truth, k)
         assert best > 0 and share >= 0.85 and (truth[out_labels == best] == k).mean() >= 0.9
         assert out_fits[best].kind == "plane" and out_fits[best].rms < cylinder.rms
+
+
+def _facets_of(xyz, bands):
+    """``xyz``'s grid cut into ``bands`` equal column bands, each with its least-squares plane:
+    ``[(flat pixels, plane)]``, as a split hands them to the reassignment."""
+    columns = np.arange(xyz.shape[0] * xyz.shape[1]) % xyz.shape[1]
+    band = columns * bands // xyz.shape[1]
+    points = xyz.reshape(-1, 3)
+    return [(np.flatnonzero(band == b), fit_plane(points[band == b])) for b in range(bands)]
+
+
+def test_settling_is_out_of_reach_only_where_the_settled_split_is_refused(context):
+    from rangeseg_o3d.refinement.facets import _explains, _nearest, _settling_out_of_reach
+
+    def settled_verdict(ctx, xyz, surfaces, noise):
+        idx = np.arange(xyz.shape[0] * xyz.shape[1])
+        curved = fit_cylinder(xyz.reshape(-1, 3))
+        distances = curved.distances(xyz.reshape(-1, 3))
+        early = _settling_out_of_reach(ctx, idx, surfaces, noise)
+        late = _explains(ctx, idx, distances, _nearest(ctx, surfaces), noise, curved.kind, model=curved)
+        return early, late
+
+    # a crease's two faces at their 1 mm noise: within reach, and the settled split is accepted
+    xyz, _, _ = _crease()
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], SIGMA))
+    assert settled_verdict(ctx, xyz, _facets_of(xyz, 2), SIGMA) == (False, True)
+    # the same faces held to a third of their noise: out of reach, and refused after settling too
+    assert settled_verdict(ctx, xyz, _facets_of(xyz, 2), SIGMA / 3) == (True, False)
+    # a 70-degree arc of a 0.5 m pipe as four facets (each 1.3 cm deep): 2 mm rms against 1 mm
+    arc = _cylinder_strip()
+    ctx = context(rs.OrganizedCloud(arc), sigma=np.full(arc.shape[:2], SIGMA))
+    assert settled_verdict(ctx, arc, _facets_of(arc, 4), SIGMA) == (True, False)
+    # three facets of the crease: the middle one straddles it (3.6 mm rms), but the pixels
+    # nearest the outer two are at the noise: within reach, and settled it is accepted
+    xyz_ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], SIGMA))
+    assert settled_verdict(xyz_ctx, xyz, _facets_of(xyz, 3), SIGMA) == (False, True)
+    # twelve facets of the arc (each 0.8 mm deep): within reach, and accepted
+    assert settled_verdict(ctx, arc, _facets_of(arc, 12), SIGMA) == (False, True)
+
+
+def test_settling_of_one_surface_or_no_cover_is_never_out_of_reach(context):
+    from rangeseg_o3d.refinement.facets import _settling_out_of_reach
+
+    arc = _cylinder_strip()
+    ctx = context(rs.OrganizedCloud(arc), sigma=np.full(arc.shape[:2], SIGMA))
+    idx = np.arange(arc.shape[0] * arc.shape[1])
+    facets = _facets_of(arc, 4)
+    assert _settling_out_of_reach(ctx, idx, facets, SIGMA)
+    # one surface is judged by the curvature test, not the noise
+    assert not _settling_out_of_reach(ctx, idx, facets[:1], SIGMA)
+    # three of four facets take under PLANES_COVER of the region: _explains refuses them itself
+    assert not _settling_out_of_reach(ctx, idx, facets[:3], SIGMA)
