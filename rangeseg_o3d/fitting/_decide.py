@@ -22,7 +22,8 @@ from ..kernels.jit import njit  # numba.njit, with this package's cache locator 
 from ..kernels.kinds import CYLINDER, NONE, PLANE, SPHERE
 from ..kernels.labelwise import height_field_shape
 from ..kernels.linalg import (CHI_SQUARE_SIGMAS, DEGENERATE_RATIO, NOISE_CHI2_SIGMAS, collinear, curvature_resolved,
-                              flat_by_quadric, noise_rms_bound, plane_tolerance)
+                              flat_by_quadric, noise_rms_bound, plane_tolerance,
+                              quadric_resolved)
 from ._codes import (  # noqa: F401 -- callers and tests read the codes as _decide.X too
     ACCEPTED, ARC, ARC_UNDER, COLLINEAR, CONVERGED, COPLANAR, CURVED_SIZE, DIVERGED, FLAT,
     GAIN_UNDER, INLIERS, MIN_POINTS, NON_FINITE, NOT_CONVERGED, NO_BETTER, RADIUS,
@@ -147,6 +148,32 @@ def sphere_checked(q, eigvals, max_iterations, inlier_distance, start, give_up_r
     return _statistics_code(result, radius, rms, inliers, cap, converged, eigvals, q.shape[0]), result
 
 
+#: Plane distances, in the plane's rms, beyond which a point is left out of the bend test
+#: (a pixel of a neighbouring face, or a mixed one at a jump, that a quadric bends to).
+BEND_TRIM = 2.0
+
+
+@njit(cache=True, nogil=True)
+def bend_resolved(q, normal, rms):
+    """Whether the quadric height field of the centred points ``q`` resolves a bend
+    (:func:`quadric_resolved`) once the points farther than ``BEND_TRIM`` times ``rms``
+    from their plane (``normal``, through their centroid; ``rms`` in ``q``'s units) are
+    left out and the plane is fitted again: a pipe's bend is in every point, a few pixels
+    of a neighbouring face are not."""
+    n = q.shape[0]
+    keep = np.empty(n, np.bool_)
+    for i in range(n):
+        keep[i] = abs(q[i, 0] * normal[0] + q[i, 1] * normal[1] + q[i, 2] * normal[2]) <= BEND_TRIM * rms
+    kept = q[keep]
+    m = kept.shape[0]
+    if m <= 6:
+        return False
+    centred = kept - kept.sum(axis=0) / m
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    gain, _ = height_field_shape(centred, vectors[:, 0].copy(), vectors[:, 1].copy(), vectors[:, 2].copy())
+    return quadric_resolved(gain, m)
+
+
 @njit(cache=True, nogil=True)
 def judge_code(rms, radius, arc, tolerance, max_radius, min_arc, curvature_gain, plane_rms):
     """The decision's own tests of a fitted curved model (metres, radians)."""
@@ -188,8 +215,9 @@ def _other_curved(kind):
 def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, plane_rms,
                        cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
                        curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
-                       max_iterations, noise_floor=0.0):
-    """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points.
+                       max_iterations, noise_floor=0.0, bends=False):
+    """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points (``bends``:
+    its ``resolve_bends``).
 
     Returns the fields of :class:`Decision` in order (call it through :func:`decide`).
     """
@@ -227,9 +255,16 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
         gain, roundness = height_field_shape(q, normal, eigvecs[:, 1].copy(), eigvecs[:, 2].copy())
     # the quadric's gain is uncertain only where the plane's rms is the noise's
     within = rms <= noise_floor + extra
-    if plane_ok and flat_by_quadric(gain, curvature_gain, n if within else np.inf) and not marginal:
+    flat = plane_ok and flat_by_quadric(gain, curvature_gain, n if within else np.inf) and not marginal
+    # A plane within the noise whose quadric resolves a bend all the same (a pipe seen on a
+    # narrow arc): its gain cannot reach curvature_gain, so a curved model needs only to
+    # beat the plane and resolve its own curvature; failing that it stays a plane. (Over
+    # the noise the quadric also bends to a few pixels of a neighbouring face.)
+    bent = (flat and bends and within and quadric_resolved(gain, n)
+            and bend_resolved(q, normal, rms / scale))
+    if flat and not bent:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
-    needed_gain = 1.0 if marginal else curvature_gain
+    needed_gain = 1.0 if marginal or bent else curvature_gain
     # Principal curvatures pick the likely model: tried first, the other only if it fails.
     first, decisive = CYLINDER, False
     if roundness <= roundness_cylinder:
@@ -244,7 +279,7 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
             kind, q, eigvals, scale, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones,
             max_iterations, inlier_factor * tolerance, no_start, tolerance, max_radius, min_arc,
             needed_gain, rms)
-        if codes[kind] == ACCEPTED and np.isfinite(bound):
+        if codes[kind] == ACCEPTED and (np.isfinite(bound) or bent):
             # over a plane beyond the noise, a curvature the points resolve (not the
             # bend of two more parameters over noise or a sliver of another face)
             curved_rms = curved[kind, RMS] * scale

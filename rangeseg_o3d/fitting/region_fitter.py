@@ -148,10 +148,11 @@ class RegionFitter:
             skip = (skip - part.size) % step
         return xyz_flat[np.concatenate(picked)]
 
-    def fit(self, points: np.ndarray):
-        """The fitter's model of ``points``, or FitFailure (also when the fitter raises ValueError)."""
+    def fit(self, points: np.ndarray, **overrides):
+        """The fitter's model of ``points``, or FitFailure (also when the fitter raises ValueError).
+        ``overrides``: keywords the plugin takes beyond its parameters, for this call."""
         try:
-            return self.plugin.run(self._subsample(points), **self.params)
+            return self.plugin.run(self._subsample(points), **self.params, **overrides)
         except ValueError as exc:
             return FitFailure(kind="any", reason=str(exc))
 
@@ -180,11 +181,12 @@ class RegionFitter:
         except ValueError:  # as fit: a bad region is no answer
             return None, None
 
-    def fit_batch(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
-        """The regions the plugin's batch fit settles at once ({} without one)."""
+    def fit_batch(self, xyz_flat: np.ndarray, labels: np.ndarray, **overrides) -> dict:
+        """The regions the plugin's batch fit settles at once ({} without one); ``overrides``
+        as for :meth:`fit`."""
         if self.plugin.fit_batch is None:
             return {}
-        return self.plugin.fit_batch(xyz_flat, labels.ravel(), **self.params)
+        return self.plugin.fit_batch(xyz_flat, labels.ravel(), **self.params, **overrides)
 
     def fit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray) -> dict:
         """A model or FitFailure for every positive label: the plugin's batch first, then one by one."""

@@ -156,6 +156,11 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # and the laser rows keep the range noise)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
     timer.lap("dissolve")
-    fits = polish_models(ctx, labels, fits)
+    # The quadric's F-test counts independent residuals: a laser's returns on a pixel grid.
+    # A depth camera's errors are not (a stereo matching window, a structured-light
+    # pattern's ripple: planes of the real frames came out as 1-50 cm cylinders), nor are
+    # tile means of quantised depth.
+    independent = tile == 1 and sensor.noise.sigma_quadratic == 0.0 and sensor.noise.correlation_px == 1
+    fits = polish_models(ctx, labels, fits, resolve_bends=independent)
     timer.lap("polish")
     return Regions(labels, fits)

@@ -24,11 +24,13 @@ __all__ = ["polish_models"]
 EXTRA_PARAMETERS = {"cylinder": 2, "sphere": 1}
 
 
-def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes: bool = True) -> dict:
+def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes: bool = True,
+                  resolve_bends: bool = False) -> dict:
     """``fits`` with the models moments cannot refit (spheres, cylinders) refitted on the
     pixels of ``labels``, and those that no longer resolve a curvature there replaced by
     the plane the fitter's decision gives their pixels; planes whose pixels the fitter now
-    calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``).
+    calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``;
+    ``resolve_bends``: also the planes whose quadric resolves a bend under the noise).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
@@ -47,11 +49,11 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
             if isinstance(decided, Plane):
                 fits[k] = decided
     if decide_planes:
-        fits.update(_curved_planes(ctx, labels, fits))
+        fits.update(_curved_planes(ctx, labels, fits, resolve_bends))
     return fits
 
 
-def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
+def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: bool = False) -> dict:
     """The curved models the fitter's decision gives the plane regions of ``labels`` whose
     final pixels it no longer settles as a plane.
 
@@ -61,15 +63,19 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
     batch plane test (:meth:`RegionFitter.fit_batch`: the fitter's own plane tolerance and
     quadric curvature test, one pass) settles almost every plane again; only the others
     are decided anew, and a curved answer replaces the plane (a pipe whose first piece was
-    flat within the noise, grown to its whole width)."""
+    flat within the noise, grown to its whole width). With ``resolve_bends`` (the final
+    pixels of a laser's pixel grid, whose residuals are independent) a plane within the noise is also decided anew where its quadric resolves a bend
+    all the same (a pipe seen on a narrow arc, its bend under the noise over hundreds of
+    pixels); earlier decisions, on pieces and unsettled regions, do not ask it."""
     planes = [k for k, m in fits.items() if isinstance(m, Plane)]
     if not planes or ctx.fitter.plugin.fit_batch is None:  # a plugin without the batch test: as decided
         return {}
-    settled = ctx.fitter.fit_batch(ctx.xyz, labels)
+    bends = {"resolve_bends": True} if resolve_bends else {}  # a keyword of the primitives fitter
+    settled = ctx.fitter.fit_batch(ctx.xyz, labels, **bends)
     unsettled = [k for k in planes if k not in settled]
     out = {}
     for k, idx in (region_indices(labels, only=unsettled) if unsettled else {}).items():
-        decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
+        decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), **bends)
         if decided and not isinstance(decided, Plane):
             out[k] = decided
     return out

@@ -104,6 +104,100 @@ def test_flat_by_quadric_trusts_the_quadric_gain_one_standard_error_below_the_bo
     assert not flat_by_quadric(0.8, 1.5, 0.0) and flat_by_quadric(0.7, 1.5, 0.0)
 
 
+def test_quadric_resolved_is_the_f_test_of_the_quadric_over_its_points():
+    from rangeseg_o3d.kernels.linalg import CHI_SQUARE_SIGMAS, quadric_resolved
+
+    # the F-test's bound on the gain: (gain^2 - 1)(n - 6) > 3 + CHI_SQUARE_SIGMAS sqrt(6)
+    def bound(n):
+        return np.sqrt(1.0 + (3.0 + CHI_SQUARE_SIGMAS * np.sqrt(6.0)) / (n - 6.0))
+
+    for n in (20.0, 71.0, 159.0, 1000.0, 10_000.0):
+        assert quadric_resolved(bound(n) * 1.001, n) and not quadric_resolved(bound(n) * 0.999, n)
+    # a gain of 1.25 is noise over 20 points, a bend over 159 (spinning_64 seed 23's pipe)
+    assert not quadric_resolved(1.25, 20.0) and quadric_resolved(1.25, 159.0)
+    # no gain, a gain below 1 (a singular quadric's), NaN, no degree of freedom left, or
+    # n = inf (a plane over the noise, as flat_by_quadric's callers pass it): not resolved
+    for gain, n in ((1.0, 1000.0), (0.9, 1000.0), (np.nan, 1000.0), (3.0, 6.0), (3.0, np.inf)):
+        assert not quadric_resolved(gain, n), (gain, n)
+
+
+def _arc_patch(radius, arc_deg, length, sigma, n_arc, n_len, seed, curved=True, aside=0.0):
+    # points of a cylinder's arc (axis along y, 3 m ahead of the origin and ``aside`` to the
+    # right of it, facing the -z direction), noise along the view ray
+    rng = np.random.default_rng(seed)
+    t = np.radians(np.linspace(-arc_deg / 2, arc_deg / 2, n_arc))
+    y = np.linspace(-length / 2, length / 2, n_len)
+    tt, yy = np.meshgrid(t, y)
+    if curved:
+        x, z = radius * np.sin(tt), 3.0 + radius - radius * np.cos(tt)
+    else:
+        x, z = radius * tt, np.full_like(tt, 3.0)
+    pts = np.stack([x + aside, yy, z], axis=-1).reshape(-1, 3)
+    rays = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    return pts + rays * rng.normal(0.0, sigma, (len(pts), 1))
+
+
+def test_a_pipe_bending_under_the_noise_over_hundreds_of_points_is_a_cylinder_with_resolve_bends():
+    # A 0.3 m pipe seen over 40 deg, 3 m ahead and 3 m aside, through 1.5 cm of range noise
+    # (600 points): the noise along the oblique rays leaves the plane 1.2 cm rms with the
+    # bend, within the noise, and the quadric's gain stays far under 1.5, so the plane is
+    # settled; over 600 points that bend is no noise (the quadric's F-test), and with
+    # resolve_bends the cylinder fits it and is kept.
+    kw = dict(plane_rms=0.03, cylinder_rms=0.03, sphere_rms=0.03, noise_floor=0.015)
+    arcs = [_arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, seed, aside=3.0) for seed in range(5)]
+    assert [fit_primitive(pts, **kw).kind for pts in arcs] == ["plane"] * 5
+    models = [fit_primitive(pts, resolve_bends=True, **kw) for pts in arcs]
+    assert [m.kind for m in models] == ["cylinder"] * 5
+    assert all(abs(m.radius - 0.3) < 0.06 for m in models), [m.radius for m in models]
+    # the same points without the bend (a flat strip as wide as the arc) stay planes
+    flat = [fit_primitive(_arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, seed, curved=False, aside=3.0),
+                          resolve_bends=True, **kw).kind for seed in range(20)]
+    assert flat == ["plane"] * 20, flat
+    # seen head-on the noise is all across the plane and the bend lifts its rms over the
+    # noise: there the quadric would also bend to a neighbour's pixels, and resolve_bends
+    # changes nothing
+    head_on = [_arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, seed) for seed in range(5)]
+    assert ([fit_primitive(pts, resolve_bends=True, **kw).kind for pts in head_on]
+            == [fit_primitive(pts, **kw).kind for pts in head_on])
+
+
+def test_resolve_bends_unsettles_a_bent_plane_in_the_batch_test_too():
+    from rangeseg_o3d.fitting.classify import fit_planes_batch
+
+    kw = dict(plane_rms=0.03, rms_per_range2=0.0, min_points=10, curvature_gain=1.5, noise_floor=0.015)
+    bent = _arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, 0, aside=3.0)
+    flat = _arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, 1, curved=False, aside=3.0) + [0.0, 1.0, 0.0]
+    xyz = np.concatenate([bent, flat])
+    labels = np.repeat(np.array([1, 2], np.int32), [len(bent), len(flat)])
+    assert set(fit_planes_batch(xyz, labels, **kw)) == {1, 2}
+    assert set(fit_planes_batch(xyz, labels, resolve_bends=True, **kw)) == {2}
+
+
+def test_bend_resolved_leaves_out_a_neighbours_pixels():
+    # A flat 7 x 31 strip with 1.5 cm noise and ten pixels of a face 5-6.5 cm behind it at
+    # one side (as region growing's wall strip on noise_20mm seed 0, scan 1, taken for a
+    # cylinder): on all points the quadric bends to them; without them it resolves nothing.
+    # A pipe's bend is in every point and survives the trim.
+    from rangeseg_o3d.kernels.linalg import quadric_resolved
+    from rangeseg_o3d.fitting.classify import quadric_shape
+    from rangeseg_o3d.fitting import fit_plane
+
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        u, v = np.meshgrid(np.linspace(-0.05, 0.05, 7), np.linspace(-0.3, 0.3, 31))
+        strip = np.stack([u.ravel(), v.ravel(), rng.normal(0.0, 0.015, u.size)], axis=-1)
+        strip[np.arange(8, 18) * 7 + 6, 2] += rng.uniform(0.05, 0.065, 10)  # rows 8-17 of the last column
+        centred = strip - strip.mean(axis=0)
+        plane = fit_plane(centred)
+        gain, _ = quadric_shape(centred, plane)
+        assert quadric_resolved(gain, len(centred)), seed
+        assert not d.bend_resolved(centred, plane.normal, plane.rms), seed
+    pipe = _arc_patch(0.3, 40.0, 0.4, 0.015, 30, 20, 0, aside=3.0)
+    pipe = pipe - pipe.mean(axis=0)
+    plane = fit_plane(pipe)
+    assert d.bend_resolved(pipe, plane.normal, plane.rms)
+
+
 def test_a_pipe_top_sliver_at_the_grid_border_is_a_cylinder():
     # The sensor matrix's nodding_0.25deg row, seed 11, scan 3: only 71 pixels (5 rows at
     # the top border) of a 0.116 m pipe are in view. Its plane (4.2 mm rms) is within the
