@@ -437,3 +437,73 @@ def test_claim_thin_strips_gives_each_surface_its_border_column_at_a_step(contex
     small = claim_thin_strips(context(cloud, min_size=81, sigma=sigma), labels, fits, candidates,
                               valid=cloud.valid, k_sigma=3.0)
     assert (small == labels).all()
+
+
+def _edge_on_side(seed=0, sigma=0.005):
+    # A laser's spherical grid (1-degree steps) sees a box (x in [0.5, 1], z in [2, 2.35])
+    # in front of a wall at z = 3: its front face at z = 2 from column 14.5 degrees on, and
+    # its left side (the plane x = 0.5) edge-on in the two columns 12.5 and 13.5 degrees.
+    # The wall's column beside the side holds the range step's mixed returns (ranges drawn
+    # between the side's and the wall's). Regions: the wall (1) and the front face (2);
+    # the side and the mixed column are free. Returns (cloud, labels, fits, sigma, side, mixed).
+    az = np.radians(np.arange(-5, 30) + 0.5)
+    el = np.radians(np.arange(-12, 12) + 0.5)
+    e, a = np.meshgrid(el, az, indexing="ij")
+    rays = np.dstack([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    ranges = 3.0 / rays[..., 2]
+    side = np.zeros(a.shape, bool)
+    side[:, 17:19] = True
+    ranges[side] = 0.5 / rays[side][:, 0]
+    front = np.zeros(a.shape, bool)
+    front[:, 19:] = 1.0 / np.tan(a[:, 19:]) >= 2.0
+    ranges[front] = 2.0 / rays[front][:, 2]
+    rng = np.random.default_rng(seed)
+    ranges = ranges + rng.normal(0.0, sigma, ranges.shape)
+    mixed = np.zeros(a.shape, bool)
+    mixed[:, 16] = True
+    ranges[mixed] = rng.uniform(2.3, 2.9, int(mixed.sum()))
+    xyz = rays * ranges[..., None]
+    labels = np.where(front, 2, 1).astype(np.int32)
+    labels[side | mixed] = 0
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    return rs.OrganizedCloud(xyz), labels, fits, np.full(a.shape, sigma), side, mixed
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_recover_leftovers_makes_an_edge_on_side_a_plane_and_leaves_mixed_returns_free(context, seed):
+    # At sensor resolution (thin_strips) a strip too thin for a blob that no touching region
+    # explains is a thin blob: the side two pixels across, joined along its length to the
+    # mixed column, is found by a search of the strip and becomes a plane region of its
+    # own (x = 0.5) (its rim growth may take mixed returns near its plane).
+    cloud, labels, fits, sigma, side, mixed = _edge_on_side(seed)
+    # the range step's mixed returns are jump pixels (no blob holds them): the side alone,
+    # two pixels across, leaves no 3x3 core
+    common = dict(xyz=cloud.xyz, valid=cloud.valid, jumps=mixed,
+                  ranges=cloud.range_image(), sigma=sigma, k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    out, new = recover_leftovers(context(cloud, min_size=20, sigma=sigma), labels, fits, thin_strips=True,
+                                 **common)
+    found = set(np.unique(out[side]).tolist()) - {0, 1, 2}
+    assert len(found) == 1
+    k = found.pop()
+    assert (out[side] == k).mean() > 0.9 and new[k].kind == "plane"
+    # the plane x = 0.5, its tilt about the strip's length within what three noise sigmas
+    # across the side's 17 cm of depth leave (two columns: 7 degrees)
+    assert abs(new[k].normal[0]) > np.cos(3.0 * np.sqrt(2.0) * sigma[0, 0] / 0.17)
+    assert (out[labels > 0] == labels[labels > 0]).all()
+    # without thin_strips (a tile grid's refinement) the strip is left free
+    kept, _ = recover_leftovers(context(cloud, min_size=20, sigma=sigma), labels, fits, thin_strips=False, **common)
+    assert (kept[side | mixed] == 0).all()
+
+
+def test_a_line_of_single_pixels_spans_no_face(context):
+    # the mixed column alone (one pixel across) lies on a plane through its rays within the
+    # noise, but is no face: the thin blob is freed
+    cloud, labels, fits, sigma, side, mixed = _edge_on_side(0)
+    labels = labels.copy()
+    labels[side] = 2  # the side taken: the mixed column is the only free strip
+    fits = {1: fits[1], 2: fits[2]}
+    common = dict(xyz=cloud.xyz, valid=cloud.valid, jumps=np.zeros(labels.shape, bool),
+                  ranges=cloud.range_image(), sigma=sigma, k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    out, new = recover_leftovers(context(cloud, min_size=20, sigma=sigma), labels, fits, thin_strips=True, **common)
+    assert set(new) == {1, 2}
+    assert (out[labels > 0] == labels[labels > 0]).all()
