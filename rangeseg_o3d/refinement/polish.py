@@ -30,7 +30,8 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     pixels of ``labels``, and those that no longer resolve a curvature there replaced by
     the plane the fitter's decision gives their pixels; planes whose pixels the fitter now
     calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``;
-    ``resolve_bends``: also the planes whose quadric resolves a bend under the noise).
+    ``resolve_bends``: also the planes whose quadric resolves a bend under the noise, and
+    curved models only a neighbour's pixels bend are planes, :func:`_unbent`).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
@@ -48,9 +49,39 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
             decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
             if isinstance(decided, Plane):
                 fits[k] = decided
-    if decide_planes:
-        fits.update(_curved_planes(ctx, labels, fits, resolve_bends))
+    unbent = _unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)]) if resolve_bends else {}
+    fits.update(unbent)
+    if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
+        fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends))
     return fits
+
+
+def _unbent(ctx: Context, labels: np.ndarray, curved: list) -> dict:
+    """The planes of the regions among ``curved`` whose pixels' plane is within the
+    fitter's plane threshold and whose bend does not outlive the pixels beyond 2 plane rms
+    (:func:`rangeseg_o3d.fitting._decide.bend_resolved`): a curved model a plane just over
+    the noise took only for a few pixels of a neighbouring face (noise_20mm seed 37 scan
+    7: a 4-column wall strip with 26 px of its neighbours, rms 20.4 mm over 20 mm noise,
+    a 0.53 m cylinder). Asked with ``resolve_bends`` (independent residuals)."""
+    from ..fitting import fit_plane
+    from ..fitting._decide import bend_resolved
+    from ..fitting.classify import INLIER_FACTOR
+    from ..kernels.linalg import plane_tolerance
+
+    p = ctx.fitter.params
+    if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
+        return {}
+    out = {}
+    for k, idx in region_indices(labels, only=curved).items():
+        pts = ctx.fitter.points(ctx.xyz, idx)
+        centroid = pts.mean(axis=0)
+        tolerance = (plane_tolerance(float(p["plane_rms"]), float(p["noise_floor"]), float(len(pts)))
+                     + float(p["rms_per_range2"]) * float(centroid @ centroid))
+        plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * tolerance)
+        if plane and plane.rms <= tolerance and not bend_resolved(
+                np.ascontiguousarray(pts - centroid), np.ascontiguousarray(plane.normal), plane.rms):
+            out[k] = plane
+    return out
 
 
 def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: bool = False) -> dict:
