@@ -96,11 +96,8 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     Blobs numbered from ``thin_from`` on are thin strips (no pixel of them has a 3x3
     neighbourhood of leftover pixels: a box side seen edge-on): a strip two or three pixels
     across resolves no curvature across it and holds no second surface a split could find,
-    so it becomes one plane, kept when that plane explains it as :func:`_one_plane` asks, or
-    else when a planes-only search of the strip finds a face in it (:func:`_thin_face`: an
-    edge-on side joined to the mixed returns of the range step beside it), and the piece has
-    the fewest returns that tell a plane (``scales.MIN_PIXELS``) and is a face of its own
-    (:func:`_spans_a_face`), or is freed.
+    so it becomes one plane, kept when that plane explains it as :func:`_one_plane` asks and
+    its piece has the fewest returns that tell a plane (``scales.MIN_PIXELS``), or is freed.
     ``face_band``: the split's (:meth:`Context.dominant_piece`).
     """
     from .split import split_regions
@@ -117,10 +114,10 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     # reads each blob's pixels in raster order, so the blobs' pixels alone give the same
     # moments, planes and counts as the whole grid
     settled = ctx.fitter.fit_batch(ctx.xyz[pool], candidates.reshape(-1)[pool]) if regions else {}
-    mixed, thin = [], []
+    mixed = []
     for k, idx in regions.items():
         if thin_from is not None and k >= thin_from:
-            thin.append(k)
+            _one_thin_plane(ctx, flat, fits, k, idx)
             continue
         chosen, model = _one_plane(ctx, idx, settled.get(k))
         # a plane explaining 90 % of the blob may leave a face of its own beside it (a box
@@ -139,8 +136,6 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
         flat[regions[k]] = 0
-    for k in thin:  # last: a strip is judged beside the surfaces the blobs gave (its face's border?)
-        _one_thin_plane(ctx, flat, fits, k, regions[k])
     return labels, fits
 
 
@@ -155,51 +150,10 @@ def _one_thin_plane(ctx: Context, flat: np.ndarray, fits: dict, k: int, idx: np.
     chosen = None
     if model and model.kind == "plane":
         chosen, model = _one_plane(ctx, idx, model, thin=True)
-    if chosen is None:
-        chosen, model = _thin_face(ctx, idx)
     flat[idx] = 0
-    if (chosen is not None and model and model.kind == "plane" and chosen.size >= floor
-            and _spans_a_face(ctx, flat, fits, chosen, model)):
+    if chosen is not None and model and model.kind == "plane" and chosen.size >= floor:
         flat[chosen] = k
         fits[k] = model
-
-
-def _thin_face(ctx: Context, idx: np.ndarray):
-    # A strip no one plane explains (an edge-on box side joined along its length to the
-    # mixed returns of the range step beside it): the dominant plane of a planes-only
-    # search at the strip's range noise, or (None, None). Seen near grazing, the mixed
-    # returns lie within that band and tilt it: the strip is searched again at the noise
-    # of its distances to that plane (Context.grazing_piece); else the plane is cut to its
-    # largest piece within that noise (Context.within_distance_noise: refused along the rays)
-    from ..fitting.classify import trimmed_plane
-
-    sigma = float(np.median(ctx.sigma[idx]))
-    plane, _ = trimmed_plane(ctx.xyz, idx, sigma=sigma, min_points=ctx.min_size)
-    if plane is None:
-        return None, None
-    grazing = ctx.grazing_piece(idx, sigma, plane)
-    return grazing if grazing is not None else ctx.within_distance_noise(idx, plane)
-
-
-def _spans_a_face(ctx: Context, flat: np.ndarray, fits: dict, piece: np.ndarray, model) -> bool:
-    # A thin piece is a face of its own when at least every other pixel along it has a second
-    # beside it (a line of single pixels along a range step is the step's mixed returns,
-    # which lie on the plane through their rays and span no face; an edge-on side 1-2 pixels
-    # across keeps 1.9 on the mean: tabletop_abw seed 11 scan 0's 148-row side), its plane is not one along the rays beyond the
-    # noise of its distances (mixed returns beside a face's border column), and no touching
-    # plane region's surface holds half of it within TRIM_SIGMAS noises of its distances to
-    # that plane (range noise x incidence cosine, at least the plane's rms: then it is that
-    # face's border; an edge-on side lies within the range noise of the faces beside it)
-    rows, cols = np.divmod(piece, ctx.width)
-    if piece.size < 1.5 * (max(int(np.ptp(rows)), int(np.ptp(cols))) + 1) or ctx.plane_along_rays(model, piece):
-        return False
-    points, noise = ctx.xyz[piece], ctx.sigma[piece]
-    for j in touching(flat.reshape(-1, ctx.width), piece, reach=1):
-        other = fits.get(j)
-        if other and other.kind == "plane" and np.mean(
-                np.abs(other.distances(points)) <= TRIM_SIGMAS * np.maximum(noise, other.rms)) >= 0.5:
-            return False
-    return True
 
 
 def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid: np.ndarray,
@@ -276,40 +230,18 @@ def claim_thin_strips(ctx: Context, labels: np.ndarray, fits: dict, candidates: 
     too thin to be a blob (a box side five columns wide in front of a wall loses a fifth of
     its pixels there; on a 32-row lidar a face seen in a few rows loses more).
     """
-    _, strips, kept = _free_strips(labels, valid, candidates, ctx.min_size)
-    if not kept.any():
-        return labels
-    return claim_on_distance_noise(ctx, np.array(labels, dtype=np.int32, order="C"), fits,
-                                   np.flatnonzero(kept[strips].ravel()),
-                                   k_sigma=k_sigma, apart=False)
-
-
-def _with_thin_blobs(labels: np.ndarray, valid: np.ndarray, candidates: np.ndarray, *, first: int,
-                     floor: int):
-    # the free strips no blob and no touching plane took, in 4-connected pieces of at least
-    # ``floor`` pixels, numbered after the blobs: a box side seen edge-on, two or three
-    # pixels across, is a surface of its own that no region's plane explains. Returns the
-    # candidates with them and the first thin number (None when there is none).
-    free, strips, kept = _free_strips(labels, valid, candidates, floor)
-    if not kept.any():
-        return candidates, None
-    thin_from = max(int(candidates.max(initial=0)) + 1, first)
-    lut = np.zeros(kept.size, np.int32)
-    lut[kept] = np.arange(thin_from, thin_from + int(kept.sum()), dtype=np.int32)
-    return np.where(free, lut[strips], candidates).astype(np.int32), thin_from
-
-
-def _free_strips(labels: np.ndarray, valid: np.ndarray, candidates: np.ndarray, floor: int):
-    # the valid pixels no region and no blob holds, their 4-connected strips numbered, and
-    # which numbers hold at least ``floor`` pixels: (free, strips, kept); strips None and
-    # kept all False when no pixel is free
     free = valid & (labels == 0) & (candidates == 0)
     if not free.any():
-        return free, None, np.zeros(1, bool)
+        return labels
     n, strips = cv2.connectedComponents(free.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-    kept = label_sizes(strips, minlength=n) >= floor
+    sizes = label_sizes(strips, minlength=n)
+    kept = sizes >= ctx.min_size
     kept[0] = False
-    return free, strips, kept
+    pool = np.flatnonzero(kept[strips].ravel())
+    if not pool.size:
+        return labels
+    return claim_on_distance_noise(ctx, np.array(labels, dtype=np.int32, order="C"), fits, pool,
+                                   k_sigma=k_sigma, apart=False)
 
 
 def _voted_members(ctx: Context, pixels: np.ndarray, within: np.ndarray):
@@ -454,24 +386,20 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     connected patch), a strip would join whichever region's plane passes through it,
     however far (a face of another block in line with it). ``thin_strips`` (asked at sensor
     resolution): first, the leftover strips too thin for a blob join a plane region they
-    touch and lie on (:func:`claim_thin_strips`), and the strips left of at least the size
-    floor are thin blobs (:func:`split_blobs`' ``thin_from``: each one plane or freed); and a
-    blob piece neither trimmed search
+    touch and lie on (:func:`claim_thin_strips`); and a blob piece neither trimmed search
     explains is searched once more for a face (``face_band`` of :meth:`Context.dominant_piece`:
     after growth, which gave the corner's pixels to the faces around the blob).
     """
     first = int(labels.max(initial=0)) + 1
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
-    thin_from = None
     if thin_strips:
         labels = claim_thin_strips(ctx, labels, fits, candidates, valid=valid, k_sigma=k_sigma)
-        candidates, thin_from = _with_thin_blobs(labels, valid, candidates, first=first, floor=ctx.min_size)
     # A blob may hold several faces: a box far away whose faces are narrower than the
     # closed edge band around them (the closing fills gaps of up to four pixels) is one
     # blob of two or three faces, and explaining it by its dominant surface alone would
     # drop the others. Each blob is split into every surface it holds.
     if candidates.any():  # (no blob: nothing to split, no rim to take back)
-        labels, fits = split_blobs(ctx, labels, fits, candidates, face_band=thin_strips, thin_from=thin_from)
+        labels, fits = split_blobs(ctx, labels, fits, candidates, face_band=thin_strips)
     if labels.max(initial=0) >= first:  # recovered blobs take back their rims
         labels, fits = grow_regions(ctx, labels, fits, xyz=xyz, ranges=ranges, sigma=sigma, iterations=2,
                                     k_sigma=k_sigma, jump_ratio=jump_ratio, jump_min=jump_min)
@@ -588,8 +516,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
                                  box=None if blobs is None else _grown(blobs, rim))
         # the tile models took what they could explain before these regions existed
-        # (a region of the fits may have lost every pixel earlier, its number above the labels')
-        n = max(int(labels.max(initial=0)), max(new)) + 1
+        n = int(labels.max(initial=0)) + 1
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True
