@@ -174,6 +174,26 @@ def bend_resolved(q, normal, rms):
     return quadric_resolved(gain, m)
 
 
+#: The least share of its sagitta that an arc leaves as the rms of its points about their
+#: plane: points spread evenly along a shallow arc leave sqrt(4 / 45) ~ 0.3 of it (the
+#: spread of a parabola's height over its chord); a third of that for uneven spreads.
+ARC_RMS_SHARE = 0.1
+
+
+@njit(cache=True, nogil=True)
+def arc_hidden(rms, spread, min_arc):
+    """Whether a plane of ``rms`` is too close to points whose in-plane standard deviation
+    is at least ``spread`` (both in one unit) for any arc of ``min_arc`` or more
+    (radians) across them: such an arc's chord is at least ``2 spread`` wide (a width is at
+    least twice the deviation along it), its sagitta at least ``spread tan(min_arc / 4)``
+    (over half a circle, the radius), and its points leave about ``ARC_RMS_SHARE`` of that
+    about their plane. A necessary condition of every curved model the decision accepts
+    (cylinder arc and sphere cap are held to ``min_arc`` over all the points), cheap where
+    the models' searches are not: a wide wall within the noise whose quadric resolves a
+    bend of a few millimetres is no pipe the decision could accept."""
+    return rms < ARC_RMS_SHARE * spread * np.tan(0.25 * min_arc)
+
+
 @njit(cache=True, nogil=True)
 def judge_code(rms, radius, arc, tolerance, max_radius, min_arc, curvature_gain, plane_rms):
     """The decision's own tests of a fitted curved model (metres, radians)."""
@@ -260,7 +280,9 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     # narrow arc): its gain cannot reach curvature_gain, so a curved model needs only to
     # beat the plane and resolve its own curvature; failing that it stays a plane. (Over
     # the noise the quadric also bends to a few pixels of a neighbouring face.)
+    # (the search for curved models is costly: first whether any could be accepted)
     bent = (flat and bends and within and quadric_resolved(gain, n)
+            and not arc_hidden(rms, np.sqrt(max(eigvals[1], 0.0) / n) * scale, min_arc)
             and bend_resolved(q, normal, rms / scale))
     if flat and not bent:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
