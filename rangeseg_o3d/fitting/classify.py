@@ -55,7 +55,7 @@ from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound, plane_tolerance
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "trimmed_plane",
-           "fit_planes_batch", "refit_planes_from_moments",
+           "fit_planes_batch", "plane_threshold", "refit_planes_from_moments",
            "PrimitiveFitterConfig", "PLUGIN", "quadric_shape", "bind_sensor"]
 
 INLIER_FACTOR = 3.0
@@ -361,8 +361,8 @@ def refit_primitive(
         base = Prepared(pts, "plane", 3, None)
         if base.n_bad:  # counted by the preparation already
             return input_failure(model.kind, len(pts), base.n_bad, 3)
-        plane_tol = (plane_tolerance(plane_rms, noise_floor, len(pts))
-                     + rms_per_range2 * float(base.centroid @ base.centroid))
+        plane_tol = plane_threshold(len(pts), base.centroid, plane_rms=plane_rms, noise_floor=noise_floor,
+                                    rms_per_range2=rms_per_range2)
         plane = plane_from_prepared(base.specialise("plane", 3, INLIER_FACTOR * plane_tol))
         if not plane:
             return FitFailure(model.kind, f"plane: {plane.reason}")
@@ -388,6 +388,15 @@ def refit_primitive(
         model.kind, int(code), result, scale=scale, eigen_rms=eigen_rms, plane_rms=eigen_rms, n=len(pts),
         minimum=MIN_POINTS[kind], max_iterations=MAX_ITERATIONS, tolerance=tolerance, max_radius=max_radius,
         min_arc=min_arc, curvature_gain=curvature_gain))
+
+
+def plane_threshold(n: int, centroid: np.ndarray, *, plane_rms: float, noise_floor: float,
+                    rms_per_range2: float) -> float:
+    """The plane rms threshold of :func:`fit_primitive` for ``n`` points whose centroid is
+    ``centroid``: :func:`rangeseg_o3d.kernels.linalg.plane_tolerance` plus
+    ``rms_per_range2 R^2`` at the centroid's range."""
+    return (plane_tolerance(float(plane_rms), float(noise_floor), float(n))
+            + float(rms_per_range2) * float(centroid @ centroid))
 
 
 def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float, noise_floor: float) -> np.ndarray:

@@ -65,8 +65,7 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list) -> dict:
     a 0.53 m cylinder). Asked with ``resolve_bends`` (independent residuals)."""
     from ..fitting import fit_plane
     from ..fitting._decide import bend_resolved
-    from ..fitting.classify import INLIER_FACTOR
-    from ..kernels.linalg import plane_tolerance
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
     p = ctx.fitter.params
     if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
@@ -75,8 +74,8 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list) -> dict:
     for k, idx in region_indices(labels, only=curved).items():
         pts = ctx.fitter.points(ctx.xyz, idx)
         centroid = pts.mean(axis=0)
-        tolerance = (plane_tolerance(float(p["plane_rms"]), float(p["noise_floor"]), float(len(pts)))
-                     + float(p["rms_per_range2"]) * float(centroid @ centroid))
+        tolerance = plane_threshold(len(pts), centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                    rms_per_range2=p["rms_per_range2"])
         plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * tolerance)
         if plane and plane.rms <= tolerance and not bend_resolved(
                 np.ascontiguousarray(pts - centroid), np.ascontiguousarray(plane.normal), plane.rms):
