@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from ..kernels.jit import njit  # numba.njit, with this package's cache locator installed
 
-from ..kernels.linalg import collinear, hesse_form, solve
+from ..kernels.linalg import collinear, hesse_form, solve, solve_in_place
 from ._codes import RADIUS_LIMIT
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
@@ -32,21 +32,30 @@ def _symmetrise(m):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _packed_system(sums, n_params):
-    # J^T J (symmetric) from its upper triangle packed row by row in ``sums``
-    jtj = np.empty((n_params, n_params))
+def _packed_system(sums, jtj):
+    # J^T J (symmetric) into ``jtj`` from its upper triangle packed row by row in ``sums``
+    n_params = jtj.shape[0]
     m = 0
     for a in range(n_params):
         for b in range(a, n_params):
             jtj[a, b] = jtj[b, a] = sums[m]
             m += 1
-    return jtj
 
 
 @njit(cache=True, nogil=True)
 def _sphere_normal_equations(q, params):
-    # Sums kept in scalars: stored into arrays point by point they are not kept in
-    # registers. The last Jacobian entry is -1 for every point.
+    # (cost, J^T J, J^T r) in new arrays (see _sphere_system)
+    jtj, grad = np.empty((4, 4)), np.empty(4)
+    return _sphere_system(q, params, jtj, grad), jtj, grad
+
+
+@njit(cache=True, nogil=True)
+def _sphere_system(q, params, jtj, grad):
+    # The cost, with J^T J and J^T r written into ``jtj`` (4 x 4) and ``grad`` (4): the
+    # Levenberg-Marquardt loop keeps them in two buffers (a few small arrays a step cost
+    # it as much as the pass over a few dozen points). Sums kept in scalars: stored into
+    # arrays point by point they are not kept in registers. The last Jacobian entry is -1
+    # for every point.
     s00 = s01 = s02 = s03 = s11 = s12 = s13 = s22 = s23 = 0.0
     g0 = g1 = g2 = g3 = 0.0
     cost = 0.0
@@ -70,30 +79,43 @@ def _sphere_normal_equations(q, params):
         s13 -= r1
         s22 += r2 * r2
         s23 -= r2
-    sums = np.array([s00, s01, s02, s03, s11, s12, s13, s22, s23, float(q.shape[0])])
-    return cost, _packed_system(sums, 4), np.array([g0, g1, g2, g3])
+    _packed_system((s00, s01, s02, s03, s11, s12, s13, s22, s23, float(q.shape[0])), jtj)
+    grad[0], grad[1], grad[2], grad[3] = g0, g1, g2, g3
+    return cost
 
 
 @njit(cache=True, nogil=True)
 def _frame(axis):
     # u, v completing a unit axis to a right-handed frame (as cylinder._frame)
+    u, v = np.empty(3), np.empty(3)
+    _frame_into(axis, u, v)
+    return u, v
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _frame_into(axis, u, v):
+    # _frame written into ``u`` and ``v``
     x, y, z = axis[0], axis[1], axis[2]
-    u = np.empty(3)
     if abs(x) <= 0.9:
         u[0], u[1], u[2] = 0.0, z, -y
     else:
         u[0], u[1], u[2] = -z, 0.0, x
     u /= np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    v = np.empty(3)
     v[0] = y * u[2] - z * u[1]
     v[1] = z * u[0] - x * u[2]
     v[2] = x * u[1] - y * u[0]
-    return u, v
 
 
 @njit(cache=True, nogil=True)
 def _cylinder_normal_equations(q, axis, u, v, p0, r):
-    # as _sphere_normal_equations: scalar sums; the radius entry is -1 for every point
+    # (cost, J^T J, J^T r) in new arrays (see _cylinder_system)
+    jtj, grad = np.empty((5, 5)), np.empty(5)
+    return _cylinder_system(q, axis, u, v, p0, r, jtj, grad), jtj, grad
+
+
+@njit(cache=True, nogil=True)
+def _cylinder_system(q, axis, u, v, p0, r, jtj, grad):
+    # as _sphere_system (5 x 5, 5): scalar sums; the radius entry is -1 for every point
     s00 = s01 = s02 = s03 = s04 = s11 = s12 = s13 = s14 = s22 = s23 = s24 = s33 = s34 = 0.0
     g0 = g1 = g2 = g3 = g4 = 0.0
     cost = 0.0
@@ -126,17 +148,22 @@ def _cylinder_normal_equations(q, axis, u, v, p0, r):
         s24 -= r2
         s33 += r3 * r3
         s34 -= r3
-    sums = np.array([s00, s01, s02, s03, s04, s11, s12, s13, s14, s22, s23, s24, s33, s34,
-                     float(q.shape[0])])
-    return cost, _packed_system(sums, 5), np.array([g0, g1, g2, g3, g4])
+    _packed_system((s00, s01, s02, s03, s04, s11, s12, s13, s14, s22, s23, s24, s33, s34,
+                    float(q.shape[0])), jtj)
+    grad[0], grad[1], grad[2], grad[3], grad[4] = g0, g1, g2, g3, g4
+    return cost
 
 
 @njit(cache=True, nogil=True)
-def _damped_step(jtj, grad, damping):
-    m = jtj.copy()
+def _damped_step(jtj, grad, damping, m, step):
+    # the damped system's solution into ``step`` (``m``: work space as ``jtj``); whether
+    # it has one (linalg.solve's rule, rel_tol 0)
     for a in range(m.shape[0]):
+        for b in range(m.shape[1]):
+            m[a, b] = jtj[a, b]
         m[a, a] += damping * (m[a, a] + 1e-12)
-    return solve(m, -grad, 0.0)  # rel_tol given: the specialisation the other callers compile
+        step[a] = -grad[a]
+    return solve_in_place(m, step, 0.0)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -153,25 +180,28 @@ def sphere_lm(q, center, radius, max_iterations, give_up_rms=np.inf):
     ``converged`` is 1, 0 (not in ``max_iterations``) or -1: given up with the rms still
     above twice ``give_up_rms`` while a step gained under 1 % (see :func:`_given_up`).
     """
-    params = np.empty(4)
+    # the model and its system in two buffers each, the trial's swapped in when accepted
+    params, trial = np.empty(4), np.empty(4)
     params[:3] = center
     params[3] = radius
-    cost, jtj, grad = _sphere_normal_equations(q, params)
+    jtj, t_jtj, work = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4))
+    grad, t_grad, step = np.empty(4), np.empty(4), np.empty(4)
+    cost = _sphere_system(q, params, jtj, grad)
     damping = 1e-3
     for _ in range(max_iterations):
-        step, ok = _damped_step(jtj, grad, damping)
-        if not ok:
+        if not _damped_step(jtj, grad, damping, work, step):
             return params[:3], params[3], 0
-        if np.abs(step).max() <= 1e-10:
+        if _largest_magnitude(step) <= 1e-10:
             return params[:3], params[3], 1
-        trial = params + step
-        t_cost, t_jtj, t_grad = _sphere_normal_equations(q, trial)
+        for k in range(4):
+            trial[k] = params[k] + step[k]
+        t_cost = _sphere_system(q, trial, t_jtj, t_grad)
         if not np.isfinite(t_cost):
             damping *= 10.0
             continue
         if t_cost <= cost:
             decrease = cost - t_cost
-            params, cost, jtj, grad = trial, t_cost, t_jtj, t_grad
+            params, trial, cost, jtj, t_jtj, grad, t_grad = trial, params, t_cost, t_jtj, jtj, t_grad, grad
             damping = max(damping * 0.1, 1e-9)
             if decrease <= 1e-12 * cost + 1e-30:
                 return params[:3], params[3], 1
@@ -184,6 +214,17 @@ def sphere_lm(q, center, radius, max_iterations, give_up_rms=np.inf):
         else:
             damping *= 10.0
     return params[:3], params[3], 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _largest_magnitude(values):
+    # np.abs(values).max() without the array of magnitudes (NaN as max propagates it)
+    largest = abs(values[0])
+    for k in range(1, values.shape[0]):
+        value = abs(values[k])
+        if value > largest or np.isnan(value):
+            largest = value
+    return largest
 
 
 @njit(cache=True, nogil=True)
@@ -199,28 +240,36 @@ def cylinder_lm(q, axis, point, radius, max_iterations, give_up_rms=np.inf):
     p0 = point - (point @ a) * a
     r = radius
     u, v = _frame(a)
-    cost, jtj, grad = _cylinder_normal_equations(q, a, u, v, p0, r)
+    # the model, its frame and its system in two buffers each, the trial's swapped in
+    # when accepted (as sphere_lm)
+    new_a, new_p, new_u, new_v = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    jtj, t_jtj, work = np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5))
+    grad, t_grad, step = np.empty(5), np.empty(5), np.empty(5)
+    cost = _cylinder_system(q, a, u, v, p0, r, jtj, grad)
     damping = 1e-3
     for _ in range(max_iterations):
-        step, ok = _damped_step(jtj, grad, damping)
-        if not ok:
+        if not _damped_step(jtj, grad, damping, work, step):
             return a, p0, r, 0
-        if np.abs(step).max() <= 1e-10:
+        if _largest_magnitude(step) <= 1e-10:
             return a, p0, r, 1
-        new_a = u * step[2] + v * step[3] + a
+        for k in range(3):
+            new_a[k] = u[k] * step[2] + v[k] * step[3] + a[k]
         new_a /= np.sqrt(new_a @ new_a)
-        new_p = p0 + u * step[0] + v * step[1]
-        new_p = new_p - (new_p @ new_a) * new_a
+        for k in range(3):
+            new_p[k] = p0[k] + u[k] * step[0] + v[k] * step[1]
+        along = new_p @ new_a
+        for k in range(3):
+            new_p[k] = new_p[k] - along * new_a[k]
         new_r = r + step[4]
-        new_u, new_v = _frame(new_a)
-        t_cost, t_jtj, t_grad = _cylinder_normal_equations(q, new_a, new_u, new_v, new_p, new_r)
+        _frame_into(new_a, new_u, new_v)
+        t_cost = _cylinder_system(q, new_a, new_u, new_v, new_p, new_r, t_jtj, t_grad)
         if not np.isfinite(t_cost):
             damping *= 10.0
             continue
         if t_cost <= cost:
             decrease = cost - t_cost
-            a, u, v, p0, r = new_a, new_u, new_v, new_p, new_r
-            cost, jtj, grad = t_cost, t_jtj, t_grad
+            a, new_a, u, new_u, v, new_v, p0, new_p = new_a, a, new_u, u, new_v, v, new_p, p0
+            r, cost, jtj, t_jtj, grad, t_grad = new_r, t_cost, t_jtj, jtj, t_grad, grad
             damping = max(damping * 0.1, 1e-9)
             if decrease <= 1e-12 * cost + 1e-30:
                 return a, p0, r, 1

@@ -25,9 +25,16 @@ def solve(a, b, rel_tol=0.0):
     Returns ``(x, ok)``; ``ok`` is False when a pivot is 0 (exactly singular, as LAPACK's
     gesv says) or at most ``rel_tol`` times the largest pivot met (numerically singular).
     """
-    n = b.shape[0]
-    m = a.copy()
     x = b.copy()
+    return x, solve_in_place(a.copy(), x, rel_tol)
+
+
+@njit(cache=True, nogil=True)
+def solve_in_place(m, x, rel_tol=0.0):
+    """:func:`solve` in the arrays given: ``m`` (``a``) is overwritten by the elimination,
+    ``x`` (``b``) by the solution; returns ``ok`` (``x`` is not the solution when False).
+    For loops that solve a small system each step without new arrays."""
+    n = x.shape[0]
     largest = 0.0
     for col in range(n):
         pivot = col
@@ -36,7 +43,7 @@ def solve(a, b, rel_tol=0.0):
                 pivot = row
         largest = max(largest, abs(m[pivot, col]))
         if m[pivot, col] == 0.0 or abs(m[pivot, col]) <= rel_tol * largest:
-            return x, False
+            return False
         if pivot != col:
             for k in range(n):
                 m[col, k], m[pivot, k] = m[pivot, k], m[col, k]
@@ -51,7 +58,7 @@ def solve(a, b, rel_tol=0.0):
         for k in range(col + 1, n):
             s -= m[col, k] * x[k]
         x[col] = s / m[col, col]
-    return x, True
+    return True
 
 
 @njit(cache=True, nogil=True)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.fitting._compiled import circle_scores, cylinder_lm, sphere_lm
-from rangeseg_o3d.kernels.linalg import solve
+from rangeseg_o3d.kernels.linalg import solve, solve_in_place
 
 
 def test_solve_matches_numpy_and_reports_singular_systems():
@@ -17,6 +17,41 @@ def test_solve_matches_numpy_and_reports_singular_systems():
         np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
     singular = np.array([[1.0, 2.0], [2.0, 4.0]])
     assert not solve(singular, np.ones(2))[1]
+
+
+def test_solve_in_place_is_solve_bit_for_bit_in_the_arrays_given():
+    rng = np.random.default_rng(2)
+    for n in (1, 4, 5):
+        a = rng.normal(size=(n, n))
+        b = rng.normal(size=n)
+        m, x = a.copy(), b.copy()
+        assert solve_in_place(m, x, 0.0)
+        expected, ok = solve(a, b, 0.0)
+        assert ok and x.tobytes() == expected.tobytes()
+        assert n == 1 or not np.array_equal(m, a)  # the elimination overwrote the matrix
+    near = np.array([[1.0, 2.0], [1.0, 2.0 + 1e-13]])
+    for rel_tol in (0.0, 1e-12):  # exactly or numerically singular: the same answer as solve
+        assert solve_in_place(near.copy(), np.ones(2), rel_tol) == solve(near, np.ones(2), rel_tol)[1]
+    assert not solve_in_place(np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2), 0.0)
+
+
+def test_lm_answers_are_their_own_arrays_across_calls():
+    # the fits keep their model in work buffers: an answer is not changed by a later fit
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(100, 3))
+    first = 0.5 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    center, radius, _ = sphere_lm(first, np.array([0.05, 0.0, 0.0]), 0.45, 50)
+    kept = center.copy()
+    sphere_lm(first + 1.0, np.array([1.05, 1.0, 1.0]), 0.45, 50)
+    assert center.tobytes() == kept.tobytes()
+    np.testing.assert_allclose(center, 0.0, atol=1e-9)
+    t = rng.uniform(0, np.pi, 120)
+    pts = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), rng.uniform(-1, 1, 120)], axis=1)
+    axis, point, r, converged = cylinder_lm(pts, np.array([0.02, 0.01, 1.0]), np.zeros(3), 0.25, 50)
+    kept = axis.copy(), point.copy()
+    cylinder_lm(pts + 2.0, np.array([0.0, 0.03, 1.0]), np.full(3, 2.0), 0.25, 50)
+    assert converged == 1 and axis.tobytes() == kept[0].tobytes() and point.tobytes() == kept[1].tobytes()
+    assert abs(abs(axis[2]) - 1.0) < 1e-9 and r == pytest.approx(0.3, abs=1e-9)
 
 
 def test_sphere_and_cylinder_lm_reach_the_exact_surfaces_from_a_rough_start():
