@@ -116,7 +116,14 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         # laser's single return seen near grazing spreads across the face (noise_20mm seed 0,
         # nodding_0.25deg seed 71 lost faces to the hold).
         held = 0.5 * sensor.depth_step if tile > 1 else None
-        labels, fits = split_regions(ctx, labels, fits, failed, held=held)
+        # At sensor resolution a pool neither trimmed search explains is searched once more
+        # with a one-sigma face band (Context.dominant_piece's face_band), as the recovery's
+        # blobs are: at 20 mm noise a region the segmenter could not fit holds two to five box
+        # faces of a few hundred returns, a few noise sigmas wide each, whose best three-point
+        # plane by the three-sigma band is a diagonal one the fitter refuses (noise_20mm seed
+        # 89 scan 5: four faces left unfitted). On tile means a face's mean is exact but for
+        # its noise along the ray (held above).
+        labels, fits = split_regions(ctx, labels, fits, failed, held=held, face_band=tile == 1)
     timer.lap("split")
     labels, fits = grow_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
     timer.lap("grow")

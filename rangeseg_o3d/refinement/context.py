@@ -96,7 +96,15 @@ class Context:
         """The largest connected piece of the dominant surface of the flat pixels ``pool``
         and its model, or ``(None, None)`` when no model explains ``min_size`` of them.
         With ``face_band``, a pool neither search explains gets one more try
-        (:meth:`_face_in_noise`).
+        (:meth:`_face_in_noise`); :meth:`dominant_search` also tells whether that try found it.
+        """
+        piece, model, _ = self.dominant_search(pool, face_band=face_band)
+        return piece, model
+
+    def dominant_search(self, pool: np.ndarray, *, face_band: bool = False):
+        """``(piece, model, by_face_band)``: :meth:`dominant_piece`'s answer and whether the
+        one-sigma face band found it (the face then holds a strip of its neighbour along
+        the corner: :func:`rangeseg_o3d.refinement.split.split_regions` gives it back).
 
         When the trimmed fit's answer is no surface (nothing, or a model beyond the noise
         whose inliers are not one connected piece: the plane tangent to two columns
@@ -104,7 +112,7 @@ class Context:
         starts (:func:`rangeseg_o3d.fitting.robust.trimmed_fit` with ``starts``), whose
         answer at the noise replaces it."""
         if pool.size < self.min_size:
-            return None, None
+            return None, None, False
         noise = self.sigma[pool]
         sigma = float(np.partition(noise, noise.size // 2)[noise.size // 2])
         # the fitter's own compiled search when it has one (the same answer)
@@ -126,17 +134,17 @@ class Context:
                                     or self.seen_along_rays(model, piece)):
             grazing = self.grazing_piece(pool, sigma, model)
             if grazing is not None:
-                return grazing
+                return (*grazing, False)
         if model is None:
-            return self._face_in_noise(pool, sigma) if face_band else (None, None)
+            return (*self._face_in_noise(pool, sigma), True) if face_band else (None, None, False)
         if piece.size < self.min_size:
-            return None, None
+            return None, None, False
         if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
             refit = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
             if not refit and model.kind != "plane":
-                return self._face_plane(pool, sigma)
+                return (*self._face_plane(pool, sigma), False)
             model = refit
-        return (piece, model) if model else (None, None)
+        return (piece, model, False) if model else (None, None, False)
 
     def seen_along_rays(self, model, piece: np.ndarray) -> bool:
         """:meth:`plane_along_rays` of a plane seen more than 60 degrees from head-on at the

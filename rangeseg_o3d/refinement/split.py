@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.region_fitter import region_indices
-from ..fitting.robust import beyond_noise
+from ..fitting.robust import beyond_noise, distance_noise
 from ..scales import GRAZING_COSINE
 from .context import TRIM_SIGMAS, Context, without
 
@@ -40,7 +40,10 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     ``held`` (metres, None: not held): a plane found is held to the noise of its own
     distances, at least ``held`` (:func:`_held_to_distance_noise`; the regions the
     segmenter could not fit, where a face seen near grazing meets the faces beyond it).
-    ``face_band``: :meth:`Context.dominant_piece`'s.
+    ``face_band``: :meth:`Context.dominant_piece`'s; when that band found one of a region's
+    surfaces, the region's pixels the planes found took go each to the plane it lies
+    nearest (:func:`_to_nearest_plane`): the face the one-sigma band found holds a strip of
+    its neighbour along the corner, which the sequential extraction does not give back.
     """
     labels, fits = (labels if own else labels.copy()), dict(fits)
     flat = labels.ravel()
@@ -49,15 +52,17 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     regions = {k: pixels[k] for k in sorted(failed) if k in pixels}
     next_label = int(labels.max(initial=0)) + 1
     for k, idx in regions.items():
-        label, found = k, False
+        label, found, by_band = k, False, False
+        surfaces = []
         pools = ctx.pieces(idx)
         attempts = 0
         while pools and attempts < _MAX_SPLIT_ATTEMPTS:
             attempts += 1
             pool = pools.pop()  # the largest piece (pools are kept sorted by size)
-            piece, model = ctx.dominant_piece(pool, face_band=face_band)
+            piece, model, by_face_band = ctx.dominant_search(pool, face_band=face_band)
             if piece is None:
                 continue
+            by_band = by_band or by_face_band
             if held is not None:
                 piece, model = _held_to_distance_noise(ctx, piece, model, held)
             if not found:
@@ -65,10 +70,49 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
                 found = True
             flat[piece] = label
             fits[label] = model
+            surfaces.append(label)
             label, next_label = next_label, next_label + 1
             pools.extend(ctx.pieces(without(pool, piece)))
             pools.sort(key=len)
+        if by_band:  # (the labels found increase: the region's own, then new ones above the largest)
+            _to_nearest_plane(ctx, flat, fits, idx, [s for s in surfaces if fits[s].kind == "plane"])
     return labels, fits
+
+
+def _to_nearest_plane(ctx: Context, flat: np.ndarray, fits: dict, idx: np.ndarray, planes: list[int]) -> None:
+    """Each of the flat pixels ``idx`` that one of ``planes`` took goes to the plane it lies
+    fewest noise sigmas off (the noise of its distance: range noise x incidence cosine),
+    when within ``TRIM_SIGMAS`` of it; each plane keeps its largest connected piece,
+    refitted. Changes ``flat`` and ``fits`` in place, or nothing when a plane would keep
+    less than the size floor or its refit fails.
+
+    The sequential extraction gives each pixel to the first surface whose band holds it;
+    at a corner of two faces a few noise sigmas wide (a 20 mm laser's box), the face found
+    first keeps a strip of the other one along the corner, enough to make its region
+    impure, and the settle step's margin in range noise does not move it back."""
+    if len(planes) < 2:
+        return
+    taken = idx[np.isin(flat[idx], planes)]
+    points, sigma = ctx.xyz[taken], ctx.sigma[taken]
+    sigmas = np.stack([np.abs(fits[k].distances(points)) /
+                       np.maximum(distance_noise(fits[k], points, sigma), 1e-12) for k in planes])
+    nearest = np.argmin(sigmas, axis=0)
+    own = np.searchsorted(planes, flat[taken])  # each pixel's own plane's row (labels increase)
+    keep = sigmas[nearest, np.arange(taken.size)] > TRIM_SIGMAS  # off every plane's noise: stays
+    to = np.asarray(planes)[np.where(keep, own, nearest)]
+    settled = {}
+    for k in planes:
+        piece = ctx.largest_piece(taken[to == k])
+        if piece.size < ctx.min_size:
+            return
+        refit = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, piece), fits[k])
+        if not refit or refit.kind != "plane":
+            return
+        settled[k] = piece, refit
+    flat[taken] = 0
+    for k, (piece, refit) in settled.items():
+        flat[piece] = k
+        fits[k] = refit
 
 
 def _held_to_distance_noise(ctx: Context, piece: np.ndarray, model, floor: float):
