@@ -22,7 +22,7 @@ from ..kernels.trimmed import local_proposals, pool_inliers, same_mask, trimmed_
 from ._compiled import plane_of, prepare_points
 from ._decide import ACCEPTED, CURVED_SIZE, RADIUS, RMS, primitive_decision
 
-__all__ = ["trimmed_decision", "DECISION_INTS", "DECISION_FLOATS"]
+__all__ = ["trimmed_decision", "decision_fields", "DECISION_INTS", "DECISION_FLOATS", "RECORD_SIZE"]
 
 #: Files whose kernels compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("_decide.py", "_compiled.py", "_codes.py", "../kernels/trimmed.py", "../kernels/linalg.py",
@@ -32,6 +32,16 @@ CACHE_DEPENDS = ("_decide.py", "_compiled.py", "_codes.py", "../kernels/trimmed.
 DECISION_INTS = 4
 #: Slots of the float fields: scale, d, plane rms, plane tolerance, eigen rms.
 DECISION_FLOATS = 5
+#: Slots of a decision record (:func:`trimmed_decision`'s one float64 array): the integer
+#: fields (exact as floats: kinds, codes and counts far below 2**53), the float fields,
+#: the centroid, the normal, the codes per kind and the curved rows per kind, in order.
+#: One array, not six: compiled code hands each array back to Python as a new object (1-2
+#: microseconds each), and the refinement of a cluttered frame searches dozens of times.
+_CENTROID = DECISION_INTS + DECISION_FLOATS
+_NORMAL = _CENTROID + 3
+_CODES = _NORMAL + 3
+_CURVED = _CODES + 4
+RECORD_SIZE = _CURVED + 4 * CURVED_SIZE
 
 
 @njit(cache=True, nogil=True)
@@ -65,14 +75,26 @@ def _world_model(kind, decision, row):
 
 
 @njit(cache=True, nogil=True)
-def _pack(decision, ints, floats, centroid, normal, codes, curved):
-    ints[0], ints[1], ints[2], ints[3] = decision[0], decision[1], decision[2], decision[10]
-    floats[0], floats[1], floats[2], floats[3], floats[4] = decision[4], decision[6], decision[7], \
+def _pack(decision, record):
+    # a primitive_decision's fields into a decision record (see RECORD_SIZE)
+    record[0], record[1], record[2], record[3] = decision[0], decision[1], decision[2], decision[10]
+    record[4], record[5], record[6], record[7], record[8] = decision[4], decision[6], decision[7], \
         decision[8], decision[9]
-    centroid[:] = decision[3]
-    normal[:] = decision[5]
-    codes[:] = decision[11]
-    curved[:, :] = decision[12]
+    record[_CENTROID:_NORMAL] = decision[3]
+    record[_NORMAL:_CODES] = decision[5]
+    record[_CODES:_CURVED] = decision[11]
+    record[_CURVED:] = decision[12].ravel()
+
+
+def decision_fields(record: np.ndarray) -> tuple:
+    """The fields of :class:`rangeseg_o3d.fitting._decide.Decision`, in order, of a decision
+    record :func:`trimmed_decision` returned (integers as ``int``, the codes as int64, the
+    arrays views of the record)."""
+    kind, status, first, plane_inliers = (int(value) for value in record[:DECISION_INTS].tolist())
+    scale, d, plane_rms, plane_tol, eigen_rms = record[DECISION_INTS:_CENTROID].tolist()
+    return (kind, status, first, record[_CENTROID:_NORMAL], scale, record[_NORMAL:_CODES], d, plane_rms,
+            plane_tol, eigen_rms, plane_inliers, record[_CODES:_CURVED].astype(np.int64),
+            record[_CURVED:].reshape(4, CURVED_SIZE))
 
 
 @njit(cache=True, nogil=True)
@@ -99,21 +121,18 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
     judge: ``given`` (a proposals array this search returned for the same pool, sigma and
     seeds; no rows: none) is judged instead of computing them again.
 
-    Returns ``(found, ints, floats, centroid, normal, codes, curved, inliers, proposals)``:
-    whether a model won, its decision packed (:data:`DECISION_INTS`, :data:`DECISION_FLOATS`
-    and the arrays of :class:`rangeseg_o3d.fitting._decide.Decision`), its inliers among the
+    Returns ``(found, record, inliers, proposals)``: whether a model won, its decision as
+    one record (:data:`RECORD_SIZE`; :func:`decision_fields` reads it), its inliers among the
     pool and the proposals judged (in order; what ``given`` takes).
     """
-    ints = np.zeros(DECISION_INTS, np.int64)
-    floats = np.zeros(DECISION_FLOATS)
-    centroid, normal = np.zeros(3), np.zeros(3)
-    codes = np.full(4, -1, np.int64)
-    curved = np.full((4, CURVED_SIZE), np.nan)
+    record = np.zeros(RECORD_SIZE)
+    record[_CODES:_CURVED] = -1.0
+    record[_CURVED:] = np.nan
     best_mask = np.zeros(pool.shape[0], np.bool_)
     size = pool.shape[0]
     local = seeds.shape[0] > 0
     if size < max(min_points, 6) or (local and size < 2 * min_points):
-        return False, ints, floats, centroid, normal, codes, curved, best_mask, np.zeros((0, 0), np.bool_)
+        return False, record, best_mask, np.zeros((0, 0), np.bool_)
     step = -(-size // max_points)
     m = -(-size // step)
     pts = np.empty((m, 3))
@@ -189,19 +208,19 @@ def trimmed_decision(xyz, pool, sigma, min_points, rounds, keep_fraction, max_po
             found, best_noise, best_count = True, at_noise, n_noise
             best_mask = mask
             if planes_only:  # a plane decision: what model_of_decision reads
-                ints[0], ints[1], ints[2], ints[3] = PLANE, ACCEPTED, NONE, p_inliers
-                floats[0], floats[1], floats[2] = p_scale, p_d, rms
-                centroid[:] = p_centroid
-                normal[:] = p_normal
+                record[0], record[1], record[2], record[3] = PLANE, ACCEPTED, NONE, p_inliers
+                record[4], record[5], record[6] = p_scale, p_d, rms
+                record[_CENTROID:_NORMAL] = p_centroid
+                record[_NORMAL:_CODES] = p_normal
             else:
-                _pack(decision, ints, floats, centroid, normal, codes, curved)
+                _pack(decision, record)
             if at_noise and n_noise >= enough * size:
                 break
         if local and best_noise:  # the local starts take the first answer at the noise
             break
     if local and not best_noise:  # and only an answer at the noise
         found = False
-    return found, ints, floats, centroid, normal, codes, curved, best_mask, proposals
+    return found, record, best_mask, proposals
 
 
 #: Distinct local proposals the fitter judges at most (``trimmed_fit``'s ``_LOCAL_JUDGED``).

@@ -233,38 +233,34 @@ def trimmed_primitive(xyz, pool, *, sigma: float, min_inliers: int, max_rms: flo
 
     ``xyz`` a C-ordered float64 (N, 3) array, ``pool`` int64 indices into it.
     """
-    trimmed_decision, Decision = _compiled_search()
+    trimmed_decision, Decision, decision_fields = _compiled_search()
     search, judge = _trimmed_arguments(bool(planes_only), tuple(params.items()))
     seeds = _local_seeds(len(pool)) if starts else _NO_SEEDS
     key = None if proposals is None else (pool.tobytes(), float(sigma), bool(starts))
     given = _NO_PROPOSALS if key is None else proposals.get(key, _NO_PROPOSALS)
-    found, ints, floats, centroid, normal, codes, curved, inliers, judged = trimmed_decision(
+    found, record, inliers, judged = trimmed_decision(
         xyz, pool, float(sigma), int(min_inliers), *search, int(fit_max_points), judge[0], float(max_rms),
         *judge[1:], seeds, given)
     if key is not None:
         proposals[key] = judged
     if not found:
         return None, None
-    kind, status, first, plane_inliers = ints.tolist()
-    scale, d, plane_rms, plane_tol, eigen_rms = floats.tolist()
-    decision = Decision(kind, status, first, centroid, scale, normal, d, plane_rms, plane_tol, eigen_rms,
-                        plane_inliers, codes, curved)
-    return model_of_decision(decision), inliers
+    return model_of_decision(Decision._make(decision_fields(record))), inliers
 
 
 _COMPILED_SEARCH: tuple = ()
 
 
 def _compiled_search() -> tuple:
-    """``(trimmed_decision, Decision)``, imported on the first search (numba loads then) and
+    """``(trimmed_decision, Decision, decision_fields)``, imported on the first search (numba loads then) and
     kept: a from-import in each call costs a few microseconds, and the refinement of a
     cluttered frame searches dozens of times."""
     global _COMPILED_SEARCH
     if not _COMPILED_SEARCH:
         from ._decide import Decision
-        from ._trimmed import trimmed_decision
+        from ._trimmed import decision_fields, trimmed_decision
 
-        _COMPILED_SEARCH = (trimmed_decision, Decision)
+        _COMPILED_SEARCH = (trimmed_decision, Decision, decision_fields)
     return _COMPILED_SEARCH
 
 
