@@ -102,11 +102,13 @@ class RefineConfig(BaseModel):
     close_gaps : on a tile grid, after the full-resolution labelling: regions grow into the
         free pixels their models explain until none joins, then pieces of one plane that meet
         merge (:func:`rangeseg_o3d.fullres.grow_into_free`,
-        :func:`rangeseg_o3d.fullres.merge_touching_planes`); before, the free strips too thin
-        for a leftover blob's 3x3 core (a face seen edge-on) are recovered as planes too
-        (:func:`rangeseg_o3d.fullres.recover_thin_surfaces`). Off by default: it costs one or
-        two passes over the frame (about 1-3 ms CPU per 640 x 480 frame), and a depth frame's
-        edge bands hold tens of such strips, each fitted on its own.
+        :func:`rangeseg_o3d.fullres.merge_touching_planes`), and the surfaces split out of a
+        leftover blob are held to the recovered floor, not the blob floor
+        (:func:`rangeseg_o3d.fullres.recover_thin_surfaces`), and the free strips too thin
+        for a blob's 3x3 core (a face seen edge-on) come with the blobs, each fitted on its
+        own, not in the batched step after the off-model step
+        (:func:`rangeseg_o3d.strips.recover_strips`). Off by default: it costs one or two
+        passes over the frame (about 1-3 ms CPU per 640 x 480 frame).
     min_region_size : smallest region the refinement keeps or creates (sensor pixels).
     jump_ratio, jump_min : growth never crosses a range step over ``max(jump_ratio r, jump_min)``
         (``jump_ratio`` per sensor pixel step; see :func:`rangeseg_o3d.segmentation.edges.jump_edges`).

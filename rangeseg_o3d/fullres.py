@@ -189,20 +189,32 @@ def drop_small_regions(labels: np.ndarray, fits: dict, stats: PixelStats, *,
     return without_regions(labels, fits, drop)
 
 
-def recovered_region_floor(config, min_size: int) -> int:
-    """The fewest pixels of a region recovered at full resolution: with ``config.close_gaps``
-    the fewest returns that tell a plane (``scales.MIN_PIXELS``; the thin strips of a face
-    seen edge-on are recovered from there), else ``min_size`` (``smallest_region``), the
-    floor of the leftover blobs the recovery fits."""
+def recovered_region_floor(config, min_size: int, correlation_px: int = 1) -> int:
+    """The fewest pixels of a region recovered at full resolution: the fewest returns that
+    tell a plane (``scales.MIN_PIXELS``), counted in independent returns (a sensor whose
+    noise errs together over ``correlation_px`` x ``correlation_px`` pixels, a stereo
+    camera's matching window, needs that many times more pixels), at most ``min_size``: the
+    thin strips of a face seen edge-on are recovered from there on every sensor, and what
+    the recovery finds is fitted to pixels, not to the tile means the tile floor ``min_size``
+    counts. (``config`` is kept for the callers; the surfaces split out of a cored blob have
+    their own floor: :func:`_split_floor`.)"""
     from .scales import MIN_PIXELS
 
-    return min(MIN_PIXELS, min_size) if config.close_gaps else min_size
+    return min(MIN_PIXELS * int(correlation_px) ** 2, min_size)
+
+
+def _split_floor(config, min_size: int, correlation_px: int = 1) -> int:
+    # The fewest pixels of a surface recover_pixels splits out of a blob with a 3x3 core. With
+    # close_gaps (ABW) the recovered floor; on the real-time presets the blob floor: with the
+    # recovered floor there, a cylinder's 15-px-wide strip clipped by the image border was
+    # split out as a plane (kinect seed 71 scan 2, a new false fitting).
+    return recovered_region_floor(config, min_size, correlation_px) if config.close_gaps else min_size
 
 
 def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, fitter,
                           config, sensor, ranges: np.ndarray, sigma: np.ndarray,
                           inlier_factor: float, released: np.ndarray | None = None,
-                          blobs: tuple | None = None):
+                          blobs: tuple | None = None, strips: bool = True):
     """Surfaces the tile grid lost (thinner than it sees, or small faces between creases it
     could not see), recovered from the pixels no tile model took.
 
@@ -212,7 +224,8 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     the regions whose pixels or models changed are measured again. ``released``: the
     labels of pixels :func:`off_model_blocks` freed (0 elsewhere), or None;
     ``blobs``: ``(candidates, boxes, first_thin)`` of :func:`leftover_blob_labels` to recover instead
-    of all of them.
+    of all of them; ``strips`` (without ``blobs``): the strips too thin for a blob are recovered
+    too (else only the blobs: :func:`rangeseg_o3d.strips.recover_strips` takes the strips later).
     """
     from .refinement.recover import recover_pixels
     from .scales import with_derived_refinement
@@ -224,12 +237,13 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # over, are lost whole; recover_pixels splits each blob into the surfaces it holds.
     # A face seen edge-on is a strip two or three pixels across: no 3x3 core, so it comes
     # as a thin blob, whose floor is the fewest returns that tell a plane (the tile floor
-    # counts tile means, which never held it). With close_gaps only, as the other slivers:
-    # a VGA depth frame leaves 10-50 such strips along its edges, each fitted on its own
-    # (recover_pixels' CPU time doubled on the real frames, and kinect/stereo lost faces to
-    # strips of their edge bands taken as planes).
+    # counts tile means, which never held it). On every preset: their pixels on a plane
+    # region's surface join it first (recover_pixels' claim_on_distance_noise: the edge
+    # bands of a face), and what is left is one plane or none (split_blobs' thin path: the
+    # fitter's plane, held to the noise of its distances).
     first = int(labels.max(initial=0)) + 1
-    thin = recovered_region_floor(config, min_size) if config.close_gaps else 0
+    correlation_px = sensor.noise.correlation_px
+    thin = recovered_region_floor(config, min_size, correlation_px) if strips else 0
     found = blobs if blobs is not None else leftover_blob_labels(labels, cloud.valid, min_size=min_size,
                                                                  first_label=first, thin_min_size=thin)
     if found is None:
@@ -246,7 +260,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # blob, fewer pixels than the tile grid's floor, is a surface all the same)
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma, candidates=candidates,
-                                  min_size=recovered_region_floor(config, min_size), boxes=boxes,
+                                  min_size=_split_floor(config, min_size, correlation_px), boxes=boxes,
                                   thin_from=first_thin, released=released)
     from .kernels import moved_labels
 

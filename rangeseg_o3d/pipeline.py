@@ -16,9 +16,10 @@ from .fitting.primitives import Cylinder, Plane, Sphere, with_statistics
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
-                      recover_thin_surfaces, recovered_region_floor, refit_planes_to_pixels, region_stats,
-                      settle_creases, smallest_region)
+                      recover_thin_surfaces, recovered_region_floor,
+                      refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
 from .off_model import recover_off_model
+from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .patches import PatchSource
@@ -291,12 +292,17 @@ class Pipeline:
             tile_fits = fits
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
-                ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+                ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS, strips=refine.close_gaps)
             # pixels a model took one by one that lie beside it as a group: a surface of their own?
             labels, fits, stats = recover_off_model(
                 cloud, labels, fits, stats, blocks=blocks, tile_fits=tile_fits, tile=settings.tile, spread=spread,
                 fitter=self.fitter, config=refine, sensor=self.sensor, ranges=ranges, sigma=sigma,
                 inlier_factor=INLIER_SIGMAS)
+            if not refine.close_gaps:  # (with close_gaps the strips came with the blobs, as ever)
+                # the strips too thin for a blob, once the blobs' surfaces have grown and merged
+                labels, fits, stats = recover_strips(
+                    cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
+                    ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
             # a cylinder bent over a crease gives way to its two faces before the regions grow
@@ -315,7 +321,8 @@ class Pipeline:
             min_size = smallest_region(refine, self.sensor, cloud)
             labels, fits = drop_small_regions(labels, fits, stats, min_size=min_size,
                                               recovered_from=recovered_from,
-                                              recovered_min_size=recovered_region_floor(refine, min_size))
+                                              recovered_min_size=recovered_region_floor(refine, min_size,
+                                                                                 self.sensor.noise.correlation_px))
         return labels, fits, sigma, stats
 
     @staticmethod

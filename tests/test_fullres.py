@@ -559,15 +559,60 @@ def test_a_region_recovered_at_full_resolution_is_held_to_the_floor_it_was_recov
     assert not np.isin(out, [5, 6]).any()
 
 
-def test_the_recovered_floor_is_the_pixel_floor_only_where_thin_strips_are_recovered():
+def test_the_recovered_floor_is_the_pixel_floor_and_the_split_floor_the_blob_floor_without_close_gaps():
     from types import SimpleNamespace
 
-    from rangeseg_o3d.fullres import recovered_region_floor
+    from rangeseg_o3d.fullres import _split_floor, recovered_region_floor
     from rangeseg_o3d.scales import MIN_PIXELS
 
-    assert recovered_region_floor(SimpleNamespace(close_gaps=True), 128) == MIN_PIXELS
-    assert recovered_region_floor(SimpleNamespace(close_gaps=True), MIN_PIXELS - 5) == MIN_PIXELS - 5
-    assert recovered_region_floor(SimpleNamespace(close_gaps=False), 128) == 128
+    for close_gaps in (True, False):
+        config = SimpleNamespace(close_gaps=close_gaps)
+        assert recovered_region_floor(config, 128) == MIN_PIXELS
+        assert recovered_region_floor(config, MIN_PIXELS - 5) == MIN_PIXELS - 5
+        # counted in independent returns: a 3 x 3 correlation window needs nine times the pixels
+        assert recovered_region_floor(config, 1000, 3) == 9 * MIN_PIXELS
+        assert recovered_region_floor(config, 128, 3) == 128
+    assert _split_floor(SimpleNamespace(close_gaps=True), 128) == MIN_PIXELS
+    assert _split_floor(SimpleNamespace(close_gaps=True), 1000, 2) == 4 * MIN_PIXELS
+    assert _split_floor(SimpleNamespace(close_gaps=False), 128) == 128
+
+
+@pytest.mark.parametrize("rows, correlation_px", [(48, 1), (5, 1), (48, 3)])
+def test_a_thin_strip_off_the_wall_is_recovered_as_its_plane_without_close_gaps(rows, correlation_px):
+    from rangeseg_o3d.scales import MIN_PIXELS
+
+    # A wall 2 m away on a 6-px tile grid, and two columns of a board 0.3 m in front of it
+    # (a face too thin for a 3x3 core, fewer pixels than the tile floor): without close_gaps
+    # (the real-time presets) the strip is recovered as a plane of its own at the board's
+    # distance; a strip under the pixel floor (2 x 5 = 10 < MIN_PIXELS) stays free, and so does
+    # the 96-px strip where the noise errs together over 3 x 3 pixels (floor 9 x MIN_PIXELS).
+    xyz = _wall(48, 60)
+    strip = np.zeros((48, 60), bool)
+    strip[:rows, 30:32] = True
+    xyz[strip, 2] = 1.7
+    cloud = rs.OrganizedCloud(xyz)
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002, "noise_correlation_px": correlation_px},
+                          "refine": {"min_region_size": 300}})  # the tile floor, over every strip here
+    assert not cfg.refine.close_gaps
+    pipe = rs.Pipeline(cfg)
+    fits = {1: Plane([0, 0, 1], 2.0, 0.0, 1)}
+    sigma = np.full(cloud.shape, 0.002)
+    labels, stats = label_pixels(cloud, np.ones((8, 10), np.int32), fits, tile=6, sigma=sigma,
+                                 k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+    assert (labels[strip] == 0).all() and (labels[~strip] == 1).all()
+    out, fits_out, _ = recover_thin_surfaces(cloud, labels, fits, stats, fitter=pipe.fitter, config=cfg.refine,
+                                             sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma,
+                                             inlier_factor=INLIER_SIGMAS)
+    assert (out[~strip] == 1).all()
+    if strip.sum() < MIN_PIXELS * correlation_px ** 2:
+        assert (out[strip] == 0).all()
+        return
+    found = np.unique(out[strip])
+    assert found.size == 1 and found[0] > 1
+    model = fits_out[int(found[0])]
+    assert model.kind == "plane"
+    assert abs(abs(model.normal[2]) - 1.0) < 1e-3
+    assert abs(abs(model.d) - 1.7) < 3 * 0.002
 
 
 def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_sigmas_off():

@@ -1,0 +1,291 @@
+"""The leftover strips too thin for a blob's 3x3 core (a face seen edge-on), recovered in one
+batched step whose cost follows the strips, not the frame.
+
+A VGA depth frame leaves tens of such strips along its edges once the blobs' surfaces have
+grown and merged. Each is one of three things: a band of a surface the scan already has
+(its pixels lie within the noise of a region it touches), a face of its own (its plane
+explains it within the noise of its distances), or a band across the viewing rays of a
+curved surface or a crease (its least-squares plane lies along its rays: beyond the noise
+of its distances). Every test reads the strips' pixels alone, in compiled passes over all
+strips at once (:mod:`rangeseg_o3d.kernels.strips`); only the faces found grow their rims,
+each within its own box.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kernels
+from .fitting.batch_planes import planes_from_moments, region_moments
+from .fitting.region_fitter import model_row, model_table
+from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+
+__all__ = ["recover_strips"]
+
+#: The share of a strip's pixels a model must explain (within its noise band) to take it,
+#: as a blob's plane must (:func:`rangeseg_o3d.refinement.recover._one_plane`).
+EXPLAINED_SHARE = 0.9
+#: A strip whose plane leaves it an rms under this share of the noise of its distances shows
+#: no noise at all: its pixels sit on one level of a quantised depth (a far wall's terrace
+#: on a Kinect frame, every pixel at one depth), whatever surface they sample.
+NO_NOISE_SHARE = 0.1
+#: A face found in a strip takes back this many rings of its rim, then its model may claim
+#: this many rings from its neighbours (as :func:`rangeseg_o3d.refinement.recover.recover_pixels`).
+RIM_RINGS, CLAIM_RINGS = 2, 3
+#: The distance-noise band of a pixel a face keeps of what it took after its fit (as
+#: ``refinement.context.TRIM_SIGMAS``).
+TRIM_SIGMAS = 3.0
+
+
+def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, config, sensor,
+                   ranges: np.ndarray, sigma: np.ndarray, inlier_factor: float):
+    """The leftover strips (4-connected pieces of free pixels with no 3x3 core, of at least
+    :func:`rangeseg_o3d.fullres.recovered_region_floor` pixels) each joined to a region
+    they touch whose model explains them, made a plane region of their own, or left free.
+    Returns ``(labels, fits, stats)``; the inputs when nothing changed.
+
+    A strip whose least-squares plane leaves its pixels beyond the noise of their distances
+    to it (range noise times the incidence cosine, chi-square bound) lies along its viewing
+    rays and is left free. A strip of which a touching region's model explains
+    ``EXPLAINED_SHARE`` of the pixels within ``k_sigma`` of that noise (at least the model's
+    rms), with an rms distance within its chi-square bound, joins the region that explains
+    it best. Otherwise a strip the fitter's batch settles as a plane explaining that share
+    within ``3 max(sigma, rms)`` becomes a region; it takes back its rim and claims the
+    rings its model explains better than their regions' (in its box), and keeps of those
+    gains only the pixels within ``TRIM_SIGMAS`` of their distance noise.
+    """
+    from .fullres import leftover_blob_labels, recovered_region_floor, smallest_region
+    from .scales import with_derived_refinement
+
+    config = with_derived_refinement(config, sensor, cloud)
+    min_size = smallest_region(config, sensor, cloud)
+    floor = recovered_region_floor(config, min_size, sensor.noise.correlation_px)
+    first = int(labels.max(initial=0)) + 1
+    found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first, thin_min_size=floor)
+    if found is None:
+        return labels, fits, stats
+    candidates, boxes, first_thin = found
+    boxes = np.ascontiguousarray(boxes[first_thin - first:], dtype=np.int64)
+    if not boxes.shape[0]:
+        return labels, fits, stats
+    pixels, starts = kernels.box_members(np.ascontiguousarray(candidates, dtype=np.int32), boxes, first_thin)
+    xyz = np.ascontiguousarray(cloud.xyz.reshape(-1, 3), dtype=np.float64)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    strips = _Strips(xyz, noise, pixels, starts, float(config.k_sigma))
+    open_ = strips.across_rays() & (strips.sizes >= floor)
+    if not open_.any():
+        return labels, fits, stats
+    table = model_table(fits, first)  # (the regions' models: the strips change none of them)
+    joins, merges = strips.joins(labels, table, open_, stats, config.merge_rms_factor if config.merge else None)
+    faces = strips.faces(fitter, open_ & (joins == 0) & (merges == 0), floor)
+    if not (joins.any() or merges.any() or faces):
+        return labels, fits, stats
+    out = np.array(labels, dtype=np.int32, order="C", copy=True)
+    flat = out.ravel()
+    for s in np.flatnonzero(joins).tolist():
+        flat[pixels[starts[s]:starts[s + 1]]] = joins[s]
+    # a strip the merge takes into a plane keeps its pixels on that plane's surface
+    merged, owner = strips.within_band(merges, table)
+    flat[merged] = owner
+    fits = dict(fits)
+    grown_boxes = []
+    for j, (s, kept, model) in enumerate(faces):
+        flat[kept] = first + j
+        fits[first + j] = model
+        grown_boxes.append(_grown(boxes[s], RIM_RINGS + CLAIM_RINGS, out.shape))
+    table = _extended(table, [model for _, _, model in faces])
+    moved = ([pixels[starts[s]:starts[s + 1]] for s in np.flatnonzero(joins)] + [merged]
+             + [kept for _, kept, _ in faces])
+    if faces:
+        moved.append(_grow_faces(xyz, out, table, noise, first, grown_boxes, config.k_sigma))
+    changed = np.unique(np.concatenate(moved))
+    return out, fits, _with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
+
+
+class _Strips:
+    """The strips' flat pixels (``pixels[starts[s]:starts[s + 1]]`` for strip ``s``) and
+    their least-squares planes, from one moments pass over their pixels."""
+
+    def __init__(self, xyz: np.ndarray, sigma: np.ndarray, pixels: np.ndarray, starts: np.ndarray,
+                 k_sigma: float):
+        self.xyz, self.sigma, self.pixels, self.k_sigma = xyz, sigma, pixels, k_sigma
+        self.starts = np.ascontiguousarray(starts, dtype=np.int64)
+        self.sizes = np.diff(self.starts)
+        n = self.sizes.size
+        ids = np.repeat(np.arange(1, n + 1, dtype=np.int32), self.sizes)
+        self.ids = ids
+        self.points = xyz[pixels]
+        self.planes = planes_from_moments(region_moments(self.points, ids, n + 1))
+
+    def _stats(self, rows: np.ndarray, kinds: np.ndarray, params: np.ndarray, rms: np.ndarray):
+        # (counts, rms, noise rms, within) of strip ``rows[i]`` under model row i
+        counts, squares, noise_squares, within = kernels.strip_fit_stats(
+            self.xyz, self.sigma, self.pixels, self.starts[rows], self.starts[rows + 1],
+            np.ascontiguousarray(kinds, dtype=np.int8), np.ascontiguousarray(params, dtype=np.float64),
+            np.ascontiguousarray(rms, dtype=np.float64), self.k_sigma)
+        n = np.maximum(counts, 1).astype(float)
+        return counts, np.sqrt(squares / n), np.sqrt(noise_squares / n), within
+
+    def across_rays(self) -> np.ndarray:
+        """Per strip: whether its least-squares plane explains its pixels within the noise of
+        their distances (a band lying along its rays does not; see
+        :meth:`rangeseg_o3d.refinement.context.Context.plane_along_rays`), nor far within it
+        (an rms under ``NO_NOISE_SHARE`` of that noise: a terrace of quantised depth)."""
+        from .kernels.kinds import PLANE
+
+        n = self.sizes.size
+        params = np.zeros((n, 7))
+        params[:, :3] = self.planes.normal[1:]
+        params[:, 3] = self.planes.d[1:]
+        counts, rms, noise_rms, _ = self._stats(np.arange(n), np.full(n, PLANE, np.int8), params, np.zeros(n))
+        ok = self.planes.ok[1:].astype(bool) & (counts > 0)
+        dof = counts.astype(float)
+        # a plane that explains the strip far better than the noise of its distances allows
+        # is not the surface's: the strip lies on one terrace of a quantised depth (every
+        # pixel at one depth, a plane of rms 0 where the range noise is centimetres)
+        terrace = rms < NO_NOISE_SHARE * noise_rms
+        return ok & ~terrace & ~(rms > noise_rms_bound.py_func(noise_rms, dof, CHI_SQUARE_SIGMAS))
+
+    def joins(self, labels: np.ndarray, table: tuple, open_: np.ndarray, stats, rms_factor: float | None):
+        """``(explained, merged)``, per strip a region (0: none) of those it touches
+        (``table``: their models, :func:`rangeseg_o3d.fitting.region_fitter.model_table`):
+        the one whose model explains it best, when one does (see :func:`recover_strips`);
+        else, with ``rms_factor`` (merging on), the plane region a union with which the
+        merge would take (:meth:`_union_rms`), the lowest union rms first."""
+        kinds, params, rms = table
+        strip, label = kernels.strip_touching(np.ascontiguousarray(labels, dtype=np.int32).ravel(),
+                                              labels.shape[0], labels.shape[1], self.pixels, self.starts, kinds)
+        keep = open_[strip]
+        strip, label = strip[keep], label[keep]
+        explained, merged = np.zeros(self.sizes.size, np.int64), np.zeros(self.sizes.size, np.int64)
+        if not strip.size:
+            return explained, merged
+        counts, pair_rms, noise_rms, within = self._stats(strip, kinds[label], params[label], rms[label])
+        fine = ((counts > 0) & (within >= EXPLAINED_SHARE * self.sizes[strip])
+                & ~(pair_rms > noise_rms_bound.py_func(noise_rms, counts.astype(float), CHI_SQUARE_SIGMAS)))
+        _best(explained, strip, label, fine, pair_rms / np.maximum(noise_rms, 1e-12))
+        if rms_factor is not None:
+            from .kernels.kinds import PLANE
+
+            union, limit = self._union_rms(strip, label, counts, pair_rms, stats, rms_factor)
+            _best(merged, strip, label, (kinds[label] == PLANE) & (union <= limit) & (explained[strip] == 0),
+                  union / np.maximum(limit, 1e-12))
+        return explained, merged
+
+    def _union_rms(self, strip, label, counts, pair_rms, stats, rms_factor: float):
+        # per (strip, plane region) pair: the rms of the union under the region's plane (a
+        # bound on the union's refit), and the merge's limit on it, ``rms_factor`` times the
+        # larger of the parts' rms (the region's pixels' under its model, the strip's plane's).
+        # Adjacent planes are always merge candidates: the union decides
+        # (:func:`rangeseg_o3d.refinement.merge.merge_candidates`).
+        inside = label < stats.counts.size
+        own = np.where(inside, label, 0)
+        region_n = np.where(inside, stats.counts[own], 0).astype(float)
+        region_sq = np.where(inside, stats.squares[own], 0.0)
+        union = np.sqrt((region_sq + counts * pair_rms ** 2) / np.maximum(region_n + counts, 1.0))
+        region_rms = np.sqrt(region_sq / np.maximum(region_n, 1.0))
+        return union, rms_factor * np.maximum(region_rms, self.planes.rms[strip + 1])
+
+    def within_band(self, chosen: np.ndarray, table: tuple):
+        """``(pixels, regions)``: the flat pixels of the strips with a plane region in
+        ``chosen`` (0: none) within ``TRIM_SIGMAS`` of their distance noise to its plane
+        (range noise x incidence cosine, at least its rms), and that region for each."""
+        kinds, params, rms = table
+        rows = np.flatnonzero(chosen)
+        if not rows.size:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        pick = np.flatnonzero(chosen[self.ids - 1])
+        idx, owner = self.pixels[pick], chosen[self.ids[pick] - 1]
+        points = self.points[pick]
+        along = np.einsum("ij,ij->i", points, params[owner, :3])
+        cosine = np.abs(along) / np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+        near = np.abs(along - params[owner, 3]) <= TRIM_SIGMAS * np.maximum(self.sigma[idx] * cosine, rms[owner])
+        return idx[near], owner[near]
+
+    def faces(self, fitter, asked: np.ndarray, floor: int) -> list:
+        """``(strip, kept pixels, plane)`` of each strip of ``asked`` the fitter's batch settles
+        as a plane explaining ``EXPLAINED_SHARE`` of it within ``3 max(sigma, rms)``, its
+        kept pixels (those within) at least ``floor``."""
+        if not asked.any():
+            return []
+        rows = np.flatnonzero(asked[self.ids - 1])
+        settled = fitter.fit_batch(self.points[rows], self.ids[rows])
+        found = sorted(k - 1 for k, m in settled.items() if m and m.kind == "plane")
+        if not found:
+            return []
+        # every settled strip's pixels against its plane at once
+        normal = np.zeros((self.sizes.size, 3))
+        offset, spread = np.zeros(self.sizes.size), np.zeros(self.sizes.size)
+        for s in found:
+            normal[s], offset[s], spread[s] = settled[s + 1].normal, settled[s + 1].d, settled[s + 1].rms
+        on = np.zeros(self.sizes.size, bool)
+        on[found] = True
+        rows = np.flatnonzero(on[self.ids - 1])
+        owner = self.ids[rows] - 1
+        distance = np.einsum("ij,ij->i", self.points[rows], normal[owner]) - offset[owner]
+        near = np.abs(distance) <= 3.0 * np.maximum(self.sigma[self.pixels[rows]], spread[owner])
+        count = np.bincount(owner[near], minlength=self.sizes.size)
+        kept = rows[near]
+        out = []
+        for s in found:
+            if count[s] >= EXPLAINED_SHARE * self.sizes[s] and count[s] >= floor:
+                out.append((s, self.pixels[kept[owner[near] == s]], settled[s + 1]))
+        return out
+
+
+def _best(out: np.ndarray, strip: np.ndarray, label: np.ndarray, fine: np.ndarray, score: np.ndarray) -> None:
+    # out[s] = the label of strip s's fine pair of lowest score (in place; strips without one keep 0)
+    order = np.lexsort((score, strip))
+    for i in order[fine[order]][::-1]:  # the last written is the best
+        out[strip[i]] = label[i]
+
+
+def _grown(box, by: int, shape) -> tuple[int, int, int, int]:
+    # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side, clipped to the grid
+    return (max(int(box[0]) - by, 0), min(int(box[1]) + by, shape[0]),
+            max(int(box[2]) - by, 0), min(int(box[3]) + by, shape[1]))
+
+
+def _extended(table: tuple, models: list) -> tuple:
+    # a model table with rows for ``models`` appended (their labels follow the table's)
+    if not models:
+        return table
+    kinds, params, rms = table
+    rows = [model_row(m) for m in models]
+    return (np.concatenate([kinds, np.array([k for k, _ in rows], kinds.dtype)]),
+            np.vstack([params, np.array([p for _, p in rows])]),
+            np.concatenate([rms, np.array([m.rms for m in models], float)]))
+
+
+def _grow_faces(xyz, out, table, sigma, first, boxes, k_sigma):
+    # the faces first, first + 1, ... of ``out`` (one per box) take back their rims and
+    # claim the rings they explain better, each within its box (in place), and keep of
+    # that the pixels within TRIM_SIGMAS of their distance noise; returns the flat pixels
+    # they took (kept or given back)
+    kinds, params, rms = table
+    return kernels.grow_faces(xyz, out.ravel(), out.shape[0], out.shape[1], kinds, params, rms, sigma, first,
+                              np.array(boxes, np.int64).reshape(-1, 4), RIM_RINGS, CLAIM_RINGS, float(k_sigma),
+                              TRIM_SIGMAS)
+
+
+def _with_moved(stats, xyz, sigma, before, after, table, changed, inlier_factor):
+    # ``stats`` of ``before`` made those of ``after`` where the pixels ``changed`` moved: their
+    # share taken from their old labels and given to their new ones (the models of the
+    # regions they left or joined are unchanged; ``table`` holds every model)
+    from .fullres import PixelStats
+
+    kinds, params, rms = table
+    n = kinds.size
+    points, noise = xyz[changed], sigma[changed]
+    old = np.ascontiguousarray(before.ravel()[changed], dtype=np.int32)
+    new = np.ascontiguousarray(after.ravel()[changed], dtype=np.int32)
+    lost = kernels.distance_stats(points, old, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
+    won = kernels.distance_stats(points, new, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
+    merged = []
+    for known, minus, plus in zip((stats.inliers, stats.squares, stats.counts), lost, won):
+        grown = np.zeros(n, known.dtype)
+        m = min(n, known.size)
+        grown[:m] = known[:m]
+        grown = grown - minus.astype(known.dtype) + plus.astype(known.dtype)
+        merged.append(np.maximum(grown, 0))
+    return PixelStats(*merged)

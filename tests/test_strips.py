@@ -1,0 +1,103 @@
+"""The leftover strips recovered in one batched step (rangeseg_o3d.strips): each joins a
+region it touches that explains it, becomes a plane of its own, or stays free."""
+
+import numpy as np
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting.primitives import Plane
+from rangeseg_o3d.fullres import label_pixels, region_stats
+from rangeseg_o3d.result import INLIER_SIGMAS
+from rangeseg_o3d.strips import recover_strips
+
+NOISE = 0.002
+
+
+def _wall(h, w, z=2.0):
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    return np.dstack([(u - w / 2) * 0.01, (v - h / 2) * 0.01, np.full((h, w), z)])
+
+
+def _wall_labelled_with_boards(boards, *, noisy=True, seed=0):
+    # A wall 2 m away (range noise 2 mm) on a 6-px tile grid that one plane region holds,
+    # with boards in front of it (``boards``: (mask, depth) pairs, their depths with the
+    # range noise unless not ``noisy``) its tile model leaves free; returns the cloud, the
+    # labelled pixels, the model and statistics, and the arguments the recovery takes
+    rng = np.random.default_rng(seed)
+    xyz = _wall(48, 60)
+    for mask, depth in boards:
+        xyz[mask, 2] = depth + (rng.normal(0.0, NOISE, int(mask.sum())) if noisy else 0.0)
+    cloud = rs.OrganizedCloud(xyz)
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": NOISE}, "refine": {"min_region_size": 300}})
+    pipe = rs.Pipeline(cfg)
+    fits = {1: Plane([0, 0, 1], 2.0, 0.0, 1)}
+    sigma = np.full(cloud.shape, NOISE)
+    labels, stats = label_pixels(cloud, np.ones((8, 10), np.int32), fits, tile=6, sigma=sigma,
+                                 k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+    common = dict(fitter=pipe.fitter, config=cfg.refine, sensor=pipe.sensor, ranges=cloud.range_image(),
+                  sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    return cloud, labels, fits, stats, common
+
+
+def _columns(first, last):
+    mask = np.zeros((48, 60), bool)
+    mask[:, first:last] = True
+    return mask
+
+
+def test_a_strip_off_the_wall_becomes_its_plane_and_nothing_else_changes():
+    # A two-column board (96 px, no 3x3 core) 0.3 m in front of the wall and a 20 x 20 board
+    # face (a cored blob, the blob recovery's) 0.5 m in front: the strip becomes a plane at
+    # the board's distance; the face's blob stays free and the wall keeps every pixel.
+    strip = _columns(30, 32)
+    face = np.zeros((48, 60), bool)
+    face[10:30, 40:60] = True
+    cloud, labels, fits, stats, common = _wall_labelled_with_boards([(strip, 1.7), (face, 1.5)])
+    assert (labels[strip | face] == 0).all() and (labels[~(strip | face)] == 1).all()
+    out, out_fits, out_stats = recover_strips(cloud, labels, fits, stats, **common)
+    assert (out[~strip] == labels[~strip]).all()
+    (found,) = np.unique(out[strip])
+    assert found > 1
+    model = out_fits[int(found)]
+    assert model.kind == "plane" and abs(abs(model.normal[2]) - 1.0) < 0.05
+    assert abs(abs(model.d) - 1.7) < 3 * NOISE
+    # the statistics of every region are those a measure of the new labels gives
+    fresh = region_stats(cloud.xyz, out, out_fits, common["sigma"], INLIER_SIGMAS)
+    assert np.array_equal(out_stats.counts, fresh.counts) and np.array_equal(out_stats.inliers, fresh.inliers)
+    assert np.allclose(out_stats.squares, fresh.squares, rtol=1e-9, atol=1e-12)
+
+
+def test_a_strip_on_one_depth_level_is_no_face():
+    # the same board strip without noise: every pixel at one depth, a plane of rms 0 where
+    # the range noise is 2 mm. A quantised depth's terrace, not a surface: it stays free.
+    strip = _columns(30, 32)
+    cloud, labels, fits, stats, common = _wall_labelled_with_boards([(strip, 1.7)], noisy=False)
+    out = recover_strips(cloud, labels, fits, stats, **common)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_a_strip_on_the_wall_joins_it():
+    # two columns of the wall's own surface (with the range noise) that the labelling left
+    # free: the wall's plane explains them, so they join it and no region is made
+    strip = _columns(30, 32)
+    cloud, _, fits, stats, common = _wall_labelled_with_boards([(strip, 2.0)])
+    labels = np.ones((48, 60), np.int32)
+    labels[strip] = 0
+    stats = region_stats(cloud.xyz, labels, fits, common["sigma"], INLIER_SIGMAS)
+    out, out_fits, out_stats = recover_strips(cloud, labels, fits, stats, **common)
+    assert (out == 1).all() and set(out_fits) == {1}
+    assert out_stats.counts[1] == 48 * 60
+
+
+def test_the_strip_step_returns_its_inputs_when_no_strip_is_left_over():
+    # a cored 20 x 20 face left over and no strip: nothing for the strip step; nor on a frame
+    # with nothing left over, nor with a strip under the pixel floor (2 x 5 < MIN_PIXELS)
+    face = np.zeros((48, 60), bool)
+    face[10:30, 20:40] = True
+    short = np.zeros((48, 60), bool)
+    short[:5, 50:52] = True
+    cloud, labels, fits, stats, common = _wall_labelled_with_boards([(face, 1.5), (short, 1.7)])
+    assert (labels[face | short] == 0).all()
+    out = recover_strips(cloud, labels, fits, stats, **common)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+    full = np.ones_like(labels)
+    assert recover_strips(cloud, full, fits, stats, **common)[0] is full
