@@ -12,7 +12,7 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .linalg import curvature_resolved
+from .linalg import curvature_resolved, noise_rms_bound
 from .window import eigenvectors, smallest_eigenvalues
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
@@ -65,21 +65,20 @@ def _angle_order(normals, axis):
 
 @njit(cache=True, nogil=True)
 def _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigmas):
-    # The gate: on an even sample of at most ``sample`` pixels, the mean distance in each of
-    # ``bins`` equal-count bins of angle is beyond the noise of the distances (a chi-square
-    # over the bins, ``sigmas`` deviations up its law), and so it is over the inner bins,
-    # the two at the arc's ends left out. No test of the rms over all the pixels first: it
-    # spreads a misfit across the axis over every pixel's degree of freedom while the bins
-    # gather it (a far box's corner on a stereo tile grid as one cylinder: 181 tile means,
-    # rms 1.11 x the noise of their distances against a bound of 1.19, the bins' chi-square
-    # 40 against 24). The end bins hold the region's rims, the limbs of a pipe seen at
-    # grazing incidence and tile means across its silhouette, where a right cylinder is off
-    # too; an arc bent over a crease is off inside it (its apex against the quarter points).
-    # Returns whether, and the sample's normals and angle order.
+    # The gate: on an even sample of at most ``sample`` pixels, the rms is beyond the noise
+    # of the distances, and so is the mean distance in each of ``bins`` equal-count bins of
+    # angle (a chi-square over the bins, ``sigmas`` deviations up its law). Returns whether,
+    # and the sample's normals and angle order (empty when the rms is within the noise).
     n = idx.size
     picks = np.arange(0, n, max(1, n // sample))
     m = picks.size
     normals, variance = _normals_and_noise(xyz, sigma, idx[picks], axis, point)
+    squares, noise = 0.0, 0.0
+    for j in range(m):
+        squares += distances[picks[j]] ** 2
+        noise += variance[j]
+    if not math.sqrt(squares / m) > noise_rms_bound(math.sqrt(noise / m), float(m), sigmas):
+        return False, normals, np.zeros(0, np.int64)
     order = _angle_order(normals, axis)
     counts, means, spread = np.zeros(bins), np.zeros(bins), np.zeros(bins)
     for j in range(m):
@@ -87,16 +86,11 @@ def _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigma
         counts[b] += 1.0
         means[b] += distances[picks[order[j]]]
         spread[b] += variance[order[j]]
-    chi_square, inner = 0.0, 0.0
+    chi_square = 0.0
     for b in range(bins):
         mean = means[b] / counts[b]
-        term = counts[b] * mean * mean / max(spread[b] / counts[b], 1e-24)
-        chi_square += term
-        if 0 < b < bins - 1:
-            inner += term
-    misfits = chi_square > bins + sigmas * math.sqrt(2.0 * bins)
-    misfits = misfits and inner > bins - 2 + sigmas * math.sqrt(2.0 * (bins - 2))
-    return misfits, normals, order
+        chi_square += counts[b] * mean * mean / max(spread[b] / counts[b], 1e-24)
+    return chi_square > bins + sigmas * math.sqrt(2.0 * bins), normals, order
 
 
 @njit(cache=True, nogil=True)
@@ -216,11 +210,10 @@ def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample
     ``xyz`` (N, 3) and ``sigma`` (N,) are the scan's points and range noise, ``idx`` the
     region's flat pixels, ``distances`` the cylinder's signed distances to them, ``axis``
     (unit) and ``point`` the cylinder's. The gate, on an even sample of at most ``sample``
-    pixels, their mean distance in each of ``bins`` equal-count bins of angle about the
-    axis is beyond the noise of their distances (range noise along each ray times the
-    incidence cosine; a chi-square over the bins beyond ``bins + sigmas sqrt(2 bins)``), and
-    so it is over the inner ``bins - 2`` (the arc's two end bins, its rims, left out: a
-    right pipe's limbs and silhouette tiles are off there, a crease shows inside). Then among ``cuts``
+    pixels: their rms is beyond the noise of their distances (range noise along each ray
+    times the incidence cosine, :func:`.linalg.noise_rms_bound` with ``sigmas``), and so
+    is their mean distance in each of ``bins`` equal-count bins of angle about the axis
+    (a chi-square over the bins beyond ``bins + sigmas sqrt(2 bins)``). Then among ``cuts``
     equal-count cuts of all the pixels ordered by angle (each side at least ``min_size``),
     the one whose sides' least-squares planes leave the fewest squared distances. Returns
     a boolean mask over ``idx`` (True: the first side), of length 0 when the gate fails,

@@ -308,16 +308,12 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     when the cylinder misfits it in a pattern across its axis; empty otherwise.
 
     The pattern (:func:`rangeseg_o3d.kernels.crease_sides`, one compiled call): over every
-    pixel of the region, the cylinder's mean distance in each of ANGLE_BINS equal-count
-    bins of angle about the axis is beyond the noise of the distances (the range noise
-    along each ray, :func:`rangeseg_o3d.fitting.robust.distance_noise`; a chi-square over
-    the bins), and so it is over the inner bins (the two at the arc's ends hold its rims: a
-    right pipe's limbs at grazing incidence and tile means across its silhouette are off
-    there). An arc bent over a crease seen obliquely (two box faces, a wall and a corner of
-    what stands before it) is off the same way along whole bands of angle inside the arc;
-    a right cylinder on a sensor noisier than its model says is off at random. No test of
-    the rms over all the pixels first: it spreads the misfit over every pixel (a far box's
-    corner on a stereo tile grid, 181 tile means, 1.11 x the noise of its distances). Every
+    pixel of the region, the cylinder's rms is beyond the noise of its distances (the range
+    noise along each ray, :func:`rangeseg_o3d.fitting.robust.distance_noise`), and so is its
+    mean distance in each of ANGLE_BINS equal-count bins of angle about the axis (a
+    chi-square over the bins). An arc bent over a crease seen obliquely (two box faces, a
+    wall and a corner of what stands before it) is off the same way along whole bands of
+    angle; a right cylinder on a sensor noisier than its model says is off at random. Every
     pixel, not a sample: the chi-square bound tightens with their number, and a shallow
     crease a thousand tile means show is within the bound of a few hundred (a stereo
     camera's wall and the box face beside it at 3 m, 1551 tile means, one cylinder 1.2 x the
