@@ -19,6 +19,7 @@ from . import kernels
 from .fitting.batch_planes import planes_from_moments, region_moments
 from .fitting.region_fitter import model_row, model_table
 from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+from .refinement.recover import grown_box
 
 __all__ = ["recover_strips"]
 
@@ -92,7 +93,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     for j, (s, kept, model) in enumerate(faces):
         flat[kept] = first + j
         fits[first + j] = model
-        grown_boxes.append(_grown(boxes[s], RIM_RINGS + CLAIM_RINGS, out.shape))
+        grown_boxes.append(grown_box(boxes[s], RIM_RINGS + CLAIM_RINGS, out.shape))
     table = _extended(table, [model for _, _, model in faces])
     moved = ([pixels[starts[s]:starts[s + 1]] for s in np.flatnonzero(joins)] + [merged]
              + [kept for _, kept, _ in faces])
@@ -238,12 +239,6 @@ def _best(out: np.ndarray, strip: np.ndarray, label: np.ndarray, fine: np.ndarra
     order = np.lexsort((score, strip))
     for i in order[fine[order]][::-1]:  # the last written is the best
         out[strip[i]] = label[i]
-
-
-def _grown(box, by: int, shape) -> tuple[int, int, int, int]:
-    # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side, clipped to the grid
-    return (max(int(box[0]) - by, 0), min(int(box[1]) + by, shape[0]),
-            max(int(box[2]) - by, 0), min(int(box[3]) + by, shape[1]))
 
 
 def _extended(table: tuple, models: list) -> tuple:

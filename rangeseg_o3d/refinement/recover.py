@@ -439,9 +439,13 @@ def _read_only_bool(mask: np.ndarray) -> np.ndarray:
     return view
 
 
-def _grown(box, by: int) -> tuple[int, int, int, int]:
-    # a (row0, row1, col0, col1) box grown by ``by`` pixels on every side (not clipped)
-    return box[0] - by, box[1] + by, box[2] - by, box[3] + by
+def grown_box(box, by: int, shape: tuple[int, int] | None = None) -> tuple[int, int, int, int]:
+    """A ``(row0, row1, col0, col1)`` box grown by ``by`` pixels on every side, clipped to a
+    grid of ``shape`` when given (else not clipped)."""
+    grown = int(box[0]) - by, int(box[1]) + by, int(box[2]) - by, int(box[3]) + by
+    if shape is None:
+        return grown
+    return max(grown[0], 0), min(grown[1], shape[0]), max(grown[2], 0), min(grown[3], shape[1])
 
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
@@ -514,14 +518,14 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
         labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=rim,
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
-                                 box=None if blobs is None else _grown(blobs, rim))
+                                 box=None if blobs is None else grown_box(blobs, rim))
         # the tile models took what they could explain before these regions existed
         n = int(labels.max(initial=0)) + 1
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True
         if blobs is not None:
-            box = _grown(blobs, rim + iterations)
+            box = grown_box(blobs, rim + iterations)
         else:
             rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
             box = (rows.min() - iterations, rows.max() + iterations + 1,
