@@ -79,18 +79,24 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
         sign = 1.0 if float(a.normal @ b.normal) >= 0 else -1.0
         return (_angle_deg(a.normal, b.normal) <= max_angle_deg
                 and abs(a.d - sign * b.d) <= tolerance)
-    # the radius test first: two numbers, and it rejects most pairs
+    # A piece of a pipe or ball is seen from one side: its pixels fix the surface they lie
+    # on, and a fit that errs in the radius by dR moves the axis (centre) by about dR along
+    # the line of sight, the visible surface staying put. The axes (centres) are therefore
+    # compared within the tolerance plus the radii's difference; the radii themselves
+    # within the smaller one (the same size class: a pipe's radius from a short piece errs
+    # by tens of percent, not by a factor of two). The union fit decides.
+    if abs(a.radius - b.radius) > max(tolerance, min(a.radius, b.radius)):
+        return False
+    reach = tolerance + abs(a.radius - b.radius)
     if isinstance(a, Cylinder):
-        if abs(a.radius - b.radius) > tolerance:
-            return False
-        # each axis passes within the tolerance of the other's point (the axis point nearest
-        # its region): two pieces of one pipe seen apart agree where their pixels are, though
+        # each axis passes within reach of the other's point (the axis point nearest its
+        # region): two pieces of one pipe seen apart agree where their pixels are, though
         # the axis of a short or noisy piece is known only to several degrees
         rel = b.point - a.point
-        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= tolerance
-                    and np.linalg.norm(rel - (rel @ b.axis) * b.axis) <= tolerance)
+        return bool(np.linalg.norm(rel - (rel @ a.axis) * a.axis) <= reach
+                    and np.linalg.norm(rel - (rel @ b.axis) * b.axis) <= reach)
     if isinstance(a, Sphere):
-        return abs(a.radius - b.radius) <= tolerance and bool(np.linalg.norm(a.center - b.center) <= tolerance)
+        return bool(np.linalg.norm(a.center - b.center) <= reach)
     return False
 
 

@@ -5,7 +5,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.fitting.primitives import Plane, Sphere
+from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.refinement.merge import merge_candidates, merge_regions, region_adjacency, similar_models
 from refinement_helpers import plane_grid
 
@@ -524,3 +524,28 @@ def test_merge_regions_keeps_a_curved_piece_apart_however_its_parts_grew(context
     out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)},
                                    max_angle_deg=3.0, tolerance=0.05, disjoint=False, rms_factor=1.3)
     assert set(merged) == {1, 2} and (out == labels).all()
+
+
+def test_curved_pieces_apart_are_candidates_when_their_visible_surfaces_agree():
+    # Two pieces of one pipe (radius 0.2 m, 3.6 m away) seen apart: the short one's fit errs
+    # 3 cm in the radius and its axis moved 3 cm towards the camera with it (the pixels fix
+    # the visible surface). The radii differ by more than the tolerance (a kinect room's
+    # 2.9 cm), the axes by the radius difference: candidates, the union fit decides.
+    axis = np.array([0.0, 1.0, 0.0])
+    toward = -np.array([1.0, 0.0, 3.6]) / np.linalg.norm([1.0, 0.0, 3.6])
+    lower = Cylinder(axis=axis, point=[1.0, -1.0, 3.6], radius=0.214, rms=0.003, inliers=100)
+    upper = Cylinder(axis=axis, point=np.array([1.0, 0.2, 3.6]) + 0.03 * toward, radius=0.184, rms=0.002,
+                     inliers=100)
+    assert similar_models(lower, upper, max_angle_deg=3.0, tolerance=0.029)
+    assert merge_candidates({1: lower, 2: upper}, max_angle_deg=3.0, tolerance=0.029, adjacency=set()) == [(1, 2)]
+    # a parallel pipe 20 cm aside, or a pipe of another size class on the same axis: no
+    aside = Cylinder(axis=axis, point=[1.2, 0.2, 3.6], radius=0.184, rms=0.002, inliers=100)
+    wider = Cylinder(axis=axis, point=[1.0, 0.2, 3.6], radius=0.45, rms=0.002, inliers=100)
+    assert not similar_models(lower, aside, max_angle_deg=3.0, tolerance=0.029)
+    assert not similar_models(lower, wider, max_angle_deg=3.0, tolerance=0.029)
+    # a ball's two pieces: the centres 4 cm apart where the radii differ by 4 cm
+    big = Sphere(center=[0.0, 0.0, 3.6], radius=0.43, rms=0.003, inliers=100)
+    small = Sphere(center=[0.0, 0.0, 3.56], radius=0.39, rms=0.002, inliers=100)
+    assert similar_models(big, small, max_angle_deg=3.0, tolerance=0.029)
+    assert not similar_models(big, Sphere(center=[0.0, 0.1, 3.6], radius=0.43, rms=0.003, inliers=100),
+                              max_angle_deg=3.0, tolerance=0.029)
