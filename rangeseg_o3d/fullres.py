@@ -369,8 +369,11 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
         # each side of the cut holds min_size of the region's pixels: its share of the sample
         min_side = max(int(np.ceil(min_size * len(sample) / stats.counts[k])), 3)
         cut = _crease_cut(sample, fits[k], min_side)
-        if cut is None or beyond_noise(cut[2], float(np.median(sigma[box][labels[box] == k])), len(sample)):
+        noise = float(np.median(sigma[box][labels[box] == k]))
+        if cut is None or beyond_noise(cut[2], noise, len(sample)):
             continue  # no crease, or planes beyond the noise: facets of a curved surface
+        if _sides_along_rays(sample, fits[k], cut, noise):
+            continue  # two noise-long streaks along the rays: a pipe's range spread, not two faces
         if fitter is not None and _refit_rms(fitter, sample, fits[k]) < CREASE_RMS_FACTOR * cut[2]:
             continue  # the model was off a true cylinder, which its refit finds
         if not replaced:
@@ -392,6 +395,40 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
     if not replaced:
         return labels, fits, stats
     return labels, fits, region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
+
+
+#: A crease side whose spread along its viewing ray is within this many range noise
+#: sigmas has no depth of its own (:func:`_sides_along_rays`).
+RAY_SPREAD_SIGMAS = 1.5
+
+
+def _sides_along_rays(points: np.ndarray, cylinder, cut: tuple, noise: float) -> bool:
+    """Whether both sides of ``cut`` (:func:`_crease_cut`) are streaks of range noise along
+    the viewing rays rather than faces: each side's spread along its mean ray within
+    ``RAY_SPREAD_SIGMAS`` times the range noise ``noise`` and longer than the side is wide
+    across the rays, and its plane's normal across the rays within the angle that streak
+    leaves (``|n . ray| <`` width / spread). A thin pipe far away under large range noise
+    is such a pair of streaks; least squares lays each side's plane along the rays, so its
+    two planes beat the cylinder without a crease between them. Two faces of a box are
+    never both seen edge-on but from along their crease."""
+    far = _angles(points, cylinder, cut[1]) > cut[0]
+    for side in (~far, far):
+        side_points = points[side]
+        plane = _plane_of(side_points)
+        if plane is None:
+            return False
+        ray = side_points.mean(axis=0)
+        ray = ray / max(float(np.linalg.norm(ray)), 1e-12)
+        centred = side_points - side_points.mean(axis=0)
+        along = centred @ ray
+        spread = float(np.sqrt(np.mean(along ** 2)))
+        across = centred - np.outer(along, ray)
+        # the narrower of the side's two extents across the ray: its width across the streak
+        width = float(np.sqrt(max(np.linalg.eigvalsh(across.T @ across / len(side_points))[1], 0.0)))
+        if not (spread <= RAY_SPREAD_SIGMAS * noise and width < spread
+                and abs(float(np.asarray(plane.normal) @ ray)) * spread < width):
+            return False
+    return True
 
 
 def _exchange_with_neighbours(cloud, labels: np.ndarray, fits: dict, box: tuple[slice, slice], new: tuple,

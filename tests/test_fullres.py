@@ -637,3 +637,26 @@ def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_si
     labels, _ = label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6, sigma=sigma, k_sigma=3.0,
                              inlier_factor=2.0)
     assert (labels[:, 30] == 2).all() and (labels[:, 24:30] == 1).all()
+
+
+def _pipe_under_range_noise(rng, sigma: float, distance: float = 6.4, radius: float = 0.075):
+    # a vertical pipe ahead, its visible half sampled over 300 rays, each return moved along its ray
+    angles = rng.uniform(-np.pi / 2, np.pi / 2, 600)
+    heights = rng.uniform(-0.4, 0.4, 600)
+    points = np.column_stack([radius * np.sin(angles), heights, distance - radius * np.cos(angles)])
+    rays = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return points + rays * rng.normal(0.0, sigma, (600, 1))
+
+
+def test_sides_along_rays_tells_a_far_pipes_range_streaks_from_faces():
+    from rangeseg_o3d.fullres import _sides_along_rays
+
+    rng = np.random.default_rng(7)
+    cylinder = Cylinder(axis=[0, 1, 0], point=[0.0, 0.0, 6.4], radius=0.075, rms=0.08, inliers=0)
+    cut = (0.0, np.array([0.0, 0.0, -1.0]), 0.04)  # the halves left and right of the ray to the axis
+    # 13 cm of range noise on a 15 cm pipe (stereo at 6.4 m): two streaks along the rays
+    assert _sides_along_rays(_pipe_under_range_noise(rng, 0.13), cylinder, cut, noise=0.13)
+    # the same streaks judged under 5 cm of noise spread beyond it: depth of their own
+    assert not _sides_along_rays(_pipe_under_range_noise(rng, 0.13), cylinder, cut, noise=0.05)
+    # under 4 mm of noise the pipe's halves face the sensor: no streaks
+    assert not _sides_along_rays(_pipe_under_range_noise(rng, 0.004), cylinder, cut, noise=0.004)

@@ -248,3 +248,22 @@ def test_compare_configs_take_the_same_overrides():
     args = build_parser().parse_args(["compare", "--quick", "--set", "sensor.sigma0=0.01",
                                       "--set", "refine.merge=false"])
     assert args.overrides == ["sensor.sigma0=0.01", "refine.merge=false"]
+
+
+def test_independent_share_counts_the_tile_means_correlation_summed_over_lags():
+    # Box-correlated errors (a stereo matching window of 3 px): the share is the inverse of the
+    # variance inflation of a mean of many grid points, measured here on simulated tile means.
+    from rangeseg_o3d.sensor import NoiseModel
+
+    assert NoiseModel().independent_share(1) == 1.0 and NoiseModel().independent_share(6) == 1.0
+    stereo = NoiseModel(0.001, 0.003, 3)
+    assert stereo.independent_share(1) == pytest.approx(1 / 9, rel=1e-12)
+    rng = np.random.default_rng(5)
+    for tile in (1, 2, 6):
+        white = rng.normal(size=(4000, 3 * 4 + 2))
+        boxed = sum(white[:, j:j + white.shape[1] - 2] for j in range(3)) / 3  # 1-D box of 3
+        means = boxed[:, :tile * (boxed.shape[1] // tile)].reshape(4000, -1, tile).mean(axis=2)
+        inflation = means.sum(axis=1).var() / (means.shape[1] * means.var())
+        assert inflation == pytest.approx(stereo.independent_share(tile) ** -0.5, rel=0.15), tile
+    with pytest.raises(ValueError):
+        stereo.independent_share(0)

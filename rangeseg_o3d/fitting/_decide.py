@@ -154,12 +154,12 @@ BEND_TRIM = 2.0
 
 
 @njit(cache=True, nogil=True)
-def bend_resolved(q, normal, rms):
+def bend_resolved(q, normal, rms, samples=1.0):
     """Whether the quadric height field of the centred points ``q`` resolves a bend
-    (:func:`quadric_resolved`) once the points farther than ``BEND_TRIM`` times ``rms``
-    from their plane (``normal``, through their centroid; ``rms`` in ``q``'s units) are
-    left out and the plane is fitted again: a pipe's bend is in every point, a few pixels
-    of a neighbouring face are not."""
+    (:func:`quadric_resolved`, each point counting ``samples`` independent samples) once
+    the points farther than ``BEND_TRIM`` times ``rms`` from their plane (``normal``,
+    through their centroid; ``rms`` in ``q``'s units) are left out and the plane is fitted
+    again: a pipe's bend is in every point, a few pixels of a neighbouring face are not."""
     n = q.shape[0]
     keep = np.empty(n, np.bool_)
     for i in range(n):
@@ -171,7 +171,7 @@ def bend_resolved(q, normal, rms):
     centred = kept - kept.sum(axis=0) / m
     _, vectors = np.linalg.eigh(centred.T @ centred)
     gain, _ = height_field_shape(centred, vectors[:, 0].copy(), vectors[:, 1].copy(), vectors[:, 2].copy())
-    return quadric_resolved(gain, m)
+    return quadric_resolved(gain, m * samples)
 
 
 #: The least share of its sagitta that an arc leaves as the rms of its points about their
@@ -235,9 +235,9 @@ def _other_curved(kind):
 def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, cones, plane_rms,
                        cylinder_rms, sphere_rms, rms_per_range2, max_radius, min_arc,
                        curvature_gain, inlier_factor, roundness_cylinder, roundness_sphere,
-                       max_iterations, noise_floor=0.0, bends=False):
+                       max_iterations, noise_floor=0.0, bends=0.0):
     """The decision rule of ``classify.fit_primitive`` on (N >= 3, 3) points (``bends``:
-    its ``resolve_bends``).
+    its ``resolve_bends``, the independent samples each point carries; 0: not asked).
 
     Returns the fields of :class:`Decision` in order (call it through :func:`decide`).
     """
@@ -281,9 +281,10 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     # beat the plane and resolve its own curvature; failing that it stays a plane. (Over
     # the noise the quadric also bends to a few pixels of a neighbouring face.)
     # (the search for curved models is costly: first whether any could be accepted)
-    bent = (flat and bends and within and quadric_resolved(gain, n)
+    samples = n * bends  # the independent samples among the points (correlated noise: fewer)
+    bent = (flat and bends > 0.0 and within and quadric_resolved(gain, samples)
             and not arc_hidden(rms, np.sqrt(max(eigvals[1], 0.0) / n) * scale, min_arc)
-            and bend_resolved(q, normal, rms / scale))
+            and bend_resolved(q, normal, rms / scale, bends))
     if flat and not bent:
         return PLANE, ACCEPTED, NONE, centroid, scale, normal, d, rms, plane_tol, eigen_rms, inliers, codes, curved
     needed_gain = 1.0 if marginal or bent else curvature_gain
@@ -305,7 +306,8 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
             # over a plane beyond the noise, a curvature the points resolve (not the
             # bend of two more parameters over noise or a sliver of another face)
             curved_rms = curved[kind, RMS] * scale
-            if not curvature_resolved(n * rms * rms, n * curved_rms * curved_rms, n,
+            m = samples if bent else n
+            if not curvature_resolved(m * rms * rms, m * curved_rms * curved_rms, m,
                                       2 if kind == CYLINDER else 1, CHI_SQUARE_SIGMAS):
                 codes[kind] = GAIN_UNDER
         if codes[kind] == ACCEPTED:

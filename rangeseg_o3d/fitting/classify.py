@@ -125,7 +125,7 @@ def fit_primitive(
     min_arc_deg: float = 30.0,
     curvature_gain: float = 1.5,
     noise_floor: float = 0.0,
-    resolve_bends: bool = False,
+    resolve_bends: float = 0.0,
 ) -> Plane | Cylinder | Sphere | FitFailure:
     """Explain a region's points by a plane, a cylinder or a sphere (paper Fig. 2).
 
@@ -155,12 +155,16 @@ def fit_primitive(
         The sensor's constant range noise (m; 0: none): the plane threshold is at least
         what this noise alone gives a plane fitted to the points, up its chi-square
         (:func:`rangeseg_o3d.kernels.linalg.plane_tolerance`).
-    resolve_bends : bool
-        A plane within the noise whose quadric resolves a bend over its points all the same
+    resolve_bends : float
+        0 (or False): not asked. Else the independent samples each point carries (True: 1,
+        independent residuals; points whose noise errs together carry less,
+        :meth:`rangeseg_o3d.sensor.NoiseModel.independent_share`): a plane within the noise
+        whose quadric resolves a bend over those samples all the same
         (:func:`rangeseg_o3d.kernels.linalg.quadric_resolved`, an F-test) is not settled at
-        step 2: a curved model that beats it and resolves its own curvature replaces it.
-        For a region's final pixels (the refinement's last decision of its planes), where
-        a pipe seen on a narrow arc bends by less than the noise over hundreds of points.
+        step 2: a curved model that beats it and resolves its own curvature over them
+        replaces it. For a region's final pixels (the refinement's last decision of its
+        planes), where a pipe seen on a narrow arc bends by less than the noise over
+        hundreds of points.
 
     Returns
     -------
@@ -185,7 +189,7 @@ def fit_primitive(
     decision = decide(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
-        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(noise_floor), bool(resolve_bends))
+        ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(noise_floor), float(resolve_bends))
     if decision.status == NON_FINITE:
         return _non_finite(pts, "primitive")
     if decision.status == COLLINEAR:
@@ -414,7 +418,7 @@ def fit_planes_batch(
     min_points: int,
     curvature_gain: float,
     noise_floor: float,
-    resolve_bends: bool = False,
+    resolve_bends: float = 0.0,
     **_curved,
 ) -> dict[int, Plane]:
     """Every region of a label image that :func:`fit_primitive` would call a plane, at once.
@@ -423,8 +427,10 @@ def fit_planes_batch(
     whose plane passes step 2 of the decision rule (rms within ``plane_rms`` or the
     ``noise_floor`` bound, plus ``rms_per_range2 R^2``, and no significant curvature by
     the batched quadric test) are returned. The others (curved, too few or collinear
-    points) are left to :func:`fit_primitive`; with ``resolve_bends`` also a plane within
-    the noise whose quadric resolves a bend (as :func:`fit_primitive`'s).
+    points) are left to :func:`fit_primitive`; with ``resolve_bends`` (as
+    :func:`fit_primitive`'s) also a plane within the noise whose quadric resolves a bend
+    over its samples, and one beyond what the noise gives its points (the decision's
+    marginal plane, which it tries the curved models against).
     Keywords for the curved models are accepted and ignored.
 
     Parameters
@@ -445,7 +451,7 @@ def fit_planes_batch(
     n = int(labels.max(initial=0)) + 1
     settled, normal, d, rms, inliers = settle_planes(
         xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
-        INLIER_FACTOR, float(noise_floor), bool(resolve_bends))
+        INLIER_FACTOR, float(noise_floor), float(resolve_bends))
     normal.setflags(write=False)  # rows pass into the Planes as they are, without a copy each
     d, rms, inliers = d.tolist(), rms.tolist(), inliers.tolist()
     return {k: Plane(normal=normal[k], d=d[k], rms=rms[k], inliers=inliers[k])

@@ -317,7 +317,7 @@ def _labelled_only(xyz, labels, count):
 
 @njit(cache=True, nogil=True)
 def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvature_gain, inlier_factor,
-                  noise_floor=0.0, bends=False):
+                  noise_floor=0.0, bends=0.0):
     """The batched plane test of ``classify.fit_planes_batch`` in one call.
 
     Per label ``1..n-1``: the plane from its moments, accepted when it is determined, has
@@ -326,8 +326,9 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     :func:`.linalg.plane_tolerance`, is left to the full decision)
     and no significant curvature (quadric gain below ``curvature_gain`` by
     :func:`.linalg.flat_by_quadric`; not tested when
-    the rms is under a tenth of the threshold; with ``bends``, a plane within the noise
-    whose quadric resolves a bend by :func:`.linalg.quadric_resolved` is not settled either). Returns ``(settled, normal, d, rms,
+    the rms is under a tenth of the threshold). With ``bends`` (the independent samples
+    each point carries, > 0) a plane within the noise whose quadric resolves a bend over its
+    points' samples (:func:`.linalg.quadric_resolved`) is not settled either. Returns ``(settled, normal, d, rms,
     inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
     # np.intp, not a literal 0: while numba's type inference settles, a variable seen only as
@@ -369,7 +370,7 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
         within = rms[k] <= noise_floor + rms_per_range2 * (centroid[k] @ centroid[k])
         spread_points = moments[k, 0] if within else np.inf
         settled[k] = candidate[k] and flat_by_quadric(gain[k], curvature_gain, spread_points)
-        if settled[k] and bends and quadric_resolved(gain[k], spread_points):
+        if settled[k] and bends > 0.0 and quadric_resolved(gain[k], spread_points * bends):
             settled[k] = False
     kinds = np.zeros(n, np.int8)
     params = np.zeros((n, PARAM_SLOTS))

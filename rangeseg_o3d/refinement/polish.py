@@ -25,13 +25,14 @@ EXTRA_PARAMETERS = {"cylinder": 2, "sphere": 1}
 
 
 def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes: bool = True,
-                  resolve_bends: bool = False) -> dict:
+                  resolve_bends: float = 0.0) -> dict:
     """``fits`` with the models moments cannot refit (spheres, cylinders) refitted on the
     pixels of ``labels``, and those that no longer resolve a curvature there replaced by
     the plane the fitter's decision gives their pixels; planes whose pixels the fitter now
     calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``;
-    ``resolve_bends``: also the planes whose quadric resolves a bend under the noise, and
-    curved models only a neighbour's pixels bend are planes, :func:`_unbent`).
+    ``resolve_bends``, the independent samples each pixel carries, 0 for not asked: also
+    the planes whose quadric resolves a bend under the noise over those samples, and curved
+    models only a neighbour's pixels bend are planes, :func:`_unbent`).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
@@ -49,20 +50,21 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
             decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
             if isinstance(decided, Plane):
                 fits[k] = decided
-    unbent = _unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)]) if resolve_bends else {}
+    unbent = (_unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)], resolve_bends)
+              if resolve_bends else {})
     fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends))
     return fits
 
 
-def _unbent(ctx: Context, labels: np.ndarray, curved: list) -> dict:
+def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0) -> dict:
     """The planes of the regions among ``curved`` whose pixels' plane is within the
     fitter's plane threshold and whose bend does not outlive the pixels beyond 2 plane rms
     (:func:`rangeseg_o3d.fitting._decide.bend_resolved`): a curved model a plane just over
     the noise took only for a few pixels of a neighbouring face (noise_20mm seed 37 scan
     7: a 4-column wall strip with 26 px of its neighbours, rms 20.4 mm over 20 mm noise,
-    a 0.53 m cylinder). Asked with ``resolve_bends`` (independent residuals)."""
+    a 0.53 m cylinder). Asked with ``resolve_bends``; ``samples`` per pixel as there."""
     from ..fitting import fit_plane
     from ..fitting._decide import bend_resolved
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
@@ -78,12 +80,12 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list) -> dict:
                                     rms_per_range2=p["rms_per_range2"])
         plane = fit_plane(pts, inlier_distance=INLIER_FACTOR * tolerance)
         if plane and plane.rms <= tolerance and not bend_resolved(
-                np.ascontiguousarray(pts - centroid), np.ascontiguousarray(plane.normal), plane.rms):
+                np.ascontiguousarray(pts - centroid), np.ascontiguousarray(plane.normal), plane.rms, float(samples)):
             out[k] = plane
     return out
 
 
-def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: bool = False) -> dict:
+def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0) -> dict:
     """The curved models the fitter's decision gives the plane regions of ``labels`` whose
     final pixels it no longer settles as a plane.
 
@@ -93,14 +95,17 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: 
     batch plane test (:meth:`RegionFitter.fit_batch`: the fitter's own plane tolerance and
     quadric curvature test, one pass) settles almost every plane again; only the others
     are decided anew, and a curved answer replaces the plane (a pipe whose first piece was
-    flat within the noise, grown to its whole width). With ``resolve_bends`` (the final
-    pixels of a laser's pixel grid, whose residuals are independent) a plane within the noise is also decided anew where its quadric resolves a bend
-    all the same (a pipe seen on a narrow arc, its bend under the noise over hundreds of
-    pixels); earlier decisions, on pieces and unsettled regions, do not ask it."""
+    flat within the noise, grown to its whole width). With ``resolve_bends`` (the
+    independent samples each pixel carries) a plane within the noise is also decided anew
+    where its quadric resolves a bend over them all the same (a pipe seen on a narrow arc,
+    its bend under the noise over hundreds of pixels), and so is one beyond what the noise
+    gives its pixels (the decision's marginal plane: a pipe's plane over a camera's noise
+    but under the preset's plane_rms); earlier decisions, on pieces and unsettled
+    regions, do not ask it."""
     planes = [k for k, m in fits.items() if isinstance(m, Plane)]
     if not planes or ctx.fitter.plugin.fit_batch is None:  # a plugin without the batch test: as decided
         return {}
-    bends = {"resolve_bends": True} if resolve_bends else {}  # a keyword of the primitives fitter
+    bends = {"resolve_bends": float(resolve_bends)} if resolve_bends else {}  # a keyword of the primitives fitter
     settled = ctx.fitter.fit_batch(ctx.xyz, labels, **bends)
     unsettled = [k for k in planes if k not in settled]
     out = {}

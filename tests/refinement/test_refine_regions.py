@@ -62,3 +62,23 @@ def test_a_region_of_pure_noise_stays_an_unfitted_failure(pipeline):
     labels, fits = _refine_one_failed_region(pipeline, rs.OrganizedCloud(xyz))
     assert not fits[1]
     assert set(np.unique(labels)) == {1}
+
+
+def test_bend_samples_counts_a_stated_correlation_and_keeps_the_bend_test_to_laser_returns_otherwise():
+    import pytest
+
+    from rangeseg_o3d.refinement import bend_samples
+    from rangeseg_o3d.sensor import NoiseModel, Sensor
+
+    def sensor(sigma_quadratic=0.0, correlation=1):
+        return Sensor(noise=NoiseModel(0.01, sigma_quadratic, correlation))
+
+    # a laser's single returns: one sample each; its tile means and a camera's returns: no test
+    assert bend_samples(sensor(), 1) == 1.0
+    assert bend_samples(sensor(), 2) == 0.0
+    assert bend_samples(sensor(0.0014), 1) == 0.0 and bend_samples(sensor(0.0014), 6) == 0.0
+    # a stereo camera's 3-px matching window: what the correlation leaves of each point
+    stereo = sensor(0.003, 3)
+    assert bend_samples(stereo, 1) == pytest.approx(1 / 9)
+    assert bend_samples(stereo, 6) == pytest.approx(stereo.noise.independent_share(6))
+    assert 0.7 < bend_samples(stereo, 6) < 0.75
