@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .fitting.primitives import with_statistics
-from .fitting.region_fitter import model_table
+from .fitting.region_fitter import fresh_label, model_table
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats",
@@ -241,7 +241,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # region's surface join it first (recover_pixels' claim_on_distance_noise: the edge
     # bands of a face), and what is left is one plane or none (split_blobs' thin path: the
     # fitter's plane, held to the noise of its distances).
-    first = int(labels.max(initial=0)) + 1
+    first = fresh_label(labels, fits)
     correlation_px = sensor.noise.correlation_px
     thin = recovered_region_floor(config, min_size, correlation_px) if strips else 0
     found = blobs if blobs is not None else leftover_blob_labels(labels, cloud.valid, min_size=min_size,
@@ -362,7 +362,7 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
                  if isinstance(m, Cylinder) and m and 0 < k < stats.counts.size and stats.counts[k] > 0]
     if not cylinders:
         return labels, fits, stats
-    boxes, replaced, next_label = _LabelBoxes(labels), [], int(labels.max(initial=0)) + 1
+    boxes, replaced, next_label = _LabelBoxes(labels), [], fresh_label(labels, fits)
     for k in cylinders:
         box = _pixel_box(boxes, k, tile_labels, tile)
         sample = _region_sample(cloud, labels, k, box)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fitting.region_fitter import model_table
+from .fitting.region_fitter import fresh_label, model_table
 from .fullres import PixelStats, leftover_blob_labels, recover_thin_surfaces, smallest_region
 
 __all__ = ["OFF_MODEL_MARGIN", "off_model_blocks", "recover_off_model"]
@@ -111,7 +111,7 @@ def recover_off_model(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, 
                                                max_angle_deg=config.merge_angle_deg, min_pixels=min_size // 2)
     if released is None:
         return labels, fits, stats
-    first = int(freed.max(initial=0)) + 1
+    first = fresh_label(freed, fits)
     found = leftover_blob_labels(freed, cloud.valid, min_size=min_size, first_label=first)
     if found is None:
         return labels, fits, stats

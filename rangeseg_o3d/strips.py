@@ -17,7 +17,7 @@ import numpy as np
 
 from . import kernels
 from .fitting.batch_planes import planes_from_moments, region_moments
-from .fitting.region_fitter import model_row, model_table
+from .fitting.region_fitter import fresh_label, model_row, model_table
 from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from .refinement.recover import grown_box
 
@@ -61,7 +61,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     config = with_derived_refinement(config, sensor, cloud)
     min_size = smallest_region(config, sensor, cloud)
     floor = recovered_region_floor(config, min_size, sensor.noise.correlation_px)
-    first = int(labels.max(initial=0)) + 1
+    first = fresh_label(labels, fits)
     found = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first, thin_min_size=floor)
     if found is None:
         return labels, fits, stats

@@ -7,7 +7,7 @@ import numpy as np
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
-__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "pixel_rms"]
+__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "pixel_rms", "fresh_label"]
 
 
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -27,6 +27,16 @@ def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         if kinds[k] != NONE:
             rms[k] = model.rms
     return kinds, params, rms
+
+
+def fresh_label(labels: np.ndarray, fits: dict) -> int:
+    """The first label number above every label in ``labels`` and every key of ``fits``.
+
+    A region can lose all its pixels while its model stays in ``fits`` (a tile region the
+    full-resolution pass gave away whole): numbering new regions from the labels alone would
+    hand such a number, with its stale model, to a new region.
+    """
+    return max(int(labels.max(initial=0)), max(fits, default=0)) + 1
 
 
 def model_row(model) -> tuple[int, np.ndarray]:

@@ -32,7 +32,7 @@ from .._numeric import median
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Cylinder, Plane
-from ..fitting.region_fitter import model_row, region_indices
+from ..fitting.region_fitter import fresh_label, model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from ..kernels.linalg import noise_rms_bound
 from .context import Context, without
@@ -243,7 +243,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     regions = {k: idx for k, idx in region_indices(labels).items() if k in wanted}
     labels, fits = labels.copy(), dict(fits)
     flat = labels.ravel()
-    next_label = int(labels.max(initial=0)) + 1
+    next_label = fresh_label(labels, fits)
     for k, idx in regions.items():
         model = fits[k]
         sigma = median(ctx.sigma[idx])

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..fitting.region_fitter import label_sizes, model_table, region_indices
+from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise
 from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
@@ -390,7 +390,7 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     explains is searched once more for a face (``face_band`` of :meth:`Context.dominant_piece`:
     after growth, which gave the corner's pixels to the faces around the blob).
     """
-    first = int(labels.max(initial=0)) + 1
+    first = fresh_label(labels, fits)
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
     if thin_strips:
         labels = claim_thin_strips(ctx, labels, fits, candidates, valid=valid, k_sigma=k_sigma)
@@ -478,7 +478,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     on such pixels merges back into that plane only when it lies on the union's plane on
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     """
-    first = int(labels.max(initial=0)) + 1
+    first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
     regions = None
     if boxes is not None:
@@ -520,7 +520,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
                                  box=None if blobs is None else grown_box(blobs, rim))
         # the tile models took what they could explain before these regions existed
-        n = int(labels.max(initial=0)) + 1
+        n = fresh_label(labels, fits)
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fitting.region_fitter import region_indices
+from ..fitting.region_fitter import fresh_label, region_indices
 from ..fitting.robust import beyond_noise, distance_noise
 from ..scales import GRAZING_COSINE
 from .context import TRIM_SIGMAS, Context, without
@@ -50,7 +50,7 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
     if pixels is None:
         pixels = region_indices(labels)
     regions = {k: pixels[k] for k in sorted(failed) if k in pixels}
-    next_label = int(labels.max(initial=0)) + 1
+    next_label = fresh_label(labels, fits)
     for k, idx in regions.items():
         label, found, by_band = k, False, False
         surfaces = []

@@ -271,6 +271,31 @@ def test_recover_pixels_with_the_blobs_boxes_answers_as_without(seed):
     assert {k: repr(m) for k, m in boxed_models.items()} == {k: repr(m) for k, m in whole_models.items()}
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_recover_pixels_numbers_new_regions_above_models_that_lost_their_pixels(seed):
+    # a region can lose every pixel while its model stays (a tile region the full-resolution
+    # pass gave away whole): the blobs are numbered above it, the stale model is left alone
+    # and claims nothing, and the pipe is recovered as it is without the stale models
+    from rangeseg_o3d.fitting.region_fitter import fresh_label
+    from rangeseg_o3d.fullres import leftover_blob_labels
+    from rangeseg_o3d.refinement.recover import recover_pixels
+
+    scan, pipeline, labels, fits, config, ranges, sigma = _pipe_top_lost_by_the_tiles(seed)
+    stale = {3: fits[1], 4: fits[1]}  # the wall's plane, held by two labels with no pixel
+    first = fresh_label(labels, {**fits, **stale})
+    assert first == 5
+    candidates = leftover_blob_labels(labels, scan.cloud.valid, min_size=100, first_label=first)[0]
+    out, models = recover_pixels(scan.cloud, labels, {**fits, **stale}, fitter=pipeline.fitter, config=config,
+                                 sensor=pipeline.sensor, ranges=ranges, sigma=sigma,
+                                 candidates=candidates, min_size=100)
+    assert not np.isin(out, [3, 4]).any()
+    assert models[3] is stale[3] and models[4] is stale[4]
+    pipe = scan.truth_ids == 2
+    owner, share = best_overlap(out, np.where(pipe, 7, 0), 7)
+    assert share > 0.99, f"the pipe's largest region holds {share:.1%} of it"
+    assert models[owner].kind == "cylinder"
+
+
 def _floor_seen_near_grazing(seed=0):
     # a floor 10 cm below the sensor seen 1.5-2.5 degrees below the horizon (incidence
     # 87.5-88.5 degrees, 2.3-3.8 m away), range noise 5 mm along the rays; the floor is one
@@ -437,3 +462,12 @@ def test_claim_thin_strips_gives_each_surface_its_border_column_at_a_step(contex
     small = claim_thin_strips(context(cloud, min_size=81, sigma=sigma), labels, fits, candidates,
                               valid=cloud.valid, k_sigma=3.0)
     assert (small == labels).all()
+
+
+def test_fresh_label_is_above_every_label_and_every_model():
+    from rangeseg_o3d.fitting.region_fitter import fresh_label
+
+    labels = np.array([[0, 2], [7, 1]], np.int32)
+    assert fresh_label(labels, {}) == 8
+    assert fresh_label(labels, {1: None, 12: None}) == 13
+    assert fresh_label(np.zeros((3, 3), np.int32), {}) == 1
