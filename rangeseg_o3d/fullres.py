@@ -24,8 +24,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import kernels  # the package: its names load on first use (no compiler at import)
 from .fitting.primitives import with_statistics
 from .fitting.region_fitter import fresh_label, model_table
+from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refinement
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats",
@@ -117,15 +119,13 @@ def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndar
     With ``known`` (statistics of these labels measured earlier), only the labels in
     ``stale`` (whose pixels or model changed since) are measured again.
     """
-    from .kernels import distance_stats
-
     n = int(labels.max(initial=0)) + 1
     kinds, params, rms = model_table(fits, n)
     if known is not None:
         measure = np.zeros(n, bool)
         measure[[k for k in stale if 0 < k < n]] = True
         kinds = np.where(measure, kinds, 0).astype(kinds.dtype)
-    inliers, squares, counts = distance_stats(
+    inliers, squares, counts = kernels.distance_stats(
         np.ascontiguousarray(xyz.reshape(-1, 3)), np.ascontiguousarray(labels).ravel(), kinds,
         params, np.zeros_like(rms), np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
         float(inlier_factor))
@@ -149,8 +149,6 @@ def smallest_region(config, sensor, cloud) -> int:
     a blob this small may hold fit the plane along their viewing rays within the range
     noise; recover_pixels holds a recovered plane to the noise of its distances, which
     refuses them (a doubled floor kept them out, and those faces too)."""
-    from .scales import with_derived_refinement
-
     return max(int(with_derived_refinement(config, sensor, cloud).min_region_size), 10)
 
 
@@ -198,8 +196,6 @@ def recovered_region_floor(config, min_size: int, correlation_px: int = 1) -> in
     the recovery finds is fitted to pixels, not to the tile means the tile floor ``min_size``
     counts. (``config`` is kept for the callers; the surfaces split out of a cored blob have
     their own floor: :func:`_split_floor`.)"""
-    from .scales import MIN_PIXELS
-
     return min(MIN_PIXELS * int(correlation_px) ** 2, min_size)
 
 
@@ -228,8 +224,6 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     too (else only the blobs: :func:`rangeseg_o3d.strips.recover_strips` takes the strips later).
     """
     from .refinement.recover import recover_pixels
-    from .scales import with_derived_refinement
-
     config = with_derived_refinement(config, sensor, cloud)  # values left to the sensor
     min_size = smallest_region(config, sensor, cloud)
     # Every leftover blob, thin or not: besides surfaces thinner than the tile grid's 3x3
@@ -549,8 +543,6 @@ def drop_unresolvable_curves(labels: np.ndarray, fits: dict, *, depth_step: floa
     when ``depth_step`` is 0: the depth is not quantised).
     """
     from .fitting.primitives import Plane
-    from .scales import RELIEF_STEPS
-
     if depth_step <= 0:
         return labels, fits
     limit = RELIEF_STEPS * depth_step
@@ -586,8 +578,6 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
     """
     from .fitting.batch_planes import region_moments
     from .fitting.primitives import Plane
-    from .scales import GRAZING_TAN
-
     n = int(labels.max(initial=0)) + 1
     planes = [k for k, m in fits.items() if isinstance(m, Plane) and 0 < k < n]
     if len(planes) < 2:
@@ -877,10 +867,8 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
     no such blob took (strips too thin for a 3x3 core) follow them, numbered from ``first_thin``
     (:func:`rangeseg_o3d.kernels.leftover_blobs`; without, ``first_thin`` is past the last blob).
     """
-    from .kernels import leftover_blobs
-
-    candidates, boxes, n_cored = leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
-                                                int(min_size), int(first_label), int(thin_min_size))
+    candidates, boxes, n_cored = kernels.leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
+                                                        int(min_size), int(first_label), int(thin_min_size))
     if not boxes.shape[0]:
         return None
     return candidates, boxes, int(first_label) + int(n_cored)

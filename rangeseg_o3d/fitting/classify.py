@@ -45,9 +45,13 @@ import inspect
 import numpy as np
 from pydantic import ConfigDict, Field
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.kinds import CYLINDER, PLANE, SPHERE, ModelKind
 from ..registry import Plugin, StrictParams, defaults_of, params_model
+from . import _decide  # numba is loaded already (kernels.linalg below): one import, not one a fit
+from ._codes import ACCEPTED, COLLINEAR, MIN_POINTS, NON_FINITE
 from ._common import Prepared, as_points, decision_reason, input_failure
+from .batch_planes import planes_from_moments
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import UNDETERMINED, plane_from_prepared
@@ -172,8 +176,6 @@ def fit_primitive(
         The model, its ``inliers`` counted within 3x its kind's threshold; or a falsy
         FitFailure(kind="primitive") whose reason lists why each model was refused.
     """
-    from ._decide import COLLINEAR, MIN_POINTS, NON_FINITE, decide
-
     pts, failure = _checked_points(points, "primitive", min_points)
     if failure is not None:
         return failure
@@ -186,7 +188,7 @@ def fit_primitive(
         if axis is not None:
             hint = np.ascontiguousarray(axis)
     min_arc = np.radians(min_arc_deg)
-    decision = decide(
+    decision = _decide.decide(
         pts, hint, *_search_grids(), float(plane_rms), float(cylinder_rms), float(sphere_rms),
         float(rms_per_range2), float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR,
         ROUNDNESS_CYLINDER, ROUNDNESS_SPHERE, MAX_ITERATIONS, float(noise_floor), float(resolve_bends))
@@ -369,15 +371,13 @@ def refit_primitive(
         if plane.rms > plane_tol:
             return FitFailure("plane", f"plane rms {plane.rms:.3g} > {plane_tol:.3g}")
         return plane
-    from ._decide import ACCEPTED, MIN_POINTS, NON_FINITE, curved_refit
-
     # Levenberg-Marquardt from the model itself: a region that grew or merged is the same
     # surface, so no search or algebraic start is needed.
     kind = CYLINDER if isinstance(model, Cylinder) else SPHERE
     start = (np.concatenate([model.axis, model.point, [model.radius]]) if kind == CYLINDER
              else np.concatenate([model.center, [model.radius], np.zeros(3)]))
     min_arc = np.radians(min_arc_deg)
-    code, centroid, scale, result, tolerance, eigen_rms = curved_refit(
+    code, centroid, scale, result, tolerance, eigen_rms = _decide.curved_refit(
         kind, pts, start, float(cylinder_rms if kind == CYLINDER else sphere_rms), float(rms_per_range2),
         float(max_radius), float(min_arc), float(curvature_gain), INLIER_FACTOR, MAX_ITERATIONS)
     if code == ACCEPTED:
@@ -442,14 +442,12 @@ def fit_planes_batch(
     -------
     {label: Plane}, each Plane's ``inliers`` counted within 3x its threshold.
     """
-    from ..kernels import settle_planes
-
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     labels = np.ascontiguousarray(labels, dtype=np.int32)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or labels.shape != (len(xyz),):
         raise ValueError(f"xyz must be (N, 3) and labels (N,); got {xyz.shape} and {labels.shape}")
     n = int(labels.max(initial=0)) + 1
-    settled, normal, d, rms, inliers = settle_planes(
+    settled, normal, d, rms, inliers = kernels.settle_planes(
         xyz, labels, n, float(plane_rms), float(rms_per_range2), int(min_points), float(curvature_gain),
         INLIER_FACTOR, float(noise_floor), float(resolve_bends))
     normal.setflags(write=False)  # rows pass into the Planes as they are, without a copy each
@@ -477,8 +475,6 @@ def refit_planes_from_moments(
     threshold), or None where the model is not a plane (it needs its points). A Plane's
     ``inliers`` is its number of points: moments carry no distances.
     """
-    from .batch_planes import planes_from_moments
-
     moments = np.atleast_2d(np.asarray(moments, dtype=np.float64))
     if len(moments) != len(models):
         raise ValueError(f"need one moments row per model; got {len(moments)} rows and {len(models)} models")

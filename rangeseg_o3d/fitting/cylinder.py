@@ -7,6 +7,7 @@ import functools
 
 import numpy as np
 
+from ._codes import INLIERS, RADIUS, RMS
 from ._common import Prepared, as_points, refusal
 from .primitives import Cylinder, FitFailure
 
@@ -215,8 +216,6 @@ def cylinder_from_prepared(prep: Prepared, normals=None, *, max_iterations: int 
 
 def cylinder_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Cylinder:
     """The Cylinder of a checked result row (scaled frame about ``centroid``)."""
-    from ._decide import INLIERS, RADIUS, RMS
-
     values = result.tolist()  # Python floats: the scalar arithmetic below costs less
     return Cylinder(axis=_oriented(result[:3]), point=centroid + scale * result[3:6],
                     radius=values[RADIUS] * scale, rms=values[RMS] * scale,

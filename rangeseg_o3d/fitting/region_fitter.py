@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
+from .batch_planes import region_moments
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
@@ -66,8 +70,6 @@ def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
     With ``only`` (labels), just those labels' (a label without pixels is left out, as
     always): the other pixels are read, not sorted.
     """
-    from ..kernels import group_by_label, group_members
-
     flat = np.ascontiguousarray(labels.ravel())
     if flat.size == 0:
         return {}
@@ -77,9 +79,9 @@ def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
     if only is not None:
         members = np.zeros(n, bool)
         members[[k for k in only if 0 < k < n]] = True
-        order, starts = group_members(flat, members)
+        order, starts = kernels.group_members(flat, members)
     else:
-        order, starts = group_by_label(flat, n)
+        order, starts = kernels.group_by_label(flat, n)
     present = (np.flatnonzero(np.diff(starts[1:]) > 0) + 1).tolist()
     bounds = starts.tolist()  # Python ints: slicing by numpy scalars costs more than the slice
     return {k: order[bounds[k]:bounds[k + 1]] for k in present}
@@ -89,11 +91,9 @@ def label_sizes(labels: np.ndarray, minlength: int = 0) -> np.ndarray:
     """``np.bincount(labels.ravel(), minlength=minlength)`` of a non-negative label image, in
     one compiled pass (:func:`rangeseg_o3d.kernels.label_counts`: a third of numpy's time on a
     scan, which first copies the labels to 64 bits)."""
-    from ..kernels import label_counts
-
     if labels.size == 0:
         return np.zeros(minlength, np.int64)
-    counts = label_counts(np.ascontiguousarray(labels))
+    counts = kernels.label_counts(np.ascontiguousarray(labels))
     if counts.size < minlength:
         counts = np.concatenate([counts, np.zeros(minlength - counts.size, counts.dtype)])
     return counts
@@ -101,17 +101,13 @@ def label_sizes(labels: np.ndarray, minlength: int = 0) -> np.ndarray:
 
 def pixel_rms(xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndarray) -> dict:
     """``fits`` with each model's rms replaced by the rms distance of its region's pixels."""
-    from dataclasses import replace
-
-    from ..kernels import distance_stats
-
     if not fits:
         return {}
     n = max(int(labels.max(initial=0)), max(fits)) + 1
     kinds, params, rms = model_table(fits, n)
-    _, squares, counts = distance_stats(np.ascontiguousarray(xyz_flat, dtype=np.float64),
-                                        np.ascontiguousarray(labels.ravel(), dtype=np.int32),
-                                        kinds, params, rms, np.ascontiguousarray(sigma.ravel()), 3.0)
+    _, squares, counts = kernels.distance_stats(np.ascontiguousarray(xyz_flat, dtype=np.float64),
+                                                np.ascontiguousarray(labels.ravel(), dtype=np.int32),
+                                                kinds, params, rms, np.ascontiguousarray(sigma.ravel()), 3.0)
     return {k: replace(m, rms=float(np.sqrt(squares[k] / counts[k]))) if counts[k] else m
             for k, m in fits.items()}
 
@@ -208,8 +204,6 @@ class RegionFitter:
         """Label-wise moments when the plugin refits from them, else None."""
         if self.plugin.refit_moments is None:
             return None
-        from .batch_planes import region_moments
-
         return region_moments(xyz_flat, labels.ravel())
 
     def refit_from_moments(self, moments: np.ndarray | None, models: list) -> list:

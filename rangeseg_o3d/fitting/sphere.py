@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._codes import INLIERS, RADIUS, RMS
 from ._common import Prepared, refusal
 from .primitives import FitFailure, Sphere
 
@@ -82,8 +83,6 @@ def sphere_from_prepared(prep: Prepared, max_iterations: int = 30) -> Sphere | F
 
 def sphere_model(result: np.ndarray, centroid: np.ndarray, scale: float) -> Sphere:
     """The Sphere of a checked result row (scaled frame about ``centroid``)."""
-    from ._decide import INLIERS, RADIUS, RMS
-
     values = result.tolist()  # Python floats: the scalar arithmetic below costs less
     return Sphere(center=centroid + scale * result[:3], radius=values[RADIUS] * scale,
                   rms=values[RMS] * scale, inliers=int(values[INLIERS]))

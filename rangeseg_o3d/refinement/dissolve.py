@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, region_indices
 from ..fitting.robust import curvature_resolved
@@ -111,15 +112,13 @@ def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
     regions, and the labels whose pixels changed (absorbed regions and the planes that
     took them).
     """
-    from ..kernels import label_counts
-
     n = int(labels.max(initial=0)) + 1
     planes = [k for k, m in fits.items() if isinstance(m, Plane) and 0 < k < n]
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane) and 0 < k < n]
     if not (curved and planes):
         return labels, fits, set()
     labels = np.ascontiguousarray(labels, dtype=np.int32)
-    sizes = label_counts(labels) if sizes is None else np.asarray(sizes)
+    sizes = kernels.label_counts(labels) if sizes is None else np.asarray(sizes)
     table = _PlaneTable(planes, fits, scatter, sizes)
     # only a patch smaller than some plane can be one's ripple (a frame-wide column is
     # skipped without looking at its pixels)
@@ -179,8 +178,6 @@ def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma,
     sample rules a plane out when even its quantile ``0.5 - 1.5 / sqrt(m)`` (m samples: the
     median's three-sigma binomial bound) is beyond ``k_sigma``; a column filling half of a
     frame then costs a sixteenth of its pixels."""
-    from ..kernels import member_pixels
-
     large = candidates & (sizes[:candidates.size] >= _RIPPLE_LARGE)
     wanted = candidates & ~large
     if large.any():
@@ -192,7 +189,7 @@ def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma,
             level = max(0.0, 0.5 - 1.5 / np.sqrt(sample.size))
             wanted[k] = bigger.any() and bool(np.any(
                 np.quantile(_scores(xyz, sample, table, bigger, sigma, min_cosine), level, axis=0) <= k_sigma))
-    return _grouped(member_pixels(labels, wanted), labels) if wanted.any() else {}
+    return _grouped(kernels.member_pixels(labels, wanted), labels) if wanted.any() else {}
 
 
 def _scores(xyz, idx, table: _PlaneTable, which, sigma, min_cosine: float = 1.0) -> np.ndarray:
@@ -249,11 +246,9 @@ def _may_pass_somewhere(xyz, idx, table: _PlaneTable, which, sigma, k_sigma) -> 
     """Whether the median of some plane's (``which``) column of :func:`_scores` of the pixels
     ``idx`` may be within ``k_sigma`` (:func:`median_may_pass`, in one compiled pass with a
     slack over the rounding: False only where numpy's answer is False too)."""
-    from ..kernels import planes_may_hold_half
-
-    return bool(planes_may_hold_half(xyz, sigma, np.ascontiguousarray(idx, dtype=np.int64),
-                                     table.normals[which], table.offsets[which], table.scatter[which],
-                                     float(k_sigma), _SCORE_SLACK).any())
+    return bool(kernels.planes_may_hold_half(xyz, sigma, np.ascontiguousarray(idx, dtype=np.int64),
+                                             table.normals[which], table.offsets[which], table.scatter[which],
+                                             float(k_sigma), _SCORE_SLACK).any())
 
 
 def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma, min_cosine: float = 1.0):

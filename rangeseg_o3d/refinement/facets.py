@@ -28,6 +28,7 @@ import functools
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .._numeric import median
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
@@ -193,12 +194,10 @@ def _moved_to_nearer(ctx: Context, pixels: np.ndarray, points: np.ndarray, owner
     # ``owner`` with each pixel nearer another model by more than SETTLE_MARGIN times the noise
     # of its distance to its own (the range noise along the ray) given to it; None if none is
     # (kernels.nearer_models: one pass, no (models x pixels) distances)
-    from ..kernels import nearer_models
-
     kinds, params = zip(*(model_row(model) for model in models))
-    owner, moved = nearer_models(np.ascontiguousarray(points, dtype=np.float64), ctx.sigma[pixels],
-                                 np.ascontiguousarray(owner, dtype=np.int64), np.array(kinds, np.int8),
-                                 np.array(params), float(SETTLE_MARGIN))
+    owner, moved = kernels.nearer_models(np.ascontiguousarray(points, dtype=np.float64), ctx.sigma[pixels],
+                                         np.ascontiguousarray(owner, dtype=np.int64), np.array(kinds, np.int8),
+                                         np.array(params), float(SETTLE_MARGIN))
     return owner if moved else None
 
 
@@ -325,11 +324,9 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     """
     if not isinstance(model, Cylinder):
         return []
-    from ..kernels import crease_sides
-
-    first = crease_sides(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64), distances, model.axis,
-                         model.point, ctx.min_size, ANGLE_BINS, idx.size, CUTS, CHI_SQUARE_SIGMAS,
-                         PLANES_COVER, CURVED_PARAMETERS["cylinder"] - 3)
+    first = kernels.crease_sides(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64), distances, model.axis,
+                                 model.point, ctx.min_size, ANGLE_BINS, idx.size, CUTS, CHI_SQUARE_SIGMAS,
+                                 PLANES_COVER, CURVED_PARAMETERS["cylinder"] - 3)
     if not first.size:
         return []
     sides = [idx[first], idx[~first]]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, model_table, pixel_rms
 from .context import Context
@@ -52,16 +53,14 @@ def grow_into_edges(
     -------
     New (H, W) int32 labels.
     """
-    from ..kernels import grow_rings
-
     labels = np.array(labels, dtype=np.int32, order="C", copy=True)
     n = int(labels.max(initial=0)) + 1
     kinds, params, rms = model_table(models, n)
-    grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
-               np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
-               np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
-               int(iterations), float(k_sigma), float(jump_ratio), float(jump_min),
-               *((0, -1, 0, -1) if box is None else (int(b) for b in box)))
+    kernels.grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
+                       np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+                       np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+                       int(iterations), float(k_sigma), float(jump_ratio), float(jump_min),
+                       *((0, -1, 0, -1) if box is None else (int(b) for b in box)))
     return labels
 
 
@@ -129,19 +128,17 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
     ``wrap_columns`` (a 360-degree grid) the first and last columns are neighbours. The
     regions that changed are refitted, keeping their kind.
     """
-    from ..kernels import settle_borders
-
     good = {k: m for k, m in fits.items() if m}
     if not (iterations and len(good) > 1):
         return labels, fits
     settled = np.array(labels, dtype=np.int32, order="C", copy=True)
     n = int(settled.max(initial=0)) + 1
     kinds, params, rms = model_table(good, n)
-    moved = settle_borders(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), settled, kinds,
-                           params, rms, np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
-                           np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
-                           float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min), PLANE_MARGIN,
-                           bool(wrap_columns))
+    moved = kernels.settle_borders(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), settled, kinds,
+                                   params, rms, np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+                                   np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
+                                   float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min), PLANE_MARGIN,
+                                   bool(wrap_columns))
     if not moved:
         return labels, fits
     moved_mask = settled != labels

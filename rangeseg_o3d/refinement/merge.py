@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .._numeric import median
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
@@ -49,9 +50,7 @@ def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool =
         return region_adjacency(labels, reach=reach) | region_adjacency(seam, reach=reach)
     n = int(labels.max(initial=0)) + 1
     if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
-        from ..kernels import adjacency_matrix
-
-        a, b = np.nonzero(np.triu(adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)))
+        a, b = np.nonzero(np.triu(kernels.adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)))
         return set(zip(a.tolist(), b.tolist()))
     pairs = set()
     for dy in range(-reach, reach + 1):
@@ -265,12 +264,10 @@ def _mean_noise(ctx: Context, labels: np.ndarray, moments: np.ndarray) -> np.nda
 def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:
     # lut[labels] (a new int32 array); a copy when no union changed a label, one compiled
     # pass for a label image, instead of numpy's gather over the frame
-    from ..kernels import relabel
-
     if np.array_equal(lut, np.arange(lut.size)):
         return labels.astype(np.int32)
     if labels.ndim == 2 and labels.dtype == np.int32:
-        return relabel(labels, lut)
+        return kernels.relabel(labels, lut)
     return lut[labels]
 
 
@@ -630,14 +627,12 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
 def _centres(xyz: np.ndarray, labels: np.ndarray, wanted: set) -> dict:
     # each wanted label with pixels: the mean of its points (the sums in raster order, as the
     # mean of its gathered points adds them)
-    from ..kernels import member_centres
-
     flat = np.ascontiguousarray(labels.ravel())
     if flat.dtype != np.int32:
         flat = flat.astype(np.int32)
     members = np.zeros(int(flat.max(initial=0)) + 1, bool)
     members[[k for k in wanted if 0 < k < members.size]] = True
-    sums = member_centres(xyz, flat, members)
+    sums = kernels.member_centres(xyz, flat, members)
     return {k: sums[k, 1:] / sums[k, 0] for k in np.flatnonzero(sums[:, 0] > 0).tolist()}
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import curvature_resolved
@@ -121,13 +122,11 @@ def _still_flat(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> l
     squares plane's sum of squared distances by more than noise would (the F-test of
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`): two passes over the grid,
     the label-wise moments and the curved models' distances."""
-    from ..kernels import distance_stats, label_moments, planes_from_moment_rows
-
     n = max(curved) + 1
     flat_labels = np.ascontiguousarray(labels.ravel(), dtype=np.int32)
     kinds, params, rms = model_table({k: fits[k] for k in curved}, n)
-    _, curved_squares, counts = distance_stats(ctx.xyz, flat_labels, kinds, params, rms,
-                                               np.ascontiguousarray(ctx.sigma, dtype=np.float64), 3.0)
-    eigvals = planes_from_moment_rows(label_moments(ctx.xyz, flat_labels, n)[curved])[3]
+    _, curved_squares, counts = kernels.distance_stats(ctx.xyz, flat_labels, kinds, params, rms,
+                                                       np.ascontiguousarray(ctx.sigma, dtype=np.float64), 3.0)
+    eigvals = kernels.planes_from_moment_rows(kernels.label_moments(ctx.xyz, flat_labels, n)[curved])[3]
     return [k for k, plane_variance in zip(curved, eigvals[:, 0]) if counts[k] > 3 and not curvature_resolved(
         plane_variance * counts[k], curved_squares[k], int(counts[k]), EXTRA_PARAMETERS[fits[k].kind])]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..sensor import noise_sigma
 
 __all__ = [
@@ -140,8 +141,6 @@ def residual_image(
     if not 3 < min_valid <= window * window:
         raise ValueError(f"min_valid must be in 4..{window * window}; got {min_valid}")
     if not with_normals:  # one compiled pass, the same values as the steps below
-        from ..kernels import window_residuals
-
         shape = xyz.shape[:2]
         quadratic = np.asarray(sigma_quadratic * noise_scale, dtype=np.float64)
         if ranges is None:
@@ -150,8 +149,8 @@ def residual_image(
             ranges = np.linalg.norm(xyz, axis=2) if np.any(quadratic) else 0.0
         ranges = np.ascontiguousarray(np.broadcast_to(np.asarray(ranges, dtype=np.float64), shape))
         quadratic = np.ascontiguousarray(np.broadcast_to(quadratic, shape))
-        return window_residuals(xyz, int(window), int(min_valid), _read_only(ranges),
-                                float(sigma0), _read_only(quadratic)), None
+        return kernels.window_residuals(xyz, int(window), int(min_valid), _read_only(ranges),
+                                        float(sigma0), _read_only(quadratic)), None
     if ranges is None:
         ranges = np.linalg.norm(xyz, axis=2)
     count, _, scatter = neighbourhood_moments(xyz, window=window)
