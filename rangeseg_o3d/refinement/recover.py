@@ -554,6 +554,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             kept_apart = {k: regions[k] for k in refused if k in regions}
             near = set(near) | {(min(k, j), max(k, j)) for k, idx in kept_apart.items()
                                 for j in touching(labels, idx, reach=2) if j != k}
+            if config.merge_disjoint:
+                near |= _curved_apart(fits, new)
             # The side of a column or pipe turning away from the camera: the tile means
             # there straddle the turn, so the tile grid left it, and at full resolution
             # its strip fits a plane within the noise. It rejoins the curved region when
@@ -569,6 +571,21 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         labels = claim_on_distance_noise(ctx, labels, fits, free_pixels(labels, _read_only_bool(cloud.valid)),
                                          k_sigma=config.k_sigma)
     return labels, fits
+
+
+def _curved_apart(fits: dict, new: dict) -> set:
+    """Pairs ``(min, max)`` of each recovered surface of ``new`` still in ``fits`` and every
+    curved region of another kind in ``fits``, touching or not.
+
+    A piece of a pipe or ball seen apart from the rest of it (a box in front of the column
+    between them) is a strip the tile grid left, which a plane fits within the noise at
+    full resolution, as the turning side of a column is; with ``merge_disjoint`` it is
+    offered to the curved regions apart too, as :func:`merge_regions` offers same-kind
+    regions apart. :func:`rangeseg_o3d.refinement.merge.merge_into_curved` refits only a
+    piece the curved model as it stands explains within its noise sigmas at the median."""
+    curved = [k for k, m in fits.items() if m and m.kind in ("cylinder", "sphere")]
+    return {(min(k, c), max(k, c)) for k in new if fits.get(k) for c in curved
+            if c != k and fits[c].kind != fits[k].kind}
 
 
 def _released_from(regions: dict, released: np.ndarray | None) -> set:

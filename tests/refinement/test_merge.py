@@ -549,3 +549,29 @@ def test_curved_pieces_apart_are_candidates_when_their_visible_surfaces_agree():
     assert similar_models(big, small, max_angle_deg=3.0, tolerance=0.029)
     assert not similar_models(big, Sphere(center=[0.0, 0.1, 3.6], radius=0.43, rms=0.003, inliers=100),
                               max_angle_deg=3.0, tolerance=0.029)
+
+
+def test_a_strip_of_a_cylinder_apart_from_it_is_offered_to_it_and_goes_back(context):
+    # A strip of the arc seen apart from the rest (six columns between them hidden, as by a
+    # box in front of a column), fitted as a plane: recover's _curved_apart pairs it with
+    # the curved regions whether they touch or not, and merge_into_curved takes it back.
+    from rangeseg_o3d.fitting import fit_cylinder
+    from rangeseg_o3d.refinement.merge import merge_into_curved
+    from rangeseg_o3d.refinement.recover import _curved_apart
+
+    xyz, _ = _arc()
+    xyz = xyz[:, :45].copy()
+    labels = np.ones(xyz.shape[:2], np.int32)
+    labels[:, 31:37] = 0
+    labels[:, 37:] = 2
+    fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2]),
+            3: Plane(normal=[0, 0, 1], d=9.0, rms=0.001, inliers=10)}
+    assert fits[1].kind == "cylinder" and fits[2].kind == "plane"
+    # the new piece with every curved region of another kind; no plane-plane pair
+    assert _curved_apart(fits, {2: fits[2]}) == {(1, 2)}
+    assert _curved_apart(fits, {1: fits[1]}) == set()
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], 0.001))
+    out, out_fits, _ = merge_into_curved(ctx, labels, fits, _curved_apart(fits, {2: fits[2]}), rms_factor=1.3,
+                                         near_sigmas=3.0)
+    assert (out[:, 37:] == 1).all() and (out[:, 31:37] == 0).all() and set(out_fits) == {1, 3}
+    assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
