@@ -12,10 +12,11 @@ import numpy as np
 from . import registry
 from .cloud import OrganizedCloud
 from .config import PipelineConfig, load_config
+from .crease_planes import planes_for_creases
 from .fitting.primitives import Cylinder, Plane, Sphere, with_statistics
 from .fitting.region_fitter import RegionFitter
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
-                      label_pixels, merge_touching_planes, planes_for_creases, planes_for_unresolved,
+                      label_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor,
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
 from .off_model import recover_off_model
