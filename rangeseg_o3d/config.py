@@ -41,6 +41,8 @@ class SensorConfig(BaseModel):
     min_range, max_range : working ranges (m), for the unit plausibility check.
     depth_step : the depth quantisation step (m) of a sensor that reports depth in steps
         (8-bit structured light); 0 for none.
+    lateral_noise_px : rms offset across its ray, in grid steps, of the point a return
+        measures (a camera's spot or blur wider than its pixel); 0 for none.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
@@ -56,6 +58,8 @@ class SensorConfig(BaseModel):
     min_range: float = Field(0.01, ge=0, description="shortest working range, m")
     max_range: float = Field(1000.0, gt=0, description="longest working range, m")
     depth_step: float = Field(0.0, ge=0, description="depth quantisation step, m (0: none)")
+    lateral_noise_px: float = Field(0.0, ge=0, le=16, description="rms offset across the ray of the point a "
+                                    "return measures, grid steps (0: none)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -70,7 +74,8 @@ class SensorConfig(BaseModel):
         noise = NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px)
         return Sensor(noise=noise, units=self.units, wrap_columns=self.wrap_columns,
                       row_spacing_deg=self.row_spacing_deg, column_spacing_deg=self.column_spacing_deg,
-                      min_range=self.min_range, max_range=self.max_range, depth_step=self.depth_step)
+                      min_range=self.min_range, max_range=self.max_range, depth_step=self.depth_step,
+                      lateral_noise_px=self.lateral_noise_px)
 
 
 class StageConfig(BaseModel):

@@ -131,6 +131,12 @@ class Sensor:
     depth_step : the depth quantisation step (m; 0 for none): an 8-bit structured-light
         camera reports depth in steps, and a window too small to span one sees a flat
         terrace instead of its surface's slope (:mod:`rangeseg_o3d.scales`).
+    lateral_noise_px : rms offset across its viewing ray, in grid steps, of the point of the
+        surface a return measures (0 for none: the return lies on its pixel's ray). A camera
+        whose spot or blur spans more than its pixel measures the surface somewhat beside the
+        ray it reports; seen head-on this is invisible, seen at grazing incidence it moves the
+        point off its surface by about this times the range times the grid step, where the
+        range noise moves it by almost nothing (:func:`lateral_distance_noise`).
     """
 
     noise: NoiseModel = NoiseModel()
@@ -141,6 +147,7 @@ class Sensor:
     min_range: float = 0.01
     max_range: float = 1000.0
     depth_step: float = 0.0
+    lateral_noise_px: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.noise, NoiseModel):
@@ -157,6 +164,9 @@ class Sensor:
         if not (isinstance(self.depth_step, (int, float)) and math.isfinite(self.depth_step)
                 and self.depth_step >= 0):
             raise ValueError(f"depth_step must be a finite number of metres >= 0; got {self.depth_step!r}")
+        if not (isinstance(self.lateral_noise_px, (int, float)) and math.isfinite(self.lateral_noise_px)
+                and self.lateral_noise_px >= 0):
+            raise ValueError(f"lateral_noise_px must be a finite number >= 0; got {self.lateral_noise_px!r}")
 
     @property
     def scale(self) -> float:

@@ -102,6 +102,17 @@ def test_sensor_validates_units_and_ranges():
         load_config({"sensor": {"units": "furlong"}})
 
 
+def test_lateral_noise_is_a_sensor_fact_of_abw_only():
+    # 0 (returns on their rays) unless a preset states it: ABW's camera, half a grid step
+    assert Sensor().lateral_noise_px == 0.0
+    assert load_config("abw").sensor.resolve().lateral_noise_px == 0.5
+    assert load_config("rgbd_vga").sensor.resolve().lateral_noise_px == 0.0
+    with pytest.raises(ValueError, match="lateral_noise_px"):
+        Sensor(lateral_noise_px=-1.0)
+    with pytest.raises(ValueError, match="lateral_noise_px"):
+        load_config({"sensor": {"lateral_noise_px": -0.5}})
+
+
 def test_the_segmenter_normalises_by_the_sensors_noise(lms_cloud):
     # constant noise: the residual scales as 1/sigma0^2
     base = Pipeline("lms200").run(lms_cloud).stages["residual"]

@@ -21,6 +21,7 @@ from .primitives import Cylinder, Sphere
 from .region_fitter import model_row
 
 __all__ = ["trimmed_fit", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
+           "lateral_distance_noise",
            "CHI_SQUARE_SIGMAS", "REACH_MARGIN", "REACH_TRUSTED_SHARE"]
 
 # Pools of at least this many points get four times the random three-point planes.
@@ -95,6 +96,24 @@ def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     cosines = np.abs(np.einsum("ij,ij->i", rays, model.normals(points)))
     return np.asarray(sigma, dtype=float) * cosines
+
+
+def lateral_distance_noise(model, points: np.ndarray, sigma: np.ndarray, lateral: float) -> np.ndarray:
+    """Per point, the noise of its distance to the plane ``model`` when the model is right and
+    the sensor measures the surface up to ``lateral`` (rms, metres per metre of range) across
+    the ray it reports: the range noise times the incidence cosine (:func:`distance_noise`)
+    and the lateral offset times its sine, added in quadrature.
+
+    Head-on the lateral offset slides a point along its surface (no distance); at grazing
+    incidence, where the range noise moves it by almost nothing, it is all the distance noise
+    there is (a structured-light camera whose spot is wider than its pixel).
+    """
+    points = np.asarray(points, dtype=float)
+    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    cosines = np.abs(points @ np.asarray(model.normal, dtype=float)) / ranges
+    across = lateral * ranges
+    along = np.asarray(sigma, dtype=float) * cosines
+    return np.sqrt(along * along + across * across * np.maximum(1.0 - cosines * cosines, 0.0))
 
 
 def curvature_resolved(plane_squares: float, curved_squares: float, n: int, extra: int = 2) -> bool:

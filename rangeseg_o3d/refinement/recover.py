@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
-from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise
+from ..fitting.plane import fit_plane
+from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
 from ..kernels.grid import free_pixels
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
@@ -465,7 +466,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs are fitted, their pixels on a plane region's surface join it
     (:func:`claim_on_distance_noise`; apart from it only with ``config.merge_disjoint``);
     after, a recovered plane beyond the noise of its pixels' distances
-    (:func:`_planes_along_rays`) merges into no plane and, unless it rejoins a curved region,
+    (:func:`_planes_along_rays`; unless, where the sensor states a lateral noise, it is one
+    of several pieces of one face the jump edges cut: :func:`_join_grazing_pieces`) merges into no plane and, unless it rejoins a curved region,
     keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
     ``config.merge_disjoint`` the free pixels are offered to the planes once more.
     ``boxes`` (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then
@@ -512,6 +514,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs = None if boxes is None or not len(boxes) else (
         int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
+    if refused and sensor.lateral_noise_px > 0:
+        refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
     if new:
         from ..kernels import claim_rings, member_pixels
 
@@ -617,6 +621,83 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
         return set()
     pixels = _grouped(pool, labels.reshape(-1)[pool], planes)  # the blobs' pixels read, not the grid
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
+
+
+def _lateral_step(sensor, cloud) -> float:
+    # the sensor's lateral noise in radians: its grid steps (the coarser axis: a return's spot
+    # spans at least its pixel's larger side) times ``lateral_noise_px``
+    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
+        step = np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg))
+    else:
+        from ..scales import measured_spacing
+
+        step = max(measured_spacing(cloud))
+    return float(sensor.lateral_noise_px * step)
+
+
+def _join_grazing_pieces(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
+                         pool: np.ndarray, lateral: float) -> set:
+    """``refused`` less the planes of :func:`_planes_along_rays` that, with refused planes
+    they touch (within 2 pixels), make one plane within the noise of its distances with the
+    sensor's ``lateral`` noise (radians, :func:`rangeseg_o3d.fitting.robust.lateral_distance_noise`;
+    chi-square bound), of at least two pieces and the size floor: each such group becomes one
+    region (``labels``, ``fits`` and ``new`` changed in place, under its smallest label).
+
+    A face seen at 80-89 degrees from head-on is a band a few pixels thick whose every pixel
+    step is a depth jump by the range test, so the jump edges cut it into thin pieces, each a
+    blob of its own. Each piece lies near the plane through its viewing rays, and where the
+    sensor measures the surface somewhat beside its rays (``lateral``) the distances to the
+    true face carry that offset, not the range noise times the incidence cosine, so each is
+    refused alone. Joined, the pieces of one face share its plane within that noise. One
+    thin piece alone stays refused: mixed pixels strung along the rays at an occluding
+    contour, or a band across a crease, fit a plane through the rays as well.
+    """
+    flat = labels.reshape(-1)
+    pixels = _grouped(pool, flat[pool], refused)
+    pieces = sorted(k for k in refused if k in pixels)
+    root = {k: k for k in pieces}
+
+    def find(k):
+        while root[k] != k:
+            k = root[k]
+        return k
+
+    def members(group):
+        return np.sort(np.concatenate([pixels[j] for j in pieces if find(j) == group]))
+
+    def face(idx):  # the plane of the flat pixels idx if it explains them within the noise
+        plane = fit_plane(ctx.xyz[idx])
+        if not plane:
+            return None
+        points = ctx.xyz[idx]
+        noise = lateral_distance_noise(plane, points, ctx.sigma[idx], lateral)
+        rms = float(np.sqrt(np.mean(plane.distances(points) ** 2)))
+        return None if beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size)) else plane
+
+    for k in pieces:  # a few dozen refused pieces per frame at most: plain union-find
+        for j in sorted(touching(labels, pixels[k], reach=2)):
+            a, b = find(k), find(j) if j in root else None
+            if b is None or a == b:
+                continue
+            both = np.sort(np.concatenate([members(a), members(b)]))
+            if face(both) is not None:
+                root[max(a, b)] = min(a, b)
+    groups: dict[int, list] = {}
+    for k in pieces:
+        groups.setdefault(find(k), []).append(k)
+    kept = set(refused)
+    for first, group in groups.items():
+        idx = members(first)
+        if len(group) < 2 or idx.size < ctx.min_size or (plane := face(idx)) is None:
+            continue
+        flat[idx] = first
+        for k in group:
+            kept.discard(k)
+            if k != first:
+                fits.pop(k, None)
+                new.pop(k, None)
+        fits[first] = new[first] = plane
+    return kept
 
 
 def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.ndarray, fits: dict,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
-from rangeseg_o3d.fitting.robust import distance_noise
+from rangeseg_o3d.fitting.robust import distance_noise, lateral_distance_noise
 
 
 def test_normals_are_the_surfaces_unit_normals_at_the_points():
@@ -45,3 +45,39 @@ def test_distance_noise_predicts_the_rms_of_noisy_points_about_their_true_model(
     predicted = np.sqrt(np.mean(distance_noise(column, exact, sigma) ** 2))
     assert predicted < 0.85 * 0.01
     assert abs(measured - predicted) < 0.05 * predicted
+
+
+def test_lateral_noise_adds_its_share_by_the_incidence_sine():
+    # A wall 4 m ahead: head-on the lateral offset slides a point along it (the range noise
+    # alone, 2 mm); at 60 deg the range noise's half (1 mm) and the lateral 0.5 mm/m x 4 m x
+    # sin 60 (1.73 mm) in quadrature; without lateral noise, distance_noise's values.
+    wall = Plane(normal=(1, 0, 0), d=4.0, rms=0.0, inliers=0)
+    points = np.array([[4.0, 0.0, 0.0], [4.0, 4.0 * np.tan(np.deg2rad(60)), 0.0]])
+    sigma = np.array([0.002, 0.002])
+    oblique_range = np.linalg.norm(points[1])
+    expected = [0.002, np.hypot(0.001, 0.0005 * oblique_range * np.sin(np.deg2rad(60)))]
+    np.testing.assert_allclose(lateral_distance_noise(wall, points, sigma, 0.0005), expected, rtol=1e-9)
+    np.testing.assert_allclose(lateral_distance_noise(wall, points, sigma, 0.0), distance_noise(wall, points, sigma),
+                               rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_lateral_noise_predicts_the_scatter_of_a_face_seen_near_grazing(seed):
+    # Points of a wall seen 85 deg from head-on, each measured 0.3 mm/m (rms) beside its ray
+    # and reported on it, with 0.3 mm of range noise: their rms about the wall is the
+    # lateral noise's (about 0.3 mm at 1 m), ten times what the range noise alone predicts.
+    rng = np.random.default_rng(seed)
+    cosine = np.cos(np.deg2rad(85.0))
+    wall = Plane(normal=(0.0, -np.sqrt(1 - cosine ** 2), cosine), d=cosine * 1.0, rms=0.0, inliers=0)
+    u, v = rng.uniform(-0.02, 0.02, 4000), rng.uniform(-0.002, 0.002, 4000)
+    rays = np.stack([u, v, np.ones_like(u)], axis=1)
+    beside = rays + np.stack([rng.normal(0, 3e-4, u.size), rng.normal(0, 3e-4, u.size), np.zeros_like(u)], axis=1)
+    depth = wall.d / (beside @ wall.normal)
+    exact = rays * depth[:, None]
+    noisy = exact + exact / np.linalg.norm(exact, axis=1, keepdims=True) * rng.normal(0, 3e-4, u.size)[:, None]
+    sigma = np.full(u.size, 3e-4)
+    measured = np.sqrt(np.mean(wall.distances(noisy) ** 2))
+    predicted = np.sqrt(np.mean(lateral_distance_noise(wall, exact, sigma, 3e-4) ** 2))
+    along = np.sqrt(np.mean(distance_noise(wall, exact, sigma) ** 2))
+    assert measured > 8 * along
+    assert abs(measured - predicted) < 0.1 * predicted

@@ -471,3 +471,77 @@ def test_fresh_label_is_above_every_label_and_every_model():
     assert fresh_label(labels, {}) == 8
     assert fresh_label(labels, {1: None, 12: None}) == 13
     assert fresh_label(np.zeros((3, 3), np.int32), {}) == 1
+
+
+def _grazing_face_in_pieces(seed=0, lateral_px=0.5, turn_deg=0.0):
+    # A face seen 86 degrees from head-on, 0.9 m away, by a 1600-pixel pinhole camera (ABW's
+    # columns): a band of 5 rows x 120 columns whose depth grows by ~8 mm a row, cut by two
+    # columns of jump pixels (free) into three pieces (labels 5, 6, 7), and a fourth piece
+    # (label 8) beyond a third cut, on that face turned by ``turn_deg`` about the view axis.
+    # Each return measures the face ``lateral_px`` pixel steps (rms) beside its ray and
+    # reports it on its ray, with 0.36 mm of range noise. Returns (xyz, labels, sigma).
+    focal, rng = 1600.0, np.random.default_rng(seed)
+    v, u = np.mgrid[-2:3, -60:101].astype(float)
+    cosine = np.cos(np.radians(86.0))
+
+    def normal(turn):
+        t = np.radians(turn)
+        return np.array([-np.sqrt(1 - cosine ** 2) * np.sin(t), -np.sqrt(1 - cosine ** 2) * np.cos(t), cosine])
+
+    rays = np.dstack([u / focal, v / focal, np.ones_like(u)])
+    beside = np.dstack([(u + rng.normal(0, lateral_px, u.shape)) / focal,
+                        (v + rng.normal(0, lateral_px, u.shape)) / focal, np.ones_like(u)])
+    xyz = np.empty(u.shape + (3,))
+    for columns, turn in ((u < 60, 0.0), (u >= 60, turn_deg)):
+        n = normal(turn)
+        depth = (n @ np.array([0.0, 0.0, 0.9])) / (beside[columns] @ n)  # z of the point measured
+        xyz[columns] = rays[columns] * depth[:, None]
+    norm = np.linalg.norm(xyz, axis=2, keepdims=True)
+    xyz += xyz / norm * rng.normal(0.0, 0.00036, u.shape)[..., None]
+    labels = np.select([u < -20, (u > -20) & (u < 20), (u > 20) & (u < 60), u > 60], [5, 6, 7, 8], 0)
+    return xyz, labels.astype(np.int32), np.full(u.shape, 0.00036)
+
+
+def _join(context, xyz, labels, sigma, pieces, lateral):
+    from rangeseg_o3d.refinement.recover import _join_grazing_pieces
+
+    cloud = rs.OrganizedCloud(xyz)
+    ctx = context(cloud, min_size=60, sigma=sigma)
+    fits = {k: fit_plane(xyz[labels == k]) for k in pieces}
+    new = dict(fits)
+    pool = np.flatnonzero(np.isin(labels, pieces).ravel())
+    labels = labels.copy()
+    refused = {k for k in pieces if ctx.plane_along_rays(fits[k], np.flatnonzero((labels == k).ravel()))}
+    kept = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, lateral)
+    return refused, kept, labels, fits, new
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pieces_of_a_grazing_face_cut_by_jumps_come_back_as_one_region(context, seed):
+    # Each piece alone is beyond the range noise times the incidence cosine (0.025 mm) of its
+    # distances, its points scattered 0.28 mm off the face by the lateral offset: refused.
+    # Joined with the lateral noise, the three pieces are one plane within it, the face's.
+    xyz, labels, sigma = _grazing_face_in_pieces(seed)
+    refused, kept, out, fits, new = _join(context, xyz, labels, sigma, [5, 6, 7], 0.5 / 1600)
+    assert refused == {5, 6, 7}
+    assert kept == set()
+    assert (out[np.isin(labels, [5, 6, 7])] == 5).all() and (out[labels == 0] == 0).all()
+    assert set(fits) == set(new) == {5}
+    face = np.array([0.0, -np.sin(np.radians(86.0)), np.cos(np.radians(86.0))])
+    assert np.degrees(np.arccos(min(1.0, abs(fits[5].normal @ face)))) < 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grazing_pieces_stay_refused_without_lateral_noise_alone_or_across_a_turn(context, seed):
+    xyz, labels, sigma = _grazing_face_in_pieces(seed, turn_deg=20.0)
+    # a sensor that reports the surface on its rays: no lateral noise, nothing joins
+    refused, kept, out, _, _ = _join(context, xyz, labels, sigma, [5, 6, 7], 0.0)
+    assert kept == refused == {5, 6, 7}
+    np.testing.assert_array_equal(out, labels)
+    # one thin piece alone (what mixed pixels along an occluding contour look like too)
+    refused, kept, out, _, _ = _join(context, xyz, labels, sigma, [6], 0.5 / 1600)
+    assert kept == refused == {6}
+    # the piece on the turned face does not join the others, which still join each other
+    refused, kept, out, fits, _ = _join(context, xyz, labels, sigma, [5, 6, 7, 8], 0.5 / 1600)
+    assert 8 in refused and kept == {8}
+    assert (out[labels == 8] == 8).all() and (out[np.isin(labels, [5, 6, 7])] == 5).all()
