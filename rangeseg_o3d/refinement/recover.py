@@ -21,6 +21,7 @@ from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, withi
 from ..scales import GRAZING_TAN
 from .context import TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
+from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
 
 __all__ = ["leftover_candidates", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
@@ -516,6 +517,11 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
     if refused and sensor.lateral_noise_px > 0:
         refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
+    # (a curved model taking a refused plane's place is recovered as any: its rim, claims, merges)
+    samples = full_resolution_samples(sensor)
+    if refused and samples:
+        labels, refused = curved_for_refused(ctx, labels, fits, new, refused, samples, config,
+                                             pixels=_grouped(pool, labels.reshape(-1)[pool], refused))
     if new:
         from ..kernels import claim_rings, member_pixels
 
