@@ -1,0 +1,411 @@
+"""Plane regions of a tile grid that hold several faces, split at full resolution.
+
+On a depth camera far from a box, the tile means of two of its faces (one seen near
+grazing, one near head-on) can fit one plane within the range noise: the noise moves each
+mean along its ray, nearly within the grazing face's plane, and the tile grid sees no
+crease. Its pixels do: over them that plane is beyond the noise of their distances (range
+noise times the incidence cosine), and the narrow face's plane, which its few tile means
+could not give, is fitted to its pixels (:func:`split_plane_faces`, :func:`faces_of_plane`).
+A cylinder region bent over such a corner gives way to the two faces when the pattern of its
+misfit across the crease is many times theirs (:func:`faces_of_cylinder`), and a face that
+only continues the plane of a region beside it joins that region (:func:`_continued_plane`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import fdtri, ndtr
+
+from .fitting.plane import fit_plane
+from .fitting.primitives import Cylinder, Plane
+from .fitting.region_fitter import fresh_label, region_indices
+from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
+from .kernels.linalg import CHI_SQUARE_SIGMAS
+from .fullres import region_stats
+from .refinement.context import TRIM_SIGMAS, touching
+
+__all__ = ["CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "PATTERN_BINS",
+           "PATTERN_RATIO", "PLANES_COVER", "faces_of_cylinder", "faces_of_plane", "split_plane_faces"]
+
+#: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
+#: asks whether its own plane is beyond the noise of their distances (the cheap gate before
+#: the split's searches over every pixel).
+FACE_TEST_PIXELS = 1024
+#: Directions on the sensor grid (over half a turn) of the straight lines tried as the
+#: crease between two faces of a region (:func:`_crease_line`) ...
+CUT_DIRECTIONS = 32
+#: ... equal-count cuts tried across each direction ...
+CUTS = 129
+#: ... and the least share of the region's pixels on either side of a cut.
+CUT_SHARE = 0.1
+#: Share of a region's pixels the faces found must keep (the rest: bits under the size floor).
+PLANES_COVER = 0.9
+#: Equal-count bins across the crease line in which :func:`faces_of_cylinder` compares the
+#: misfit patterns of a cylinder and of two planes ...
+PATTERN_BINS = 16
+#: ... and the ratio of the two patterns (their chi-squares over the bins) beyond which the
+#: cylinder's misfit is not the noise's: the F distribution's quantile of PATTERN_BINS and
+#: PATTERN_BINS degrees of freedom at the tail of CHI_SQUARE_SIGMAS normal deviations.
+PATTERN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(CHI_SQUARE_SIGMAS)))
+#: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
+#: looks for the two planes (the cheap gate before the search over every pixel).
+CYLINDER_TEST_PIXELS = 4096
+
+
+def _beyond_distance_noise(points: np.ndarray, sigma: np.ndarray, independent: float) -> bool:
+    # whether the least-squares plane of ``points`` (range noise ``sigma``) leaves an rms
+    # beyond the noise of their distances to it, over ``independent`` returns
+    plane = fit_plane(points)
+    if not plane:
+        return False
+    noise = distance_noise(plane, points, sigma)
+    return beyond_noise(plane.rms, float(np.sqrt(np.mean(noise * noise))), max(int(independent), 1))
+
+
+def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, sigma: np.ndarray,
+                      min_size: int, inlier_factor: float, min_angle_deg: float, correlation_px: int = 1,
+                      wrap_columns: bool = False):
+    """Each plane region of at least two faces' pixels (``2 min_size``) whose own plane is
+    beyond the noise of its pixels' distances, and each cylinder region of as many pixels
+    whose misfit two planes explain (:func:`faces_of_cylinder`), is split into the planes of
+    the faces it holds (:func:`faces_of_plane`, at least ``min_angle_deg`` apart); a face that continues
+    the plane of a region it touches joins that region (:func:`_continued_plane`), of the
+    others the largest keeps the label. Returns ``(labels, fits, stats)``, the statistics of
+    the regions changed measured again; the inputs when no region is split.
+
+    The gate looks at an even subsample of ``FACE_TEST_PIXELS`` pixels, counted as at most
+    the region's independent returns (a sensor whose noise errs together over
+    ``correlation_px`` x ``correlation_px`` pixels has that many times fewer than pixels):
+    a face seen head-on keeps the range noise in its distances, a grazing one its cosine's
+    share, and the plane of either fits at that noise.
+    """
+    from .refinement.context import Context
+
+    counts = stats.counts
+    candidates = [k for k, m in fits.items()
+                  if isinstance(m, (Plane, Cylinder)) and 0 < k < counts.size and counts[k] >= 2 * min_size]
+    if not candidates:
+        return labels, fits, stats
+    xyz, noise = cloud.xyz.reshape(-1, 3), sigma.ravel()
+    window = float(max(int(correlation_px), 1)) ** 2
+    suspects = {}
+    for k, idx in region_indices(labels, only=candidates).items():
+        sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
+        # a cylinder's own test starts on a subsample (faces_of_cylinder)
+        if isinstance(fits[k], Cylinder) or _beyond_distance_noise(xyz[sample], noise[sample],
+                                                                   min(sample.size, idx.size / window)):
+            suspects[k] = idx
+    if not suspects:
+        return labels, fits, stats
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns)
+    out, fits, split = None, dict(fits), []
+    next_label = fresh_label(labels, fits)
+    walls, made = {}, set()  # the ray-space sums of the planes pieces were offered to; the faces found
+    for k, idx in suspects.items():
+        faces = faces_of_cylinder if isinstance(fits[k], Cylinder) else faces_of_plane
+        surfaces = faces(ctx, fits[k], idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
+        if not surfaces:
+            continue
+        if out is None:
+            out = np.array(labels, dtype=np.int32, order="C")
+        flat = out.reshape(-1)
+        flat[idx] = 0
+        split.append(k)
+        made.add(k)
+        kept = []
+        for piece, surface in sorted(surfaces, key=lambda s: -s[0].size):
+            wall = _continued_plane(ctx, out, fits, piece, surface, walls, skip=made)
+            if wall:  # the rest of a neighbour's plane the tile region had taken
+                flat[piece] = wall
+                split.append(wall)
+                walls.pop(wall, None)  # its pixels changed
+            else:
+                kept.append((piece, surface))
+        for i, (piece, surface) in enumerate(kept):
+            label = k if i == 0 else next_label
+            next_label += i > 0
+            flat[piece] = label
+            fits[label] = surface
+            split.append(label)
+            made.add(label)
+    if out is None:
+        return labels, fits, stats
+    stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=split)
+    return out, fits, stats
+
+
+def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, surface, walls: dict, *,
+                     skip=()) -> int:
+    """The label of a plane region touching ``piece`` (flat pixels, increasing; a face
+    :func:`faces_of_plane` found, its plane ``surface``) whose plane it continues, 0 when
+    none does; ``walls`` caches the regions' ray-space sums (:func:`_ray_moments`), the
+    labels in ``skip`` are not offered.
+
+    A tile region over a far wall's edge and what stands before it splits into the wall's
+    strip and the rest; the strip, a piece of its own, would over-segment the wall. It
+    continues a neighbour's plane when the plane fitted along the rays to both (the
+    neighbour's pixels and the piece's within TRIM_SIGMAS noise sigmas of its own
+    plane: a strip at an occluding edge carries the other surface's mixed pixels) moves the
+    piece's pixels by less than their range noise: its chi-square grows by less than one
+    per pixel over the two planes apart. A statistical test would not do: a strip of a
+    wall along the rows of a stereo camera's correlated streaks is off the wall's plane by
+    a significant fraction of its noise (seed 23 scan 3 of the sensor matrix: 0.04 per
+    pixel), where a face at an angle is off by hundreds."""
+    rays, inverse, weight = _ray_terms(ctx.xyz[piece], ctx.sigma[piece])
+    a = surface.normal / surface.d
+    inliers = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
+    if not inliers.any():
+        return 0
+    own = _ray_moments(rays[inliers], inverse[inliers], weight[inliers])
+    own_chi2 = float(_ray_fits(own)[0][0])
+    best, label = float(np.count_nonzero(inliers)), 0
+    for other in sorted(touching(labels, piece, 1) - {0} - set(skip)):
+        if not isinstance(fits.get(other), Plane):
+            continue
+        if other not in walls:
+            pixels = np.flatnonzero(labels.reshape(-1) == other)
+            walls[other] = _ray_moments(*_ray_terms(ctx.xyz[pixels], ctx.sigma[pixels]))
+        wall = walls[other]
+        union = float(_ray_fits(tuple(x + y for x, y in zip(wall, own)))[0][0])
+        growth = union - float(_ray_fits(wall)[0][0]) - own_chi2
+        if growth < best:
+            best, label = growth, other
+    return label
+
+
+def _ray_terms(points: np.ndarray, sigma: np.ndarray):
+    """Per point ``(rays, inverse, weight)``: its unit ray, its inverse range and the weight
+    of that inverse's noise (``range**4 / sigma**2``). A plane ``n . p = d`` meets the ray
+    ``u`` at inverse range ``(n / d) . u``: linear in ``a = n / d``, and a range error moves
+    only the inverse range, by ``sigma / range**2`` (a stereo camera's disparity noise, the
+    same everywhere), so the plane of a face is the weighted least squares ``a`` of the
+    inverse ranges, whatever the face's incidence (:func:`_ray_plane`)."""
+    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    noise = np.maximum(sigma, 1e-12) / ranges ** 2
+    return points / ranges[:, None], 1.0 / ranges, 1.0 / noise ** 2
+
+
+def _ray_fits(moments: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``(chi2, a)`` of the weighted least squares of inverse ranges from stacked sums
+    ``moments = (sum w u u^T, sum w q u, sum w q^2)``: the planes ``a . p = 1`` and their
+    sums of squared inverse-range residuals in units of their noise."""
+    outer, first, second = moments
+    # a ridge of 1e-12 of the trace: the rays of one column of pixels span a plane only
+    ridge = 1e-12 * np.trace(outer, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
+    a = np.linalg.solve(outer + ridge, first[..., None])[..., 0]
+    return second - np.einsum("ki,ki->k", first, a), a
+
+
+def _ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, cumulative: bool = False):
+    """The sums :func:`_ray_fits` takes, over all points or (``cumulative``) over each
+    leading run of them."""
+    terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
+             weight * inverse * inverse)
+    if cumulative:
+        return tuple(np.cumsum(term, axis=0) for term in terms)
+    return tuple(term.sum(axis=0)[None] for term in terms)
+
+
+def _ray_plane(a: np.ndarray, points: np.ndarray):
+    """The :class:`Plane` ``a . p = 1`` with the rms of the orthogonal distances of ``points``
+    (None when ``a`` is no plane)."""
+    norm = float(np.linalg.norm(a))
+    if not np.isfinite(norm) or norm <= 0:
+        return None
+    normal, d = a / norm, 1.0 / norm
+    distances = points @ normal - d
+    return Plane(normal=normal, d=d, rms=float(np.sqrt(np.mean(distances ** 2))), inliers=int(len(points)))
+
+
+def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
+    """``(chi2, sides)``: of the straight lines on the sensor grid (CUT_DIRECTIONS directions
+    x CUTS equal-count cuts, each side at least CUT_SHARE of the pixels and ``ctx.min_size``),
+    the one that cuts the flat pixels ``idx`` (increasing) into the two faces whose planes
+    fitted along the rays (:func:`_ray_terms`) leave the least chi-square, that chi-square
+    and ``sides``, the two flat pixel sets (increasing); ``(inf, [])`` when none is. A
+    box's crease seen by a camera is a straight line on its grid; each cut's two planes
+    come from cumulative sums along the direction (one sort, no refits). Orthogonal least
+    squares would not do: a narrow face seen head-on, its pixels spread along the rays by a
+    range noise near its width, has a least-squares plane tilted towards the rays, and the
+    crease it puts is a third of a face off. ``with_order`` adds the positions in ``idx``
+    ordered across the line (None with no line)."""
+    n = idx.size
+    side = max(ctx.min_size, int(np.ceil(CUT_SHARE * n)))
+    if n < 2 * side:
+        return (np.inf, [], None) if with_order else (np.inf, [])
+    rows, cols = np.divmod(idx, ctx.width)
+    rays, inverse, weight = _ray_terms(ctx.xyz[idx], ctx.sigma[idx])
+    sizes = np.unique(np.linspace(side, n - side, CUTS).astype(np.int64))
+    best = (np.inf, None, 0)
+    for angle in np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS):
+        order = np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable")
+        sums = _ray_moments(rays[order], inverse[order], weight[order], cumulative=True)
+        left, _ = _ray_fits(tuple(term[sizes - 1] for term in sums))
+        right, _ = _ray_fits(tuple(term[-1] - term[sizes - 1] for term in sums))
+        total = left + right
+        cut = int(np.argmin(total))
+        if total[cut] < best[0]:
+            best = (float(total[cut]), order, int(sizes[cut]))
+    chi2, order, size = best
+    if order is None:
+        return (np.inf, [], None) if with_order else (np.inf, [])
+    sides = [np.sort(idx[order[:size]]), np.sort(idx[order[size:]])]
+    return (chi2, sides, order) if with_order else (chi2, sides)
+
+
+def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.0) -> list:
+    """The largest connected piece of each of the two ``sides`` of the flat pixels ``idx``
+    (at least ``ctx.min_size``), with its side's plane fitted along the rays
+    (:func:`_ray_terms`), ``[(pixels, plane)]``; the other pieces are left free (bits of the
+    surfaces beside the region, which a piece of their own would over-segment). The line
+    decides each pixel, not the pixel's own distances: near the crease a pixel of the face
+    seen head-on is as near the other face's plane as the range noise leaves it (a
+    pixel-by-pixel choice moved a fifth of such a face across).
+    Empty when the two planes meet within ``min_angle_deg``: pieces of one surface (a
+    floor's systematic bend over 400 000 pixels passes any F-test), which the merge joins."""
+    if len(sides) != 2:
+        return []
+    normals, out = [], []
+    for side in sides:
+        points = ctx.xyz[side]
+        rays, inverse, weight = _ray_terms(points, ctx.sigma[side])
+        _, a = _ray_fits(_ray_moments(rays, inverse, weight))
+        normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
+        piece = np.sort(ctx.largest_piece(side))
+        plane = _ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
+        if plane:
+            out.append((piece, plane))
+    if np.degrees(np.arccos(min(1.0, abs(float(normals[0] @ normals[1]))))) < min_angle_deg:
+        return []  # one surface's two pieces: the merge would join them again
+    return out
+
+
+def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
+    """The planes of the faces the plane region ``idx`` (flat pixels, increasing) of
+    ``model`` holds, ``[(pixels, plane)]``; empty when it holds one face.
+
+    The region must be beyond the noise of its distances to ``model`` with a connected
+    piece of its pixels beyond it (``facets._holds_another``, the model's own outliers not
+    counted: a plane over two faces spreads its misfit over both). Its pixels are cut along
+    the straight line whose sides' planes fit them closest (:func:`_crease_line`; a trimmed
+    search, even at the noise of a grazing face's distances, takes the diagonal plane
+    through both faces, which holds most pixels), each side's largest connected piece
+    keeping its plane (:func:`_faces_of_sides`; the planes at least ``min_angle_deg``
+    apart). The pieces must take PLANES_COVER of the pixels, and the two planes lower the
+    chi-square of one plane along the rays by more than their four extra parameters would (the F-test of
+    :func:`rangeseg_o3d.fitting.robust.curvature_resolved`), counted in independent returns:
+    a sensor whose noise errs together over ``correlation_px`` x ``correlation_px`` pixels
+    (a stereo camera's matching window) has that many times fewer.
+    """
+    from .refinement.facets import _holds_another
+
+    points = ctx.xyz[idx]
+    distances = model.distances(points)
+    rms = float(np.sqrt(np.mean(distances * distances)))
+    if not _holds_another(ctx, model, idx, distances, rms, count_outliers=False):
+        return []
+    chi2, sides = _crease_line(ctx, idx)
+    surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
+    if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
+        return []
+    # one plane along the rays against the two, in independent returns: the chi-squares and
+    # counts over the matching window's pixels (the F-test of curvature_resolved, a second
+    # plane and the crease line: four parameters more)
+    rays, inverse, weight = _ray_terms(points, ctx.sigma[idx])
+    one, _ = _ray_fits(_ray_moments(rays, inverse, weight))
+    share = 1.0 / float(max(int(correlation_px), 1)) ** 2
+    if not curvature_resolved(share * float(one[0]), share * chi2, max(int(share * idx.size), 1), 4):
+        return []
+    return surfaces
+
+
+def _cylinder_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per point, its range minus the range at which its ray meets the cylinder ``model``
+    (the nearer crossing; where the ray passes by, its closest approach to the axis's
+    surface), in units of the range noise ``sigma``: the cylinder's residuals along the
+    rays, in the units of the planes' (:func:`_ray_terms`)."""
+    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    rays = points / ranges[:, None]
+    across = rays - np.outer(rays @ model.axis, model.axis)
+    offset = model.point - (model.point @ model.axis) * model.axis
+    a = np.maximum(np.einsum("ij,ij->i", across, across), 1e-12)
+    b = -2.0 * (across @ offset)
+    c = float(offset @ offset) - model.radius ** 2
+    disc = b * b - 4.0 * a * c
+    hit = np.where(disc >= 0.0, (-b - np.sqrt(np.maximum(disc, 0.0))) / (2.0 * a), -b / (2.0 * a))
+    return (ranges - hit) / np.maximum(sigma, 1e-12)
+
+
+def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
+    """``(cylinder, planes, inliers, squares, sides)`` of the cylinder region ``idx``: the
+    chi-squares over PATTERN_BINS equal-count bins across the best crease line
+    (:func:`_crease_line`) of the mean residuals along the rays of the cylinder ``model`` and
+    of the two sides' planes (each bin's mean in units of its noise over its independent
+    returns, residuals clipped at 10 sigmas: a few mixed pixels do not make a pattern), each
+    model's share of pixels within TRIM_SIGMAS and their mean squared residual, and the two
+    sides; None when no line is."""
+    chi2, sides, order = _crease_line(ctx, idx, with_order=True)
+    if order is None:
+        return None
+    points, noise = ctx.xyz[idx], ctx.sigma[idx]
+    rays, inverse, weight = _ray_terms(points, noise)
+    planes = np.empty(idx.size)
+    size = sides[0].size
+    for part in (order[:size], order[size:]):
+        _, a = _ray_fits(_ray_moments(rays[part], inverse[part], weight[part]))
+        planes[part] = (inverse[part] - rays[part] @ a[0]) * np.sqrt(weight[part])
+    curved = _cylinder_residuals(model, points, noise)
+    share = 1.0 / float(max(int(correlation_px), 1)) ** 2
+    out = []
+    for z in (curved, planes):
+        bins = np.array_split(np.clip(z, -10.0, 10.0)[order], PATTERN_BINS)
+        out.append(share * float(sum(b.size * float(np.mean(b)) ** 2 for b in bins)))
+    near = [np.abs(z) <= TRIM_SIGMAS for z in (curved, planes)]
+    inliers = tuple(float(np.mean(m)) for m in near)
+    squares = tuple(float(np.mean(z[m] ** 2)) if m.any() else np.inf for z, m in zip((curved, planes), near))
+    return out[0], out[1], inliers, squares, sides
+
+
+def _two_planes_win(patterns) -> bool:
+    # the cylinder's misfit pattern beyond the planes' by PATTERN_RATIO, the planes holding
+    # PLANES_COVER of the pixels within TRIM_SIGMAS (two faces, not the bits of several
+    # surfaces a region over a far clutter holds, which the later splits sort out) and at
+    # least the cylinder's share, closer on them
+    if patterns is None:
+        return False
+    curved, planes, inliers, squares, _ = patterns
+    return (curved > PATTERN_RATIO * planes and inliers[1] >= max(inliers[0], PLANES_COVER)
+            and squares[1] <= squares[0])
+
+
+def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
+    """The planes of two faces of a box the cylinder region ``idx`` (flat pixels, increasing)
+    of ``model`` holds, ``[(pixels, plane)]``; empty when it is a cylinder.
+
+    Far away, a box's corner and a pipe are alike to a stereo camera's tile means (a
+    cylinder bends over the crease within the range noise), and a right pipe may fit its
+    cylinder no better than two planes (the pipe's model comes from the tile means, and the
+    noise errs together over streaks longer than its matching window): the chi-square of
+    either model does not tell them apart. The patterns of their misfits do. Across the
+    best crease line (:func:`_crease_line`), a cylinder over two faces misses the crease
+    and the far edges the same way along whole bands, and two planes over a pipe its arc;
+    the wrong model's pattern is many times the right one's, and both carry the same noise.
+    The two planes are taken when the cylinder's pattern exceeds theirs by PATTERN_RATIO (an
+    F-test of the two patterns), they hold PLANES_COVER of the pixels within TRIM_SIGMAS and
+    at least the cylinder's share, and fit those closer (a pipe with the edge of its cap: the planes leave the
+    cap's pixels far off), first on an even subsample of CYLINDER_TEST_PIXELS pixels, then on
+    every pixel. The sides' largest pieces must take PLANES_COVER of the region with planes
+    at least ``min_angle_deg`` apart (:func:`_faces_of_sides`).
+    """
+    if not isinstance(model, Cylinder):
+        return []
+    sample = idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]
+    if not _two_planes_win(_misfit_patterns(ctx, model, sample, correlation_px)):
+        return []
+    patterns = _misfit_patterns(ctx, model, idx, correlation_px)
+    if not _two_planes_win(patterns):
+        return []
+    surfaces = _faces_of_sides(ctx, idx, patterns[-1], min_angle_deg)
+    if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
+        return []
+    return surfaces
