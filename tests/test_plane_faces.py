@@ -4,12 +4,13 @@ split piece joining the plane it continues, a cylinder against two planes by the
 patterns."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.plane import fit_plane
 from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder
-from rangeseg_o3d.plane_faces import (PATTERN_RATIO, PLANES_COVER, _continued_plane, _crease_line, _misfit_patterns,
+from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _crease_line, _misfit_patterns,
                                       _ray_fits, _ray_moments, _ray_plane, _ray_terms, faces_of_cylinder,
                                       faces_of_plane)
 from rangeseg_o3d.refinement.context import Context
@@ -65,6 +66,26 @@ def test_the_crease_line_cuts_a_far_box_corner_into_its_two_faces():
     for side in sides:
         share = np.bincount(truth.ravel()[side], minlength=2).max() / side.size
         assert share > 0.95
+
+
+def test_a_large_regions_line_is_searched_on_a_subsample_and_drawn_through_every_pixel():
+    # 300 x 200 = 60 000 pixels, above LINE_SEARCH_PIXELS: the line comes from a subsample
+    xyz, sigma, truth, _ = _box_corner(7, rows=300, cols=200, crease=80)
+    ctx = _context(xyz, sigma)
+    idx = np.arange(truth.size)
+    assert idx.size > 2 * LINE_SEARCH_PIXELS
+    chi2, sides, order = _crease_line(ctx, idx, with_order=True)
+    assert sorted(np.concatenate(sides).tolist()) == idx.tolist()  # every pixel on one side
+    for side in sides:
+        share = np.bincount(truth.ravel()[side], minlength=2).max() / side.size
+        assert share > 0.99
+    # the chi-square is that of every pixel's two planes along the rays, not the subsample's
+    points, noise = xyz.reshape(-1, 3), sigma.ravel()
+    every = sum(float(_ray_fits(_ray_moments(*_ray_terms(points[s], noise[s])))[0][0]) for s in sides)
+    assert chi2 == pytest.approx(every, rel=1e-6)  # the same sums in another order
+    # about one unit of noise per pixel: the two faces' planes explain them
+    assert 0.8 < chi2 / idx.size < 1.2
+    assert np.array_equal(np.sort(idx[order[: sides[0].size]]), sides[0])
 
 
 def test_faces_of_plane_splits_the_merged_plane_of_a_far_box_corner_and_leaves_one_face_alone():
