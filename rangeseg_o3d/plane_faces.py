@@ -198,14 +198,24 @@ def _ray_fits(moments: tuple) -> tuple[np.ndarray, np.ndarray]:
     return second - np.einsum("ki,ki->k", first, a), a
 
 
-def _ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, cumulative: bool = False):
-    """The sums :func:`_ray_fits` takes, over all points or (``cumulative``) over each
-    leading run of them."""
+def _ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray):
+    """The sums :func:`_ray_fits` takes, over all points (stacked, one set)."""
     terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
              weight * inverse * inverse)
-    if cumulative:
-        return tuple(np.cumsum(term, axis=0) for term in terms)
     return tuple(term.sum(axis=0)[None] for term in terms)
+
+
+def _moment_columns(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Each point's terms of the sums :func:`_ray_fits` takes, as 13 columns (the 9 of
+    ``w u u^T``, the 3 of ``w q u``, ``w q^2``): sums of rows are sums of terms."""
+    outer = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :]).reshape(-1, 9)
+    first = (weight * inverse)[:, None] * rays
+    return np.concatenate([outer, first, (weight * inverse * inverse)[:, None]], axis=1)
+
+
+def _split_columns(columns: np.ndarray) -> tuple:
+    """The stacked sums of :func:`_ray_fits` from rows of :func:`_moment_columns` sums."""
+    return columns[:, :9].reshape(-1, 3, 3), columns[:, 9:12], columns[:, 12]
 
 
 def _ray_plane(a: np.ndarray, points: np.ndarray):
@@ -226,7 +236,7 @@ def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     fitted along the rays (:func:`_ray_terms`) leave the least chi-square, that chi-square
     and ``sides``, the two flat pixel sets (increasing); ``(inf, [])`` when none is. A
     box's crease seen by a camera is a straight line on its grid; each cut's two planes
-    come from cumulative sums along the direction (one sort, no refits). Orthogonal least
+    come from running sums along the direction (one sort, no refits). Orthogonal least
     squares would not do: a narrow face seen head-on, its pixels spread along the rays by a
     range noise near its width, has a least-squares plane tilted towards the rays, and the
     crease it puts is a third of a face off. ``with_order`` adds the positions in ``idx``
@@ -248,19 +258,29 @@ def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     if m < 2 * search_side:
         return (np.inf, [], None) if with_order else (np.inf, [])
     sizes = np.unique(np.linspace(search_side, m - search_side, CUTS).astype(np.int64))
-    best = (np.inf, None, 0, 0.0)
-    for angle in np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS):
+    # each pixel's 13 sums once; per direction, the sums up to each cut from blocks between
+    # cuts (one gather and one pass), and every direction's planes solved at once
+    columns = _moment_columns(rays, inverse, weight)
+    starts = np.concatenate([[0], sizes])
+    angles = np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS)
+    orders, lefts, totals = [], [], []
+    for angle in angles:
         order = np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable")
-        sums = _ray_moments(rays[order], inverse[order], weight[order], cumulative=True)
-        left, _ = _ray_fits(tuple(term[sizes - 1] for term in sums))
-        right, _ = _ray_fits(tuple(term[-1] - term[sizes - 1] for term in sums))
-        total = left + right
-        cut = int(np.argmin(total))
-        if total[cut] < best[0]:
-            best = (float(total[cut]), order, int(sizes[cut]), float(angle))
-    chi2, order, size, angle = best
-    if order is None:
+        prefix = np.cumsum(np.add.reduceat(columns[order], starts, axis=0), axis=0)
+        orders.append(order)
+        lefts.append(prefix[:-1])
+        totals.append(prefix[-1])
+    lefts = np.stack(lefts)  # (directions, cuts, 13)
+    rights = np.stack(totals)[:, None, :] - lefts
+    left, _ = _ray_fits(_split_columns(lefts.reshape(-1, lefts.shape[-1])))
+    right, _ = _ray_fits(_split_columns(rights.reshape(-1, rights.shape[-1])))
+    total = left + right
+    if not np.isfinite(total).any():
         return (np.inf, [], None) if with_order else (np.inf, [])
+    best = int(np.argmin(total))
+    chi2 = float(total[best])
+    direction, cut = divmod(best, sizes.size)
+    order, size, angle = orders[direction], int(sizes[cut]), float(angles[direction])
     if step > 1:
         chi2, order, size = _line_through_every_pixel(ctx, idx, angle, search, order, size, side)
     sides = [np.sort(idx[order[:size]]), np.sort(idx[order[size:]])]
