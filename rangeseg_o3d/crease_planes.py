@@ -55,15 +55,18 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
     if not cylinders:
         return labels, fits, stats
     boxes, replaced, next_label = LabelBoxes(labels), [], fresh_label(labels, fits)
+    tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     for k in cylinders:
-        box = pixel_box(boxes, k, tile_labels, tile)
+        box = pixel_box(boxes, k, tile_boxes, tile)
         sample = region_sample(cloud, labels, k, box)
         # each side of the cut holds min_size of the region's pixels: its share of the sample
         min_side = max(int(np.ceil(min_size * len(sample) / stats.counts[k])), 3)
         cut = _crease_cut(sample, fits[k], min_side)
+        if cut is None:
+            continue  # no crease (every cylinder of the six real frames): its noise is not needed
         noise = float(np.median(sigma[box][labels[box] == k]))
-        if cut is None or beyond_noise(cut[2], noise, len(sample)):
-            continue  # no crease, or planes beyond the noise: facets of a curved surface
+        if beyond_noise(cut[2], noise, len(sample)):
+            continue  # planes beyond the noise: facets of a curved surface
         if _sides_along_rays(sample, fits[k], cut, noise):
             continue  # two noise-long streaks along the rays: a pipe's range spread, not two faces
         if fitter is not None and _refit_rms(fitter, sample, fits[k]) < CREASE_RMS_FACTOR * cut[2]:
@@ -178,9 +181,20 @@ def _plane_of(points: np.ndarray):
 
 def _angles(points: np.ndarray, cylinder, reference: np.ndarray) -> np.ndarray:
     # each point's angle about the cylinder's axis from the direction ``reference`` (across it)
+    return _radial_angles(_radial(points, cylinder), cylinder, reference)
+
+
+def _radial(points: np.ndarray, cylinder) -> np.ndarray:
+    # each point's offset from the cylinder's axis, across it (the same operations as
+    # Cylinder.distances: the same values)
     axis = np.asarray(cylinder.axis, dtype=np.float64)
     radial = points - cylinder.point
-    radial = radial - np.outer(radial @ axis, axis)
+    return radial - np.outer(radial @ axis, axis)
+
+
+def _radial_angles(radial: np.ndarray, cylinder, reference: np.ndarray) -> np.ndarray:
+    # :func:`_angles` of the points whose offsets from the axis are ``radial``
+    axis = np.asarray(cylinder.axis, dtype=np.float64)
     return np.arctan2(radial @ np.cross(axis, reference), radial @ reference)
 
 
@@ -191,14 +205,13 @@ def _crease_cut(points: np.ndarray, cylinder, min_side: int):
     n = len(points)
     if n < 2 * min_side:
         return None
-    axis = np.asarray(cylinder.axis, dtype=np.float64)
-    radial = points - cylinder.point
-    radial = radial - np.outer(radial @ axis, axis)
+    # the offsets from the axis once: the angles and the cylinder's distances reuse them
+    radial = _radial(points, cylinder)
     reference = radial.mean(axis=0)
     if not np.linalg.norm(reference) > 0:
         return None
     reference /= np.linalg.norm(reference)
-    angles = _angles(points, cylinder, reference)
+    angles = _radial_angles(radial, cylinder, reference)
     order = np.argsort(angles)
     ordered = points[order] - points.mean(axis=0)
     # every cut's two sides' scatter matrices from cumulative moments (one sort, no refits)
@@ -214,7 +227,7 @@ def _crease_cut(points: np.ndarray, cylinder, min_side: int):
     right = _least_squares(firsts[-1] - firsts[sizes - 1], seconds[-1] - seconds[sizes - 1], n - sizes)
     best = int(np.argmin(left + right))
     planes_squares = max(float(left[best] + right[best]), 0.0)
-    cylinder_squares = float(np.sum(cylinder.distances(points) ** 2))
+    cylinder_squares = float(np.sum((np.linalg.norm(radial, axis=1) - cylinder.radius) ** 2))  # its distances
     if not cylinder_squares > CREASE_RMS_FACTOR ** 2 * planes_squares:
         return None
     size = int(sizes[best])

@@ -305,8 +305,9 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     if not curved:
         return fits, stats
     fits, replaced, boxes = dict(fits), [], LabelBoxes(labels)
+    tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     for k in curved:
-        points = region_sample(cloud, labels, k, pixel_box(boxes, k, tile_labels, tile))
+        points = region_sample(cloud, labels, k, pixel_box(boxes, k, tile_boxes, tile))
         plane = fit_plane(points) if len(points) >= 6 else None
         if not plane:
             continue
@@ -616,22 +617,31 @@ class LabelBoxes:
 
     def __call__(self, k: int) -> tuple[slice, slice]:
         """Rows and columns holding every pixel of label ``k`` (which has pixels)."""
+        row0, row1, col0, col1 = self.bounds(k)
+        return slice(row0, row1), slice(col0, col1)
+
+    def bounds(self, k: int) -> tuple[int, int, int, int]:
+        """``(row0, row1, col0, col1)`` (half-open) of label ``k``; ``(h, 0, w, 0)`` when it
+        has no pixels."""
         if self._boxes is None:
             from .kernels import label_boxes
 
             labels = np.ascontiguousarray(self.labels, dtype=np.int32)
             self._boxes = label_boxes(labels, int(labels.max(initial=0)) + 1)
-        row0, row1, col0, col1 = self._boxes[k].tolist()
-        return slice(row0, row1), slice(col0, col1)
+        if not 0 < k < self._boxes.shape[0]:
+            h, w = self.labels.shape
+            return h, 0, w, 0
+        return tuple(self._boxes[k].tolist())
 
 
-def pixel_box(boxes: LabelBoxes, k: int, tile_labels: np.ndarray | None, tile: int) -> tuple[slice, slice]:
-    """Rows and columns of the sensor grid holding every pixel of label ``k`` (``boxes``: the
-    labels' own boxes, for a region the tiles did not have)."""
-    rows, cols = np.nonzero(tile_labels == k) if tile_labels is not None else ((), ())
-    if len(rows):
-        return (slice(max(int(rows.min()) - 1, 0) * tile, (int(rows.max()) + 2) * tile),
-                slice(max(int(cols.min()) - 1, 0) * tile, (int(cols.max()) + 2) * tile))
+def pixel_box(boxes: LabelBoxes, k: int, tile_boxes: LabelBoxes | None, tile: int) -> tuple[slice, slice]:
+    """Rows and columns of the sensor grid holding every pixel of label ``k``: its tiles' box
+    (``tile_boxes``, the boxes of the tile grid's labels, ``tile`` pixels a side) grown by a
+    tile, or, for a region the tiles did not have, its own box (``boxes``: the labels'
+    boxes on the sensor grid)."""
+    row0, row1, col0, col1 = tile_boxes.bounds(k) if tile_boxes is not None else (0, 0, 0, 0)
+    if row1 > row0:  # (one compiled pass over the tile grid for every region, not a comparison each)
+        return slice(max(row0 - 1, 0) * tile, (row1 + 1) * tile), slice(max(col0 - 1, 0) * tile, (col1 + 1) * tile)
     return boxes(k)  # a region the tiles did not have (recovered pixels)
 
 

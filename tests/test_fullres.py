@@ -10,8 +10,8 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.region_fitter import model_table
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
 from rangeseg_o3d.crease_planes import planes_for_creases
-from rangeseg_o3d.fullres import (ExpandedStages, drop_unresolvable_curves, expand, label_pixels,
-                                  planes_for_unresolved, recover_thin_surfaces, region_stats,
+from rangeseg_o3d.fullres import (ExpandedStages, LabelBoxes, drop_unresolvable_curves, expand, label_pixels,
+                                  pixel_box, planes_for_unresolved, recover_thin_surfaces, region_stats,
                                   leftover_blob_labels)
 from rangeseg_o3d.kernels import distance_stats
 from rangeseg_o3d.refinement.recover import leftover_candidates
@@ -594,3 +594,26 @@ def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_si
     labels, _ = label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6, sigma=sigma, k_sigma=3.0,
                              inlier_factor=2.0)
     assert (labels[:, 30] == 2).all() and (labels[:, 24:30] == 1).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pixel_box_from_the_tile_boxes_is_the_tiles_box_grown_by_a_tile(seed):
+    # the box of a label's tiles grown by one tile on every side (clipped at the top and left),
+    # as the comparison of the tile grid with the label gives it; a label the tile grid does
+    # not have takes its own box on the sensor grid
+    rng = np.random.default_rng(seed)
+    tile = 4
+    tile_labels = rng.integers(0, 6, size=(9, 13)).astype(np.int32)
+    tile_labels[tile_labels == 3] = 0  # a label without tiles
+    labels = np.kron(tile_labels, np.ones((tile, tile), np.int32))
+    labels[5:7, 30:33] = 9  # a region the tiles did not have
+    boxes, tile_boxes = LabelBoxes(labels), LabelBoxes(tile_labels)
+    for k in (1, 2, 4, 5):
+        rows, cols = np.nonzero(tile_labels == k)
+        expected = (slice(max(int(rows.min()) - 1, 0) * tile, (int(rows.max()) + 2) * tile),
+                    slice(max(int(cols.min()) - 1, 0) * tile, (int(cols.max()) + 2) * tile))
+        assert pixel_box(boxes, k, tile_boxes, tile) == expected
+    assert pixel_box(boxes, 9, tile_boxes, tile) == (slice(5, 7), slice(30, 33))
+    assert pixel_box(boxes, 9, None, tile) == (slice(5, 7), slice(30, 33))
+    assert tile_boxes.bounds(3) == (9, 0, 13, 0)  # no pixels: an empty box
+    assert tile_boxes.bounds(40) == (9, 0, 13, 0)  # above every label
