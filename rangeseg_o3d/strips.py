@@ -2,13 +2,15 @@
 batched step whose cost follows the strips, not the frame.
 
 A VGA depth frame leaves tens of such strips along its edges once the blobs' surfaces have
-grown and merged. Each is one of three things: a band of a surface the scan already has
+grown and merged. Each is one of these things: a band of a surface the scan already has
 (its pixels lie within the noise of a region it touches), a face of its own (its plane
 explains it within the noise of its distances), or a band across the viewing rays of a
 curved surface or a crease (its least-squares plane lies along its rays: beyond the noise
-of its distances). Every test reads the strips' pixels alone, in compiled passes over all
-strips at once (:mod:`rangeseg_o3d.kernels.strips`); only the faces found grow their rims,
-each within its own box.
+of its distances), or, on a stereo camera, a face seen near grazing whose depth the range
+noise spans (its plane fitted along the rays explains it). Every test reads the strips'
+pixels alone, in compiled passes over all strips at once (:mod:`rangeseg_o3d.kernels.strips`;
+the stereo camera's planes along the rays strip by strip, few strips); only the faces found
+grow their rims, each within its own box.
 """
 
 from __future__ import annotations
@@ -36,6 +38,11 @@ RIM_RINGS, CLAIM_RINGS = 2, 3
 #: The distance-noise band of a pixel a face keeps of what it took after its fit (as
 #: ``refinement.context.TRIM_SIGMAS``).
 TRIM_SIGMAS = 3.0
+#: Passes of :meth:`_Strips.faces_along_rays`' trimmed fit (each refits to the pixels the
+#: last one kept within TRIM_SIGMAS).
+TRIM_PASSES = 3
+#: Equal-count pieces along a strip of which :func:`_robust_ray_plane` leaves out up to two.
+ROBUST_CHUNKS = 8
 
 
 def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, config, sensor,
@@ -47,7 +54,10 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
 
     A strip whose least-squares plane leaves its pixels beyond the noise of their distances
     to it (range noise times the incidence cosine, chi-square bound) lies along its viewing
-    rays and is left free. A strip of which a touching region's model explains
+    rays and is left free; except on a stereo camera (range noise growing with the range and
+    erring together over a matching window, ``noise.correlation_px > 1``), where it may be a
+    face seen near grazing whose depth the noise spans: it becomes a region when its plane
+    fitted along the rays explains it (:meth:`_Strips.faces_along_rays`). A strip of which a touching region's model explains
     ``EXPLAINED_SHARE`` of the pixels within ``k_sigma`` of that noise (at least the model's
     rms), with an rms distance within its chi-square bound, joins the region that explains
     it best. Otherwise a strip the fitter's batch settles as a plane explaining that share
@@ -73,12 +83,20 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     xyz = np.ascontiguousarray(cloud.xyz.reshape(-1, 3), dtype=np.float64)
     noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
     strips = _Strips(xyz, noise, pixels, starts, float(config.k_sigma))
-    open_ = strips.across_rays() & (strips.sizes >= floor)
-    if not open_.any():
+    across = strips.across_rays()
+    open_ = across & (strips.sizes >= floor)
+    noise_model = sensor.noise
+    # a stereo camera's grazing faces: the strips whose least-squares plane lies along their
+    # rays may be faces whose depth its range noise spans (_Strips.faces_along_rays); only
+    # where that noise grows with the range and errs together over a matching window
+    along = (~across & (strips.sizes >= floor) if noise_model.sigma_quadratic > 0.0 and noise_model.correlation_px > 1
+             else np.zeros_like(across))
+    if not (open_.any() or along.any()):
         return labels, fits, stats
     table = model_table(fits, first)  # (the regions' models: the strips change none of them)
     joins, merges = strips.joins(labels, table, open_, stats, config.merge_rms_factor if config.merge else None)
     faces = strips.faces(fitter, open_ & (joins == 0) & (merges == 0), floor)
+    faces += strips.faces_along_rays(along, floor, 1.0 / noise_model.correlation_px ** 2, labels.shape[1])
     if not (joins.any() or merges.any() or faces):
         return labels, fits, stats
     out = np.array(labels, dtype=np.int32, order="C", copy=True)
@@ -232,6 +250,94 @@ class _Strips:
             if count[s] >= EXPLAINED_SHARE * self.sizes[s] and count[s] >= floor:
                 out.append((s, self.pixels[kept[owner[near] == s]], settled[s + 1]))
         return out
+
+    def faces_along_rays(self, asked: np.ndarray, floor: int, share: float, width: int) -> list:
+        """``(strip, kept pixels, plane)`` of each strip of ``asked`` whose plane fitted along
+        its rays (:func:`_robust_ray_plane`) explains ``EXPLAINED_SHARE`` of it within
+        ``TRIM_SIGMAS`` of the noise of its inverse ranges, the kept pixels (at least
+        ``floor``) scattering about it no more than that noise: their mean square in noise
+        units within the chi-square bound of their independent returns (``share`` per pixel:
+        a stereo camera's noise errs together over its matching window). ``width``: the
+        grid's columns (the strips' pixels are flat indices).
+
+        A face seen near grazing by a camera whose range noise is a good part of the face's
+        depth (a box's top a few pixels high, a few metres off) is a thin cloud spread along
+        its rays: its least-squares plane turns towards the rays and leaves the pixels
+        beyond the noise of their distances (:meth:`across_rays` refuses it). The range
+        errors move only the inverse ranges along the rays, which the face's plane fits
+        within their noise (:func:`rangeseg_o3d.plane_faces._ray_terms`)."""
+        from .plane_faces import _ray_plane, _ray_terms
+
+        out = []
+        for s in np.flatnonzero(asked).tolist():
+            idx = self.pixels[self.starts[s]:self.starts[s + 1]]
+            points = self.points[self.starts[s]:self.starts[s + 1]]
+            rays, inverse, weight = _ray_terms(points, self.sigma[idx])
+            rows, cols = np.divmod(idx, width)
+            found = _robust_ray_plane(rays, inverse, weight, rows, cols)
+            if found is None:
+                continue
+            a, keep, mean_square = found
+            n = int(np.count_nonzero(keep))
+            if n < EXPLAINED_SHARE * idx.size or n < floor:
+                continue
+            # (the noise band trims the tails: a normal's mean square within it is under 1)
+            if mean_square > noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2:
+                continue
+            plane = _ray_plane(a, points[keep])
+            if plane is not None:
+                out.append((s, idx[keep], plane))
+        return out
+
+
+def _robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, rows: np.ndarray,
+                      cols: np.ndarray):
+    """``(a, keep, mean square)``: the plane ``a . p = 1`` of a strip's pixels fitted along
+    their rays (``_ray_terms``; their grid ``rows``, ``cols``), the pixels within TRIM_SIGMAS
+    of it and their mean squared residual in noise units; None when no plane is.
+
+    A strip left over beside a face holds a few pixels of the surfaces at its ends (the side
+    of a box beside its top), far off the face's plane: one least-squares fit over all of
+    them turns the plane, and trimming from it keeps the wrong pixels. The strip is cut
+    into ROBUST_CHUNKS equal-count pieces along its longer axis on the grid; the plane of
+    every set leaving out up to two of them is tried, and the one of least truncated
+    chi-square over every pixel is refitted to the pixels within TRIM_SIGMAS of it,
+    TRIM_PASSES times."""
+    from .plane_faces import _moment_columns, _ray_fits, _split_columns
+
+    n = inverse.size
+    if n < 3 * ROBUST_CHUNKS:
+        return None
+    along = cols if np.ptp(cols) >= np.ptp(rows) else rows
+    order = np.argsort(along, kind="stable")
+    chunk = np.empty(n, np.int64)
+    chunk[order] = np.arange(n) * ROBUST_CHUNKS // n
+    columns = _moment_columns(rays, inverse, weight)
+    sums = np.zeros((ROBUST_CHUNKS, columns.shape[1]))
+    np.add.at(sums, chunk, columns)
+    total = sums.sum(axis=0)
+    # every set of chunks leaving out none, one or two of them, solved at once
+    out = [()] + [(i,) for i in range(ROBUST_CHUNKS)] + [(i, j) for i in range(ROBUST_CHUNKS)
+                                                        for j in range(i + 1, ROBUST_CHUNKS)]
+    stacked = np.stack([total - sums[list(left)].sum(axis=0) for left in out])
+    _, planes = _ray_fits(_split_columns(stacked))
+    squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
+    within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+    # the least truncated chi-square (a pixel off by more than TRIM_SIGMAS counts as that):
+    # counting the pixels within alone favours a plane turned towards the rays, within whose
+    # noise band the range noise puts most pixels, the strip's ends too
+    pick = int(np.argmin(np.minimum(squares, TRIM_SIGMAS * TRIM_SIGMAS).sum(axis=1)))
+    keep = within[pick]
+    if not keep.any():
+        return None
+    for _ in range(TRIM_PASSES):
+        _, a = _ray_fits(_split_columns(columns[keep].sum(axis=0)[None]))
+        residual = weight * (inverse - rays @ a[0]) ** 2
+        now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
+        if np.array_equal(now, keep) or not now.any():
+            break
+        keep = now
+    return a[0], keep, float(np.mean(residual[keep]))
 
 
 def _best(out: np.ndarray, strip: np.ndarray, label: np.ndarray, fine: np.ndarray, score: np.ndarray) -> None:

@@ -101,3 +101,89 @@ def test_the_strip_step_returns_its_inputs_when_no_strip_is_left_over():
     assert out[0] is labels and out[1] is fits and out[2] is stats
     full = np.ones_like(labels)
     assert recover_strips(cloud, full, fits, stats, **common)[0] is full
+
+
+# A stereo camera's grazing face (rangeseg_o3d.strips._Strips.faces_along_rays): a box's top seen
+# a few degrees off its plane, two rows high, between a far wall and the box's front face.
+STEREO_F, STEREO_ROWS, STEREO_COLS = 640.0, 60, 240
+STEREO_COEFF = 0.1 / (STEREO_F * 0.05)  # 0.1 px of disparity noise over a 5 cm baseline
+
+
+def _box_top_strip(seed=0, top=0.6, near=3.3, far=3.355, wall=5.0):
+    # (xyz, truth, sigma): the wall (1), the top y = top between depths near and far (2),
+    # the front face z = near (3); range noise 1 mm + COEFF r^2 along the rays, erring
+    # together over 3 x 3 pixels (the matrix's stereo row)
+    from rangeseg_o3d.synthetic.depth_camera import _unit_noise
+
+    v, u = np.mgrid[0:STEREO_ROWS, 0:STEREO_COLS].astype(float)
+    rays = np.dstack([(u - STEREO_COLS / 2) / STEREO_F, (v + 89) / STEREO_F, np.ones(v.shape)])
+    depth_top = top / rays[..., 1]
+    truth = np.where((depth_top >= near) & (depth_top <= far), 2, np.where(depth_top < near, 3, 1))
+    depth = np.select([truth == 1, truth == 2], [np.full(v.shape, wall), depth_top], near)
+    points = rays * depth[..., None]
+    ranges = np.linalg.norm(points, axis=-1)
+    sigma = 0.001 + STEREO_COEFF * ranges ** 2
+    noisy = ranges + sigma * _unit_noise(np.random.default_rng(seed), v.shape, 3)
+    return points * (noisy / ranges)[..., None], truth, sigma
+
+
+def _stereo_strip_step(correlation_px):
+    xyz, truth, sigma = _box_top_strip()
+    cloud = rs.OrganizedCloud(xyz)
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.001, "sigma_quadratic": STEREO_COEFF,
+                                                "noise_correlation_px": correlation_px},
+                          "refine": {"min_region_size": 300}})
+    pipe = rs.Pipeline(cfg)
+    fits = {1: Plane([0, 0, 1.0], 5.0, 0.0, 1), 3: Plane([0, 0, 1.0], 3.3, 0.0, 1)}
+    labels = np.where(truth == 2, 0, truth).astype(np.int32)
+    stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    common = dict(fitter=pipe.fitter, config=cfg.refine, sensor=pipe.sensor, ranges=cloud.range_image(),
+                  sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    return truth, labels, fits, stats, recover_strips(cloud, labels, fits, stats, **common)
+
+
+def test_a_stereo_cameras_grazing_strip_becomes_the_faces_plane_fitted_along_its_rays():
+    # the top (480 px, 2 rows, seen at 10 degrees) spans 5.5 cm of depth where the range noise
+    # is 3.5 cm: its least-squares plane turns towards the rays (the strip is refused as one),
+    # the plane of its inverse ranges is the top's; every pixel of it joins that plane
+    from rangeseg_o3d.strips import _Strips
+
+    truth, labels, fits, _, (out, out_fits, _) = _stereo_strip_step(3)
+    xyz, _, sigma = _box_top_strip()
+    idx = np.flatnonzero(truth.ravel() == 2)
+    strips = _Strips(np.ascontiguousarray(xyz.reshape(-1, 3)), sigma.ravel(), idx, np.array([0, idx.size]), 3.0)
+    assert idx.size == 480 and not strips.across_rays()[0]
+    (found,) = np.unique(out[truth == 2])
+    assert found not in fits
+    model = out_fits[int(found)]
+    assert model.kind == "plane" and abs(model.normal[1]) > np.cos(np.radians(3.0))
+
+
+def test_a_grazing_strip_stays_free_where_the_noise_errs_alone():
+    # the same strip on a camera whose returns err one by one (a Kinect-type camera): the
+    # step is the one before it, the strip refused and left free
+    truth, labels, fits, stats, out = _stereo_strip_step(1)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_a_strips_plane_along_its_rays_leaves_out_the_pixels_of_another_surface_at_its_end():
+    # the top's strip with 40 pixels of the wall behind at its left end: one least-squares
+    # fit over all of them turns the plane; the robust fit (pieces left out, truncated
+    # chi-square) finds the top's and keeps those pixels out
+    from rangeseg_o3d.plane_faces import _ray_fits, _ray_moments, _ray_terms
+    from rangeseg_o3d.strips import _robust_ray_plane
+
+    xyz, truth, sigma = _box_top_strip()
+    top = truth == 2
+    wall = np.zeros_like(top)
+    wall[24:26, :20] = True  # two rows of the wall above the strip's left end
+    idx = np.flatnonzero((top | wall).ravel())
+    rays, inverse, weight = _ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
+    a, keep, mean_square = _robust_ray_plane(rays, inverse, weight, *np.divmod(idx, STEREO_COLS))
+    plain = _ray_fits(_ray_moments(rays, inverse, weight))[1][0]
+    true_a = np.array([0.0, 1.0 / 0.6, 0.0])
+    assert np.linalg.norm(a - true_a) < 0.25 * np.linalg.norm(true_a)
+    assert np.linalg.norm(plain - true_a) > 2 * np.linalg.norm(a - true_a)
+    on_wall = wall.ravel()[idx]
+    assert keep[~on_wall].mean() > 0.95 and keep[on_wall].mean() < 0.5
+    assert mean_square < 1.5
