@@ -20,7 +20,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       recover_thin_surfaces, recovered_region_floor,
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
 from .off_model import recover_off_model
-from .plane_faces import split_plane_faces
+from .plane_faces import claim_along_rays, split_plane_faces
 from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
@@ -332,6 +332,12 @@ class Pipeline:
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
+            if noise.sigma_quadratic > 0.0 and noise.correlation_px > 1:
+                # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
+                # them their rays meet nearer, in range noise, than their own regions' planes
+                labels, fits, stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma,
+                                                       min_size=smallest_region(refine, self.sensor, cloud),
+                                                       inlier_factor=INLIER_SIGMAS)
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
             min_size = smallest_region(refine, self.sensor, cloud)

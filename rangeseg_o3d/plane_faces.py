@@ -9,6 +9,8 @@ could not give, is fitted to its pixels (:func:`split_plane_faces`, :func:`faces
 A cylinder region bent over such a corner gives way to the two faces when the pattern of its
 misfit across the crease is many times theirs (:func:`faces_of_cylinder`), and a face that
 only continues the plane of a region beside it joins that region (:func:`_continued_plane`).
+A face seen near grazing takes back the pixels beside it its rays meet nearer, in range
+noise, than their regions' planes (:func:`claim_along_rays`).
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .fullres import region_stats
 from .refinement.context import TRIM_SIGMAS, touching
 
-__all__ = ["CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "faces_of_cylinder", "faces_of_plane", "split_plane_faces"]
+__all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "faces_of_cylinder", "faces_of_plane", "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
 #: asks whether its own plane is beyond the noise of their distances (the cheap gate before
@@ -52,6 +54,8 @@ PATTERN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(CHI_SQUARE_SIGMAS))
 #: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
 CYLINDER_TEST_PIXELS = 4096
+#: Pixels beyond a grazing plane region's box that :func:`claim_along_rays` looks at.
+CLAIM_REACH = 8
 
 
 def _beyond_distance_noise(points: np.ndarray, sigma: np.ndarray, independent: float) -> bool:
@@ -466,3 +470,87 @@ def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
         return []
     return surfaces
+
+
+def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, min_size: int,
+                     inlier_factor: float):
+    """Each plane region of at least ``min_size`` pixels seen near grazing (median incidence
+    cosine under ``scales.GRAZING_COSINE``) takes the pixels beside it, free or of another
+    plane region, that its plane fitted along the rays (:func:`_ray_terms`, trimmed at
+    TRIM_SIGMAS from its model) meets within TRIM_SIGMAS of their range noise and nearer, in
+    those units, than their own region's plane, connected to it through such pixels.
+    Returns ``(labels, fits, stats)``, the regions changed measured again; the inputs when
+    none is.
+
+    A stereo camera's range noise spans a far box's top seen near grazing: its pixels beside
+    the front face are within the noise of both planes, and a claim in distances over the
+    range noise favours whichever plane is seen head-on (the grazing plane's distances are
+    the range errors times its small cosine; its pixels' are not less noisy for that).
+    Along the rays both planes are judged by one noise, the range's: a pixel goes to the
+    face its ray meets nearer its range."""
+    from scipy import ndimage
+
+    from .scales import GRAZING_COSINE
+
+    counts = stats.counts
+    xyz, noise, flat = cloud.xyz.reshape(-1, 3), sigma.ravel(), labels.reshape(-1)
+    planes = {k: m for k, m in fits.items() if isinstance(m, Plane) and 0 < k < counts.size and m.d != 0}
+    grazing = []
+    for k, idx in region_indices(labels, only=[k for k in planes if counts[k] >= min_size]).items():
+        sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
+        points = xyz[sample]
+        cosine = np.abs(points @ planes[k].normal) / np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+        if float(np.median(cosine)) < GRAZING_COSINE:
+            grazing.append((k, idx))
+    if not grazing:
+        return labels, fits, stats
+    h, w = labels.shape
+    out = np.array(labels, dtype=np.int32, order="C")
+    changed = set()
+    for k, idx in grazing:
+        own = out.reshape(-1)[idx] == k
+        idx = idx[own]
+        if idx.size < min_size:
+            continue
+        rays, inverse, weight = _ray_terms(xyz[idx], noise[idx])
+        a = planes[k].normal / planes[k].d
+        for _ in range(3):  # trimmed, from the region's model: its rim holds its neighbours' pixels
+            keep = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
+            if not keep.any():
+                break
+            a = _ray_fits(_ray_moments(rays[keep], inverse[keep], weight[keep]))[1][0]
+        # the plane along the rays must be seen near grazing too: a region of a head-on wall
+        # whose tile model was bent towards the rays refits to the wall's plane, and its
+        # claims would only cut the wall in two
+        normal = a / max(float(np.linalg.norm(a)), 1e-300)
+        if float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
+            continue
+        rows, cols = np.divmod(idx, w)
+        r0, r1 = max(int(rows.min()) - CLAIM_REACH, 0), min(int(rows.max()) + CLAIM_REACH + 1, h)
+        c0, c1 = max(int(cols.min()) - CLAIM_REACH, 0), min(int(cols.max()) + CLAIM_REACH + 1, w)
+        box = out[r0:r1, c0:c1]
+        points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
+        valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
+        ray_terms = _ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
+        u, q, wt = ray_terms
+        mine = np.sqrt(wt) * np.abs(q - u @ a)
+        theirs = np.full(mine.size, np.inf)
+        owner = box.reshape(-1)
+        for j in np.unique(owner).tolist():
+            if j in planes and j != k:
+                at = owner == j
+                aj = planes[j].normal / planes[j].d
+                theirs[at] = np.sqrt(wt[at]) * np.abs(q[at] - u[at] @ aj)
+        free = (owner == 0) | np.isfinite(theirs)
+        eligible = valid & free & (mine <= TRIM_SIGMAS) & (mine < theirs)
+        region = (owner == k).reshape(box.shape)
+        grown = ndimage.binary_propagation(region, mask=region | eligible.reshape(box.shape))
+        taken = grown & ~region
+        if taken.any():
+            changed |= set(np.unique(box[taken]).tolist()) | {k}
+            box[taken] = k
+    if not changed:
+        return labels, fits, stats
+    changed.discard(0)
+    stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
+    return out, fits, stats

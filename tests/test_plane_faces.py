@@ -178,3 +178,51 @@ def test_a_far_pipe_keeps_its_cylinder_right_or_fitted_a_little_off():
     for cylinder in (model, fitted):
         assert faces_of_cylinder(ctx, cylinder, idx) == []
     assert faces_of_cylinder(ctx, fit_plane(xyz.reshape(-1, 3)[idx]), idx) == []  # a plane is no cylinder
+
+
+def _corner_regions(labels_from, turn_deg=5.0):
+    # a far box corner (face 0 head-on, face 1 near grazing) labelled: region 1 face 0 and
+    # face 1's first ``labels_from`` columns beside the crease, region 2 the rest of face 1;
+    # their models the true planes; returns what claim_along_rays takes
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.fullres import region_stats
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    xyz, sigma, truth, normals = _box_corner(5, turn_deg=turn_deg)
+    on_line = np.array([0.0, 0.0, 4.0])
+    fits = {k + 1: Plane(normal=n, d=float(n @ on_line), rms=0.0, inliers=1) for k, n in enumerate(normals)}
+    cols = np.arange(truth.shape[1])[None, :].repeat(truth.shape[0], 0)
+    labels = np.where((truth == 0) | (cols < 22 + labels_from), 1, 2).astype(np.int32)
+    cloud = rs.OrganizedCloud(xyz)
+    stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    return cloud, labels, fits, stats, sigma, truth, cols
+
+
+def test_a_grazing_face_takes_back_the_pixels_its_rays_meet_nearer_than_the_head_on_face_beside_it():
+    # the head-on face's region holds face 1's 3 columns beside the crease (450 px), within
+    # its noise in distances; along the rays they are nearer face 1's plane: most go back to
+    # it, and the head-on face keeps its own pixels
+    from rangeseg_o3d.plane_faces import claim_along_rays
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    cloud, labels, fits, stats, sigma, truth, cols = _corner_regions(3)
+    out, out_fits, out_stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40,
+                                                inlier_factor=INLIER_SIGMAS)
+    moved = (truth == 1) & (cols < 25)
+    assert moved.sum() == 450 and (labels[moved] == 1).all()
+    # (at the crease both planes meet a ray at the same range: its column is a coin toss,
+    # the next ones go back more and more)
+    assert np.mean(out[moved] == 2) > 0.6 and np.mean(out[:, 24] == 2) > 0.85
+    assert np.mean(out[truth == 0] == 2) < 0.02
+    assert out_fits is fits and out_stats.counts[2] == np.count_nonzero(out == 2)
+
+
+def test_no_claim_from_a_face_not_seen_near_grazing():
+    # the corner turned 20 degrees: face 1 is seen at cosine 0.34, beyond scales.GRAZING_COSINE,
+    # and its region claims nothing (the step returns its inputs)
+    from rangeseg_o3d.plane_faces import claim_along_rays
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    cloud, labels, fits, stats, sigma, _, _ = _corner_regions(3, turn_deg=20.0)
+    out = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
