@@ -54,7 +54,8 @@ PATTERN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(CHI_SQUARE_SIGMAS))
 #: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
 CYLINDER_TEST_PIXELS = 4096
-#: Pixels beyond a grazing plane region's box that :func:`claim_along_rays` looks at.
+#: Pixels beyond a grazing plane region's box that :func:`claim_along_rays` looks at, at
+#: least (its box is grown by its own height and width).
 CLAIM_REACH = 8
 
 
@@ -476,8 +477,8 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
                      inlier_factor: float):
     """Each plane region of at least ``min_size`` pixels seen near grazing (median incidence
     cosine under ``scales.GRAZING_COSINE``) takes the pixels beside it, free or of another
-    plane region, that its plane fitted along the rays (:func:`_ray_terms`, trimmed at
-    TRIM_SIGMAS from its model) meets within TRIM_SIGMAS of their range noise and nearer, in
+    plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
+    :func:`rangeseg_o3d.strips._robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
     those units, than their own region's plane, connected to it through such pixels.
     Returns ``(labels, fits, stats)``, the regions changed measured again; the inputs when
     none is.
@@ -491,6 +492,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     from scipy import ndimage
 
     from .scales import GRAZING_COSINE
+    from .strips import _robust_ray_plane
 
     counts = stats.counts
     xyz, noise, flat = cloud.xyz.reshape(-1, 3), sigma.ravel(), labels.reshape(-1)
@@ -513,12 +515,12 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         if idx.size < min_size:
             continue
         rays, inverse, weight = _ray_terms(xyz[idx], noise[idx])
-        a = planes[k].normal / planes[k].d
-        for _ in range(3):  # trimmed, from the region's model: its rim holds its neighbours' pixels
-            keep = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
-            if not keep.any():
-                break
-            a = _ray_fits(_ray_moments(rays[keep], inverse[keep], weight[keep]))[1][0]
+        # robust (its rim holds its neighbours' pixels), from its pixels alone: a tile model
+        # of a thin grazing face may pass near the camera, no pixel within its noise
+        found = _robust_ray_plane(rays, inverse, weight, *np.divmod(idx, w))
+        if found is None:
+            continue
+        a = found[0]
         # the plane along the rays must be seen near grazing too: a region of a head-on wall
         # whose tile model was bent towards the rays refits to the wall's plane, and its
         # claims would only cut the wall in two
@@ -526,8 +528,12 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         if float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
             continue
         rows, cols = np.divmod(idx, w)
-        r0, r1 = max(int(rows.min()) - CLAIM_REACH, 0), min(int(rows.max()) + CLAIM_REACH + 1, h)
-        c0, c1 = max(int(cols.min()) - CLAIM_REACH, 0), min(int(cols.max()) + CLAIM_REACH + 1, w)
+        # the face may go on beyond the region along its length (the rest of a box's top
+        # left free): its box grown by its own extent, at least CLAIM_REACH pixels
+        down = max(CLAIM_REACH, int(np.ptp(rows)) + 1)
+        across = max(CLAIM_REACH, int(np.ptp(cols)) + 1)
+        r0, r1 = max(int(rows.min()) - down, 0), min(int(rows.max()) + down + 1, h)
+        c0, c1 = max(int(cols.min()) - across, 0), min(int(cols.max()) + across + 1, w)
         box = out[r0:r1, c0:c1]
         points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
         valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)

@@ -226,3 +226,21 @@ def test_no_claim_from_a_face_not_seen_near_grazing():
     cloud, labels, fits, stats, sigma, _, _ = _corner_regions(3, turn_deg=20.0)
     out = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)
     assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_a_grazing_regions_plane_along_the_rays_comes_from_its_pixels_not_its_tile_model():
+    # face 1's region under a tile model that passes 1 cm from the camera (a plane along the
+    # rays: none of its pixels within the noise of it) claims as under the true plane
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.fullres import region_stats
+    from rangeseg_o3d.plane_faces import claim_along_rays
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    cloud, labels, fits, stats, sigma, truth, cols = _corner_regions(3)
+    expected = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)[0]
+    along = dict(fits)
+    along[2] = Plane(normal=fits[2].normal, d=0.01, rms=0.0, inliers=1)
+    stats = region_stats(cloud.xyz, labels, along, sigma, INLIER_SIGMAS)
+    out = claim_along_rays(cloud, labels, along, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)[0]
+    moved = (truth == 1) & (cols < 25)
+    assert np.mean(out[moved] == 2) > 0.6 and np.mean(out == expected) > 0.995
