@@ -91,11 +91,32 @@ def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     at grazing incidence, almost none. A model's rms over its region is thus compared with
     the rms of these values, not with the range noise (a cylinder over its end cap is
     beyond this noise while well within the range noise).
+
+    On a cylinder or sphere of radius ``r`` a move ``delta`` along the ray also changes the
+    distance by the second-order term ``delta**2 c**2 / (2 r)``, ``c`` the ray's component
+    along the surface's curved direction (for a sphere the sine of the incidence; for a
+    cylinder the ray's part across both the normal and the axis); its mean square,
+    ``3 (sigma**2 c**2 / (2 r))**2`` for Gaussian range noise, is added in quadrature. At a
+    pillar's flanks under a depth camera's centimetres of noise it is most of the noise
+    there is (sigma 3 cm, r 0.15 m: 5 mm), which the first-order term calls zero; under a
+    laser's millimetres it is a few microns.
     """
     points = np.asarray(points, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     cosines = np.abs(np.einsum("ij,ij->i", rays, model.normals(points)))
-    return np.asarray(sigma, dtype=float) * cosines
+    first = sigma * cosines
+    if isinstance(model, Cylinder):
+        along_axis = rays @ np.asarray(model.axis, dtype=float)
+        curved = np.maximum(1.0 - cosines * cosines - along_axis * along_axis, 0.0)
+    elif isinstance(model, Sphere):
+        curved = np.maximum(1.0 - cosines * cosines, 0.0)
+    else:
+        return first
+    if not model.radius > 0:
+        return first
+    sagitta = sigma * sigma * curved / (2.0 * float(model.radius))
+    return np.sqrt(first * first + 3.0 * sagitta * sagitta)
 
 
 def lateral_distance_noise(model, points: np.ndarray, sigma: np.ndarray, lateral: float) -> np.ndarray:

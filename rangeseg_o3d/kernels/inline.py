@@ -72,6 +72,29 @@ def _incidence(kind, prm, x, y, z):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _distance_noise(kind, prm, x, y, z, sigma):
+    # fitting.robust.distance_noise of one point: the range noise ``sigma`` times the
+    # incidence cosine, and on a sphere or cylinder the sagitta of its bend along the ray
+    # (sqrt(3) sigma**2 c**2 / (2 r), c the ray's part across the normal and a cylinder's
+    # axis) in quadrature; ``sigma`` for "no model"
+    cosine = _incidence(kind, prm, x, y, z)
+    first = sigma * cosine
+    if kind != SPHERE and kind != CYLINDER:
+        return first
+    curved = 1.0 - cosine * cosine
+    radius = prm[3]
+    if kind == CYLINDER:
+        r = np.sqrt(x * x + y * y + z * z)
+        along = (x * prm[0] + y * prm[1] + z * prm[2]) / r if r > 0.0 else 0.0
+        curved -= along * along
+        radius = prm[6]
+    if not radius > 0.0:
+        return first
+    sagitta = sigma * sigma * max(curved, 0.0) / (2.0 * radius)
+    return np.sqrt(first * first + 3.0 * sagitta * sagitta)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _neighbour(i, step, h, w):
     # Flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i; -1 off the grid.
     r, c = i // w, i % w

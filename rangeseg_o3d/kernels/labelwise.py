@@ -6,7 +6,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import group_by_label
-from .inline import NO_MOMENTS, _add_moments, _distance, _incidence
+from .inline import NO_MOMENTS, _add_moments, _distance, _distance_noise
 from .kinds import PARAM_SLOTS, PLANE
 from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, plane_tolerance, quadric_resolved, solve
 
@@ -477,7 +477,8 @@ def nearer_models(points, sigma, owner, kinds, params, margin):
     """``(owner, moved)``: ``owner`` (a row of the model table ``kinds, params`` per point) with
     each point given to the model nearest it (the first of equals) when that is nearer than
     its owner by more than ``margin`` times the noise of its distance to its owner (its range
-    noise ``sigma`` times the incidence cosine of its ray on the owner's surface), and how
+    noise ``sigma`` times the incidence cosine of its ray on the owner's surface, with the
+    sagitta term on a curved owner: fitting.robust.distance_noise), and how
     many moved. One pass over the points and models, no (models x points) distances."""
     out = owner.copy()
     moved = 0
@@ -491,7 +492,7 @@ def nearer_models(points, sigma, owner, kinds, params, margin):
         own = owner[i]
         if best == own:
             continue
-        noise = sigma[i] * _incidence(kinds[own], params[own], x, y, z)
+        noise = _distance_noise(kinds[own], params[own], x, y, z, sigma[i])
         if _distance(kinds[own], params[own], x, y, z) - best_distance - margin * noise > 0.0:
             out[i] = best
             moved += 1
