@@ -63,7 +63,7 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
         min_side = max(int(np.ceil(min_size * len(sample) / stats.counts[k])), 3)
         cut = _crease_cut(sample, fits[k], min_side)
         if cut is None:
-            continue  # no crease (every cylinder of the six real frames): its noise is not needed
+            continue  # no crease: its noise is not needed
         noise = float(np.median(sigma[box][labels[box] == k]))
         if beyond_noise(cut[2], noise, len(sample)):
             continue  # planes beyond the noise: facets of a curved surface

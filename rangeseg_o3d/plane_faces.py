@@ -27,7 +27,7 @@ from .fullres import region_stats
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "faces_of_cylinder", "faces_of_plane", "split_plane_faces"]
+           "PATTERN_RATIO", "PLANES_COVER", "ROBUST_CHUNKS", "TRIM_PASSES", "claim_along_rays", "faces_of_cylinder", "faces_of_plane", "robust_ray_plane", "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
 #: asks whether its own plane is beyond the noise of their distances (the cheap gate before
@@ -478,7 +478,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     """Each plane region of at least ``min_size`` pixels seen near grazing (median incidence
     cosine under ``scales.GRAZING_COSINE``) takes the pixels beside it, free or of another
     plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
-    :func:`rangeseg_o3d.strips._robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
+    :func:`robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
     those units, than their own region's plane, connected to it through such pixels.
     Returns ``(labels, fits, stats)``, the regions changed measured again; the inputs when
     none is.
@@ -492,10 +492,9 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     from scipy import ndimage
 
     from .scales import GRAZING_COSINE
-    from .strips import _robust_ray_plane
 
     counts = stats.counts
-    xyz, noise, flat = cloud.xyz.reshape(-1, 3), sigma.ravel(), labels.reshape(-1)
+    xyz, noise = cloud.xyz.reshape(-1, 3), sigma.ravel()
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane) and 0 < k < counts.size and m.d != 0}
     grazing = []
     for k, idx in region_indices(labels, only=[k for k in planes if counts[k] >= min_size]).items():
@@ -515,9 +514,10 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         if idx.size < min_size:
             continue
         rays, inverse, weight = _ray_terms(xyz[idx], noise[idx])
+        rows, cols = np.divmod(idx, w)
         # robust (its rim holds its neighbours' pixels), from its pixels alone: a tile model
         # of a thin grazing face may pass near the camera, no pixel within its noise
-        found = _robust_ray_plane(rays, inverse, weight, *np.divmod(idx, w))
+        found = robust_ray_plane(rays, inverse, weight, rows, cols)
         if found is None:
             continue
         a = found[0]
@@ -527,7 +527,6 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         normal = a / max(float(np.linalg.norm(a)), 1e-300)
         if float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
             continue
-        rows, cols = np.divmod(idx, w)
         # the face may go on beyond the region along its length (the rest of a box's top
         # left free): its box grown by its own extent, at least CLAIM_REACH pixels
         down = max(CLAIM_REACH, int(np.ptp(rows)) + 1)
@@ -560,3 +559,58 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     changed.discard(0)
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
     return out, fits, stats
+
+
+#: Passes of :func:`robust_ray_plane`'s trimmed fit (each refits to the pixels the last
+#: one kept within TRIM_SIGMAS).
+TRIM_PASSES = 3
+#: Equal-count pieces along a strip of which :func:`robust_ray_plane` leaves out up to two.
+ROBUST_CHUNKS = 8
+
+
+def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, rows: np.ndarray,
+                      cols: np.ndarray):
+    """``(a, keep, mean square)``: the plane ``a . p = 1`` of a strip's pixels fitted along
+    their rays (:func:`_ray_terms`; their grid ``rows``, ``cols``), the pixels within TRIM_SIGMAS
+    of it and their mean squared residual in noise units; None when no plane is.
+
+    A strip left over beside a face holds a few pixels of the surfaces at its ends (the side
+    of a box beside its top), far off the face's plane: one least-squares fit over all of
+    them turns the plane, and trimming from it keeps the wrong pixels. The strip is cut
+    into ROBUST_CHUNKS equal-count pieces along its longer axis on the grid; the plane of
+    every set leaving out up to two of them is tried, and the one of least truncated
+    chi-square over every pixel is refitted to the pixels within TRIM_SIGMAS of it,
+    TRIM_PASSES times."""
+    n = inverse.size
+    if n < 3 * ROBUST_CHUNKS:
+        return None
+    along = cols if np.ptp(cols) >= np.ptp(rows) else rows
+    order = np.argsort(along, kind="stable")
+    chunk = np.empty(n, np.int64)
+    chunk[order] = np.arange(n) * ROBUST_CHUNKS // n
+    columns = _moment_columns(rays, inverse, weight)
+    sums = np.zeros((ROBUST_CHUNKS, columns.shape[1]))
+    np.add.at(sums, chunk, columns)
+    total = sums.sum(axis=0)
+    # every set of chunks leaving out none, one or two of them, solved at once
+    out = [()] + [(i,) for i in range(ROBUST_CHUNKS)] + [(i, j) for i in range(ROBUST_CHUNKS)
+                                                        for j in range(i + 1, ROBUST_CHUNKS)]
+    stacked = np.stack([total - sums[list(left)].sum(axis=0) for left in out])
+    _, planes = _ray_fits(_split_columns(stacked))
+    squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
+    within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+    # the least truncated chi-square (a pixel off by more than TRIM_SIGMAS counts as that):
+    # counting the pixels within alone favours a plane turned towards the rays, within whose
+    # noise band the range noise puts most pixels, the strip's ends too
+    pick = int(np.argmin(np.minimum(squares, TRIM_SIGMAS * TRIM_SIGMAS).sum(axis=1)))
+    keep = within[pick]
+    if not keep.any():
+        return None
+    for _ in range(TRIM_PASSES):
+        _, a = _ray_fits(_split_columns(columns[keep].sum(axis=0)[None]))
+        residual = weight * (inverse - rays @ a[0]) ** 2
+        now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
+        if np.array_equal(now, keep) or not now.any():
+            break
+        keep = now
+    return a[0], keep, float(np.mean(residual[keep]))

@@ -38,11 +38,6 @@ RIM_RINGS, CLAIM_RINGS = 2, 3
 #: The distance-noise band of a pixel a face keeps of what it took after its fit (as
 #: ``refinement.context.TRIM_SIGMAS``).
 TRIM_SIGMAS = 3.0
-#: Passes of :meth:`_Strips.faces_along_rays`' trimmed fit (each refits to the pixels the
-#: last one kept within TRIM_SIGMAS).
-TRIM_PASSES = 3
-#: Equal-count pieces along a strip of which :func:`_robust_ray_plane` leaves out up to two.
-ROBUST_CHUNKS = 8
 
 
 def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, config, sensor,
@@ -253,7 +248,7 @@ class _Strips:
 
     def faces_along_rays(self, asked: np.ndarray, floor: int, share: float, width: int) -> list:
         """``(strip, kept pixels, plane)`` of each strip of ``asked`` whose plane fitted along
-        its rays (:func:`_robust_ray_plane`) explains ``EXPLAINED_SHARE`` of it within
+        its rays (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`) explains ``EXPLAINED_SHARE`` of it within
         ``TRIM_SIGMAS`` of the noise of its inverse ranges, the kept pixels (at least
         ``floor``) scattering about it no more than that noise: their mean square in noise
         units within the chi-square bound of their independent returns (``share`` per pixel:
@@ -266,7 +261,7 @@ class _Strips:
         beyond the noise of their distances (:meth:`across_rays` refuses it). The range
         errors move only the inverse ranges along the rays, which the face's plane fits
         within their noise (:func:`rangeseg_o3d.plane_faces._ray_terms`)."""
-        from .plane_faces import _ray_plane, _ray_terms
+        from .plane_faces import _ray_plane, _ray_terms, robust_ray_plane
 
         out = []
         for s in np.flatnonzero(asked).tolist():
@@ -274,7 +269,7 @@ class _Strips:
             points = self.points[self.starts[s]:self.starts[s + 1]]
             rays, inverse, weight = _ray_terms(points, self.sigma[idx])
             rows, cols = np.divmod(idx, width)
-            found = _robust_ray_plane(rays, inverse, weight, rows, cols)
+            found = robust_ray_plane(rays, inverse, weight, rows, cols)
             if found is None:
                 continue
             a, keep, mean_square = found
@@ -288,56 +283,6 @@ class _Strips:
             if plane is not None:
                 out.append((s, idx[keep], plane))
         return out
-
-
-def _robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, rows: np.ndarray,
-                      cols: np.ndarray):
-    """``(a, keep, mean square)``: the plane ``a . p = 1`` of a strip's pixels fitted along
-    their rays (``_ray_terms``; their grid ``rows``, ``cols``), the pixels within TRIM_SIGMAS
-    of it and their mean squared residual in noise units; None when no plane is.
-
-    A strip left over beside a face holds a few pixels of the surfaces at its ends (the side
-    of a box beside its top), far off the face's plane: one least-squares fit over all of
-    them turns the plane, and trimming from it keeps the wrong pixels. The strip is cut
-    into ROBUST_CHUNKS equal-count pieces along its longer axis on the grid; the plane of
-    every set leaving out up to two of them is tried, and the one of least truncated
-    chi-square over every pixel is refitted to the pixels within TRIM_SIGMAS of it,
-    TRIM_PASSES times."""
-    from .plane_faces import _moment_columns, _ray_fits, _split_columns
-
-    n = inverse.size
-    if n < 3 * ROBUST_CHUNKS:
-        return None
-    along = cols if np.ptp(cols) >= np.ptp(rows) else rows
-    order = np.argsort(along, kind="stable")
-    chunk = np.empty(n, np.int64)
-    chunk[order] = np.arange(n) * ROBUST_CHUNKS // n
-    columns = _moment_columns(rays, inverse, weight)
-    sums = np.zeros((ROBUST_CHUNKS, columns.shape[1]))
-    np.add.at(sums, chunk, columns)
-    total = sums.sum(axis=0)
-    # every set of chunks leaving out none, one or two of them, solved at once
-    out = [()] + [(i,) for i in range(ROBUST_CHUNKS)] + [(i, j) for i in range(ROBUST_CHUNKS)
-                                                        for j in range(i + 1, ROBUST_CHUNKS)]
-    stacked = np.stack([total - sums[list(left)].sum(axis=0) for left in out])
-    _, planes = _ray_fits(_split_columns(stacked))
-    squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
-    within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
-    # the least truncated chi-square (a pixel off by more than TRIM_SIGMAS counts as that):
-    # counting the pixels within alone favours a plane turned towards the rays, within whose
-    # noise band the range noise puts most pixels, the strip's ends too
-    pick = int(np.argmin(np.minimum(squares, TRIM_SIGMAS * TRIM_SIGMAS).sum(axis=1)))
-    keep = within[pick]
-    if not keep.any():
-        return None
-    for _ in range(TRIM_PASSES):
-        _, a = _ray_fits(_split_columns(columns[keep].sum(axis=0)[None]))
-        residual = weight * (inverse - rays @ a[0]) ** 2
-        now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
-        if np.array_equal(now, keep) or not now.any():
-            break
-        keep = now
-    return a[0], keep, float(np.mean(residual[keep]))
 
 
 def _best(out: np.ndarray, strip: np.ndarray, label: np.ndarray, fine: np.ndarray, score: np.ndarray) -> None:

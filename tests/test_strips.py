@@ -171,7 +171,7 @@ def test_a_strips_plane_along_its_rays_leaves_out_the_pixels_of_another_surface_
     # fit over all of them turns the plane; the robust fit (pieces left out, truncated
     # chi-square) finds the top's and keeps those pixels out
     from rangeseg_o3d.plane_faces import _ray_fits, _ray_moments, _ray_terms
-    from rangeseg_o3d.strips import _robust_ray_plane
+    from rangeseg_o3d.plane_faces import robust_ray_plane
 
     xyz, truth, sigma = _box_top_strip()
     top = truth == 2
@@ -179,7 +179,7 @@ def test_a_strips_plane_along_its_rays_leaves_out_the_pixels_of_another_surface_
     wall[24:26, :20] = True  # two rows of the wall above the strip's left end
     idx = np.flatnonzero((top | wall).ravel())
     rays, inverse, weight = _ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
-    a, keep, mean_square = _robust_ray_plane(rays, inverse, weight, *np.divmod(idx, STEREO_COLS))
+    a, keep, mean_square = robust_ray_plane(rays, inverse, weight, *np.divmod(idx, STEREO_COLS))
     plain = _ray_fits(_ray_moments(rays, inverse, weight))[1][0]
     true_a = np.array([0.0, 1.0 / 0.6, 0.0])
     assert np.linalg.norm(a - true_a) < 0.25 * np.linalg.norm(true_a)

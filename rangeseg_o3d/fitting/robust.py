@@ -99,7 +99,10 @@ def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     ``3 (sigma**2 c**2 / (2 r))**2`` for Gaussian range noise, is added in quadrature. At a
     pillar's flanks under a depth camera's centimetres of noise it is most of the noise
     there is (sigma 3 cm, r 0.15 m: 5 mm), which the first-order term calls zero; under a
-    laser's millimetres it is a few microns.
+    laser's millimetres it is a few microns. The compiled twin
+    (``kernels.inline._distance_noise``, used by ``kernels.nearer_models``) has the same
+    term; the compiled strip, tile and crease-side kernels (``kernels.strips``,
+    ``kernels.tiles``, ``kernels.sides``) still use the first-order term alone.
     """
     points = np.asarray(points, dtype=float)
     sigma = np.asarray(sigma, dtype=float)

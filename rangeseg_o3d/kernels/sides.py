@@ -26,7 +26,7 @@ def _normals_and_noise(xyz, sigma, pixels, axis, point):
     # Per pixel: the cylinder's unit radial normal at its foot (zero on the axis) and the
     # variance of its distance to the cylinder from range noise along its ray (the
     # first-order term of fitting.robust.distance_noise, squared: the radius is not passed
-    # here, and the sagitta term was not tried in this gate).
+    # here, so the second-order term of a curved surface is left out).
     m = pixels.size
     normals = np.zeros((m, 3))
     variance = np.empty(m)
