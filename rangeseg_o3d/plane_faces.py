@@ -480,8 +480,9 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
     :func:`robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
     those units, than their own region's plane, connected to it through such pixels.
-    Returns ``(labels, fits, stats)``, the regions changed measured again; the inputs when
-    none is.
+    Returns ``(labels, fits, stats)``: a region that claimed reported with the plane it
+    claimed by (``fits`` a changed copy), the regions changed measured again; the inputs
+    when none is.
 
     A stereo camera's range noise spans a far box's top seen near grazing: its pixels beside
     the front face are within the noise of both planes, and a claim in distances over the
@@ -507,7 +508,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         return labels, fits, stats
     h, w = labels.shape
     out = np.array(labels, dtype=np.int32, order="C")
-    changed = set()
+    changed, along = set(), {}
     for k, idx in grazing:
         own = out.reshape(-1)[idx] == k
         idx = idx[own]
@@ -554,9 +555,18 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         if taken.any():
             changed |= set(np.unique(box[taken]).tolist()) | {k}
             box[taken] = k
+            along[k] = a
     if not changed:
         return labels, fits, stats
     changed.discard(0)
+    # a region that claimed is reported with the plane it claimed by, not its tile model
+    # (which may pass near the camera): the result's model and its stats are that plane's
+    fits = dict(fits)
+    flat = out.reshape(-1)
+    for k, a in along.items():
+        plane = _ray_plane(a, xyz[flat == k])
+        if plane is not None:
+            fits[k] = plane
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
     return out, fits, stats
 

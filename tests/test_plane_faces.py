@@ -214,7 +214,14 @@ def test_a_grazing_face_takes_back_the_pixels_its_rays_meet_nearer_than_the_head
     # the next ones go back more and more)
     assert np.mean(out[moved] == 2) > 0.6 and np.mean(out[:, 24] == 2) > 0.85
     assert np.mean(out[truth == 0] == 2) < 0.02
-    assert out_fits is fits and out_stats.counts[2] == np.count_nonzero(out == 2)
+    assert out_stats.counts[2] == np.count_nonzero(out == 2)
+    # the region that claimed reports the plane it claimed by; the other keeps its model
+    assert out_fits is not fits and out_fits[1] is fits[1]
+    assert abs(out_fits[2].normal @ fits[2].normal) > np.cos(np.radians(1.0))
+    # (the plane's foot from the camera, the same whichever way its normal points)
+    foot = out_fits[2].normal * out_fits[2].d - fits[2].normal * fits[2].d
+    # within a few range-noise sigmas of the mean over the region's pixels
+    assert np.linalg.norm(foot) < 5 * float(np.median(sigma[out == 2])) / np.sqrt(np.count_nonzero(out == 2))
 
 
 def test_no_claim_from_a_face_not_seen_near_grazing():
@@ -244,3 +251,8 @@ def test_a_grazing_regions_plane_along_the_rays_comes_from_its_pixels_not_its_ti
     out = claim_along_rays(cloud, labels, along, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)[0]
     moved = (truth == 1) & (cols < 25)
     assert np.mean(out[moved] == 2) > 0.6 and np.mean(out == expected) > 0.995
+    # and the region is reported with that plane, not the tile model it came with
+    model = claim_along_rays(cloud, labels, along, stats, sigma=sigma, min_size=40, inlier_factor=INLIER_SIGMAS)[1][2]
+    assert abs(model.normal @ fits[2].normal) > np.cos(np.radians(1.0))
+    foot = model.normal * model.d - fits[2].normal * fits[2].d
+    assert np.linalg.norm(foot) < 5 * float(np.median(sigma[out == 2])) / np.sqrt(np.count_nonzero(out == 2))
