@@ -305,7 +305,7 @@ class Pipeline:
                 labels, fits, stats = recover_strips(
                     cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                     ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
-        if refine.enabled and noise.sigma_quadratic > 0.0 and noise.correlation_px > 1:
+        if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
             # their pixels hold. Only where the range noise grows with the range (a depth camera's), so that
             # far away it spreads a tile's mean along its ray by a box face's width; a sensor of
@@ -332,7 +332,7 @@ class Pipeline:
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
-            if noise.sigma_quadratic > 0.0 and noise.correlation_px > 1:
+            if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
                 # them their rays meet nearer, in range noise, than their own regions' planes
                 labels, fits, stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma,

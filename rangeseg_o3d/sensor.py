@@ -73,6 +73,14 @@ class NoiseModel:
         independent = np.maximum(np.asarray(samples, dtype=np.float64) / self.correlation_px ** 2, 1.0)
         return 1.0 / np.sqrt(independent)
 
+    @property
+    def matched_window(self) -> bool:
+        """Whether this is a stereo camera's noise: growing with the range (``sigma_quadratic``)
+        and erring together over a matching window (``correlation_px`` > 1). The steps for
+        far faces seen near grazing (``plane_faces``, the strips fitted along their rays)
+        run only there."""
+        return self.sigma_quadratic > 0.0 and self.correlation_px > 1
+
     def independent_share(self, tile: int = 1) -> float:
         """The independent samples each point of a grid of ``tile`` x ``tile`` means carries
         (1 for single returns that err alone): the number of points over which a mean errs

@@ -84,7 +84,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     # a stereo camera's grazing faces: the strips whose least-squares plane lies along their
     # rays may be faces whose depth its range noise spans (_Strips.faces_along_rays); only
     # where that noise grows with the range and errs together over a matching window
-    along = (~across & (strips.sizes >= floor) if noise_model.sigma_quadratic > 0.0 and noise_model.correlation_px > 1
+    along = (~across & (strips.sizes >= floor) if noise_model.matched_window
              else np.zeros_like(across))
     if not (open_.any() or along.any()):
         return labels, fits, stats

@@ -76,6 +76,15 @@ def test_correlated_returns_average_less_noise_away():
         load_config({"sensor": {"noise_correlation_px": 0}})
 
 
+def test_only_a_stereo_cameras_noise_errs_over_a_matching_window():
+    # the grazing-face steps run only where the noise grows with range and errs together
+    assert NoiseModel(sigma0=0.001, sigma_quadratic=0.003, correlation_px=3).matched_window
+    assert not NoiseModel(sigma0=0.001, sigma_quadratic=0.003).matched_window  # a Kinect's
+    assert not NoiseModel(sigma0=0.005, correlation_px=3).matched_window  # constant noise
+    assert not Pipeline("rgbd_vga").sensor.noise.matched_window
+    assert not Pipeline("lms200").sensor.noise.matched_window
+
+
 def test_noise_excess_measures_how_much_more_points_scatter_than_the_model():
     from rangeseg_o3d.sensor_checks import noise_excess
 
