@@ -23,7 +23,7 @@ from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, split_plane_faces
 from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
-from .refinement import refine_regions
+from .refinement import StepTimer, refine_regions
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
 from .scales import Scales, scales_for_cloud
@@ -205,7 +205,7 @@ class Pipeline:
         stages, stats = segmentation.stages, None
         if work is not cloud:
             labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models, settings,
-                                                               excess)
+                                                               excess, timings=clock.timings)
             regions = Regions(labels, fits)
             stages = ExpandedStages(stages, settings.tile, cloud.shape)
             clock.lap("full_resolution")
@@ -264,7 +264,7 @@ class Pipeline:
         return regions, sigma
 
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict,
-                         settings: _Settings, excess: float = 1.0):
+                         settings: _Settings, excess: float = 1.0, timings: dict | None = None):
         """Label every pixel by the models of its tile's region and the 8 around it.
 
         Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
@@ -273,9 +273,12 @@ class Pipeline:
         pixels moves a plane's normal by far less than its error), except a curved one
         whose curvature its pixels do not resolve, which becomes their plane
         (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
-        rms of the pixels' distances.
+        rms of the pixels' distances. ``timings`` (optional) receives each step's seconds
+        under ``full.<step>`` (the steps that ran), as the refinement's go under ``refine.<step>``.
         """
         from .kernels import ranges_and_noise
+
+        lap = StepTimer(timings, "full.").lap
 
         # NaN-masked ranges and the noise there in one compiled pass (numpy took four
         # whole-frame temporaries: the where, the square, the product, the sum)
@@ -283,28 +286,33 @@ class Pipeline:
         ranges, sigma = ranges_and_noise(_read_only(cloud.range_image(), np.float64),
                                          _read_only(cloud.valid, np.bool_), float(noise.sigma0),
                                          float(noise.sigma_quadratic))
+        lap("noise")
         refine = settings.refine
         # how much more a tile's mean errs than one of independent returns (correlated
         # returns, the tile means' measured excess scatter)
         spread = excess * float(noise.mean_scale(settings.tile * settings.tile)) * settings.tile
         labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                              k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True)
+        lap("label_pixels")
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:
             tile_fits = fits
             labels, fits, stats = recover_thin_surfaces(
                 cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                 ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS, strips=refine.close_gaps)
+            lap("recover")
             # pixels a model took one by one that lie beside it as a group: a surface of their own?
             labels, fits, stats = recover_off_model(
                 cloud, labels, fits, stats, blocks=blocks, tile_fits=tile_fits, tile=settings.tile, spread=spread,
                 fitter=self.fitter, config=refine, sensor=self.sensor, ranges=ranges, sigma=sigma,
                 inlier_factor=INLIER_SIGMAS)
+            lap("off_model")
             if not refine.close_gaps:  # (with close_gaps the strips came with the blobs, as ever)
                 # the strips too thin for a blob, once the blobs' surfaces have grown and merged
                 labels, fits, stats = recover_strips(
                     cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                     ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+                lap("strips")
         if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
             # their pixels hold. Only where the range noise grows with the range (a depth camera's), so that
@@ -319,25 +327,31 @@ class Pipeline:
                 min_size=smallest_region(refine, self.sensor, cloud), inlier_factor=INLIER_SIGMAS,
                 min_angle_deg=refine.merge_angle_deg, correlation_px=noise.correlation_px,
                 wrap_columns=self.sensor.wrap_columns)
+            lap("plane_faces")
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            lap("ripples")
             # a cylinder bent over a crease gives way to its two faces before the regions grow
             labels, fits, stats = planes_for_creases(cloud, labels, fits, stats, sigma=sigma,
                                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS,
                                                      min_size=smallest_region(refine, self.sensor, cloud),
                                                      tile_labels=tile_labels, tile=settings.tile,
                                                      fitter=self.fitter)
+            lap("creases")
             if refine.close_gaps:
                 labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels)
+                lap("close_gaps")
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile)
+            lap("unresolved")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
                 # them their rays meet nearer, in range noise, than their own regions' planes
                 labels, fits, stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma,
                                                        min_size=smallest_region(refine, self.sensor, cloud),
                                                        inlier_factor=INLIER_SIGMAS)
+                lap("claim_along_rays")
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
             min_size = smallest_region(refine, self.sensor, cloud)
@@ -345,6 +359,7 @@ class Pipeline:
                                               recovered_from=recovered_from,
                                               recovered_min_size=recovered_region_floor(refine, min_size,
                                                                                  self.sensor.noise.correlation_px))
+            lap("drop")
         return labels, fits, sigma, stats
 
     @staticmethod

@@ -69,9 +69,9 @@ def _per_pixel_labels(xyz, tile_labels, tile, kinds, params, rms, sigma, k_sigma
 
 class _Capture(rs.Pipeline):
     # the tile labels and fits the pipeline hands to the full-resolution step
-    def _full_resolution(self, cloud, tile_labels, fits, settings, excess=1.0):
+    def _full_resolution(self, cloud, tile_labels, fits, settings, excess=1.0, **kwargs):
         self.captured = (tile_labels.copy(), dict(fits))
-        return super()._full_resolution(cloud, tile_labels, fits, settings, excess)
+        return super()._full_resolution(cloud, tile_labels, fits, settings, excess, **kwargs)
 
 
 @pytest.fixture(scope="module")

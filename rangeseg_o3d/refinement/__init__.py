@@ -53,17 +53,22 @@ from .polish import polish_models
 from .recover import recover_leftovers, recover_pixels
 from .split import split_regions
 
-__all__ = ["refine_regions", "recover_pixels", "bend_samples"]
+__all__ = ["refine_regions", "recover_pixels", "bend_samples", "StepTimer"]
 
 
-class _Timer:
-    def __init__(self, timings: dict):
-        self.timings = timings
+class StepTimer:
+    """Seconds per step into ``timings`` under ``prefix + name``, each lap from the last (or
+    from creation); nothing is recorded when ``timings`` is None (``refine.<step>`` here,
+    ``full.<step>`` in the pipeline's full-resolution stage)."""
+
+    def __init__(self, timings: dict | None, prefix: str = "refine."):
+        self.timings, self.prefix = timings, prefix
         self.last = time.perf_counter()
 
     def lap(self, name: str) -> None:
         now = time.perf_counter()
-        self.timings[f"refine.{name}"] = now - self.last
+        if self.timings is not None:
+            self.timings[self.prefix + name] = now - self.last
         self.last = now
 
 
@@ -118,7 +123,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     jumps : (H, W) jump-edge mask from the segmenter, if it made one.
     timings : dict receiving ``refine.<step>`` durations.
     """
-    timer = _Timer(timings)
+    timer = StepTimer(timings)
     config = with_derived_refinement(config, sensor, cloud)
     # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
     tile = cloud.tile
