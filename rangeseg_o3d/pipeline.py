@@ -347,10 +347,12 @@ class Pipeline:
             lap("unresolved")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
-                # them their rays meet nearer, in range noise, than their own regions' planes
+                # them their rays meet nearer, in range noise, than their own regions' planes,
+                # and a band of a wall under a model bent along its rays goes back to the wall
                 labels, fits, stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma,
                                                        min_size=smallest_region(refine, self.sensor, cloud),
-                                                       inlier_factor=INLIER_SIGMAS)
+                                                       inlier_factor=INLIER_SIGMAS,
+                                                       correlation_px=noise.correlation_px)
                 lap("claim_along_rays")
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)

@@ -474,15 +474,20 @@ def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
 
 
 def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, min_size: int,
-                     inlier_factor: float):
+                     inlier_factor: float, correlation_px: int = 1):
     """Each plane region of at least ``min_size`` pixels seen near grazing (median incidence
     cosine under ``scales.GRAZING_COSINE``) takes the pixels beside it, free or of another
     plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
     :func:`robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
     those units, than their own region's plane, connected to it through such pixels.
+    A region whose plane along the rays is not seen near grazing (a band of a head-on wall
+    under a tile model bent towards the rays) joins the plane region beside it that
+    explains it along the rays (:func:`_plane_beside`; ``correlation_px``: the side of the
+    sensor's matching window, over which its range noise errs together); its pixels that
+    region's plane leaves beyond TRIM_SIGMAS become free.
     Returns ``(labels, fits, stats)``: a region that claimed reported with the plane it
-    claimed by (``fits`` a changed copy), the regions changed measured again; the inputs
-    when none is.
+    claimed by (``fits`` a changed copy, without the regions that joined another), the
+    regions changed measured again; the inputs when none is.
 
     A stereo camera's range noise spans a far box's top seen near grazing: its pixels beside
     the front face are within the noise of both planes, and a claim in distances over the
@@ -508,7 +513,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         return labels, fits, stats
     h, w = labels.shape
     out = np.array(labels, dtype=np.int32, order="C")
-    changed, along = set(), {}
+    changed, along, joined = set(), {}, set()
     for k, idx in grazing:
         own = out.reshape(-1)[idx] == k
         idx = idx[own]
@@ -519,14 +524,20 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         # robust (its rim holds its neighbours' pixels), from its pixels alone: a tile model
         # of a thin grazing face may pass near the camera, no pixel within its noise
         found = robust_ray_plane(rays, inverse, weight, rows, cols)
-        if found is None:
-            continue
-        a = found[0]
+        a = None if found is None else found[0]
         # the plane along the rays must be seen near grazing too: a region of a head-on wall
         # whose tile model was bent towards the rays refits to the wall's plane, and its
-        # claims would only cut the wall in two
-        normal = a / max(float(np.linalg.norm(a)), 1e-300)
-        if float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
+        # claims would only cut the wall in two; such a band of a wall whose own region's
+        # plane explains it along the rays goes back to that region
+        normal = None if a is None else a / max(float(np.linalg.norm(a)), 1e-300)
+        if normal is None or float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
+            wall, kept = _plane_beside(out, k, idx, rays, inverse, weight, planes, correlation_px)
+            if wall:
+                flat = out.reshape(-1)
+                flat[idx] = 0
+                flat[idx[kept]] = wall
+                changed |= {k, wall}
+                joined.add(k)
             continue
         # the face may go on beyond the region along its length (the rest of a box's top
         # left free): its box grown by its own extent, at least CLAIM_REACH pixels
@@ -561,7 +572,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     changed.discard(0)
     # a region that claimed is reported with the plane it claimed by, not its tile model
     # (which may pass near the camera): the result's model and its stats are that plane's
-    fits = dict(fits)
+    fits = {k: m for k, m in fits.items() if k not in joined}
     flat = out.reshape(-1)
     for k, a in along.items():
         plane = _ray_plane(a, xyz[flat == k])
@@ -569,6 +580,38 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
             fits[k] = plane
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
     return out, fits, stats
+
+
+def _plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, inverse: np.ndarray,
+                  weight: np.ndarray, planes: dict, correlation_px: int) -> tuple:
+    """``(label, kept)``: of the plane regions (``planes``: label -> Plane) touching region
+    ``k`` of ``labels`` (its flat pixels ``idx``, their :func:`_ray_terms`), the one whose
+    plane keeps ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise
+    along the rays with the least mean square of those, that mean square within the
+    chi-square bound of their independent returns (``correlation_px`` squared pixels each),
+    and the mask of the pixels it keeps; ``(0, None)`` when none does.
+
+    A thin band of a far head-on wall beside what stands before it can come out of the tile
+    grid as a region of its own whose model lies along its rays (its pixels spread along
+    them by a range noise larger than the band is wide): its pixels fit the wall's plane
+    along the rays within their noise, and are that wall."""
+    from .kernels.linalg import noise_rms_bound
+    from .strips import EXPLAINED_SHARE
+
+    share = 1.0 / float(max(int(correlation_px), 1)) ** 2
+    best, label, mask = np.inf, 0, None
+    for other in sorted(touching(labels, idx, 1) - {0, k}):
+        if other not in planes:
+            continue
+        squares = weight * (inverse - rays @ (planes[other].normal / planes[other].d)) ** 2
+        kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+        n = int(np.count_nonzero(kept))
+        if n < EXPLAINED_SHARE * idx.size:
+            continue
+        mean_square = float(np.mean(squares[kept]))
+        if mean_square <= noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2 and mean_square < best:
+            best, label, mask = mean_square, other, kept
+    return label, mask
 
 
 #: Passes of :func:`robust_ray_plane`'s trimmed fit (each refits to the pixels the last

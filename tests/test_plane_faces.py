@@ -256,3 +256,60 @@ def test_a_grazing_regions_plane_along_the_rays_comes_from_its_pixels_not_its_ti
     assert abs(model.normal @ fits[2].normal) > np.cos(np.radians(1.0))
     foot = model.normal * model.d - fits[2].normal * fits[2].d
     assert np.linalg.norm(foot) < 5 * float(np.median(sigma[out == 2])) / np.sqrt(np.count_nonzero(out == 2))
+
+
+def _wall_band(offset_sigmas=0.0):
+    # a far box corner (face 0 turned 5 degrees from head-on, face 1 near grazing): region 1
+    # face 0 but for a band of its rows 60-79 (440 px), region 3, whose model is face 1's
+    # plane (seen near grazing, as a tile model bent along the band's rays); region 2 face 1.
+    # ``offset_sigmas`` moves the band's returns that many range-noise sigmas back along
+    # their rays (another surface behind the wall's plane)
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.fullres import region_stats
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    xyz, sigma, truth, normals = _box_corner(7, turn_deg=5.0)
+    rows = np.arange(truth.shape[0])[:, None].repeat(truth.shape[1], 1)
+    band = (truth == 0) & (rows >= 60) & (rows < 80)
+    ranges = np.linalg.norm(xyz, axis=2)
+    xyz = xyz * np.where(band, 1.0 + offset_sigmas * sigma / ranges, 1.0)[..., None]
+    on_line = np.array([0.0, 0.0, 4.0])
+    fits = {k + 1: Plane(normal=n, d=float(n @ on_line), rms=0.0, inliers=1) for k, n in enumerate(normals)}
+    fits[3] = fits[2]
+    labels = np.where(band, 3, truth + 1).astype(np.int32)
+    cloud = rs.OrganizedCloud(xyz)
+    return cloud, labels, fits, region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS), sigma, band
+
+
+def test_a_band_of_a_head_on_wall_under_a_model_along_its_rays_goes_back_to_the_wall():
+    # the band's plane refitted along its rays is face 0's (not seen near grazing, so it
+    # claims nothing); face 0's plane keeps its pixels within their noise along the rays:
+    # they go back to region 1, and region 3 is gone from the labels and the models
+    from rangeseg_o3d.plane_faces import claim_along_rays
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    cloud, labels, fits, stats, sigma, band = _wall_band()
+    assert band.sum() == 440
+    out, out_fits, out_stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40,
+                                                inlier_factor=INLIER_SIGMAS, correlation_px=1)
+    # (3 sigmas along the rays keep all but about 0.3 % of the returns; beside the crease
+    # the grazing face then claims the pixels its rays meet nearer, as it does of the wall's)
+    cols = np.arange(out.shape[1])[None, :].repeat(out.shape[0], 0)
+    assert np.mean(out[band & (cols < 18)] == 1) > 0.98 and not (out == 3).any()
+    assert np.all(out[band] != 0) and np.all((out[band] == 1) | (cols[band] >= 18))
+    assert 3 not in out_fits and out_fits[1] is fits[1]
+    assert out_stats.counts[1] == np.count_nonzero(out == 1) and out_stats.counts[2] == np.count_nonzero(out == 2)
+    # the grazing face keeps its own pixels
+    assert np.mean(out[labels == 2] == 2) > 0.98
+
+
+def test_a_band_behind_the_walls_plane_by_several_sigmas_stays_a_region():
+    # the same band moved 5 range-noise sigmas back along its rays: face 0's plane leaves
+    # nearly all of it beyond 3 sigmas, and the band keeps its label
+    from rangeseg_o3d.plane_faces import claim_along_rays
+    from rangeseg_o3d.result import INLIER_SIGMAS
+
+    cloud, labels, fits, stats, sigma, band = _wall_band(offset_sigmas=5.0)
+    out, out_fits, _ = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40,
+                                        inlier_factor=INLIER_SIGMAS, correlation_px=1)
+    assert (out[band] == 3).all() and out_fits[3] is fits[3]
