@@ -336,7 +336,7 @@ class Pipeline:
                                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS,
                                                      min_size=smallest_region(refine, self.sensor, cloud),
                                                      tile_labels=tile_labels, tile=settings.tile,
-                                                     fitter=self.fitter)
+                                                     fitter=self.fitter, depth_step=self.sensor.depth_step)
             lap("creases")
             if refine.close_gaps:
                 labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels)
