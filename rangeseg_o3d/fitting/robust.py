@@ -101,8 +101,8 @@ def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     there is (sigma 3 cm, r 0.15 m: 5 mm), which the first-order term calls zero; under a
     laser's millimetres it is a few microns. The compiled twin
     (``kernels.inline._distance_noise``, used by ``kernels.nearer_models``) has the same
-    term; the compiled strip, tile and crease-side kernels (``kernels.strips``,
-    ``kernels.tiles``, ``kernels.sides``) still use the first-order term alone.
+    term, and so does the crease-side kernel (``kernels.sides``); the compiled strip and
+    tile kernels (``kernels.strips``, ``kernels.tiles``) still use the first-order term alone.
     """
     points = np.asarray(points, dtype=float)
     sigma = np.asarray(sigma, dtype=float)

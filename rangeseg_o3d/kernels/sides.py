@@ -12,6 +12,8 @@ import math
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
+from .inline import _distance_noise
+from .kinds import CYLINDER
 from .linalg import curvature_resolved, noise_rms_bound
 from .window import eigenvectors, smallest_eigenvalues
 
@@ -22,14 +24,16 @@ __all__ = ["crease_sides"]
 
 
 @njit(cache=True, nogil=True)
-def _normals_and_noise(xyz, sigma, pixels, axis, point):
+def _normals_and_noise(xyz, sigma, pixels, axis, point, radius):
     # Per pixel: the cylinder's unit radial normal at its foot (zero on the axis) and the
-    # variance of its distance to the cylinder from range noise along its ray (the
-    # first-order term of fitting.robust.distance_noise, squared: the radius is not passed
-    # here, so the second-order term of a curved surface is left out).
+    # variance of its distance to the cylinder from range noise along its ray
+    # (fitting.robust.distance_noise squared: the incidence cosine and, in quadrature, the
+    # sagitta of the cylinder's bend along the ray, most of the noise there is at a far
+    # pillar's flanks under a depth camera's centimetres)
     m = pixels.size
     normals = np.zeros((m, 3))
     variance = np.empty(m)
+    model = np.array([axis[0], axis[1], axis[2], point[0], point[1], point[2], radius])
     for j in range(m):
         i = pixels[j]
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
@@ -39,9 +43,7 @@ def _normals_and_noise(xyz, sigma, pixels, axis, point):
         norm = math.sqrt(nx * nx + ny * ny + nz * nz)
         if norm > 0.0:
             normals[j, 0], normals[j, 1], normals[j, 2] = nx / norm, ny / norm, nz / norm
-        r = max(math.sqrt(x * x + y * y + z * z), 1e-12)
-        cosine = x / r * normals[j, 0] + y / r * normals[j, 1] + z / r * normals[j, 2]
-        variance[j] = (sigma[i] * cosine) ** 2
+        variance[j] = _distance_noise(CYLINDER, model, x, y, z, sigma[i]) ** 2
     return normals, variance
 
 
@@ -65,7 +67,7 @@ def _angle_order(normals, axis):
 
 
 @njit(cache=True, nogil=True)
-def _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigmas):
+def _misfits_across(xyz, sigma, idx, distances, axis, point, radius, bins, sample, sigmas):
     # The gate: on an even sample of at most ``sample`` pixels, the rms is beyond the noise
     # of the distances, and so is the mean distance in each of ``bins`` equal-count bins of
     # angle (a chi-square over the bins, ``sigmas`` deviations up its law). Returns whether,
@@ -73,7 +75,7 @@ def _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigma
     n = idx.size
     picks = np.arange(0, n, max(1, n // sample))
     m = picks.size
-    normals, variance = _normals_and_noise(xyz, sigma, idx[picks], axis, point)
+    normals, variance = _normals_and_noise(xyz, sigma, idx[picks], axis, point, radius)
     squares, noise = 0.0, 0.0
     for j in range(m):
         squares += distances[picks[j]] ** 2
@@ -204,15 +206,16 @@ def _sides_cannot_explain(points, order, cut, distances, cover, extra, sigmas):
 
 
 @njit(cache=True, nogil=True)
-def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample, cuts, sigmas, cover, extra):
+def crease_sides(xyz, sigma, idx, distances, axis, point, radius, min_size, bins, sample, cuts, sigmas, cover, extra):
     """The first side of a cylinder region cut in two by angle about its axis, when the
     cylinder misfits it in a pattern across the axis; an empty mask otherwise.
 
     ``xyz`` (N, 3) and ``sigma`` (N,) are the scan's points and range noise, ``idx`` the
     region's flat pixels, ``distances`` the cylinder's signed distances to them, ``axis``
-    (unit) and ``point`` the cylinder's. The gate, on an even sample of at most ``sample``
+    (unit), ``point`` and ``radius`` the cylinder's. The gate, on an even sample of at most ``sample``
     pixels: their rms is beyond the noise of their distances (range noise along each ray
-    times the incidence cosine, :func:`.linalg.noise_rms_bound` with ``sigmas``), and so
+    times the incidence cosine and the sagitta of the bend in quadrature, as
+    ``fitting.robust.distance_noise``; :func:`.linalg.noise_rms_bound` with ``sigmas``), and so
     is their mean distance in each of ``bins`` equal-count bins of angle about the axis
     (a chi-square over the bins beyond ``bins + sigmas sqrt(2 bins)``). Then among ``cuts``
     equal-count cuts of all the pixels ordered by angle (each side at least ``min_size``),
@@ -226,11 +229,11 @@ def crease_sides(xyz, sigma, idx, distances, axis, point, min_size, bins, sample
     none = np.zeros(0, np.bool_)
     if n < 2 * bins:
         return none
-    misfits, normals, order = _misfits_across(xyz, sigma, idx, distances, axis, point, bins, sample, sigmas)
+    misfits, normals, order = _misfits_across(xyz, sigma, idx, distances, axis, point, radius, bins, sample, sigmas)
     if not misfits or n < 2 * min_size:
         return none
     if normals.shape[0] < n:  # the gate saw a sample: the cut orders every pixel
-        normals, _ = _normals_and_noise(xyz, sigma, idx, axis, point)
+        normals, _ = _normals_and_noise(xyz, sigma, idx, axis, point, radius)
         order = _angle_order(normals, axis)
     points = np.empty((n, 3))
     for j in range(n):

@@ -327,7 +327,7 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     if not isinstance(model, Cylinder):
         return []
     first = kernels.crease_sides(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64), distances, model.axis,
-                                 model.point, ctx.min_size, ANGLE_BINS, idx.size, CUTS, CHI_SQUARE_SIGMAS,
+                                 model.point, float(model.radius), ctx.min_size, ANGLE_BINS, idx.size, CUTS, CHI_SQUARE_SIGMAS,
                                  PLANES_COVER, CURVED_PARAMETERS["cylinder"] - 3)
     if not first.size:
         return []

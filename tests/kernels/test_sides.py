@@ -40,7 +40,7 @@ def _arc(sigma=0.001, range_noise=True, seed=0):
 def _sides(points, sigma, cylinder, min_size=10, cover=0.9):
     idx = np.arange(len(points), dtype=np.int64)
     return crease_sides(points, np.full(len(points), sigma), idx, cylinder.distances(points), cylinder.axis,
-                        cylinder.point, min_size, BINS, SAMPLE, CUTS, CHI_SQUARE_SIGMAS, cover, 2)
+                        cylinder.point, float(cylinder.radius), min_size, BINS, SAMPLE, CUTS, CHI_SQUARE_SIGMAS, cover, 2)
 
 
 @pytest.mark.parametrize("rows", [50, 200])  # the gate on every pixel, and on a sample of 256
@@ -87,3 +87,28 @@ def test_a_region_too_small_to_cut_gives_nothing():
     assert _sides(points, 0.01, cylinder, min_size=len(points) // 2 + 1).size == 0
     few = points[:2 * BINS - 1]
     assert _sides(few, 0.01, cylinder).size == 0
+
+
+def test_the_gate_noise_is_distance_noise_with_its_sagitta_term():
+    # a pillar of radius 0.3 m 4 m ahead under 3 cm of range noise (a depth camera there):
+    # the gate's per-pixel variance is fitting.robust.distance_noise squared, whose sagitta
+    # term is most of the noise at the flanks, where the first-order term (sigma x cosine)
+    # nears zero
+    from rangeseg_o3d.fitting.primitives import Cylinder
+    from rangeseg_o3d.fitting.robust import distance_noise
+    from rangeseg_o3d.kernels.sides import _normals_and_noise
+
+    angle = np.radians(np.linspace(-85.0, 85.0, 69))
+    points = np.column_stack([0.3 * np.sin(angle), np.zeros(69), 4.0 - 0.3 * np.cos(angle)])
+    cylinder = Cylinder(axis=[0.0, 1.0, 0.0], point=[0.0, 0.0, 4.0], radius=0.3, rms=0.0, inliers=0)
+    sigma = np.full(69, 0.03)
+    _, variance = _normals_and_noise(points, sigma, np.arange(69, dtype=np.int64), np.asarray(cylinder.axis),
+                                     np.asarray(cylinder.point), 0.3)
+    expected = distance_noise(cylinder, points, sigma)
+    assert np.sqrt(variance) == pytest.approx(expected, rel=1e-9)
+    rays = points / np.linalg.norm(points, axis=1, keepdims=True)
+    first = sigma * np.abs(np.einsum("ij,ij->i", rays, cylinder.normals(points)))
+    flank = np.abs(angle) > np.radians(80.0)
+    assert (np.sqrt(variance[flank]) > 1.3 * first[flank]).all()
+    # head-on the sagitta is nothing beside sigma x cosine
+    assert np.sqrt(variance[34]) == pytest.approx(0.03, rel=1e-6)

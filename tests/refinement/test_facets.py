@@ -163,7 +163,7 @@ def test_a_shallow_grazing_crease_over_many_pixels_becomes_its_planes(context):
     idx, distances = np.arange(len(points), dtype=np.int64), cylinder.distances(points)
     noise = np.full(len(points), sigma)
     # the premise: an even sample of 256 pixels does not show the misfit, all of them do
-    gate = [crease_sides(points, noise, idx, distances, cylinder.axis, cylinder.point, 10, 8, sample, 33,
+    gate = [crease_sides(points, noise, idx, distances, cylinder.axis, cylinder.point, float(cylinder.radius), 10, 8, sample, 33,
                          CHI_SQUARE_SIGMAS, 0.9, 2).size for sample in (256, len(points))]
     assert gate == [0, len(points)]
     out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, sigma)),
