@@ -575,3 +575,52 @@ def test_a_strip_of_a_cylinder_apart_from_it_is_offered_to_it_and_goes_back(cont
                                          near_sigmas=3.0)
     assert (out[:, 37:] == 1).all() and (out[:, 31:37] == 0).all() and set(out_fits) == {1, 3}
     assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
+
+
+def _wall_with_mixed_returns_and_piece(offset: float, seed: int):
+    """A wall under 2 cm range noise seen as two pieces (columns 0-29, label 1, whose last
+    column holds mixed returns 6 cm behind it, as at a jump edge; columns 32-39, label 2,
+    moved ``offset`` metres along z), the noise_20mm row's sensor:
+    ``(context, xyz, labels, fits, tolerance)``, ``tolerance`` the fitter's plane rms
+    threshold for the union's points."""
+    from rangeseg_o3d.config import load_config
+    from rangeseg_o3d.fitting.classify import plane_threshold
+    from rangeseg_o3d.refinement.context import Context
+
+    pipe = rs.Pipeline(load_config("lms200", overrides={"sensor.sigma0": 0.02}))
+    xyz = plane_grid(30, 40, noise=0.02, seed=seed, step=0.05)
+    xyz[:, 29, 2] += 0.06
+    xyz[:, 32:, 2] += offset
+    labels = np.zeros((30, 40), np.int32)
+    labels[:, :30], labels[:, 32:] = 1, 2
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    cloud = rs.OrganizedCloud(xyz)
+    ctx = Context(cloud, pipe.fitter, pipe.sensor.noise.sigma(cloud.range_image()), 10)
+    p = pipe.fitter.params
+    union = xyz[labels > 0]
+    tolerance = plane_threshold(len(union), union.mean(axis=0), plane_rms=p["plane_rms"],
+                                noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
+    return ctx, xyz, labels, fits, tolerance
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_piece_joins_a_wall_whose_mixed_returns_put_the_union_over_the_fitters_tolerance(seed):
+    ctx, xyz, labels, fits, tolerance = _wall_with_mixed_returns_and_piece(0.0, seed)
+    union = fit_plane(xyz[labels > 0])
+    # the premise: the wall alone and the union are over the fitter's plane tolerance (its
+    # mixed column), the union no farther off than the wall
+    assert fits[1].rms > tolerance and union.rms > tolerance and union.rms <= fits[1].rms
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, max_angle_deg=3.0, tolerance=0.2,
+                                   disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1} and (out[labels > 0] == 1).all()
+    assert merged[1].kind == "plane" and abs(merged[1].rms - union.rms) < 1e-6 * union.rms
+    assert abs(merged[1].normal[2]) > np.cos(np.radians(2.0))  # the wall's (z = 3 m)
+
+
+def test_a_parallel_piece_two_noise_sigmas_off_stays_apart_from_a_wall_over_the_tolerance():
+    # the same wall, the piece 4 cm behind it: the union is farther off than the wall alone
+    ctx, xyz, labels, fits, tolerance = _wall_with_mixed_returns_and_piece(0.04, 0)
+    assert fit_plane(xyz[labels > 0]).rms > fits[1].rms > tolerance
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, max_angle_deg=3.0, tolerance=0.2,
+                                   disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1, 2} and (out == labels).all()
