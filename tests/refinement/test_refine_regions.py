@@ -1,8 +1,10 @@
 """The refinement as a whole: its steps in run order, each timed, the inputs left alone."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
+from rangeseg_o3d.fitting import fit_plane
 from rangeseg_o3d.fitting.primitives import FitFailure
 from rangeseg_o3d.refinement import refine_regions
 from rangeseg_o3d.result import Regions
@@ -82,3 +84,30 @@ def test_bend_samples_counts_a_stated_correlation_and_keeps_the_bend_test_to_las
     assert bend_samples(stereo, 1) == pytest.approx(1 / 9)
     assert bend_samples(stereo, 6) == pytest.approx(stereo.noise.independent_share(6))
     assert 0.7 < bend_samples(stereo, 6) < 0.75
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_column_whose_halves_become_its_cylinder_joins_its_other_curved_piece(seed):
+    # a column of radius 0.25 m 3 m away (axis along y, over 100 degrees, 40 x 60 grid) under
+    # 2 cm range noise along the rays: rows 0-19 as two planes (its halves), rows 20-39 one
+    # cylinder region. The halves become a cylinder only after the merge of same-kind
+    # regions (planes_into_curved), which then meets the other piece, a cylinder too.
+    noise = 0.02
+    pipe = rs.Pipeline(rs.load_config("lms200", overrides={"sensor.sigma0": noise}))
+    v, u = np.mgrid[0:40, 0:60].astype(float)
+    angle = np.radians(-50.0 + 100.0 * u / 59.0)
+    surface = np.dstack([0.25 * np.sin(angle), (v - 19.5) * 0.02, 3.0 - 0.25 * np.cos(angle)])
+    ranges = np.linalg.norm(surface, axis=-1, keepdims=True)
+    xyz = surface * (1.0 + np.random.default_rng(seed).normal(0.0, noise, ranges.shape) / ranges)
+    labels = np.where(u < 30, 1, 2).astype(np.int32)
+    labels[20:] = 3
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    fits[3] = pipe.fitter.fit(xyz[labels == 3])
+    assert fits[3].kind == "cylinder"  # the premise
+    cloud = rs.OrganizedCloud(xyz)
+    out = refine_regions(cloud, Regions(labels, fits), fitter=pipe.fitter, config=pipe.config.refine,
+                         sensor=pipe.sensor, ranges=cloud.range_image(), sigma=np.full(cloud.shape, noise),
+                         jumps=None, timings={})
+    assert len(out.models) == 1 and (out.labels > 0).all() and len(np.unique(out.labels)) == 1
+    (model,) = out.models.values()
+    assert model.kind == "cylinder" and abs(model.radius - 0.25) < 0.05 and abs(model.axis[1]) > np.cos(np.radians(3))
