@@ -480,8 +480,9 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
     :func:`robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
     those units, than their own region's plane, connected to it through such pixels.
-    A region whose plane along the rays is not seen near grazing (a band of a head-on wall
-    under a tile model bent towards the rays) joins the plane region beside it that
+    A region whose plane along the rays is not seen near grazing, or which has none
+    (:func:`robust_ray_plane` found none; a band of a head-on wall under a tile model bent
+    towards the rays) joins the plane region beside it that
     explains it along the rays (:func:`_plane_beside`; ``correlation_px``: the side of the
     sensor's matching window, over which its range noise errs together); its pixels that
     region's plane leaves beyond TRIM_SIGMAS become free.

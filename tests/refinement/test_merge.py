@@ -577,10 +577,10 @@ def test_a_strip_of_a_cylinder_apart_from_it_is_offered_to_it_and_goes_back(cont
     assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
 
 
-def _wall_with_mixed_returns_and_piece(offset: float, seed: int):
+def _wall_with_mixed_returns_and_piece(offset: float, seed: int, mixed: float = 0.06):
     """A wall under 2 cm range noise seen as two pieces (columns 0-29, label 1, whose last
-    column holds mixed returns 6 cm behind it, as at a jump edge; columns 32-39, label 2,
-    moved ``offset`` metres along z), the noise_20mm row's sensor:
+    column holds mixed returns ``mixed`` metres behind it, as at a jump edge; columns 32-39,
+    label 2, moved ``offset`` metres along z), the noise_20mm row's sensor:
     ``(context, xyz, labels, fits, tolerance)``, ``tolerance`` the fitter's plane rms
     threshold for the union's points."""
     from rangeseg_o3d.config import load_config
@@ -589,7 +589,7 @@ def _wall_with_mixed_returns_and_piece(offset: float, seed: int):
 
     pipe = rs.Pipeline(load_config("lms200", overrides={"sensor.sigma0": 0.02}))
     xyz = plane_grid(30, 40, noise=0.02, seed=seed, step=0.05)
-    xyz[:, 29, 2] += 0.06
+    xyz[:, 29, 2] += mixed
     xyz[:, 32:, 2] += offset
     labels = np.zeros((30, 40), np.int32)
     labels[:, :30], labels[:, 32:] = 1, 2
@@ -619,8 +619,22 @@ def test_a_piece_joins_a_wall_whose_mixed_returns_put_the_union_over_the_fitters
 
 def test_a_parallel_piece_two_noise_sigmas_off_stays_apart_from_a_wall_over_the_tolerance():
     # the same wall, the piece 4 cm behind it: the union is farther off than the wall alone
+    # (refused by plane_within_larger's first test, the union's rms against the wall's)
     ctx, xyz, labels, fits, tolerance = _wall_with_mixed_returns_and_piece(0.04, 0)
     assert fit_plane(xyz[labels > 0]).rms > fits[1].rms > tolerance
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, max_angle_deg=3.0, tolerance=0.2,
+                                   disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1, 2} and (out == labels).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_parallel_piece_beyond_its_noise_stays_apart_though_the_union_is_within_the_walls_rms(seed):
+    # the wall's mixed returns 20 cm behind it put its rms (~39 mm) over the union's (~38 mm),
+    # so only plane_within_larger's second test can refuse: the piece, 8 cm (four noise
+    # sigmas) behind, is beyond what its own 2 cm noise leaves a plane of 240 points
+    ctx, xyz, labels, fits, tolerance = _wall_with_mixed_returns_and_piece(0.08, seed, mixed=0.2)
+    union = fit_plane(xyz[labels > 0])
+    assert tolerance < union.rms < fits[1].rms  # the premise
     out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, max_angle_deg=3.0, tolerance=0.2,
                                    disjoint=True, rms_factor=1.3)
     assert set(merged) == {1, 2} and (out == labels).all()
