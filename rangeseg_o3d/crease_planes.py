@@ -66,9 +66,11 @@ def planes_for_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats,
         cut = _crease_cut(sample, fits[k], min_side)
         if cut is None:
             continue  # no crease: its noise is not needed
+        if not (cut[3] or depth_step > 0):
+            continue  # planes closer, but not by the factor: the region's noise is not needed
         noise = float(np.median(sigma[box][labels[box] == k]))
-        if not (cut[3] or (depth_step > 0 and _cylinder_beyond_its_noise(sample, fits[k], noise))):
-            continue  # planes closer, but not by the factor (nor, over depth steps, beyond the noise)
+        if not (cut[3] or _cylinder_beyond_its_noise(sample, fits[k], noise)):
+            continue  # over depth steps, planes closer but the cylinder within its distances' noise
         if beyond_noise(cut[2], noise, len(sample)):
             continue  # planes beyond the noise: facets of a curved surface
         if _sides_along_rays(sample, fits[k], cut, noise):
