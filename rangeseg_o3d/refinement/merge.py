@@ -402,9 +402,11 @@ class _Unions:
             return None
         normal, d = plane.normal[0], float(plane.d[0])
         count = float(self.moments[smaller, 0])
-        if self.noise is None:  # each label's summed range noise, once per merge (join adds them up)
+        if self.noise is None:  # each root's summed range noise, once per merge (join adds them up)
             sigma = np.where(np.isfinite(self.ctx.sigma), self.ctx.sigma, 0.0).ravel()
-            self.noise = np.bincount(self.labels.ravel(), weights=sigma, minlength=len(self.moments))
+            # by root, not by label: joins made before the first call hold their parts' pixels too
+            self.noise = np.bincount(self.lookup()[self.labels.ravel()], weights=sigma,
+                                     minlength=len(self.moments))
         mean_noise = float(self.noise[smaller]) / max(count, 1.0)
         bound = noise_rms_bound.py_func(mean_noise, count - 3.0, NOISE_CHI2_SIGMAS)
         if _mean_square_distances(self.moments[[smaller]], normal, d)[0] > bound * bound:

@@ -638,3 +638,18 @@ def test_a_parallel_piece_beyond_its_noise_stays_apart_though_the_union_is_withi
     out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, max_angle_deg=3.0, tolerance=0.2,
                                    disjoint=True, rms_factor=1.3)
     assert set(merged) == {1, 2} and (out == labels).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_piece_that_absorbed_its_neighbour_first_is_weighed_by_all_its_pixels_noise(seed):
+    # the piece in two halves (columns 32-35 and 36-39): they merge first, then the union
+    # with the wall asks plane_within_larger for the merged piece's mean range noise, which
+    # must count both halves' pixels (2 cm), not the first half's sum over all the pixels
+    ctx, xyz, labels, fits, tolerance = _wall_with_mixed_returns_and_piece(0.0, seed)
+    labels[:, 36:] = 3
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
+    out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2), (2, 3)}, max_angle_deg=3.0, tolerance=0.2,
+                                   disjoint=True, rms_factor=1.3)
+    assert set(merged) == {1}
+    assert (out[labels > 0] == 1).all()
+    assert abs(merged[1].normal[2]) > np.cos(np.radians(1.0))  # the wall's plane, z-facing
