@@ -175,8 +175,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         before_curving = fits
         labels, fits, adjacency = planes_into_curved(ctx, labels, fits, adjacency,
                                                      max_angle_deg=config.merge_angle_deg)
-        # a column whose two planes became its cylinder there may touch another piece of it,
-        # curved already, which the merge above could not pair with a plane
+        # a column whose two planes became its cylinder there may touch another piece of it
+        # (or, with merge_disjoint, match one apart from it), curved already, which the merge
+        # above could not pair with a plane
         joined = {k for k, m in fits.items() if m and m.kind != "plane" and before_curving[k].kind == "plane"}
         if joined:
             labels, fits, adjacency = merge_regions(
