@@ -23,7 +23,8 @@ from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, split_plane_faces
 from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
-from .refinement import StepTimer, refine_regions
+from .refinement import refine_regions
+from .timing import StepTimer
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
 from .scales import Scales, scales_for_cloud
@@ -46,19 +47,6 @@ class _Settings(NamedTuple):
     tile: int
     segmenter_args: dict
     refine: object  # RefineConfig
-
-
-class _Clock:
-    """Seconds per stage, each lap from the end of the previous one (``start`` at creation)."""
-
-    def __init__(self):
-        self.timings: dict[str, float] = {}
-        self.start = self.last = time.perf_counter()
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        self.timings[name] = now - self.last
-        self.last = now
 
 
 def _takes_sensor(run) -> bool:
@@ -188,7 +176,7 @@ class Pipeline:
         self._check(cloud)
         if self.keep_memory and large_frame(cloud.shape):
             keep_freed_memory()  # once per process: a no-op from the second call on
-        clock = _Clock()
+        clock = StepTimer({})
         settings = self._settings(cloud)
         work = cloud.tile_means(settings.tile) if settings.tile > 1 else cloud
         segmentation = self._segment(work, settings)
@@ -365,7 +353,7 @@ class Pipeline:
         return labels, fits, sigma, stats
 
     @staticmethod
-    def _assemble(regions: Regions, sigma, xyz, clock: _Clock, stages,
+    def _assemble(regions: Regions, sigma, xyz, clock: StepTimer, stages,
                   stats: PixelStats | None = None) -> Result:
         # Regions with a fit (or a reported failure) numbered 1..n, in label order. With
         # ``stats`` (measured at full resolution on tile models) the rms is the pixels'.

@@ -36,8 +36,6 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ..fitting.region_fitter import RegionFitter
@@ -52,24 +50,10 @@ from .merge import merge_into_curved, merge_regions, planes_into_curved, region_
 from .polish import polish_models
 from .recover import recover_leftovers, recover_pixels
 from .split import split_regions
+from ..timing import StepTimer
 
-__all__ = ["refine_regions", "recover_pixels", "bend_samples", "StepTimer"]
+__all__ = ["refine_regions", "recover_pixels", "bend_samples"]
 
-
-class StepTimer:
-    """Seconds per step into ``timings`` under ``prefix + name``, each lap from the last (or
-    from creation); nothing is recorded when ``timings`` is None (``refine.<step>`` here,
-    ``full.<step>`` in the pipeline's full-resolution stage)."""
-
-    def __init__(self, timings: dict | None, prefix: str = "refine."):
-        self.timings, self.prefix = timings, prefix
-        self.last = time.perf_counter()
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        if self.timings is not None:
-            self.timings[self.prefix + name] = now - self.last
-        self.last = now
 
 
 def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float, min_cosine: float):
@@ -123,7 +107,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     jumps : (H, W) jump-edge mask from the segmenter, if it made one.
     timings : dict receiving ``refine.<step>`` durations.
     """
-    timer = StepTimer(timings)
+    timer = StepTimer(timings, "refine.")
     config = with_derived_refinement(config, sensor, cloud)
     # Region sizes and jump ratios are in sensor pixels; a grid step spans cloud.tile.
     tile = cloud.tile

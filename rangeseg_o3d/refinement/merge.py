@@ -256,11 +256,15 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
 
 
+def _noise_sums(ctx: Context, labels: np.ndarray, rows: int) -> np.ndarray:
+    # each label's summed range noise, ``rows`` rows (row = label, as the moments)
+    sigma = np.where(np.isfinite(ctx.sigma), ctx.sigma, 0.0).ravel()
+    return np.bincount(labels.ravel(), weights=sigma, minlength=rows)[:rows]
+
+
 def _mean_noise(ctx: Context, labels: np.ndarray, moments: np.ndarray) -> np.ndarray:
     # each label's mean range noise (row = label, as the moments)
-    sigma = np.where(np.isfinite(ctx.sigma), ctx.sigma, 0.0).ravel()
-    sums = np.bincount(labels.ravel(), weights=sigma, minlength=len(moments))[:len(moments)]
-    return sums / np.maximum(moments[:, 0], 1.0)
+    return _noise_sums(ctx, labels, len(moments)) / np.maximum(moments[:, 0], 1.0)
 
 
 def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:
@@ -403,10 +407,8 @@ class _Unions:
         normal, d = plane.normal[0], float(plane.d[0])
         count = float(self.moments[smaller, 0])
         if self.noise is None:  # each root's summed range noise, once per merge (join adds them up)
-            sigma = np.where(np.isfinite(self.ctx.sigma), self.ctx.sigma, 0.0).ravel()
             # by root, not by label: joins made before the first call hold their parts' pixels too
-            self.noise = np.bincount(self.lookup()[self.labels.ravel()], weights=sigma,
-                                     minlength=len(self.moments))
+            self.noise = _noise_sums(self.ctx, self.lookup()[self.labels], len(self.moments))
         mean_noise = float(self.noise[smaller]) / max(count, 1.0)
         bound = noise_rms_bound.py_func(mean_noise, count - 3.0, NOISE_CHI2_SIGMAS)
         if _mean_square_distances(self.moments[[smaller]], normal, d)[0] > bound * bound:
