@@ -193,6 +193,41 @@ def test_claim_rings_equals_the_scan_of_every_pixel_every_ring(seed):
     assert np.array_equal(labels, expected)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_claim_rings_in_boxes_equals_the_box_holding_them(seed):
+    # two challengers in opposite corners: each one's box grown by the rings (or boxes that
+    # overlap them) moves the same pixels as the one box holding both; a box left out moves
+    # nothing of its challenger
+    from rangeseg_o3d.kernels import claim_rings, claim_rings_in_boxes
+
+    rng = np.random.default_rng(seed)
+    h, w, n = 30, 40, 5
+    labels = rng.integers(1, 3, (h, w)).astype(np.int32)
+    labels[2:6, 3:8] = 3
+    labels[22:27, 30:36] = 4
+    fits = {k: Plane([0.0, 0.0, 1.0], 2.0 + rng.uniform(-0.006, 0.006), 0.001, 1) for k in range(1, n)}
+    kinds, params, rms = model_table(fits, n)
+    xyz = _wall(h, w)
+    xyz[..., 2] += rng.normal(0, 0.006, (h, w))
+    xyz = np.ascontiguousarray(xyz.reshape(-1, 3))
+    sigma = np.full(h * w, 0.004)
+    challengers = np.array([False, False, False, True, True])
+    rings = 3
+    whole = labels.copy()
+    moved = claim_rings(xyz, whole, kinds, params, rms, sigma, challengers, rings, 3.0,
+                        np.array([2 - rings, 27 + rings, 3 - rings, 36 + rings], np.int64))
+    assert moved > 5
+    own = [[2 - rings, 6 + rings, 3 - rings, 8 + rings], [22 - rings, 27 + rings, 30 - rings, 36 + rings]]
+    for boxes in (own, own + [[0, 12, 0, 12]], own[::-1]):
+        each = labels.copy()
+        assert claim_rings_in_boxes(xyz, each, kinds, params, rms, sigma, challengers, rings, 3.0,
+                                    np.array(boxes, np.int64)) == moved
+        np.testing.assert_array_equal(each, whole)
+    alone = labels.copy()
+    claim_rings_in_boxes(xyz, alone, kinds, params, rms, sigma, challengers, rings, 3.0, np.array(own[:1], np.int64))
+    assert (alone[15:] == labels[15:]).all() and np.array_equal(alone[:15], whole[:15])
+
+
 def test_cloud_points_are_c_ordered_and_ranges_computed_once():
     # a transposed (Fortran-ordered) input must not make every flat view a copy
     xyz = np.asfortranarray(_wall(8, 9, z=2.0))

@@ -12,7 +12,8 @@ from .kinds import PLANE
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py")
 
-__all__ = ["group_by_label", "count_either_side", "jump_mask", "adjacency_matrix", "grow_rings", "claim_rings", "settle_borders",
+__all__ = ["group_by_label", "count_either_side", "jump_mask", "adjacency_matrix", "grow_rings", "grow_rings_in_boxes", "claim_rings",
+           "claim_rings_in_boxes", "settle_borders",
            "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
@@ -181,7 +182,26 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
 
     The first ring is looked for in rows ``row0:row1`` and columns ``col0:col1`` only (-1:
     to the grid's end): a caller that knows every growing region lies in a box, and passes
-    it grown by ``iterations``, gets the same answer without a pass over the whole grid.
+    it grown by ``iterations``, gets the same answer without a pass over the whole grid
+    (:func:`grow_rings_in_boxes`: in several boxes).
+    """
+    h, w = labels.shape
+    r1 = h if row1 < 0 else row1
+    c1 = w if col1 < 0 else col1
+    boxes = np.empty((1, 4), np.int64)
+    boxes[0, 0], boxes[0, 1], boxes[0, 2], boxes[0, 3] = row0, r1, col0, c1
+    return grow_rings_in_boxes(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma,
+                               jump_ratio, jump_min, boxes)
+
+
+@njit(cache=True, nogil=True)
+def grow_rings_in_boxes(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma,
+                        jump_ratio, jump_min, boxes):
+    """:func:`grow_rings` with the first ring looked for in the boxes ``(row0, row1, col0,
+    col1)`` (half-open, rows of ``boxes``; they may overlap) only: a caller that knows every
+    growing region lies in them, each grown by ``iterations``, gets the same answer
+    (every ring is decided from the labels at its start, so the order in which its pixels
+    are listed changes nothing) without a pass over the box holding them all.
     """
     h, w = labels.shape
     flat = labels.ravel()
@@ -190,19 +210,19 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
     frontier = np.empty(h * w, np.int64)
     n_front = 0
     mark = np.zeros(h * w, np.uint8)
-    r0, c0 = max(row0, 0), max(col0, 0)
-    r1 = h if row1 < 0 else min(row1, h)
-    c1 = w if col1 < 0 else min(col1, w)
-    for r in range(r0, r1):
-        for c in range(c0, c1):
-            i = r * w + c
-            if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
-                continue
-            if ((r > 0 and flat[i - w] > 0) or (r < h - 1 and flat[i + w] > 0)
-                    or (c > 0 and flat[i - 1] > 0) or (c < w - 1 and flat[i + 1] > 0)):
-                frontier[n_front] = i
-                n_front += 1
-                mark[i] = 1
+    for b in range(boxes.shape[0]):
+        r0, r1 = max(boxes[b, 0], 0), min(boxes[b, 1], h)
+        c0, c1 = max(boxes[b, 2], 0), min(boxes[b, 3], w)
+        for r in range(r0, r1):
+            for c in range(c0, c1):
+                i = r * w + c
+                if flat[i] != 0 or mark[i] != 0 or not np.isfinite(xyz[i, 2]):
+                    continue
+                if ((r > 0 and flat[i - w] > 0) or (r < h - 1 and flat[i + w] > 0)
+                        or (c > 0 and flat[i - 1] > 0) or (c < w - 1 and flat[i + 1] > 0)):
+                    frontier[n_front] = i
+                    n_front += 1
+                    mark[i] = 1
     chosen = np.empty(h * w, np.int32)
     for _ in range(iterations):
         if n_front == 0:
@@ -245,7 +265,8 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
 def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, box):
     """Let ``challengers`` take over neighbouring pixels their models explain better (in place).
 
-    Only pixels inside ``box = (row0, row1, col0, col1)`` (half-open) are considered.
+    Only pixels inside ``box = (row0, row1, col0, col1)`` (half-open) are considered
+    (:func:`claim_rings_in_boxes`: inside any of several boxes).
 
     Per iteration, a pixel labelled with a non-challenger region and 4-adjacent to a
     challenger joins the challenger whose model is within ``k_sigma * max(sigma, rms)`` and
@@ -253,26 +274,47 @@ def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations,
     had already taken the pixels they could explain wins back those it explains better.
     Returns the number of pixels moved.
     """
+    return claim_rings_in_boxes(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma,
+                                box.reshape((1, 4)))
+
+
+@njit(cache=True, nogil=True)
+def claim_rings_in_boxes(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, boxes):
+    """:func:`claim_rings` with only the pixels inside any of the boxes ``(row0, row1, col0,
+    col1)`` (half-open, rows of ``boxes``; they may overlap) considered: the challengers'
+    pixels are looked for within a pixel of each box, not in the box holding them all."""
     h, w = labels.shape
     flat = labels.ravel()
     n = kinds.shape[0]
-    r0, r1, c0, c1 = max(box[0], 0), min(box[1], h), max(box[2], 0), min(box[3], w)
-    if r1 <= r0 or c1 <= c0:
+    clipped = np.empty((boxes.shape[0], 4), np.int64)
+    m = 0
+    area = 0
+    for b in range(boxes.shape[0]):
+        r0, r1, c0, c1 = max(boxes[b, 0], 0), min(boxes[b, 1], h), max(boxes[b, 2], 0), min(boxes[b, 3], w)
+        if r1 > r0 and c1 > c0:
+            clipped[m, 0], clipped[m, 1], clipped[m, 2], clipped[m, 3] = r0, r1, c0, c1
+            area += (r1 - r0) * (c1 - c0)
+            m += 1
+    if m == 0:
         return 0
+    clipped = clipped[:m]
     # The pixels to decide: those touching a challenger (the first ring's are the
-    # neighbours of the challengers' pixels within a pixel of the box). A pixel whose label
+    # neighbours of the challengers' pixels within a pixel of a box). A pixel whose label
     # and 4 neighbours did not change keeps its answer, so each later ring decides only
-    # the neighbours of the pixels just moved.
-    front = np.empty((r1 - r0) * (c1 - c0), np.int64)
+    # the neighbours of the pixels just moved. Each ring is decided from the labels at its
+    # start: the order its pixels are listed in changes nothing.
+    front = np.empty(min(area, h * w), np.int64)  # (a pixel is listed once per ring, in a box)
     stamp = np.zeros(h * w, np.int32)  # ring + 1 when a pixel was listed for that ring
     n_front = 0
-    for r in range(max(r0 - 1, 0), min(r1 + 1, h)):
-        for c in range(max(c0 - 1, 0), min(c1 + 1, w)):
-            k = flat[r * w + c]
-            if k <= 0 or k >= n or not challengers[k]:
-                continue
-            n_front = _list_claimable(flat, r * w + c, h, w, n, challengers, (r0, r1, c0, c1), stamp, 1,
-                                      front, n_front)
+    for b in range(m):
+        r0, r1, c0, c1 = clipped[b, 0], clipped[b, 1], clipped[b, 2], clipped[b, 3]
+        for r in range(max(r0 - 1, 0), min(r1 + 1, h)):
+            for c in range(max(c0 - 1, 0), min(c1 + 1, w)):
+                k = flat[r * w + c]
+                if k <= 0 or k >= n or not challengers[k]:
+                    continue
+                n_front = _list_claimable(flat, r * w + c, h, w, n, challengers, clipped, stamp, 1,
+                                          front, n_front)
     chosen = np.empty(front.shape[0], np.int32)
     following = np.empty_like(front)
     moved = 0
@@ -292,26 +334,35 @@ def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations,
         n_next = 0
         for f in range(n_front):
             if chosen[f] > 0:
-                n_next = _list_claimable(flat, front[f], h, w, n, challengers, (r0, r1, c0, c1), stamp, ring + 2,
+                n_next = _list_claimable(flat, front[f], h, w, n, challengers, clipped, stamp, ring + 2,
                                          following, n_next)
         front, following, n_front = following, front, n_next
     return moved
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _list_claimable(flat, i, h, w, n, challengers, box, stamp, mark, out, count):
-    # append to out[count:] the claimable 4-neighbours of pixel i within box not yet
-    # stamped ``mark``, stamping them; returns the new count
+def _list_claimable(flat, i, h, w, n, challengers, boxes, stamp, mark, out, count):
+    # append to out[count:] the claimable 4-neighbours of pixel i within one of ``boxes``
+    # (rows (row0, row1, col0, col1), clipped to the grid) not yet stamped ``mark``,
+    # stamping them; returns the new count
     for step in range(4):
         j = _neighbour(i, step, h, w)
         if j < 0 or stamp[j] == mark:
             continue
-        r, c = j // w, j % w
-        if box[0] <= r < box[1] and box[2] <= c < box[3] and _claimable(flat, j, h, w, n, challengers):
+        if _in_boxes(j // w, j % w, boxes) and _claimable(flat, j, h, w, n, challengers):
             stamp[j] = mark
             out[count] = j
             count += 1
     return count
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _in_boxes(r, c, boxes):
+    # whether (r, c) lies in one of the boxes (rows (row0, row1, col0, col1), half-open)
+    for b in range(boxes.shape[0]):
+        if boxes[b, 0] <= r < boxes[b, 1] and boxes[b, 2] <= c < boxes[b, 3]:
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True, inline="always")

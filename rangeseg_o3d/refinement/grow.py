@@ -47,7 +47,8 @@ def grow_into_edges(
     k_sigma : accept a pixel within ``k_sigma * max(sigma, model.rms)`` of the surface.
     box : optional ``(row0, row1, col0, col1)`` (half-open) holding every pixel of the
         regions in ``models`` grown by ``iterations`` pixels: the growth is looked for there
-        only (the same answer, no pass over the whole grid).
+        only (the same answer, no pass over the whole grid); or a ``(K, 4)`` array of such
+        boxes that hold them together (looked for in each).
 
     Returns
     -------
@@ -56,11 +57,14 @@ def grow_into_edges(
     labels = np.array(labels, dtype=np.int32, order="C", copy=True)
     n = int(labels.max(initial=0)) + 1
     kinds, params, rms = model_table(models, n)
-    kernels.grow_rings(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
-                       np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
-                       np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
-                       int(iterations), float(k_sigma), float(jump_ratio), float(jump_min),
-                       *((0, -1, 0, -1) if box is None else (int(b) for b in box)))
+    arguments = (np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
+                 np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+                 np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+                 int(iterations), float(k_sigma), float(jump_ratio), float(jump_min))
+    if box is not None and np.ndim(box) == 2:
+        kernels.grow_rings_in_boxes(*arguments, np.ascontiguousarray(box, dtype=np.int64))
+    else:
+        kernels.grow_rings(*arguments, *((0, -1, 0, -1) if box is None else (int(b) for b in box)))
     return labels
 
 

@@ -204,6 +204,21 @@ def test_grow_rings_in_a_box_holding_the_growing_regions_equals_the_whole_grid(s
     cut = labels.copy()
     grow_rings(xyz.reshape(-1, 3), cut, kinds, params, rms, sigma, ranges, 1, 3.0, 0.1, 0.05, 0, 18, 0, w)
     assert (cut[18:] == labels[18:]).all() and (cut == 7).sum() > (labels == 7).sum()
+    # each blob's own box grown by the rings (overlapping or not) gives the same labels as
+    # the box holding both; leaving the second blob's box out leaves that blob ungrown
+    from rangeseg_o3d.kernels import grow_rings_in_boxes
+
+    for boxes in ([[12 - 2, 14 + 2, 22 - 2, 25 + 2], [20 - 2, 24 + 2, 30 - 2, 33 + 2]],
+                  [[12 - 2, 14 + 2, 22 - 2, 25 + 2], [20 - 2, 24 + 2, 30 - 2, 33 + 2], [11, 22, 21, 32]]):
+        each = labels.copy()
+        grown = grow_rings_in_boxes(xyz.reshape(-1, 3), each, kinds, params, rms, sigma, ranges, 2, 3.0, 0.1, 0.05,
+                                    np.array(boxes, np.int64))
+        assert grown == added
+        np.testing.assert_array_equal(each, whole)
+    first = labels.copy()
+    grow_rings_in_boxes(xyz.reshape(-1, 3), first, kinds, params, rms, sigma, ranges, 2, 3.0, 0.1, 0.05,
+                        np.array([[10, 16, 20, 27]], np.int64))
+    assert (first == 8).sum() == (labels == 8).sum() and (first == 7).sum() == (whole == 7).sum()
 
 
 @pytest.mark.parametrize("layout", ["speckle", "blocks"])
