@@ -252,16 +252,36 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     # the blobs are at least min_size, the surfaces found in them are fitted to pixels: they
     # are held to the floor of a recovered region (a box side beside the table's plane in one
     # blob, fewer pixels than the tile grid's floor, is a surface all the same)
+    changes = {}
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma, candidates=candidates,
                                   min_size=_split_floor(config, min_size, correlation_px), boxes=boxes,
-                                  thin_from=first_thin, released=released)
-    from .kernels import moved_labels
-
-    stale = set(moved_labels(before, np.ascontiguousarray(labels, dtype=before.dtype)).tolist())
+                                  thin_from=first_thin, released=released, changes=changes)
+    stale = _moved_labels(before, np.ascontiguousarray(labels, dtype=before.dtype), changes.get("where"))
+    stale |= changes.get("claimed", set())  # (free pixels before the recovery: they had label 0)
     stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
     stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=stale)
     return labels, fits, stats
+
+
+def _moved_labels(before: np.ndarray, after: np.ndarray, where=None) -> set:
+    """The labels the pixels whose label differs between ``before`` and ``after`` had or
+    have (:func:`rangeseg_o3d.kernels.moved_labels`), compared only in ``where`` (a
+    ``(row0, row1, col0, col1)`` box or a ``(K, 4)`` array of them) when given, which must
+    hold every such pixel: the recovery changes its blobs and the rings around them, not
+    the frame."""
+    from .kernels import moved_labels
+
+    if where is None:
+        return set(moved_labels(before, after).tolist())
+    h, w = before.shape
+    found = set()
+    for r0, r1, c0, c1 in np.asarray(where, dtype=np.int64).reshape(-1, 4).tolist():
+        r0, r1, c0, c1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+        if r1 > r0 and c1 > c0:
+            found.update(moved_labels(np.ascontiguousarray(before[r0:r1, c0:c1]),
+                                      np.ascontiguousarray(after[r0:r1, c0:c1])).tolist())
+    return found
 
 
 def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:

@@ -617,3 +617,43 @@ def test_pixel_box_from_the_tile_boxes_is_the_tiles_box_grown_by_a_tile(seed):
     assert pixel_box(boxes, 9, None, tile) == (slice(5, 7), slice(30, 33))
     assert tile_boxes.bounds(3) == (9, 0, 13, 0)  # no pixels: an empty box
     assert tile_boxes.bounds(40) == (9, 0, 13, 0)  # above every label
+
+
+def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims(generated_frame):
+    # two blobs carved out of the frame's regions at opposite corners: every label the
+    # recovery changes lies in the boxes it reports (each blob's own, grown by its rings)
+    # or is a free pixel its last claim took, and the labels measured again from them are
+    # those a comparison of the whole frame finds
+    from rangeseg_o3d.fullres import _moved_labels, leftover_blob_labels, smallest_region
+    from rangeseg_o3d.kernels import moved_labels
+    from rangeseg_o3d.refinement.recover import recover_pixels
+    from rangeseg_o3d.scales import with_derived_refinement
+
+    cloud, pipe, _ = generated_frame
+    tile_labels, fits = pipe.captured
+    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
+    labels, _ = label_pixels(cloud, tile_labels, fits, tile=4, sigma=sigma, k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+    labels[6:26, 8:30] = 0
+    labels[90:112, 124:150] = 0
+    config = with_derived_refinement(pipe.config.refine, pipe.sensor, cloud)
+    min_size = smallest_region(config, pipe.sensor, cloud)
+    first = max(int(labels.max()), max(fits)) + 1
+    candidates, boxes, first_thin = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first)
+    assert len(boxes) >= 2
+    changes = {}
+    after, _ = recover_pixels(cloud, labels, dict(fits), fitter=pipe.fitter, config=config, sensor=pipe.sensor,
+                              ranges=np.where(cloud.valid, cloud.range_image(), np.nan), sigma=sigma,
+                              candidates=candidates, min_size=min_size, boxes=boxes, thin_from=first_thin,
+                              changes=changes)
+    where = np.asarray(changes["where"]).reshape(-1, 4)
+    assert where.shape[0] == len(boxes)  # each blob's own box: less than the box holding both
+    inside = np.zeros(labels.shape, bool)
+    for r0, r1, c0, c1 in where.tolist():
+        inside[r0:r1, c0:c1] = True
+    changed = after != labels
+    assert changed[inside].sum() > 100
+    outside = changed & ~inside
+    assert (labels[outside] == 0).all() and set(np.unique(after[outside]).tolist()) <= changes["claimed"]
+    whole = {k for k in moved_labels(labels, np.ascontiguousarray(after, dtype=labels.dtype)).tolist() if k > 0}
+    boxed = _moved_labels(labels, np.ascontiguousarray(after, dtype=labels.dtype), changes["where"])
+    assert whole == {k for k in boxed | changes["claimed"] if k > 0} and whole

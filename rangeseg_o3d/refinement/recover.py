@@ -475,7 +475,8 @@ def grown_box(box, by: int, shape: tuple[int, int] | None = None) -> tuple[int, 
 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None,
-                   thin_from: int | None = None, released: np.ndarray | None = None):
+                   thin_from: int | None = None, released: np.ndarray | None = None,
+                   changes: dict | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
@@ -503,6 +504,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     (:func:`rangeseg_o3d.off_model.off_model_blocks`), 0 elsewhere; a surface found
     on such pixels merges back into that plane only when it lies on the union's plane on
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
+    ``changes`` (optional, a dict): receives ``where``, a box or boxes (as
+    :func:`_differing` takes them) holding every pixel whose label this call changed but
+    those the last claim of free pixels took (None: they may lie anywhere), and
+    ``claimed``, the labels those took.
     """
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
@@ -533,6 +538,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from)
     found = labels
     new = {k: m for k, m in fits.items() if k >= first and m}
+    tile_regions = [k for k in fits if k < first]  # (the regions the blobs' surfaces may merge into)
     # The surfaces found are pieces of the blobs: with the blobs' boxes known, each step
     # below looks only in their boxes grown by the rings it may add (same answers).
     blobs = None if boxes is None or not len(boxes) else np.asarray(boxes, dtype=np.int64)
@@ -544,10 +550,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     if refused and samples:
         labels, refused = curved_for_refused(ctx, labels, fits, new, refused, samples, config,
                                              pixels=_grouped(pool, labels.reshape(-1)[pool], refused))
+    rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
     if new:
         from ..kernels import claim_rings_in_boxes, member_pixels
 
-        rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
         labels = grow_into_edges(cloud.xyz, labels, new, sigma, ranges, iterations=rim,
                                  k_sigma=config.k_sigma, jump_ratio=np.inf, jump_min=np.inf,
                                  box=None if blobs is None else _blob_boxes(blobs, rim, labels.shape))
@@ -596,12 +602,22 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             labels, fits, _ = merge_into_curved(ctx, labels, fits, near, rms_factor=config.merge_rms_factor,
                                                 only=set(new), near_sigmas=config.k_sigma)
         labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused,
-                                                      pixels=kept_apart if config.merge else None)
-        labels = _gains_within_distance_noise(ctx, before, found, labels, fits, refused)
+                                                      pixels=kept_apart if config.merge else None, below=first)
+        # the labels changed since the fit only in the blobs' boxes grown by the rings, unless
+        # a merge took a region the tiles had (its pixels anywhere)
+        inside = blobs is not None and all(k in fits for k in tile_regions)
+        labels = _gains_within_distance_noise(ctx, before, found, labels, fits, refused, below=first,
+                                              where=box if inside else None)
+    if changes is not None:  # every step above changes the blobs or pixels the rings reach from them
+        inside = blobs is not None and all(k in fits for k in tile_regions)
+        changes["where"] = _blob_boxes(blobs, rim + iterations, labels.shape) if inside else None
+        changes["claimed"] = set()
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
-        labels = claim_on_distance_noise(ctx, labels, fits, free_pixels(labels, _read_only_bool(cloud.valid)),
-                                         k_sigma=config.k_sigma)
+        free = free_pixels(labels, _read_only_bool(cloud.valid))
+        labels = claim_on_distance_noise(ctx, labels, fits, free, k_sigma=config.k_sigma)
+        if changes is not None:
+            changes["claimed"] = set(np.unique(labels.reshape(-1)[free]).tolist()) - {0}
     return labels, fits
 
 
@@ -729,14 +745,15 @@ def _join_grazing_pieces(ctx: Context, labels: np.ndarray, fits: dict, new: dict
 
 
 def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.ndarray, fits: dict,
-                                   refused: set, *, pixels: dict | None = None):
+                                   refused: set, *, pixels: dict | None = None, below: int | None = None):
     """``(labels, fits)`` with each plane of ``refused`` that no curved region took cut to
     the largest piece of its pixels within their distance noise of it, refitted, when that
     piece keeps the size floor and is explained (a true face the band held beside a few
     pixels of its neighbours, :meth:`Context.within_distance_noise`); its other pixels go
     back to the regions they had ``before`` (free where that region is gone). ``pixels``
     (optional): the flat pixels (increasing) of each plane of ``refused`` still in ``fits``,
-    when the caller has them (saves a pass over the grid).
+    when the caller has them (saves a pass over the grid). ``below`` (optional): a number
+    above every label of ``before`` (saves a pass for its largest).
     """
     left = [k for k in refused if fits.get(k)]
     if not left:
@@ -745,8 +762,7 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
     if pixels is None:
         pixels = region_indices(labels, only=left)
     flat, old = labels.reshape(-1), before.reshape(-1)
-    alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
-    alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
+    alive = _alive(fits, old, below)
     for k in left:
         idx = pixels.get(k)
         if idx is None:
@@ -762,14 +778,42 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
     return labels, fits
 
 
+def _alive(fits: dict, old: np.ndarray, below: int | None) -> np.ndarray:
+    # per label of the flat ``old`` (all below ``below`` when given, else measured): whether
+    # it still has a model in ``fits``
+    alive = np.zeros(int(old.max(initial=0)) + 1 if below is None else int(below), bool)
+    alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
+    return alive
+
+
+def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
+    """Flat indices (increasing) of the pixels where the label images ``a`` and ``b`` differ:
+    ``np.flatnonzero(a != b)``, compared only in ``where`` (a ``(row0, row1, col0, col1)``
+    box or a ``(K, 4)`` array of them, clipped to the grid) when given, which must hold every
+    such pixel."""
+    if where is None:
+        return np.flatnonzero(a.reshape(-1) != b.reshape(-1))
+    h, w = a.shape
+    parts = []
+    for r0, r1, c0, c1 in np.asarray(where, dtype=np.int64).reshape(-1, 4).tolist():
+        r0, r1, c0, c1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+        if r1 > r0 and c1 > c0:
+            rows, cols = np.nonzero(a[r0:r1, c0:c1] != b[r0:r1, c0:c1])
+            parts.append((rows + r0) * w + cols + c0)
+    # (overlapping boxes list a pixel more than once: unique sorts and drops them)
+    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+
+
 def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.ndarray, labels: np.ndarray,
-                                 fits: dict, refused: set) -> np.ndarray:
+                                 fits: dict, refused: set, *, below: int | None = None, where=None) -> np.ndarray:
     """``labels`` with the pixels each plane region took after the blobs were fitted
     (``found``: the labels then; by its rim, its claims, or a merge with a plane found in
     them) that lie beyond ``TRIM_SIGMAS`` times the noise of their distances to its plane
     (range noise x incidence cosine, at least the plane's rms) given back to the regions
     they had ``before`` (free where that region has no model). The planes of ``refused``
-    were cut to their distance noise already.
+    were cut to their distance noise already. ``below`` (optional): a number above every
+    label of ``before``; ``where`` (optional): a box or boxes holding every pixel whose label
+    changed since ``found`` (:func:`_differing`).
 
     The rim and the claims test a pixel against ``k_sigma`` range-noise sigmas: a face seen
     edge-on has its plane along the rays beside its image line, within that of the pixels
@@ -780,12 +824,11 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
     labels = np.ascontiguousarray(labels)
     flat, old = labels.reshape(-1), before.reshape(-1)
     # the few pixels whose label changed since the fit, not a pass per region over the grid
-    moved = np.flatnonzero(flat != found.reshape(-1))
+    moved = _differing(labels, found, where)
     owner = flat[moved]
     order = np.argsort(owner, kind="stable")
     moved, owner = moved[order], owner[order]
-    alive = np.zeros(int(old.max(initial=0)) + 1, bool)  # the regions of ``before`` that still have a model
-    alive[[j for j in range(1, alive.size) if fits.get(j)]] = True
+    alive = _alive(fits, old, below)  # the regions of ``before`` that still have a model
     bounds = np.flatnonzero(np.diff(owner)) + 1
     for first, idx in zip([0, *bounds.tolist()], np.split(moved, bounds)):
         k = int(owner[first]) if idx.size else 0
