@@ -23,6 +23,7 @@ __all__ = [
     "PinholeGeometry",
     "SphericalGeometry",
     "nodding_rays",
+    "nodding_ray_origins",
     "nodding_points",
     "pinhole_points",
     "spherical_points",
@@ -165,18 +166,29 @@ def nodding_rays(geometry: NoddingGeometry) -> tuple[np.ndarray, np.ndarray]:
     -------
     origins, directions : (H, W, 3) float arrays in the base frame.
     """
-    theta = geometry.tilt_sign * geometry.tilt_angles
     phi = geometry.beam_angles
-    c, s = np.cos(theta), np.sin(theta)
-    # Rotation about +y for every row: R = [[c,0,s],[0,1,0],[-s,0,c]].
-    rot = np.zeros((theta.size, 3, 3))
-    rot[:, 0, 0], rot[:, 0, 2] = c, s
-    rot[:, 1, 1] = 1.0
-    rot[:, 2, 0], rot[:, 2, 2] = -s, c
+    rot = _tilt_rotations(geometry)
     beam = np.stack([np.sin(phi), -np.cos(phi), np.zeros_like(phi)], axis=-1)  # (W, 3)
     directions = np.einsum("hij,wj->hwi", rot, beam)
     origins = np.broadcast_to((rot @ geometry.mount_offset)[:, None, :], directions.shape).copy()
     return origins, directions
+
+
+def nodding_ray_origins(geometry: NoddingGeometry) -> np.ndarray:
+    """``(H, 3)``: where each row's rays start in the base frame, the mirror centre at the
+    row's tilt (every ray of a row starts there; :func:`nodding_rays` gives them per pixel)."""
+    return _tilt_rotations(geometry) @ geometry.mount_offset
+
+
+def _tilt_rotations(geometry: NoddingGeometry) -> np.ndarray:
+    # (H, 3, 3): the rotation about +y of every row, R = [[c,0,s],[0,1,0],[-s,0,c]]
+    theta = geometry.tilt_sign * geometry.tilt_angles
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.zeros((theta.size, 3, 3))
+    rot[:, 0, 0], rot[:, 0, 2] = c, s
+    rot[:, 1, 1] = 1.0
+    rot[:, 2, 0], rot[:, 2, 2] = -s, c
+    return rot
 
 
 def nodding_points(ranges: np.ndarray, geometry: NoddingGeometry) -> np.ndarray:

@@ -82,10 +82,11 @@ def union_out_of_reach(model, points: np.ndarray, first: int, max_rms: float) ->
     return bool(reach > REACH_MARGIN * np.sqrt(budget))
 
 
-def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+def distance_noise(model, points: np.ndarray, sigma: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
     """Per point, the noise of its distance to ``model`` when the model is right: range
-    noise ``sigma`` moves a point along its ray (from the sensor at the origin), which
-    changes its distance to the surface by the cosine of the incidence only.
+    noise ``sigma`` moves a point along its ray (from the sensor at the origin, or the unit
+    ``rays`` given per point), which changes its distance to the surface by the cosine of
+    the incidence only.
 
     A wall seen head-on keeps the whole range noise; the flanks of a column or pipe, seen
     at grazing incidence, almost none. A model's rms over its region is thus compared with
@@ -106,7 +107,8 @@ def distance_noise(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """
     points = np.asarray(points, dtype=float)
     sigma = np.asarray(sigma, dtype=float)
-    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    if rays is None:
+        rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     cosines = np.abs(np.einsum("ij,ij->i", rays, model.normals(points)))
     first = sigma * cosines
     if isinstance(model, Cylinder):

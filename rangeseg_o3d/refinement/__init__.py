@@ -85,7 +85,15 @@ def bend_samples(sensor: Sensor, tile: int) -> float:
     96.3 %, spinning_32x1024 seed 0 93.5 -> 90.3 %, a false fitting on its seed 11)."""
     if sensor.noise.correlation_px > 1:
         return sensor.noise.independent_share(tile)
-    return 1.0 if tile == 1 and sensor.noise.sigma_quadratic == 0.0 else 0.0
+    return 1.0 if single_returns(sensor, tile) else 0.0
+
+
+def single_returns(sensor: Sensor, tile: int) -> bool:
+    """Whether the points of a grid of ``tile`` x ``tile`` means are a laser's single
+    returns: no tile, a range noise that does not grow with range and errs pixel by pixel
+    (:func:`bend_samples` counts one sample each; polish asks their planes whether the
+    range noise along the rays explains them)."""
+    return tile == 1 and sensor.noise.sigma_quadratic == 0.0 and sensor.noise.correlation_px <= 1
 
 
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,
@@ -182,6 +190,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # and the laser rows keep the range noise)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
     timer.lap("dissolve")
-    fits = polish_models(ctx, labels, fits, resolve_bends=bend_samples(sensor, tile))
+    fits = polish_models(ctx, labels, fits, resolve_bends=bend_samples(sensor, tile),
+                         along_rays=single_returns(sensor, tile))
     timer.lap("polish")
     return Regions(labels, fits)

@@ -59,6 +59,32 @@ class Context:
         #: grid the search took a column's flank, its tile means within that noise of a
         #: plane, as a plane piece beside the column (stereo seed 0 scan 0)
         self.grazing_search = bool(grazing_search)
+        self._cloud = cloud
+        self._row_origins = False  # not looked up yet (most steps never ask)
+
+    @property
+    def row_origins(self):
+        """``(H, 3)`` each row's ray origin where the sensor's rays do not start at the
+        origin (a nodding laser's mirror off its tilt axis), else None (:meth:`viewing_rays`)."""
+        if self._row_origins is False:
+            self._row_origins = _row_origins(self._cloud)
+        return self._row_origins
+
+    def viewing_rays(self, idx: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` unit rays of the flat pixels ``idx``, from where the sensor's rays start
+        to each pixel's point: a nodding laser's mirror sits off its tilt axis (0.1 m on the
+        LMS200), and a floor seen near grazing meets its rays 2-3 degrees less obliquely than
+        the rays from the origin say (the LMS200 suite's floors: median incidence cosine
+        0.19-0.22 where those give 0.16-0.19): what its range noise leaves its distances is
+        a fifth more."""
+        origins = self.ray_origins(idx)
+        points = self.xyz[idx] if origins is None else self.xyz[idx] - origins
+        return points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+
+    def ray_origins(self, idx: np.ndarray):
+        """``(N, 3)`` where the rays of the flat pixels ``idx`` start, or None where every
+        ray starts at the origin (:attr:`row_origins`)."""
+        return None if self.row_origins is None else self.row_origins[np.asarray(idx) // self.width]
 
     def piece_ids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(ids, sizes)`` of the 4-connected pieces of the flat pixels ``idx`` (increasing),
@@ -257,6 +283,18 @@ class Context:
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size))
+
+
+def _row_origins(cloud):
+    # (H, 3) ray origins of a nodding geometry with its mirror off the tilt axis and the
+    # cloud's own grid; None where rays start at the origin (or the geometry is not known)
+    from ..geometry import NoddingGeometry, nodding_ray_origins
+
+    geometry = getattr(cloud, "geometry", None)
+    if (not isinstance(geometry, NoddingGeometry) or geometry.shape != tuple(cloud.shape)
+            or not np.any(geometry.mount_offset)):
+        return None
+    return nodding_ray_origins(geometry)
 
 
 def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width: int):

@@ -6,18 +6,25 @@ must also still earn its curvature on its final pixels: a cylinder fitted over a
 keeps its region once the settle step has handed the crease's far face back to its own
 plane, and on the face alone it is two parameters of noise (:func:`_still_flat`). A plane
 must still be one on its final pixels: its kind was decided on the pixels it had then (a
-pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`.
+pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`. For
+a laser's single returns, whose noise is along their rays, a plane must also be within what
+that noise gives its distances, or a cylinder fitted in range residuals takes it where it
+is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from ..fitting.primitives import Plane
+from ..kernels.linalg import noise_rms_bound
+from ..fitting._compiled import arc_around_axis
+from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
-from ..fitting.robust import curvature_resolved
-from .context import Context
+from ..fitting.robust import curvature_resolved, distance_noise
+from .context import TRIM_SIGMAS, Context
 
 __all__ = ["polish_models"]
 
@@ -26,14 +33,16 @@ EXTRA_PARAMETERS = {"cylinder": 2, "sphere": 1}
 
 
 def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes: bool = True,
-                  resolve_bends: float = 0.0) -> dict:
+                  resolve_bends: float = 0.0, along_rays: bool = False) -> dict:
     """``fits`` with the models moments cannot refit (spheres, cylinders) refitted on the
     pixels of ``labels``, and those that no longer resolve a curvature there replaced by
     the plane the fitter's decision gives their pixels; planes whose pixels the fitter now
     calls curved replaced by that model (:func:`_curved_planes`; with ``decide_planes``;
     ``resolve_bends``, the independent samples each pixel carries, 0 for not asked: also
     the planes whose quadric resolves a bend under the noise over those samples, and curved
-    models only a neighbour's pixels bend are planes, :func:`_unbent`).
+    models only a neighbour's pixels bend are planes, :func:`_unbent`). With ``along_rays``
+    (single returns, whose noise is along their rays only) also the planes whose distances
+    that noise does not explain, where a curved model's does (:func:`_planes_off_rays`).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
@@ -56,6 +65,8 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends))
+        if along_rays:
+            fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
     return fits
 
 
@@ -130,3 +141,278 @@ def _still_flat(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> l
     eigvals = kernels.planes_from_moment_rows(kernels.label_moments(ctx.xyz, flat_labels, n)[curved])[3]
     return [k for k, plane_variance in zip(curved, eigvals[:, 0]) if counts[k] > 3 and not curvature_resolved(
         plane_variance * counts[k], curved_squares[k], int(counts[k]), EXTRA_PARAMETERS[fits[k].kind])]
+
+
+#: Chi-square deviations beyond which a plane's distances are not its range noise along the
+#: rays (:func:`_planes_off_rays`; the decision's CHI_SQUARE_SIGMAS), and within which a
+#: curved model's are (its NOISE_CHI2_SIGMAS, as a plane's noise floor).
+OFF_RAYS_SIGMAS = 4.0
+WITHIN_RAYS_SIGMAS = 3.0
+
+
+#: The least incidence cosine a distance's noise is taken at (a ray grazing the surface:
+#: there the first-order noise sigma x cosine is no bound).
+RAY_COS_FLOOR = 0.1
+
+
+def _ray_noise(points: np.ndarray, sigma: np.ndarray, model, rays: np.ndarray, each: bool = False) -> tuple:
+    """``(rms, noise, chi)``: the rms distance of ``points`` to ``model``, the rms distance a
+    range noise ``sigma`` (per point) along the viewing ``rays`` gives them about that surface
+    (:func:`rangeseg_o3d.fitting.robust.distance_noise`, floored at ``RAY_COS_FLOOR``), and
+    the mean square of each distance over its own noise (``each``: those squares, per point)."""
+    distances, noise = model.distances(points), distance_noise(model, points, sigma, rays)
+    noise = np.maximum(noise, RAY_COS_FLOOR * sigma)
+    chi = (distances / noise) ** 2
+    chi = chi if each else float(np.mean(chi))
+    return float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(noise * noise))), chi
+
+
+def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
+    """The curved models of the plane regions of ``labels`` whose distances are beyond what
+    the range noise along the rays (``ctx.sigma``) gives a plane, ``OFF_RAYS_SIGMAS`` up its
+    chi-square and bulging towards the sensor about the plane of their points within that
+    noise (:func:`_bent_off_rays`), where the fitter's curved model (its plane refused), a cylinder refitted in range residuals
+    (:func:`_cylinder_along_rays`, its arc then held to the fitter's ``min_arc_deg``), is
+    within what that noise gives that surface, ``WITHIN_RAYS_SIGMAS`` up, and resolves its
+    curvature over the plane that noise fits best (:func:`_plane_along_ray_noise`).
+    Streaks of range noise (:func:`_streak_along_rays`) are not asked.
+
+    The fitter judges a plane by its rms against the range noise itself; a plane seen
+    obliquely keeps most of that noise within itself, and least squares lays a plane along
+    the rays through a pipe's limb, whose range noise then hides its bend (spinning_128x2048
+    seed 89 scan 0: a 25 cm pipe at 3.4 m seen on 5 columns, plane rms 4.4 mm where its
+    1 cm noise gives 3.2 and the fitter's cylinder spans 25 degrees, under its 30; along the
+    rays 20-26 cm over 33-39 degrees; spinning_32x1024 seed 89 scan 3: an 18 cm pipe at
+    4.2 m on 6 columns under 3 cm noise). The 16 cm pipe of its scan 1, seen on 3 columns,
+    stays a plane: its sagitta across them, 2 mm, is no bend that noise resolves. A floor
+    seen at grazing incidence whose pixels hold a few mixed returns is over its noise too,
+    but shows no such bulge, and is not searched (09d5a01 searched it, and cost the LMS200
+    half again its time). Only
+    planes within the range noise itself are asked: over it the fitter's decision has tried
+    the curved models against the plane already (its marginal plane)."""
+    p = ctx.fitter.params
+    if not {"plane_rms", "noise_floor", "curvature_gain"} <= set(p):  # another plugin
+        return {}
+    suspects = _planes_over_rays(ctx, labels, fits, max(int(p.get("min_points", 10)), 10))
+    if not suspects:
+        return {}
+    refused_plane = {**p, "plane_rms": 0.0, "noise_floor": 0.0, "curvature_gain": 1.0}
+    # the arc is judged on the model fitted along the rays (below): least squares in plain
+    # distances bends a pipe's limb seen at grazing incidence wider and flatter than it is
+    open_arc = {**refused_plane, "min_arc_deg": ARC_SEARCH_DEG}
+    min_arc = np.radians(float(p.get("min_arc_deg", 30.0)))
+    out = {}
+    flat = labels.ravel()
+    for k in suspects:  # (a few: one comparison over the grid each, cheaper than grouping it all)
+        idx = np.flatnonzero(flat == k)
+        if not _bent_off_rays(ctx, idx):
+            continue
+        points, sigma, rays = ctx.xyz[idx], ctx.sigma[idx], ctx.viewing_rays(idx)
+        if _streak_along_rays(points, sigma, rays):
+            continue
+        curved = ctx.fitter.plugin.run(ctx.fitter.points(ctx.xyz, idx), **open_arc)
+        if not curved or isinstance(curved, Plane):
+            continue
+        if isinstance(curved, Cylinder):
+            curved, chi_c = _cylinder_along_rays(points, sigma, curved, ctx.ray_origins(idx))
+            if curved is None or curved.radius > float(p.get("max_radius", np.inf)) or not (
+                    arc_around_axis(points, curved.axis, curved.point) >= min_arc):
+                continue
+        else:  # a sphere: its cap as the fitter judges it
+            curved = ctx.fitter.plugin.run(ctx.fitter.points(ctx.xyz, idx), **refused_plane)
+            if not isinstance(curved, Sphere):
+                continue
+            rms, noise, chi_c = _ray_noise(points, sigma, curved, rays)
+        extra = EXTRA_PARAMETERS[curved.kind]
+        if np.sqrt(chi_c) > noise_rms_bound.py_func(1.0, idx.size - 3.0 - extra, WITHIN_RAYS_SIGMAS):
+            continue
+        # the curvature must be resolved over the plane the noise along the rays fits best,
+        # not only over the least-squares plane (chi-squares in that noise, an F-test of
+        # known variance)
+        _, _, chi_p = _ray_noise(points, sigma, _plane_along_ray_noise(points, sigma, fits[k], rays), rays)
+        drop = idx.size * (chi_p - chi_c)
+        if drop > extra + OFF_RAYS_SIGMAS * np.sqrt(2.0 * extra):
+            out[k] = curved
+    return out
+
+
+#: Times the plane of a suspect's pixels is refitted to those within ``TRIM_SIGMAS`` of
+#: it (:func:`_bent_off_rays`).
+TRIM_REFITS = 3
+
+
+def _bent_off_rays(ctx: Context, idx: np.ndarray) -> bool:
+    """Whether the pixels ``idx`` bulge towards the sensor beyond the range noise along
+    their rays (``ctx.sigma``; the rays from where the sensor's start): about the plane
+    refitted ``TRIM_REFITS`` times to the pixels within ``TRIM_SIGMAS`` of that noise (per
+    pixel, times its incidence cosine), their distances grow with the square of their
+    coordinate across the pixels' narrow direction by more than ``OFF_RAYS_SIGMAS``
+    standard errors (:func:`rangeseg_o3d.kernels.band_bend`); or fewer than half of them
+    lie within the band.
+
+    A pipe's limb seen from outside at grazing incidence bends in every point, its middle
+    nearer the sensor than its sides (spinning_128x2048 seed 89 scan 0: 14.6 standard
+    errors; spinning_32x1024 seed 89 scan 3: 4.8; the synthetic limb of
+    tests/refinement/test_polish.py 6-10). A laser's mixed returns where a jump edge or a
+    crease crosses its beam footprint lie along their rays between the plane and the nearer
+    surface: near grazing, where a floor's distance noise is a millimetre, the 5-30 % of
+    them along its edges put its least-squares plane off that noise (LMS200 suite: every
+    floor and ceiling, cosine 0.2-0.4, mean squares 1.7-13 in their noise, which is what
+    cost 09d5a01 its time), but about the band's plane a floor shows no bend (-3 to 1.4
+    standard errors, seeds 0 and 1) and a ceiling lined by a row of them an edge nearer
+    than its middle (-7 to -10). Flat strips of a spinning lidar under 3 cm of noise: -1.8
+    to 1.7. A few compiled passes over the pixels and a 4 x 4 solve: cheap beside the
+    curved models' search, which it spares the planes of a laser's scan."""
+    kept, _, bend = kernels.band_bend(
+        ctx.xyz, np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(ctx.sigma, dtype=np.float64),
+        _origin_rows(ctx), ctx.width, TRIM_REFITS, TRIM_SIGMAS, RAY_COS_FLOOR)
+    # (fewer than half of them within the band: not a plane in its noise, asked)
+    return 2 * kept < idx.size or bend > OFF_RAYS_SIGMAS
+
+
+#: The least arc (degrees) the fitter's cylinder may span to be refitted along the rays,
+#: whose arc is then held to the fitter's own min_arc_deg: half of the default 30 (a pipe's
+#: limb, 25 degrees in plain distances, spans 33-39 along the rays; a wall's cylinder of
+#: 2.7 m spans a few, and its fit along the rays crept for a second).
+ARC_SEARCH_DEG = 15.0
+
+
+def _front_ranges(points: np.ndarray, axis: np.ndarray, point: np.ndarray, radius: float,
+                  origins: np.ndarray | None = None) -> np.ndarray:
+    """Per point, its range less the range at which its ray (from the sensor at the origin,
+    or from its row of ``origins``, ``(N, 3)``) first meets the cylinder (``axis`` unit,
+    through ``point``); a ray that misses it counts the range of its closest approach and
+    ten times the gap (continuous at the tangent)."""
+    seen = points if origins is None else points - origins
+    ranges = np.maximum(np.linalg.norm(seen, axis=1), 1e-12)
+    rays = seen / ranges[:, None]
+    d = rays - np.outer(rays @ axis, axis)
+    a = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
+    # e: from the axis to each ray's origin, across the axis (one vector for rays from the origin)
+    if origins is None:
+        e = -point + (point @ axis) * axis
+        b, ee = d @ e, e @ e
+    else:
+        start = origins - point
+        e = start - np.outer(start @ axis, axis)
+        b, ee = np.einsum("ij,ij->i", d, e), np.einsum("ij,ij->i", e, e)
+    disc = b * b - a * (ee - radius * radius)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    near, far = (-b - root) / a, (-b + root) / a
+    front = np.where(near > 0.0, near, far)
+    closest = -b / a
+    gap = np.sqrt(np.maximum(ee - b * b / a, 0.0)) - radius  # the ray's closest approach to the surface
+    miss = np.sign(ranges - closest) * np.hypot(ranges - closest, MISS_GAP_WEIGHT * gap)
+    return np.where((disc >= 0.0) & (front > 0.0), ranges - front, miss)
+
+
+#: How much a ray's gap to a cylinder it misses counts against its range residual.
+MISS_GAP_WEIGHT = 10.0
+
+#: The most residual evaluations of a fit along the rays (a start far from any cylinder,
+#: a wall's 2.7 m one, crept for a second and more without them; a pipe's converges in tens).
+LM_EVALUATIONS = 200
+
+
+def _cylinder_along_rays(points: np.ndarray, sigma: np.ndarray, start, origins: np.ndarray | None = None):
+    """``(cylinder, chi)``: the cylinder whose range residuals (:func:`_front_ranges`) in the
+    range noise ``sigma`` are smallest, by least squares from ``start``, and their mean
+    square; ``(None, inf)`` when the fit fails. A laser's noise moves its returns along
+    their rays: on a pipe's limb, seen at grazing incidence, plain distances take that noise
+    for curvature and bend the fit flatter than the pipe (spinning_128x2048 seed 89 scan 0:
+    a 25 cm pipe at 3.4 m seen on 5 columns; the fitter's cylinder 36 cm over 25 degrees,
+    this one 20-26 cm over more than 30, range residuals 1.0 times the noise where the plane's
+    are 1.3). The rays start at the origin, or at ``origins`` (per point, a nodding
+    laser's mirror off its tilt axis)."""
+    from scipy.optimize import least_squares
+
+    def residuals(x):
+        axis = x[:3] / max(float(np.linalg.norm(x[:3])), 1e-12)
+        return _front_ranges(points, axis, x[3:6], abs(x[6]), origins) / sigma
+
+    fit = least_squares(residuals, np.r_[start.axis, start.point, start.radius], max_nfev=LM_EVALUATIONS)
+    if not fit.success or not np.all(np.isfinite(fit.x)):
+        return None, np.inf
+    axis = fit.x[:3] / np.linalg.norm(fit.x[:3])
+    point = fit.x[3:6] + ((points.mean(axis=0) - fit.x[3:6]) @ axis) * axis  # nearest the centroid
+    cylinder = Cylinder(axis=axis, point=point, radius=abs(float(fit.x[6])), rms=0.0, inliers=len(points))
+    rms = float(np.sqrt(np.mean(cylinder.distances(points) ** 2)))
+    return replace(cylinder, rms=rms), float(np.mean(fit.fun ** 2))
+
+
+#: A streak's spread along the rays, in range noise rms: up to this, the noise's own.
+STREAK_NOISE = 2.0
+
+
+def _streak_along_rays(points: np.ndarray, sigma: np.ndarray, rays: np.ndarray) -> bool:
+    """Whether ``points`` spread farther along their mean viewing ray than across it (the
+    narrower of their two extents across the ray), and along it by no more than
+    ``STREAK_NOISE`` times their range noise ``sigma`` (rms): a strip of a few columns
+    under range noise as large as it is wide, a streak of that noise whatever its surface.
+    A cylinder of a few centimetres wraps such a streak within its noise as well as a 16 cm
+    pipe's (flat strips of 3 columns of a spinning_32x1024, 4.2 m away under 3 cm noise,
+    took cylinders in 28 draws of 30 without this test)."""
+    centred = points - points.mean(axis=0)
+    ray = rays.mean(axis=0)
+    ray = ray / max(float(np.linalg.norm(ray)), 1e-12)
+    along = centred @ ray
+    across = centred - np.outer(along, ray)
+    width = np.sqrt(max(float(np.linalg.eigvalsh(across.T @ across / len(points))[1]), 0.0))
+    spread = float(np.sqrt(np.mean(along * along)))
+    # (a pipe's limb seen at grazing incidence spreads along the rays by its own depth, far
+    # beyond the noise: spinning_128x2048 seed 89 scan 0, 4 cm under 1 cm noise)
+    return width < spread <= STREAK_NOISE * float(np.sqrt(np.mean(sigma * sigma)))
+
+
+def _plane_along_ray_noise(points: np.ndarray, sigma: np.ndarray, start: Plane, rays: np.ndarray) -> Plane:
+    """The plane of ``points`` whose residuals along their unit ``rays`` are smallest in the
+    range noise ``sigma`` (each a distance over ``sigma`` times the incidence cosine), by
+    Levenberg-Marquardt from ``start`` and from the plane facing the points' mean ray.
+    Least squares in plain distances lays the plane of a narrow strip along the rays, where
+    the range noise spreads the points wider than the strip is: in that plane the points
+    are far beyond their noise, in this one they need not be."""
+    from scipy.optimize import least_squares
+
+    def residuals(x):  # x: an unnormalised normal and the offset along it
+        normal = x[:3] / np.linalg.norm(x[:3])
+        return (points @ normal - x[3]) / np.maximum(sigma * np.abs(rays @ normal), 1e-3 * sigma)
+
+    centroid = points.mean(axis=0)
+    facing = rays.mean(axis=0)
+    facing = facing / max(float(np.linalg.norm(facing)), 1e-12)
+    best, best_cost = start, float(np.sum(residuals(np.r_[start.normal, start.d]) ** 2))
+    for normal in (np.asarray(start.normal, dtype=float), facing):
+        fit = least_squares(residuals, np.r_[normal, normal @ centroid], method="lm", max_nfev=LM_EVALUATIONS)
+        if fit.success and 2.0 * fit.cost < best_cost:
+            normal = fit.x[:3] / np.linalg.norm(fit.x[:3])
+            best = Plane(normal=normal, d=float(fit.x[3]), rms=0.0, inliers=len(points))
+            best_cost = 2.0 * fit.cost
+    return best
+
+
+def _planes_over_rays(ctx: Context, labels: np.ndarray, fits: dict, minimum: int) -> list:
+    """The plane regions of ``labels`` (``minimum`` pixels or more) whose rms distance is
+    within the range noise (``ctx.sigma``) yet beyond what that noise along the rays gives
+    their plane, ``OFF_RAYS_SIGMAS`` up its chi-square (:func:`_planes_off_rays`): one
+    compiled pass over the grid, sums by label (:func:`rangeseg_o3d.kernels.plane_ray_sums`),
+    the rays from where the sensor's start (:attr:`Context.row_origins`)."""
+    planes = [k for k, m in fits.items() if isinstance(m, Plane) and k > 0]
+    if not planes:
+        return []
+    n = max(planes) + 1
+    normals, offsets = np.zeros((n, 3)), np.zeros(n)
+    for k in planes:
+        normals[k], offsets[k] = fits[k].normal, fits[k].d
+    counts, squares, ray_noise, range_noise = kernels.plane_ray_sums(
+        ctx.xyz, np.ascontiguousarray(labels.ravel()), normals, offsets, np.ascontiguousarray(ctx.sigma, dtype=np.float64),
+        _origin_rows(ctx), ctx.width)
+    dof = np.maximum(counts - 3.0, 1.0)
+    rms, noise = np.sqrt(squares / np.maximum(counts, 1.0)), np.sqrt(ray_noise / np.maximum(counts, 1.0))
+    over = ((counts >= minimum) & (squares <= range_noise)  # (over it the decision tried the curved models)
+            & (rms > noise_rms_bound.py_func(noise, dof, OFF_RAYS_SIGMAS)))
+    return [k for k in planes if over[k]]
+
+
+def _origin_rows(ctx: Context) -> np.ndarray:
+    # the kernels' table of ray origins by row: none (0 rows) where the rays start at the origin
+    return np.ascontiguousarray(ctx.row_origins if ctx.row_origins is not None else np.zeros((0, 3)), dtype=np.float64)

@@ -1,0 +1,161 @@
+"""Label-wise sums along a sensor's viewing rays (the range noise a plane's distances keep)."""
+
+from __future__ import annotations
+
+import numpy as np
+from .jit import njit  # numba.njit, with this package's cache locator installed
+
+__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend"]
+
+
+@njit(cache=True, nogil=True)
+def plane_ray_sums(xyz, labels, normals, offsets, sigma, origins, width):
+    """``(counts, squares, ray_noise, range_noise)`` per label ``k`` whose plane
+    ``(normals[k], offsets[k])`` is set (a zero normal: no plane): its pixels, the sum of
+    their squared distances to it, of their range noise ``sigma`` times the incidence
+    cosine squared, and of ``sigma`` squared. A pixel's ray starts at the origin, or at
+    ``origins[row]`` when ``origins`` has rows (``(H, 3)``, a nodding laser's mirror; rows
+    of ``width`` pixels). Pixels with a non-finite point or noise are skipped."""
+    n = normals.shape[0]
+    counts, squares = np.zeros(n), np.zeros(n)
+    ray_noise, range_noise = np.zeros(n), np.zeros(n)
+    planar = np.zeros(n, np.bool_)
+    for k in range(1, n):
+        planar[k] = normals[k, 0] != 0.0 or normals[k, 1] != 0.0 or normals[k, 2] != 0.0
+    shifted = origins.shape[0] > 0
+    ox, oy, oz = 0.0, 0.0, 0.0
+    for i in range(labels.shape[0]):
+        if shifted and i % width == 0:  # a new row: its rays' origin
+            row = i // width
+            ox, oy, oz = origins[row, 0], origins[row, 1], origins[row, 2]
+        k = labels[i]
+        if k <= 0 or k >= n or not planar[k]:
+            continue
+        x, y, z, s = xyz[i, 0] - ox, xyz[i, 1] - oy, xyz[i, 2] - oz, sigma[i]
+        if not (np.isfinite(x + y + z) and np.isfinite(s)):
+            continue
+        nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
+        facing = x * nx + y * ny + z * nz  # n . (p - o): the range times the incidence cosine
+        dist = facing + (ox * nx + oy * ny + oz * nz) - offsets[k]
+        counts[k] += 1.0
+        squares[k] += dist * dist
+        # (sigma cos)^2 = sigma^2 (n . v)^2 / |v|^2: no square root
+        ray_noise[k] += s * s * facing * facing / max(x * x + y * y + z * z, 1e-24)
+        range_noise[k] += s * s
+    return counts, squares, ray_noise, range_noise
+
+
+@njit(cache=True, nogil=True)
+def trimmed_ray_plane(xyz, idx, sigma, origins, width, refits, band, cos_floor):
+    """``(near, chi, noise, centroid, frame)`` of the pixels ``idx`` (rows of the flat ``xyz`` and
+    ``sigma``): the least-squares plane of their points refitted ``refits`` times to those
+    within ``band`` noises of it (each pixel's range noise ``sigma`` times the incidence
+    cosine of its ray, at least ``cos_floor``; rays as :func:`plane_ray_sums` casts them,
+    from ``origins[row]`` when it has rows); ``noise`` that noise of each pixel's distance
+    and ``chi`` its squared distance over it, about the last plane, ``near`` those within ``band`` of it, ``frame`` rows the
+    plane's normal (pointing away from the sensor along the rays) and its in-plane axes of
+    least and most spread. ``near`` is all False when fewer than half the pixels, or fewer
+    than four, were within ``band`` of a plane to refit. The refits stop early once the
+    band keeps the same pixels (the plane would be the same)."""
+    n = idx.shape[0]
+    rays = np.empty((n, 3))
+    shifted = origins.shape[0] > 0
+    for i in range(n):
+        q = idx[i]
+        x, y, z = xyz[q, 0], xyz[q, 1], xyz[q, 2]
+        if shifted:
+            row = q // width
+            x, y, z = x - origins[row, 0], y - origins[row, 1], z - origins[row, 2]
+        norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+        rays[i, 0], rays[i, 1], rays[i, 2] = x / norm, y / norm, z / norm
+    near = np.ones(n, np.bool_)
+    chi = np.zeros(n)
+    noise = np.zeros(n)
+    centroid = np.zeros(3)
+    frame = np.zeros((3, 3))
+    cov = np.zeros((3, 3))
+    for step in range(refits + 1):
+        m = 0
+        centroid[:] = 0.0
+        for i in range(n):
+            if near[i]:
+                m += 1
+                for a in range(3):
+                    centroid[a] += xyz[idx[i], a]
+        if m < 4 or 2 * m < n:
+            near[:] = False
+            return near, chi, noise, centroid, frame
+        centroid /= m
+        cov[:, :] = 0.0
+        for i in range(n):
+            if near[i]:
+                q = idx[i]
+                for a in range(3):
+                    for b in range(3):
+                        cov[a, b] += (xyz[q, a] - centroid[a]) * (xyz[q, b] - centroid[b])
+        _, vecs = np.linalg.eigh(cov)
+        facing = 0.0
+        for i in range(n):
+            facing += rays[i, 0] * vecs[0, 0] + rays[i, 1] * vecs[1, 0] + rays[i, 2] * vecs[2, 0]
+        sign = 1.0 if facing >= 0.0 else -1.0
+        for a in range(3):
+            frame[0, a] = sign * vecs[a, 0]
+            frame[1, a] = vecs[a, 1]
+            frame[2, a] = vecs[a, 2]
+        moved = 0
+        for i in range(n):
+            q = idx[i]
+            dist = ((xyz[q, 0] - centroid[0]) * frame[0, 0] + (xyz[q, 1] - centroid[1]) * frame[0, 1]
+                    + (xyz[q, 2] - centroid[2]) * frame[0, 2])
+            cosine = max(abs(rays[i, 0] * frame[0, 0] + rays[i, 1] * frame[0, 1] + rays[i, 2] * frame[0, 2]), cos_floor)
+            noise[i] = sigma[q] * cosine
+            chi[i] = (dist / max(noise[i], 1e-300)) ** 2
+            within = chi[i] <= band * band
+            if within != near[i]:
+                moved += 1
+            near[i] = within
+        if moved == 0 and step > 0:  # the band kept its pixels: the next refit is this plane again
+            break
+    return near, chi, noise, centroid, frame
+
+
+@njit(cache=True, nogil=True)
+def band_bend(xyz, idx, sigma, origins, width, refits, band, cos_floor):
+    """``(kept, mean_square, bend)`` of the pixels ``idx`` about the plane of
+    :func:`trimmed_ray_plane`: how many lie within ``band`` noises of it, their mean
+    squared distance in that noise, and how many standard errors their distances (positive
+    away from the sensor) grow with the square of their coordinate along the plane's axis
+    of least spread, its tilt allowed (weighted least squares of known variance: the
+    columns 1, that coordinate, the other in-plane one and its square). A bend seen from
+    outside, its middle nearer the sensor than its sides, is positive. ``(0, 0, 0)`` when
+    the band held too few to refit."""
+    near, chi, noise, centroid, frame = trimmed_ray_plane(xyz, idx, sigma, origins, width, refits, band, cos_floor)
+    normal_eq = np.zeros((4, 4))
+    rhs = np.zeros(4)
+    row = np.zeros(4)
+    kept, squares = 0, 0.0
+    for i in range(idx.shape[0]):
+        if not near[i]:
+            continue
+        q = idx[i]
+        dx, dy, dz = xyz[q, 0] - centroid[0], xyz[q, 1] - centroid[1], xyz[q, 2] - centroid[2]
+        dist = dx * frame[0, 0] + dy * frame[0, 1] + dz * frame[0, 2]
+        across = dx * frame[1, 0] + dy * frame[1, 1] + dz * frame[1, 2]
+        along = dx * frame[2, 0] + dy * frame[2, 1] + dz * frame[2, 2]
+        weight = 1.0 / (noise[i] * noise[i])
+        row[0], row[1], row[2], row[3] = 1.0, across, along, across * across
+        for a in range(4):
+            rhs[a] += weight * row[a] * dist
+            for b in range(4):
+                normal_eq[a, b] += weight * row[a] * row[b]
+        kept += 1
+        squares += chi[i]
+    if kept < 4:
+        return 0, 0.0, 0.0
+    if abs(np.linalg.det(normal_eq)) <= 0.0:
+        return kept, squares / kept, 0.0
+    inverse = np.linalg.inv(normal_eq)
+    coefficient = 0.0
+    for a in range(4):
+        coefficient += inverse[3, a] * rhs[a]
+    return kept, squares / kept, coefficient / np.sqrt(max(inverse[3, 3], 1e-300))
