@@ -15,6 +15,7 @@ from .config import PipelineConfig, load_config
 from .crease_planes import planes_for_creases
 from .fitting.primitives import Cylinder, Plane, Sphere, with_statistics
 from .fitting.region_fitter import RegionFitter
+from .free_faces import faces_from_free
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor,
@@ -350,6 +351,13 @@ class Pipeline:
                                               recovered_min_size=recovered_region_floor(refine, min_size,
                                                                                  self.sensor.noise.correlation_px))
             lap("drop")
+            if noise.matched_window:
+                # (as split_plane_faces) a stereo camera's faces seen near grazing that kept no
+                # region, grown from the free pieces they left; after the drop, as each is held
+                # to the independent returns of its own shape, not to the recovered-region floor
+                labels, fits, stats = faces_from_free(cloud, labels, fits, stats, sigma=sigma, noise=noise,
+                                                      inlier_factor=INLIER_SIGMAS)
+                lap("free_faces")
         return labels, fits, sigma, stats
 
     @staticmethod
