@@ -7,7 +7,7 @@ from scipy import ndimage
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import Plane
-from rangeseg_o3d.free_faces import faces_from_free
+from rangeseg_o3d.free_faces import SEED_PIXELS, faces_from_free
 from rangeseg_o3d.fullres import region_stats
 from rangeseg_o3d.result import INLIER_SIGMAS
 from rangeseg_o3d.sensor import NoiseModel
@@ -97,9 +97,14 @@ def test_a_free_piece_of_a_head_on_face_stays_free():
     assert out[0] is labels and out[1] is fits and out[2] is stats
 
 
-def test_a_free_piece_too_small_to_seed_a_plane_stays_free():
+def test_a_free_piece_one_column_wide_stays_free():
+    # one column of the grazing face left free: 40 pixels, enough to seed a fit, but a
+    # column's points lie along a line, so the plane the robust fit lays through them is not
+    # the face's (on this draw it is not seen near grazing, and the step stops there). Grown,
+    # it would hold 14 independent returns, under scales.MIN_PIXELS; that floor is not what
+    # this test reaches
     cloud, sigma, truth, planes = _far_corner(7)
     labels, fits, stats = _labelled(cloud, sigma, truth, planes, taken_columns=7)
-    assert (labels == 0).sum() == 40 and (labels == 0).sum() >= 24  # one column: 14 returns
+    assert (labels == 0).sum() == 40 >= SEED_PIXELS
     out = faces_from_free(cloud, labels, fits, stats, sigma=sigma, noise=NOISE, inlier_factor=INLIER_SIGMAS)
     assert out[0] is labels
