@@ -92,7 +92,12 @@ def single_returns(sensor: Sensor, tile: int) -> bool:
     """Whether the points of a grid of ``tile`` x ``tile`` means are a laser's single
     returns: no tile, a range noise that does not grow with range and errs pixel by pixel
     (:func:`bend_samples` counts one sample each; polish asks their planes whether the
-    range noise along the rays explains them)."""
+    range noise along the rays explains them).
+
+    Read from the noise model and the tile alone, not from the geometry: any sensor on a
+    tile of 1 whose noise is constant and uncorrelated counts. The ABW camera is left out
+    by its depth step, which derives a tile of 2 (:mod:`rangeseg_o3d.scales`); without
+    ``sensor.depth_step`` its tile is 1 at 0.75-1.15 m and it would count."""
     return tile == 1 and sensor.noise.sigma_quadratic == 0.0 and sensor.noise.correlation_px <= 1
 
 
