@@ -502,10 +502,17 @@ def warm_up() -> float:
     arc = np.stack([np.cos(angle), np.sin(angle), np.tile([0.0, 1.0], 6)], axis=1)
     fit_plane(arc), fit_sphere(arc), fit_cylinder(arc)
     # kernels that only some scans reach (a pool split into pieces, recovered thin surfaces)
-    from .kernels import member_pixels, piece_ids
+    from .kernels import claim_rings_in_boxes, member_pixels, piece_ids
 
     piece_ids(np.arange(4, dtype=np.int64), 2)
     member_pixels(np.zeros((2, 2), np.int32), np.zeros(1, bool))
+    from .fitting.region_fitter import model_table
+
+    kinds, params, rms = model_table({}, 1)
+    points = np.zeros((4, 3))
+    points.flags.writeable = False  # (as a cloud's points are: a signature of its own)
+    claim_rings_in_boxes(points, np.zeros((2, 2), np.int32), kinds, params, rms, np.ones(4),
+                         np.zeros(1, bool), 1, 3.0, np.array([[0, 2, 0, 2]], np.int64))
     # the trimmed fit: the fitter's compiled search and the generic one's inlier count
     from .fitting.robust import trimmed_fit
 

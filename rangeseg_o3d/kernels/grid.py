@@ -265,7 +265,7 @@ def grow_rings_in_boxes(xyz, labels, kinds, params, rms, sigma, ranges, iteratio
 def claim_rings(xyz, labels, kinds, params, rms, sigma, challengers, iterations, k_sigma, box):
     """Let ``challengers`` take over neighbouring pixels their models explain better (in place).
 
-    Only pixels inside ``box = (row0, row1, col0, col1)`` (half-open) are considered
+    Only pixels inside ``box``, an int64 array ``(row0, row1, col0, col1)`` (half-open), are considered
     (:func:`claim_rings_in_boxes`: inside any of several boxes).
 
     Per iteration, a pixel labelled with a non-challenger region and 4-adjacent to a

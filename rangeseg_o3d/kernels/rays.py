@@ -142,7 +142,7 @@ def band_bend(xyz, idx, sigma, origins, width, refits, band, cos_floor):
         dist = dx * frame[0, 0] + dy * frame[0, 1] + dz * frame[0, 2]
         across = dx * frame[1, 0] + dy * frame[1, 1] + dz * frame[1, 2]
         along = dx * frame[2, 0] + dy * frame[2, 1] + dz * frame[2, 2]
-        weight = 1.0 / (noise[i] * noise[i])
+        weight = 1.0 / max(noise[i] * noise[i], 1e-24)  # (a noiseless pixel: finite, as chi's floor)
         row[0], row[1], row[2], row[3] = 1.0, across, along, across * across
         for a in range(4):
             rhs[a] += weight * row[a] * dist

@@ -52,7 +52,7 @@ from .recover import recover_leftovers, recover_pixels
 from .split import split_regions
 from ..timing import StepTimer
 
-__all__ = ["refine_regions", "recover_pixels", "bend_samples"]
+__all__ = ["refine_regions", "recover_pixels", "bend_samples", "single_returns"]
 
 
 
