@@ -20,7 +20,7 @@ import numpy as np
 from .fitting.region_fitter import fresh_label, model_table
 from .fullres import PixelStats, leftover_blob_labels, recover_thin_surfaces, smallest_region
 
-__all__ = ["OFF_MODEL_MARGIN", "off_model_blocks", "recover_off_model"]
+__all__ = ["OFF_MODEL_MARGIN", "faces_along_rays", "off_model_blocks", "recover_off_model"]
 
 
 #: The bound of :func:`off_model_blocks` over ``CHI_SQUARE_SIGMAS`` noises of a tile's mean:
@@ -33,7 +33,7 @@ OFF_MODEL_MARGIN = float(np.sqrt(np.pi / 2.0))
 
 def off_model_blocks(labels: np.ndarray, blocks: tuple, fits: dict, tile_fits: dict, *, tile: int,
                      spread: float = 1.0, depth_step: float = 0.0, xyz: np.ndarray | None = None,
-                     max_angle_deg: float | None = None, min_pixels: int = 3):
+                     max_angle_deg: float | None = None, min_pixels: int = 3, unturned: list | None = None):
     """Pixels that lie, tile by tile, on one side of the model that took them, freed.
 
     :func:`label_pixels` judges each pixel alone, within ``k_sigma`` noises of a model. At
@@ -57,7 +57,8 @@ def off_model_blocks(labels: np.ndarray, blocks: tuple, fits: dict, tile_fits: d
     touching such tiles, of at least ``min_pixels`` pixels, whose plane is turned from the
     model most of them were taken by (:func:`_turned_groups`) are freed: the others are a
     bend of that surface, or too few to be most of a blob, and their recovery would buy
-    nothing for its cost.
+    nothing for its cost. ``unturned`` (a list, optional) receives ``(tiles, owners)`` of the
+    tiles found off their model that no such group holds (for :func:`faces_along_rays`).
 
     Returns ``(labels, released, freed)``: the labels with those pixels 0, the (H, W) labels
     the freed pixels had (0 elsewhere) and their flat indices (raster order);
@@ -84,6 +85,8 @@ def off_model_blocks(labels: np.ndarray, blocks: tuple, fits: dict, tile_fits: d
     if max_angle_deg is not None:
         keep = _turned_groups(xyz, labels, tiles, freed_from, fits, tile=tile, max_angle_deg=max_angle_deg,
                               min_pixels=min_pixels)
+        if unturned is not None and not keep.all():
+            unturned.append((tiles[~keep], freed_from[~keep]))
         tiles, freed_from = tiles[keep], freed_from[keep]
         if not tiles.size:
             return labels, None, None
@@ -100,17 +103,39 @@ def recover_off_model(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, 
                       inlier_factor: float):
     """The surfaces beside the regions' models: the pixels :func:`off_model_blocks` frees
     are recovered (:func:`recover_thin_surfaces`, only the leftover blobs that hold some of
-    them), and those no surface takes go back to the region they were freed from.
-    Returns ``(labels, fits, stats)``; the inputs when no pixel is freed or no blob holds one.
+    them), and those no surface takes go back to the region they were freed from; the
+    groups of tiles off their model it does not free (too few pixels for a blob, or a
+    least-squares plane whose tilt the range noise hides) may each hold a face whose plane,
+    fitted along the rays, is turned from that model (:func:`faces_along_rays`).
+    Returns ``(labels, fits, stats)``; the inputs when nothing changed.
     """
     # only blobs whose freed pixels could be a surface of their own are worth a recovery: a
     # blob is at least min_size pixels, and more than half of them freed (_mostly_new)
     min_size = smallest_region(config, sensor, cloud)
+    unturned = []
     freed, released, pixels = off_model_blocks(labels, blocks, fits, tile_fits, tile=tile, spread=spread,
                                                depth_step=sensor.depth_step, xyz=np.ascontiguousarray(cloud.xyz.reshape(-1, 3)),
-                                               max_angle_deg=config.merge_angle_deg, min_pixels=min_size // 2)
-    if released is None:
-        return labels, fits, stats
+                                               max_angle_deg=config.merge_angle_deg, min_pixels=min_size // 2,
+                                               unturned=unturned)
+    if released is not None:
+        labels, fits, stats = _recover_freed(cloud, labels, fits, stats, freed, released, pixels, min_size=min_size,
+                                             fitter=fitter, config=config, sensor=sensor, ranges=ranges, sigma=sigma,
+                                             inlier_factor=inlier_factor)
+    if unturned:
+        from .fullres import recovered_region_floor
+
+        labels, fits, stats = faces_along_rays(
+            cloud, labels, fits, stats, *unturned[0], tile=tile, sigma=sigma, k_sigma=config.k_sigma,
+            inlier_factor=inlier_factor, max_angle_deg=config.merge_angle_deg,
+            floor=recovered_region_floor(config, min_size, sensor.noise.correlation_px))
+    return labels, fits, stats
+
+
+def _recover_freed(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, freed: np.ndarray,
+                   released: np.ndarray, pixels: np.ndarray, *, min_size: int, fitter, config, sensor,
+                   ranges: np.ndarray, sigma: np.ndarray, inlier_factor: float):
+    # recover_off_model's recovery of the pixels off_model_blocks freed (``freed`` the labels
+    # without them, ``released`` their labels before, ``pixels`` their flat indices)
     first = fresh_label(freed, fits)
     found = leftover_blob_labels(freed, cloud.valid, min_size=min_size, first_label=first)
     if found is None:
@@ -270,3 +295,311 @@ def _turned_plane(centre: np.ndarray, scatter: np.ndarray, count: int, model, ma
     cosine = min(abs(float(axes[:, 0] @ facing)) / float(np.linalg.norm(facing)), 1.0)
     tilt_noise = np.sqrt(max(spreads[0], 0.0) / (count * spreads[1]))
     return bool(np.arccos(cosine) > max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise))
+
+
+#: Rings a face :func:`faces_along_rays` found may grow by, and give back (:func:`_grow_along_rays`):
+#: a strip 140 rows long from a seed of three 6-pixel tiles in its middle; each ring costs about
+#: a millisecond. (32 rings left a 120-row strip half grown when its plane was refitted, which
+#: then tilted 16 degrees towards the wall beside it: tests/test_off_model_faces.py, seed 1.)
+GROWTH_RINGS = 64
+#: Times a face's plane is refitted to the pixels it grew into (each followed by a growth; a
+#: second refit on a 10-px strip keeps too few pixels apart from the crease to set its tilt).
+REFITS = 1
+
+
+def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, tiles: np.ndarray,
+                     owners: np.ndarray, *, tile: int, sigma: np.ndarray, k_sigma: float, inlier_factor: float,
+                     max_angle_deg: float, floor: int):
+    """Faces in groups of tiles off their model that :func:`off_model_blocks` did not free,
+    made regions of their own. Returns ``(labels, fits, stats)``; the inputs when none is.
+
+    A wall cut by the image's edge beside the wall it meets is a strip a few pixels wide.
+    Its pixels lie off the model that took them as a group (``tiles[j]``, ``owners[j]``:
+    :func:`rangeseg_o3d.kernels.off_model_tiles`), but the group is fewer pixels than a blob,
+    and under a range noise as large as the strip is wide its least-squares plane lies along
+    the rays, its tilt undetermined. The range errors move only the inverse ranges along the
+    rays: each touching group's plane fitted along them (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`)
+    is a face when it keeps more than half of the group (and at least ``floor`` pixels)
+    within TRIM_SIGMAS of that noise, scattering within the chi-square bound of their
+    count, and is turned from the owner's model and from every plane region it touches by
+    more than ``max_angle_deg`` and more than ``CHI_SQUARE_SIGMAS`` times the noise of its tilt
+    (:func:`_turned_along_rays`; a plane region that explains it along the rays within their
+    noise takes none: it is a piece of that region): how many pixels settle a face is the
+    noise's to say, not a count of tiles. A face takes those pixels, grows into the pixels on
+    its side of the crease with each plane region beside it (:func:`_grow_along_rays`), is
+    refitted to what it holds away from that crease (:func:`_refit_apart`) and grows again;
+    a face a touching region (or another face) then explains along the rays joins it."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels import tile_groups, tile_members
+    from .kernels.linalg import noise_rms_bound
+    from .fitting.primitives import Plane
+    from .plane_faces import ROBUST_CHUNKS, _plane_beside, _ray_fits, _ray_moments, _ray_plane, _ray_terms, robust_ray_plane
+    from .refinement.context import touching
+    from .strips import _extended, _with_moved
+
+    h, w = labels.shape
+    group = tile_groups(tiles, -(-w // tile))
+    pixels, entries = tile_members(np.ascontiguousarray(labels, dtype=np.int32), int(tile), tiles, owners)
+    if not pixels.size:
+        return labels, fits, stats
+    xyz = np.ascontiguousarray(cloud.xyz.reshape(-1, 3), dtype=np.float64)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    of_pixel = group[entries]
+    planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}
+    order = np.argsort(of_pixel, kind="stable")
+    bounds = np.searchsorted(of_pixel[order], np.arange(int(group.max()) + 2))
+    faces = []
+    for g in range(bounds.size - 1):
+        members = order[bounds[g]:bounds[g + 1]]
+        if members.size < max(floor, 3 * ROBUST_CHUNKS):
+            continue
+        idx = pixels[members]
+        model = fits.get(int(np.bincount(owners[entries[members]]).argmax()))
+        points = xyz[idx]
+        rays, inverse, weight = _ray_terms(points, noise[idx])
+        rows, cols = np.divmod(idx, w)
+        found = robust_ray_plane(rays, inverse, weight, rows, cols)
+        if model is None or found is None:
+            continue
+        a, keep, mean_square = found
+        n = int(np.count_nonzero(keep))
+        if 2 * n <= idx.size or n < floor:
+            continue
+        if mean_square > noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2:
+            continue
+        # turned from the model it lies off, and from every plane region it touches (one it is
+        # not turned from, within the noise of its tilt, is the surface it is a piece of)
+        inside = np.argsort(idx[keep], kind="stable")
+        around = [model] + [planes[k] for k in sorted(touching(labels, idx[keep][inside], 1)) if k in planes]
+        centre = points[keep].mean(axis=0)
+        if not all(_turned_along_rays(a, rays[keep], weight[keep], centre, other, max_angle_deg) for other in around):
+            continue
+        # a piece of a plane region the scan has (whose tile model its pixels left): not a face
+        beside, _ = _plane_beside(labels, 0, idx[keep][inside], rays[keep][inside], inverse[keep][inside],
+                                  weight[keep][inside], planes, 1)
+        if beside:
+            continue
+        plane = _ray_plane(a, points[keep])
+        if plane is not None:
+            faces.append((idx[keep], plane, model))
+    if not faces:
+        return labels, fits, stats
+    first = fresh_label(labels, fits)
+    out = np.array(labels, dtype=np.int32, order="C", copy=True)
+    flat = out.ravel()
+    fits_in, fits = fits, dict(fits)
+    moved = [[kept] for kept, _, _ in faces]  # the pixels each face took or gave
+    for j, (kept, plane, _) in enumerate(faces):
+        flat[kept] = first + j
+        fits[first + j] = plane
+    for _ in range(REFITS):
+        for j in range(len(faces)):  # (one at a time: each in its own box)
+            moved[j].append(_grow_along_rays(xyz, out, fits, first + j, 1, noise, k_sigma, max_angle_deg))
+        for j, (_, _, source) in enumerate(faces):
+            plane = _refit_apart(xyz, noise, np.flatnonzero(flat == first + j), fits[first + j], source, k_sigma,
+                                 floor)
+            if plane is not None:
+                fits[first + j] = plane
+    for j in range(len(faces)):
+        moved[j].append(_grow_along_rays(xyz, out, fits, first + j, 1, noise, k_sigma, max_angle_deg))
+    fate = _fates(xyz, noise, out, fits, first, len(faces))
+    if all(fate[j] is None for j in range(len(faces))):
+        return labels, fits_in, stats
+    # a face that another explains joins it; one that is no face of its own (a touching region
+    # explains it: a piece of that region, seen near grazing; or more than one surface) is
+    # undone, every pixel it took or gave back as it was (but those a face kept since)
+    alive = np.zeros(first + len(faces), bool)
+    alive[[first + j for j in range(len(faces)) if fate[j] == j]] = True
+    for j in range(len(faces)):
+        if fate[j] == j:
+            continue
+        del fits[first + j]
+        if fate[j] is not None:
+            flat[flat == first + j] = first + fate[j]
+            continue
+        touched = np.unique(np.concatenate(moved[j]))
+        touched = touched[~alive[np.minimum(flat[touched], alive.size - 1)] | (flat[touched] >= alive.size)]
+        flat[touched] = labels.ravel()[touched]
+    table = _extended(model_table(fits, first), [fits.get(first + j) or faces[j][1] for j in range(len(faces))])
+    changed = np.flatnonzero(flat != labels.ravel())
+    return out, fits, _with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
+
+
+def _turned_along_rays(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, centre: np.ndarray, model,
+                       max_angle_deg: float) -> bool:
+    """Whether the plane ``a . p = 1`` fitted along ``rays`` (inverse-range weights ``weight``,
+    :func:`rangeseg_o3d.plane_faces._ray_terms`) is turned from ``model``'s normal at ``centre``
+    by more than ``max_angle_deg`` and by more than ``CHI_SQUARE_SIGMAS`` times the noise of its
+    tilt: the largest standard deviation of its unit normal across itself, from the fit's
+    covariance ``(sum w u u^T)^-1`` (rays that span little of the sky leave it large)."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+
+    size = float(np.linalg.norm(a))
+    if not np.isfinite(size) or size <= 0.0:
+        return False
+    normal = a / size
+    facing = np.asarray(model.normals(centre[None]), dtype=np.float64)[0]
+    norm = float(np.linalg.norm(facing))
+    if norm <= 0.0:
+        return False
+    outer = (weight[:, None] * rays).T @ rays
+    try:
+        covariance = np.linalg.inv(outer)
+    except np.linalg.LinAlgError:
+        return False
+    across = np.eye(3) - np.outer(normal, normal)
+    tilt_noise = np.sqrt(max(float(np.linalg.eigvalsh(across @ covariance @ across)[-1]), 0.0)) / size
+    angle = np.arccos(min(abs(float(normal @ facing)) / norm, 1.0))
+    return bool(angle > max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise))
+
+
+def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, fits: dict, first: int, count: int, noise: np.ndarray,
+                     k_sigma: float, max_angle_deg: float) -> np.ndarray:
+    """The faces ``first .. first + count - 1`` of ``out`` (in place; planes in ``fits``) grow
+    ring by ring (4-neighbours, at most ``GROWTH_RINGS``) into the free pixels whose range
+    their plane meets within ``k_sigma`` range-noise sigmas (``noise``, flat), and into those
+    of a plane region beside them on the face's side of their crease, then give back their
+    pixels on the other side of it (within ``k_sigma`` of that region's plane); a curved
+    region, and a plane within ``max_angle_deg`` of the face's (no crease between them to
+    tell the sides by), keeps its pixels. The side of the crease is where each ray meets the two planes,
+    which the noise does not move: across a concave crease (a room's corner, the face on the
+    sensor's side of the other plane) the nearer plane is the one seen, across a convex one
+    (a box's edge) the farther. Near the crease a pixel's range lies within the noise of
+    both planes; which plane is nearer in range there is a coin's toss (a 10-pixel strip at
+    7 m lost a third of itself so).
+    Returns the flat pixels that changed hands."""
+    from .fitting.primitives import Plane
+
+    h, w = out.shape
+    n = max(int(out.max(initial=0)) + 1, max(fits, default=0) + 1)
+    planes = np.full((n, 3), np.nan)  # a = normal / d of each plane region: the plane meets ray u at 1 / (a . u)
+    for k, model in fits.items():
+        if isinstance(model, Plane) and 0 < k < n and model.d > 0:
+            planes[k] = np.asarray(model.normal) / model.d
+    flat = out.ravel()
+    concave = np.zeros((count, n), bool)  # face j on the sensor's side of region k's plane
+    crease = np.zeros((count, n), bool)  # face j and region k's plane turned from each other
+    units = planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
+    for j in range(count):
+        centre = xyz[flat == first + j].mean(axis=0)
+        concave[j] = planes @ centre < 1.0  # a . c < 1: nearer than the plane along its ray
+        crease[j] = np.abs(units @ units[first + j]) < np.cos(np.radians(max_angle_deg))
+    moved = []
+    rows, cols = np.divmod(np.flatnonzero((flat >= first) & (flat < first + count)), w)
+    if not rows.size:
+        return np.zeros(0, np.int64)
+    box = [int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1]  # the faces' box
+    for grow in (True, False):
+        for _ in range(GROWTH_RINGS):
+            # (only the faces' box and a ring around it: a face grows by one ring a pass)
+            r0, r1, c0, c1 = max(box[0] - 1, 0), min(box[1] + 1, h), max(box[2] - 1, 0), min(box[3] + 1, w)
+            window = out[r0:r1, c0:c1]
+            inside = (window >= first) & (window < first + count)
+            # growing: the free and plane pixels beside a face, and that face; giving back:
+            # a face's pixels beside a plane region, and that region
+            source = inside if grow else ~inside & ~np.isnan(planes[window][..., 0]) & (window > 0)
+            target = ~inside if grow else inside
+            beside = np.zeros(window.shape, np.int32)
+            for axis in (0, 1):
+                for step in (1, -1):
+                    shifted = np.roll(np.where(source, window, 0), step, axis=axis)
+                    edge = [slice(None), slice(None)]
+                    edge[axis] = 0 if step == 1 else -1
+                    shifted[tuple(edge)] = 0
+                    beside = np.where((beside == 0) & target, shifted, beside)
+            r, c = np.nonzero(beside)
+            idx = (r + r0) * w + (c + c0)
+            points = xyz[idx]
+            ranges = np.linalg.norm(points, axis=1)
+            ok = np.isfinite(ranges) & (ranges > 0)
+            idx, points, ranges, other = idx[ok], points[ok], ranges[ok], beside[r[ok], c[ok]]
+            holder = flat[idx]
+            face_of, region = (other, holder) if grow else (holder, other)
+            rays = points / ranges[:, None]
+            scale = ranges ** 2 / np.maximum(noise[idx], 1e-12)  # inverse-range residuals in noise sigmas
+            at_face = np.einsum("ij,ij->i", rays, planes[face_of])
+            at_region = np.einsum("ij,ij->i", rays, np.nan_to_num(planes[region]))
+            plane_region = (region > 0) & ~np.isnan(planes[region][:, 0]) & crease[face_of - first, region]
+            # which plane the ray sees: the nearer (larger inverse range) across a concave crease
+            near = concave[face_of - first, region]
+            face_seen = np.where(near, at_face > at_region, at_face < at_region) | (at_region <= 0)
+            if grow:
+                take = (np.abs(1.0 / ranges - at_face) * scale <= k_sigma) & ((region == 0) | (plane_region & face_seen))
+                new = face_of
+            else:
+                take = plane_region & ~face_seen & (np.abs(1.0 / ranges - at_region) * scale <= k_sigma)
+                new = region
+            if not take.any():
+                break
+            flat[idx[take]] = new[take]
+            moved.append(idx[take])
+            if grow:
+                rows, cols = np.divmod(idx[take], w)
+                box = [min(box[0], int(rows.min())), max(box[1], int(rows.max()) + 1),
+                       min(box[2], int(cols.min())), max(box[3], int(cols.max()) + 1)]
+    return np.concatenate(moved) if moved else np.zeros(0, np.int64)
+
+
+def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, source, k_sigma: float, floor: int):
+    """The plane of a face (flat pixels ``mine``, plane ``face``) fitted along their rays again,
+    to those of its pixels whose rays meet it and the plane ``source`` it was found beside
+    more than ``k_sigma`` range-noise sigmas apart (all of them when ``source`` is no plane or
+    fewer than ``floor`` are): near their crease a pixel lies within the noise of both, and
+    which one took it says nothing of the face's tilt but drags it towards the other.
+    The choice depends on the rays alone, not on the ranges the noise moved. None when no
+    plane comes out."""
+    from .fitting.primitives import Plane
+    from .plane_faces import _ray_fits, _ray_moments, _ray_plane, _ray_terms
+
+    points = xyz[mine]
+    rays, inverse, weight = _ray_terms(points, noise[mine])
+    if isinstance(source, Plane) and source.d > 0:
+        apart = np.abs(rays @ (face.normal / face.d) - rays @ (np.asarray(source.normal) / source.d))
+        apart = apart * np.sqrt(weight) > k_sigma
+        if np.count_nonzero(apart) >= max(floor, 3):
+            rays, inverse, weight, points = rays[apart], inverse[apart], weight[apart], points[apart]
+    _, a = _ray_fits(_ray_moments(rays, inverse, weight))
+    return _ray_plane(a[0], points)
+
+
+def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) -> bool:
+    """Whether ``plane`` explains the pixels of a face (their :func:`rangeseg_o3d.plane_faces._ray_terms`)
+    as one surface: ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise
+    along the rays, with a mean square of those within the chi-square bound of their count
+    (as :func:`rangeseg_o3d.strips.recover_strips` holds a face found along the rays)."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels.linalg import noise_rms_bound
+    from .plane_faces import TRIM_SIGMAS
+    from .strips import EXPLAINED_SHARE
+
+    squares = weight * (inverse - rays @ (np.asarray(plane.normal) / plane.d)) ** 2
+    kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+    n = int(np.count_nonzero(kept))
+    return bool(n >= EXPLAINED_SHARE * squares.size and n > 0
+                and np.mean(squares[kept]) <= noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2)
+
+
+def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, first: int, count: int) -> list:
+    """Per face ``first + j`` of ``out`` (grown; planes in ``fits``): ``j`` when it stands as a
+    face, the index of the face it joins when another face explains it along the rays
+    (:func:`rangeseg_o3d.plane_faces._plane_beside`), None when it is undone: a region the scan
+    had explains it, or its plane does not explain it as one surface (:func:`_one_face`)."""
+    from .fitting.primitives import Plane
+    from .plane_faces import _plane_beside, _ray_terms
+
+    flat = out.ravel()
+    planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}  # (the other faces too)
+    fate = []
+    for j in range(count):
+        mine = np.flatnonzero(flat == first + j)
+        if not mine.size:
+            fate.append(None)
+            continue
+        rays, inverse, weight = _ray_terms(xyz[mine], noise[mine])
+        beside, _ = _plane_beside(out, first + j, mine, rays, inverse, weight, planes, 1)
+        if beside:
+            fate.append(beside - first if first <= beside < first + count else None)
+        else:
+            fate.append(j if _one_face(rays, inverse, weight, fits[first + j]) else None)
+    # a face that joins one which does not stand is undone too
+    return [f if f is None or fate[f] == f else None for f in fate]

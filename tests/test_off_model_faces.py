@@ -1,0 +1,90 @@
+"""Faces along the rays (rangeseg_o3d.off_model.faces_along_rays): a wall cut by the image's
+edge, a strip a few pixels wide beside the wall it meets, under a depth camera's noise."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.cloud import OrganizedCloud
+from rangeseg_o3d.fitting.primitives import Plane
+from rangeseg_o3d.fullres import region_stats
+from rangeseg_o3d.result import INLIER_SIGMAS
+
+KINECT = 1.425e-3  # range noise sigma = KINECT z^2 (metres)
+
+
+def _corner(seed, strip_cols=8, h=120, w=160, focal=525.0, distance=6.5, turn_deg=25.0, side=True):
+    # a wall turned by turn_deg from facing the camera at `distance`, and (side) the wall it
+    # meets at a right angle in a concave corner seen strip_cols columns from the image's left
+    # edge; the nearer plane along each ray is the one seen; range noise along the rays
+    theta = np.radians(turn_deg)
+    n1, d1 = np.array([np.sin(theta), 0.0, np.cos(theta)]), distance
+    u, v = np.meshgrid((np.arange(w) - w / 2) / focal, (np.arange(h) - h / 2) / focal)
+    rays = np.dstack([u, v, np.ones_like(u)])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    t1 = d1 / (rays @ n1)
+    t, truth = t1, np.ones((h, w), np.int32)
+    n2, d2 = None, None
+    if side:
+        corner = t1[h // 2, strip_cols] * rays[h // 2, strip_cols]
+        n2 = np.array([-np.cos(theta), 0.0, np.sin(theta)])
+        d2 = float(n2 @ corner)
+        if d2 < 0:
+            n2, d2 = -n2, -d2
+        t2 = d2 / (rays @ n2)
+        seen = (t2 > 0) & (t2 < t1)
+        t, truth = np.where(seen, t2, t1), np.where(seen, 2, 1)
+    depth = t * rays[..., 2]
+    noisy = t + np.random.default_rng(seed).normal(0.0, 1.0, t.shape) * KINECT * depth ** 2
+    xyz = noisy[..., None] * rays
+    sigma = KINECT * np.linalg.norm(xyz, axis=2) ** 2
+    return xyz, sigma, truth, Plane(n1, d1, rms=0.0, inliers=0), (None if n2 is None else Plane(n2, d2, rms=0.0, inliers=0))
+
+
+def _run(xyz, sigma, wall, tile_rows, tile=6):
+    # every pixel taken by the wall's model; the strip's tiles in tile_rows of the first tile
+    # column flagged off the model (as kernels.off_model_tiles flags them)
+    from rangeseg_o3d.off_model import faces_along_rays
+
+    h, w = sigma.shape
+    labels = np.ones((h, w), np.int32)
+    fits = {1: wall}
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    tiles = np.array([r * -(-w // tile) for r in tile_rows], np.int64)
+    owners = np.ones(tiles.size, np.int32)
+    out, fits_out, stats_out = faces_along_rays(OrganizedCloud(xyz), labels, fits, stats, tiles, owners, tile=tile,
+                                                sigma=sigma, k_sigma=3.0, inlier_factor=INLIER_SIGMAS,
+                                                max_angle_deg=3.0, floor=20)
+    return labels, out, fits_out, stats_out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_faces_along_rays_finds_a_wall_cut_by_the_image_edge(seed):
+    xyz, sigma, truth, wall, side = _corner(seed)
+    strip = truth == 2
+    # the strip: the first 7-9 columns, 7.5-8 m off: range noise 80-90 mm, near the strip's width (~12 cm)
+    assert 7 * 120 <= strip.sum() <= 9 * 120 and not strip[:, 12:].any()
+    assert 0.075 < sigma[strip].mean() < 0.095
+    _, out, fits, stats = _run(xyz, sigma, wall, tile_rows=[8, 9, 10])
+    faces = [k for k in fits if k != 1]
+    assert len(faces) == 1
+    face = out == faces[0]
+    # the face is the strip: 80 % of it (Hoover's tolerance) and 80 % of the face on it
+    assert (face & strip).sum() >= 0.8 * strip.sum()
+    assert (face & strip).sum() >= 0.8 * face.sum()
+    # its plane is the side wall's, within a few degrees (the least-squares plane of its
+    # pixels in xyz lies tens of degrees off: the range noise spreads them along the rays)
+    angle = np.degrees(np.arccos(min(abs(float(fits[faces[0]].normal @ side.normal)), 1.0)))
+    assert angle < 5.0
+    points = xyz[strip]
+    centred = points - points.mean(axis=0)
+    least_squares = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    assert np.degrees(np.arccos(min(abs(float(least_squares @ side.normal)), 1.0))) > 4 * angle
+    # the statistics follow the pixels
+    assert stats.counts[faces[0]] == face.sum() and stats.counts[1] == (out == 1).sum()
+
+
+def test_faces_along_rays_leaves_a_wall_without_a_face_beside_it():
+    # the same tiles of a wall with nothing beside it: its own pixels, no face turned from it
+    xyz, sigma, truth, wall, _ = _corner(0, side=False)
+    labels, out, fits, stats = _run(xyz, sigma, wall, tile_rows=[8, 9, 10])
+    assert out is labels and list(fits) == [1]
