@@ -392,17 +392,27 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     for j, (kept, plane, _) in enumerate(faces):
         flat[kept] = first + j
         fits[first + j] = plane
+    rows = _plane_rows(fits, first + len(faces))
+    # every pixel a face may hold, increasing: those it was given and those its growth moved
+    # (another face's growth only takes from it), so no pass over the frame finds its pixels
+    held = [np.unique(kept) for kept, _, _ in faces]
+
+    def grow(j):  # (one face at a time: each in its own box)
+        moved[j].append(_grow_along_rays(xyz, out, rows, first + j, held[j], noise, k_sigma, max_angle_deg))
+        held[j] = np.union1d(held[j], moved[j][-1])
+
     for _ in range(REFITS):
-        for j in range(len(faces)):  # (one at a time: each in its own box)
-            moved[j].append(_grow_along_rays(xyz, out, fits, first + j, 1, noise, k_sigma, max_angle_deg))
+        for j in range(len(faces)):
+            grow(j)
         for j, (_, _, source) in enumerate(faces):
-            plane = _refit_apart(xyz, noise, np.flatnonzero(flat == first + j), fits[first + j], source, k_sigma,
-                                 floor)
+            plane = _refit_apart(xyz, noise, held[j][flat[held[j]] == first + j], fits[first + j], source,
+                                 k_sigma, floor)
             if plane is not None:
                 fits[first + j] = plane
+                rows[first + j] = _plane_rows({first + j: plane}, first + j + 1)[first + j]
     for j in range(len(faces)):
-        moved[j].append(_grow_along_rays(xyz, out, fits, first + j, 1, noise, k_sigma, max_angle_deg))
-    fate = _fates(xyz, noise, out, fits, first, len(faces))
+        grow(j)
+    fate = _fates(xyz, noise, out, fits, first, [pixels[flat[pixels] == first + j] for j, pixels in enumerate(held)])
     if all(fate[j] is None for j in range(len(faces))):
         return labels, fits_in, stats
     # a face that another explains joins it; one that is no face of its own (a touching region
@@ -453,91 +463,52 @@ def _turned_along_rays(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, cent
     return bool(angle > max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise))
 
 
-def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, fits: dict, first: int, count: int, noise: np.ndarray,
-                     k_sigma: float, max_angle_deg: float) -> np.ndarray:
-    """The faces ``first .. first + count - 1`` of ``out`` (in place; planes in ``fits``) grow
-    ring by ring (4-neighbours, at most ``GROWTH_RINGS``) into the free pixels whose range
-    their plane meets within ``k_sigma`` range-noise sigmas (``noise``, flat), and into those
-    of a plane region beside them on the face's side of their crease, then give back their
-    pixels on the other side of it (within ``k_sigma`` of that region's plane); a curved
-    region, and a plane within ``max_angle_deg`` of the face's (no crease between them to
-    tell the sides by), keeps its pixels. The side of the crease is where each ray meets the two planes,
-    which the noise does not move: across a concave crease (a room's corner, the face on the
-    sensor's side of the other plane) the nearer plane is the one seen, across a convex one
-    (a box's edge) the farther. Near the crease a pixel's range lies within the noise of
-    both planes; which plane is nearer in range there is a coin's toss (a 10-pixel strip at
-    7 m lost a third of itself so).
-    Returns the flat pixels that changed hands."""
+def _plane_rows(fits: dict, n: int) -> np.ndarray:
+    """Per label below ``n``, its plane in ``fits`` as ``a = normal / d`` (the plane meets ray
+    ``u`` at inverse range ``a . u``); NaN rows for no plane (or one through the sensor)."""
     from .fitting.primitives import Plane
 
-    h, w = out.shape
-    n = max(int(out.max(initial=0)) + 1, max(fits, default=0) + 1)
-    planes = np.full((n, 3), np.nan)  # a = normal / d of each plane region: the plane meets ray u at 1 / (a . u)
+    planes = np.full((n, 3), np.nan)
     for k, model in fits.items():
         if isinstance(model, Plane) and 0 < k < n and model.d > 0:
             planes[k] = np.asarray(model.normal) / model.d
+    return planes
+
+
+def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, face: int, held: np.ndarray,
+                     noise: np.ndarray, k_sigma: float, max_angle_deg: float) -> np.ndarray:
+    """The face ``face`` of ``out`` (in place; its flat pixels among ``held``, increasing;
+    ``planes``: every label's plane row, :func:`_plane_rows`, one for each label of ``out``)
+    grows ring by ring (:func:`rangeseg_o3d.kernels.grow_along_rays`: 4-neighbours, at most
+    ``GROWTH_RINGS``) into the free pixels whose range its plane meets within ``k_sigma``
+    range-noise sigmas (``noise``, flat), and into those of a plane region beside it on the
+    face's side of their crease, then gives back its pixels on the other side of it (within
+    ``k_sigma`` of that region's plane); a curved region, and a plane within
+    ``max_angle_deg`` of the face's (no crease between them to tell the sides by), keeps its
+    pixels. The side of the crease is where each ray meets the two planes, which the noise
+    does not move: across a concave crease (a room's corner, the face on the sensor's side of
+    the other plane) the nearer plane is the one seen, across a convex one (a box's edge) the
+    farther. Near the crease a pixel's range lies within the noise of both planes; which
+    plane is nearer in range there is a coin's toss (a 10-pixel strip at 7 m lost a third of
+    itself so).
+    Returns the flat pixels that changed hands."""
+    from .kernels import grow_along_rays
+
+    h, w = out.shape
     flat = out.ravel()
-    concave = np.zeros((count, n), bool)  # face j on the sensor's side of region k's plane
-    crease = np.zeros((count, n), bool)  # face j and region k's plane turned from each other
-    units = planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
-    for j in range(count):
-        centre = xyz[flat == first + j].mean(axis=0)
-        concave[j] = planes @ centre < 1.0  # a . c < 1: nearer than the plane along its ray
-        crease[j] = np.abs(units @ units[first + j]) < np.cos(np.radians(max_angle_deg))
-    moved = []
-    rows, cols = np.divmod(np.flatnonzero((flat >= first) & (flat < first + count)), w)
-    if not rows.size:
+    mine = held[flat[held] == face]
+    if not mine.size:
         return np.zeros(0, np.int64)
-    box = [int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1]  # the faces' box
-    for grow in (True, False):
-        for _ in range(GROWTH_RINGS):
-            # (only the faces' box and a ring around it: a face grows by one ring a pass)
-            r0, r1, c0, c1 = max(box[0] - 1, 0), min(box[1] + 1, h), max(box[2] - 1, 0), min(box[3] + 1, w)
-            window = out[r0:r1, c0:c1]
-            inside = (window >= first) & (window < first + count)
-            # growing: the free and plane pixels beside a face, and that face; giving back:
-            # a face's pixels beside a plane region, and that region
-            source = inside if grow else ~inside & ~np.isnan(planes[window][..., 0]) & (window > 0)
-            target = ~inside if grow else inside
-            beside = np.zeros(window.shape, np.int32)
-            for axis in (0, 1):
-                for step in (1, -1):
-                    shifted = np.roll(np.where(source, window, 0), step, axis=axis)
-                    edge = [slice(None), slice(None)]
-                    edge[axis] = 0 if step == 1 else -1
-                    shifted[tuple(edge)] = 0
-                    beside = np.where((beside == 0) & target, shifted, beside)
-            r, c = np.nonzero(beside)
-            idx = (r + r0) * w + (c + c0)
-            points = xyz[idx]
-            ranges = np.linalg.norm(points, axis=1)
-            ok = np.isfinite(ranges) & (ranges > 0)
-            idx, points, ranges, other = idx[ok], points[ok], ranges[ok], beside[r[ok], c[ok]]
-            holder = flat[idx]
-            face_of, region = (other, holder) if grow else (holder, other)
-            rays = points / ranges[:, None]
-            scale = ranges ** 2 / np.maximum(noise[idx], 1e-12)  # inverse-range residuals in noise sigmas
-            at_face = np.einsum("ij,ij->i", rays, planes[face_of])
-            at_region = np.einsum("ij,ij->i", rays, np.nan_to_num(planes[region]))
-            plane_region = (region > 0) & ~np.isnan(planes[region][:, 0]) & crease[face_of - first, region]
-            # which plane the ray sees: the nearer (larger inverse range) across a concave crease
-            near = concave[face_of - first, region]
-            face_seen = np.where(near, at_face > at_region, at_face < at_region) | (at_region <= 0)
-            if grow:
-                take = (np.abs(1.0 / ranges - at_face) * scale <= k_sigma) & ((region == 0) | (plane_region & face_seen))
-                new = face_of
-            else:
-                take = plane_region & ~face_seen & (np.abs(1.0 / ranges - at_region) * scale <= k_sigma)
-                new = region
-            if not take.any():
-                break
-            flat[idx[take]] = new[take]
-            moved.append(idx[take])
-            if grow:
-                rows, cols = np.divmod(idx[take], w)
-                box = [min(box[0], int(rows.min())), max(box[1], int(rows.max()) + 1),
-                       min(box[2], int(cols.min())), max(box[3], int(cols.max()) + 1)]
-    return np.concatenate(moved) if moved else np.zeros(0, np.int64)
+    units = planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
+    centre = xyz[mine].mean(axis=0)
+    # per region k: the face on the sensor's side of its plane (a . c < 1: nearer along the
+    # ray), and the two planes turned from each other
+    concave = (planes @ centre < 1.0)[None]
+    crease = (np.abs(units @ units[face]) < np.cos(np.radians(max_angle_deg)))[None]
+    rows, cols = np.divmod(mine, w)
+    box = np.array([rows.min(), rows.max() + 1, cols.min(), cols.max() + 1], np.int64)  # the faces' box
+    return grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, int(face), 1, box, float(k_sigma),
+                           GROWTH_RINGS)
 
 
 def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, source, k_sigma: float, floor: int):
@@ -579,19 +550,20 @@ def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) 
                 and np.mean(squares[kept]) <= noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2)
 
 
-def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, first: int, count: int) -> list:
-    """Per face ``first + j`` of ``out`` (grown; planes in ``fits``): ``j`` when it stands as a
-    face, the index of the face it joins when another face explains it along the rays
-    (:func:`rangeseg_o3d.plane_faces._plane_beside`), None when it is undone: a region the scan
-    had explains it, or its plane does not explain it as one surface (:func:`_one_face`)."""
+def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, first: int, pixels: list) -> list:
+    """Per face ``first + j`` of ``out`` (grown, its flat pixels ``pixels[j]``, increasing;
+    planes in ``fits``): ``j`` when it stands as a face, the index of the face it joins when
+    another face explains it along the rays (:func:`rangeseg_o3d.plane_faces._plane_beside`),
+    None when it is undone: a region the scan had explains it, or its plane does not explain
+    it as one surface (:func:`_one_face`)."""
     from .fitting.primitives import Plane
     from .plane_faces import _plane_beside, _ray_terms
 
-    flat = out.ravel()
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}  # (the other faces too)
     fate = []
+    count = len(pixels)
     for j in range(count):
-        mine = np.flatnonzero(flat == first + j)
+        mine = pixels[j]
         if not mine.size:
             fate.append(None)
             continue

@@ -646,10 +646,10 @@ def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, 
     sums = np.zeros((ROBUST_CHUNKS, columns.shape[1]))
     np.add.at(sums, chunk, columns)
     total = sums.sum(axis=0)
-    # every set of chunks leaving out none, one or two of them, solved at once
-    out = [()] + [(i,) for i in range(ROBUST_CHUNKS)] + [(i, j) for i in range(ROBUST_CHUNKS)
-                                                        for j in range(i + 1, ROBUST_CHUNKS)]
-    stacked = np.stack([total - sums[list(left)].sum(axis=0) for left in out])
+    # every set of chunks leaving out none, one or two of them (pairs in row-major order),
+    # solved at once
+    one, other = np.triu_indices(ROBUST_CHUNKS, 1)
+    stacked = np.concatenate([total[None], total - sums, total - (sums[one] + sums[other])])
     _, planes = _ray_fits(_split_columns(stacked))
     squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
     within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
