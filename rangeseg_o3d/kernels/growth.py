@@ -58,36 +58,39 @@ def grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, first, coun
     b0, b1, b2, b3 = box[0], box[1], box[2], box[3]
     moved = np.empty(0, np.int64)
     n_moved = 0
+    # (buffers for every ring: a ring looks at most at every pixel once)
+    looks = np.empty(h * w, np.int64)
+    take_idx = np.empty(h * w, np.int64)
+    take_new = np.empty(h * w, np.int64)
+    seen = np.zeros(h * w, np.int32)  # the last ring that looked at a pixel
+    ring = 0
     # a pixel's fate in a ring depends on its label and its 4 neighbours' alone: after a phase's
     # first ring (the whole window), only the neighbours of the pixels the last ring moved can
     # change their answer, and a ring looks at those alone
     for phase in range(2):
         grow = phase == 0
-        last = np.empty(0, np.int64)  # the pixels the last ring moved
+        n_last = 0  # the pixels the last ring moved: take_idx[:n_last]
         for step in range(rings):
+            ring += 1
             r0, r1, c0, c1 = max(b0 - 1, 0), min(b1 + 1, h), max(b2 - 1, 0), min(b3 + 1, w)
+            n_looks = 0
             if step == 0:
-                looks = np.empty((r1 - r0) * (c1 - c0), np.int64)
-                n_looks = 0
                 for r in range(r0, r1):
                     for c in range(c0, c1):
                         looks[n_looks] = r * w + c
                         n_looks += 1
             else:
-                looks = np.empty(5 * last.size, np.int64)
-                n_looks = 0
-                for m in range(last.size):
-                    r, c = last[m] // w, last[m] % w
+                for m in range(n_last):
+                    r, c = take_idx[m] // w, take_idx[m] % w
                     for near in range(5):  # the pixel and its 4-neighbours
                         rr, cc = (r, c) if near == 4 else _neighbour(r, c, near)
                         if rr < r0 or rr >= r1 or cc < c0 or cc >= c1:
                             continue
-                        looks[n_looks] = rr * w + cc
-                        n_looks += 1
-                looks = np.unique(looks[:n_looks])  # (a ring's answers are kept apart: any order)
-                n_looks = looks.size
-            take_idx = np.empty(n_looks, np.int64)
-            take_new = np.empty(n_looks, np.int64)
+                        i = rr * w + cc
+                        if seen[i] != ring:
+                            seen[i] = ring
+                            looks[n_looks] = i
+                            n_looks += 1
             n_take = 0
             for m in range(n_looks):
                 i = looks[m]
@@ -148,5 +151,5 @@ def grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, first, coun
                 if grow:
                     r, c = i // w, i % w
                     b0, b1, b2, b3 = min(b0, r), max(b1, r + 1), min(b2, c), max(b3, c + 1)
-            last = take_idx[:n_take]
+            n_last = n_take
     return moved[:n_moved]
