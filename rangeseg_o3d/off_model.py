@@ -333,7 +333,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     from .kernels import tile_groups, tile_members
     from .kernels.linalg import noise_rms_bound
     from .fitting.primitives import Plane
-    from .plane_faces import ROBUST_CHUNKS, _plane_beside, _ray_fits, _ray_moments, _ray_plane, _ray_terms, robust_ray_plane
+    from .plane_faces import ROBUST_CHUNKS, _plane_beside, _ray_plane, _ray_terms, robust_ray_plane
     from .refinement.context import touching
     from .strips import _extended, _with_moved
 
