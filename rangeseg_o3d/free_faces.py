@@ -92,9 +92,7 @@ def faces_from_free(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.n
         mask = np.zeros((int(np.ptp(rows)) + 1, int(np.ptp(cols)) + 1), bool)
         mask[rows - rows.min(), cols - cols.min()] = True
         independent = noise.independent_returns(mask)
-        rays, _, _ = _ray_terms(xyz[face], flat_sigma[face])
-        cosine = float(np.median(np.abs(rays @ (a / max(float(np.linalg.norm(a)), 1e-300)))))
-        if (face.size < EXPLAINED_SHARE * union_size or independent < MIN_PIXELS or cosine >= GRAZING_COSINE
+        if (face.size < EXPLAINED_SHARE * union_size or independent < MIN_PIXELS or not _grazing(xyz, a, face)
                 or mean_square > noise_rms_bound.py_func(1.0, independent, CHI_SQUARE_SIGMAS) ** 2
                 or _surface_of(xyz, flat_sigma, out, face, a, planes)):
             continue
