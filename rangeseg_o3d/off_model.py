@@ -298,8 +298,8 @@ def _turned_plane(centre: np.ndarray, scatter: np.ndarray, count: int, model, ma
 
 
 #: Rings a face :func:`faces_along_rays` found may grow by, and give back (:func:`_grow_along_rays`):
-#: a strip 140 rows long from a seed of three 6-pixel tiles in its middle; each ring costs about
-#: a millisecond. (32 rings left a 120-row strip half grown when its plane was refitted, which
+#: a strip 140 rows long from a seed of three 6-pixel tiles in its middle (compiled, a ring looks
+#: only at the neighbours of the pixels the last one moved: kernels.grow_along_rays). (32 rings left a 120-row strip half grown when its plane was refitted, which
 #: then tilted 16 degrees towards the wall beside it: tests/test_off_model_faces.py, seed 1.)
 GROWTH_RINGS = 64
 #: Times a face's plane is refitted to the pixels it grew into (each followed by a growth; a
