@@ -17,7 +17,9 @@ import numpy as np
 
 from ..cloud import OrganizedCloud
 from .errors import AcquisitionError, DeviceTimeout, LmsDeviceReset, LmsProtocolError, PowerCubeProtocolError
-from .lms2xx import beam_angles
+from .lms2xx import beam_angles, stream_latency
+from .powercube import STATE, ramp_profile, ramp_time
+from .transport import sleep
 
 __all__ = ["PartialCapture", "CaptureProgress", "capture_stop_and_go", "capture_continuous", "capture",
            "open_devices", "initialise", "retries"]
@@ -214,43 +216,131 @@ def _capture_row(lms, tilt, config, k: int, target: float, partial: PartialCaptu
 def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     """One sweep from ``schedule.start`` to ``schedule.stop`` with the LMS streaming.
 
-    The tilt position is polled during the sweep; each scan's tilt is interpolated at
-    its timestamp (arrival time minus the transfer time at the line rate). Scans lost
-    to line errors are simply missing rows.
+    Every scan the LMS streamed is a row, however slow the host: the driver reads the port
+    in a thread and dates each scan by the arrival of its last byte, minus
+    ``config.scan_latency`` (default: half a mirror revolution plus the transfer time at
+    the line rate). The tilt is sampled all along, each sample dated by when its request
+    went out, from a reading at rest before the stream starts to one at rest after it
+    stops, and each scan's tilt is interpolated at its date. Scans lost to line errors are
+    simply missing rows. A failure keeps the rows whose tilt the samples so far bracket.
     """
-    s = config.schedule
     partial = _new_partial(config)
+    latency = config.scan_latency
+    if latency is None:
+        latency = stream_latency(partial.beam_angles.size, config.lms.baudrate)
+    scans, samples, ramp = [], [], []
     try:
-        _move(tilt, s.start, config)
-        tilt.set_ramp(config.continuous_velocity, config.tilt.acceleration)
-        lms.start_streaming()
-        latency = config.scan_latency
-        if latency is None:  # the scan was measured about one transfer time before it arrived
-            latency = (2 * partial.beam_angles.size + 10) * 10 / config.lms.baudrate
-        samples = [(time.monotonic(), tilt.position(confirmations=1))]
-        scans = []
-        tilt.move_to(s.stop)
-        deadline = time.monotonic() + abs(s.stop - s.start) / config.continuous_velocity * 3 + config.tilt.move_timeout
-        while time.monotonic() < deadline:
-            got = lms.read_streamed(config.tilt.poll_interval or 0.01)
-            if got is not None:
-                scans.append((got[1] - latency, got[0].ranges))
-            moving = tilt.state() & 0x800
-            samples.append((time.monotonic(), tilt.read_position()))
-            if not moving:
-                break
-        lms.stop_streaming()
-        tilt.set_ramp(config.tilt.velocity, config.tilt.acceleration)
-    except AcquisitionError as err:
-        raise _fail(err, partial, config) from None
-    t, pos = np.array(samples).T
-    wall = time.time() - time.monotonic()
-    for stamp, ranges in scans:
-        if t[0] <= stamp <= t[-1]:
-            partial.add(ranges, float(np.interp(stamp, t, pos)), stamp + wall)
+        _sweep(lms, tilt, config, scans, samples, ramp)
+    except BaseException as err:  # Ctrl-C, a vanished port: keep what was captured
+        _salvage(lms, scans)
+        _add_streamed_rows(partial, scans, samples, ramp, latency)
+        raise _fail(err, partial, config)
+    _add_streamed_rows(partial, scans, samples, ramp, latency)
     if not partial.n_rows:
         raise CaptureEmpty("the continuous sweep produced no scans")
     return partial.to_cloud()
+
+
+def _sweep(lms, tilt, config, scans: list, samples: list, ramp: list) -> None:
+    """Stream during the move, appending ``(scan, arrival)`` to ``scans`` and ``(time, tilt)`` to
+    ``samples``; ``ramp`` gets the move's start, target, velocity and acceleration."""
+    s = config.schedule
+    start = _move(tilt, s.start, config)
+    tilt.set_ramp(config.continuous_velocity, config.tilt.acceleration)
+    ramp.extend((start, s.stop, config.continuous_velocity, config.tilt.acceleration))
+    samples.append(tilt.timed_position())
+    lms.start_streaming()
+    samples.append((time.monotonic(), start))  # still at rest: the move has not been asked for
+    tilt.move_to(s.stop)
+    deadline = time.monotonic() + abs(s.stop - s.start) / config.continuous_velocity * 3 + config.tilt.move_timeout
+    while time.monotonic() < deadline:
+        sleep(config.tilt.poll_interval)
+        scans.extend(lms.drain_streamed())
+        moving = tilt.state() & STATE["motion"]
+        samples.append(tilt.timed_position())
+        if not moving:
+            break
+    lms.stop_streaming()
+    scans.extend(lms.drain_streamed())
+    samples.append(tilt.timed_position())  # after the last scan arrived
+    tilt.set_ramp(config.tilt.velocity, config.tilt.acceleration)
+
+
+def _salvage(lms, scans: list) -> None:
+    """Add the scans the driver still holds after a failed sweep (a second failure is only logged)."""
+    try:
+        scans.extend(lms.drain_streamed())
+    except Exception as again:  # the sweep's own error matters more
+        log.error("could not take the last streamed scans: %s", again)
+
+
+def _add_streamed_rows(partial: PartialCapture, scans: list, samples: list, ramp: list, latency: float) -> None:
+    """Rows for the scans whose date the tilt samples bracket, in arrival order, at the tilt of that date."""
+    if not scans or len(samples) < 2 or not ramp:
+        return
+    t = np.array([when for when, _ in samples])
+    stamps = np.array([arrival for _, arrival in scans]) - latency
+    inside = (stamps >= t[0]) & (stamps <= t[-1])
+    if not inside.all():
+        log.warning("%d of %d streamed scans fall outside the tilt samples and are left out",
+                    int((~inside).sum()), len(scans))
+    tilts = _tilts_at(stamps, samples, *ramp)
+    wall = time.time() - time.monotonic()
+    for (scan, _), stamp, angle, keep in zip(scans, stamps, tilts, inside):
+        if keep:
+            partial.add(scan.ranges, float(angle), float(stamp) + wall)
+
+
+def _tilts_at(stamps: np.ndarray, samples: list, start: float, target: float, velocity: float,
+              acceleration: float) -> np.ndarray:
+    """The tilt at host times ``stamps``, from the ``(time, tilt)`` samples of a trapezoidal move.
+
+    A slow host polls seldom, and a straight line between samples far apart cuts across the
+    ramp's bends. So the ramp itself is fitted to the samples taken in motion (the time each
+    one's angle is reached on the ramp, against its host time: a line gives the move's start
+    and its pace in host seconds), and only the samples' departures from it are interpolated
+    linearly: the samples keep the last word where the unit moved otherwise. A sample the
+    line misses by far more than the others (dated late: the host lost its core between the
+    request and reading the clock) is left out of both. With fewer than two samples in
+    motion, the samples alone are interpolated.
+    """
+    t, pos = np.array(samples, dtype=float).T
+    origin = t[0]  # host times are large: fit and evaluate from the first sample
+    t, stamps = t - origin, stamps - origin
+    distance, sign = abs(target - start), np.sign(target - start)
+    covered = sign * (pos - start)
+    moving = (covered > _AT_REST) & (covered < distance - _AT_REST)
+    if np.count_nonzero(moving) < 2:
+        return np.interp(stamps, t, pos)
+    fitted = _fit_ramp_clock(t[moving], ramp_time(distance, velocity, acceleration, covered[moving]))
+    if fitted is None:
+        return np.interp(stamps, t, pos)
+    pace, offset, inliers = fitted
+    kept = ~moving
+    kept[np.flatnonzero(moving)[inliers]] = True
+
+    def on_ramp(times):
+        return start + sign * ramp_profile(distance, velocity, acceleration, pace * times + offset)[0]
+
+    return on_ramp(stamps) + np.interp(stamps, t[kept], pos[kept] - on_ramp(t[kept]))
+
+
+def _fit_ramp_clock(host: np.ndarray, ramp: np.ndarray):
+    """(pace, offset, inliers) of ``ramp ~ pace * host + offset``, refitted without the points it
+    misses by more than three robust sigmas and ``_RAMP_SLACK``; None if it does not run forward."""
+    inliers = np.ones(host.size, dtype=bool)
+    for _ in range(3):
+        pace, offset = np.polyfit(host[inliers], ramp[inliers], 1)
+        miss = np.abs(ramp - (pace * host + offset))
+        again = miss <= max(3 * 1.4826 * np.median(miss[inliers]), _RAMP_SLACK)
+        if np.count_nonzero(again) < 2 or np.array_equal(again, inliers):
+            break
+        inliers = again
+    return (pace, offset, inliers) if pace > 0 else None
+
+
+_AT_REST = 1e-5  # rad: a sample this close to the start or the target may be at rest
+_RAMP_SLACK = 0.002  # s of the ramp's time (1 mrad at 0.5 rad/s): a sample this near the line is kept
 
 
 class CaptureEmpty(AcquisitionError):

@@ -84,7 +84,8 @@ class CaptureConfig(_Strict):
     discard_stale: bool = True
     row_retries: int = Field(3, ge=0, description="re-initialisations per row after a reset or silence")
     continuous_velocity: float = Field(0.2, gt=0, description="rad/s during a continuous sweep")
-    scan_latency: float | None = Field(None, ge=0, description="s from a streamed scan to its arrival; None: transfer time")
+    scan_latency: float | None = Field(None, ge=0, description="s from the middle of a streamed scan's measurement "
+                                       "to its last byte's arrival; None: half a mirror revolution plus the transfer time")
     partial_path: Path | None = None
 
 

@@ -36,6 +36,8 @@ __all__ = [
     "encode_scan_values",
     "scan_count",
     "beam_angles",
+    "SCAN_PERIOD",
+    "stream_latency",
     "VARIANTS",
     "MODE_INSTALLATION",
     "MODE_STREAM",
@@ -317,6 +319,27 @@ def scan_count(fov: int, resolution: int) -> int:
         raise ValueError(
             f"(fov, resolution) must be one of {sorted(VARIANTS)}; got ({fov}, {resolution})"
         ) from None
+
+
+#: one revolution of the LMS2xx mirror (75 Hz): one scan per period at 1 deg
+SCAN_PERIOD = 1.0 / 75.0
+
+
+def stream_latency(n_values: int, baudrate: int) -> float:
+    """Seconds from the middle of a streamed scan's measurement to its last byte's arrival.
+
+    The scan is measured during one mirror revolution (its middle half a period before the
+    revolution ends) and then sent: STX, address, length, command, count word, 2 bytes per
+    value, status and CRC, 10 bits a byte (8N1) at ``baudrate``.
+
+    Examples
+    --------
+    >>> round(stream_latency(181, 38400) * 1000, 1)
+    103.5
+    """
+    if n_values < 1 or baudrate <= 0:
+        raise ValueError(f"n_values must be >= 1 and baudrate > 0; got {n_values}, {baudrate}")
+    return SCAN_PERIOD / 2 + (2 * n_values + 10) * 10 / baudrate
 
 
 def beam_angles(fov: int, resolution: int) -> np.ndarray:

@@ -26,7 +26,7 @@ from .lms2xx import (
     scan_count,
 )
 from .consensus import consensus
-from .transport import open_transport, port_name, read_some, sleep
+from .transport import ChunkReader, open_transport, port_name, read_some, sleep
 
 __all__ = ["Lms2xx", "PROBE_ORDER"]
 
@@ -114,10 +114,17 @@ class Lms2xx:
         self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
         self._decoder = TelegramDecoder(replies=True)
         self._backlog: list = []  # events decoded after a reply (streamed scans), kept for read_streamed
+        self._reply_at = 0.0  # host time the chunk holding the last reply arrived
         self._received = bytearray()
+        self._streaming = False
+        self._reader: ChunkReader | None = None  # reads the port while the LMS streams
+        self._streamed: list[tuple[Scan, float]] = []  # (scan, arrival) not taken yet
 
     # -- low level --------------------------------------------------------------
     def close(self) -> None:
+        if self._reader is not None:
+            self._reader.stop()
+            self._reader = None
         close = getattr(self.transport, "close", None)
         if callable(close):
             close()
@@ -171,6 +178,7 @@ class Lms2xx:
                     return "broken", None, True
                 if event.command == reply_code:
                     self._backlog = events[n + 1 :]
+                    self._reply_at = last_rx
                     return "reply", event, True
                 if event.command in _RESET_CODES:
                     self.stats["resets"] += 1
@@ -181,6 +189,8 @@ class Lms2xx:
                     raise LmsProtocolError(
                         f"LMS on {self.port} rejected the request (0x92, data {event.data.hex(' ')})"
                     )
+                if self._streaming and event.command == 0xB0:
+                    self._keep_scans([event], last_rx)  # streamed before the device heard us
                 # anything else is a stale reply or a streamed scan: not ours
 
     def request(
@@ -193,6 +203,7 @@ class Lms2xx:
         timeout: float | None = None,
         ack_timeout: float | None = None,
         rescue=None,
+        keep_input: bool = False,
     ) -> Telegram:
         """Send ``payload`` and return the reply telegram, resending after NAK or corruption.
 
@@ -204,7 +215,12 @@ class Lms2xx:
             Only invalid answers came back ``attempts`` times.
         LmsDeviceReset
             The device announced a power-on / reset.
+
+        ``keep_input`` keeps what was received before the first send (a scan the LMS is
+        still streaming); resends start afresh. A request ends a threaded read of the stream.
         """
+        if self._reader is not None:
+            self._end_reader()
         reply_code = (payload[0] + 0x80) if reply_code is None else reply_code
         attempts = self.attempts if attempts is None else attempts
         reply_timeout = self.reply_timeout if reply_timeout is None else reply_timeout
@@ -214,8 +230,9 @@ class Lms2xx:
             rescue = self._rescue(reply_code)
         silent_since = time.monotonic()
         silent_in_a_row = 0
-        for _ in range(attempts):
-            self._flush()
+        for attempt in range(attempts):
+            if attempt or not keep_input:
+                self._flush()
             self.transport.write(frame)
             self.stats["sent"] += 1
             remaining = timeout - (time.monotonic() - silent_since)
@@ -241,10 +258,12 @@ class Lms2xx:
         )
 
     # -- commands ---------------------------------------------------------------
-    def set_mode(self, mode: int, *, password: bytes = PASSWORD, timeout: float | None = None) -> None:
+    def set_mode(self, mode: int, *, password: bytes = PASSWORD, timeout: float | None = None,
+                 keep_input: bool = False) -> None:
         """Operating mode change (0x20); installation mode sends the password."""
         payload = bytes([0x20, mode]) + (password if mode == MODE_INSTALLATION else b"")
-        reply = self.request(payload, 0xA0, reply_timeout=max(self.reply_timeout, timeout or 0))
+        reply = self.request(payload, 0xA0, reply_timeout=max(self.reply_timeout, timeout or 0),
+                             keep_input=keep_input)
         if not reply.data or reply.data[0] != 0:
             result = reply.data[0] if reply.data else None
             raise LmsProtocolError(f"LMS refused mode 0x{mode:02X} (result {result})")
@@ -443,35 +462,89 @@ class Lms2xx:
                 self.stats["bad_frames"] += 1
         raise LmsProtocolError(f"no consistent scan from the LMS on {self.port} after {attempts} attempts")
 
+    # -- streaming ----------------------------------------------------------------
     def start_streaming(self) -> None:
-        """Mode 0x24: the LMS sends every scan (75 Hz at 1 deg) until :meth:`stop_streaming`."""
-        self.set_mode(MODE_STREAM)
+        """Mode 0x24: the LMS sends scans back to back (every mirror revolution, 75 Hz, when
+        the line rate allows) until :meth:`stop_streaming`.
+
+        From the mode reply on, a thread reads the port (:class:`~.transport.ChunkReader`), so
+        each scan is dated by when its bytes arrived however busy the host is, and none is
+        lost to a host that falls behind. Take them with :meth:`drain_streamed` or
+        :meth:`read_streamed`.
+        """
+        self._streamed = []
+        self._streaming = True
+        try:
+            self.set_mode(MODE_STREAM)
+            events, self._backlog = self._backlog, []
+            self._keep_scans(events, self._reply_at)  # scans that came with the mode reply
+        except BaseException:
+            self._streaming = False
+            raise
+        self._reader = ChunkReader(self.transport, min(self.gap_timeout, 0.01))
 
     def stop_streaming(self) -> None:
-        self.set_mode(MODE_ON_REQUEST)
+        """Back to send-on-request mode (0x25).
+
+        The scans that arrived until then, and the one in flight while the device took the
+        mode change, stay for :meth:`drain_streamed`.
+        """
+        try:
+            self.set_mode(MODE_ON_REQUEST, keep_input=True)
+        finally:
+            self._streaming = False
+
+    def _end_reader(self) -> None:
+        """Stop the threaded read; decode what it and the port still hold."""
+        reader, self._reader = self._reader, None
+        reader.stop()
+        self._decode(reader.take())
+        self._decode(self._received_chunks(0.0))  # what came after the thread's last read
+
+    def _received_chunks(self, wait: float) -> list[tuple[float, bytes]]:
+        """Chunks received while streaming, each with its arrival time, waiting up to ``wait``."""
+        if self._reader is not None:
+            return self._reader.take(wait)
+        data = read_some(self.transport, wait)
+        return [(time.monotonic(), data)] if data else []
+
+    def _decode(self, chunks) -> None:
+        """Streamed chunks to scans, each dated by the arrival of the chunk holding its last byte."""
+        for arrival, data in chunks:
+            self._decoder.feed(data)
+            self._keep_scans(self._decoder.events(), arrival)
+
+    def _keep_scans(self, events, arrival: float) -> None:
+        for event in events:
+            if not isinstance(event, Telegram):
+                continue
+            if event.command in _RESET_CODES:
+                raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
+            if event.command == 0xB0:
+                try:
+                    self._streamed.append((self._check(event), arrival))
+                except LmsProtocolError:
+                    self.stats["bad_frames"] += 1
+
+    def drain_streamed(self) -> list[tuple[Scan, float]]:
+        """Every valid streamed scan received and not taken yet, oldest first, without waiting.
+
+        Each comes with the host time (``time.monotonic``) the chunk holding its last byte
+        arrived. Corrupted scans are skipped (counted in ``stats["bad_frames"]``); a
+        power-on telegram raises :class:`LmsDeviceReset`.
+        """
+        if self._streaming:
+            self._decode(self._received_chunks(0.0))
+        scans, self._streamed = self._streamed, []
+        return scans
 
     def read_streamed(self, timeout: float) -> tuple[Scan, float] | None:
-        """Next valid streamed scan and the host time its last byte arrived, or None after ``timeout``.
-
-        Corrupted scans are skipped; a power-on telegram raises :class:`LmsDeviceReset`.
-        """
+        """The oldest streamed scan not taken yet and the host time its last byte arrived,
+        or None if none arrives within ``timeout`` (see :meth:`drain_streamed`)."""
         deadline = time.monotonic() + timeout
-        while True:
-            events, self._backlog = self._backlog + self._decoder.events(), []
-            for n, event in enumerate(events):
-                if isinstance(event, Telegram):
-                    if event.command in _RESET_CODES:
-                        raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
-                    if event.command == 0xB0:
-                        try:
-                            scan = self._check(event)
-                            self._backlog = events[n + 1 :]
-                            return scan, time.monotonic()
-                        except LmsProtocolError:
-                            self.stats["bad_frames"] += 1
+        while not self._streamed:
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if remaining <= 0 or not self._streaming:
                 return None
-            data = read_some(self.transport, min(remaining, self.gap_timeout))
-            if data:
-                self._decoder.feed(data)
+            self._decode(self._received_chunks(min(remaining, self.gap_timeout)))
+        return self._streamed.pop(0)

@@ -13,8 +13,11 @@ Examples
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
+
+import numpy as np
 
 from .errors import PowerCubeProtocolError
 
@@ -36,6 +39,8 @@ __all__ = [
     "FrameDecoder",
     "pack_float",
     "unpack_float",
+    "ramp_profile",
+    "ramp_time",
 ]
 
 STX, ETX, DLE = 0x02, 0x03, 0x10
@@ -66,6 +71,49 @@ STATE = {
     "ramp_end": 0x8000,
 }
 _SPECIAL = (STX, ETX, DLE)
+
+
+def _ramp_phases(distance: float, velocity: float, acceleration: float) -> tuple[float, float, float]:
+    """(time accelerating, time cruising, top velocity) of a trapezoidal ramp over ``distance``."""
+    t_acc = velocity / acceleration
+    if acceleration * t_acc**2 > distance:  # never reaches cruise speed
+        t_acc = math.sqrt(distance / acceleration)
+        velocity = acceleration * t_acc
+    cruise = (distance - acceleration * t_acc**2) / velocity if velocity > 0 else 0.0
+    return t_acc, cruise, velocity
+
+
+def ramp_profile(distance: float, velocity: float, acceleration: float, t) -> tuple[np.ndarray, float]:
+    """An FRAMP move's trapezoidal ramp: (distance covered at time(s) ``t`` since it began, duration).
+
+    Accelerates at ``acceleration`` to ``velocity``, cruises, decelerates; a move too short
+    to reach ``velocity`` turns at half way. Times before the start cover 0, after the end
+    ``distance``.
+    """
+    t_acc, cruise, velocity = _ramp_phases(distance, velocity, acceleration)
+    total = 2 * t_acc + cruise
+    t = np.clip(np.asarray(t, dtype=float), 0.0, total)
+    rest = total - t
+    covered = np.where(t < t_acc, 0.5 * acceleration * t**2,
+                       np.where(t < t_acc + cruise, 0.5 * acceleration * t_acc**2 + velocity * (t - t_acc),
+                                distance - 0.5 * acceleration * rest**2))
+    return covered, total
+
+
+def ramp_time(distance: float, velocity: float, acceleration: float, covered) -> np.ndarray:
+    """Inverse of :func:`ramp_profile`: time(s) since the move began at which ``covered`` was covered.
+
+    Examples
+    --------
+    >>> round(float(ramp_time(0.5, 0.5, 1.0, ramp_profile(0.5, 0.5, 1.0, 1.2)[0])), 9)
+    1.2
+    """
+    t_acc, cruise, velocity = _ramp_phases(distance, velocity, acceleration)
+    covered = np.clip(np.asarray(covered, dtype=float), 0.0, distance)
+    ramp = 0.5 * acceleration * t_acc**2  # distance covered while accelerating, and while braking
+    return np.where(covered < ramp, np.sqrt(2 * covered / acceleration),
+                    np.where(covered < distance - ramp, t_acc + (covered - ramp) / velocity,
+                             2 * t_acc + cruise - np.sqrt(2 * np.maximum(distance - covered, 0.0) / acceleration)))
 
 
 def bcc(body: bytes) -> int:

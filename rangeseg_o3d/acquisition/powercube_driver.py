@@ -51,6 +51,7 @@ class PowerCube(TiltUnit):
         self.poll_interval = poll_interval
         self.stats = {"sent": 0, "bad_frames": 0, "silent": 0}
         self._decoder = FrameDecoder()
+        self._answered_sent_at = float("nan")  # host time the last answered request went out
 
     def close(self) -> None:
         close = getattr(self.transport, "close", None)
@@ -96,9 +97,11 @@ class PowerCube(TiltUnit):
                 reset()
             self._decoder.clear()
             self.transport.write(frame)
+            sent_at = time.monotonic()
             self.stats["sent"] += 1
             reply, heard = self._await(echo, self.reply_timeout)
             if reply is not None:
+                self._answered_sent_at = sent_at
                 return reply
             if heard:
                 silent_since = time.monotonic()
@@ -146,6 +149,15 @@ class PowerCube(TiltUnit):
         if not math.isfinite(value):
             raise PowerCubeProtocolError(f"position reply is not a finite number: {value}")
         return value
+
+    def timed_position(self) -> tuple[float, float]:
+        """(host time the position request went out, actual position in rad) of a moving unit.
+
+        The module reads its angle when the request reaches it, so the time the request left
+        dates the angle, however late the host gets to the reply.
+        """
+        value = self.read_position()
+        return self._answered_sent_at, value
 
     def position(self, *, confirmations: int = 2) -> float:
         """Actual position (rad): read until ``confirmations`` reads in a row agree.

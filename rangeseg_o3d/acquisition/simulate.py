@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .capture import capture
 from .config import CaptureConfig, load_capture_config
-from .lms2xx import scan_count
+from .lms2xx import scan_count, stream_latency
 
 __all__ = ["simulated_capture", "simulation_config"]
 
@@ -45,8 +45,8 @@ def simulation_config(config=None, *, lms_port: str, tilt_port: str, time_scale:
         # means a move command corrupted past the 8-bit BCC, to be sent again.
         tilt_settings["position_tolerance"] = _SIM_POSITION_TOLERANCE
     tilt = config.tilt.model_copy(update={"port": tilt_port, **tilt_settings})
-    transfer = (2 * scan_count(config.lms.fov, config.lms.resolution) + 10) * 10 / config.lms.baudrate
-    latency = config.scan_latency if config.scan_latency is not None else transfer * time_scale
+    device_latency = stream_latency(scan_count(config.lms.fov, config.lms.resolution), config.lms.baudrate)
+    latency = config.scan_latency if config.scan_latency is not None else device_latency * time_scale
     return config.model_copy(update={"lms": lms, "tilt": tilt, "scan_latency": latency})
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 
 __all__ = ["TiltUnit"]
@@ -27,6 +28,16 @@ class TiltUnit(ABC):
     @abstractmethod
     def position(self) -> float:
         """The actual angle, read back from the unit."""
+
+    def timed_position(self) -> tuple[float, float]:
+        """(host ``time.monotonic()``, actual angle) while the unit may be moving.
+
+        This default dates :meth:`position` by the middle of the call; a driver that knows
+        when the unit read its angle says so instead.
+        """
+        before = time.monotonic()
+        angle = self.position()
+        return 0.5 * (before + time.monotonic()), angle
 
     @abstractmethod
     def halt(self) -> None:

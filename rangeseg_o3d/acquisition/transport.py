@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import queue
 import select
+import threading
 import time
 
 from .logged_transport import LoggedTransport, port_name
 
-__all__ = ["open_transport", "port_name", "read_some"]
+__all__ = ["open_transport", "port_name", "read_some", "ChunkReader"]
 
 _REQUIRED = ("read", "write")
 
@@ -81,6 +83,66 @@ def read_some(transport, wait: float) -> bytes:
         if more:
             data += transport.read(more)
     return bytes(data)
+
+
+class ChunkReader:
+    """Reads a port in a thread, each chunk with the host time it arrived.
+
+    A host that is busy elsewhere (a slow query to another device, a loaded machine) would
+    otherwise read late what arrived early, and date it late. The thread waits in
+    :func:`read_some` (``select`` releases the interpreter), so it takes bytes as they come.
+    Nothing else may read the port while the reader runs.
+
+    Parameters
+    ----------
+    transport : transport
+        The port to read (as :func:`open_transport` returns it).
+    wait : float
+        Longest single wait for bytes, in seconds: how soon :meth:`stop` takes effect.
+    """
+
+    def __init__(self, transport, wait: float = 0.005):
+        if not wait > 0:
+            raise ValueError(f"wait must be positive; got {wait}")
+        self._transport = transport
+        self._wait = float(wait)
+        self._chunks: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=f"reader-{port_name(transport)}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                data = read_some(self._transport, self._wait)
+                if data:
+                    self._chunks.put((time.monotonic(), data))
+        except BaseException as err:  # a port that went away: raised to the caller by take()
+            self.error = err
+
+    def take(self, wait: float = 0.0) -> list[tuple[float, bytes]]:
+        """Every ``(arrival time, bytes)`` chunk not taken yet, oldest first, waiting up to
+        ``wait`` seconds for the first; raises what stopped the thread once its chunks are taken."""
+        chunks = []
+        try:
+            chunks.append(self._chunks.get(timeout=wait) if wait > 0 else self._chunks.get_nowait())
+            while True:
+                chunks.append(self._chunks.get_nowait())
+        except queue.Empty:
+            pass
+        if not chunks and self.error is not None:
+            raise self.error
+        return chunks
+
+    def stop(self) -> None:
+        """End the thread (within ``wait``); chunks not taken yet stay for :meth:`take`."""
+        self._stop.set()
+        self._thread.join()
+
+    @property
+    def running(self) -> bool:
+        return self._thread.is_alive()
 
 
 def sleep(seconds: float) -> None:

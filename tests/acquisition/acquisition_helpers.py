@@ -2,11 +2,12 @@
 
 import numpy as np
 
+from rangeseg_o3d.acquisition.lms2xx import SCAN_PERIOD
+from rangeseg_o3d.acquisition.powercube import ramp_profile
 from rangeseg_o3d.geometry import NoddingGeometry, nodding_rays
 
 WALL_X = 3.0
 MOUNT = (0.0, 0.0, 0.1)
-
 
 
 def wall_ranges(tilt, beams, *, mount=MOUNT, tilt_sign=1.0, wall_x=WALL_X):
@@ -16,3 +17,13 @@ def wall_ranges(tilt, beams, *, mount=MOUNT, tilt_sign=1.0, wall_x=WALL_X):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (wall_x - o[:, 0]) / d[:, 0]
     return np.where(np.isfinite(t) & (t > 0), t, np.inf)
+
+
+def scans_in_sweep(start, stop, velocity, acceleration=1.0, baudrate=38400, margin=1e-3):
+    """Scans an LMS streams (181 values) while a trapezoidal move from ``start`` to ``stop`` is
+    more than ``margin`` rad from both: the time it spends there over the stream's beat, one
+    scan per mirror revolution or per transfer when the line is slower."""
+    duration = ramp_profile(abs(stop - start), velocity, acceleration, 0.0)[1]
+    at_ends = 2 * np.sqrt(2 * margin / acceleration)  # time to leave the start and to reach the stop by margin
+    beat = max(SCAN_PERIOD, (2 * 181 + 10) * 10 / baudrate)
+    return (duration - at_ends) / beat

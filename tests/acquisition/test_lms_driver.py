@@ -214,6 +214,46 @@ def test_streaming(scripted):
     lms.stop_streaming()
 
 
+def test_scans_arriving_apart_keep_their_arrival_times_when_taken_late(scripted):
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00")), (req("20 25"), ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    arrived = []
+    for r in (1.0, 2.0):
+        arrived.append(time.monotonic())
+        transport._rx += encode_telegram(encode_scan_values(np.full(2, r)), 0x80)
+        time.sleep(0.1)
+    scans = lms.drain_streamed()  # 0.1 s after the last arrival: a host that was busy elsewhere
+    assert [scan.ranges[0] for scan, _ in scans] == [1.0, 2.0]
+    stamps = np.array([stamp for _, stamp in scans])
+    # read by the driver's thread as they came (its wait is gap_timeout = 10 ms), not when taken
+    assert np.all(stamps - arrived >= 0) and np.all(stamps - arrived < 0.05), stamps - arrived
+    lms.stop_streaming()
+    assert lms.drain_streamed() == [] and lms.read_streamed(0.01) is None
+
+
+def test_scan_in_flight_when_streaming_stops_is_kept(scripted):
+    in_flight = encode_telegram(encode_scan_values(np.full(2, 3.0)), 0x80)
+    _, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00")), (req("20 25"), in_flight + ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    assert lms.drain_streamed() == []
+    lms.stop_streaming()
+    (scan, _), = lms.drain_streamed()
+    assert scan.ranges.tolist() == [3.0, 3.0]
+
+
+def test_reset_while_streaming_raises(scripted):
+    power_on = encode_telegram(b"\x90" + b"LMS200;30106" + b"\x10", 0x80)
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    transport._rx += power_on
+    with pytest.raises(LmsDeviceReset, match="while streaming"):
+        lms.read_streamed(0.5)
+    lms.close()
+
+
 def test_loop_transport_own_echo_is_not_a_reply():
     import serial  # pyserial is a core dependency
     port = serial.serial_for_url("loop://", timeout=0.01)

@@ -1,6 +1,7 @@
 """The shipped protocol test helper (expected_protocol, ScriptedTransport) and the debug log of every exchange."""
 
 import doctest
+import time
 import logging
 
 import pytest
@@ -105,3 +106,37 @@ def test_a_named_port_is_logged_under_its_name(caplog):
     assert port.read(2) == b"\xab\xcd"
     port.close()
     assert [r.getMessage() for r in caplog.records if r.name == LOGGER] == ["loop:// > ab cd", "loop:// < ab cd"]
+
+
+def test_chunk_reader_dates_chunks_by_arrival_and_reports_a_dead_port():
+    from rangeseg_o3d.acquisition.transport import ChunkReader
+
+    class Vanishing(ScriptedTransport):
+        def read(self, size=1):
+            if self.gone:
+                raise OSError(5, "Input/output error")
+            return super().read(size)
+
+    port = Vanishing([])
+    port.gone = False
+    with pytest.raises(ValueError, match="wait must be positive; got 0"):
+        ChunkReader(port, 0)
+    reader = ChunkReader(port, 0.005)
+    port._rx += b"ab"
+    arrived = time.monotonic()
+    time.sleep(0.1)
+    (stamp, data), = reader.take()
+    assert data == b"ab" and 0 <= stamp - arrived < 0.05
+    port.gone = True
+    with pytest.raises(OSError, match="Input/output"):
+        reader.take(wait=0.5)
+    reader.stop()
+    assert not reader.running
+
+
+def test_stream_latency_is_half_a_revolution_and_the_transfer():
+    from rangeseg_o3d.acquisition.lms2xx import SCAN_PERIOD, stream_latency
+
+    assert stream_latency(181, 500000) == pytest.approx(SCAN_PERIOD / 2 + 372 * 10 / 500000)
+    with pytest.raises(ValueError, match="baudrate > 0; got 181, 0"):
+        stream_latency(181, 0)

@@ -15,19 +15,20 @@ from ..lms2xx import (
     MODE_STREAM,
     NAK,
     PASSWORD,
+    SCAN_PERIOD,
     BadFrame,
     Telegram,
     TelegramDecoder,
     beam_angles,
     encode_scan_values,
     encode_telegram,
+    scan_count,
 )
 from .clock import SimClock
 from .pty import Output
 
 __all__ = ["VirtualLms200", "beam_angles", "MAX_RANGE_MM", "SCAN_PERIOD"]
 
-SCAN_PERIOD = 1.0 / 75.0  # mirror revolution
 MAX_RANGE_MM = 8.183
 _STATUS = 0x10
 _TYPE = b"LMS200;30106"
@@ -84,6 +85,7 @@ class VirtualLms200:
         self.rng = np.random.default_rng(seed)
         self.config = bytearray(34)  # EEPROM: survives a power cycle; units byte 6 = 0 (cm)
         self.scan_requests = 0
+        self.streamed = 0  # scans sent in streaming mode
         self.resets = 0
         self._decoder = TelegramDecoder(replies=False)
         self._last_input = 0.0
@@ -225,13 +227,23 @@ class VirtualLms200:
         return outputs
 
     def tick(self) -> list[Output]:
-        """In streaming mode, the next scan once the line is free."""
+        """In streaming mode, the next scan once the line is free.
+
+        Scans keep the device's own beat, one per mirror revolution or per transfer when
+        the line is slower: a scan due at ``start`` was measured over the revolution before
+        it and its last byte leaves ``start`` + transfer, however late this thread runs
+        (the simulator's own delays must not slow the stream down). A simulator a whole
+        scan behind starts a new beat.
+        """
         if self.mode != MODE_STREAM or self.silent:
             return []
         now = self.clock.now()
         if now < self._next_stream:
             return []
-        frame = self._scan_telegram(self.tilt_at(now - SCAN_PERIOD / 2))
-        transfer = len(frame) * 10 / self.baudrate
-        self._next_stream = now + max(SCAN_PERIOD, transfer)
-        return [Output(transfer, frame, self.baudrate)]
+        transfer = (2 * scan_count(*self.variant) + 10) * 10 / self.baudrate
+        beat = max(SCAN_PERIOD, transfer)
+        start = self._next_stream if now - self._next_stream < beat else now
+        frame = self._scan_telegram(self.tilt_at(start - SCAN_PERIOD / 2))
+        self._next_stream = start + beat
+        self.streamed += 1
+        return [Output(max(start + transfer - now, 0.0), frame, self.baudrate)]

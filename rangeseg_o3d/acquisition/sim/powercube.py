@@ -7,31 +7,14 @@ import struct
 
 import numpy as np
 
-from ..powercube import CMD, FROM_MODULE, MOTION, PARAM, STATE, Frame, FrameDecoder, encode_frame, pack_float
+from ..powercube import (CMD, FROM_MODULE, MOTION, PARAM, STATE, Frame, FrameDecoder, encode_frame, pack_float,
+                         ramp_profile)
 from .clock import SimClock
 from .pty import Output
 
 __all__ = ["VirtualPowerCube", "ramp_profile"]
 
 _LIMIT = math.pi / 2
-
-
-def ramp_profile(distance: float, velocity: float, acceleration: float, t: float) -> tuple[float, float]:
-    """Trapezoidal ramp: (distance covered at time ``t``, total duration)."""
-    t_acc = velocity / acceleration
-    if acceleration * t_acc**2 > distance:  # never reaches cruise speed
-        t_acc = math.sqrt(distance / acceleration)
-        velocity = acceleration * t_acc
-    cruise = (distance - acceleration * t_acc**2) / velocity if velocity > 0 else 0.0
-    total = 2 * t_acc + cruise
-    if t >= total:
-        return distance, total
-    if t < t_acc:
-        return 0.5 * acceleration * t**2, total
-    if t < t_acc + cruise:
-        return 0.5 * acceleration * t_acc**2 + velocity * (t - t_acc), total
-    rest = total - t
-    return distance - 0.5 * acceleration * rest**2, total
 
 
 def _f32(value: float) -> float:
@@ -77,7 +60,7 @@ class VirtualPowerCube:
         covered, total = ramp_profile(abs(target - start), velocity, acceleration, t - t0)
         if t - t0 >= total:
             return target
-        return start + math.copysign(covered, target - start)
+        return start + math.copysign(float(covered), target - start)
 
     def moving_at(self, t: float) -> bool:
         start, target, t0, velocity, acceleration = self._move
