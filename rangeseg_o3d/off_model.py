@@ -323,7 +323,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     within TRIM_SIGMAS of that noise, scattering within the chi-square bound of their
     count, and is turned from the owner's model and from every plane region it touches by
     more than ``max_angle_deg`` and more than ``CHI_SQUARE_SIGMAS`` times the noise of its tilt
-    (:func:`_turned_along_rays`; a plane region that explains it along the rays within their
+    (:func:`_tilt_bound`, :func:`_turned_from`; a plane region that explains it along the rays within their
     noise takes none: it is a piece of that region): how many pixels settle a face is the
     noise's to say, not a count of tiles. A face takes those pixels, grows into the pixels on
     its side of the crease with each plane region beside it (:func:`_grow_along_rays`), is
@@ -348,13 +348,16 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}
     order = np.argsort(of_pixel, kind="stable")
     bounds = np.searchsorted(of_pixel[order], np.arange(int(group.max()) + 2))
+    models = [fits.get(int(np.bincount(owners[entries[order[b0:b1]]]).argmax())) if b1 > b0 else None
+              for b0, b1 in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
+    ruled_out = _ruled_out(xyz, noise, pixels[order], bounds, w, floor, models, max_angle_deg)
     faces = []
     for g in range(bounds.size - 1):
         members = order[bounds[g]:bounds[g + 1]]
-        if members.size < max(floor, 3 * ROBUST_CHUNKS):
+        if ruled_out[g] or members.size < max(floor, 3 * ROBUST_CHUNKS):
             continue
         idx = pixels[members]
-        model = fits.get(int(np.bincount(owners[entries[members]]).argmax()))
+        model = models[g]
         points = xyz[idx]
         rays, inverse, weight = _ray_terms(points, noise[idx])
         rows, cols = np.divmod(idx, w)
@@ -369,10 +372,13 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
             continue
         # turned from the model it lies off, and from every plane region it touches (one it is
         # not turned from, within the noise of its tilt, is the surface it is a piece of)
-        inside = np.argsort(idx[keep], kind="stable")
-        around = [model] + [planes[k] for k in sorted(touching(labels, idx[keep][inside], 1)) if k in planes]
+        tilt = _tilt_bound(a, rays[keep], weight[keep], max_angle_deg)
         centre = points[keep].mean(axis=0)
-        if not all(_turned_along_rays(a, rays[keep], weight[keep], centre, other, max_angle_deg) for other in around):
+        if tilt is None or not _turned_from(tilt, centre, model):
+            continue
+        inside = np.argsort(idx[keep], kind="stable")
+        around = [planes[k] for k in sorted(touching(labels, idx[keep][inside], 1)) if k in planes]
+        if not all(_turned_from(tilt, centre, other) for other in around):
             continue
         # a piece of a plane region the scan has (whose tile model its pixels left): not a face
         beside, _ = _plane_beside(labels, 0, idx[keep][inside], rays[keep][inside], inverse[keep][inside],
@@ -393,12 +399,13 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
         flat[kept] = first + j
         fits[first + j] = plane
     rows = _plane_rows(fits, first + len(faces))
+    units = _unit_rows(rows)  # (each row alone: a refit sets its face's rows of both)
     # every pixel a face may hold, increasing: those it was given and those its growth moved
     # (another face's growth only takes from it), so no pass over the frame finds its pixels
     held = [np.unique(kept) for kept, _, _ in faces]
 
     def grow(j):  # (one face at a time: each in its own box)
-        moved[j].append(_grow_along_rays(xyz, out, rows, first + j, held[j], noise, k_sigma, max_angle_deg))
+        moved[j].append(_grow_along_rays(xyz, out, rows, units, first + j, held[j], noise, k_sigma, max_angle_deg))
         held[j] = np.union1d(held[j], moved[j][-1])
 
     for _ in range(REFITS):
@@ -410,6 +417,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
             if plane is not None:
                 fits[first + j] = plane
                 rows[first + j] = _plane_rows({first + j: plane}, first + j + 1)[first + j]
+                units[first + j] = _unit_rows(rows[first + j:first + j + 1])[0]
     for j in range(len(faces)):
         grow(j)
     fate = _fates(xyz, noise, out, fits, first, [pixels[flat[pixels] == first + j] for j, pixels in enumerate(held)])
@@ -435,32 +443,71 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     return out, fits, _with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 
-def _turned_along_rays(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, centre: np.ndarray, model,
-                       max_angle_deg: float) -> bool:
-    """Whether the plane ``a . p = 1`` fitted along ``rays`` (inverse-range weights ``weight``,
-    :func:`rangeseg_o3d.plane_faces._ray_terms`) is turned from ``model``'s normal at ``centre``
-    by more than ``max_angle_deg`` and by more than ``CHI_SQUARE_SIGMAS`` times the noise of its
-    tilt: the largest standard deviation of its unit normal across itself, from the fit's
-    covariance ``(sum w u u^T)^-1`` (rays that span little of the sky leave it large)."""
+#: Relative distance from a threshold within which :func:`_ruled_out`'s compiled arithmetic
+#: leaves a decision to numpy's. The two round differently (their own 3x3 solves and sums);
+#: the kernel takes no tilt decision on sums whose condition number passes 1e9, so that the
+#: difference, about that number times 1e-16, stays far under it.
+SCREEN_TOLERANCE = 1e-5
+
+
+def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.ndarray, width: int, floor: int,
+               models: list, max_angle_deg: float) -> np.ndarray:
+    """Per group of :func:`faces_along_rays` (its flat pixels ``idx[bounds[g]:bounds[g + 1]]``,
+    the model most of them were taken by ``models[g]``): True when it certainly holds no face,
+    its plane along the rays failing the gates ``faces_along_rays`` puts first, the turn from
+    a plane owner's included (:func:`rangeseg_o3d.kernels.ray_groups_ruled_out`: compiled, all
+    groups in one pass; only a decision clear of its threshold by ``SCREEN_TOLERANCE`` rules a
+    group out, so those left give numpy's answers, and the faces are the same)."""
+    from .fitting.primitives import Plane
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels import ray_groups_ruled_out
+    from .plane_faces import ROBUST_CHUNKS, TRIM_PASSES, TRIM_SIGMAS
+
+    facing = np.full((len(models), 3), np.nan)
+    for g, model in enumerate(models):
+        if isinstance(model, Plane):
+            facing[g] = np.asarray(model.normal, dtype=np.float64) / float(np.linalg.norm(model.normal))
+    out = ray_groups_ruled_out(xyz, noise, np.ascontiguousarray(idx, dtype=np.int64),
+                               np.ascontiguousarray(bounds, dtype=np.int64), int(width), int(floor), facing,
+                               float(np.radians(max_angle_deg)), float(CHI_SQUARE_SIGMAS), float(TRIM_SIGMAS),
+                               int(ROBUST_CHUNKS), int(TRIM_PASSES), SCREEN_TOLERANCE)
+    return out | np.array([model is None for model in models], dtype=bool)
+
+
+def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
+    """``(unit normal, angle)``: the normal of the plane ``a . p = 1`` fitted along ``rays``
+    (inverse-range weights ``weight``, :func:`rangeseg_o3d.plane_faces._ray_terms`) and the
+    angle it must be turned by from a model to stand apart from it (:func:`_turned_from`): the
+    largest of ``max_angle_deg`` and ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the
+    largest standard deviation of its unit normal across itself, from the fit's covariance
+    ``(sum w u u^T)^-1`` (rays that span little of the sky leave it large). None when ``a`` is
+    no plane or that covariance is singular (turned from nothing). The same for every model
+    it is tested against: computed once per plane."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
 
     size = float(np.linalg.norm(a))
     if not np.isfinite(size) or size <= 0.0:
-        return False
+        return None
     normal = a / size
-    facing = np.asarray(model.normals(centre[None]), dtype=np.float64)[0]
-    norm = float(np.linalg.norm(facing))
-    if norm <= 0.0:
-        return False
     outer = (weight[:, None] * rays).T @ rays
     try:
         covariance = np.linalg.inv(outer)
     except np.linalg.LinAlgError:
-        return False
+        return None
     across = np.eye(3) - np.outer(normal, normal)
     tilt_noise = np.sqrt(max(float(np.linalg.eigvalsh(across @ covariance @ across)[-1]), 0.0)) / size
-    angle = np.arccos(min(abs(float(normal @ facing)) / norm, 1.0))
-    return bool(angle > max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise))
+    return normal, max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise)
+
+
+def _turned_from(tilt: tuple, centre: np.ndarray, model) -> bool:
+    """Whether the plane of ``tilt`` (:func:`_tilt_bound`) is turned from ``model``'s normal at
+    ``centre`` by more than its angle (False where the model has no normal there)."""
+    normal, bound = tilt
+    facing = np.asarray(model.normals(centre[None]), dtype=np.float64)[0]
+    norm = float(np.linalg.norm(facing))
+    if norm <= 0.0:
+        return False
+    return bool(np.arccos(min(abs(float(normal @ facing)) / norm, 1.0)) > bound)
 
 
 def _plane_rows(fits: dict, n: int) -> np.ndarray:
@@ -475,10 +522,17 @@ def _plane_rows(fits: dict, n: int) -> np.ndarray:
     return planes
 
 
-def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, face: int, held: np.ndarray,
-                     noise: np.ndarray, k_sigma: float, max_angle_deg: float) -> np.ndarray:
+def _unit_rows(planes: np.ndarray) -> np.ndarray:
+    """The rows of ``planes`` (:func:`_plane_rows`) scaled to unit length, each row on its own
+    (NaN rows stay NaN)."""
+    return planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
+
+
+def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, units: np.ndarray, face: int,
+                     held: np.ndarray, noise: np.ndarray, k_sigma: float, max_angle_deg: float) -> np.ndarray:
     """The face ``face`` of ``out`` (in place; its flat pixels among ``held``, increasing;
-    ``planes``: every label's plane row, :func:`_plane_rows`, one for each label of ``out``)
+    ``planes``: every label's plane row, :func:`_plane_rows`, one for each label of ``out``;
+    ``units``: those rows of unit length, :func:`_unit_rows`)
     grows ring by ring (:func:`rangeseg_o3d.kernels.grow_along_rays`: 4-neighbours, at most
     ``GROWTH_RINGS``) into the free pixels whose range its plane meets within ``k_sigma``
     range-noise sigmas (``noise``, flat), and into those of a plane region beside it on the
@@ -499,7 +553,6 @@ def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, face:
     mine = held[flat[held] == face]
     if not mine.size:
         return np.zeros(0, np.int64)
-    units = planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
     centre = xyz[mine].mean(axis=0)
     # per region k: the face on the sensor's side of its plane (a . c < 1: nearer along the
     # ray), and the two planes turned from each other
@@ -520,7 +573,7 @@ def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, sou
     The choice depends on the rays alone, not on the ranges the noise moved. None when no
     plane comes out."""
     from .fitting.primitives import Plane
-    from .plane_faces import _ray_fits, _ray_moments, _ray_plane, _ray_terms
+    from .plane_faces import _ray_moments, _ray_plane, _ray_solutions, _ray_terms
 
     points = xyz[mine]
     rays, inverse, weight = _ray_terms(points, noise[mine])
@@ -529,7 +582,7 @@ def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, sou
         apart = apart * np.sqrt(weight) > k_sigma
         if np.count_nonzero(apart) >= max(floor, 3):
             rays, inverse, weight, points = rays[apart], inverse[apart], weight[apart], points[apart]
-    _, a = _ray_fits(_ray_moments(rays, inverse, weight))
+    a = _ray_solutions(*_ray_moments(rays, inverse, weight)[:2])
     return _ray_plane(a[0], points)
 
 

@@ -197,10 +197,16 @@ def _ray_fits(moments: tuple) -> tuple[np.ndarray, np.ndarray]:
     ``moments = (sum w u u^T, sum w q u, sum w q^2)``: the planes ``a . p = 1`` and their
     sums of squared inverse-range residuals in units of their noise."""
     outer, first, second = moments
+    a = _ray_solutions(outer, first)
+    return second - np.einsum("ki,ki->k", first, a), a
+
+
+def _ray_solutions(outer: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """The planes ``a`` of :func:`_ray_fits` alone (stacked sums ``sum w u u^T``, ``sum w q u``),
+    for callers that do not read the chi-square."""
     # a ridge of 1e-12 of the trace: the rays of one column of pixels span a plane only
     ridge = 1e-12 * np.trace(outer, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
-    a = np.linalg.solve(outer + ridge, first[..., None])[..., 0]
-    return second - np.einsum("ki,ki->k", first, a), a
+    return np.linalg.solve(outer + ridge, first[..., None])[..., 0]
 
 
 def _ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray):
@@ -620,6 +626,9 @@ def _plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray,
 TRIM_PASSES = 3
 #: Equal-count pieces along a strip of which :func:`robust_ray_plane` leaves out up to two.
 ROBUST_CHUNKS = 8
+#: The pairs of chunks :func:`robust_ray_plane` leaves out together, in row-major order (once:
+#: np.triu_indices cost more than the rest of a small strip's fit).
+_CHUNK_PAIRS = np.triu_indices(ROBUST_CHUNKS, 1)
 
 
 def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, rows: np.ndarray,
@@ -638,7 +647,7 @@ def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, 
     n = inverse.size
     if n < 3 * ROBUST_CHUNKS:
         return None
-    along = cols if np.ptp(cols) >= np.ptp(rows) else rows
+    along = cols if cols.max() - cols.min() >= rows.max() - rows.min() else rows
     order = np.argsort(along, kind="stable")
     chunk = np.empty(n, np.int64)
     chunk[order] = np.arange(n) * ROBUST_CHUNKS // n
@@ -648,9 +657,9 @@ def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, 
     total = sums.sum(axis=0)
     # every set of chunks leaving out none, one or two of them (pairs in row-major order),
     # solved at once
-    one, other = np.triu_indices(ROBUST_CHUNKS, 1)
+    one, other = _CHUNK_PAIRS
     stacked = np.concatenate([total[None], total - sums, total - (sums[one] + sums[other])])
-    _, planes = _ray_fits(_split_columns(stacked))
+    planes = _ray_solutions(*_split_columns(stacked)[:2])
     squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
     within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
     # the least truncated chi-square (a pixel off by more than TRIM_SIGMAS counts as that):
@@ -661,7 +670,7 @@ def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, 
     if not keep.any():
         return None
     for _ in range(TRIM_PASSES):
-        _, a = _ray_fits(_split_columns(columns[keep].sum(axis=0)[None]))
+        a = _ray_solutions(*_split_columns(columns[keep].sum(axis=0)[None])[:2])
         residual = weight * (inverse - rays @ a[0]) ** 2
         now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
         if np.array_equal(now, keep) or not now.any():

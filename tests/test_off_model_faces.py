@@ -88,3 +88,78 @@ def test_faces_along_rays_leaves_a_wall_without_a_face_beside_it():
     xyz, sigma, truth, wall, _ = _corner(0, side=False)
     labels, out, fits, stats = _run(xyz, sigma, wall, tile_rows=[8, 9, 10])
     assert out is labels and list(fits) == [1]
+
+
+def _numpy_gates(xyz, sigma, idx, owner, floor=20, max_angle_deg=3.0):
+    # faces_along_rays' first gates in numpy: (passes them, angle to the owner, bound)
+    from rangeseg_o3d.fitting.robust import CHI_SQUARE_SIGMAS
+    from rangeseg_o3d.kernels.linalg import noise_rms_bound
+    from rangeseg_o3d.off_model import _tilt_bound
+    from rangeseg_o3d.plane_faces import _ray_terms, robust_ray_plane
+
+    rays, inverse, weight = _ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
+    found = robust_ray_plane(rays, inverse, weight, *np.divmod(idx, sigma.shape[1]))
+    if found is None:
+        return False, None, None
+    a, keep, mean_square = found
+    n = int(keep.sum())
+    if 2 * n <= idx.size or n < floor or mean_square > noise_rms_bound.py_func(1.0, n, CHI_SQUARE_SIGMAS) ** 2:
+        return False, None, None
+    tilt = _tilt_bound(a, rays[keep], weight[keep], max_angle_deg)
+    angle = float(np.arccos(min(abs(float(tilt[0] @ owner.normal)), 1.0)))
+    return angle > tilt[1], angle, tilt[1]
+
+
+def _blocks(h, w, corners, rows=18, cols=6):
+    # groups of pixels: a rows x cols block at each (row, col) corner, as faces_along_rays orders them
+    idx = [np.flatnonzero(((np.arange(h)[:, None] >= r) & (np.arange(h)[:, None] < r + rows)
+                           & (np.arange(w)[None] >= c) & (np.arange(w)[None] < c + cols)).ravel())
+           for r, c in corners]
+    return np.concatenate(idx), np.cumsum([0] + [len(i) for i in idx]), idx
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_screen_rules_out_only_groups_the_numpy_gates_refuse(seed):
+    from rangeseg_o3d.off_model import _ruled_out
+
+    xyz, sigma, truth, wall, _ = _corner(seed)
+    h, w = sigma.shape
+    # the strip cut by the image's edge (a face) in three places, and blocks of the wall itself
+    corners = [(48, 0), (30, 0), (70, 0), (48, 30), (10, 60), (90, 100), (60, 150)]
+    idx, bounds, groups = _blocks(h, w, corners)
+    out = _ruled_out(np.ascontiguousarray(xyz.reshape(-1, 3)), sigma.ravel(), idx, bounds, w, 20,
+                     [wall] * len(groups), 3.0)
+    passes = [_numpy_gates(xyz, sigma, g, wall)[0] for g in groups]
+    assert not any(out[j] and passes[j] for j in range(len(groups)))  # never a face numpy would keep
+    assert all(passes[:3]) and not any(out[:3])  # the strip's faces go on to numpy
+    assert out[3:].all()  # the wall's own blocks: its plane, ruled out without numpy
+
+
+def test_screen_leaves_a_turn_at_its_bound_to_numpy():
+    # the strip's face turned from the wall by exactly the bound: within the screen's
+    # tolerance of either answer, so it is not ruled out; clear of it either way, it decides
+    from rangeseg_o3d.fitting.robust import CHI_SQUARE_SIGMAS
+    from rangeseg_o3d.kernels import ray_groups_ruled_out
+    from rangeseg_o3d.off_model import SCREEN_TOLERANCE
+    from rangeseg_o3d.plane_faces import ROBUST_CHUNKS, TRIM_PASSES, TRIM_SIGMAS
+
+    xyz, sigma, truth, wall, _ = _corner(0)
+    h, w = sigma.shape
+    idx, bounds, groups = _blocks(h, w, [(48, 0)])
+    passes, angle, bound = _numpy_gates(xyz, sigma, groups[0], wall)
+    assert passes and angle > np.radians(45.0)  # (the turn itself is the bound below)
+
+    def screen(max_angle):
+        return bool(ray_groups_ruled_out(np.ascontiguousarray(xyz.reshape(-1, 3)), sigma.ravel(), idx, bounds, w, 20,
+                                         wall.normal[None].astype(float), max_angle, float(CHI_SQUARE_SIGMAS),
+                                         float(TRIM_SIGMAS), ROBUST_CHUNKS, TRIM_PASSES, SCREEN_TOLERANCE)[0])
+
+    assert not screen(angle)
+    assert screen(angle * (1.0 + 10 * SCREEN_TOLERANCE))
+    assert not screen(angle * (1.0 - 10 * SCREEN_TOLERANCE))
+    # groups under the floor, or under the chunks' three pixels each, are out before any fit
+    small = np.asarray(groups[0][:3 * ROBUST_CHUNKS - 1])
+    assert ray_groups_ruled_out(np.ascontiguousarray(xyz.reshape(-1, 3)), sigma.ravel(), small,
+                                np.array([0, small.size]), w, 20, np.full((1, 3), np.nan), 0.05,
+                                float(CHI_SQUARE_SIGMAS), float(TRIM_SIGMAS), ROBUST_CHUNKS, TRIM_PASSES,
+                                SCREEN_TOLERANCE)[0]

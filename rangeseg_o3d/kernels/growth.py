@@ -58,11 +58,17 @@ def grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, first, coun
     b0, b1, b2, b3 = box[0], box[1], box[2], box[3]
     moved = np.empty(0, np.int64)
     n_moved = 0
-    # (buffers for every ring: a ring looks at most at every pixel once)
-    looks = np.empty(h * w, np.int64)
-    take_idx = np.empty(h * w, np.int64)
-    take_new = np.empty(h * w, np.int64)
-    seen = np.zeros(h * w, np.int32)  # the last ring that looked at a pixel
+    # (buffers for every ring: a ring looks at most at every pixel of the window once, the box
+    # and one pixel around it, which grows by at most a pixel a side each ring: sized for the
+    # last ring's window, not the frame, whose buffers cost more than the rings of a strip)
+    wr0, wr1 = max(b0 - rings - 1, 0), min(b1 + rings + 1, h)
+    wc0, wc1 = max(b2 - rings - 1, 0), min(b3 + rings + 1, w)
+    across = wc1 - wc0
+    size = (wr1 - wr0) * across
+    looks = np.empty(size, np.int64)
+    take_idx = np.empty(size, np.int64)
+    take_new = np.empty(size, np.int64)
+    seen = np.zeros(size, np.int32)  # the last ring that looked at a pixel (window rows of ``across``)
     ring = 0
     # a pixel's fate in a ring depends on its label and its 4 neighbours' alone: after a phase's
     # first ring (the whole window), only the neighbours of the pixels the last ring moved can
@@ -87,8 +93,9 @@ def grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, first, coun
                         if rr < r0 or rr >= r1 or cc < c0 or cc >= c1:
                             continue
                         i = rr * w + cc
-                        if seen[i] != ring:
-                            seen[i] = ring
+                        at = (rr - wr0) * across + cc - wc0
+                        if seen[at] != ring:
+                            seen[at] = ring
                             looks[n_looks] = i
                             n_looks += 1
             n_take = 0

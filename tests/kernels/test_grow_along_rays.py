@@ -63,3 +63,26 @@ def test_growth_stops_after_its_rings():
     v, u = np.divmod(np.arange(rows * cols), cols)
     # five rings of 4-neighbours: the diamond of city-block radius 5 around the seed
     assert np.array_equal(flat == face, np.abs(v - 20) + np.abs(u - 25) <= 5)
+
+
+def test_growth_to_the_edge_of_its_window_stays_in_its_buffers():
+    # the buffers are sized for the box grown by a pixel a side per ring: a growth that uses
+    # every ring reaches their edge; run in Python (py_func), numpy checks every index
+    rows, cols, rings = 40, 50, 8
+    xyz, noise, plane = _wall(rows, cols, sigma=0.02, seed=1)
+    ranges = np.linalg.norm(xyz, axis=1, keepdims=True)
+    xyz = xyz / ranges / ((xyz / ranges) @ plane)[:, None]  # on the plane exactly
+    face = 1
+    planes = np.full((face + 1, 3), np.nan)
+    planes[face] = plane
+    no = np.zeros((1, face + 1), bool)
+    box = np.array([20, 21, 25, 26], np.int64)
+    grown = []
+    for kernel in (grow_along_rays, grow_along_rays.py_func):
+        flat = np.zeros(rows * cols, np.int32)
+        flat[20 * cols + 25] = face
+        moved = kernel(xyz, flat, rows, cols, planes, no, no, noise, face, 1, box.copy(), K_SIGMA, rings)
+        grown.append((flat == face, np.sort(moved)))
+    v, u = np.divmod(np.arange(rows * cols), cols)
+    assert np.array_equal(grown[0][0], np.abs(v - 20) + np.abs(u - 25) <= rings)
+    assert np.array_equal(grown[0][0], grown[1][0]) and np.array_equal(grown[0][1], grown[1][1])

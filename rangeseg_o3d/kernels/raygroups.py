@@ -1,0 +1,232 @@
+"""Compiled screening of the tile groups :func:`rangeseg_o3d.off_model.faces_along_rays` fits
+along the rays: the groups whose robust ray plane certainly fails its first gates are ruled
+out in one pass, so that numpy fits only the few that may stand (a numpy fit per group cost
+about a millisecond, on groups of which most are a bend of their owner's surface)."""
+
+from __future__ import annotations
+
+import numpy as np
+from .jit import njit  # numba.njit, with this package's cache locator installed
+from .linalg import noise_rms_bound, solve_in_place
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("linalg.py",)
+
+__all__ = ["ray_groups_ruled_out"]
+
+
+@njit(cache=True, nogil=True)
+def _ray_terms(xyz, noise, idx, rays, inverse, weight):
+    """Each pixel's unit ray, inverse range and inverse-range weight, as
+    :func:`rangeseg_o3d.plane_faces._ray_terms` computes them (into the arrays given)."""
+    for i in range(idx.shape[0]):
+        p = idx[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        r = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+        s = max(noise[p], 1e-12) / (r * r)
+        rays[i, 0], rays[i, 1], rays[i, 2] = x / r, y / r, z / r
+        inverse[i] = 1.0 / r
+        weight[i] = 1.0 / (s * s)
+
+
+@njit(cache=True, nogil=True)
+def _add_terms(sums, row, u, q, w):
+    """Add one pixel's 13 moment terms (``w u u^T``, ``w q u``, ``w q^2``) to ``sums[row]``."""
+    for a in range(3):
+        for b in range(3):
+            sums[row, 3 * a + b] += w * u[a] * u[b]
+        sums[row, 9 + a] += w * q * u[a]
+    sums[row, 12] += w * q * q
+
+
+@njit(cache=True, nogil=True)
+def _plane_of(moments, a):
+    """The plane ``a`` (in place) of the moment row ``moments`` with the ridge of
+    :func:`rangeseg_o3d.plane_faces._ray_solutions`; False when the system is singular."""
+    m = np.empty((3, 3))
+    trace = moments[0] + moments[4] + moments[8]
+    for r in range(3):
+        for c in range(3):
+            m[r, c] = moments[3 * r + c]
+        m[r, r] += 1e-12 * trace
+        a[r] = moments[9 + r]
+    return solve_in_place(m, a)
+
+
+@njit(cache=True, nogil=True)
+def _near(value, threshold, tolerance):
+    """Whether ``value`` is within ``tolerance`` (relative) of ``threshold``: a decision that
+    numpy's arithmetic, a few roundings apart, might take the other way."""
+    return abs(value - threshold) <= tolerance * abs(threshold)
+
+
+@njit(cache=True, nogil=True)
+def _squares(rays, inverse, weight, a, out):
+    """Each pixel's squared inverse-range residual to the plane ``a`` in noise units (into ``out``)."""
+    for i in range(inverse.shape[0]):
+        e = inverse[i] - (rays[i, 0] * a[0] + rays[i, 1] * a[1] + rays[i, 2] * a[2])
+        out[i] = weight[i] * e * e
+
+
+@njit(cache=True, nogil=True)
+def _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance, a, keep):
+    """:func:`rangeseg_o3d.plane_faces.robust_ray_plane` in compiled arithmetic: ``a`` and
+    ``keep`` (in place) and the mean square of the kept pixels; ``(status, mean square)``
+    with status 0 for a plane, 1 for none, 2 when a decision on the way (the best set of
+    chunks, a pixel within the trim) lies within ``tolerance`` of going the other way."""
+    n = inverse.shape[0]
+    order = np.argsort(along, kind="mergesort")
+    chunk = np.empty(n, np.int64)
+    for i in range(n):
+        chunk[order[i]] = i * chunks // n
+    sums = np.zeros((chunks, 13))
+    for i in range(n):
+        _add_terms(sums, chunk[i], rays[i], inverse[i], weight[i])
+    total = np.zeros(13)
+    for c in range(chunks):
+        total += sums[c]
+    squares = np.empty(n)
+    best, second = np.inf, np.inf
+    best_a = np.zeros(3)
+    trial = np.empty(3)
+    # every set leaving out none, one or two chunks (left == right: one; -1: none)
+    for left in range(-1, chunks):
+        for right in range(max(left, 0), chunks) if left >= 0 else range(-1, 0):
+            moments = total.copy()
+            if left >= 0:
+                moments -= sums[left]
+                if right != left:
+                    moments -= sums[right]
+            if not _plane_of(moments, trial):
+                return 2, 0.0
+            _squares(rays, inverse, weight, trial, squares)
+            cost = 0.0
+            for i in range(n):
+                cost += min(squares[i], trim_square)
+            if not np.isfinite(cost):  # (numpy's argmin would pick a NaN)
+                return 2, 0.0
+            if cost < best:
+                best, second = cost, best
+                best_a[:] = trial
+            elif cost < second:
+                second = cost
+    if _near(second, best, tolerance):
+        return 2, 0.0
+    a[:] = best_a
+    _squares(rays, inverse, weight, a, squares)
+    kept = 0
+    for i in range(n):
+        if _near(squares[i], trim_square, tolerance):
+            return 2, 0.0
+        keep[i] = squares[i] <= trim_square
+        kept += keep[i]
+    if kept == 0:
+        return 1, 0.0
+    now = np.empty(n, np.bool_)
+    sums_keep = np.empty((1, 13))
+    for _ in range(passes):
+        sums_keep[:] = 0.0
+        for i in range(n):
+            if keep[i]:
+                _add_terms(sums_keep, 0, rays[i], inverse[i], weight[i])
+        if not _plane_of(sums_keep[0], a):
+            return 2, 0.0
+        _squares(rays, inverse, weight, a, squares)
+        same, any_now = True, False
+        for i in range(n):
+            if _near(squares[i], trim_square, tolerance):
+                return 2, 0.0
+            now[i] = squares[i] <= trim_square
+            same = same and now[i] == keep[i]
+            any_now = any_now or now[i]
+        if same or not any_now:
+            break
+        keep[:] = now
+    total_square, kept = 0.0, 0
+    for i in range(n):
+        if keep[i]:
+            total_square += squares[i]
+            kept += 1
+    return 0, total_square / kept
+
+
+@njit(cache=True, nogil=True)
+def _tilt_turned(rays, inverse, weight, keep, a, facing, max_angle, sigmas, tolerance):
+    """:func:`rangeseg_o3d.off_model._tilt_bound` and ``_turned_from`` in compiled arithmetic:
+    0 when the plane ``a`` is turned from the unit normal ``facing`` by less than its bound,
+    1 when by more, 2 when that is within ``tolerance`` or the fit's sums are ill-conditioned
+    (their smallest eigenvalue under 1e-9 of the largest: numpy's inverse may differ)."""
+    size = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if not np.isfinite(size) or size <= 0.0:
+        return 2
+    normal = a / size
+    outer = np.zeros((3, 3))
+    for i in range(inverse.shape[0]):
+        if keep[i]:
+            for r in range(3):
+                for c in range(3):
+                    outer[r, c] += weight[i] * rays[i, r] * rays[i, c]
+    spreads = np.linalg.eigvalsh(outer)
+    if not spreads[0] > 1e-9 * spreads[2]:
+        return 2
+    covariance = np.linalg.inv(outer)
+    across = np.eye(3) - np.outer(normal, normal)
+    tilt = np.sqrt(max(np.linalg.eigvalsh(across @ covariance @ across)[2], 0.0)) / size
+    bound = max(max_angle, sigmas * tilt)
+    cosine = abs(normal[0] * facing[0] + normal[1] * facing[1] + normal[2] * facing[2])
+    angle = np.arccos(min(cosine, 1.0))
+    if not (np.isfinite(angle) and np.isfinite(bound)) or _near(angle, bound, tolerance):
+        return 2
+    return 1 if angle > bound else 0
+
+
+@njit(cache=True, nogil=True)
+def ray_groups_ruled_out(xyz, noise, idx, bounds, width, floor, facing, max_angle, sigmas, trim, chunks, passes,
+                         tolerance):
+    """Per group ``g`` (its flat pixels ``idx[bounds[g]:bounds[g + 1]]``, in the order
+    :func:`rangeseg_o3d.off_model.faces_along_rays` takes them; rows of ``width`` pixels):
+    True when its plane fitted along the rays (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`,
+    ``chunks`` pieces, ``passes`` trims at ``trim`` noises) certainly fails the gates
+    ``faces_along_rays`` puts first: fewer than ``max(floor, 3 chunks)`` pixels, no plane,
+    at most half the group or fewer than ``floor`` pixels kept, a mean square beyond the
+    chi-square bound ``sigmas`` deviations up, or (where ``facing[g]``, the unit normal of the
+    plane that owns the group, is finite) turned from it by no more than ``max_angle``
+    (radians) and ``sigmas`` noises of its tilt. A decision within ``tolerance`` (relative) of
+    going the other way, or taken on ill-conditioned sums, rules nothing out: such a group is
+    left to numpy, whose arithmetic decides."""
+    groups = bounds.shape[0] - 1
+    out = np.zeros(groups, np.bool_)
+    trim_square = trim * trim
+    for g in range(groups):
+        b0, b1 = bounds[g], bounds[g + 1]
+        n = b1 - b0
+        if n < max(floor, 3 * chunks):
+            out[g] = True
+            continue
+        pixels = idx[b0:b1]
+        rays, inverse, weight = np.empty((n, 3)), np.empty(n), np.empty(n)
+        _ray_terms(xyz, noise, pixels, rays, inverse, weight)
+        rows, cols = pixels // width, pixels % width
+        along = cols if cols.max() - cols.min() >= rows.max() - rows.min() else rows
+        a, keep = np.zeros(3), np.zeros(n, np.bool_)
+        status, mean_square = _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance,
+                                            a, keep)
+        if status == 1:
+            out[g] = True
+        if status != 0:
+            continue
+        kept = 0
+        for i in range(n):
+            kept += keep[i]
+        if 2 * kept <= n or kept < floor:
+            out[g] = True
+            continue
+        bound = noise_rms_bound(1.0, float(kept), sigmas) ** 2
+        if _near(mean_square, bound, tolerance):
+            continue
+        if mean_square > bound:
+            out[g] = True
+            continue
+        if np.isfinite(facing[g, 0]):
+            out[g] = _tilt_turned(rays, inverse, weight, keep, a, facing[g], max_angle, sigmas, tolerance) == 0
+    return out
