@@ -63,12 +63,13 @@ def faces_from_free(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.n
     plane still seen near grazing, and no plane region it touches mostly on that plane (a
     rim of a grazing wall, not a face). Returns ``(labels, fits, stats)``, the regions
     changed measured again; the inputs when no face is found."""
-    from scipy import ndimage
-
+    from .kernels import free_pieces
     from .strips import EXPLAINED_SHARE
 
-    pieces, n = ndimage.label((labels == 0) & cloud.valid)
-    if not n:
+    # the free pieces a face may grow from, in scipy.ndimage.label's order (compiled)
+    seeds, bounds = free_pieces(np.ascontiguousarray(labels, dtype=np.int32), np.ascontiguousarray(cloud.valid),
+                                SEED_PIXELS)
+    if bounds.size < 2:
         return labels, fits, stats
     xyz, flat_sigma = cloud.xyz.reshape(-1, 3), sigma.ravel()
     h, w = labels.shape
@@ -77,12 +78,8 @@ def faces_from_free(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.n
     flat = out.reshape(-1)
     found, changed = dict(fits), set()
     next_label = fresh_label(labels, fits)
-    for p, (rs, cs) in enumerate(ndimage.find_objects(pieces), start=1):
-        local = pieces[rs, cs] == p
-        if np.count_nonzero(local) < SEED_PIXELS:
-            continue
-        lr, lc = np.nonzero(local)
-        seed = (lr + rs.start) * w + lc + cs.start
+    for b0, b1 in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        seed = seeds[b0:b1]
         seed = seed[flat[seed] == 0]  # a face found before may have taken some
         grown = _grown_face(cloud, sigma, out, seed, planes) if seed.size >= SEED_PIXELS else None
         if grown is None:

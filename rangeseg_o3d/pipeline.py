@@ -502,7 +502,8 @@ def warm_up() -> float:
     arc = np.stack([np.cos(angle), np.sin(angle), np.tile([0.0, 1.0], 6)], axis=1)
     fit_plane(arc), fit_sphere(arc), fit_cylinder(arc)
     # kernels that only some scans reach (a pool split into pieces, recovered thin surfaces)
-    from .kernels import claim_rings_in_boxes, grow_along_rays, member_pixels, piece_ids, ray_groups_ruled_out
+    from .kernels import (claim_rings_in_boxes, free_pieces, grow_along_rays, member_pixels, piece_ids,
+                          ray_groups_ruled_out)
 
     piece_ids(np.arange(4, dtype=np.int64), 2)
     member_pixels(np.zeros((2, 2), np.int32), np.zeros(1, bool))
@@ -519,6 +520,10 @@ def warm_up() -> float:
     # and its screen of the tile groups before numpy fits them
     ray_groups_ruled_out(points, np.ones(4), np.arange(4, dtype=np.int64), np.array([0, 4], np.int64), 2, 1,
                          np.full((1, 3), np.nan), 0.05, 3.0, 3.0, 8, 3, 1e-5)
+    # the free pieces a stereo camera's faces seen near grazing grow from (free_faces.faces_from_free)
+    valid = np.ones((2, 2), bool)
+    valid.flags.writeable = False  # (as a cloud's validity is)
+    free_pieces(np.zeros((2, 2), np.int32), valid, 1)
     # the trimmed fit: the fitter's compiled search and the generic one's inlier count
     from .fitting.robust import trimmed_fit
 

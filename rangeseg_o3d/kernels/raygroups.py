@@ -1,7 +1,9 @@
-"""Compiled screening of the tile groups :func:`rangeseg_o3d.off_model.faces_along_rays` fits
-along the rays: the groups whose robust ray plane certainly fails its first gates are ruled
-out in one pass, so that numpy fits only the few that may stand (a numpy fit per group cost
-about a millisecond, on groups of which most are a bend of their owner's surface)."""
+"""Compiled passes for the faces fitted along the rays: the screen of the tile groups
+:func:`rangeseg_o3d.off_model.faces_along_rays` fits (the groups whose robust ray plane
+certainly fails its first gates are ruled out in one pass, so that numpy fits only the few
+that may stand: a numpy fit per group cost about a millisecond, on groups of which most are a
+bend of their owner's surface), and the free pieces :func:`rangeseg_o3d.free_faces.faces_from_free`
+grows faces from."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from .linalg import noise_rms_bound, solve_in_place
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("linalg.py",)
 
-__all__ = ["ray_groups_ruled_out"]
+__all__ = ["ray_groups_ruled_out", "free_pieces"]
 
 
 @njit(cache=True, nogil=True)
@@ -230,3 +232,59 @@ def ray_groups_ruled_out(xyz, noise, idx, bounds, width, floor, facing, max_angl
         if np.isfinite(facing[g, 0]):
             out[g] = _tilt_turned(rays, inverse, weight, keep, a, facing[g], max_angle, sigmas, tolerance) == 0
     return out
+
+
+@njit(cache=True, nogil=True)
+def free_pieces(labels, valid, min_pixels):
+    """``(pixels, bounds)``: the 4-connected pieces of free pixels (label 0 and ``valid``) of at
+    least ``min_pixels`` pixels, piece ``j``'s flat pixels ``pixels[bounds[j]:bounds[j + 1]]`` in
+    raster order, the pieces in the order of their first pixel in raster order (the order of
+    ``scipy.ndimage.label``'s numbers): one pass, where labelling the frame and slicing each
+    piece's box in numpy cost about 11 ms of a 1280 x 720 frame, most of it for pieces of a
+    few pixels."""
+    h, w = labels.shape
+    n = h * w
+    flat, ok = labels.ravel(), valid.ravel()
+    # free and not yet in a piece: cleared as the pieces take their pixels
+    free = np.empty(n, np.bool_)
+    for i in range(n):
+        free[i] = flat[i] == 0 and ok[i]
+    stack = np.empty(n, np.int32)
+    pixels = np.empty(0, np.int64)
+    ends = np.empty(16, np.int64)
+    pieces, found = 0, 0
+    for start in range(n):
+        if not free[start]:
+            continue
+        free[start] = False
+        stack[0] = start
+        top, size = 1, 0
+        # (the stack holds every pixel of the piece once: it is popped only to count it)
+        while size < top:
+            i = stack[size]
+            size += 1
+            c = i - (i // w) * w
+            for j in (i - w, i + w, i - 1, i + 1):
+                if j < 0 or j >= n or (j == i - 1 and c == 0) or (j == i + 1 and c == w - 1):
+                    continue
+                if free[j]:
+                    free[j] = False
+                    stack[top] = j
+                    top += 1
+        if size < min_pixels:
+            continue
+        if found + size > pixels.size:
+            grown = np.empty(max(2 * pixels.size, found + size), np.int64)
+            grown[:found] = pixels[:found]
+            pixels = grown
+        pixels[found:found + size] = np.sort(stack[:size])
+        found += size
+        if pieces == ends.size:
+            longer = np.empty(2 * ends.size, np.int64)
+            longer[:pieces] = ends[:pieces]
+            ends = longer
+        ends[pieces] = found
+        pieces += 1
+    bounds = np.zeros(pieces + 1, np.int64)
+    bounds[1:] = ends[:pieces]
+    return pixels[:found], bounds
