@@ -5,7 +5,7 @@ the tile models give most of it to the front face beside it (its pixels there ar
 that face's noise), and what they leave free is a piece of a few independent returns, under
 the floor of a region recovered at full resolution (``scales.MIN_PIXELS`` counted as pixels
 over the matching window). Along the rays the face is a plane all the same
-(:func:`rangeseg_o3d.plane_faces.robust_ray_plane`): grown from its free piece, it takes
+(:func:`rangeseg_o3d.ray_planes.robust_ray_plane`): grown from its free piece, it takes
 back what its plane explains, and the crease with the front face is put where the two
 planes fitted along the rays fit best on either side of a straight line on the grid, then
 where the two planes meet (:func:`faces_from_free`).
@@ -21,16 +21,17 @@ from .fitting.primitives import Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fullres import region_stats
 from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
-from .plane_faces import CLAIM_REACH, ROBUST_CHUNKS, _crease_line, _ray_plane, _ray_terms, robust_ray_plane
+from .plane_faces import CLAIM_REACH, crease_line
+from .ray_planes import ROBUST_CHUNKS, ray_plane, ray_terms, robust_ray_plane, seen_near_grazing
 from .refinement.context import TRIM_SIGMAS, touching
-from .scales import GRAZING_COSINE, MIN_PIXELS
+from .scales import MIN_PIXELS
 
 __all__ = ["CLAIM_ROUNDS", "SEED_PIXELS", "SURFACE_TEST_PIXELS", "faces_from_free"]
 
 #: Rounds of claim and robust refit a face grown from a free piece takes.
 CLAIM_ROUNDS = 2
 #: The fewest pixels of a free piece a face is grown from: the fewest
-#: :func:`rangeseg_o3d.plane_faces.robust_ray_plane` fits (the face is judged on what it grew to).
+#: :func:`rangeseg_o3d.ray_planes.robust_ray_plane` fits (the face is judged on what it grew to).
 SEED_PIXELS = 3 * ROBUST_CHUNKS
 #: Pixels of a touching region (an even subsample) on which a face is asked whether it is
 #: a piece of that region's surface.
@@ -49,7 +50,7 @@ def faces_from_free(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.n
     those units, than their region's plane). Within the noise of both planes those claims
     follow the noise; so the face and the pixels of the region it took most from, within its
     box, are cut along the straight line on the grid whose sides' planes along the rays fit
-    them best (``plane_faces._crease_line``), and of them the face keeps those its plane
+    them best (``plane_faces.crease_line``), and of them the face keeps those its plane
     explains, where the region's plane explains them too those whose rays meet the face's
     plane beyond that plane (a convex crease) or before it (a concave one), else those on its
     side of the line (:func:`_by_the_crease`).
@@ -89,11 +90,12 @@ def faces_from_free(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.n
         mask = np.zeros((int(np.ptp(rows)) + 1, int(np.ptp(cols)) + 1), bool)
         mask[rows - rows.min(), cols - cols.min()] = True
         independent = noise.independent_returns(mask)
-        if (face.size < EXPLAINED_SHARE * union_size or independent < MIN_PIXELS or not _grazing(xyz, a, face)
+        if (face.size < EXPLAINED_SHARE * union_size or independent < MIN_PIXELS
+                or not seen_near_grazing(a, xyz[face])
                 or mean_square > noise_rms_bound.py_func(1.0, independent, CHI_SQUARE_SIGMAS) ** 2
                 or _surface_of(xyz, flat_sigma, out, face, a, planes)):
             continue
-        plane = _ray_plane(a, xyz[face])
+        plane = ray_plane(a, xyz[face])
         if plane is None:
             continue
         changed |= set(np.unique(flat[face]).tolist()) | {next_label}
@@ -118,7 +120,7 @@ def _grown_face(cloud, grid_sigma: np.ndarray, labels: np.ndarray, seed: np.ndar
     xyz, sigma = cloud.xyz.reshape(-1, 3), grid_sigma.ravel()
     w = labels.shape[1]
     found = _robust(xyz, sigma, seed, w)
-    if found is None or not _grazing(xyz, found[0], seed[found[1]]):
+    if found is None or not seen_near_grazing(found[0], xyz[seed[found[1]]]):
         return None
     a, face = found[0], seed[found[1]]
     for _ in range(CLAIM_ROUNDS):
@@ -136,7 +138,7 @@ def _grown_face(cloud, grid_sigma: np.ndarray, labels: np.ndarray, seed: np.ndar
     other = int(owners[np.argmax(taken)])
     zone = np.union1d(face, _in_box(labels, other, face))
     ctx = SimpleNamespace(xyz=xyz, sigma=sigma, width=w, min_size=SEED_PIXELS)
-    _, sides = _crease_line(ctx, zone)
+    _, sides = crease_line(ctx, zone)
     if not sides or other not in planes:
         return face, a, mean_square, union.size
     side = max(sides, key=lambda s: int(np.count_nonzero(np.isin(seed, s))))
@@ -152,14 +154,8 @@ def _grown_face(cloud, grid_sigma: np.ndarray, labels: np.ndarray, seed: np.ndar
 
 def _robust(xyz: np.ndarray, sigma: np.ndarray, idx: np.ndarray, width: int):
     # robust_ray_plane of the flat pixels idx (their rows and columns on a grid this wide)
-    rays, inverse, weight = _ray_terms(xyz[idx], sigma[idx])
+    rays, inverse, weight = ray_terms(xyz[idx], sigma[idx])
     return robust_ray_plane(rays, inverse, weight, *np.divmod(idx, width))
-
-
-def _grazing(xyz: np.ndarray, a: np.ndarray, idx: np.ndarray) -> bool:
-    # whether the plane a . p = 1 is seen near grazing at the flat pixels idx (median cosine)
-    rays = xyz[idx] / np.maximum(np.linalg.norm(xyz[idx], axis=1), 1e-12)[:, None]
-    return float(np.median(np.abs(rays @ (a / max(float(np.linalg.norm(a)), 1e-300))))) < GRAZING_COSINE
 
 
 def _box(shape, idx: np.ndarray):
@@ -186,7 +182,7 @@ def _by_the_crease(xyz, sigma, zone, side, face, a, other) -> np.ndarray:
     too, met by the face's plane beyond ``other``'s at a convex crease (each side behind the
     other's plane, seen from the sensor), before it at a concave one, else on the face's
     ``side`` of the crease line (the pixels the planes cannot tell)."""
-    rays, inverse, weight = _ray_terms(xyz[zone], sigma[zone])
+    rays, inverse, weight = ray_terms(xyz[zone], sigma[zone])
     scale = np.sqrt(weight)
     mine_q, theirs_q = rays @ a, rays @ other
     mine, theirs = scale * np.abs(inverse - mine_q), scale * np.abs(inverse - theirs_q)
@@ -211,7 +207,7 @@ def _surface_of(xyz: np.ndarray, sigma: np.ndarray, labels: np.ndarray, face: np
     others = sorted(k for k in touching(labels, face, 1) - {0} if k in planes)
     for other, pixels in region_indices(labels, only=others).items():
         pixels = pixels[:: max(1, pixels.size // SURFACE_TEST_PIXELS)]
-        rays, inverse, weight = _ray_terms(xyz[pixels], sigma[pixels])
+        rays, inverse, weight = ray_terms(xyz[pixels], sigma[pixels])
         if 2 * np.count_nonzero(weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS ** 2) > pixels.size:
             return other
     return 0
@@ -231,7 +227,7 @@ def _claim(cloud, sigma: np.ndarray, labels: np.ndarray, a: np.ndarray, idx: np.
     owner = labels[r0:r1, c0:c1].reshape(-1)
     points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
     valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
-    u, q, wt = _ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
+    u, q, wt = ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
     scale = np.sqrt(wt)
     mine = scale * np.abs(q - u @ a)
     theirs = np.where(owner == 0, np.inf, -np.inf)  # a region of no plane: none taken

@@ -30,7 +30,7 @@ from .fitting.region_fitter import fresh_label, model_table
 from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refinement
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats",
+           "region_stats", "stats_with_moved",
            "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases",
            "recovered_region_floor"]
@@ -139,6 +139,30 @@ def region_stats(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.ndar
         mine[:m] = theirs[:m]
         mine[measure] = fresh[measure]
     return merged
+
+
+def stats_with_moved(stats: PixelStats, xyz: np.ndarray, sigma: np.ndarray, before: np.ndarray,
+                     after: np.ndarray, table: tuple, changed: np.ndarray, inlier_factor: float) -> PixelStats:
+    """``stats`` (of the labels ``before``) made those of the labels ``after`` where only the
+    flat pixels ``changed`` moved: their share taken from their old labels and given to their
+    new ones, with no pass over the frame. The models of the regions they left or joined must
+    be unchanged; ``table`` (:func:`rangeseg_o3d.fitting.region_fitter.model_table`) holds
+    every model of ``after``. ``xyz`` (N, 3) and ``sigma`` (N,) are flat."""
+    kinds, params, rms = table
+    n = kinds.size
+    points, noise = xyz[changed], sigma[changed]
+    old = np.ascontiguousarray(before.ravel()[changed], dtype=np.int32)
+    new = np.ascontiguousarray(after.ravel()[changed], dtype=np.int32)
+    lost = kernels.distance_stats(points, old, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
+    won = kernels.distance_stats(points, new, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
+    merged = []
+    for known, minus, plus in zip((stats.inliers, stats.squares, stats.counts), lost, won):
+        grown = np.zeros(n, known.dtype)
+        m = min(n, known.size)
+        grown[:m] = known[:m]
+        grown = grown - minus.astype(known.dtype) + plus.astype(known.dtype)
+        merged.append(np.maximum(grown, 0))
+    return PixelStats(*merged)
 
 
 def smallest_region(config, sensor, cloud) -> int:

@@ -318,7 +318,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     :func:`rangeseg_o3d.kernels.off_model_tiles`), but the group is fewer pixels than a blob,
     and under a range noise as large as the strip is wide its least-squares plane lies along
     the rays, its tilt undetermined. The range errors move only the inverse ranges along the
-    rays: each touching group's plane fitted along them (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`)
+    rays: each touching group's plane fitted along them (:func:`rangeseg_o3d.ray_planes.robust_ray_plane`)
     is a face when it keeps more than half of the group (and at least ``floor`` pixels)
     within TRIM_SIGMAS of that noise, scattering within the chi-square bound of their
     count, and is turned from the owner's model and from every plane region it touches by
@@ -333,9 +333,11 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     from .kernels import tile_groups, tile_members
     from .kernels.linalg import noise_rms_bound
     from .fitting.primitives import Plane
-    from .plane_faces import ROBUST_CHUNKS, _plane_beside, _ray_plane, _ray_terms, robust_ray_plane
+    from .fitting.region_fitter import extended_table
+    from .fullres import stats_with_moved
+    from .plane_faces import plane_beside
+    from .ray_planes import ROBUST_CHUNKS, ray_plane, ray_terms, robust_ray_plane
     from .refinement.context import touching
-    from .strips import _extended, _with_moved
 
     h, w = labels.shape
     group = tile_groups(tiles, -(-w // tile))
@@ -359,7 +361,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
         idx = pixels[members]
         model = models[g]
         points = xyz[idx]
-        rays, inverse, weight = _ray_terms(points, noise[idx])
+        rays, inverse, weight = ray_terms(points, noise[idx])
         rows, cols = np.divmod(idx, w)
         found = robust_ray_plane(rays, inverse, weight, rows, cols)
         if model is None or found is None:
@@ -381,11 +383,11 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
         if not all(_turned_from(tilt, centre, other) for other in around):
             continue
         # a piece of a plane region the scan has (whose tile model its pixels left): not a face
-        beside, _ = _plane_beside(labels, 0, idx[keep][inside], rays[keep][inside], inverse[keep][inside],
-                                  weight[keep][inside], planes, 1)
+        beside, _ = plane_beside(labels, 0, idx[keep][inside], rays[keep][inside], inverse[keep][inside],
+                                 weight[keep][inside], planes, 1)
         if beside:
             continue
-        plane = _ray_plane(a, points[keep])
+        plane = ray_plane(a, points[keep])
         if plane is not None:
             faces.append((idx[keep], plane, model))
     if not faces:
@@ -438,9 +440,9 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
         touched = np.unique(np.concatenate(moved[j]))
         touched = touched[~alive[np.minimum(flat[touched], alive.size - 1)] | (flat[touched] >= alive.size)]
         flat[touched] = labels.ravel()[touched]
-    table = _extended(model_table(fits, first), [fits.get(first + j) or faces[j][1] for j in range(len(faces))])
+    table = extended_table(model_table(fits, first), [fits.get(first + j) or faces[j][1] for j in range(len(faces))])
     changed = np.flatnonzero(flat != labels.ravel())
-    return out, fits, _with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
+    return out, fits, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 
 #: Relative distance from a threshold within which :func:`_ruled_out`'s compiled arithmetic
@@ -461,7 +463,8 @@ def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.n
     from .fitting.primitives import Plane
     from .fitting.robust import CHI_SQUARE_SIGMAS
     from .kernels import ray_groups_ruled_out
-    from .plane_faces import ROBUST_CHUNKS, TRIM_PASSES, TRIM_SIGMAS
+    from .ray_planes import ROBUST_CHUNKS, TRIM_PASSES
+    from .refinement.context import TRIM_SIGMAS
 
     facing = np.full((len(models), 3), np.nan)
     for g, model in enumerate(models):
@@ -476,7 +479,7 @@ def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.n
 
 def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
     """``(unit normal, angle)``: the normal of the plane ``a . p = 1`` fitted along ``rays``
-    (inverse-range weights ``weight``, :func:`rangeseg_o3d.plane_faces._ray_terms`) and the
+    (inverse-range weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`) and the
     angle it must be turned by from a model to stand apart from it (:func:`_turned_from`): the
     largest of ``max_angle_deg`` and ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the
     largest standard deviation of its unit normal across itself, from the fit's covariance
@@ -573,27 +576,27 @@ def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, sou
     The choice depends on the rays alone, not on the ranges the noise moved. None when no
     plane comes out."""
     from .fitting.primitives import Plane
-    from .plane_faces import _ray_moments, _ray_plane, _ray_solutions, _ray_terms
+    from .ray_planes import ray_moments, ray_plane, ray_solutions, ray_terms
 
     points = xyz[mine]
-    rays, inverse, weight = _ray_terms(points, noise[mine])
+    rays, inverse, weight = ray_terms(points, noise[mine])
     if isinstance(source, Plane) and source.d > 0:
         apart = np.abs(rays @ (face.normal / face.d) - rays @ (np.asarray(source.normal) / source.d))
         apart = apart * np.sqrt(weight) > k_sigma
         if np.count_nonzero(apart) >= max(floor, 3):
             rays, inverse, weight, points = rays[apart], inverse[apart], weight[apart], points[apart]
-    a = _ray_solutions(*_ray_moments(rays, inverse, weight)[:2])
-    return _ray_plane(a[0], points)
+    a = ray_solutions(*ray_moments(rays, inverse, weight)[:2])
+    return ray_plane(a[0], points)
 
 
 def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) -> bool:
-    """Whether ``plane`` explains the pixels of a face (their :func:`rangeseg_o3d.plane_faces._ray_terms`)
+    """Whether ``plane`` explains the pixels of a face (their :func:`rangeseg_o3d.ray_planes.ray_terms`)
     as one surface: ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise
     along the rays, with a mean square of those within the chi-square bound of their count
     (as :func:`rangeseg_o3d.strips.recover_strips` holds a face found along the rays)."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
     from .kernels.linalg import noise_rms_bound
-    from .plane_faces import TRIM_SIGMAS
+    from .refinement.context import TRIM_SIGMAS
     from .strips import EXPLAINED_SHARE
 
     squares = weight * (inverse - rays @ (np.asarray(plane.normal) / plane.d)) ** 2
@@ -606,11 +609,12 @@ def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) 
 def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, first: int, pixels: list) -> list:
     """Per face ``first + j`` of ``out`` (grown, its flat pixels ``pixels[j]``, increasing;
     planes in ``fits``): ``j`` when it stands as a face, the index of the face it joins when
-    another face explains it along the rays (:func:`rangeseg_o3d.plane_faces._plane_beside`),
+    another face explains it along the rays (:func:`rangeseg_o3d.plane_faces.plane_beside`),
     None when it is undone: a region the scan had explains it, or its plane does not explain
     it as one surface (:func:`_one_face`)."""
     from .fitting.primitives import Plane
-    from .plane_faces import _plane_beside, _ray_terms
+    from .plane_faces import plane_beside
+    from .ray_planes import ray_terms
 
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}  # (the other faces too)
     fate = []
@@ -620,8 +624,8 @@ def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, firs
         if not mine.size:
             fate.append(None)
             continue
-        rays, inverse, weight = _ray_terms(xyz[mine], noise[mine])
-        beside, _ = _plane_beside(out, first + j, mine, rays, inverse, weight, planes, 1)
+        rays, inverse, weight = ray_terms(xyz[mine], noise[mine])
+        beside, _ = plane_beside(out, first + j, mine, rays, inverse, weight, planes, 1)
         if beside:
             fate.append(beside - first if first <= beside < first + count else None)
         else:

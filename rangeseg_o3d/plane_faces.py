@@ -24,23 +24,25 @@ from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .fullres import region_stats
+from .ray_planes import moment_columns, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane, split_columns
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "ROBUST_CHUNKS", "TRIM_PASSES", "claim_along_rays", "faces_of_cylinder", "faces_of_plane", "robust_ray_plane", "split_plane_faces"]
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "plane_beside",
+           "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
 #: asks whether its own plane is beyond the noise of their distances (the cheap gate before
 #: the split's searches over every pixel).
 FACE_TEST_PIXELS = 1024
 #: Directions on the sensor grid (over half a turn) of the straight lines tried as the
-#: crease between two faces of a region (:func:`_crease_line`) ...
+#: crease between two faces of a region (:func:`crease_line`) ...
 CUT_DIRECTIONS = 32
 #: ... equal-count cuts tried across each direction ...
 CUTS = 129
 #: ... and the least share of the region's pixels on either side of a cut.
 CUT_SHARE = 0.1
-#: Pixels of a region (an even subsample) over which :func:`_crease_line` searches its line.
+#: Pixels of a region (an even subsample) over which :func:`crease_line` searches its line.
 LINE_SEARCH_PIXELS = 16384
 #: Share of a region's pixels the faces found must keep (the rest: bits under the size floor).
 PLANES_COVER = 0.9
@@ -145,8 +147,8 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
                      skip=()) -> int:
     """The label of a plane region touching ``piece`` (flat pixels, increasing; a face
     :func:`faces_of_plane` found, its plane ``surface``) whose plane it continues, 0 when
-    none does; ``walls`` caches the regions' ray-space sums (:func:`_ray_moments`), the
-    labels in ``skip`` are not offered.
+    none does; ``walls`` caches the regions' ray-space sums
+    (:func:`~rangeseg_o3d.ray_planes.ray_moments`), the labels in ``skip`` are not offered.
 
     A tile region over a far wall's edge and what stands before it splits into the wall's
     strip and the rest; the strip, a piece of its own, would over-segment the wall. It
@@ -158,94 +160,34 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     wall along the rows of a stereo camera's correlated streaks is off the wall's plane by
     a significant fraction of its noise (seed 23 scan 3 of the sensor matrix: 0.04 per
     pixel), where a face at an angle is off by hundreds."""
-    rays, inverse, weight = _ray_terms(ctx.xyz[piece], ctx.sigma[piece])
+    rays, inverse, weight = ray_terms(ctx.xyz[piece], ctx.sigma[piece])
     a = surface.normal / surface.d
     inliers = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
     if not inliers.any():
         return 0
-    own = _ray_moments(rays[inliers], inverse[inliers], weight[inliers])
-    own_chi2 = float(_ray_fits(own)[0][0])
+    own = ray_moments(rays[inliers], inverse[inliers], weight[inliers])
+    own_chi2 = float(ray_fits(own)[0][0])
     best, label = float(np.count_nonzero(inliers)), 0
     for other in sorted(touching(labels, piece, 1) - {0} - set(skip)):
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
             pixels = np.flatnonzero(labels.reshape(-1) == other)
-            walls[other] = _ray_moments(*_ray_terms(ctx.xyz[pixels], ctx.sigma[pixels]))
+            walls[other] = ray_moments(*ray_terms(ctx.xyz[pixels], ctx.sigma[pixels]))
         wall = walls[other]
-        union = float(_ray_fits(tuple(x + y for x, y in zip(wall, own)))[0][0])
-        growth = union - float(_ray_fits(wall)[0][0]) - own_chi2
+        union = float(ray_fits(tuple(x + y for x, y in zip(wall, own)))[0][0])
+        growth = union - float(ray_fits(wall)[0][0]) - own_chi2
         if growth < best:
             best, label = growth, other
     return label
 
 
-def _ray_terms(points: np.ndarray, sigma: np.ndarray):
-    """Per point ``(rays, inverse, weight)``: its unit ray, its inverse range and the weight
-    of that inverse's noise (``range**4 / sigma**2``). A plane ``n . p = d`` meets the ray
-    ``u`` at inverse range ``(n / d) . u``: linear in ``a = n / d``, and a range error moves
-    only the inverse range, by ``sigma / range**2`` (a stereo camera's disparity noise, the
-    same everywhere), so the plane of a face is the weighted least squares ``a`` of the
-    inverse ranges, whatever the face's incidence (:func:`_ray_plane`)."""
-    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
-    noise = np.maximum(sigma, 1e-12) / ranges ** 2
-    return points / ranges[:, None], 1.0 / ranges, 1.0 / noise ** 2
-
-
-def _ray_fits(moments: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``(chi2, a)`` of the weighted least squares of inverse ranges from stacked sums
-    ``moments = (sum w u u^T, sum w q u, sum w q^2)``: the planes ``a . p = 1`` and their
-    sums of squared inverse-range residuals in units of their noise."""
-    outer, first, second = moments
-    a = _ray_solutions(outer, first)
-    return second - np.einsum("ki,ki->k", first, a), a
-
-
-def _ray_solutions(outer: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """The planes ``a`` of :func:`_ray_fits` alone (stacked sums ``sum w u u^T``, ``sum w q u``),
-    for callers that do not read the chi-square."""
-    # a ridge of 1e-12 of the trace: the rays of one column of pixels span a plane only
-    ridge = 1e-12 * np.trace(outer, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
-    return np.linalg.solve(outer + ridge, first[..., None])[..., 0]
-
-
-def _ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray):
-    """The sums :func:`_ray_fits` takes, over all points (stacked, one set)."""
-    terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
-             weight * inverse * inverse)
-    return tuple(term.sum(axis=0)[None] for term in terms)
-
-
-def _moment_columns(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """Each point's terms of the sums :func:`_ray_fits` takes, as 13 columns (the 9 of
-    ``w u u^T``, the 3 of ``w q u``, ``w q^2``): sums of rows are sums of terms."""
-    outer = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :]).reshape(-1, 9)
-    first = (weight * inverse)[:, None] * rays
-    return np.concatenate([outer, first, (weight * inverse * inverse)[:, None]], axis=1)
-
-
-def _split_columns(columns: np.ndarray) -> tuple:
-    """The stacked sums of :func:`_ray_fits` from rows of :func:`_moment_columns` sums."""
-    return columns[:, :9].reshape(-1, 3, 3), columns[:, 9:12], columns[:, 12]
-
-
-def _ray_plane(a: np.ndarray, points: np.ndarray):
-    """The :class:`Plane` ``a . p = 1`` with the rms of the orthogonal distances of ``points``
-    (None when ``a`` is no plane)."""
-    norm = float(np.linalg.norm(a))
-    if not np.isfinite(norm) or norm <= 0:
-        return None
-    normal, d = a / norm, 1.0 / norm
-    distances = points @ normal - d
-    return Plane(normal=normal, d=d, rms=float(np.sqrt(np.mean(distances ** 2))), inliers=int(len(points)))
-
-
-def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
+def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     """``(chi2, sides)``: of the straight lines on the sensor grid (CUT_DIRECTIONS directions
     x CUTS equal-count cuts, each side at least CUT_SHARE of the pixels and ``ctx.min_size``),
     the one that cuts the flat pixels ``idx`` (increasing) into the two faces whose planes
-    fitted along the rays (:func:`_ray_terms`) leave the least chi-square, that chi-square
-    and ``sides``, the two flat pixel sets (increasing); ``(inf, [])`` when none is. A
+    fitted along the rays (:func:`~rangeseg_o3d.ray_planes.ray_terms`) leave the least
+    chi-square, that chi-square and ``sides``, the two flat pixel sets (increasing); ``(inf, [])`` when none is. A
     box's crease seen by a camera is a straight line on its grid; each cut's two planes
     come from running sums along the direction (one sort, no refits). Orthogonal least
     squares would not do: a narrow face seen head-on, its pixels spread along the rays by a
@@ -263,7 +205,7 @@ def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     step = -(-n // LINE_SEARCH_PIXELS)
     search = idx[::step]
     rows, cols = np.divmod(search, ctx.width)
-    rays, inverse, weight = _ray_terms(ctx.xyz[search], ctx.sigma[search])
+    rays, inverse, weight = ray_terms(ctx.xyz[search], ctx.sigma[search])
     m = search.size
     search_side = max(-(-ctx.min_size // step), int(np.ceil(CUT_SHARE * m)))
     if m < 2 * search_side:
@@ -271,7 +213,7 @@ def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     sizes = np.unique(np.linspace(search_side, m - search_side, CUTS).astype(np.int64))
     # each pixel's 13 sums once; per direction, the sums up to each cut from blocks between
     # cuts (one gather and one pass), and every direction's planes solved at once
-    columns = _moment_columns(rays, inverse, weight)
+    columns = moment_columns(rays, inverse, weight)
     starts = np.concatenate([[0], sizes])
     angles = np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS)
     orders, lefts, totals = [], [], []
@@ -283,8 +225,8 @@ def _crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
         totals.append(prefix[-1])
     lefts = np.stack(lefts)  # (directions, cuts, 13)
     rights = np.stack(totals)[:, None, :] - lefts
-    left, _ = _ray_fits(_split_columns(lefts.reshape(-1, lefts.shape[-1])))
-    right, _ = _ray_fits(_split_columns(rights.reshape(-1, rights.shape[-1])))
+    left, _ = ray_fits(split_columns(lefts.reshape(-1, lefts.shape[-1])))
+    right, _ = ray_fits(split_columns(rights.reshape(-1, rights.shape[-1])))
     total = left + right
     if not np.isfinite(total).any():
         return (np.inf, [], None) if with_order else (np.inf, [])
@@ -313,10 +255,10 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
     ordered = across(idx[full_order])
     full_size = int(np.clip(np.searchsorted(ordered, 0.5 * (ends[0] + ends[1]), side="left"),
                             side, idx.size - side))
-    rays, inverse, weight = _ray_terms(ctx.xyz[idx], ctx.sigma[idx])
+    rays, inverse, weight = ray_terms(ctx.xyz[idx], ctx.sigma[idx])
     chi2 = 0.0
     for part in (full_order[:full_size], full_order[full_size:]):
-        squares, _ = _ray_fits(_ray_moments(rays[part], inverse[part], weight[part]))
+        squares, _ = ray_fits(ray_moments(rays[part], inverse[part], weight[part]))
         chi2 += float(squares[0])
     return chi2, full_order, full_size
 
@@ -324,7 +266,7 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
 def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.0) -> list:
     """The largest connected piece of each of the two ``sides`` of the flat pixels ``idx``
     (at least ``ctx.min_size``), with its side's plane fitted along the rays
-    (:func:`_ray_terms`), ``[(pixels, plane)]``; the other pieces are left free (bits of the
+    (:func:`~rangeseg_o3d.ray_planes.ray_terms`), ``[(pixels, plane)]``; the other pieces are left free (bits of the
     surfaces beside the region, which a piece of their own would over-segment). The line
     decides each pixel, not the pixel's own distances: near the crease a pixel of the face
     seen head-on is as near the other face's plane as the range noise leaves it (a
@@ -336,11 +278,11 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
     normals, out = [], []
     for side in sides:
         points = ctx.xyz[side]
-        rays, inverse, weight = _ray_terms(points, ctx.sigma[side])
-        _, a = _ray_fits(_ray_moments(rays, inverse, weight))
+        rays, inverse, weight = ray_terms(points, ctx.sigma[side])
+        _, a = ray_fits(ray_moments(rays, inverse, weight))
         normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
         piece = np.sort(ctx.largest_piece(side))
-        plane = _ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
+        plane = ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
         if plane:
             out.append((piece, plane))
     if np.degrees(np.arccos(min(1.0, abs(float(normals[0] @ normals[1]))))) < min_angle_deg:
@@ -355,7 +297,7 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     The region must be beyond the noise of its distances to ``model`` with a connected
     piece of its pixels beyond it (``facets._holds_another``, the model's own outliers not
     counted: a plane over two faces spreads its misfit over both). Its pixels are cut along
-    the straight line whose sides' planes fit them closest (:func:`_crease_line`; a trimmed
+    the straight line whose sides' planes fit them closest (:func:`crease_line`; a trimmed
     search, even at the noise of a grazing face's distances, takes the diagonal plane
     through both faces, which holds most pixels), each side's largest connected piece
     keeping its plane (:func:`_faces_of_sides`; the planes at least ``min_angle_deg``
@@ -372,15 +314,15 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     rms = float(np.sqrt(np.mean(distances * distances)))
     if not _holds_another(ctx, model, idx, distances, rms, count_outliers=False):
         return []
-    chi2, sides = _crease_line(ctx, idx)
+    chi2, sides = crease_line(ctx, idx)
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
         return []
     # one plane along the rays against the two, in independent returns: the chi-squares and
     # counts over the matching window's pixels (the F-test of curvature_resolved, a second
     # plane and the crease line: four parameters more)
-    rays, inverse, weight = _ray_terms(points, ctx.sigma[idx])
-    one, _ = _ray_fits(_ray_moments(rays, inverse, weight))
+    rays, inverse, weight = ray_terms(points, ctx.sigma[idx])
+    one, _ = ray_fits(ray_moments(rays, inverse, weight))
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     if not curvature_resolved(share * float(one[0]), share * chi2, max(int(share * idx.size), 1), 4):
         return []
@@ -391,7 +333,7 @@ def _cylinder_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndar
     """Per point, its range minus the range at which its ray meets the cylinder ``model``
     (the nearer crossing; where the ray passes by, its closest approach to the axis's
     surface), in units of the range noise ``sigma``: the cylinder's residuals along the
-    rays, in the units of the planes' (:func:`_ray_terms`)."""
+    rays, in the units of the planes' (:func:`~rangeseg_o3d.ray_planes.ray_terms`)."""
     ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
     rays = points / ranges[:, None]
     across = rays - np.outer(rays @ model.axis, model.axis)
@@ -407,20 +349,20 @@ def _cylinder_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndar
 def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
     """``(cylinder, planes, inliers, squares, sides)`` of the cylinder region ``idx``: the
     chi-squares over PATTERN_BINS equal-count bins across the best crease line
-    (:func:`_crease_line`) of the mean residuals along the rays of the cylinder ``model`` and
+    (:func:`crease_line`) of the mean residuals along the rays of the cylinder ``model`` and
     of the two sides' planes (each bin's mean in units of its noise over its independent
     returns, residuals clipped at 10 sigmas: a few mixed pixels do not make a pattern), each
     model's share of pixels within TRIM_SIGMAS and their mean squared residual, and the two
     sides; None when no line is."""
-    chi2, sides, order = _crease_line(ctx, idx, with_order=True)
+    chi2, sides, order = crease_line(ctx, idx, with_order=True)
     if order is None:
         return None
     points, noise = ctx.xyz[idx], ctx.sigma[idx]
-    rays, inverse, weight = _ray_terms(points, noise)
+    rays, inverse, weight = ray_terms(points, noise)
     planes = np.empty(idx.size)
     size = sides[0].size
     for part in (order[:size], order[size:]):
-        _, a = _ray_fits(_ray_moments(rays[part], inverse[part], weight[part]))
+        _, a = ray_fits(ray_moments(rays[part], inverse[part], weight[part]))
         planes[part] = (inverse[part] - rays[part] @ a[0]) * np.sqrt(weight[part])
     curved = _cylinder_residuals(model, points, noise)
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
@@ -455,7 +397,7 @@ def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
     cylinder no better than two planes (the pipe's model comes from the tile means, and the
     noise errs together over streaks longer than its matching window): the chi-square of
     either model does not tell them apart. The patterns of their misfits do. Across the
-    best crease line (:func:`_crease_line`), a cylinder over two faces misses the crease
+    best crease line (:func:`crease_line`), a cylinder over two faces misses the crease
     and the far edges the same way along whole bands, and two planes over a pipe its arc;
     the wrong model's pattern is many times the right one's, and both carry the same noise.
     The two planes are taken when the cylinder's pattern exceeds theirs by PATTERN_RATIO (an
@@ -483,13 +425,14 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
                      inlier_factor: float, correlation_px: int = 1):
     """Each plane region of at least ``min_size`` pixels seen near grazing (median incidence
     cosine under ``scales.GRAZING_COSINE``) takes the pixels beside it, free or of another
-    plane region, that its plane fitted along the rays to its pixels (:func:`_ray_terms`, robustly:
-    :func:`robust_ray_plane`) meets within TRIM_SIGMAS of their range noise and nearer, in
-    those units, than their own region's plane, connected to it through such pixels.
-    A region whose plane along the rays is not seen near grazing, or which has none
-    (:func:`robust_ray_plane` found none; a band of a head-on wall under a tile model bent
-    towards the rays) joins the plane region beside it that
-    explains it along the rays (:func:`_plane_beside`; ``correlation_px``: the side of the
+    plane region, that its plane fitted along the rays to its pixels
+    (:func:`~rangeseg_o3d.ray_planes.ray_terms`, robustly:
+    :func:`~rangeseg_o3d.ray_planes.robust_ray_plane`) meets within TRIM_SIGMAS of their range
+    noise and nearer, in those units, than their own region's plane, connected to it through
+    such pixels. A region whose plane along the rays is not seen near grazing, or which has
+    none (:func:`~rangeseg_o3d.ray_planes.robust_ray_plane` found none; a band of a head-on wall
+    under a tile model bent towards the rays) joins the plane region beside it that
+    explains it along the rays (:func:`plane_beside`; ``correlation_px``: the side of the
     sensor's matching window, over which its range noise errs together); its pixels that
     region's plane leaves beyond TRIM_SIGMAS become free.
     Returns ``(labels, fits, stats)``: a region that claimed reported with the plane it
@@ -526,7 +469,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         idx = idx[own]
         if idx.size < min_size:
             continue
-        rays, inverse, weight = _ray_terms(xyz[idx], noise[idx])
+        rays, inverse, weight = ray_terms(xyz[idx], noise[idx])
         rows, cols = np.divmod(idx, w)
         # robust (its rim holds its neighbours' pixels), from its pixels alone: a tile model
         # of a thin grazing face may pass near the camera, no pixel within its noise
@@ -538,7 +481,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         # plane explains it along the rays goes back to that region
         normal = None if a is None else a / max(float(np.linalg.norm(a)), 1e-300)
         if normal is None or float(np.median(np.abs(rays @ normal))) >= GRAZING_COSINE:
-            wall, kept = _plane_beside(out, k, idx, rays, inverse, weight, planes, correlation_px)
+            wall, kept = plane_beside(out, k, idx, rays, inverse, weight, planes, correlation_px)
             if wall:
                 flat = out.reshape(-1)
                 flat[idx] = 0
@@ -555,8 +498,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         box = out[r0:r1, c0:c1]
         points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
         valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
-        ray_terms = _ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
-        u, q, wt = ray_terms
+        u, q, wt = ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
         mine = np.sqrt(wt) * np.abs(q - u @ a)
         theirs = np.full(mine.size, np.inf)
         owner = box.reshape(-1)
@@ -582,21 +524,22 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     fits = {k: m for k, m in fits.items() if k not in joined}
     flat = out.reshape(-1)
     for k, a in along.items():
-        plane = _ray_plane(a, xyz[flat == k])
+        plane = ray_plane(a, xyz[flat == k])
         if plane is not None:
             fits[k] = plane
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
     return out, fits, stats
 
 
-def _plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, inverse: np.ndarray,
-                  weight: np.ndarray, planes: dict, correlation_px: int) -> tuple:
+def plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, inverse: np.ndarray,
+                 weight: np.ndarray, planes: dict, correlation_px: int) -> tuple:
     """``(label, kept)``: of the plane regions (``planes``: label -> Plane) touching region
-    ``k`` of ``labels`` (its flat pixels ``idx``, their :func:`_ray_terms`), the one whose
-    plane keeps ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise
-    along the rays with the least mean square of those, that mean square within the
-    chi-square bound of their independent returns (``correlation_px`` squared pixels each),
-    and the mask of the pixels it keeps; ``(0, None)`` when none does.
+    ``k`` of ``labels`` (its flat pixels ``idx``, their
+    :func:`~rangeseg_o3d.ray_planes.ray_terms`), the one whose plane keeps
+    ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise along the rays
+    with the least mean square of those, that mean square within the chi-square bound of their
+    independent returns (``correlation_px`` squared pixels each), and the mask of the pixels it
+    keeps; ``(0, None)`` when none does (``k`` 0: any region touching ``idx`` is asked).
 
     A thin band of a far head-on wall beside what stands before it can come out of the tile
     grid as a region of its own whose model lies along its rays (its pixels spread along
@@ -619,61 +562,3 @@ def _plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray,
         if mean_square <= noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2 and mean_square < best:
             best, label, mask = mean_square, other, kept
     return label, mask
-
-
-#: Passes of :func:`robust_ray_plane`'s trimmed fit (each refits to the pixels the last
-#: one kept within TRIM_SIGMAS).
-TRIM_PASSES = 3
-#: Equal-count pieces along a strip of which :func:`robust_ray_plane` leaves out up to two.
-ROBUST_CHUNKS = 8
-#: The pairs of chunks :func:`robust_ray_plane` leaves out together, in row-major order (once:
-#: np.triu_indices cost more than the rest of a small strip's fit).
-_CHUNK_PAIRS = np.triu_indices(ROBUST_CHUNKS, 1)
-
-
-def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, rows: np.ndarray,
-                      cols: np.ndarray):
-    """``(a, keep, mean square)``: the plane ``a . p = 1`` of a strip's pixels fitted along
-    their rays (:func:`_ray_terms`; their grid ``rows``, ``cols``), the pixels within TRIM_SIGMAS
-    of it and their mean squared residual in noise units; None when no plane is.
-
-    A strip left over beside a face holds a few pixels of the surfaces at its ends (the side
-    of a box beside its top), far off the face's plane: one least-squares fit over all of
-    them turns the plane, and trimming from it keeps the wrong pixels. The strip is cut
-    into ROBUST_CHUNKS equal-count pieces along its longer axis on the grid; the plane of
-    every set leaving out up to two of them is tried, and the one of least truncated
-    chi-square over every pixel is refitted to the pixels within TRIM_SIGMAS of it,
-    TRIM_PASSES times."""
-    n = inverse.size
-    if n < 3 * ROBUST_CHUNKS:
-        return None
-    along = cols if cols.max() - cols.min() >= rows.max() - rows.min() else rows
-    order = np.argsort(along, kind="stable")
-    chunk = np.empty(n, np.int64)
-    chunk[order] = np.arange(n) * ROBUST_CHUNKS // n
-    columns = _moment_columns(rays, inverse, weight)
-    sums = np.zeros((ROBUST_CHUNKS, columns.shape[1]))
-    np.add.at(sums, chunk, columns)
-    total = sums.sum(axis=0)
-    # every set of chunks leaving out none, one or two of them (pairs in row-major order),
-    # solved at once
-    one, other = _CHUNK_PAIRS
-    stacked = np.concatenate([total[None], total - sums, total - (sums[one] + sums[other])])
-    planes = _ray_solutions(*_split_columns(stacked)[:2])
-    squares = weight[None, :] * (inverse[None, :] - planes @ rays.T) ** 2
-    within = squares <= TRIM_SIGMAS * TRIM_SIGMAS
-    # the least truncated chi-square (a pixel off by more than TRIM_SIGMAS counts as that):
-    # counting the pixels within alone favours a plane turned towards the rays, within whose
-    # noise band the range noise puts most pixels, the strip's ends too
-    pick = int(np.argmin(np.minimum(squares, TRIM_SIGMAS * TRIM_SIGMAS).sum(axis=1)))
-    keep = within[pick]
-    if not keep.any():
-        return None
-    for _ in range(TRIM_PASSES):
-        a = _ray_solutions(*_split_columns(columns[keep].sum(axis=0)[None])[:2])
-        residual = weight * (inverse - rays @ a[0]) ** 2
-        now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
-        if np.array_equal(now, keep) or not now.any():
-            break
-        keep = now
-    return a[0], keep, float(np.mean(residual[keep]))

@@ -19,8 +19,9 @@ import numpy as np
 
 from . import kernels
 from .fitting.batch_planes import planes_from_moments, region_moments
-from .fitting.region_fitter import fresh_label, model_row, model_table
+from .fitting.region_fitter import extended_table, fresh_label, model_table
 from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+from .ray_planes import ray_plane, ray_terms, robust_ray_plane
 from .refinement.recover import grown_box
 
 __all__ = ["recover_strips"]
@@ -60,7 +61,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     rings its model explains better than their regions' (in its box), and keeps of those
     gains only the pixels within ``TRIM_SIGMAS`` of their distance noise.
     """
-    from .fullres import leftover_blob_labels, recovered_region_floor, smallest_region
+    from .fullres import leftover_blob_labels, recovered_region_floor, smallest_region, stats_with_moved
     from .scales import with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)
@@ -107,13 +108,13 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
         flat[kept] = first + j
         fits[first + j] = model
         grown_boxes.append(grown_box(boxes[s], RIM_RINGS + CLAIM_RINGS, out.shape))
-    table = _extended(table, [model for _, _, model in faces])
+    table = extended_table(table, [model for _, _, model in faces])
     moved = ([pixels[starts[s]:starts[s + 1]] for s in np.flatnonzero(joins)] + [merged]
              + [kept for _, kept, _ in faces])
     if faces:
         moved.append(_grow_faces(xyz, out, table, noise, first, grown_boxes, config.k_sigma))
     changed = np.unique(np.concatenate(moved))
-    return out, fits, _with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
+    return out, fits, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 
 class _Strips:
@@ -248,7 +249,7 @@ class _Strips:
 
     def faces_along_rays(self, asked: np.ndarray, floor: int, share: float, width: int) -> list:
         """``(strip, kept pixels, plane)`` of each strip of ``asked`` whose plane fitted along
-        its rays (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`) explains ``EXPLAINED_SHARE`` of it within
+        its rays (:func:`rangeseg_o3d.ray_planes.robust_ray_plane`) explains ``EXPLAINED_SHARE`` of it within
         ``TRIM_SIGMAS`` of the noise of its inverse ranges, the kept pixels (at least
         ``floor``) scattering about it no more than that noise: their mean square in noise
         units within the chi-square bound of their independent returns (``share`` per pixel:
@@ -260,14 +261,12 @@ class _Strips:
         its rays: its least-squares plane turns towards the rays and leaves the pixels
         beyond the noise of their distances (:meth:`across_rays` refuses it). The range
         errors move only the inverse ranges along the rays, which the face's plane fits
-        within their noise (:func:`rangeseg_o3d.plane_faces._ray_terms`)."""
-        from .plane_faces import _ray_plane, _ray_terms, robust_ray_plane
-
+        within their noise (:func:`rangeseg_o3d.ray_planes.ray_terms`)."""
         out = []
         for s in np.flatnonzero(asked).tolist():
             idx = self.pixels[self.starts[s]:self.starts[s + 1]]
             points = self.points[self.starts[s]:self.starts[s + 1]]
-            rays, inverse, weight = _ray_terms(points, self.sigma[idx])
+            rays, inverse, weight = ray_terms(points, self.sigma[idx])
             rows, cols = np.divmod(idx, width)
             found = robust_ray_plane(rays, inverse, weight, rows, cols)
             if found is None:
@@ -279,7 +278,7 @@ class _Strips:
             # (the noise band trims the tails: a normal's mean square within it is under 1)
             if mean_square > noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2:
                 continue
-            plane = _ray_plane(a, points[keep])
+            plane = ray_plane(a, points[keep])
             if plane is not None:
                 out.append((s, idx[keep], plane))
         return out
@@ -292,17 +291,6 @@ def _best(out: np.ndarray, strip: np.ndarray, label: np.ndarray, fine: np.ndarra
         out[strip[i]] = label[i]
 
 
-def _extended(table: tuple, models: list) -> tuple:
-    # a model table with rows for ``models`` appended (their labels follow the table's)
-    if not models:
-        return table
-    kinds, params, rms = table
-    rows = [model_row(m) for m in models]
-    return (np.concatenate([kinds, np.array([k for k, _ in rows], kinds.dtype)]),
-            np.vstack([params, np.array([p for _, p in rows])]),
-            np.concatenate([rms, np.array([m.rms for m in models], float)]))
-
-
 def _grow_faces(xyz, out, table, sigma, first, boxes, k_sigma):
     # the faces first, first + 1, ... of ``out`` (one per box) take back their rims and
     # claim the rings they explain better, each within its box (in place), and keep of
@@ -312,26 +300,3 @@ def _grow_faces(xyz, out, table, sigma, first, boxes, k_sigma):
     return kernels.grow_faces(xyz, out.ravel(), out.shape[0], out.shape[1], kinds, params, rms, sigma, first,
                               np.array(boxes, np.int64).reshape(-1, 4), RIM_RINGS, CLAIM_RINGS, float(k_sigma),
                               TRIM_SIGMAS)
-
-
-def _with_moved(stats, xyz, sigma, before, after, table, changed, inlier_factor):
-    # ``stats`` of ``before`` made those of ``after`` where the pixels ``changed`` moved: their
-    # share taken from their old labels and given to their new ones (the models of the
-    # regions they left or joined are unchanged; ``table`` holds every model)
-    from .fullres import PixelStats
-
-    kinds, params, rms = table
-    n = kinds.size
-    points, noise = xyz[changed], sigma[changed]
-    old = np.ascontiguousarray(before.ravel()[changed], dtype=np.int32)
-    new = np.ascontiguousarray(after.ravel()[changed], dtype=np.int32)
-    lost = kernels.distance_stats(points, old, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
-    won = kernels.distance_stats(points, new, kinds, params, np.zeros_like(rms), noise, float(inlier_factor))
-    merged = []
-    for known, minus, plus in zip((stats.inliers, stats.squares, stats.counts), lost, won):
-        grown = np.zeros(n, known.dtype)
-        m = min(n, known.size)
-        grown[:m] = known[:m]
-        grown = grown - minus.astype(known.dtype) + plus.astype(known.dtype)
-        merged.append(np.maximum(grown, 0))
-    return PixelStats(*merged)

@@ -276,6 +276,49 @@ def test_recovered_regions_get_their_statistics_measured_again(generated_frame):
     assert full.counts[k + 1] > 0 and full.counts[k] == 0
 
 
+def test_statistics_updated_for_the_pixels_that_moved_equal_a_full_measure():
+    # two halves of a noisy plane, a third region made of pixels of both: the statistics of
+    # the labels before, updated for the moved pixels alone, are those measured over the frame
+    from rangeseg_o3d.fitting.region_fitter import extended_table
+    from rangeseg_o3d.fullres import stats_with_moved
+
+    rng = np.random.default_rng(3)
+    v, u = np.mgrid[0:20, 0:30].astype(float)
+    xyz = np.dstack([u * 0.05, v * 0.05, 2.0 + rng.normal(0.0, 0.004, u.shape)])
+    sigma = np.full(u.shape, 0.004)
+    before = np.where(u < 15, 1, 2).astype(np.int32)
+    before[0, 0] = 0
+    fits = {1: Plane(np.array([0.0, 0.0, 1.0]), 2.0, 0.004, 100), 2: Plane(np.array([0.0, 0.0, 1.0]), 2.01, 0.004, 100)}
+    third = Plane(np.array([0.0, 0.0, 1.0]), 1.995, 0.004, 10)
+    after = before.copy()
+    after[5:10, 10:20] = 3
+    after[0, 0] = 1  # a free pixel taken
+    after[19, 29] = 0  # one freed
+    changed = np.flatnonzero(after.ravel() != before.ravel())
+    table = extended_table(model_table(fits, 3), [third])
+    stats = region_stats(xyz, before, fits, sigma, INLIER_SIGMAS)
+    moved = stats_with_moved(stats, xyz.reshape(-1, 3), sigma.ravel(), before, after, table, changed, INLIER_SIGMAS)
+    full = region_stats(xyz, after, {**fits, 3: third}, sigma, INLIER_SIGMAS)
+    np.testing.assert_array_equal(moved.counts[1:], full.counts[1:])
+    np.testing.assert_array_equal(moved.inliers[1:], full.inliers[1:])
+    np.testing.assert_allclose(moved.squares[1:], full.squares[1:], rtol=1e-9)
+    assert full.counts[3] == 50 and 0 < full.inliers[2] < full.counts[2]  # the premise: a new region, outliers too
+
+
+def test_a_model_table_extended_by_models_is_the_table_of_them_all():
+    from rangeseg_o3d.fitting.region_fitter import extended_table
+
+    fits = {1: Plane(np.array([0.0, 0.0, 1.0]), 2.0, 0.004, 100),
+            2: Cylinder(np.array([0.0, 1.0, 0.0]), np.zeros(3), 0.2, rms=0.003, inliers=50)}
+    added = [Sphere(np.array([0.0, 0.0, 3.0]), 0.1, rms=0.002, inliers=30), fits[1]]
+    got = extended_table(model_table(fits, 3), added)
+    want = model_table({**fits, 3: added[0], 4: added[1]}, 5)
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    assert extended_table(want, []) is want
+
+
 def test_stage_images_expand_on_first_access_only():
     small = {"residual": np.arange(6, dtype=np.float32).reshape(2, 3), "edges": np.eye(2, 3, dtype=bool)}
     stages = ExpandedStages(small, 4, (7, 11))

@@ -95,9 +95,9 @@ def _numpy_gates(xyz, sigma, idx, owner, floor=20, max_angle_deg=3.0):
     from rangeseg_o3d.fitting.robust import CHI_SQUARE_SIGMAS
     from rangeseg_o3d.kernels.linalg import noise_rms_bound
     from rangeseg_o3d.off_model import _tilt_bound
-    from rangeseg_o3d.plane_faces import _ray_terms, robust_ray_plane
+    from rangeseg_o3d.ray_planes import ray_terms, robust_ray_plane
 
-    rays, inverse, weight = _ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
+    rays, inverse, weight = ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
     found = robust_ray_plane(rays, inverse, weight, *np.divmod(idx, sigma.shape[1]))
     if found is None:
         return False, None, None
@@ -141,7 +141,8 @@ def test_screen_leaves_a_turn_at_its_bound_to_numpy():
     from rangeseg_o3d.fitting.robust import CHI_SQUARE_SIGMAS
     from rangeseg_o3d.kernels import ray_groups_ruled_out
     from rangeseg_o3d.off_model import SCREEN_TOLERANCE
-    from rangeseg_o3d.plane_faces import ROBUST_CHUNKS, TRIM_PASSES, TRIM_SIGMAS
+    from rangeseg_o3d.ray_planes import ROBUST_CHUNKS, TRIM_PASSES
+    from rangeseg_o3d.refinement.context import TRIM_SIGMAS
 
     xyz, sigma, truth, wall, _ = _corner(0)
     h, w = sigma.shape

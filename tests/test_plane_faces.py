@@ -10,9 +10,9 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.plane import fit_plane
 from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder
-from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _crease_line, _misfit_patterns,
-                                      _ray_fits, _ray_moments, _ray_plane, _ray_terms, faces_of_cylinder,
-                                      faces_of_plane)
+from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _misfit_patterns,
+                                      crease_line, faces_of_cylinder, faces_of_plane)
+from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
 
 #: a stereo camera's range noise per squared metre (the sensor matrix's stereo row)
@@ -50,8 +50,8 @@ def test_a_plane_fitted_along_the_rays_recovers_a_narrow_head_on_face_orthogonal
     xyz, sigma, truth, normals = _box_corner(3)
     face = truth.ravel() == 0
     points, noise = xyz.reshape(-1, 3)[face], sigma.ravel()[face]
-    _, a = _ray_fits(_ray_moments(*_ray_terms(points, noise)))
-    along = _ray_plane(a[0], points)
+    _, a = ray_fits(ray_moments(*ray_terms(points, noise)))
+    along = ray_plane(a[0], points)
     tilt = np.degrees(np.arccos(min(1.0, abs(float(along.normal @ normals[0])))))
     orthogonal = np.degrees(np.arccos(min(1.0, abs(float(fit_plane(points).normal @ normals[0])))))
     assert tilt < 3.0 and orthogonal > 2.0 * tilt
@@ -61,7 +61,7 @@ def test_the_crease_line_cuts_a_far_box_corner_into_its_two_faces():
     xyz, sigma, truth, _ = _box_corner(5)
     ctx = _context(xyz, sigma)
     idx = np.arange(truth.size)
-    _, sides = _crease_line(ctx, idx)
+    _, sides = crease_line(ctx, idx)
     assert len(sides) == 2
     for side in sides:
         share = np.bincount(truth.ravel()[side], minlength=2).max() / side.size
@@ -74,14 +74,14 @@ def test_a_large_regions_line_is_searched_on_a_subsample_and_drawn_through_every
     ctx = _context(xyz, sigma)
     idx = np.arange(truth.size)
     assert idx.size > 2 * LINE_SEARCH_PIXELS
-    chi2, sides, order = _crease_line(ctx, idx, with_order=True)
+    chi2, sides, order = crease_line(ctx, idx, with_order=True)
     assert sorted(np.concatenate(sides).tolist()) == idx.tolist()  # every pixel on one side
     for side in sides:
         share = np.bincount(truth.ravel()[side], minlength=2).max() / side.size
         assert share > 0.99
     # the chi-square is that of every pixel's two planes along the rays, not the subsample's
     points, noise = xyz.reshape(-1, 3), sigma.ravel()
-    every = sum(float(_ray_fits(_ray_moments(*_ray_terms(points[s], noise[s])))[0][0]) for s in sides)
+    every = sum(float(ray_fits(ray_moments(*ray_terms(points[s], noise[s])))[0][0]) for s in sides)
     assert chi2 == pytest.approx(every, rel=1e-6)  # the same sums in another order
     # about one unit of noise per pixel: the two faces' planes explain them
     assert 0.8 < chi2 / idx.size < 1.2
@@ -106,8 +106,8 @@ def test_faces_of_plane_splits_the_merged_plane_of_a_far_box_corner_and_leaves_o
 
 def _ray_fitted(xyz, sigma, idx):
     points = xyz.reshape(-1, 3)[idx]
-    _, a = _ray_fits(_ray_moments(*_ray_terms(points, sigma.ravel()[idx])))
-    return _ray_plane(a[0], points)
+    _, a = ray_fits(ray_moments(*ray_terms(points, sigma.ravel()[idx])))
+    return ray_plane(a[0], points)
 
 
 def test_a_split_piece_on_a_touching_plane_joins_it_and_a_face_at_an_angle_does_not():

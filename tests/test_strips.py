@@ -170,17 +170,16 @@ def test_a_strips_plane_along_its_rays_leaves_out_the_pixels_of_another_surface_
     # the top's strip with 40 pixels of the wall behind at its left end: one least-squares
     # fit over all of them turns the plane; the robust fit (pieces left out, truncated
     # chi-square) finds the top's and keeps those pixels out
-    from rangeseg_o3d.plane_faces import _ray_fits, _ray_moments, _ray_terms
-    from rangeseg_o3d.plane_faces import robust_ray_plane
+    from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_terms, robust_ray_plane
 
     xyz, truth, sigma = _box_top_strip()
     top = truth == 2
     wall = np.zeros_like(top)
     wall[24:26, :20] = True  # two rows of the wall above the strip's left end
     idx = np.flatnonzero((top | wall).ravel())
-    rays, inverse, weight = _ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
+    rays, inverse, weight = ray_terms(xyz.reshape(-1, 3)[idx], sigma.ravel()[idx])
     a, keep, mean_square = robust_ray_plane(rays, inverse, weight, *np.divmod(idx, STEREO_COLS))
-    plain = _ray_fits(_ray_moments(rays, inverse, weight))[1][0]
+    plain = ray_fits(ray_moments(rays, inverse, weight))[1][0]
     true_a = np.array([0.0, 1.0 / 0.6, 0.0])
     assert np.linalg.norm(a - true_a) < 0.25 * np.linalg.norm(true_a)
     assert np.linalg.norm(plain - true_a) > 2 * np.linalg.norm(a - true_a)

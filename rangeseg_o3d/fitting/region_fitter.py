@@ -11,7 +11,7 @@ from .batch_planes import region_moments
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
-__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "pixel_rms", "fresh_label"]
+__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "extended_table", "pixel_rms", "fresh_label"]
 
 
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -48,6 +48,18 @@ def model_row(model) -> tuple[int, np.ndarray]:
     failure or another plugin's model type)."""
     row = np.zeros(PARAM_SLOTS)
     return (_fill_row(model, row) if model else NONE), row
+
+
+def extended_table(table: tuple, models: list) -> tuple:
+    """The model table ``table`` (:func:`model_table`) with a row for each of ``models``
+    appended: their labels follow the table's last, in their order."""
+    if not models:
+        return table
+    kinds, params, rms = table
+    rows = [model_row(m) for m in models]
+    return (np.concatenate([kinds, np.array([k for k, _ in rows], kinds.dtype)]),
+            np.vstack([params, np.array([p for _, p in rows])]),
+            np.concatenate([rms, np.array([m.rms for m in models], float)]))
 
 
 def _fill_row(model, row: np.ndarray) -> int:

@@ -20,7 +20,7 @@ __all__ = ["ray_groups_ruled_out", "free_pieces"]
 @njit(cache=True, nogil=True)
 def _ray_terms(xyz, noise, idx, rays, inverse, weight):
     """Each pixel's unit ray, inverse range and inverse-range weight, as
-    :func:`rangeseg_o3d.plane_faces._ray_terms` computes them (into the arrays given)."""
+    :func:`rangeseg_o3d.ray_planes.ray_terms` computes them (into the arrays given)."""
     for i in range(idx.shape[0]):
         p = idx[i]
         x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
@@ -44,7 +44,7 @@ def _add_terms(sums, row, u, q, w):
 @njit(cache=True, nogil=True)
 def _plane_of(moments, a):
     """The plane ``a`` (in place) of the moment row ``moments`` with the ridge of
-    :func:`rangeseg_o3d.plane_faces._ray_solutions`; False when the system is singular."""
+    :func:`rangeseg_o3d.ray_planes.ray_solutions`; False when the system is singular."""
     m = np.empty((3, 3))
     trace = moments[0] + moments[4] + moments[8]
     for r in range(3):
@@ -72,7 +72,7 @@ def _squares(rays, inverse, weight, a, out):
 
 @njit(cache=True, nogil=True)
 def _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance, a, keep):
-    """:func:`rangeseg_o3d.plane_faces.robust_ray_plane` in compiled arithmetic: ``a`` and
+    """:func:`rangeseg_o3d.ray_planes.robust_ray_plane` in compiled arithmetic: ``a`` and
     ``keep`` (in place) and the mean square of the kept pixels; ``(status, mean square)``
     with status 0 for a plane, 1 for none, 2 when a decision on the way (the best set of
     chunks, a pixel within the trim) lies within ``tolerance`` of going the other way."""
@@ -187,7 +187,7 @@ def ray_groups_ruled_out(xyz, noise, idx, bounds, width, floor, facing, max_angl
                          tolerance):
     """Per group ``g`` (its flat pixels ``idx[bounds[g]:bounds[g + 1]]``, in the order
     :func:`rangeseg_o3d.off_model.faces_along_rays` takes them; rows of ``width`` pixels):
-    True when its plane fitted along the rays (:func:`rangeseg_o3d.plane_faces.robust_ray_plane`,
+    True when its plane fitted along the rays (:func:`rangeseg_o3d.ray_planes.robust_ray_plane`,
     ``chunks`` pieces, ``passes`` trims at ``trim`` noises) certainly fails the gates
     ``faces_along_rays`` puts first: fewer than ``max(floor, 3 chunks)`` pixels, no plane,
     at most half the group or fewer than ``floor`` pixels kept, a mean square beyond the
