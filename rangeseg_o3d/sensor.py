@@ -205,6 +205,20 @@ class Sensor:
         """Metres per unit of the sensor's files."""
         return unit_scale(self.units)
 
+    @property
+    def laser_returns(self) -> bool:
+        """Whether the model states a laser's single returns along its rays: a range noise
+        constant over range (``sigma_quadratic`` 0; a triangulating camera's grows with the
+        square of the range, :func:`noise_sigma`) that errs return by return
+        (``correlation_px`` 1; a stereo camera's errs together over its matching window,
+        :attr:`NoiseModel.matched_window`), no depth steps (``depth_step`` 0; an 8-bit
+        structured-light camera's) and each return on its pixel's ray (``lateral_noise_px``
+        0; a camera's spot or blur measures beside it). Where the rays start (a nodding
+        laser's mirror off its tilt axis) is the cloud's geometry, not the sensor's."""
+        noise = self.noise
+        return (noise.sigma_quadratic == 0.0 and noise.correlation_px == 1 and self.depth_step == 0.0
+                and self.lateral_noise_px == 0.0)
+
     def of_means(self, samples: int, excess: float = 1.0) -> "Sensor":
         """This sensor as seen through means of ``samples`` returns (its tile grid): the same
         sensor with the noise of the means (:meth:`NoiseModel.of_means`)."""

@@ -90,15 +90,18 @@ def bend_samples(sensor: Sensor, tile: int) -> float:
 
 def single_returns(sensor: Sensor, tile: int) -> bool:
     """Whether the points of a grid of ``tile`` x ``tile`` means are a laser's single
-    returns: no tile, a range noise that does not grow with range and errs pixel by pixel
-    (:func:`bend_samples` counts one sample each; polish asks their planes whether the
-    range noise along the rays explains them).
+    returns: no tile, and a sensor whose model states a laser's returns along its rays
+    (:attr:`rangeseg_o3d.sensor.Sensor.laser_returns`: a range noise constant over range and
+    uncorrelated, no depth steps, no lateral noise). :func:`bend_samples` counts one sample
+    each; polish asks their planes whether the range noise along the rays (from the mirror
+    of a nodding laser, :meth:`rangeseg_o3d.refinement.context.Context.viewing_rays`)
+    explains them.
 
-    Read from the noise model and the tile alone, not from the geometry: any sensor on a
-    tile of 1 whose noise is constant and uncorrelated counts. The ABW camera is left out
-    by its depth step, which derives a tile of 2 (:mod:`rangeseg_o3d.scales`); without
-    ``sensor.depth_step`` its tile is 1 at 0.75-1.15 m and it would count."""
-    return tile == 1 and sensor.noise.sigma_quadratic == 0.0 and sensor.noise.correlation_px <= 1
+    Read from the sensor model and the tile, not from the geometry. A camera is out by what
+    its model states, whatever its tile: the ABW structured-light camera by its depth steps
+    and its lateral noise (its derived tile is 2 at 0.75-1.15 m, :mod:`rangeseg_o3d.scales`;
+    the tile alone kept it out before, and without ``depth_step`` it would have counted)."""
+    return tile == 1 and sensor.laser_returns
 
 
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,

@@ -86,6 +86,40 @@ def test_bend_samples_counts_a_stated_correlation_and_keeps_the_bend_test_to_las
     assert 0.7 < bend_samples(stereo, 6) < 0.75
 
 
+def test_polish_fits_along_the_rays_for_a_lasers_single_returns_only_not_a_cameras_on_a_tile_of_one(
+        pipeline, monkeypatch):
+    # a structured-light camera (the ABW preset's model: constant noise, uncorrelated, depth
+    # steps and a lateral noise) on a grid of single returns: its model says camera, and the
+    # range-residual polish is not asked for, as it is for a laser of the same noise
+    import rangeseg_o3d.refinement as refinement
+    from rangeseg_o3d.refinement import single_returns
+    from rangeseg_o3d.sensor import NoiseModel, Sensor
+
+    laser = Sensor(noise=NoiseModel(0.00036, 0.0, 1))
+    cameras = [Sensor(noise=NoiseModel(0.00036, 0.0, 1), depth_step=0.00129, lateral_noise_px=0.5),
+               Sensor(noise=NoiseModel(0.00036, 0.0, 1), depth_step=0.00129),
+               Sensor(noise=NoiseModel(0.00036, 0.0, 1), lateral_noise_px=0.5)]
+    assert single_returns(laser, 1) and not single_returns(laser, 2)
+    assert not any(single_returns(camera, 1) for camera in cameras)
+    asked = []
+    polish = refinement.polish_models
+
+    def spy(*args, **kwargs):
+        asked.append(kwargs["along_rays"])
+        return polish(*args, **kwargs)
+
+    monkeypatch.setattr(refinement, "polish_models", spy)
+    xyz = folded_strip(noise=0.001)[0]
+    cloud = rs.OrganizedCloud(xyz)
+    ranges = cloud.range_image()
+    assert cloud.tile == 1
+    for sensor in [laser, *cameras]:
+        refine_regions(cloud, Regions(np.ones(cloud.shape, np.int32), {1: FitFailure("plane", "x")}),
+                       fitter=pipeline.fitter, config=pipeline.config.refine, sensor=sensor, ranges=ranges,
+                       sigma=sensor.noise.sigma(ranges), jumps=None, timings={})
+    assert asked == [True, False, False, False]
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_column_whose_halves_become_its_cylinder_joins_its_other_curved_piece(seed):
     # a column of radius 0.25 m 3 m away (axis along y, over 100 degrees, 40 x 60 grid) under
