@@ -551,6 +551,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         labels, refused = curved_for_refused(ctx, labels, fits, new, refused, samples, config,
                                              pixels=_grouped(pool, labels.reshape(-1)[pool], refused))
     rim, iterations = 2, 3  # rings taken back, then rings the challengers may claim
+    # where every label this call changes lies (but the last claim of free pixels): the blobs'
+    # boxes grown by those rings, unless a merge below takes a region the tiles had (its
+    # pixels anywhere); None: anywhere
+    where = None if blobs is None else _blob_boxes(blobs, rim + iterations, labels.shape)
     if new:
         from ..kernels import claim_rings_in_boxes, member_pixels
 
@@ -562,8 +566,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         kinds, params, rms = model_table(fits, n)
         challengers = np.zeros(n, bool)
         challengers[list(new)] = True
-        if blobs is not None:
-            box = _blob_boxes(blobs, rim + iterations, labels.shape)
+        if where is not None:
+            box = where
         else:
             rows, cols = np.divmod(member_pixels(labels, challengers), labels.shape[1])
             box = (rows.min() - iterations, rows.max() + iterations + 1,
@@ -603,14 +607,12 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
                                                 only=set(new), near_sigmas=config.k_sigma)
         labels, fits = _within_distance_noise_or_back(ctx, before, labels, fits, refused,
                                                       pixels=kept_apart if config.merge else None, below=first)
-        # the labels changed since the fit only in the blobs' boxes grown by the rings, unless
-        # a merge took a region the tiles had (its pixels anywhere)
-        inside = blobs is not None and all(k in fits for k in tile_regions)
+        if not all(k in fits for k in tile_regions):  # a merge took a region the tiles had
+            where = None
         labels = _gains_within_distance_noise(ctx, before, found, labels, fits, refused, below=first,
-                                              where=box if inside else None)
+                                              where=where)
     if changes is not None:  # every step above changes the blobs or pixels the rings reach from them
-        inside = blobs is not None and all(k in fits for k in tile_regions)
-        changes["where"] = _blob_boxes(blobs, rim + iterations, labels.shape) if inside else None
+        changes["where"] = where
         changes["claimed"] = set()
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
