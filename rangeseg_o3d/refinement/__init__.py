@@ -29,6 +29,10 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 8. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
    are refitted from moments whenever they change, which costs nothing), and a plane whose
    final pixels the fitter no longer settles as one is decided anew on them.
+9. :mod:`.along_rays` (a laser's single returns only): border pixels go to the
+   neighbouring plane that explains their range clearly better, in range sigmas along
+   their rays (a plane seen near grazing took them within three range sigmas of its
+   distances).
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
 :mod:`.context` holds what the steps share (points, noise, fitter, size floor).
@@ -42,6 +46,7 @@ from ..fitting.region_fitter import RegionFitter
 from ..result import Regions
 from ..scales import GRAZING_COSINE, with_derived_refinement
 from ..sensor import Sensor
+from .along_rays import settle_along_rays
 from .context import Context
 from .dissolve import absorb_ripples, dissolve_small
 from .facets import planes_for_curved
@@ -201,4 +206,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     fits = polish_models(ctx, labels, fits, resolve_bends=bend_samples(sensor, tile),
                          along_rays=single_returns(sensor, tile))
     timer.lap("polish")
+    if single_returns(sensor, tile):  # a laser's returns err along their rays only
+        labels, fits = settle_along_rays(ctx, labels, fits, ranges=ranges, iterations=config.grow_iterations,
+                                         k_sigma=config.k_sigma, jump_ratio=growth["jump_ratio"],
+                                         jump_min=config.jump_min)
+    timer.lap("rays")
     return Regions(labels, fits)

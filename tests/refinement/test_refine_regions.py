@@ -11,7 +11,7 @@ from rangeseg_o3d.result import Regions
 from refinement_helpers import best_overlap, folded_strip
 
 STEPS = ["refine.split", "refine.grow", "refine.recover", "refine.facets", "refine.merge", "refine.settle",
-         "refine.dissolve", "refine.polish"]
+         "refine.dissolve", "refine.polish", "refine.rays"]
 
 
 def _refine_one_failed_region(pipeline, cloud, timings=None):
