@@ -60,19 +60,32 @@ def _plane_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     return normals, offsets
 
 
-def _shifted(image: np.ndarray, step: tuple[int, int], fill, wrap: bool) -> np.ndarray:
-    """``image`` seen from each pixel's neighbour ``step`` away: ``out[r, c] = image[r + dr,
-    c + dc]``, ``fill`` off the grid (across the columns' seam with ``wrap``)."""
-    dr, dc = step
-    out = np.full_like(image, fill)
-    h, w = image.shape
-    rows_to, rows_from = slice(max(-dr, 0), h - max(dr, 0)), slice(max(dr, 0), h - max(-dr, 0))
-    if dc and wrap:
-        out[rows_to] = np.roll(image[rows_from], -dc, axis=1)
-        return out
-    cols_to, cols_from = slice(max(-dc, 0), w - max(dc, 0)), slice(max(dc, 0), w - max(-dc, 0))
-    out[rows_to, cols_to] = image[rows_from, cols_from]
-    return out
+def _neighbours(idx: np.ndarray, step: tuple[int, int], shape: tuple[int, int], wrap: bool) -> np.ndarray:
+    """The flat neighbour ``step = (dr, dc)`` of each flat pixel ``idx``, -1 off the grid
+    (across the columns' seam with ``wrap``)."""
+    h, w = shape
+    rows, cols = np.divmod(idx, w)
+    rows, cols = rows + step[0], cols + step[1]
+    if wrap:
+        cols = cols % w
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    return np.where(inside, rows * w + cols, -1)
+
+
+def _borders(labels: np.ndarray, planar: np.ndarray, wrap: bool) -> np.ndarray:
+    """The flat pixels of plane regions with a 4-neighbour in another region (increasing)."""
+    differs = np.zeros(labels.shape, bool)
+    across = labels[1:] != labels[:-1]
+    differs[1:] |= across
+    differs[:-1] |= across
+    along = labels[:, 1:] != labels[:, :-1]
+    differs[:, 1:] |= along
+    differs[:, :-1] |= along
+    if wrap:  # the first and last columns are neighbours
+        seam = labels[:, 0] != labels[:, -1]
+        differs[:, 0] |= seam
+        differs[:, -1] |= seam
+    return np.flatnonzero(differs & planar[labels])
 
 
 def _moves(ctx: Context, labels: np.ndarray, table: tuple, ranges: np.ndarray, *, k_sigma: float,
@@ -81,28 +94,29 @@ def _moves(ctx: Context, labels: np.ndarray, table: tuple, ranges: np.ndarray, *
     and the plane region each goes to (decided on ``labels`` as they are)."""
     normals, offsets = table
     planar = np.any(normals != 0.0, axis=1)
-    on_plane = planar[labels]
-    best = np.full(labels.size, np.inf)
-    target = np.zeros(labels.size, np.int64)
+    flat, flat_ranges = labels.ravel(), ranges.ravel()
+    idx = _borders(labels, planar, ctx.wrap_columns)
+    points, rays, sigma = ctx.xyz[idx], ctx.viewing_rays(idx), ctx.sigma[idx]
+    own = flat[idx]
+    mine = range_sigmas(points, rays, sigma, normals[own], offsets[own])
+    # a move needs a neighbour nearer by SETTLE_MARGIN: pixels their own plane explains that
+    # well stay (most of a border), and are not looked at again
+    keep = mine > SETTLE_MARGIN
+    idx, points, rays, sigma, own, mine = idx[keep], points[keep], rays[keep], sigma[keep], own[keep], mine[keep]
+    best = np.full(idx.size, np.inf)
+    target = np.zeros(idx.size, np.int64)
     for step in _STEPS:
-        other = _shifted(labels, step, 0, ctx.wrap_columns)
-        other_range = _shifted(ranges, step, np.nan, ctx.wrap_columns)
-        # no jump between the two (growth's test): a step onto another surface is not a border
-        smooth = np.abs(ranges - other_range) <= np.maximum(jump_min, jump_ratio * np.fmin(ranges, other_range))
-        idx = np.flatnonzero(on_plane & planar[other] & (other != labels) & smooth)
-        if not idx.size:
-            continue
-        k = other.ravel()[idx]
-        score = range_sigmas(ctx.xyz[idx], ctx.viewing_rays(idx), ctx.sigma[idx], normals[k], offsets[k])
-        better = score < best[idx]
-        best[idx[better]], target[idx[better]] = score[better], k[better]
-    idx = np.flatnonzero(target)
-    if not idx.size:
-        return idx, target[idx]
-    own = labels.ravel()[idx]
-    mine = range_sigmas(ctx.xyz[idx], ctx.viewing_rays(idx), ctx.sigma[idx], normals[own], offsets[own])
-    move = (best[idx] <= k_sigma) & (best[idx] < mine - SETTLE_MARGIN)
-    return idx[move], target[idx[move]]
+        j = _neighbours(idx, step, labels.shape, ctx.wrap_columns)
+        k = np.where(j >= 0, flat[np.maximum(j, 0)], 0)
+        r, other = flat_ranges[idx], flat_ranges[np.maximum(j, 0)]
+        # no jump between the two (growth's test): a step onto another surface is no border
+        smooth = np.abs(r - other) <= np.maximum(jump_min, jump_ratio * np.fmin(r, other))
+        ask = np.flatnonzero((j >= 0) & (k != own) & planar[k] & smooth)
+        score = range_sigmas(points[ask], rays[ask], sigma[ask], normals[k[ask]], offsets[k[ask]])
+        better = score < best[ask]
+        best[ask[better]], target[ask[better]] = score[better], k[ask[better]]
+    move = (target > 0) & (best <= k_sigma) & (best < mine - SETTLE_MARGIN)
+    return idx[move], target[move]
 
 
 def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: np.ndarray, iterations: int,

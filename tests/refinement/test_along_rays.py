@@ -116,3 +116,17 @@ def test_a_region_emptied_loses_its_model_and_bad_input_is_refused(context):
     with pytest.raises(ValueError, match="shape"):
         settle_along_rays(ctx, labels, fits, ranges=ranges[:-1], iterations=3, k_sigma=3.0, jump_ratio=0.08,
                           jump_min=0.05)
+
+
+def test_borders_and_neighbours_meet_across_the_seam_of_a_full_turn():
+    from rangeseg_o3d.refinement.along_rays import _borders, _neighbours
+
+    labels = np.array([[1, 1, 1, 2], [1, 1, 1, 1]], np.int32)
+    planar = np.array([False, True, True])
+    # without the seam: the 2 and the pixels beside and below it
+    assert _borders(labels, planar, wrap=False).tolist() == [2, 3, 7]
+    # with it, column 0 of row 0 touches the 2 across the seam too
+    assert _borders(labels, planar, wrap=True).tolist() == [0, 2, 3, 7]
+    np.testing.assert_array_equal(_neighbours(np.array([0, 3, 4]), (0, -1), labels.shape, wrap=False), [-1, 2, -1])
+    np.testing.assert_array_equal(_neighbours(np.array([0, 3, 4]), (0, -1), labels.shape, wrap=True), [3, 2, 7])
+    np.testing.assert_array_equal(_neighbours(np.array([0, 7]), (1, 0), labels.shape, wrap=True), [4, -1])
