@@ -35,7 +35,7 @@ _SOURCES = {
     "labelwise": ("label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
-    "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend"),
+    "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "growth": ("grow_along_rays",),
     "raygroups": ("ray_groups_ruled_out", "free_pieces"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend"]
+__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"]
 
 
 @njit(cache=True, nogil=True)
@@ -159,3 +159,71 @@ def band_bend(xyz, idx, sigma, origins, width, refits, band, cos_floor):
     for a in range(4):
         coefficient += inverse[3, a] * rhs[a]
     return kept, squares / kept, coefficient / np.sqrt(max(inverse[3, 3], 1e-300))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _range_sigmas(xyz, i, normals, offsets, k, sigma, ox, oy, oz, cos_floor):
+    # how many range sigmas pixel i lies from where its ray (from (ox, oy, oz)) meets plane k:
+    # its distance over the range noise times the incidence cosine (floored at cos_floor)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
+    rx, ry, rz = x - ox, y - oy, z - oz
+    length = max(np.sqrt(rx * rx + ry * ry + rz * rz), 1e-12)
+    cosine = max(abs(rx * nx + ry * ny + rz * nz) / length, cos_floor)
+    return abs(x * nx + y * ny + z * nz - offsets[k]) / (max(sigma[i], 1e-12) * cosine)
+
+
+@njit(cache=True, nogil=True)
+def settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, origins, k_sigma, margin,
+                            jump_ratio, jump_min, cos_floor, wrap):
+    """``(pixels, targets)`` of one ring of :func:`rangeseg_o3d.refinement.along_rays.settle_along_rays`:
+    the flat pixels of plane regions (``normals[k]`` not zero; plane ``normals[k] . p =
+    offsets[k]``) that go to a 4-neighbouring plane region, and that region. A pixel moves
+    to the neighbour (no range jump between them: ``<= max(jump_min, jump_ratio * r)``)
+    whose plane meets its ray nearest in range sigmas (its distance over ``sigma`` times
+    the incidence cosine, at least ``cos_floor``; the first of equals, neighbours taken up,
+    down, left, right), within ``k_sigma`` and nearer than its own plane by more than
+    ``margin``. Rays start at ``origins[row]`` when ``origins`` has rows, else at the
+    origin; with ``wrap`` the first and last columns are neighbours. Decided on ``labels``
+    as they are (not changed)."""
+    h, w = labels.shape
+    n = normals.shape[0]
+    planar = np.zeros(n, np.bool_)
+    for k in range(1, n):
+        planar[k] = normals[k, 0] != 0.0 or normals[k, 1] != 0.0 or normals[k, 2] != 0.0
+    shifted = origins.shape[0] > 0
+    pixels = np.empty(h * w, np.int64)
+    targets = np.empty(h * w, np.int64)
+    moved = 0
+    for r in range(h):
+        ox, oy, oz = (origins[r, 0], origins[r, 1], origins[r, 2]) if shifted else (0.0, 0.0, 0.0)
+        for c in range(w):
+            own = labels[r, c]
+            if own <= 0 or own >= n or not planar[own]:
+                continue
+            i = r * w + c
+            mine = -1.0  # its own plane's, asked when a neighbour could take it
+            best, best_k = np.inf, 0
+            for step in range(4):
+                rr, cc = r + (step == 1) - (step == 0), c + (step == 3) - (step == 2)
+                if wrap:
+                    cc = cc % w
+                if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                    continue
+                k = labels[rr, cc]
+                if k == own or k <= 0 or k >= n or not planar[k]:
+                    continue
+                j = rr * w + cc
+                if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
+                    continue
+                if mine < 0.0:
+                    mine = _range_sigmas(xyz, i, normals, offsets, own, sigma, ox, oy, oz, cos_floor)
+                    if mine <= margin:  # no neighbour can be nearer by the margin
+                        break
+                score = _range_sigmas(xyz, i, normals, offsets, k, sigma, ox, oy, oz, cos_floor)
+                if score < best:
+                    best, best_k = score, k
+            if best_k > 0 and best <= k_sigma and best < mine - margin:
+                pixels[moved], targets[moved] = i, best_k
+                moved += 1
+    return pixels[:moved], targets[:moved]

@@ -23,31 +23,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
 from ..scales import GRAZING_COSINE
 from .context import Context
 from .grow import SETTLE_MARGIN
 
-__all__ = ["settle_along_rays", "range_sigmas"]
-
-# (row, column) steps to the four neighbours
-_STEPS = ((-1, 0), (1, 0), (0, -1), (0, 1))
-
-
-def range_sigmas(points: np.ndarray, rays: np.ndarray, sigma: np.ndarray, normal: np.ndarray,
-                 offset: np.ndarray) -> np.ndarray:
-    """How many range sigmas each point is from where its ray meets its plane.
-
-    ``points``, ``rays`` (unit, from where the sensor's rays start) and ``normal`` are
-    ``(N, 3)``, ``sigma`` (range noise) and ``offset`` ``(N,)``: the plane ``normal . p =
-    offset`` of each point. A range error moves a point along its ray, so its distance to
-    the plane is the range error times the incidence cosine; the cosine is floored at
-    :data:`rangeseg_o3d.scales.GRAZING_COSINE` (a ray nearer grazing than the jump test
-    allows is no measurement of the plane's depth).
-    """
-    distance = np.abs(np.einsum("ij,ij->i", points, normal) - offset)
-    cosine = np.maximum(np.abs(np.einsum("ij,ij->i", rays, normal)), GRAZING_COSINE)
-    return distance / (np.maximum(sigma, 1e-12) * cosine)
+__all__ = ["settle_along_rays"]
 
 
 def _plane_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -60,63 +42,19 @@ def _plane_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     return normals, offsets
 
 
-def _neighbours(idx: np.ndarray, step: tuple[int, int], shape: tuple[int, int], wrap: bool) -> np.ndarray:
-    """The flat neighbour ``step = (dr, dc)`` of each flat pixel ``idx``, -1 off the grid
-    (across the columns' seam with ``wrap``)."""
-    h, w = shape
-    rows, cols = np.divmod(idx, w)
-    rows, cols = rows + step[0], cols + step[1]
-    if wrap:
-        cols = cols % w
-    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-    return np.where(inside, rows * w + cols, -1)
-
-
-def _borders(labels: np.ndarray, planar: np.ndarray, wrap: bool) -> np.ndarray:
-    """The flat pixels of plane regions with a 4-neighbour in another region (increasing)."""
-    differs = np.zeros(labels.shape, bool)
-    across = labels[1:] != labels[:-1]
-    differs[1:] |= across
-    differs[:-1] |= across
-    along = labels[:, 1:] != labels[:, :-1]
-    differs[:, 1:] |= along
-    differs[:, :-1] |= along
-    if wrap:  # the first and last columns are neighbours
-        seam = labels[:, 0] != labels[:, -1]
-        differs[:, 0] |= seam
-        differs[:, -1] |= seam
-    return np.flatnonzero(differs & planar[labels])
-
-
 def _moves(ctx: Context, labels: np.ndarray, table: tuple, ranges: np.ndarray, *, k_sigma: float,
            jump_ratio: float, jump_min: float) -> tuple[np.ndarray, np.ndarray]:
     """``(pixels, targets)``: the flat border pixels of plane regions that one ring moves
-    and the plane region each goes to (decided on ``labels`` as they are)."""
+    and the plane region each goes to, decided on ``labels`` as they are
+    (:func:`rangeseg_o3d.kernels.settle_moves_along_rays`)."""
     normals, offsets = table
-    planar = np.any(normals != 0.0, axis=1)
-    flat, flat_ranges = labels.ravel(), ranges.ravel()
-    idx = _borders(labels, planar, ctx.wrap_columns)
-    points, rays, sigma = ctx.xyz[idx], ctx.viewing_rays(idx), ctx.sigma[idx]
-    own = flat[idx]
-    mine = range_sigmas(points, rays, sigma, normals[own], offsets[own])
-    # a move needs a neighbour nearer by SETTLE_MARGIN: pixels their own plane explains that
-    # well stay (most of a border), and are not looked at again
-    keep = mine > SETTLE_MARGIN
-    idx, points, rays, sigma, own, mine = idx[keep], points[keep], rays[keep], sigma[keep], own[keep], mine[keep]
-    best = np.full(idx.size, np.inf)
-    target = np.zeros(idx.size, np.int64)
-    for step in _STEPS:
-        j = _neighbours(idx, step, labels.shape, ctx.wrap_columns)
-        k = np.where(j >= 0, flat[np.maximum(j, 0)], 0)
-        r, other = flat_ranges[idx], flat_ranges[np.maximum(j, 0)]
-        # no jump between the two (growth's test): a step onto another surface is no border
-        smooth = np.abs(r - other) <= np.maximum(jump_min, jump_ratio * np.fmin(r, other))
-        ask = np.flatnonzero((j >= 0) & (k != own) & planar[k] & smooth)
-        score = range_sigmas(points[ask], rays[ask], sigma[ask], normals[k[ask]], offsets[k[ask]])
-        better = score < best[ask]
-        best[ask[better]], target[ask[better]] = score[better], k[ask[better]]
-    move = (target > 0) & (best <= k_sigma) & (best < mine - SETTLE_MARGIN)
-    return idx[move], target[move]
+    origins = ctx.row_origins
+    origins = np.zeros((0, 3)) if origins is None else np.ascontiguousarray(origins, dtype=np.float64)
+    return kernels.settle_moves_along_rays(
+        np.ascontiguousarray(ctx.xyz, dtype=np.float64), labels, normals, offsets,
+        np.ascontiguousarray(ctx.sigma, dtype=np.float64), np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+        origins, float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min), GRAZING_COSINE,
+        bool(ctx.wrap_columns))
 
 
 def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: np.ndarray, iterations: int,
@@ -126,9 +64,11 @@ def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: n
 
     A border pixel (4-adjacent to another plane region, no range jump between them:
     ``<= max(jump_min, jump_ratio * r)``) moves to the neighbour whose plane is within
-    ``k_sigma`` range sigmas of it along its ray (:func:`range_sigmas`, rays from where
-    the sensor's rays start, :meth:`Context.viewing_rays`) and nearer than its own plane by
-    more than ``SETTLE_MARGIN`` of them; the planes that changed are refitted from moments
+    ``k_sigma`` range sigmas of it along its ray (its distance over the range noise times
+    the incidence cosine, floored at :data:`rangeseg_o3d.scales.GRAZING_COSINE`: a ray
+    nearer grazing than the jump test allows is no measurement of a plane's depth; rays
+    from where the sensor's rays start, :attr:`Context.row_origins`) and nearer than its
+    own plane by more than ``SETTLE_MARGIN`` of them; the planes that changed are refitted from moments
     after each ring. A region left without pixels loses its model. ``labels`` and ``fits``
     are not changed.
     """

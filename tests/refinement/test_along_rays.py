@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.refinement.along_rays import range_sigmas, settle_along_rays
+from rangeseg_o3d.kernels import settle_moves_along_rays
+from rangeseg_o3d.refinement.along_rays import settle_along_rays
+from rangeseg_o3d.scales import GRAZING_COSINE
 from rangeseg_o3d.refinement.grow import settle_regions
 from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.scene import Scene, box
@@ -44,19 +46,65 @@ def _fits(cloud, labels):
     return {k: fit_plane(cloud.xyz[labels == k]) for k in (TOP, FRONT)}
 
 
-def test_range_sigmas_measures_the_distance_along_the_ray_in_range_noise():
-    rays = np.array([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8], [0.0, 0.999, np.sqrt(1 - 0.999 ** 2)]])
-    normal = np.tile([0.0, 0.0, 1.0], (3, 1))
-    # each point 2 cm beyond where its ray meets z = 2 (along the ray)
-    meet = 2.0 / rays[:, 2]
-    points = rays * (meet + 0.02)[:, None]
-    got = range_sigmas(points, rays, np.full(3, 0.01), normal, np.full(3, 2.0))
-    # head-on and at cosine 0.8: 2 sigmas of range; near grazing (cosine 0.045) the cosine
-    # is floored at GRAZING_COSINE, so the distance (0.02 x 0.045) counts for less
-    from rangeseg_o3d.scales import GRAZING_COSINE
+def _one_row(offsets_beyond, cosines, sigma=0.01, labels=(1, 2, 2)):
+    """A row of pixels whose rays (from the origin) meet the plane z = 2 at incidence
+    ``cosines``, each ``offsets_beyond`` metres beyond it along its ray; label 1 holds the
+    plane z = 2, label 2 a plane 1 m away (z = 3)."""
+    c = np.asarray(cosines, float)
+    rays = np.stack([np.zeros_like(c), np.sqrt(1 - c ** 2), c], axis=1)
+    points = rays * (2.0 / c + np.asarray(offsets_beyond, float))[:, None]
+    normals = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    ranges = np.linalg.norm(points, axis=1)
+    return (np.ascontiguousarray(points), np.array([labels], np.int32), normals, np.array([0.0, 2.0, 3.0]),
+            np.full(len(c), sigma), ranges)
 
-    np.testing.assert_allclose(got[:2], [2.0, 2.0], rtol=1e-9)
-    np.testing.assert_allclose(got[2], 0.02 * rays[2, 2] / (0.01 * GRAZING_COSINE), rtol=1e-9)
+
+def _ask(xyz, labels, normals, offsets, sigma, ranges, k_sigma=3.0, wrap=False):
+    # (no range step counts as a jump here: the pixels' ranges differ by up to 100 m)
+    return settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, np.zeros((0, 3)), k_sigma, 1.0,
+                                   1e3, 1e3, GRAZING_COSINE, wrap)
+
+
+def test_a_pixel_goes_to_the_plane_its_range_lies_on_in_range_sigmas():
+    # pixels 1 and 2 lie on z = 2 (label 1's plane) within 0.5 range sigma, 1 m off label 2's
+    # z = 3: both go to label 1, whose pixel 0 neighbours pixel 1 only, so only pixel 1 moves
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.005, 0.005], [0.9, 0.9, 0.9])
+    pixels, targets = _ask(xyz, labels, normals, offsets, sigma, ranges)
+    assert pixels.tolist() == [1] and targets.tolist() == [1]
+    # 4 cm beyond z = 2 at incidence cosine 0.8 (3.2 cm off the plane): 4 range sigmas, out of k_sigma 3
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.04, 0.0], [0.8, 0.8, 0.8])
+    assert _ask(xyz, labels, normals, offsets, sigma, ranges)[0].size == 0
+    assert _ask(xyz, labels, normals, offsets, sigma, ranges, k_sigma=4.5)[0].tolist() == [1]
+    # near grazing the cosine is floored: at cosine 0.02, 0.1 m along the ray is 2 mm off the
+    # plane, 0.2 / GRAZING_COSINE = 1.2 range sigmas by the floor (5 by the ray's own cosine)
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.1, 0.0], [0.8, 0.02, 0.8])
+    assert _ask(xyz, labels, normals, offsets, sigma, ranges)[1].tolist() == [1]
+    assert 0.002 / (0.01 * GRAZING_COSINE) < 3.0 < 0.002 / (0.01 * 0.02)
+
+
+def test_a_pixel_its_own_plane_explains_or_a_jump_stays():
+    # pixel 1 on z = 3, its own label 2's plane: it stays although label 1 is its neighbour
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.0, 0.0], [0.9, 0.9, 0.9], labels=(1, 2, 2))
+    xyz[1] *= 3.0 / 2.0  # onto z = 3
+    ranges = np.linalg.norm(xyz, axis=1)
+    assert _ask(xyz, labels, normals, offsets, sigma, ranges)[0].size == 0
+    # a pixel on label 1's plane behind a range jump from its neighbour stays too
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.0, 0.0], [0.9, 0.9, 0.9])
+    far = ranges.copy()
+    far[0] = 1.0  # 1.2 m nearer than pixel 1: a jump
+    moves = settle_moves_along_rays(xyz, labels, normals, offsets, sigma, far, np.zeros((0, 3)), 3.0, 1.0,
+                                    0.08, 0.05, GRAZING_COSINE, False)
+    assert moves[0].size == 0
+
+
+def test_the_first_and_last_columns_are_neighbours_on_a_full_turn():
+    # pixel 2 lies on label 1's plane; its only label-1 neighbour is pixel 0, across the seam
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.3, 0.0], [0.9, 0.9, 0.9], labels=(1, 2, 2))
+    xyz[1] *= 3.0 / 2.0  # pixel 1 on z = 3, label 2's own plane
+    ranges = np.linalg.norm(xyz, axis=1)
+    assert _ask(xyz, labels, normals, offsets, sigma, ranges)[0].size == 0
+    pixels, targets = _ask(xyz, labels, normals, offsets, sigma, ranges, wrap=True)
+    assert pixels.tolist() == [2] and targets.tolist() == [1]
 
 
 def test_the_front_rows_a_grazing_top_took_go_back_to_the_front_face(context):
@@ -116,17 +164,3 @@ def test_a_region_emptied_loses_its_model_and_bad_input_is_refused(context):
     with pytest.raises(ValueError, match="shape"):
         settle_along_rays(ctx, labels, fits, ranges=ranges[:-1], iterations=3, k_sigma=3.0, jump_ratio=0.08,
                           jump_min=0.05)
-
-
-def test_borders_and_neighbours_meet_across_the_seam_of_a_full_turn():
-    from rangeseg_o3d.refinement.along_rays import _borders, _neighbours
-
-    labels = np.array([[1, 1, 1, 2], [1, 1, 1, 1]], np.int32)
-    planar = np.array([False, True, True])
-    # without the seam: the 2 and the pixels beside and below it
-    assert _borders(labels, planar, wrap=False).tolist() == [2, 3, 7]
-    # with it, column 0 of row 0 touches the 2 across the seam too
-    assert _borders(labels, planar, wrap=True).tolist() == [0, 2, 3, 7]
-    np.testing.assert_array_equal(_neighbours(np.array([0, 3, 4]), (0, -1), labels.shape, wrap=False), [-1, 2, -1])
-    np.testing.assert_array_equal(_neighbours(np.array([0, 3, 4]), (0, -1), labels.shape, wrap=True), [3, 2, 7])
-    np.testing.assert_array_equal(_neighbours(np.array([0, 7]), (1, 0), labels.shape, wrap=True), [4, -1])
