@@ -113,7 +113,7 @@ class Lms2xx:
         self.unit: float | None = None
         self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
         self._decoder = TelegramDecoder(replies=True)
-        self._backlog: list = []  # events decoded after a reply (streamed scans), kept for read_streamed
+        self._backlog: list = []  # events decoded after a reply (scans streamed with it), kept for start_streaming
         self._reply_at = 0.0  # host time the chunk holding the last reply arrived
         self._received = bytearray()
         self._streaming = False

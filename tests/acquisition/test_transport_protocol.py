@@ -122,8 +122,9 @@ def test_chunk_reader_dates_chunks_by_arrival_and_reports_a_dead_port():
     with pytest.raises(ValueError, match="wait must be positive; got 0"):
         ChunkReader(port, 0)
     reader = ChunkReader(port, 0.005)
-    port._rx += b"ab"
+    # the clock is read before the bytes are put: the reader thread may take them at once
     arrived = time.monotonic()
+    port._rx += b"ab"
     time.sleep(0.1)
     (stamp, data), = reader.take()
     assert data == b"ab" and 0 <= stamp - arrived < 0.05
