@@ -34,6 +34,6 @@ fi
 # numba compiles the kernels on first use and caches them beside the package: do it now,
 # once, rather than in the middle of the first scan.
 if ! ls rangeseg_o3d/kernels/__pycache__/*.nbi >/dev/null 2>&1; then
-    echo "bootstrap: compiling the numba kernels (first time only, about a minute)" >&2
+    echo "bootstrap: compiling the numba kernels (first time only: 2-3 minutes on an idle 2-core machine, longer under load)" >&2
     .venv/bin/python -c 'from rangeseg_o3d.pipeline import warm_up; print(f"bootstrap: compiled in {warm_up():.0f} s")' >&2
 fi
