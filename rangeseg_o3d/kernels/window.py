@@ -87,6 +87,84 @@ def window_moments(xyz, window):
 
 
 @njit(cache=True, nogil=True)
+def _scatter3(xyz):
+    """Count ``(H, W)`` and centred scatter ``(6, H, W)`` of every 3x3 window: the values
+    :func:`window_moments` gives (``window=3``), without its means.
+
+    A window whose nine points are all valid (inside a scan, nearly every one) is summed
+    about its centre, the nine points in row order, as :func:`_window_scatter` sums it; but
+    each point's term is added to every window of a row in one loop over the row (the
+    same operations per window, in the same order: the same values), without the
+    clipping, the reference search and the test per point. The other windows (the grid's
+    border, a missing point) go through :func:`_window_scatter`.
+    """
+    h, w = xyz.shape[0], xyz.shape[1]
+    count = np.zeros((h, w))
+    scatter = np.zeros((6, h, w))
+    # the coordinates as three contiguous grids: the row loops below read them in unit steps
+    xs, ys, zs = np.empty((h, w)), np.empty((h, w)), np.empty((h, w))
+    for r in range(h):
+        for c in range(w):
+            xs[r, c], ys[r, c], zs[r, c] = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+    # per window of a row (column c at c - 1): sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
+    s0, s1, s2, s3, s4, s5 = np.empty(w), np.empty(w), np.empty(w), np.empty(w), np.empty(w), np.empty(w)
+    s6, s7, s8 = np.empty(w), np.empty(w), np.empty(w)
+    full = np.empty(w, np.bool_)  # the windows of the row whose nine points are valid
+    m = max(w - 2, 0)
+    for r in range(h):
+        interior = 0 < r < h - 1 and w > 2
+        if interior:
+            for c in range(w):
+                full[c] = 0 < c < w - 1
+            for i in range(r - 1, r + 2):
+                for c in range(w):
+                    if zs[i, c] != zs[i, c]:
+                        for j in range(max(c - 1, 0), min(c + 2, w)):
+                            full[j] = False
+            cx, cy, cz = xs[r, 1:w - 1], ys[r, 1:w - 1], zs[r, 1:w - 1]
+            for k in range(m):
+                s0[k] = s1[k] = s2[k] = s3[k] = s4[k] = s5[k] = s6[k] = s7[k] = s8[k] = 0.0
+            for i in range(r - 1, r + 2):
+                for j in range(3):
+                    px, py, pz = xs[i, j:j + m], ys[i, j:j + m], zs[i, j:j + m]
+                    for k in range(m):
+                        x = px[k] - cx[k]
+                        y = py[k] - cy[k]
+                        z = pz[k] - cz[k]
+                        s0[k] += x
+                        s1[k] += y
+                        s2[k] += z
+                        s3[k] += x * x
+                        s4[k] += x * y
+                        s5[k] += x * z
+                        s6[k] += y * y
+                        s7[k] += y * z
+                        s8[k] += z * z
+            sc0, sc1, sc2 = scatter[0, r, 1:w - 1], scatter[1, r, 1:w - 1], scatter[2, r, 1:w - 1]
+            sc3, sc4, sc5 = scatter[3, r, 1:w - 1], scatter[4, r, 1:w - 1], scatter[5, r, 1:w - 1]
+            row_count = count[r, 1:w - 1]
+            for k in range(m):  # every window of the row (those not full are redone below)
+                n = 9.0  # 0.0 + 1.0, nine times: exact
+                sx, sy, sz = s0[k], s1[k], s2[k]
+                mx, my, mz = sx / n, sy / n, sz / n
+                row_count[k] = n
+                sc0[k] = s3[k] - sx * mx
+                sc1[k] = s6[k] - sy * my
+                sc2[k] = s8[k] - sz * mz
+                sc3[k] = s4[k] - sx * my
+                sc4[k] = s5[k] - sx * mz
+                sc5[k] = s7[k] - sy * mz
+        for c in range(w):
+            if interior and full[c]:
+                continue
+            window = _window_scatter(xyz, 1, r, c)
+            count[r, c] = window[0]  # (0 and a zero scatter where the window has no point)
+            for k in range(6):
+                scatter[k, r, c] = window[4 + k]
+    return count, scatter
+
+
+@njit(cache=True, nogil=True)
 def window_normals(xyz, window, wanted):
     """Unit normals ``(H, W, 3)`` of the windows of the pixels ``wanted`` ((H, W) bool), NaN
     elsewhere (and where undefined): the values :func:`window_moments`,
@@ -188,7 +266,10 @@ def window_residuals(xyz, window, min_valid, ranges, sigma0, quadratic):
     their whole-grid temporaries.
     """
     h, w = xyz.shape[0], xyz.shape[1]
-    count, _, scatter = window_moments(xyz, window)
+    if window == 3:
+        count, scatter = _scatter3(xyz)
+    else:
+        count, _, scatter = window_moments(xyz, window)
     values = smallest_eigenvalues(scatter.reshape(6, h * w)).reshape(h, w)
     out = np.full((h, w), np.inf)
     for r in range(h):

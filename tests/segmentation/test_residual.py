@@ -196,6 +196,27 @@ def test_residual_without_normals_equals_the_step_by_step_residual_bit_for_bit()
         assert np.isinf(fused[np.isnan(xyz[..., 2])]).all()
 
 
+def test_full_3x3_windows_summed_row_by_row_equal_the_window_moments_bit_for_bit():
+    # window_residuals sums the 3x3 windows whose nine points are valid a row at a time
+    # (kernels.window._scatter3): the very counts and scatters of window_moments, at the
+    # border, beside invalid points, in a window with none and on grids 1 and 2 pixels wide
+    from rangeseg_o3d.kernels.window import _scatter3, window_moments
+
+    rng = np.random.default_rng(3)
+    shapes = [(1, 1), (1, 7), (7, 1), (2, 2), (3, 3), (2, 9), (9, 2)] + [tuple(rng.integers(3, 30, 2)) for _ in range(20)]
+    for trial, (h, w) in enumerate(shapes):
+        xyz = rng.normal(0.0, 10.0 ** rng.uniform(-3, 1), (h, w, 3)) + (0.0, 0.0, rng.uniform(0.5, 80.0))
+        xyz[rng.random((h, w)) < (0.0 if trial % 3 == 0 else 0.25)] = np.nan
+        if h >= 5 and w >= 5 and trial % 2:
+            xyz[1:4, 1:4] = np.nan  # a window without a valid point
+        xyz = np.ascontiguousarray(xyz)
+        xyz.flags.writeable = False  # as the residual passes a cloud's points
+        count, scatter = _scatter3(xyz)
+        expected_count, _, expected_scatter = window_moments(xyz, 3)
+        assert count.tobytes() == expected_count.tobytes()
+        assert scatter.tobytes() == expected_scatter.tobytes()
+
+
 @pytest.mark.parametrize("window", [3, 5, 9])
 def test_window_normals_at_chosen_pixels_equal_the_whole_grids_bit_for_bit(window):
     # the crease test asks for the normals of its blind pixels only: the same values as the
