@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d._numeric import median
+from rangeseg_o3d._numeric import median, rows_at
 
 
 def test_median_equals_numpys_bit_for_bit():
@@ -27,3 +27,18 @@ def test_median_refuses_an_empty_or_2d_array():
         median(np.zeros(0))
     with pytest.raises(ValueError, match="non-empty 1-D"):
         median(np.zeros((2, 2)))
+
+
+def test_rows_at_equals_fancy_indexing():
+    # integer indices (any width, repeated, unsorted, negative, none) go through take; a
+    # boolean mask, a list or a 2-D index array are indexed as numpy indexes them
+    rng = np.random.default_rng(5)
+    points = rng.standard_normal((50, 3))
+    points.flags.writeable = False  # as a cloud's points are
+    for idx in (np.array([3, 1, 3, 49], np.int64), np.array([0, 7], np.int32), np.array([-1, -50]),
+                np.zeros(0, np.int64), rng.random(50) < 0.3, [4, 2], np.array([[1, 2], [3, 4]])):
+        got, want = rows_at(points, idx), points[idx]
+        assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes()
+        assert got.flags.c_contiguous and got.flags.writeable
+    with pytest.raises(IndexError):
+        rows_at(points, np.array([50]))

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._numeric import rows_at
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .batch_planes import region_moments
 from .primitives import Cylinder, FitFailure, Plane, Sphere
@@ -152,19 +153,19 @@ class RegionFitter:
 
     def points(self, xyz_flat: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """The points of pixels ``idx``, subsampled before gathering (large regions)."""
-        return xyz_flat[self._subsample(idx)]
+        return rows_at(xyz_flat, self._subsample(idx))
 
     def points_of(self, xyz_flat: np.ndarray, parts) -> np.ndarray:
         """:meth:`points` of the concatenation of the pixel arrays ``parts``, without building
         it (a union of a large region and a piece: only the subsample is gathered)."""
         step = -(-sum(part.size for part in parts) // self.max_points)
         if step <= 1:
-            return xyz_flat[np.concatenate(parts)]
+            return rows_at(xyz_flat, np.concatenate(parts))
         picked, skip = [], 0  # ``skip``: where the concatenation's every step-th pixel falls in the next part
         for part in parts:
             picked.append(part[skip::step])
             skip = (skip - part.size) % step
-        return xyz_flat[np.concatenate(picked)]
+        return rows_at(xyz_flat, np.concatenate(picked))
 
     def fit(self, points: np.ndarray, **overrides):
         """The fitter's model of ``points``, or FitFailure (also when the fitter raises ValueError).

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import rows_at
+
 # The kernels package, not its names: importing it loads no compiler (each name loads on first
 # use, PEP 562), and an attribute look-up costs a fraction of a from-import in each call (the
 # piece helpers below run a few hundred times a frame)
@@ -78,13 +80,13 @@ class Context:
         0.19-0.22 where those give 0.16-0.19): what its range noise leaves its distances is
         a fifth more."""
         origins = self.ray_origins(idx)
-        points = self.xyz[idx] if origins is None else self.xyz[idx] - origins
+        points = rows_at(self.xyz, idx) if origins is None else rows_at(self.xyz, idx) - origins
         return points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
 
     def ray_origins(self, idx: np.ndarray):
         """``(N, 3)`` where the rays of the flat pixels ``idx`` start, or None where every
         ray starts at the origin (:attr:`row_origins`)."""
-        return None if self.row_origins is None else self.row_origins[np.asarray(idx) // self.width]
+        return None if self.row_origins is None else rows_at(self.row_origins, np.asarray(idx) // self.width)
 
     def piece_ids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(ids, sizes)`` of the 4-connected pieces of the flat pixels ``idx`` (increasing),
@@ -195,7 +197,7 @@ class Context:
         noise, the pool is searched again with that distance noise as the band's sigma.
         """
         sample = pool[:: max(1, pool.size // 600)]  # the median of a few hundred is enough
-        points = self.xyz[sample]
+        points = rows_at(self.xyz, sample)
         plane = (model if model is not None and model.kind == "plane"
                  else fit_plane(points[np.isfinite(points).all(axis=1)]))
         if not plane:  # a FitFailure: too few points, or all on a line
@@ -256,7 +258,7 @@ class Context:
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
         # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
         # floor and its refit plane explains it within that noise; else (None, None)
-        points = self.xyz[pool]
+        points = rows_at(self.xyz, pool)
         near = np.abs(model.distances(points)) <= TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
         piece = self.largest_piece(pool[near])
         if piece.size < self.min_size:
@@ -279,7 +281,7 @@ class Context:
         """
         if not model or model.kind != "plane" or idx.size < 3:
             return False
-        points = self.xyz[idx]
+        points = rows_at(self.xyz, idx)
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size))

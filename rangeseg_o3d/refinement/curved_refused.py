@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import rows_at
+
 from ..fitting.robust import beyond_noise, distance_noise
 from .context import Context, touching
 from .merge import similar_models
@@ -59,7 +61,7 @@ def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
         model = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), resolve_bends=float(samples))
         if not model or model.kind == "plane":
             continue
-        points = ctx.xyz[idx]
+        points = rows_at(ctx.xyz, idx)
         noise = distance_noise(model, points, ctx.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         if not beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size)):

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import rows_at
+
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, region_indices
@@ -48,7 +50,7 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
                  and regions[k].size > idx.size]
         if not hosts:
             continue
-        pts = ctx.xyz[idx]
+        pts = rows_at(ctx.xyz, idx)
         score = np.stack([
             np.abs(fits[k].distances(pts)) / np.maximum(ctx.sigma[idx], fits[k].rms)
             for k in hosts
@@ -137,7 +139,7 @@ def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
         if out is labels:  # the first ripple: the inputs stay as they are
             out, kept = labels.copy(), dict(fits)
         plane = kept[host]
-        points = xyz[idx]
+        points = rows_at(xyz, idx)
         spread = _ripple_spread(points, sigma[idx], plane.normal[None, :],
                                 np.array([scatter.get(host, plane.rms)]), min_cosine)[:, 0]
         explained = np.abs(plane.distances(points)) <= k_sigma * spread
@@ -195,7 +197,7 @@ def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma,
 def _scores(xyz, idx, table: _PlaneTable, which, sigma, min_cosine: float = 1.0) -> np.ndarray:
     # (pixels, planes) distances of the pixels idx from the planes ``which`` of the table,
     # in units of their spread about each plane (:func:`_ripple_spread`)
-    points = xyz[idx]
+    points = rows_at(xyz, idx)
     distances = np.abs(points @ table.normals[which].T - table.offsets[which])
     return distances / _ripple_spread(points, sigma[idx], table.normals[which], table.scatter[which], min_cosine)
 

@@ -29,7 +29,7 @@ import functools
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from .._numeric import median
+from .._numeric import median, rows_at
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
 from ..fitting.primitives import Cylinder, Plane
@@ -138,7 +138,7 @@ def _nearest(ctx: Context, surfaces: list) -> list[tuple[np.ndarray, object]]:
         return surfaces
     pixels = np.concatenate([piece for piece, _ in surfaces])
     start = np.repeat(np.arange(len(surfaces)), [piece.size for piece, _ in surfaces])
-    points = ctx.xyz[pixels]
+    points = rows_at(ctx.xyz, pixels)
     models = [model for _, model in surfaces]
     owner, held = start, [None] * len(surfaces)
     for round_ in range(NEAREST_ROUNDS):
@@ -246,7 +246,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     for k, idx in regions.items():
         model = fits[k]
         sigma = median(ctx.sigma[idx])
-        distances = model.distances(ctx.xyz[idx])
+        distances = model.distances(rows_at(ctx.xyz, idx))
         rms = float(np.sqrt(np.mean(distances * distances)))
         if beyond_noise(rms, sigma, idx.size):
             proposals = {}  # both judges search the same first pools
@@ -296,7 +296,7 @@ def _holds_another(ctx: Context, model, idx: np.ndarray, distances: np.ndarray, 
     none (its rms spreads over both)."""
     if count_outliers and np.count_nonzero(np.abs(distances) > INLIER_FACTOR * rms) < ctx.min_size:
         return False
-    noise = distance_noise(model, ctx.xyz[idx], ctx.sigma[idx])
+    noise = distance_noise(model, rows_at(ctx.xyz, idx), ctx.sigma[idx])
     if not beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), idx.size):
         return False
     far = idx[np.abs(distances) > CHI_SQUARE_SIGMAS * noise]
@@ -332,7 +332,7 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     if not first.size:
         return []
     sides = [idx[first], idx[~first]]
-    planes = [fit_plane(ctx.xyz[side]) for side in sides]
+    planes = [fit_plane(rows_at(ctx.xyz, side)) for side in sides]
     return list(zip(sides, planes)) if all(planes) else []
 
 
@@ -359,7 +359,7 @@ def _settling_out_of_reach(ctx: Context, idx: np.ndarray, surfaces: list, noise:
     needed = int(np.ceil(PLANES_COVER * idx.size))
     if pixels.size < needed:
         return False  # not a cover: _explains refuses it anyway
-    points = ctx.xyz[pixels]
+    points = rows_at(ctx.xyz, pixels)
     nearest = np.abs(surfaces[0][1].distances(points))
     for _, model in surfaces[1:]:
         np.minimum(nearest, np.abs(model.distances(points)), out=nearest)
@@ -373,7 +373,7 @@ def _settling_out_of_reach(ctx: Context, idx: np.ndarray, surfaces: list, noise:
 def _noise_rms(ctx: Context, surfaces: list) -> float:
     """The rms distance noise of the pixels of ``surfaces`` (``(pixels, model)`` pairs) about
     their models were those right: the range noise times each pixel's incidence cosine."""
-    squares = sum(float(np.sum(distance_noise(model, ctx.xyz[idx], ctx.sigma[idx]) ** 2))
+    squares = sum(float(np.sum(distance_noise(model, rows_at(ctx.xyz, idx), ctx.sigma[idx]) ** 2))
                   for idx, model in surfaces)
     return float(np.sqrt(squares / max(sum(idx.size for idx, _ in surfaces), 1)))
 
@@ -407,7 +407,7 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     if not _covers(surfaces, idx):
         return False
     taken = sum(piece.size for piece, _ in surfaces)
-    squares = sum(float(np.sum(surface.distances(ctx.xyz[piece]) ** 2)) for piece, surface in surfaces)
+    squares = sum(float(np.sum(surface.distances(rows_at(ctx.xyz, piece)) ** 2)) for piece, surface in surfaces)
     covered = np.concatenate([piece for piece, _ in surfaces])
     model_squares = float(np.sum(distances[np.searchsorted(idx, covered)] ** 2))  # the curved model's
     if len(surfaces) == 1 and isinstance(surfaces[0][1], Plane):
@@ -434,7 +434,7 @@ def _each_at_noise(ctx: Context, surfaces: list, model) -> bool:
     scene is many times its range noise off its pixels, and the plane piece the cap split
     cuts from it is no end cap)."""
     for idx, surface in surfaces:
-        points, sigma = ctx.xyz[idx], ctx.sigma[idx]
+        points, sigma = rows_at(ctx.xyz, idx), ctx.sigma[idx]
         ratio = _mean_squared_sigmas(surface, points, sigma)
         if not beyond_noise(np.sqrt(ratio), 1.0, idx.size):
             continue
@@ -472,7 +472,7 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     """
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []
-    points = ctx.xyz[idx]
+    points = rows_at(ctx.xyz, idx)
     along = (points - model.point) @ model.axis
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     noise = ctx.sigma[idx] * np.abs(rays @ model.axis)  # range noise along the axis
@@ -488,11 +488,11 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     piece = _likelier_on_plane(ctx, idx, off_plane, noise, distances, model, points, sigma)
     if piece is None:
         return []
-    plane = fit_plane(ctx.xyz[piece])
+    plane = fit_plane(rows_at(ctx.xyz, piece))
     if not plane:
         return []
     on_piece = np.searchsorted(idx, piece)
-    plane_squares = float(np.sum(plane.distances(ctx.xyz[piece]) ** 2))
+    plane_squares = float(np.sum(plane.distances(rows_at(ctx.xyz, piece)) ** 2))
     cylinder_squares = float(np.sum(distances[on_piece] ** 2))
     # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
     if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):
@@ -506,7 +506,7 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
                                cylinder.distances(points), cylinder, points, sigma)
     split = [(without(idx, piece), cylinder), (piece, plane)]
     if again is not None and not np.array_equal(again, piece):
-        cap = fit_plane(ctx.xyz[again])
+        cap = fit_plane(rows_at(ctx.xyz, again))
         pipe = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, again)), cylinder)
         if cap and pipe and pipe.kind == model.kind:
             # kept when likelier: fewer squared noise sigmas over the region
@@ -520,7 +520,7 @@ def _squared_sigmas(ctx: Context, surfaces: list) -> float:
     # the sum of squared distances of the surfaces' pixels, each in units of its noise
     total = 0.0
     for idx, model in surfaces:
-        points = ctx.xyz[idx]
+        points = rows_at(ctx.xyz, idx)
         noise = np.maximum(distance_noise(model, points, ctx.sigma[idx]), 1e-12)
         total += float(np.sum((model.distances(points) / noise) ** 2))
     return total

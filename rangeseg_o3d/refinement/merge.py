@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from .._numeric import median
+from .._numeric import median, rows_at
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import region_indices
@@ -484,7 +484,7 @@ def _own_model_resolves(ctx: Context, piece: np.ndarray, own, union) -> bool:
     lies on the union's model as closely as on its own, a pipe's end cap does not, though
     on a far stereo camera both fit within the range noise (the cap faces the sensor, its
     noise is the whole range noise; the pipe's flanks graze it)."""
-    points = ctx.xyz[piece]
+    points = rows_at(ctx.xyz, piece)
     own_squares = float(np.sum(own.distances(points) ** 2))
     union_squares = float(np.sum(union.distances(points) ** 2))
     return curvature_resolved(union_squares, own_squares, piece.size, MODEL_PARAMETERS[own.kind])
@@ -533,7 +533,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             continue  # one of them was merged already
         if near_sigmas is not None:
             piece = regions[small]
-            if median(np.abs(fits[big].distances(ctx.xyz[piece]))) > near_sigmas * median(ctx.sigma[piece]):
+            if median(np.abs(fits[big].distances(rows_at(ctx.xyz, piece)))) > near_sigmas * median(ctx.sigma[piece]):
                 continue
         parts = (regions[big], regions[small])  # the union's pixels, not concatenated unless it is taken
         n = parts[0].size + parts[1].size
@@ -652,7 +652,7 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         union = ctx.fitter.fit(points)
         if not union or isinstance(union, Plane):
             continue
-        union_squares = sum(float(np.sum(union.distances(ctx.xyz[part]) ** 2)) for part in parts)
+        union_squares = sum(float(np.sum(union.distances(rows_at(ctx.xyz, part)) ** 2)) for part in parts)
         if union_squares >= planes or _beyond_median_noise(float(np.sqrt(union_squares / n)),
                                                            ctx.sigma.reshape(-1), parts):
             continue

@@ -18,6 +18,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._numeric import rows_at
+
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.linalg import noise_rms_bound
 from ..fitting._compiled import arc_around_axis
@@ -207,7 +209,7 @@ def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
         idx = np.flatnonzero(flat == k)
         if not _bent_off_rays(ctx, idx):
             continue
-        points, sigma, rays = ctx.xyz[idx], ctx.sigma[idx], ctx.viewing_rays(idx)
+        points, sigma, rays = rows_at(ctx.xyz, idx), ctx.sigma[idx], ctx.viewing_rays(idx)
         if _streak_along_rays(points, sigma, rays):
             continue
         curved = ctx.fitter.plugin.run(ctx.fitter.points(ctx.xyz, idx), **open_arc)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .._numeric import rows_at
+
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
@@ -68,7 +70,7 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain, *, thin: bool = False):
     ``thin`` (a strip a few pixels across holds one face: the search takes a sliver of it)."""
     if not plain:
         return None, None
-    near = np.abs(plain.distances(ctx.xyz[idx])) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
+    near = np.abs(plain.distances(rows_at(ctx.xyz, idx))) <= 3.0 * np.maximum(ctx.sigma[idx], plain.rms)
     if near.mean() < 0.9:
         return None, None
     chosen, model = ctx.largest_piece(idx[near]), plain
@@ -115,7 +117,7 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     # blobs that are one plane need no search (one batched pass settles them); the batch
     # reads each blob's pixels in raster order, so the blobs' pixels alone give the same
     # moments, planes and counts as the whole grid
-    settled = ctx.fitter.fit_batch(ctx.xyz[pool], candidates.reshape(-1)[pool]) if regions else {}
+    settled = ctx.fitter.fit_batch(rows_at(ctx.xyz, pool), candidates.reshape(-1)[pool]) if regions else {}
     mixed = []
     for k, idx in regions.items():
         if thin_from is not None and k >= thin_from:
@@ -187,7 +189,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     offsets = np.array([fits[k].d for k in planes])
     rms = np.array([fits[k].rms for k in planes])
     # which planes explain which free pixel (pixels x planes)
-    within = (np.abs(ctx.xyz[free] @ normals.T - offsets)
+    within = (np.abs(rows_at(ctx.xyz, free) @ normals.T - offsets)
               <= k_sigma * np.maximum(ctx.sigma[free, None], rms))
     near = np.flatnonzero(within.any(axis=1))
     if near.size < ctx.min_size:
@@ -285,7 +287,7 @@ def claim_on_distance_noise(ctx: Context, labels: np.ndarray, fits: dict, pool: 
     if free.size < ctx.min_size:
         return labels
     # compiled: the numpy form's (pixels x planes) temporaries cost office1 ~16 ms a frame
-    within = within_plane_noise(ctx.xyz[free], ctx.sigma[free], *table[1:4], k_sigma)
+    within = within_plane_noise(rows_at(ctx.xyz, free), ctx.sigma[free], *table[1:4], k_sigma)
     # only a pixel within the noise of some plane can be claimed; the others still count
     # towards the size floor of the free pool
     near = rows_with_any(within)  # within.any(axis=1)'s rows without numpy's reduction over short rows
@@ -338,7 +340,7 @@ def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits:
     # the rms of max(distance noise, the plane's rms) (distance noise: the range noise
     # times the incidence cosine, fitting.robust.distance_noise)
     distances, noise, cosines = _distance_and_noise(
-        ctx.xyz[pixels], ctx.sigma[pixels], np.array([fits[k].normal for k in owner]).reshape(-1, 3),
+        rows_at(ctx.xyz, pixels), ctx.sigma[pixels], np.array([fits[k].normal for k in owner]).reshape(-1, 3),
         np.array([fits[k].d for k in owner]), np.array([fits[k].rms for k in owner]))
     n_parts = asked.size
     steep = np.bincount(parts, weights=cosines > GRAZING_TAN / np.hypot(1.0, GRAZING_TAN), minlength=n_parts)
@@ -712,10 +714,10 @@ def _join_grazing_pieces(ctx: Context, labels: np.ndarray, fits: dict, new: dict
         return np.sort(np.concatenate([pixels[j] for j in pieces if find(j) == group]))
 
     def face(idx):  # the plane of the flat pixels idx if it explains them within the noise
-        plane = fit_plane(ctx.xyz[idx])
+        plane = fit_plane(rows_at(ctx.xyz, idx))
         if not plane:
             return None
-        points = ctx.xyz[idx]
+        points = rows_at(ctx.xyz, idx)
         noise = lateral_distance_noise(plane, points, ctx.sigma[idx], lateral)
         rms = float(np.sqrt(np.mean(plane.distances(points) ** 2)))
         return None if beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size)) else plane
@@ -837,7 +839,7 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
         model = fits.get(k) if k and k not in refused else None
         if not model or model.kind != "plane":
             continue
-        points = ctx.xyz[idx]
+        points = rows_at(ctx.xyz, idx)
         noise = np.maximum(distance_noise(model, points, ctx.sigma[idx]), model.rms)
         far = idx[np.abs(model.distances(points)) > TRIM_SIGMAS * noise]
         if far.size:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numeric import rows_at
+
 from ..fitting.region_fitter import fresh_label, region_indices
 from ..fitting.robust import beyond_noise, distance_noise
 from ..scales import GRAZING_COSINE
@@ -93,7 +95,7 @@ def _to_nearest_plane(ctx: Context, flat: np.ndarray, fits: dict, idx: np.ndarra
     if len(planes) < 2:
         return
     taken = idx[np.isin(flat[idx], planes)]
-    points, sigma = ctx.xyz[taken], ctx.sigma[taken]
+    points, sigma = rows_at(ctx.xyz, taken), ctx.sigma[taken]
     sigmas = np.stack([np.abs(fits[k].distances(points)) /
                        np.maximum(distance_noise(fits[k], points, sigma), 1e-12) for k in planes])
     nearest = np.argmin(sigmas, axis=0)
@@ -140,7 +142,7 @@ def _held_to_distance_noise(ctx: Context, piece: np.ndarray, model, floor: float
 def _distances_and_noise(ctx: Context, idx: np.ndarray, plane, floor: float):
     # the pixels' absolute distances to the plane and the noise of each (range noise x
     # incidence cosine, the cosine at least scales.GRAZING_COSINE, the noise at least ``floor``)
-    points = ctx.xyz[idx]
+    points = rows_at(ctx.xyz, idx)
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     noise = np.maximum(ctx.sigma[idx] * np.maximum(np.abs(rays @ plane.normal), GRAZING_COSINE), floor)
     return np.abs(plane.distances(points)), noise
