@@ -229,13 +229,13 @@ class RegionFitter:
             return [FitFailure(kind=m.kind, reason=str(exc)) for m in models]
 
     def refit_regions(self, xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, which, *,
-                      from_points: bool = True, from_moments: bool = True) -> dict:
+                      from_points: bool = True, from_moments: bool = True, regions: dict | None = None) -> dict:
         """Refit the regions ``which`` of ``labels``; returns {label: model or FitFailure}.
 
         Models the plugin refits from moments come from one pass over the pixels (skipped
         when ``from_moments`` is False: the caller knows none of them can); the others
         are refitted on their points unless ``from_points`` is False (then they are left
-        out of the answer).
+        out of the answer). ``regions``: ``region_indices(labels)`` when the caller has it.
         """
         which = [k for k in which if fits.get(k)]
         if not which:
@@ -250,7 +250,7 @@ class RegionFitter:
                    if m is not None}
         rest = [k for k in which if k not in out] if from_points else []
         if rest:
-            regions = region_indices(labels)
+            regions = region_indices(labels) if regions is None else regions
             empty = np.empty(0, np.int64)
             for k in rest:
                 out[k] = self.refit(self.points(xyz_flat, regions.get(k, empty)), fits[k])

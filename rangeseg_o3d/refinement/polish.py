@@ -50,35 +50,64 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
     """
     fits = dict(fits)
+    pixels = _Pixels(labels)  # the labels do not change here: their pixels are grouped once
     sizes = label_sizes(labels, minlength=max(fits, default=0) + 1)
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
     grown = [k for k in curved if sizes[k] > 1.2 * max(fits[k].inliers, 1)]
-    for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, grown, from_moments=False).items():
+    for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, grown, from_moments=False,
+                                             regions=pixels.every if grown else None).items():
         if refit and refit.kind == fits[k].kind:
             fits[k] = refit
     if curved:
         flat = _still_flat(ctx, labels, fits, curved)
-        for k, idx in (region_indices(labels, only=flat) if flat else {}).items():
+        for k, idx in pixels.of(flat).items():
             decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
             if isinstance(decided, Plane):
                 fits[k] = decided
-    unbent = (_unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)], resolve_bends)
-              if resolve_bends else {})
+    unbent = (_unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)], resolve_bends,
+                      pixels=pixels) if resolve_bends else {})
     fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
-        fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends))
+        fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
+                                   pixels=pixels))
         if along_rays:
             fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
     return fits
 
 
-def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0) -> dict:
+class _Pixels:
+    """The flat pixels of the labels of one label image, grouped on first use
+    (:func:`rangeseg_o3d.fitting.region_fitter.region_indices`) and shared by the steps of
+    polish, which read the same labels: one grouping instead of one per step."""
+
+    def __init__(self, labels: np.ndarray):
+        self.labels = labels
+        self._every = None
+
+    @property
+    def every(self) -> dict:
+        """``region_indices(labels)``: every positive label with pixels."""
+        if self._every is None:
+            self._every = region_indices(self.labels)
+        return self._every
+
+    def of(self, keys) -> dict:
+        """``region_indices(labels, only=keys)``: those of ``keys`` with pixels, by label."""
+        if not keys:
+            return {}
+        every = self.every
+        return {k: every[k] for k in sorted(set(keys)) if k in every}
+
+
+def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0, *,
+            pixels: _Pixels | None = None) -> dict:
     """The planes of the regions among ``curved`` whose pixels' plane is within the
     fitter's plane threshold and whose bend does not outlive the pixels beyond 2 plane rms
     (:func:`rangeseg_o3d.fitting._decide.bend_resolved`): a curved model a plane just over
     the noise took only for a few pixels of a neighbouring face (noise_20mm seed 37 scan
     7: a 4-column wall strip with 26 px of its neighbours, rms 20.4 mm over 20 mm noise,
-    a 0.53 m cylinder). Asked with ``resolve_bends``; ``samples`` per pixel as there."""
+    a 0.53 m cylinder). Asked with ``resolve_bends``; ``samples`` per pixel as there; ``pixels``
+    (optional) the labels' grouped pixels."""
     from ..fitting import fit_plane
     from ..fitting._decide import bend_resolved
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
@@ -87,7 +116,7 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
     if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
         return {}
     out = {}
-    for k, idx in region_indices(labels, only=curved).items():
+    for k, idx in (pixels or _Pixels(labels)).of(curved).items():
         pts = ctx.fitter.points(ctx.xyz, idx)
         centroid = pts.mean(axis=0)
         tolerance = plane_threshold(len(pts), centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
@@ -99,7 +128,8 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
     return out
 
 
-def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0) -> dict:
+def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0, *,
+                   pixels: _Pixels | None = None) -> dict:
     """The curved models the fitter's decision gives the plane regions of ``labels`` whose
     final pixels it no longer settles as a plane.
 
@@ -115,7 +145,7 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: 
     its bend under the noise over hundreds of pixels), and so is one beyond what the noise
     gives its pixels (the decision's marginal plane: a pipe's plane over a camera's noise
     but under the preset's plane_rms); earlier decisions, on pieces and unsettled
-    regions, do not ask it."""
+    regions, do not ask it. ``pixels`` (optional): the labels' grouped pixels."""
     planes = [k for k, m in fits.items() if isinstance(m, Plane)]
     if not planes or ctx.fitter.plugin.fit_batch is None:  # a plugin without the batch test: as decided
         return {}
@@ -123,7 +153,7 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: 
     settled = ctx.fitter.fit_batch(ctx.xyz, labels, **bends)
     unsettled = [k for k in planes if k not in settled]
     out = {}
-    for k, idx in (region_indices(labels, only=unsettled) if unsettled else {}).items():
+    for k, idx in (pixels or _Pixels(labels)).of(unsettled).items():
         decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), **bends)
         if decided and not isinstance(decided, Plane):
             out[k] = decided
