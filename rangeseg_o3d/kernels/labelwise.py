@@ -13,7 +13,7 @@ from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, pla
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["label_moments", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
+__all__ = ["label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half", "rows_with_any",
            "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
@@ -57,6 +57,23 @@ def label_moments(xyz, labels, n):
 def _store_moments(row, sums):
     for k in range(N_MOMENTS):
         row[k] = sums[k]
+
+
+@njit(cache=True, nogil=True)
+def label_noise_sums(labels, sigma, n):
+    """(n,) per label ``0..n-1`` the sum of the finite ``sigma`` of its pixels (``labels``,
+    ``sigma`` flat), added in pixel order: ``np.bincount(labels, weights=np.where(
+    np.isfinite(sigma), sigma, 0.0), minlength=n)[:n]`` to the bit, without its whole-grid
+    temporaries (the weights, the labels widened to 64 bits). Labels outside ``0..n-1``
+    are skipped."""
+    out = np.zeros(n)
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        if k < 0 or k >= n:
+            continue
+        value = sigma[i]
+        out[k] += value if value - value == 0.0 else 0.0  # (non-finite: 0, as np.where gives)
+    return out
 
 
 @njit(cache=True, nogil=True)

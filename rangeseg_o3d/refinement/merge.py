@@ -257,9 +257,13 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
 
 
 def _noise_sums(ctx: Context, labels: np.ndarray, rows: int) -> np.ndarray:
-    # each label's summed range noise, ``rows`` rows (row = label, as the moments)
-    sigma = np.where(np.isfinite(ctx.sigma), ctx.sigma, 0.0).ravel()
-    return np.bincount(labels.ravel(), weights=sigma, minlength=rows)[:rows]
+    # each label's summed range noise, ``rows`` rows (row = label, as the moments): one
+    # compiled pass, the sums of np.bincount over the finite noise, to the bit
+    flat = labels.ravel()
+    if flat.dtype != np.int32:  # (the label images' type: one compiled signature)
+        flat = flat.astype(np.int32)
+    return kernels.label_noise_sums(np.ascontiguousarray(flat), np.ascontiguousarray(ctx.sigma.ravel(), dtype=np.float64),
+                                    int(rows))
 
 
 def _mean_noise(ctx: Context, labels: np.ndarray, moments: np.ndarray) -> np.ndarray:

@@ -650,3 +650,20 @@ def test_distance_stats_sum_in_pixel_order_exactly():
         expected_in[k] += dist <= 2.0 * max(float(sigma[i]), float(rms[k]))
     assert np.array_equal(counts, expected_n) and np.array_equal(inliers, expected_in)
     assert np.array_equal(squares, expected_sq)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_label_noise_sums_equal_the_bincount_of_the_finite_noise_bit_for_bit(seed):
+    # merge's per-label noise sums: one compiled pass in pixel order, numpy's bincount of
+    # the noise with non-finite values as 0 (its first n rows: labels past them skipped)
+    from rangeseg_o3d.kernels import label_noise_sums
+
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(0, 40, 5000).astype(np.int32 if seed % 2 else np.int64)
+    sigma = rng.uniform(0.001, 0.05, 5000) * 10.0 ** rng.uniform(-3, 3, 5000)
+    sigma[rng.random(5000) < 0.1] = np.nan
+    sigma[rng.random(5000) < 0.02] = np.inf
+    for n in (40, 25, 60):
+        want = np.bincount(labels, weights=np.where(np.isfinite(sigma), sigma, 0.0), minlength=n)[:n]
+        got = label_noise_sums(labels, sigma, n)
+        assert got.shape == (n,) and got.tobytes() == want.tobytes()
