@@ -201,6 +201,12 @@ def settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, origin
             own = labels[r, c]
             if own <= 0 or own >= n or not planar[own]:
                 continue
+            # inside its region (every neighbour the loop below would look at holds its own
+            # label): nothing to decide, as the loop would find (most pixels of a scan)
+            if ((r == 0 or labels[r - 1, c] == own) and (r == h - 1 or labels[r + 1, c] == own)
+                    and (labels[r, c - 1] == own if c > 0 else (not wrap or w < 2 or labels[r, w - 1] == own))
+                    and (labels[r, c + 1] == own if c < w - 1 else (not wrap or w < 2 or labels[r, 0] == own))):
+                continue
             i = r * w + c
             mine = -1.0  # its own plane's, asked when a neighbour could take it
             best, best_k = np.inf, 0

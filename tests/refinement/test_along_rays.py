@@ -97,14 +97,16 @@ def test_a_pixel_its_own_plane_explains_or_a_jump_stays():
     assert moves[0].size == 0
 
 
-def test_the_first_and_last_columns_are_neighbours_on_a_full_turn():
-    # pixel 2 lies on label 1's plane; its only label-1 neighbour is pixel 0, across the seam
-    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.3, 0.0], [0.9, 0.9, 0.9], labels=(1, 2, 2))
+@pytest.mark.parametrize("row_labels, moved", [((1, 2, 2), 2), ((2, 2, 1), 0)])
+def test_the_first_and_last_columns_are_neighbours_on_a_full_turn(row_labels, moved):
+    # the pixel at one end lies on label 1's plane; its only label-1 neighbour is the pixel
+    # at the other end, across the seam (the last column looks right, the first one left)
+    xyz, labels, normals, offsets, sigma, ranges = _one_row([0.0, 0.3, 0.0], [0.9, 0.9, 0.9], labels=row_labels)
     xyz[1] *= 3.0 / 2.0  # pixel 1 on z = 3, label 2's own plane
     ranges = np.linalg.norm(xyz, axis=1)
     assert _ask(xyz, labels, normals, offsets, sigma, ranges)[0].size == 0
     pixels, targets = _ask(xyz, labels, normals, offsets, sigma, ranges, wrap=True)
-    assert pixels.tolist() == [2] and targets.tolist() == [1]
+    assert pixels.tolist() == [moved] and targets.tolist() == [1]
 
 
 def test_the_front_rows_a_grazing_top_took_go_back_to_the_front_face(context):
@@ -164,3 +166,69 @@ def test_a_region_emptied_loses_its_model_and_bad_input_is_refused(context):
     with pytest.raises(ValueError, match="shape"):
         settle_along_rays(ctx, labels, fits, ranges=ranges[:-1], iterations=3, k_sigma=3.0, jump_ratio=0.08,
                           jump_min=0.05)
+
+
+def _moves_every_pixel(xyz, labels, normals, offsets, sigma, ranges, origins, k_sigma, margin, jump_ratio,
+                       jump_min, cos_floor, wrap):
+    # settle_moves_along_rays as it reads, every plane pixel's four neighbours looked at (no
+    # skip of the pixels inside their region): the reference the kernel must equal
+    from rangeseg_o3d.kernels.rays import _range_sigmas
+
+    h, w = labels.shape
+    n = normals.shape[0]
+    pixels, targets = [], []
+    for r in range(h):
+        ox, oy, oz = origins[r] if origins.shape[0] else (0.0, 0.0, 0.0)
+        for c in range(w):
+            own = labels[r, c]
+            if own <= 0 or own >= n or not normals[own].any():
+                continue
+            i, mine, best, best_k = r * w + c, -1.0, np.inf, 0
+            for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+                cc = cc % w if wrap else cc
+                if not (0 <= rr < h and 0 <= cc < w):
+                    continue
+                k = labels[rr, cc]
+                if k == own or k <= 0 or k >= n or not normals[k].any():
+                    continue
+                j = rr * w + cc
+                if not abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j])):
+                    continue
+                if mine < 0.0:
+                    mine = _range_sigmas.py_func(xyz, i, normals, offsets, own, sigma, ox, oy, oz, cos_floor)
+                    if mine <= margin:
+                        break
+                score = _range_sigmas.py_func(xyz, i, normals, offsets, k, sigma, ox, oy, oz, cos_floor)
+                if score < best:
+                    best, best_k = score, k
+            if best_k > 0 and best <= k_sigma and best < mine - margin:
+                pixels.append(i)
+                targets.append(best_k)
+    return np.array(pixels, np.int64), np.array(targets, np.int64)
+
+
+@pytest.mark.parametrize("wrap", [False, True])
+def test_the_ring_skips_only_pixels_inside_their_region(wrap):
+    # the kernel passes over the pixels whose neighbours all hold their label: the same moves
+    # as looking at every pixel's neighbours, across the seam of a full turn too, on grids
+    # of blocky regions, some without a plane, 1 and 2 columns wide
+    rng = np.random.default_rng(7 + wrap)
+    for h, w in [(9, 13), (6, 1), (5, 2), (12, 20)]:
+        labels = np.repeat(np.repeat(rng.integers(0, 6, (h // 3 + 1, w // 3 + 1)), 3, 0), 3, 1)[:h, :w]
+        labels = np.ascontiguousarray(np.where(rng.random((h, w)) < 0.1, rng.integers(0, 6, (h, w)), labels),
+                                      dtype=np.int32)
+        xyz = np.dstack([*np.meshgrid(np.arange(w) * 0.05, np.arange(h) * 0.05), 2.0 + rng.normal(0, 0.02, (h, w))])
+        xyz = np.ascontiguousarray(xyz.reshape(-1, 3))
+        normals = rng.normal(size=(6, 3))
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        normals[3] = 0.0  # a region without a plane
+        offsets = xyz[rng.integers(0, h * w, 6)] @ normals.T
+        offsets = np.ascontiguousarray(np.diag(offsets))
+        sigma = np.full(h * w, 0.01)
+        ranges = np.linalg.norm(xyz, axis=1)
+        origins = np.zeros((h, 3)) if wrap else np.zeros((0, 3))
+        args = (xyz, labels, normals, offsets, sigma, ranges, origins, 3.0, 1.0, 0.08, 0.05, 0.1, wrap)
+        got = settle_moves_along_rays(*args)
+        want = _moves_every_pixel(*args)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+        assert want[0].size or (h, w) != (12, 20)  # (the large grid moves pixels: the test bites)
