@@ -405,30 +405,32 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
     h, w = labels.shape
     candidates = np.zeros((h, w), np.int32)
     none = np.zeros((0, 4), np.int64)
-    free = np.zeros((h, w), np.uint8)
+    # one pass over the grid (flat: no 2-D index per pixel): the leftover pixels listed in
+    # raster order and marked -1 in ``candidates`` (each of them is written again below, so
+    # the marks never reach the answer); all later work is theirs (a few percent of a frame)
+    flat_labels = labels.reshape(h * w)
+    flat_valid = valid.reshape(h * w)
+    marks = candidates.reshape(h * w)
+    listed = np.empty(h * w, np.int64)  # (only the first n_free entries are touched)
     n_free = 0
-    for r in range(h):
-        for c in range(w):
-            f = valid[r, c] and labels[r, c] == 0
-            free[r, c] = f
-            n_free += f
+    for i in range(h * w):
+        if flat_valid[i] and flat_labels[i] == 0:
+            marks[i] = -1
+            listed[n_free] = i
+            n_free += 1
     if n_free == 0:
         return candidates, none, 0
-    # the leftover pixels in raster order (a few percent of a frame): all later work is theirs
     rows = np.empty(n_free, np.int64)
     cols = np.empty(n_free, np.int64)
-    m = 0
-    for r in range(h):
-        for c in range(w):
-            if free[r, c]:
-                rows[m], cols[m] = r, c
-                m += 1
+    for j in range(n_free):
+        rows[j] = listed[j] // w
+        cols[j] = listed[j] - rows[j] * w
     # cores: leftover pixels whose 3x3 neighbourhood (border replicated) is all leftover
     core = np.zeros((h, w), np.int32)  # -1: a core pixel not yet numbered
     n_core_pixels = 0
     for j in range(n_free):
         r, c = rows[j], cols[j]
-        if _all_free_around(free, r, c, h, w):
+        if _all_marked_around(candidates, r, c, h, w):
             core[r, c] = -1
             n_core_pixels += 1
     n_cores = _number_listed(core, rows, cols, n_core_pixels) if n_core_pixels else 0
@@ -446,8 +448,10 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
             lut[k] = first_label + kept
             kept += 1
     n_cored = kept
-    # the leftover pixels no kept blob took, marked -1 in ``thin`` (when asked for)
-    thin = np.zeros((h, w) if thin_min_size > 0 else (1, 1), np.int32)
+    # the leftover pixels no kept blob took, marked -1 in ``thin`` (when asked for): the core
+    # image again, whose numbers are read no more; every -1 in it was numbered, so a -1
+    # there now is a thin pixel, and each thin pixel's entry is set below
+    thin = core if thin_min_size > 0 else np.zeros((1, 1), np.int32)
     n_thin_pixels = 0
     for j in range(n_free):
         r, c = rows[j], cols[j]
@@ -489,11 +493,11 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _all_free_around(free, r, c, h, w):
-    # every pixel of the 3x3 neighbourhood of (r, c) free, the grid's border replicated
+def _all_marked_around(marks, r, c, h, w):
+    # every pixel of the 3x3 neighbourhood of (r, c) marked -1 (leftover), the grid's border replicated
     for rr in (max(r - 1, 0), r, min(r + 1, h - 1)):
         for cc in (max(c - 1, 0), c, min(c + 1, w - 1)):
-            if not free[rr, cc]:
+            if marks[rr, cc] != -1:
                 return False
     return True
 
