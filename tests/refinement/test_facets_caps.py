@@ -117,3 +117,27 @@ def test_the_cap_split_holds_each_surface_to_the_noise_of_its_own_distances():
                          model=farther)
     # the same pipe half the range noise off passes against that model
     assert _explains(ctx, idx, distances, [(rest, biased), (piece, cap)], _EACH_SURFACE, "cylinder", model=farther)
+
+
+def test_a_row_of_returns_across_the_axis_is_no_end_cap():
+    # Each image row's rays fan out in one plane through the camera and range noise moves a
+    # return along its ray: the returns of the row level with the camera (cy = 60) lie in
+    # that plane exactly, a "disc across the axis" of a column standing upright, rms 0.
+    # It is seen edge-on, so it is no cap; the pipe's own end cap (facing the camera) is.
+    from rangeseg_o3d.fitting.plane import fit_plane
+    from rangeseg_o3d.refinement.facets import _faces_the_sensor
+
+    scene = Scene([cylinder((0.0, -0.6, 3.0), np.array([0.0, 1.0, 0.0]), 0.24, 1.2, caps=False, first_id=1)])
+    scan = simulate_depth_camera(scene, width=160, height=121, fx=300.0, fy=300.0, cx=79.5, cy=60.0,
+                                 noise_coeff=0.0, noise_sigma0=NOISE, seed=0)
+    ctx = Context(scan.cloud, rs.Pipeline("spinning_lidar").fitter, np.full(scan.cloud.shape, NOISE), 10)
+    row = np.flatnonzero((scan.truth_ids == PIPE).ravel())
+    row = row[row // 160 == 60]
+    plane = fit_plane(scan.cloud.xyz.reshape(-1, 3)[row])
+    assert row.size > 40 and plane and plane.rms < 1e-6 and abs(plane.normal[1]) > 0.999
+    assert not _faces_the_sensor(ctx, row, plane)
+
+    ctx, labels, model, truth = _pipe_in_one_region(0)
+    idx = np.flatnonzero(labels.ravel())
+    (_, _), (piece, cap) = _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
+    assert _faces_the_sensor(ctx, piece, cap)
