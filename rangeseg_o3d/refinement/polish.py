@@ -21,11 +21,12 @@ import numpy as np
 from .._numeric import rows_at
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from ..kernels.linalg import noise_rms_bound
+from ..kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis
 from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
-from ..fitting.robust import curvature_resolved, distance_noise
+from ..fitting.plane import fit_plane
+from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .context import TRIM_SIGMAS, Context
 
 __all__ = ["polish_models"]
@@ -67,6 +68,9 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     unbent = (_unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)], resolve_bends,
                       pixels=pixels) if resolve_bends else {})
     fits.update(unbent)
+    if along_rays:  # a laser's mixed returns at jump edges are no bend
+        unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)]))
+        fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
                                    pixels=pixels))
@@ -126,6 +130,127 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
                 np.ascontiguousarray(pts - centroid), np.ascontiguousarray(plane.normal), plane.rms, float(samples)):
             out[k] = plane
     return out
+
+
+def _interior(labels: np.ndarray, wrap_columns: bool) -> np.ndarray:
+    """``(H, W)`` whether each pixel's four neighbours on the grid carry its label (across
+    the seam on a 360-degree grid; off the grid's other edges, not)."""
+    inside = labels > 0
+    inside[1:] &= labels[1:] == labels[:-1]
+    inside[:-1] &= labels[:-1] == labels[1:]
+    inside[0] = inside[-1] = False
+    if wrap_columns:
+        inside &= (labels == np.roll(labels, 1, axis=1)) & (labels == np.roll(labels, -1, axis=1))
+    else:
+        inside[:, 1:] &= labels[:, 1:] == labels[:, :-1]
+        inside[:, :-1] &= labels[:, :-1] == labels[:, 1:]
+        inside[:, 0] = inside[:, -1] = False
+    return inside
+
+
+def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> dict:
+    """The planes of the curved regions among ``curved`` that a laser's mixed returns bent:
+    the model is beyond the range noise (``ctx.sigma``, the chi-square bound); over the
+    pixels whose four neighbours are in the region (one grid step in from its border, the
+    reach of the beam's footprint) it resolves no curvature over their least-squares plane
+    (the F-test), which is within the fitter's plane threshold and becomes the model; and
+    the pixels beside the region see through it (:func:`_seen_through`): of those whose ray
+    meets the model within its span and returns no nearer, more than half return from
+    beyond it by ``CHI_SQUARE_SIGMAS`` range sigmas.
+
+    A return whose footprint a jump edge crosses is mixed, lying along its ray between the
+    two surfaces: a face a few columns wide with a column of them on either side bends
+    like a cylinder's limbs (nodding_1deg seed 23 scan 5: a box face 4 columns wide at
+    3.2 m with 36 mixed returns, a 0.285 m cylinder at 1.4 range sigmas rms, a false
+    fitting). A cylinder or sphere has no edge across its axis: seen from outside, its
+    pixels end where its limb turns from the rays or where a nearer surface hides it, so
+    the rays beside it miss it or return in front of it. Beside that face 22 of the 22
+    rays the cylinder claims return from beyond it (the wall behind); beside a
+    pipe of 0.29 m on five columns that took 17 mixed returns (same scan set, seed 0
+    scan 2), 3 of 11."""
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
+
+    p = ctx.fitter.params
+    if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
+        return {}
+    inside = None
+    out = {}
+    for k, idx in region_indices(labels, only=curved).items():
+        model, points = fits[k], ctx.xyz[idx]
+        squares = model.distances(points) ** 2
+        noise = float(np.sqrt(np.mean(ctx.sigma[idx] ** 2)))
+        if not beyond_noise(float(np.sqrt(np.mean(squares))), noise, idx.size):
+            continue
+        if inside is None:  # (one pass over the grid, only where a curved model is beyond the noise)
+            inside = _interior(labels, ctx.wrap_columns).ravel()
+        inner = inside[idx]
+        n = int(np.count_nonzero(inner))
+        if n < max(int(p.get("min_points", 10)), 10):
+            continue
+        centroid = points[inner].mean(axis=0)
+        tolerance = plane_threshold(n, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                    rms_per_range2=p["rms_per_range2"])
+        plane = fit_plane(points[inner], inlier_distance=INLIER_FACTOR * tolerance)
+        if not plane or plane.rms > tolerance:
+            continue
+        if curvature_resolved(float(np.sum(plane.distances(points[inner]) ** 2)), float(np.sum(squares[inner])), n,
+                              EXTRA_PARAMETERS[model.kind]):
+            continue
+        claimed, through = _seen_through(ctx, labels, k, idx, model)
+        if 2 * through > claimed:
+            out[k] = plane
+    return out
+
+
+def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, model) -> tuple[int, int]:
+    """``(claimed, through)``: of the valid pixels beside region ``k`` (4-neighbours outside
+    it, across the seam on a 360-degree grid), those whose ray (from where the sensor's
+    rays start, :meth:`Context.ray_origins`) meets ``model`` (a cylinder: within the axial
+    span of the region's pixels, an end being an edge) and returns no nearer than
+    ``CHI_SQUARE_SIGMAS`` range sigmas in front of it, and how many of them return from
+    that far beyond it."""
+    mine = labels == k
+    near = mine.copy()
+    near[1:] |= mine[:-1]
+    near[:-1] |= mine[1:]
+    if ctx.wrap_columns:
+        near |= np.roll(mine, 1, axis=1) | np.roll(mine, -1, axis=1)
+    else:
+        near[:, 1:] |= mine[:, :-1]
+        near[:, :-1] |= mine[:, 1:]
+    flat_valid = np.isfinite(ctx.xyz).all(axis=1)
+    beside = np.flatnonzero(near.ravel() & ~mine.ravel() & flat_valid)
+    if beside.size == 0:
+        return 0, 0
+    origins = ctx.ray_origins(beside)
+    start = np.zeros((beside.size, 3)) if origins is None else origins
+    seen = ctx.xyz[beside] - start
+    ranges = np.linalg.norm(seen, axis=1)
+    rays = seen / np.maximum(ranges, 1e-12)[:, None]
+    if isinstance(model, Cylinder):
+        axis = model.axis
+        d = rays - np.outer(rays @ axis, axis)
+        rel = start - model.point
+        e = rel - np.outer(rel @ axis, axis)
+        a = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
+        b = np.einsum("ij,ij->i", d, e)
+        c = np.einsum("ij,ij->i", e, e) - model.radius ** 2
+    else:
+        rel = start - model.center
+        a = np.ones(beside.size)
+        b = np.einsum("ij,ij->i", rays, rel)
+        c = np.einsum("ij,ij->i", rel, rel) - model.radius ** 2
+    disc = b * b - a * c
+    front = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
+    hit = (disc >= 0.0) & (front > 0.0)
+    if isinstance(model, Cylinder):
+        along = (start + front[:, None] * rays - model.point) @ model.axis
+        own = (ctx.xyz[idx] - model.point) @ model.axis
+        hit &= (along >= own.min()) & (along <= own.max())
+    margin = CHI_SQUARE_SIGMAS * ctx.sigma[beside]
+    through = hit & (ranges - front > margin)
+    claimed = hit & ~(front - ranges > margin)  # (a nearer surface in front of it tells nothing)
+    return int(np.count_nonzero(claimed)), int(np.count_nonzero(through))
 
 
 def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0, *,

@@ -348,3 +348,69 @@ def test_band_bend_counts_the_standard_errors_of_the_bend_in_the_noise():
         # seen from outside (the sides farther) the bend is positive and far beyond its
         # standard error; seen from inside as far negative
         assert np.sign(bend) == np.sign(curvature) and abs(bend) > 5.0  # 1 mm of sagitta under 1 mm of noise: 6.4
+
+
+def _narrow_face_or_pipe(seed: int, pipe: bool):
+    """A 40 x 40 grid of rays 1 degree apart from the origin, 5 mm range noise along them, a
+    wall 4.2 m away and in front of it (label 1, rows 10-29) either a face 6 columns wide at
+    3 m with a column of mixed returns on either side (a jump edge across the beam: each
+    30-70 % of the way to the wall along its ray) or an upright pipe of radius 0.3 m at 3 m:
+    ``(context, labels, cylinder fitted to label 1)``."""
+    from rangeseg_o3d.refinement.context import Context
+
+    rng = np.random.default_rng(seed)
+    focal = 1.0 / np.tan(np.radians(1.0))
+    v, u = np.mgrid[0:40, 0:40].astype(float)
+    rays = np.dstack([(u - 19.5) / focal, (v - 19.5) / focal, np.ones((40, 40))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    wall = 4.2 / rays[..., 2]
+    ranges, labels, rows = wall.copy(), np.zeros((40, 40), np.int32), slice(10, 30)
+    if pipe:  # the ray meets x^2 + (z - 3.3)^2 = 0.3^2
+        across, depth = rays[..., 0], rays[..., 2]
+        a, b = across ** 2 + depth ** 2, -3.3 * depth
+        disc = b * b - a * (3.3 ** 2 - 0.09)
+        on = np.zeros((40, 40), bool)
+        on[rows] = disc[rows] > 0
+        ranges[on] = ((-b - np.sqrt(np.maximum(disc, 0.0))) / a)[on]
+        labels[on] = 1
+    else:
+        face = 3.0 / rays[..., 2]
+        ranges[rows, 17:23] = face[rows, 17:23]
+        for column in (16, 23):
+            share = rng.uniform(0.3, 0.7, 20)
+            ranges[rows, column] = face[rows, column] + share * (wall[rows, column] - face[rows, column])
+        labels[rows, 16:24] = 1
+    xyz = rays * (ranges + rng.normal(0.0, 0.005, ranges.shape))[..., None]
+    ctx = Context(rs.OrganizedCloud(xyz), rs.Pipeline("lms200").fitter, np.full((40, 40), 0.005), 10)
+    return ctx, labels, fit_cylinder(xyz[labels == 1])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_face_bent_by_mixed_returns_at_its_jump_edges_is_a_plane(seed):
+    from rangeseg_o3d.fitting.robust import beyond_noise
+    from rangeseg_o3d.refinement.polish import _bent_by_border, _seen_through
+
+    ctx, labels, cylinder = _narrow_face_or_pipe(seed, pipe=False)
+    idx = np.flatnonzero(labels.ravel())
+    # the premise: the mixed returns bend the face into a cylinder beyond the noise
+    assert cylinder.kind == "cylinder" and 0.3 < cylinder.radius < 0.45
+    assert beyond_noise(float(np.sqrt(np.mean(cylinder.distances(ctx.xyz[idx]) ** 2))), 0.005, idx.size)
+    # every ray beside it that the cylinder claims returns from the wall behind it
+    claimed, through = _seen_through(ctx, labels, 1, idx, cylinder)
+    assert claimed >= 40 and through == claimed
+    plane = _bent_by_border(ctx, labels, {1: cylinder}, [1])[1]
+    assert plane.kind == "plane" and abs(plane.normal[2]) > 0.999  # the face's, from its inner pixels
+    # polish on a laser's single returns gives it that plane
+    assert polish_models(ctx, labels, {1: cylinder}, along_rays=True)[1].kind == "plane"
+    assert polish_models(ctx, labels, {1: cylinder})[1].kind == "cylinder"  # (not asked elsewhere)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_rays_beside_a_pipe_miss_it(seed):
+    from rangeseg_o3d.refinement.polish import _bent_by_border, _seen_through
+
+    ctx, labels, cylinder = _narrow_face_or_pipe(seed, pipe=True)
+    idx = np.flatnonzero(labels.ravel())
+    assert cylinder.kind == "cylinder" and abs(cylinder.radius - 0.3) < 0.01
+    assert _seen_through(ctx, labels, 1, idx, cylinder) == (0, 0)
+    assert _bent_by_border(ctx, labels, {1: cylinder}, [1]) == {}
