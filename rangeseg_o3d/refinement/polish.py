@@ -169,8 +169,8 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list) 
     pipe of 0.29 m on five columns that took 17 mixed returns (same scan set, seed 0
     scan 2), 3 of 11. That last test does not tell on its own: beside most pipes and
     balls fitted right the rays it counts are the ring of mixed returns their edge band
-    left out, behind the model too (on the laser rows of the studied seeds, 438 of 773
-    cylinders and 239 of 412 spheres would pass it); it only follows the F-test on the
+    left out, behind the model too (on the laser rows of the studied seeds, 487 of 776
+    cylinders and 285 of 415 spheres would pass it); it only follows the F-test on the
     inner pixels, which two regions of those rows reached (that face and that pipe)."""
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
