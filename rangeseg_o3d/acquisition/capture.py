@@ -3,7 +3,8 @@
 A failed capture raises :class:`~rangeseg_o3d.acquisition.errors.AcquisitionError`
 (usually :class:`DeviceTimeout`) whose ``partial`` attribute is a :class:`PartialCapture`
 with every row completed so far; with ``config.partial_path`` set it is also saved
-there (atomically) as an OrganizedCloud ``.npz``.
+there (atomically) as an OrganizedCloud ``.npz``. Any failure, Ctrl-C included, first
+halts the tilt unit, so it does not go on to the end of its move.
 """
 
 from __future__ import annotations
@@ -108,14 +109,30 @@ def _keep_partial(partial: PartialCapture, config) -> bool:
     return True
 
 
-def _fail(err: BaseException, partial: PartialCapture, config) -> BaseException:
-    """``err`` with ``.partial`` attached, after saving the rows so far (Ctrl-C included)."""
+def _fail(err: BaseException, partial: PartialCapture, config, tilt=None) -> BaseException:
+    """``err`` with ``.partial`` attached, after halting ``tilt`` (when given) and saving the rows so far.
+
+    The halt comes first: a unit left moving goes on to the end of its move while the file
+    is written. The rows are saved even if a second Ctrl-C cuts the halt short.
+    """
     try:
         err.partial = partial
     except AttributeError:  # an exception type without a __dict__
         pass
-    _keep_partial(partial, config)
+    try:
+        if tilt is not None:
+            _halt(tilt)
+    finally:
+        _keep_partial(partial, config)
     return err
+
+
+def _halt(tilt) -> None:
+    """Stop the tilt unit after a failed capture; a failure to do so is only logged (the capture's own error matters more)."""
+    try:
+        tilt.halt()
+    except Exception as halt_err:
+        log.error("could not halt the tilt unit on %s: %s", getattr(tilt, "port", "?"), halt_err)
 
 
 def retries(lms, tilt) -> int:
@@ -178,6 +195,7 @@ def capture_stop_and_go(lms, tilt, config, *, on_row=None, progress=None) -> Org
     AcquisitionError
         With ``.partial`` holding the rows captured so far. Any other exception, Ctrl-C
         (KeyboardInterrupt) included, also saves the rows so far to ``config.partial_path``.
+        Either way the tilt unit is halted first (it may be in the middle of a move).
     """
     partial = _new_partial(config)
     try:
@@ -189,9 +207,9 @@ def capture_stop_and_go(lms, tilt, config, *, on_row=None, progress=None) -> Org
             if progress is not None:
                 progress(partial.n_rows, retries(lms, tilt))
     except AcquisitionError:
-        raise  # _capture_row attached and saved the partial capture
-    except BaseException as err:  # Ctrl-C, a vanished port: keep what was captured
-        raise _fail(err, partial, config)
+        raise  # _capture_row halted the tilt unit, attached and saved the partial capture
+    except BaseException as err:  # Ctrl-C, a vanished port: stop the unit, keep what was captured
+        raise _fail(err, partial, config, tilt)
     return partial.to_cloud()
 
 
@@ -202,14 +220,14 @@ def _capture_row(lms, tilt, config, k: int, target: float, partial: PartialCaptu
             return _move(tilt, target, config), _read_row(lms, config)
         except (LmsDeviceReset, DeviceTimeout) as err:
             if isinstance(err, DeviceTimeout) and err.port != lms.port or retry == config.row_retries:
-                raise _fail(err, partial, config) from None
+                raise _fail(err, partial, config, tilt) from None
             log.warning("row %d: %s; re-initialising the LMS", k, err)
             try:
                 initialise(lms, tilt, config, tilt_too=False)
             except AcquisitionError as again:
-                raise _fail(again, partial, config) from err
+                raise _fail(again, partial, config, tilt) from err
         except AcquisitionError as err:
-            raise _fail(err, partial, config) from None
+            raise _fail(err, partial, config, tilt) from None
     raise AssertionError("unreachable: the last retry raises")
 
 
@@ -222,7 +240,9 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     the line rate). The tilt is sampled all along, each sample dated by when its request
     went out, from a reading at rest before the stream starts to one at rest after it
     stops, and each scan's tilt is interpolated at its date. Scans lost to line errors are
-    simply missing rows. A failure keeps the rows whose tilt the samples so far bracket.
+    simply missing rows. A failure (Ctrl-C included) keeps the rows whose tilt the samples
+    so far bracket and halts the tilt unit in the middle of its sweep, then saves the rows
+    like :func:`capture_stop_and_go`.
     """
     partial = _new_partial(config)
     latency = config.scan_latency
@@ -231,10 +251,10 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     scans, samples, ramp = [], [], []
     try:
         _sweep(lms, tilt, config, scans, samples, ramp)
-    except BaseException as err:  # Ctrl-C, a vanished port: keep what was captured
+    except BaseException as err:  # Ctrl-C, a vanished port: stop the unit, keep what was captured
         _salvage(lms, scans)
         _add_streamed_rows(partial, scans, samples, ramp, latency)
-        raise _fail(err, partial, config)
+        raise _fail(err, partial, config, tilt)
     _add_streamed_rows(partial, scans, samples, ramp, latency)
     if not partial.n_rows:
         raise CaptureEmpty("the continuous sweep produced no scans")

@@ -1,8 +1,12 @@
-"""Shared test helpers: a flat wall standing in for a synthetic scene."""
+"""Shared test helpers: a flat wall standing in for a synthetic scene, the simulated rig's devices opened."""
+
+from contextlib import contextmanager
 
 import numpy as np
 
+from rangeseg_o3d.acquisition.capture import initialise, open_devices
 from rangeseg_o3d.acquisition.lms2xx import SCAN_PERIOD
+from rangeseg_o3d.acquisition.simulate import simulation_config
 from rangeseg_o3d.acquisition.powercube import ramp_profile
 from rangeseg_o3d.geometry import NoddingGeometry, nodding_rays
 
@@ -27,3 +31,16 @@ def scans_in_sweep(start, stop, velocity, acceleration=1.0, baudrate=38400, marg
     at_ends = 2 * np.sqrt(2 * margin / acceleration)  # time to leave the start and to reach the stop by margin
     beat = max(SCAN_PERIOD, (2 * 181 + 10) * 10 / baudrate)
     return (duration - at_ends) / beat
+
+
+@contextmanager
+def rig_devices(rig, config, time_scale):
+    """``(simulation config, lms, tilt)`` of a started SimulatedRig, initialised; both closed on leaving."""
+    sim = simulation_config(config, lms_port=rig.lms_port, tilt_port=rig.tilt_port, time_scale=time_scale)
+    lms, tilt = open_devices(sim)
+    try:
+        initialise(lms, tilt, sim)
+        yield sim, lms, tilt
+    finally:
+        lms.close()
+        tilt.close()

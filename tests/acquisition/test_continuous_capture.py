@@ -9,12 +9,13 @@ import time
 import numpy as np
 import pytest
 
+from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.acquisition import CaptureConfig, DeviceTimeout
 from rangeseg_o3d.acquisition.capture import capture_continuous, initialise, open_devices
 from rangeseg_o3d.acquisition.sim.rig import SimulatedRig
 from rangeseg_o3d.acquisition.simulate import simulation_config
 
-from acquisition_helpers import MOUNT, scans_in_sweep
+from acquisition_helpers import MOUNT, rig_devices, scans_in_sweep
 
 START, STOP, VELOCITY, ACCELERATION = -0.3, 0.2, 0.5, 1.0
 TIME_SCALE = 1.0  # the devices' own speed: 1 ms of the host's scheduling is 0.5 mrad at 0.5 rad/s
@@ -102,3 +103,31 @@ def test_a_failure_mid_sweep_keeps_the_rows_streamed_so_far(tmp_path):
     truth = true_tilts(partial)
     assert truth.max() > START + 0.01  # the sweep had started
     assert np.abs(partial.geometry.tilt_angles - truth).max() < ROW_TOLERANCE
+
+
+def test_ctrl_c_mid_sweep_halts_the_tilt_unit_and_saves_the_rows_so_far(tmp_path):
+    class InterruptedMidSweep(SlowTilt):
+        polls = 0
+
+        def state(self):
+            self.polls += 1
+            if self.polls == 3:  # 0.6 s into the 1.5 s sweep: two turns of two slow queries
+                raise KeyboardInterrupt
+            return self._slowly(self.inner.state)
+
+    config = CaptureConfig.model_validate({
+        "schedule": {"start": START, "stop": STOP}, "mount": {"offset": MOUNT}, "mode": "continuous",
+        "continuous_velocity": VELOCITY, "tilt": {"acceleration": ACCELERATION},
+        "partial_path": str(tmp_path / "sweep.partial.npz")})
+    with SimulatedRig(row_ranges=tilt_in_ranges, time_scale=TIME_SCALE, noise=0.0, mount_offset=MOUNT) as rig:
+        with rig_devices(rig, config, TIME_SCALE) as (sim, lms, tilt), pytest.raises(KeyboardInterrupt) as info:
+            capture_continuous(lms, InterruptedMidSweep(tilt, SLOW * TIME_SCALE), sim)
+        stopped_at = rig.cube.position()
+        time.sleep(0.2)  # a unit left moving would be 0.1 rad further on by now
+        assert rig.cube.halted and not rig.cube.moving_at(rig.clock.now())
+        assert rig.cube.position() == stopped_at < STOP - 0.05  # halted mid-sweep, not at its end
+    partial = info.value.partial.to_cloud()
+    assert partial is not None and partial.shape[0] >= 3
+    saved = OrganizedCloud.load(tmp_path / "sweep.partial.npz")
+    np.testing.assert_array_equal(saved.ranges, partial.ranges)
+    assert np.abs(partial.geometry.tilt_angles - true_tilts(partial)).max() < ROW_TOLERANCE

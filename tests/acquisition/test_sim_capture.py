@@ -1,13 +1,17 @@
 """Capture from the simulated rig over ptys: exact rows, faults, resets, silence, continuous nodding."""
 
+import time
+
 import numpy as np
 import pytest
 
 from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.acquisition import CaptureConfig, DeviceTimeout, simulated_capture
+from rangeseg_o3d.acquisition.capture import capture_stop_and_go
 from rangeseg_o3d.acquisition.lms2xx import beam_angles
+from rangeseg_o3d.acquisition.sim.rig import SimulatedRig
 
-from acquisition_helpers import MOUNT, WALL_X, scans_in_sweep, wall_ranges
+from acquisition_helpers import MOUNT, WALL_X, rig_devices, scans_in_sweep, wall_ranges
 
 
 def config(rows=4, **extra):
@@ -88,6 +92,35 @@ def test_silent_tilt_unit_times_out(wall):
     with pytest.raises(DeviceTimeout, match="PowerCube") as info:
         simulated_capture(config(rows=2), row_ranges=wall, rig_options={"tilt_options": {"silent": True}})
     assert info.value.partial.n_rows == 0
+
+
+def test_ctrl_c_during_a_move_halts_the_tilt_unit_and_saves_the_rows_so_far(wall, tmp_path):
+    class InterruptedSecondMove:
+        waits = 0
+
+        def __init__(self, inner):
+            self.inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+        def wait_until_stopped(self, timeout):
+            self.waits += 1
+            if self.waits == 2:  # row 1's move: -0.3 -> 0.2 rad, 1.5 s of device time
+                raise KeyboardInterrupt
+            return self.inner.wait_until_stopped(timeout)
+
+    cfg = config(rows=3, partial_path=tmp_path / "scan.partial.npz")
+    time_scale = 0.5
+    with SimulatedRig(row_ranges=wall, time_scale=time_scale, noise=0.0, mount_offset=MOUNT) as rig:
+        with rig_devices(rig, cfg, time_scale) as (sim, lms, tilt), pytest.raises(KeyboardInterrupt) as info:
+            capture_stop_and_go(lms, InterruptedSecondMove(tilt), sim)
+        stopped_at = rig.cube.position()
+        time.sleep(0.1)  # a unit left moving would be 0.05 rad further on by now
+        assert rig.cube.halted and not rig.cube.moving_at(rig.clock.now())
+        assert -0.3 < rig.cube.position() == stopped_at < 0.15  # halted on its way to row 1's 0.2 rad
+    assert info.value.partial.n_rows == 1
+    assert OrganizedCloud.load(tmp_path / "scan.partial.npz").shape == (1, 181)
 
 
 def test_continuous_nodding(wall):
