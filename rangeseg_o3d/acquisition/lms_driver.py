@@ -181,6 +181,8 @@ class Lms2xx:
                     self._reply_at = last_rx
                     return "reply", event, True
                 if event.command in _RESET_CODES:
+                    if self._streaming:  # keeps the scans that came with it, then counts and raises the reset
+                        self._keep_scans(events[n:], last_rx)
                     self.stats["resets"] += 1
                     raise LmsDeviceReset(
                         f"LMS on {self.port} sent power-on/reset telegram 0x{event.command:02X}"
@@ -509,22 +511,38 @@ class Lms2xx:
         return [(time.monotonic(), data)] if data else []
 
     def _decode(self, chunks) -> None:
-        """Streamed chunks to scans, each dated by the arrival of the chunk holding its last byte."""
+        """Streamed chunks to scans, each dated by the arrival of the chunk holding its last byte.
+
+        A power-on telegram raises :class:`LmsDeviceReset` once every chunk is decoded: the
+        chunks were taken from the reader, so a valid scan among the rest would be lost.
+        """
+        reset = None
         for arrival, data in chunks:
             self._decoder.feed(data)
-            self._keep_scans(self._decoder.events(), arrival)
+            try:
+                self._keep_scans(self._decoder.events(), arrival)
+            except LmsDeviceReset as err:
+                reset = reset or err
+        if reset is not None:
+            raise reset
 
     def _keep_scans(self, events, arrival: float) -> None:
+        """Keep the valid scans among ``events``; a power-on telegram among them raises
+        :class:`LmsDeviceReset` after the scans that came with it are kept."""
+        reset = False
         for event in events:
             if not isinstance(event, Telegram):
                 continue
             if event.command in _RESET_CODES:
-                raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
-            if event.command == 0xB0:
+                reset = True
+            elif event.command == 0xB0:
                 try:
                     self._streamed.append((self._check(event), arrival))
                 except LmsProtocolError:
                     self.stats["bad_frames"] += 1
+        if reset:
+            self.stats["resets"] += 1
+            raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
 
     def drain_streamed(self) -> list[tuple[Scan, float]]:
         """Every valid streamed scan received and not taken yet, oldest first, without waiting.

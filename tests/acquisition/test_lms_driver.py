@@ -254,6 +254,23 @@ def test_reset_while_streaming_raises(scripted):
     lms.close()
 
 
+def test_valid_scans_taken_with_a_power_on_telegram_are_kept(scripted):
+    def scan(r):
+        return encode_telegram(encode_scan_values(np.full(2, r)), 0x80)
+
+    power_on = encode_telegram(b"\x90" + b"LMS200;30106" + b"\x10", 0x80)
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    transport._rx += scan(1.0) + power_on + scan(2.0) + scan(3.0)  # one chunk for the reader thread
+    time.sleep(0.1)
+    with pytest.raises(LmsDeviceReset, match="while streaming"):
+        lms.drain_streamed()
+    assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [1.0, 2.0, 3.0]
+    assert lms.stats["resets"] == 1
+    lms.close()
+
+
 def test_loop_transport_own_echo_is_not_a_reply():
     import serial  # pyserial is a core dependency
     port = serial.serial_for_url("loop://", timeout=0.01)
