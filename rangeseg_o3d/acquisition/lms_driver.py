@@ -141,7 +141,11 @@ class Lms2xx:
         """Wait for one reply: ('reply', t, heard) | ('nak'|'broken'|'silent', None, heard).
 
         A frame that arrives whole but fails its CRC ends the wait at once ('broken'): the
-        request is resent without waiting for a gap that would tell nothing more.
+        request is resent without waiting for a gap that would tell nothing more. Not while
+        the LMS streams: then it is most likely a scan damaged on the line, which says nothing
+        about the request (no NAK, no reply yet), and the frames after it in the same read may
+        be good scans or the reply itself. The wait goes on; a damaged reply is resent after
+        the gap that follows it (a stream being stopped) or after ``reply_timeout``.
         """
         start = time.monotonic()
         last_rx = None
@@ -175,6 +179,8 @@ class Lms2xx:
                     return "nak", None, True
                 if isinstance(event, BadFrame):
                     self.stats["bad_frames"] += 1
+                    if self._streaming:
+                        continue
                     return "broken", None, True
                 if event.command == reply_code:
                     self._backlog = events[n + 1 :]
@@ -219,7 +225,9 @@ class Lms2xx:
             The device announced a power-on / reset.
 
         ``keep_input`` keeps what was received before the first send (a scan the LMS is
-        still streaming); resends start afresh. A request ends a threaded read of the stream.
+        still streaming). Resends start afresh (stale bytes dropped), except while the LMS
+        streams: then every byte received is data (scans, or the reply to an earlier send),
+        so nothing is dropped. A request ends a threaded read of the stream.
         """
         if self._reader is not None:
             self._end_reader()
@@ -233,7 +241,7 @@ class Lms2xx:
         silent_since = time.monotonic()
         silent_in_a_row = 0
         for attempt in range(attempts):
-            if attempt or not keep_input:
+            if not (keep_input if attempt == 0 else self._streaming):
                 self._flush()
             self.transport.write(frame)
             self.stats["sent"] += 1

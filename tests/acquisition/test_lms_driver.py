@@ -243,6 +243,34 @@ def test_scan_in_flight_when_streaming_stops_is_kept(scripted):
     assert scan.ranges.tolist() == [3.0, 3.0]
 
 
+def scan_frame(r):
+    return encode_telegram(encode_scan_values(np.full(2, r)), 0x80)
+
+
+def test_a_damaged_scan_while_stopping_the_stream_is_no_reason_to_resend(scripted):
+    damaged = bytearray(scan_frame(4.0))
+    damaged[7] ^= 0x40  # one range byte hit on the line: the frame fails its CRC
+    stop_reply = bytes(damaged) + scan_frame(5.0) + ACK + rep("A0 00")
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00")), (req("20 25"), stop_reply)])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    lms.stop_streaming()  # one 20 25: the damaged scan is neither a NAK nor a reply
+    assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [5.0]
+    assert len(transport.writes) == 2 and lms.stats["broken"] == 0
+
+
+def test_a_resend_while_stopping_the_stream_keeps_the_scan_in_flight(scripted):
+    in_flight = scan_frame(6.0)
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00")),
+                                     (req("20 25"), NAK + in_flight[:5]),  # request garbled: NAK, stream goes on
+                                     (req("20 25"), in_flight[5:] + ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    lms.stop_streaming()
+    assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [6.0]
+    assert lms.stats["nak"] == 1
+
+
 def test_reset_while_streaming_raises(scripted):
     power_on = encode_telegram(b"\x90" + b"LMS200;30106" + b"\x10", 0x80)
     transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00"))])
