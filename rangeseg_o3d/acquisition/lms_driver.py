@@ -37,6 +37,7 @@ _RESET_CODES = (0x90, 0x91)
 _UNITS_BYTE = 6  # index of the units byte in the configuration block
 _UNIT_M = {"mm": 0.001, "cm": 0.01}
 _PROBE_SWEEPS = 3
+_BUSY_LINE_WAITS = 2  # reply timeouts a wait lasts on a line whose bytes never stop
 
 
 class Lms2xx:
@@ -146,6 +147,10 @@ class Lms2xx:
         about the request (no NAK, no reply yet), and the frames after it in the same read may
         be good scans or the reply itself. The wait goes on; a damaged reply is resent after
         the gap that follows it (a stream being stopped) or after ``reply_timeout``.
+
+        Bytes that never stop without bringing the reply end the wait ('broken') at
+        ``_BUSY_LINE_WAITS`` times ``reply_timeout``: a reply still arriving at
+        ``reply_timeout`` has that long to finish.
         """
         start = time.monotonic()
         last_rx = None
@@ -200,6 +205,10 @@ class Lms2xx:
                 if self._streaming and event.command == 0xB0:
                     self._keep_scans([event], last_rx)  # streamed before the device heard us
                 # anything else is a stale reply or a streamed scan: not ours
+            if last_rx - start > _BUSY_LINE_WAITS * reply_timeout:
+                # A line that never falls silent (a stream the request did not stop, a babbling
+                # port) gives no empty read to judge the timeouts by: the wait still ends.
+                return "broken", None, True
 
     def request(
         self,

@@ -1,5 +1,6 @@
 """One scripted exchange per LMS2xx command, plus NAK, corruption, reset and silence handling."""
 
+import threading
 import time
 
 import numpy as np
@@ -297,6 +298,39 @@ def test_valid_scans_taken_with_a_power_on_telegram_are_kept(scripted):
     assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [1.0, 2.0, 3.0]
     assert lms.stats["resets"] == 1
     lms.close()
+
+
+class NeverQuiet:
+    """A port whose bytes never stop: an LMS streaming 2-value scans that no request stops."""
+
+    baudrate, timeout, port = 38400, 0.0, "streaming"
+
+    def __init__(self):
+        self.writes = 0
+        self._frame = scan_frame(7.0)
+        self._at = 0
+
+    def write(self, data):
+        self.writes += 1
+        return len(data)
+
+    def read(self, size=1):
+        time.sleep(0.001)
+        stream = self._frame * 3
+        chunk = stream[self._at : self._at + 20]
+        self._at = (self._at + 20) % len(self._frame)
+        return chunk
+
+
+def test_a_request_on_a_line_that_never_falls_silent_ends():
+    lms = Lms2xx(NeverQuiet(), timeout=0.2, reply_timeout=0.05, gap_timeout=0.01, attempts=3, settle=0.0)
+    outcome = []
+    waiting = threading.Thread(target=lambda: outcome.append(pytest.raises(LmsProtocolError, lms.status)),
+                               daemon=True)
+    waiting.start()
+    waiting.join(timeout=5.0)  # each of 3 sends waits 2 x 50 ms; before, the first wait never ended
+    assert not waiting.is_alive() and outcome, "the request still waits for a reply amid the stream"
+    assert lms.transport.writes == 3 and lms.stats["broken"] == 3
 
 
 def test_loop_transport_own_echo_is_not_a_reply():
