@@ -123,12 +123,15 @@ class Lms2xx:
 
     # -- low level --------------------------------------------------------------
     def close(self) -> None:
-        if self._reader is not None:
-            self._reader.stop()
-            self._reader = None
-        close = getattr(self.transport, "close", None)
-        if callable(close):
-            close()
+        """End a threaded read of the stream and close the port (closed even if the thread is stuck)."""
+        reader, self._reader = self._reader, None
+        try:
+            if reader is not None:
+                reader.stop()
+        finally:
+            close = getattr(self.transport, "close", None)
+            if callable(close):
+                close()
 
     def _flush(self) -> None:
         reset = getattr(self.transport, "reset_input_buffer", None)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import queue
 import select
 import threading
 import time
 
+from .errors import AcquisitionError
 from .logged_transport import LoggedTransport, port_name
 
 __all__ = ["open_transport", "port_name", "read_some", "ChunkReader"]
@@ -85,13 +87,18 @@ def read_some(transport, wait: float) -> bytes:
     return bytes(data)
 
 
+_ENDED = object()  # the reader thread's last item: no chunk will follow
+
+
 class ChunkReader:
     """Reads a port in a thread, each chunk with the host time it arrived.
 
     A host that is busy elsewhere (a slow query to another device, a loaded machine) would
     otherwise read late what arrived early, and date it late. The thread waits in
     :func:`read_some` (``select`` releases the interpreter), so it takes bytes as they come.
-    Nothing else may read the port while the reader runs.
+    Nothing else may read the port while the reader runs. Every wait on the thread is
+    bounded: :meth:`take` returns once it has ended, :meth:`stop` gives up on a thread
+    stuck in a read.
 
     Parameters
     ----------
@@ -108,6 +115,7 @@ class ChunkReader:
         self._wait = float(wait)
         self._chunks: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
+        self._ended = False  # take() has met _ENDED
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name=f"reader-{port_name(transport)}", daemon=True)
         self._thread.start()
@@ -120,25 +128,44 @@ class ChunkReader:
                     self._chunks.put((time.monotonic(), data))
         except BaseException as err:  # a port that went away: raised to the caller by take()
             self.error = err
+        finally:
+            self._chunks.put(_ENDED)  # a take() waiting for chunks returns at once
 
     def take(self, wait: float = 0.0) -> list[tuple[float, bytes]]:
         """Every ``(arrival time, bytes)`` chunk not taken yet, oldest first, waiting up to
-        ``wait`` seconds for the first; raises what stopped the thread once its chunks are taken."""
+        ``wait`` seconds for the first, or less if the thread ends; raises what stopped the
+        thread once its chunks are taken."""
+        if not math.isfinite(wait):
+            raise ValueError(f"wait must be a finite number of seconds; got {wait}")
         chunks = []
         try:
-            chunks.append(self._chunks.get(timeout=wait) if wait > 0 else self._chunks.get_nowait())
+            item = self._chunks.get(timeout=wait) if wait > 0 and not self._ended else self._chunks.get_nowait()
             while True:
-                chunks.append(self._chunks.get_nowait())
+                if item is _ENDED:
+                    self._ended = True
+                else:
+                    chunks.append(item)
+                item = self._chunks.get_nowait()
         except queue.Empty:
             pass
         if not chunks and self.error is not None:
             raise self.error
         return chunks
 
-    def stop(self) -> None:
-        """End the thread (within ``wait``); chunks not taken yet stay for :meth:`take`."""
+    def stop(self, timeout: float = 2.0) -> None:
+        """End the thread (within ``wait`` of the port's read); chunks not taken yet stay for :meth:`take`.
+
+        Raises
+        ------
+        AcquisitionError
+            The thread is still in a read ``timeout`` seconds later (a port whose read
+            ignores its timeout); it is left behind (a daemon) and the port should be closed.
+        """
         self._stop.set()
-        self._thread.join()
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise AcquisitionError(f"the thread reading {port_name(self._transport)} did not stop within "
+                                   f"{timeout:.3g} s: the port's read blocks beyond its {self._wait:.3g} s wait")
 
     @property
     def running(self) -> bool:

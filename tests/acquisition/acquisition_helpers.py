@@ -1,8 +1,11 @@
-"""Shared test helpers: a flat wall standing in for a synthetic scene, the simulated rig's devices opened."""
+"""Shared test helpers: a flat wall standing in for a synthetic scene, the simulated rig's devices opened,
+a call that must raise rather than hang."""
 
+import threading
 from contextlib import contextmanager
 
 import numpy as np
+import pytest
 
 from rangeseg_o3d.acquisition.capture import initialise, open_devices
 from rangeseg_o3d.acquisition.lms2xx import SCAN_PERIOD
@@ -44,3 +47,21 @@ def rig_devices(rig, config, time_scale):
     finally:
         lms.close()
         tilt.close()
+
+
+def raises_without_hanging(exception, call, match=None, seconds=5.0):
+    """What ``call()`` raises, run in a thread; fails if it does not raise ``exception`` or still runs
+    after ``seconds`` (a hang: the thread is left behind as a daemon)."""
+    raised = []
+
+    def run():
+        with pytest.raises(exception, match=match) as info:
+            call()
+        raised.append(info.value)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"{call} still running after {seconds} s"
+    assert raised, f"{call} did not raise {exception.__name__}"
+    return raised[0]

@@ -1,8 +1,9 @@
 """The shipped protocol test helper (expected_protocol, ScriptedTransport) and the debug log of every exchange."""
 
 import doctest
-import time
 import logging
+import threading
+import time
 
 import pytest
 
@@ -15,6 +16,8 @@ from rangeseg_o3d.acquisition.powercube import FROM_MODULE, encode_frame
 from rangeseg_o3d.acquisition.powercube_driver import PowerCube
 from rangeseg_o3d.acquisition.testing import ProtocolMismatch, ScriptedTransport, expected_protocol
 from rangeseg_o3d.acquisition.transport import open_transport
+
+from acquisition_helpers import raises_without_hanging
 
 ACK = b"\x06"
 MODE_25 = bytes.fromhex("02 00 02 00 20 25 35 08")
@@ -141,3 +144,41 @@ def test_stream_latency_is_half_a_revolution_and_the_transfer():
     assert stream_latency(181, 500000) == pytest.approx(SCAN_PERIOD / 2 + 372 * 10 / 500000)
     with pytest.raises(ValueError, match="baudrate > 0; got 181, 0"):
         stream_latency(181, 0)
+
+
+def test_a_take_waiting_for_chunks_ends_when_the_reader_thread_ends():
+    from rangeseg_o3d.acquisition.transport import ChunkReader
+
+    class Vanishing(ScriptedTransport):
+        def read(self, size=1):
+            time.sleep(0.05)
+            raise OSError(5, "Input/output error")
+
+    reader = ChunkReader(Vanishing([]), 0.005)
+    # the thread dies 50 ms in; before, take() waited out its 30 s
+    raises_without_hanging(OSError, lambda: reader.take(wait=30.0), match="Input/output")
+    with pytest.raises(OSError):
+        reader.take(wait=30.0)  # the thread has ended: no wait at all, its error again
+    with pytest.raises(ValueError, match="finite"):
+        reader.take(wait=float("inf"))
+    reader.stop()
+
+
+def test_stopping_a_reader_stuck_in_a_read_is_an_error_not_a_hang():
+    from rangeseg_o3d.acquisition.errors import AcquisitionError
+    from rangeseg_o3d.acquisition.transport import ChunkReader
+
+    release = threading.Event()
+
+    class Stuck(ScriptedTransport):
+        def read(self, size=1):
+            release.wait()  # ignores its timeout, as a wedged driver may
+            return b""
+
+    reader = ChunkReader(Stuck([], port="stuck"), 0.005)
+    # before, stop() joined the thread for ever
+    raises_without_hanging(AcquisitionError, lambda: reader.stop(timeout=0.2),
+                           match="thread reading stuck did not stop within 0.2 s")
+    release.set()
+    reader.stop()
+    assert not reader.running
