@@ -112,7 +112,9 @@ class Lms2xx:
         self.ack_timeout = ack_timeout
         self.n_values: int | None = None
         self.unit: float | None = None
-        self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0}
+        # damaged_scans: streamed scans left out, their telegram damaged on the line (CRC) or inconsistent
+        self.stats = {"sent": 0, "nak": 0, "bad_frames": 0, "broken": 0, "silent": 0, "resets": 0,
+                      "damaged_scans": 0}
         self._decoder = TelegramDecoder(replies=True)
         self._backlog: list = []  # events decoded after a reply (scans streamed with it), kept for start_streaming
         self._reply_at = 0.0  # host time the chunk holding the last reply arrived
@@ -186,9 +188,10 @@ class Lms2xx:
                 if isinstance(event, Nak):
                     return "nak", None, True
                 if isinstance(event, BadFrame):
-                    self.stats["bad_frames"] += 1
                     if self._streaming:
+                        self.stats["damaged_scans"] += 1
                         continue
+                    self.stats["bad_frames"] += 1
                     return "broken", None, True
                 if event.command == reply_code:
                     self._backlog = events[n + 1 :]
@@ -547,10 +550,14 @@ class Lms2xx:
             raise reset
 
     def _keep_scans(self, events, arrival: float) -> None:
-        """Keep the valid scans among ``events``; a power-on telegram among them raises
-        :class:`LmsDeviceReset` after the scans that came with it are kept."""
+        """Keep the valid scans among ``events``, count the damaged ones (``stats["damaged_scans"]``);
+        a power-on telegram among them raises :class:`LmsDeviceReset` after the scans that came
+        with it are kept."""
         reset = False
         for event in events:
+            if isinstance(event, BadFrame):  # a scan whose telegram failed its CRC
+                self.stats["damaged_scans"] += 1
+                continue
             if not isinstance(event, Telegram):
                 continue
             if event.command in _RESET_CODES:
@@ -559,7 +566,7 @@ class Lms2xx:
                 try:
                     self._streamed.append((self._check(event), arrival))
                 except LmsProtocolError:
-                    self.stats["bad_frames"] += 1
+                    self.stats["damaged_scans"] += 1
         if reset:
             self.stats["resets"] += 1
             raise LmsDeviceReset(f"LMS on {self.port} reset while streaming")
@@ -568,7 +575,7 @@ class Lms2xx:
         """Every valid streamed scan received and not taken yet, oldest first, without waiting.
 
         Each comes with the host time (``time.monotonic``) the chunk holding its last byte
-        arrived. Corrupted scans are skipped (counted in ``stats["bad_frames"]``); a
+        arrived. Corrupted scans are skipped (counted in ``stats["damaged_scans"]``); a
         power-on telegram raises :class:`LmsDeviceReset`.
         """
         if self._streaming:

@@ -11,7 +11,8 @@ import pytest
 
 from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.acquisition import CaptureConfig, DeviceTimeout
-from rangeseg_o3d.acquisition.capture import capture_continuous, initialise, open_devices
+from rangeseg_o3d.acquisition.capture import CaptureEmpty, capture_continuous, initialise, open_devices
+from rangeseg_o3d.acquisition.sim.faults import LineFaults
 from rangeseg_o3d.acquisition.sim.rig import SimulatedRig
 from rangeseg_o3d.acquisition.simulate import simulation_config
 
@@ -131,3 +132,22 @@ def test_ctrl_c_mid_sweep_halts_the_tilt_unit_and_saves_the_rows_so_far(tmp_path
     saved = OrganizedCloud.load(tmp_path / "sweep.partial.npz")
     np.testing.assert_array_equal(saved.ranges, partial.ranges)
     assert np.abs(partial.geometry.tilt_angles - true_tilts(partial)).max() < ROW_TOLERANCE
+
+
+def test_a_sweep_on_a_noisy_line_counts_its_damaged_scans():
+    """At 3 % byte faults hardly a 372-byte scan arrives whole: none kept, each counted, the error says so."""
+    config = CaptureConfig.model_validate({
+        "schedule": {"start": START, "stop": STOP}, "mount": {"offset": MOUNT}, "mode": "continuous",
+        "continuous_velocity": VELOCITY, "tilt": {"acceleration": ACCELERATION}})
+    time_scale = 0.2
+    rig = SimulatedRig(row_ranges=tilt_in_ranges, time_scale=time_scale, noise=0.0, mount_offset=MOUNT)
+    with rig, rig_devices(rig, config, time_scale) as (sim, lms, tilt):
+        rig.lms_link.faults = LineFaults(0.03, seed=1)  # from the sweep on, on the laser's line only
+        streamed_before = rig.lms.streamed
+        with pytest.raises(CaptureEmpty, match="damaged on the line; on a noisy line capture stop_and_go") as info:
+            capture_continuous(lms, tilt, sim)
+        streamed = rig.lms.streamed - streamed_before
+    damaged = lms.stats["damaged_scans"]
+    assert f"({damaged} damaged" in str(info.value)
+    # a lower bound: a scan whose header was hit, or cut short as the stream stops, leaves no frame to count
+    assert streamed >= 10 and 0.7 * streamed <= damaged <= streamed, (damaged, streamed)

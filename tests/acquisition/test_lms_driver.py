@@ -273,6 +273,22 @@ def test_a_resend_while_stopping_the_stream_keeps_the_scan_in_flight(scripted):
     assert lms.stats["nak"] == 1
 
 
+def test_streamed_scans_damaged_on_the_line_are_counted_and_the_others_kept(scripted):
+    crc_hit = bytearray(scan_frame(2.0))
+    crc_hit[8] ^= 0x01
+    wrong_count = encode_telegram(encode_scan_values(np.full(3, 3.0)), 0x80)  # whole, but not this variant
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00") + scan_frame(1.0)),
+                                     (req("20 25"), bytes(crc_hit) + ACK + rep("A0 00"))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    transport._rx += bytes(crc_hit) + scan_frame(4.0) + wrong_count + scan_frame(5.0)
+    time.sleep(0.1)
+    lms.stop_streaming()
+    assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [1.0, 4.0, 5.0]
+    # one damaged while streaming, one while stopping, one inconsistent; no request resent
+    assert lms.stats["damaged_scans"] == 3 and lms.stats["bad_frames"] == 0 and len(transport.writes) == 2
+
+
 def test_reset_while_streaming_raises(scripted):
     power_on = encode_telegram(b"\x90" + b"LMS200;30106" + b"\x10", 0x80)
     transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00"))])
