@@ -10,6 +10,7 @@ import numpy as np
 from .errors import SILENT_REQUESTS, DeviceTimeout, LmsDeviceReset, LmsProtocolError
 from .lms2xx import (
     BAUD_MODES,
+    MAX_FRAME,
     MODE_INSTALLATION,
     MODE_ON_REQUEST,
     MODE_STREAM,
@@ -37,7 +38,9 @@ _RESET_CODES = (0x90, 0x91)
 _UNITS_BYTE = 6  # index of the units byte in the configuration block
 _UNIT_M = {"mm": 0.001, "cm": 0.01}
 _PROBE_SWEEPS = 3
-_BUSY_LINE_WAITS = 2  # reply timeouts a wait lasts on a line whose bytes never stop
+# Bytes received past reply_timeout without the reply that end a wait on a line whose bytes
+# never stop: a reply still arriving at reply_timeout is at most one frame.
+_BUSY_LINE_BYTES = 2 * MAX_FRAME
 
 
 class Lms2xx:
@@ -153,13 +156,15 @@ class Lms2xx:
         be good scans or the reply itself. The wait goes on; a damaged reply is resent after
         the gap that follows it (a stream being stopped) or after ``reply_timeout``.
 
-        Bytes that never stop without bringing the reply end the wait ('broken') at
-        ``_BUSY_LINE_WAITS`` times ``reply_timeout``: a reply still arriving at
-        ``reply_timeout`` has that long to finish.
+        Bytes that never stop without bringing the reply end the wait ('broken') once
+        ``_BUSY_LINE_BYTES`` (two frames) have come past ``reply_timeout``: a reply still
+        arriving then is at most one frame, and a host descheduled past the deadline still
+        reads what arrived meanwhile (counted by bytes, not time, so that is no reason to end).
         """
         start = time.monotonic()
         last_rx = None
         only_ack = True
+        late = 0  # bytes received past reply_timeout
         self._received = bytearray()  # what this reply brought, for rebuilding a damaged scan
         while True:
             now = time.monotonic()
@@ -177,6 +182,8 @@ class Lms2xx:
                     return "broken", None, True
                 continue
             last_rx = time.monotonic()
+            if last_rx - start > reply_timeout:
+                late += len(data)
             self._received += data
             if data.strip(bytes([ACK])):
                 only_ack = False  # a reply has started: from now on a gap means a lost byte
@@ -211,7 +218,7 @@ class Lms2xx:
                 if self._streaming and event.command == 0xB0:
                     self._keep_scans([event], last_rx)  # streamed before the device heard us
                 # anything else is a stale reply or a streamed scan: not ours
-            if last_rx - start > _BUSY_LINE_WAITS * reply_timeout:
+            if late > _BUSY_LINE_BYTES:
                 # A line that never falls silent (a stream the request did not stop, a babbling
                 # port) gives no empty read to judge the timeouts by: the wait still ends.
                 return "broken", None, True

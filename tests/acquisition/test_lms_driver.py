@@ -341,7 +341,7 @@ class NeverQuiet:
 
 def test_a_request_on_a_line_that_never_falls_silent_ends():
     lms = Lms2xx(NeverQuiet(), timeout=0.2, reply_timeout=0.05, gap_timeout=0.01, attempts=3, settle=0.0)
-    # each of 3 sends waits 2 x 50 ms; before, the first wait never ended
+    # each of 3 sends waits 50 ms and two frames more (~0.1 s at 20 bytes a ms); before, the first never ended
     raises_without_hanging(LmsProtocolError, lms.status)
     assert lms.transport.writes == 3 and lms.stats["broken"] == 3
 
