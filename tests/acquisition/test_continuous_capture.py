@@ -149,5 +149,6 @@ def test_a_sweep_on_a_noisy_line_counts_its_damaged_scans():
         streamed = rig.lms.streamed - streamed_before
     damaged = lms.stats["damaged_scans"]
     assert f"({damaged} damaged" in str(info.value)
-    # a lower bound: a scan whose header was hit, or cut short as the stream stops, leaves no frame to count
-    assert streamed >= 10 and 0.7 * streamed <= damaged <= streamed, (damaged, streamed)
+    # near, not exact: a scan whose header was hit, or cut short as the stream stops, leaves no frame to
+    # count, and a false STX inside a damaged one may make a second (13..27 of 16..26 streamed seen)
+    assert streamed >= 10 and abs(damaged - streamed) <= 0.3 * streamed, (damaged, streamed)
