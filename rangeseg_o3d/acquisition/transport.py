@@ -158,14 +158,18 @@ class ChunkReader:
         Raises
         ------
         AcquisitionError
-            The thread is still in a read ``timeout`` seconds later (a port whose read
-            ignores its timeout); it is left behind (a daemon) and the port should be closed.
+            The thread is still in a read ``timeout`` seconds after the ``wait`` its last read
+            may take (a port whose read ignores its timeout); it is left behind (a daemon) and
+            the port should be closed.
         """
         self._stop.set()
-        self._thread.join(timeout)
+        # (a read that began just before the stop may take its whole wait: a reader made with a
+        # wait longer than ``timeout`` is not stuck for that)
+        self._thread.join(self._wait + timeout)
         if self._thread.is_alive():
             raise AcquisitionError(f"the thread reading {port_name(self._transport)} did not stop within "
-                                   f"{timeout:.3g} s: the port's read blocks beyond its {self._wait:.3g} s wait")
+                                   f"{timeout:.3g} s past its {self._wait:.3g} s wait: the port's read blocks "
+                                   "beyond that wait")
 
     @property
     def running(self) -> bool:

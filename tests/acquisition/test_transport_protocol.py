@@ -182,3 +182,19 @@ def test_stopping_a_reader_stuck_in_a_read_is_an_error_not_a_hang():
     release.set()
     reader.stop()
     assert not reader.running
+
+
+def test_stopping_a_reader_whose_wait_is_longer_than_the_stop_timeout_is_no_error():
+    # a port that honours its read timeout is not stuck: stop() waits out the read that began
+    # before it (before: stop(timeout=0.05) on a 0.4 s wait raised 'did not stop within 0.05 s')
+    from rangeseg_o3d.acquisition.transport import ChunkReader
+
+    class Honest(ScriptedTransport):
+        def read(self, size=1):
+            time.sleep(self.timeout)  # nothing arrives: the read takes its whole timeout
+            return b""
+
+    reader = ChunkReader(Honest([], port="honest"), 0.4)
+    time.sleep(0.05)  # the thread is in its first read
+    reader.stop(timeout=0.05)
+    assert not reader.running
