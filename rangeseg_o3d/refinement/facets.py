@@ -469,7 +469,8 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     one of the plane's), cut to their largest connected piece, are the cap when that plane lowers
     their squared distances by more than noise would (the F-test of
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
-    against the cylinder's none on those pixels); the cylinder is refitted to the rest.
+    against the cylinder's none on those pixels) and it faces the sensor
+    (:func:`_faces_the_sensor`); the cylinder is refitted to the rest.
     """
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []

@@ -9,7 +9,9 @@ must still be one on its final pixels: its kind was decided on the pixels it had
 pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`. For
 a laser's single returns, whose noise is along their rays, a plane must also be within what
 that noise gives its distances, or a cylinder fitted in range residuals takes it where it
-is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`.
+is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`; and a cylinder or
+sphere whose bend only the mixed returns at its border carry, and beside which the rays
+see through it, is the plane of its inner pixels (:func:`_bent_by_border`).
 """
 
 from __future__ import annotations
@@ -45,7 +47,11 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     the planes whose quadric resolves a bend under the noise over those samples, and curved
     models only a neighbour's pixels bend are planes, :func:`_unbent`). With ``along_rays``
     (single returns, whose noise is along their rays only) also the planes whose distances
-    that noise does not explain, where a curved model's does (:func:`_planes_off_rays`).
+    that noise does not explain, where a curved model's does (:func:`_planes_off_rays`, with
+    ``decide_planes``), and, with or without ``decide_planes``, the curved models a laser's
+    mixed returns at jump edges bent replaced by the plane of their inner pixels
+    (:func:`_bent_by_border`, after :func:`_unbent`; the planes either gives are not
+    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
