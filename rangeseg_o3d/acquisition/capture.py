@@ -257,9 +257,12 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     try:
         _sweep(lms, tilt, config, scans, samples, ramp)
     except BaseException as err:  # Ctrl-C, a vanished port: stop the unit, keep what was captured
-        _salvage(lms, scans)
-        _add_streamed_rows(partial, scans, samples, ramp, latency)
-        raise _fail(err, partial, config, tilt)
+        try:
+            _halt(tilt)  # before anything else: the unit goes on with its sweep meanwhile
+        finally:  # (a second Ctrl-C during the halt still leaves the rows saved)
+            _salvage(lms, scans)
+            _add_streamed_rows(partial, scans, samples, ramp, latency)
+            raise _fail(err, partial, config)  # noqa: B012 - the sweep's error is the one to report
     _add_streamed_rows(partial, scans, samples, ramp, latency)
     damaged = _damaged_scans(lms) - damaged_before
     if damaged:

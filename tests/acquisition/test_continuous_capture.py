@@ -152,3 +152,34 @@ def test_a_sweep_on_a_noisy_line_counts_its_damaged_scans():
     # near, not exact: a scan whose header was hit, or cut short as the stream stops, leaves no frame to
     # count, and a false STX inside a damaged one may make a second (13..27 of 16..26 streamed seen)
     assert streamed >= 10 and abs(damaged - streamed) <= 0.3 * streamed, (damaged, streamed)
+
+
+def test_a_failed_sweep_halts_the_unit_before_taking_the_last_scans(monkeypatch):
+    """The unit goes on with its sweep until halted: nothing, not even the driver's last
+    scans, comes before the halt; the rows are still taken after it."""
+    import importlib
+
+    capture = importlib.import_module("rangeseg_o3d.acquisition.capture")  # (the package's capture() shadows it)
+    order = []
+
+    class Lms:
+        stats = {}
+
+        def drain_streamed(self):
+            order.append("drain")
+            return []
+
+    class Tilt:
+        def halt(self):
+            order.append("halt")
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(capture, "_sweep", interrupted)
+    config = CaptureConfig.model_validate({"schedule": {"start": START, "stop": STOP}, "mode": "continuous",
+                                           "scan_latency": 0.0})
+    with pytest.raises(KeyboardInterrupt) as info:
+        capture_continuous(Lms(), Tilt(), config)
+    assert order == ["halt", "drain"]
+    assert info.value.partial.n_rows == 0
