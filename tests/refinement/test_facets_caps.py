@@ -141,3 +141,50 @@ def test_a_row_of_returns_across_the_axis_is_no_end_cap():
     idx = np.flatnonzero(labels.ravel())
     (_, _), (piece, cap) = _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
     assert _faces_the_sensor(ctx, piece, cap)
+
+
+def _column_and_capped_pipe_seen_nodding(seed: int):
+    """A nodding LMS200 (mirror 0.1 m above the tilt axis, 5 mm range noise; rows 0.29 deg
+    apart, tilt 0 on row 40, beams 0.25 deg apart) before an upright column (radius 12 cm,
+    2.5 m ahead; id 1) and a capped pipe (radius 15 cm) lying level, pointing at the sensor
+    (side id 4, its near end cap id 6): ``(context, truth ids)``."""
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+
+    towards = np.array([-1.0, 0.5, 0.0]) / np.hypot(1.0, 0.5)
+    scene = Scene([cylinder((2.5, 0.0, -0.6), np.array([0.0, 0.0, 1.0]), 0.12, 1.2, caps=False, first_id=1),
+                   cylinder((3.4, -1.0, -0.25), towards, 0.15, 1.0, caps=True, first_id=4)])
+    scan = simulate_lms200(scene, rows=81, tilt_start=-0.2, tilt_stop=0.2, beam_start_deg=60.0, beam_stop_deg=110.0,
+                           beam_step_deg=0.25, beam_width_deg=0.1875, noise_sigma=0.005, seed=seed)
+    ctx = Context(scan.cloud, rs.Pipeline("lms200").fitter, np.full(scan.cloud.shape, 0.005), 10)
+    return ctx, scan.truth_ids
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_a_nodding_lasers_level_scan_row_across_a_column_is_no_end_cap(seed, monkeypatch):
+    # The row whose scan plane is level (tilt 0: the mirror's rays fan out level) meets the
+    # upright column at one height whatever the range noise: a disc across its axis, rms 0,
+    # seen edge-on. The cap split must not cut it off; the pipe's cap, which faces the
+    # sensor, it still cuts off. (Seeds where the row is the fullest bin of the axial
+    # histogram: on others the split finds no piece there with or without the check.)
+    from rangeseg_o3d.refinement import facets
+
+    ctx, truth = _column_and_capped_pipe_seen_nodding(seed)
+    width = truth.shape[1]
+    column = np.flatnonzero(truth.ravel() == 1)
+    model = fit_cylinder(ctx.xyz[column])
+    assert model.kind == "cylinder" and abs(model.radius - 0.12) < 0.005 and abs(model.axis[2]) > 0.999
+    assert facets._cap_split(ctx, model, column, model.distances(ctx.xyz[column])) == []
+
+    pipe = np.flatnonzero(truth.ravel() >= 4)
+    bent = fit_cylinder(ctx.xyz[pipe])
+    (rest, refit), (piece, cap) = facets._cap_split(ctx, bent, pipe, bent.distances(ctx.xyz[pipe]))
+    assert refit.kind == "cylinder" and cap.kind == "plane"
+    flat = truth.ravel()
+    assert (flat[piece] == 6).mean() > 0.95 and piece.size > 0.9 * (flat == 6).sum()
+    assert abs(float(cap.normal @ refit.axis)) > np.cos(np.radians(5.0))
+
+    # the premise: without the check that a cap faces the sensor, the level row is cut off
+    # as the column's end cap
+    monkeypatch.setattr(facets, "_faces_the_sensor", lambda ctx, piece, plane: True)
+    (_, _), (row, disc) = facets._cap_split(ctx, model, column, model.distances(ctx.xyz[column]))
+    assert np.all(row // width == 40) and row.size > 20 and disc.rms < 1e-6
