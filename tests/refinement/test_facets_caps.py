@@ -188,3 +188,29 @@ def test_a_nodding_lasers_level_scan_row_across_a_column_is_no_end_cap(seed, mon
     monkeypatch.setattr(facets, "_faces_the_sensor", lambda ctx, piece, plane: True)
     (_, _), (row, disc) = facets._cap_split(ctx, model, column, model.distances(ctx.xyz[column]))
     assert np.all(row // width == 40) and row.size > 20 and disc.rms < 1e-6
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_the_cap_split_asks_its_second_cap_piece_to_face_the_sensor_too(seed, monkeypatch):
+    # The split looks for the cap once more with the two fitted models and keeps that second
+    # piece when likelier; it too must face the sensor. Here the pipe's second piece (the
+    # rim pixels the first cylinder still explained) is taken; told that it does not face
+    # the sensor (the real one does), the split keeps its first piece.
+    from rangeseg_o3d.refinement import facets
+
+    ctx, truth = _column_and_capped_pipe_seen_nodding(seed)
+    pipe = np.flatnonzero(truth.ravel() >= 4)
+    bent = fit_cylinder(ctx.xyz[pipe])
+    distances = bent.distances(ctx.xyz[pipe])
+    asked = []
+    faces = facets._faces_the_sensor
+
+    def first_only(ctx, piece, plane):
+        asked.append(piece)
+        return len(asked) == 1 and faces(ctx, piece, plane)
+
+    (_, _), (second, _) = facets._cap_split(ctx, bent, pipe, distances)
+    monkeypatch.setattr(facets, "_faces_the_sensor", first_only)
+    (_, _), (kept, _) = facets._cap_split(ctx, bent, pipe, distances)
+    assert len(asked) == 2 and np.array_equal(asked[1], second)
+    assert np.array_equal(kept, asked[0]) and not np.array_equal(kept, second)
