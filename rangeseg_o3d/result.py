@@ -177,6 +177,11 @@ class Feature:
                    _cache=cache)
 
 
+def counted(n: int, kind: str) -> str:
+    """``n`` features of ``kind`` in words: ``"1 sphere"``, ``"2 spheres"``, ``"0 planes"``."""
+    return f"{n} {kind}" if n == 1 else f"{n} {kind}s"
+
+
 def _parameter_text(f: Feature) -> str:
     if f.kind == "plane":
         return f"n=({f.normal[0]:+.3f}, {f.normal[1]:+.3f}, {f.normal[2]:+.3f}) d={f.d:+.3f} m"
@@ -241,10 +246,8 @@ class Result:
         for u in self.unfitted:
             lines.append(f"{u.label:>5}  {'unfitted':<8} {u.n_pixels:>6} {'':>7}  {u.reason}")
         counts = self.counts()
-        lines.append(
-            f"{counts['plane']} planes, {counts['cylinder']} cylinders, {counts['sphere']} spheres, "
-            f"{counts['unfitted']} unfitted"
-        )
+        lines.append(", ".join(counted(counts[kind], kind) for kind in ("plane", "cylinder", "sphere"))
+                     + f", {counts['unfitted']} unfitted")
         lines.append("timings: " + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in self.timings.items()))
         return "\n".join(lines)
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from rangeseg_o3d.config import load_config, presets
 from rangeseg_o3d.pipeline import Pipeline
+from rangeseg_o3d.result import counted
 from rangeseg_o3d.viz import add_rerun_arguments, finish_recording, recording_from_args
 from rangeseg_o3d.viz import write_panel_png
 
@@ -65,8 +66,8 @@ def main(argv: list[str] | None = None) -> int:
         result = pipeline.run(cloud, recording=rec, scan_index=index)
         counts = result.counts()
         print(f"scan {index} {name}: {cloud.shape[0]}x{cloud.shape[1]}, "
-              f"{counts['plane']} planes, {counts['cylinder']} cylinders, "
-              f"{counts['sphere']} spheres, {counts['unfitted']} unfitted "
+              + ", ".join(counted(counts[k], k) for k in ("plane", "cylinder", "sphere"))
+              + f", {counts['unfitted']} unfitted "
               f"({time.perf_counter() - start:.2f} s with logging)")
         last = (cloud, result)
     if args.png and last is not None:

@@ -52,8 +52,15 @@ def test_rows_carry_the_fitted_parameters_to_a_millimetre(result):
 def test_closing_lines_count_the_kinds_and_list_the_timings(result):
     lines = result.table().splitlines()
     counts = result.counts()
-    assert lines[-2] == (f"{counts['plane']} planes, {counts['cylinder']} cylinders, "
-                         f"{counts['sphere']} spheres, {counts['unfitted']} unfitted")
+    named = {"plane": "planes", "cylinder": "cylinders", "sphere": "spheres"}
+    kinds = [f"{counts[k]} {k if counts[k] == 1 else named[k]}" for k in named]
+    assert lines[-2] == ", ".join(kinds) + f", {counts['unfitted']} unfitted"
     assert lines[-1].startswith("timings: ")
     assert all(name in lines[-1] for name in result.timings)
     assert "scan" not in lines[0]  # no title line when none is given
+
+
+def test_a_single_feature_of_a_kind_is_counted_in_the_singular():
+    from rangeseg_o3d.result import counted
+
+    assert [counted(n, "sphere") for n in (0, 1, 2)] == ["0 spheres", "1 sphere", "2 spheres"]

@@ -13,18 +13,19 @@ import time
 from pathlib import Path
 
 from ..io.atomic import atomic_write
+from ..result import counted
 
 __all__ = ["Progress", "write_summary", "read_summary", "format_counts"]
 
 
 def format_counts(row) -> str:
-    """``ok: 5 planes, 1 cylinder, 0 spheres, 2 unfitted`` or the row's error."""
+    """``ok: 5 planes, 1 cylinder, 0 spheres, 2 unfitted`` (:func:`~rangeseg_o3d.result.counted`) or the row's error."""
     if row.status == "failed":
         return f"FAILED: {row.error}"
     if row.status == "skipped":
         return "skipped (outputs exist)"
-    return (f"ok: {row.planes} planes, {row.cylinders} cylinders, {row.spheres} spheres, "
-            f"{row.unfitted} unfitted")
+    kinds = (counted(row.planes, "plane"), counted(row.cylinders, "cylinder"), counted(row.spheres, "sphere"))
+    return f"ok: {', '.join(kinds)}, {row.unfitted} unfitted"
 
 
 def _duration(seconds: float) -> str:
