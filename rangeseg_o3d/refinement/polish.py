@@ -75,7 +75,8 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
                       pixels=pixels) if resolve_bends else {})
     fits.update(unbent)
     if along_rays:  # a laser's mixed returns at jump edges are no bend
-        unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)]))
+        unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)],
+                                      pixels=pixels))
         fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
@@ -154,7 +155,8 @@ def _interior(labels: np.ndarray, wrap_columns: bool) -> np.ndarray:
     return inside
 
 
-def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> dict:
+def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, *,
+                    pixels: _Pixels | None = None) -> dict:
     """The planes of the curved regions among ``curved`` that a laser's mixed returns bent:
     the model is beyond the range noise (``ctx.sigma``, the chi-square bound); over the
     pixels whose four neighbours are in the region (one grid step in from its border, the
@@ -185,8 +187,8 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list) 
         return {}
     inside = None
     out = {}
-    for k, idx in region_indices(labels, only=curved).items():
-        model, points = fits[k], ctx.xyz[idx]
+    for k, idx in (pixels or _Pixels(labels)).of(curved).items():
+        model, points = fits[k], rows_at(ctx.xyz, idx)
         squares = model.distances(points) ** 2
         noise = float(np.sqrt(np.mean(ctx.sigma[idx] ** 2)))
         if not beyond_noise(float(np.sqrt(np.mean(squares))), noise, idx.size):
