@@ -205,8 +205,8 @@ class Lms2xx:
                     self._reply_at = last_rx
                     return "reply", event, True
                 if event.command in _RESET_CODES:
-                    if self._streaming:  # keeps the scans that came with it, then counts and raises the reset
-                        self._keep_scans(events[n:], last_rx)
+                    if self._streaming:  # keeps the scans that came after it; the reset is counted and raised below
+                        self._keep_scans(events[n + 1 :], last_rx)
                     self.stats["resets"] += 1
                     raise LmsDeviceReset(
                         f"LMS on {self.port} sent power-on/reset telegram 0x{event.command:02X}"

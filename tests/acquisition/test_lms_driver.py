@@ -317,6 +317,22 @@ def test_valid_scans_taken_with_a_power_on_telegram_are_kept(scripted):
     lms.close()
 
 
+def test_a_reset_in_the_reply_to_stop_streaming_keeps_the_scans_and_names_its_telegram(scripted):
+    def scan(r):
+        return encode_telegram(encode_scan_values(np.full(2, r)), 0x80)
+
+    power_on = encode_telegram(b"\x90" + b"LMS200;30106" + b"\x10", 0x80)
+    transport, lms = make(scripted, [(req("20 24"), ACK + rep("A0 00")),
+                                     (req("20 25"), ACK + scan(1.0) + power_on + scan(2.0))])
+    lms.n_values, lms.unit = 2, 0.001
+    lms.start_streaming()
+    with pytest.raises(LmsDeviceReset, match="telegram 0x90"):
+        lms.stop_streaming()
+    assert [scan.ranges[0] for scan, _ in lms.drain_streamed()] == [1.0, 2.0]
+    assert lms.stats["resets"] == 1
+    lms.close()
+
+
 class NeverQuiet:
     """A port whose bytes never stop: an LMS streaming 2-value scans that no request stops."""
 
