@@ -211,7 +211,8 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     # stops at every row) joins it when all its pixels are seen that close to grazing and
     # its rms distance to that plane is within the noise of their distances
     if touches.any():
-        kept |= _grazing_on_plane(ctx, pixels, owner, fits, parts, touches)[parts]
+        kept |= _grazing_on_plane(ctx, pixels, column[owner], (normals, offsets, rms), parts,
+                                  touches)[parts]
     if not kept.any():
         return labels, fits
     grown = labels.copy()
@@ -332,16 +333,20 @@ def _distance_and_noise(points: np.ndarray, sigma: np.ndarray, normals: np.ndarr
     return along - offsets, np.maximum(sigma * cosines, plane_rms), cosines
 
 
-def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, fits: dict,
+def _grazing_on_plane(ctx: Context, pixels: np.ndarray, owner: np.ndarray, planes: tuple,
                       parts: np.ndarray, asked: np.ndarray) -> np.ndarray:
     # per part (``parts`` numbers the flat ``pixels``; False where not ``asked``): whether each of its pixels sees the
-    # plane of its region ``owner`` closer to grazing than atan(GRAZING_TAN), and their rms
-    # distance to it is within the noise's chi-square bound (fitting.robust.beyond_noise) of
+    # plane of its region (row ``owner`` of ``planes``: normals, offsets, rms) closer to grazing than atan(GRAZING_TAN),
+    # and their rms distance to it is within the noise's chi-square bound (fitting.robust.beyond_noise) of
     # the rms of max(distance noise, the plane's rms) (distance noise: the range noise
     # times the incidence cosine, fitting.robust.distance_noise)
+    normals, offsets, plane_rms = planes
+    # the asked parts' pixels alone, in order: each part's sums add the same terms in the same order
+    # (and each pixel's plane is gathered from the table, not looked up per pixel in Python)
+    rows = np.flatnonzero(asked[parts])
+    pixels, owner, parts = pixels[rows], owner[rows], parts[rows]
     distances, noise, cosines = _distance_and_noise(
-        rows_at(ctx.xyz, pixels), ctx.sigma[pixels], np.array([fits[k].normal for k in owner]).reshape(-1, 3),
-        np.array([fits[k].d for k in owner]), np.array([fits[k].rms for k in owner]))
+        rows_at(ctx.xyz, pixels), ctx.sigma[pixels], normals[owner].reshape(-1, 3), offsets[owner], plane_rms[owner])
     n_parts = asked.size
     steep = np.bincount(parts, weights=cosines > GRAZING_TAN / np.hypot(1.0, GRAZING_TAN), minlength=n_parts)
     counts = np.bincount(parts, minlength=n_parts)
