@@ -709,12 +709,31 @@ def _crease_circle_mean_square(points: np.ndarray, first: np.ndarray, second: np
     axis /= np.linalg.norm(axis)
     u = _cross(axis, first)
     x, y = points @ first, points @ u
-    x0, y0 = float(np.mean(x)), float(np.mean(y))
-    x, y = x - x0, y - y0
-    design = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
-    (a, b, c), *_ = np.linalg.lstsq(design, x * x + y * y, rcond=None)
+    x, y = x - x.mean(), y - y.mean()
+    a, b, c = _circle_coefficients(x, y)
     radius = np.sqrt(max(c + a * a + b * b, 0.0))
-    return float(np.mean((np.hypot(x - a, y - b) - radius) ** 2))
+    off = np.hypot(x - a, y - b) - radius
+    return float(off @ off) / x.size
+
+
+def _circle_coefficients(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    # the least-squares (a, b, c) of 2ax + 2by + c = x^2 + y^2 (centre (a, b)), from its 3 x 3
+    # normal equations: the points are centred, so they are well conditioned, and the solve
+    # costs a third of lstsq's SVD on these few hundred points; lstsq where they are singular
+    # (points on one line)
+    squares = x * x + y * y
+    sx, sy = float(x.sum()), float(y.sum())
+    sxy = float(x @ y)
+    normal = np.array([[4.0 * float(x @ x), 4.0 * sxy, 2.0 * sx],
+                       [4.0 * sxy, 4.0 * float(y @ y), 2.0 * sy],
+                       [2.0 * sx, 2.0 * sy, float(x.size)]])
+    rhs = np.array([2.0 * float(x @ squares), 2.0 * float(y @ squares), float(squares.sum())])
+    try:
+        a, b, c = np.linalg.solve(normal, rhs).tolist()
+    except np.linalg.LinAlgError:
+        design = np.column_stack([2.0 * x, 2.0 * y, np.ones_like(x)])
+        (a, b, c), *_ = np.linalg.lstsq(design, squares, rcond=None)
+    return a, b, c
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
