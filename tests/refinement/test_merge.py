@@ -653,3 +653,17 @@ def test_a_piece_that_absorbed_its_neighbour_first_is_weighed_by_all_its_pixels_
     assert set(merged) == {1}
     assert (out[labels > 0] == 1).all()
     assert abs(merged[1].normal[2]) > np.cos(np.radians(1.0))  # the wall's plane, z-facing
+
+
+def test_crease_circle_exact_on_an_arc_and_finite_on_a_line():
+    # an arc about the crease line (axis z) leaves nothing; points on one line make the
+    # circle's normal equations singular, answered by least squares as before
+    from rangeseg_o3d.refinement.merge import _crease_circle_mean_square
+
+    first, second = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    t = np.linspace(0.0, 1.5, 50)
+    arc = np.column_stack([3 + 0.5 * np.cos(t), 2 + 0.5 * np.sin(t), np.linspace(0.0, 1.0, 50)])
+    assert _crease_circle_mean_square(arc, first, second) == pytest.approx(0.0, abs=1e-20)
+    line = np.column_stack([np.linspace(0.0, 1.0, 20), np.full(20, 2.0), np.linspace(0.0, 1.0, 20)])
+    assert _crease_circle_mean_square(line, first, second) == pytest.approx(0.024479742456083163, rel=1e-9)
+    assert _crease_circle_mean_square(np.tile([1.0, 2.0, 3.0], (5, 1)), first, second) == 0.0
