@@ -398,6 +398,10 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
     blobs under ``min_size``) follow as thin blobs: their 4-connected pieces of at least
     ``thin_min_size`` pixels, numbered on after the others in raster order of their first pixel.
 
+    ``labels`` and ``valid`` must be C-contiguous: the pass reads them as flat views (a
+    compiled reshape cannot copy); :mod:`rangeseg_o3d.fullres` passes them through
+    ``np.ascontiguousarray``.
+
     Returns ``(candidates (H, W) int32, boxes (n, 4) int64, n_cored)``: each blob's bounding box
     ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``; the
     first ``n_cored`` blobs are the cored ones.
