@@ -109,11 +109,13 @@ def _keep_partial(partial: PartialCapture, config) -> bool:
     return True
 
 
-def _fail(err: BaseException, partial: PartialCapture, config, tilt=None) -> BaseException:
-    """``err`` with ``.partial`` attached, after halting ``tilt`` (when given) and saving the rows so far.
+def _fail(err: BaseException, partial: PartialCapture, config, tilt=None, collect=None) -> BaseException:
+    """``err`` with ``.partial`` attached, after halting ``tilt`` (when given), adding the rows
+    ``collect()`` gathers (when given: a sweep's last streamed scans) and saving the rows so far.
 
-    The halt comes first: a unit left moving goes on to the end of its move while the file
-    is written. The rows are saved even if a second Ctrl-C cuts the halt short.
+    The halt comes first: a unit left moving goes on to the end of its move while the rows
+    are gathered and the file is written. They are gathered and saved even if a second
+    Ctrl-C cuts the halt short.
     """
     try:
         err.partial = partial
@@ -123,7 +125,11 @@ def _fail(err: BaseException, partial: PartialCapture, config, tilt=None) -> Bas
         if tilt is not None:
             _halt(tilt)
     finally:
-        _keep_partial(partial, config)
+        try:
+            if collect is not None:
+                collect()
+        finally:
+            _keep_partial(partial, config)
     return err
 
 
@@ -257,12 +263,11 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     try:
         _sweep(lms, tilt, config, scans, samples, ramp)
     except BaseException as err:  # Ctrl-C, a vanished port: stop the unit, keep what was captured
-        try:
-            _halt(tilt)  # before anything else: the unit goes on with its sweep meanwhile
-        finally:  # (a second Ctrl-C during the halt still leaves the rows saved)
+        def last_rows():
             _salvage(lms, scans)
             _add_streamed_rows(partial, scans, samples, ramp, latency)
-            raise _fail(err, partial, config)  # noqa: B012 - the sweep's error is the one to report
+
+        raise _fail(err, partial, config, tilt, collect=last_rows)
     _add_streamed_rows(partial, scans, samples, ramp, latency)
     damaged = _damaged_scans(lms) - damaged_before
     if damaged:

@@ -21,7 +21,6 @@ from dataclasses import replace
 import numpy as np
 
 from .._numeric import rows_at
-
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis

@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 
 from .._numeric import rows_at
-
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
