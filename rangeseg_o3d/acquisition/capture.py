@@ -252,7 +252,7 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
     tilt): on a line with byte faults of 1 % few 372-byte scans arrive whole, so
     :class:`CaptureEmpty` says how many were damaged. A failure (Ctrl-C included) keeps the rows whose tilt the samples
     so far bracket and halts the tilt unit in the middle of its sweep, then saves the rows
-    like :func:`capture_stop_and_go`.
+    like :func:`capture_stop_and_go`; after that the LMS is asked to stop streaming.
     """
     partial = _new_partial(config)
     latency = config.scan_latency
@@ -267,7 +267,11 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
             _salvage(lms, scans)
             _add_streamed_rows(partial, scans, samples, ramp, latency)
 
-        raise _fail(err, partial, config, tilt, collect=last_rows)
+        failure = _fail(err, partial, config, tilt, collect=last_rows)
+        # after the rows are saved, as a dead laser port may take its timeouts; a scan arriving
+        # now is after the last tilt sample, so no row could be dated from it anyway
+        _end_stream(lms)
+        raise failure
     _add_streamed_rows(partial, scans, samples, ramp, latency)
     damaged = _damaged_scans(lms) - damaged_before
     if damaged:
@@ -307,6 +311,17 @@ def _sweep(lms, tilt, config, scans: list, samples: list, ramp: list) -> None:
     scans.extend(lms.drain_streamed())
     samples.append(tilt.timed_position())  # after the last scan arrived
     tilt.set_ramp(config.tilt.velocity, config.tilt.acceleration)
+
+
+def _end_stream(lms) -> None:
+    """Take a laser still streaming after a failed sweep back to send-on-request mode, so it does
+    not go on filling the line until the next initialise (a failure to do so is only logged)."""
+    if not getattr(lms, "streaming", False):
+        return
+    try:
+        lms.stop_streaming()
+    except Exception as stop_err:  # the sweep's own error matters more
+        log.error("could not stop the LMS stream on %s: %s", getattr(lms, "port", "?"), stop_err)
 
 
 def _salvage(lms, scans: list) -> None:

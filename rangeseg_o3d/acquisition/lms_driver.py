@@ -515,6 +515,11 @@ class Lms2xx:
             raise
         self._reader = ChunkReader(self.transport, min(self.gap_timeout, 0.01))
 
+    @property
+    def streaming(self) -> bool:
+        """True from :meth:`start_streaming` until :meth:`stop_streaming`."""
+        return self._streaming
+
     def stop_streaming(self) -> None:
         """Back to send-on-request mode (0x25).
 

@@ -12,6 +12,7 @@ import pytest
 from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.acquisition import CaptureConfig, DeviceTimeout
 from rangeseg_o3d.acquisition.capture import CaptureEmpty, capture_continuous, initialise, open_devices
+from rangeseg_o3d.acquisition.lms2xx import MODE_ON_REQUEST
 from rangeseg_o3d.acquisition.sim.faults import LineFaults
 from rangeseg_o3d.acquisition.sim.rig import SimulatedRig
 from rangeseg_o3d.acquisition.simulate import simulation_config
@@ -123,10 +124,11 @@ def test_ctrl_c_mid_sweep_halts_the_tilt_unit_and_saves_the_rows_so_far(tmp_path
     with SimulatedRig(row_ranges=tilt_in_ranges, time_scale=TIME_SCALE, noise=0.0, mount_offset=MOUNT) as rig:
         with rig_devices(rig, config, TIME_SCALE) as (sim, lms, tilt), pytest.raises(KeyboardInterrupt) as info:
             capture_continuous(lms, InterruptedMidSweep(tilt, SLOW * TIME_SCALE), sim)
-        stopped_at = rig.cube.position()
-        time.sleep(0.2)  # a unit left moving would be 0.1 rad further on by now
+        stopped_at, streamed = rig.cube.position(), rig.lms.streamed
+        time.sleep(0.2)  # a unit left moving would be 0.1 rad further on by now, a laser left streaming 2 scans
         assert rig.cube.halted and not rig.cube.moving_at(rig.clock.now())
         assert rig.cube.position() == stopped_at < STOP - 0.05  # halted mid-sweep, not at its end
+        assert not lms.streaming and rig.lms.mode == MODE_ON_REQUEST and rig.lms.streamed == streamed
     partial = info.value.partial.to_cloud()
     assert partial is not None and partial.shape[0] >= 3
     saved = OrganizedCloud.load(tmp_path / "sweep.partial.npz")
@@ -156,7 +158,8 @@ def test_a_sweep_on_a_noisy_line_counts_its_damaged_scans():
 
 def test_a_failed_sweep_halts_the_unit_before_taking_the_last_scans(monkeypatch):
     """The unit goes on with its sweep until halted: nothing, not even the driver's last
-    scans, comes before the halt; the rows are still taken after it."""
+    scans, comes before the halt; the rows are still taken after it, and the laser is
+    asked to stop streaming last."""
     import importlib
 
     capture = importlib.import_module("rangeseg_o3d.acquisition.capture")  # (the package's capture() shadows it)
@@ -164,10 +167,16 @@ def test_a_failed_sweep_halts_the_unit_before_taking_the_last_scans(monkeypatch)
 
     class Lms:
         stats = {}
+        streaming = True
+        port = "/dev/ttyLMS"
 
         def drain_streamed(self):
             order.append("drain")
             return []
+
+        def stop_streaming(self):  # a laser port gone dead: the stop fails, the sweep's own error stands
+            order.append("stop")
+            raise DeviceTimeout(self.port, 1.0, "LMS2xx")
 
     class Tilt:
         def halt(self):
@@ -181,5 +190,5 @@ def test_a_failed_sweep_halts_the_unit_before_taking_the_last_scans(monkeypatch)
                                            "scan_latency": 0.0})
     with pytest.raises(KeyboardInterrupt) as info:
         capture_continuous(Lms(), Tilt(), config)
-    assert order == ["halt", "drain"]
+    assert order == ["halt", "drain", "stop"]  # the stream stopped last, after the rows are saved
     assert info.value.partial.n_rows == 0
