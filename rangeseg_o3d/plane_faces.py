@@ -290,6 +290,27 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
     return out
 
 
+def _off_model(model, points: np.ndarray, sigma: np.ndarray, independent: float) -> bool:
+    """Whether ``points`` (range noise ``sigma``) lie off ``model`` beyond the noise of their
+    distances to it (:func:`~rangeseg_o3d.fitting.robust.distance_noise`), their rms over the
+    chi-square bound of ``independent`` returns."""
+    distances = model.distances(points)
+    noise = distance_noise(model, points, sigma)
+    return beyond_noise(float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(noise * noise))),
+                        max(int(independent), 1))
+
+
+def _within_noise_along_rays(ctx, idx: np.ndarray, window: float) -> bool:
+    """Whether the plane fitted along the rays to the flat pixels ``idx`` leaves them within
+    their range noise: the mean square of their residuals in noise units within the chi-square
+    bound of their independent returns (``window`` pixels each)."""
+    from .kernels.linalg import noise_rms_bound
+
+    squares, _ = ray_fits(ray_moments(*ray_terms(ctx.xyz[idx], ctx.sigma[idx])))
+    bound = noise_rms_bound.py_func(1.0, max(idx.size / window, 1.0), CHI_SQUARE_SIGMAS)
+    return float(squares[0]) / idx.size <= bound * bound
+
+
 def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
     """The planes of the faces the plane region ``idx`` (flat pixels, increasing) of
     ``model`` holds, ``[(pixels, plane)]``; empty when it holds one face.
@@ -306,17 +327,32 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`), counted in independent returns:
     a sensor whose noise errs together over ``correlation_px`` x ``correlation_px`` pixels
     (a stereo camera's matching window) has that many times fewer.
+
+    On such a sensor a far box's faces can hide pixel by pixel: at 5-6 m its range noise is a
+    tenth of a metre, and no connected piece of the region's floor of pixels stands 4 sigmas
+    off a plane bent over both faces a few sigmas deep. Over their independent returns they
+    do not hide. So there, a region with no such piece is split all the same when its model is
+    beyond the noise of its distances over its independent returns (a ninth of its pixels over
+    a 3-pixel window) and each side of the crease line fits its plane along the rays within
+    the range noise, over its own independent returns (:func:`_within_noise_along_rays`): two
+    faces, not one face with a few pixels of other surfaces, whose line cuts off a piece of
+    the face with them.
     """
     from .refinement.facets import _holds_another
 
     points = ctx.xyz[idx]
     distances = model.distances(points)
     rms = float(np.sqrt(np.mean(distances * distances)))
-    if not _holds_another(ctx, model, idx, distances, rms, count_outliers=False):
+    # pixel by pixel; else, on a matched window, over the independent returns (see above)
+    held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False)
+    window = float(max(int(correlation_px), 1)) ** 2
+    if not held and (window == 1.0 or not _off_model(model, points, ctx.sigma[idx], idx.size / window)):
         return []
     chi2, sides = crease_line(ctx, idx)
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
+        return []
+    if not held and not all(_within_noise_along_rays(ctx, side, window) for side in sides):
         return []
     # one plane along the rays against the two, in independent returns: the chi-squares and
     # counts over the matching window's pixels (the F-test of curvature_resolved, a second
