@@ -491,3 +491,38 @@ def test_a_pipe_bent_by_mixed_returns_at_its_limbs_stays_a_cylinder(seed, monkey
     assert claimed > 0 and 2 * through > claimed
     plane = polish_models(ctx, labels, {1: cylinder}, along_rays=True)[1]
     assert plane.kind == "plane" and abs(plane.normal[2]) > 0.999
+
+
+# -- _curved_planes on a laser's returns: a plane seen near grazing is not decided anew ------
+
+def test_a_floor_seen_near_grazing_is_flat_by_its_noise_and_a_pipe_facing_the_sensor_is_not():
+    from rangeseg_o3d.refinement.polish import _seen_near_grazing
+
+    from rangeseg_o3d.synthetic.lms200 import simulate_lms200
+    from rangeseg_o3d.synthetic.suite import default_scene
+
+    scan = simulate_lms200(default_scene(), noise_sigma=0.005, seed=0)  # its floor: incidence cosine ~0.2
+    cloud = scan.cloud
+    ctx = _lms200_context(cloud)
+    idx = np.flatnonzero(scan.truth_ids.ravel() == 1)
+    floor = fit_plane(cloud.xyz.reshape(-1, 3)[idx])
+    assert floor.rms < 0.5 * 0.005  # the premise: its distances carry a fraction of the range noise
+    assert _seen_near_grazing(ctx, floor, idx)
+    # 40 of its pixels: a mean square that low is within the chi-square spread of returns facing the sensor
+    assert not _seen_near_grazing(ctx, fit_plane(cloud.xyz.reshape(-1, 3)[idx[:40]]), idx[:40])
+    xyz, pipe_labels, _ = _pipe_before_a_wall(0)
+    pipe = np.flatnonzero(pipe_labels.ravel() == 1)
+    plane = fit_plane(xyz.reshape(-1, 3)[pipe])
+    assert not _seen_near_grazing(Context(rs.OrganizedCloud(xyz), ctx.fitter, np.full(xyz.shape[:2], 0.005), 10),
+                                  plane, pipe)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_along_the_rays_a_plane_decided_on_a_flat_piece_of_a_pipe_is_still_decided_again(seed):
+    xyz, labels, middle = _pipe_before_a_wall(seed)
+    ctx = Context(rs.OrganizedCloud(xyz), rs.Pipeline("lms200").fitter, np.full(xyz.shape[:2], 0.005), 10)
+    piece = ctx.fitter.fit(xyz[middle & (labels == 1)])
+    assert piece.kind == "plane"
+    polished = polish_models(ctx, labels, {1: piece, 2: fit_plane(xyz[labels == 2])}, resolve_bends=1.0,
+                             along_rays=True)
+    assert polished[1].kind == "cylinder"
