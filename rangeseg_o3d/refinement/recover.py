@@ -619,7 +619,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         if not all(k in fits for k in tile_regions):  # a merge took a region the tiles had
             where = None
         labels = _gains_within_distance_noise(ctx, before, found, labels, fits, refused, below=first,
-                                              where=where, found_rms=found_rms)
+                                              where=where, found_rms=_merged_rms_as_found(found_rms, fits, found,
+                                                                                          labels, pool))
     if changes is not None:  # every step above changes the blobs or pixels the rings reach from them
         changes["where"] = where
         changes["claimed"] = set()
@@ -813,6 +814,24 @@ def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
             parts.append((rows + r0) * w + cols + c0)
     # (overlapping boxes list a pixel more than once: unique sorts and drops them)
     return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+
+
+def _merged_rms_as_found(found_rms: dict, fits: dict, found: np.ndarray, labels: np.ndarray,
+                         pool: np.ndarray) -> dict:
+    """``found_rms`` (per plane found in the blobs, its rms on the pixels it was found on, all
+    among the flat ``pool``, increasing) with, for each region of ``fits`` that has none and
+    took such planes by a merge (a tile region), the largest of theirs: the rms of pixels of
+    its surface found apart from those it took with them. ``found``: the labels when they
+    were found; ``labels``: now."""
+    gone = [k for k in found_rms if k not in fits]
+    if not gone:
+        return found_rms
+    floors, now = dict(found_rms), labels.reshape(-1)
+    for k, idx in _grouped(pool, found.reshape(-1)[pool], gone).items():
+        owner = int(np.bincount(now[idx]).argmax())
+        if owner and owner not in found_rms and fits.get(owner):
+            floors[owner] = max(floors.get(owner, 0.0), found_rms[k])
+    return floors
 
 
 def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.ndarray, labels: np.ndarray,
