@@ -5,6 +5,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
+from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.refinement.recover import (claim_occluded_strips, leftover_candidates, recover_leftovers,
                                              split_blobs)
 from rangeseg_o3d.synthetic.depth_camera import camera_pose_scene
@@ -545,3 +546,55 @@ def test_grazing_pieces_stay_refused_without_lateral_noise_alone_or_across_a_tur
     refused, kept, out, fits, _ = _join(context, xyz, labels, sigma, [5, 6, 7, 8], 0.5 / 1600)
     assert 8 in refused and kept == {8}
     assert (out[labels == 8] == 8).all() and (out[np.isin(labels, [5, 6, 7])] == 5).all()
+
+
+def _plane_that_took_a_band(seed=0):
+    # A plane found on columns 0-9 (label 5, its pixels 0.03 mm rms about z = 1 m, seen
+    # head-on under 0.01 mm of range noise) whose rim and claims took columns 10-11 of the
+    # plane beside it (label 1, 0.2 mm behind): refitted with them its rms is 0.1 mm.
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:10, 0:20].astype(float)
+    z = np.where(cols < 10, 1.0 + rng.normal(0.0, 3e-5, cols.shape), 1.0002)
+    xyz = np.dstack([0.001 * cols, 0.001 * rows, z])
+    before = np.where(cols < 10, 0, 1).astype(np.int32)
+    found = np.where(cols < 10, 5, 1).astype(np.int32)
+    labels = np.where(cols < 12, 5, 1).astype(np.int32)
+    fits = {1: Plane(normal=np.array([0.0, 0.0, 1.0]), d=1.0002, rms=3e-5, inliers=100),
+            5: Plane(normal=np.array([0.0, 0.0, 1.0]), d=1.0, rms=1e-4, inliers=120)}
+    return xyz, before, found, labels, fits
+
+
+def test_gains_of_a_recovered_plane_are_held_to_the_rms_of_the_pixels_it_was_found_on(context):
+    from rangeseg_o3d.refinement.recover import _gains_within_distance_noise
+
+    xyz, before, found, labels, fits = _plane_that_took_a_band()
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(labels.shape, 1e-5))
+    # the band lies 0.2 mm off the plane: within three of its rms now (0.1 mm), which the
+    # band itself raised, beyond three of the rms of its own pixels (0.03 mm)
+    out = _gains_within_distance_noise(ctx, before, found, labels.copy(), fits, set(), below=6,
+                                       found_rms={5: 3e-5})
+    np.testing.assert_array_equal(out, found)  # the band goes back to the plane beside it
+    # held to its rms now (the rule switched off), the plane keeps what it took
+    kept = _gains_within_distance_noise(ctx, before, found, labels.copy(), fits, set(), below=6)
+    np.testing.assert_array_equal(kept, labels)
+    # a rms found larger than the one now does not loosen the bar
+    kept = _gains_within_distance_noise(ctx, before, found, labels.copy(), fits, set(), below=6,
+                                        found_rms={5: 1e-3})
+    np.testing.assert_array_equal(kept, labels)
+
+
+def test_a_region_that_merged_recovered_planes_is_held_to_their_rms_as_found():
+    from rangeseg_o3d.refinement.recover import _merged_rms_as_found
+
+    # planes 10 and 11 found in the blobs (pool: flat pixels 0-9); 10 merged into tile region
+    # 3 since, 11 into 12 (found in the blobs too, with its own rms)
+    found = np.array([10, 10, 10, 10, 11, 11, 12, 12, 0, 0, 3, 3], np.int32)
+    labels = np.array([3, 3, 3, 0, 12, 12, 12, 12, 0, 0, 3, 3], np.int32)
+    pool = np.arange(10)
+    plane = Plane(normal=np.array([0.0, 0.0, 1.0]), d=1.0, rms=1e-4, inliers=8)
+    fits = {3: plane, 12: plane}
+    found_rms = {10: 3e-5, 11: 5e-5, 12: 2e-5}
+    floors = _merged_rms_as_found(found_rms, fits, found, labels, pool)
+    assert floors == {10: 3e-5, 11: 5e-5, 12: 2e-5, 3: 3e-5}
+    # nothing merged away: the rms as found, unchanged
+    assert _merged_rms_as_found({12: 2e-5}, fits, found, labels, pool) == {12: 2e-5}
