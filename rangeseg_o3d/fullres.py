@@ -387,9 +387,9 @@ def drop_unresolvable_curves(labels: np.ndarray, fits: dict, *, depth_step: floa
 #: Pixel rings from a crease within which :func:`settle_creases` decides by the rays.
 CREASE_RINGS = 3
 # the (row, column) steps to the pixels within CREASE_RINGS 4-steps, nearest first
-_OFFSETS = sorted(((dr, dc) for dr in range(-CREASE_RINGS, CREASE_RINGS + 1)
-                   for dc in range(-CREASE_RINGS, CREASE_RINGS + 1) if 0 < abs(dr) + abs(dc) <= CREASE_RINGS),
-                  key=lambda step: (abs(step[0]) + abs(step[1]), step))
+_STEPS = np.array(sorted(((dr, dc) for dr in range(-CREASE_RINGS, CREASE_RINGS + 1)
+                          for dc in range(-CREASE_RINGS, CREASE_RINGS + 1) if 0 < abs(dr) + abs(dc) <= CREASE_RINGS),
+                         key=lambda step: (abs(step[0]) + abs(step[1]), step)), dtype=np.int64)
 
 
 def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,
@@ -407,11 +407,13 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
     turned by more than ``min_angle_deg`` and the ray meets each at least
     ``atan(GRAZING_TAN)`` from grazing (an edge-on face's plane holds the rays near its
     image line: a table beside it would follow). Decisions are taken on the labels as they
-    were; the models do not change. Returns ``(labels, stats)``, the statistics of
-    the regions that changed measured again; the inputs when no pixel moves.
+    were; the models do not change (:func:`rangeseg_o3d.kernels.crease_moves`, one compiled
+    pass). Returns ``(labels, stats)``, the statistics of the regions that changed updated
+    with the pixels that moved; the inputs when no pixel moves.
     """
-    from .fitting.batch_planes import region_moments
     from .fitting.primitives import Plane
+    from .kernels import crease_moves
+
     n = int(labels.max(initial=0)) + 1
     planes = [k for k, m in fits.items() if isinstance(m, Plane) and 0 < k < n]
     if len(planes) < 2:
@@ -421,94 +423,16 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
         m = fits[k]
         sign = -1.0 if m.d > 0 else 1.0  # the sensor's side of every plane positive
         normals[k], offsets[k], rms[k], is_plane[k] = sign * np.asarray(m.normal), sign * m.d, m.rms, True
-    xyz = cloud.xyz.reshape(-1, 3)
-    moments = region_moments(xyz, labels.ravel(), n)
-    centroids = moments[:, 1:4] / np.maximum(moments[:, :1], 1.0)
-    rules = _CreaseRules(xyz, normals, offsets, rms, centroids, np.asarray(sigma).ravel(), k_sigma,
-                         np.cos(np.radians(min_angle_deg)), np.sin(np.arctan(GRAZING_TAN)))
-    out = rules.moves(labels, is_plane)
-    if out is labels:
+    xyz = _flat_points(cloud)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    out, moved = crease_moves(xyz, np.ascontiguousarray(labels, dtype=np.int32), is_plane, normals, offsets, rms,
+                              noise, float(k_sigma), float(np.cos(np.radians(min_angle_deg))),
+                              float(np.sin(np.arctan(GRAZING_TAN))), _STEPS, CREASE_RINGS)
+    if not moved.size:
         return labels, stats
-    changed = out != labels
-    stale = set(np.unique(labels[changed]).tolist()) | set(np.unique(out[changed]).tolist())
-    return out, region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=stale)
-
-
-def _near_borders(labels: np.ndarray, reach: int) -> np.ndarray:
-    # the pixels of a positive label beside another positive label (4-neighbours), and the
-    # pixels within ``reach`` 4-steps of them
-    h, w = labels.shape
-    near = np.zeros((h, w), bool)
-    rows = (labels[1:] != labels[:-1]) & (labels[1:] > 0) & (labels[:-1] > 0)
-    cols = (labels[:, 1:] != labels[:, :-1]) & (labels[:, 1:] > 0) & (labels[:, :-1] > 0)
-    near[1:] |= rows
-    near[:-1] |= rows
-    near[:, 1:] |= cols
-    near[:, :-1] |= cols
-    for _ in range(reach):
-        grown = near.copy()
-        grown[1:] |= near[:-1]
-        grown[:-1] |= near[1:]
-        grown[:, 1:] |= near[:, :-1]
-        grown[:, :-1] |= near[:, 1:]
-        near = grown
-    return near
-
-
-class _CreaseRules:
-    """:func:`settle_creases`' test, vectorised over the pixels near plane borders."""
-
-    def __init__(self, xyz, normals, offsets, rms, centroids, sigma, k_sigma, max_cos, least_cos):
-        self.xyz, self.normals, self.offsets, self.rms = xyz, normals, offsets, rms
-        self.centroids, self.sigma, self.k_sigma = centroids, sigma, k_sigma
-        self.max_cos, self.least_cos = max_cos, least_cos
-
-    def moves(self, labels: np.ndarray, is_plane: np.ndarray) -> np.ndarray:
-        """New labels (``labels`` itself when no pixel moves): each plane pixel within
-        ``CREASE_RINGS`` 4-steps of a plane region its own touches there (nearest first),
-        judged on the labels as they are; no other pixel is looked at."""
-        h, w = labels.shape
-        planar = is_plane[labels]
-        pixels = np.flatnonzero(_near_borders(np.where(planar, labels, 0), CREASE_RINGS - 1) & planar)
-        if not pixels.size:
-            return labels
-        rows, cols = np.divmod(pixels, w)
-        flat = labels.ravel()
-        own = flat[pixels]
-        target = own.copy()
-        for dr, dc in _OFFSETS:
-            r, c = rows + dr, cols + dc
-            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-            other = np.where(inside, flat[np.clip(r, 0, h - 1) * w + np.clip(c, 0, w - 1)], 0)
-            ask = np.flatnonzero((target == own) & (other != own) & is_plane[other])
-            if ask.size:
-                move = self._moves(pixels[ask], own[ask], other[ask])
-                target[ask[move]] = other[ask][move]
-        if np.array_equal(target, own):
-            return labels
-        out = labels.copy()
-        out.ravel()[pixels] = target
-        return out
-
-    def _moves(self, pixels, a, b) -> np.ndarray:
-        # whether each pixel (of plane a, beside plane b) lies on b's side of their crease
-        na, nb, da, db = self.normals[a], self.normals[b], self.offsets[a], self.offsets[b]
-        turned = np.abs(np.einsum("ij,ij->i", na, nb)) < self.max_cos
-        # a concave crease: each region's centroid on the sensor's side of the other's plane
-        front_a = np.einsum("ij,ij->i", na, self.centroids[b]) - da
-        front_b = np.einsum("ij,ij->i", nb, self.centroids[a]) - db
-        crease = turned & (np.sign(front_a) == np.sign(front_b)) & (front_a != 0)
-        points = self.xyz[pixels]
-        rays = points / np.linalg.norm(points, axis=1, keepdims=True)
-        ua, ub = np.einsum("ij,ij->i", rays, na), np.einsum("ij,ij->i", rays, nb)
-        seen = (np.abs(ua) >= self.least_cos) & (np.abs(ub) >= self.least_cos)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta, tb = da / ua, db / ub  # where each plane meets the ray
-        b_visible = np.where(front_a > 0, tb < ta, tb > ta)
-        noise = self.k_sigma * self.sigma[pixels]
-        explained = ((np.abs(np.einsum("ij,ij->i", points, na) - da) <= np.maximum(noise, self.k_sigma * self.rms[a]))
-                     & (np.abs(np.einsum("ij,ij->i", points, nb) - db) <= np.maximum(noise, self.k_sigma * self.rms[b])))
-        return crease & seen & (ta > 0) & (tb > 0) & b_visible & explained
+    out = out.astype(labels.dtype, copy=False)
+    table = model_table(fits, max(n, stats.counts.size))
+    return out, stats_with_moved(stats, xyz, noise, labels, out, table, moved, inlier_factor)
 
 
 def grow_into_free(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,

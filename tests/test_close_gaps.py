@@ -250,6 +250,11 @@ def test_pixels_beside_a_crease_go_to_the_face_their_rays_meet(slope):
                                 k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
     assert np.array_equal(out, truth)
     np.testing.assert_array_equal(stats.counts[1:3], np.bincount(truth.ravel(), minlength=3)[1:3])
+    # the statistics updated with the moved pixels are those measured afresh on the new labels
+    fresh = _stats(xyz, out, fits, sigma)
+    np.testing.assert_array_equal(stats.inliers[1:3], fresh.inliers[1:3])
+    # (noise-free points: the squares are rounding, well under 1e-12 m a distance)
+    np.testing.assert_allclose(stats.squares[1:3], fresh.squares[1:3], rtol=1e-9, atol=1e-24)
 
 
 def test_crease_settling_leaves_planes_turned_less_than_the_limit_and_far_pixels_alone():
