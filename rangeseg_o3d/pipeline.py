@@ -524,6 +524,12 @@ def warm_up() -> float:
     valid = np.ones((2, 2), bool)
     valid.flags.writeable = False  # (as a cloud's validity is)
     free_pieces(np.zeros((2, 2), np.int32), valid, 1)
+    # the abw preset's crease settling (fullres.settle_creases)
+    from .fullres import _STEPS, CREASE_RINGS
+    from .kernels import crease_moves
+
+    crease_moves(points, np.zeros((2, 2), np.int32), np.ones(2, bool), np.zeros((2, 3)), np.zeros(2), np.zeros(2),
+                 np.ones(4), 3.0, 0.9, 0.1, _STEPS, CREASE_RINGS)
     # the trimmed fit: the fitter's compiled search and the generic one's inlier count
     from .fitting.robust import trimmed_fit
 

@@ -76,6 +76,7 @@ def test_warm_up_compiles_the_kernels_the_presets_use():
     assert warm_up() > 0.0
     for kernel in (kernels.label_moments, kernels.grow_rings, kernels.label_pixels, kernels.leftover_blobs,
                    kernels.block_means, kernels.distance_stats, kernels.window_residuals, kernels.crease_sides,
+                   kernels.crease_moves,
                    _compiled.prepare_points, _decide.primitive_decision,
                    _decide.curved_refit, _decide.sphere_checked, _decide.cylinder_checked):
         assert kernel.signatures, f"{kernel.__name__} was not compiled"
