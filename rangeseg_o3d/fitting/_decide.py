@@ -317,7 +317,17 @@ def primitive_decision(points, axis_hint, hemisphere, hemi_u, hemi_v, hemi_s, co
     # the trim of the bend test at the noise the sensor gives the plane's distances, where
     # each point is a sample of that noise of its own (correlated means scatter by more)
     trim_noise = noise_floor + extra if bends >= 1.0 else 0.0
-    bent = (flat and bends > 0.0 and within and quadric_resolved(gain, samples)
+    # Where the points' noise errs together (under one independent sample each: a stereo
+    # camera's tile means) within the noise is also an rms that noise gives the n points up
+    # its chi-square, the bound over which the plane is marginal above: between the noise and
+    # that bound the quadric's gain is as uncertain, and the F-test over the samples decides
+    # (stereo seed 37 scan 0: a 17 cm pipe at 4.6 m, its plane 0.8 mm over the noise, was
+    # settled flat). Single returns keep the noise itself: over it a laser's plane holds a
+    # neighbour's or mixed pixels its quadric bends to (spinning_64x1024 seed 11 scan 1: a
+    # 140 px wall, 17.3 mm rms over 15 mm noise, became a 0.35 m cylinder).
+    noisy = within or (0.0 < bends < 1.0 and noise_floor > 0.0
+                       and rms <= noise_rms_bound(noise_floor + extra, n - 3.0, NOISE_CHI2_SIGMAS))
+    bent = (flat and bends > 0.0 and noisy and quadric_resolved(gain, samples)
             and not arc_hidden(rms, np.sqrt(max(eigvals[1], 0.0) / n) * scale, min_arc)
             and bend_resolved(q, normal, bend_trim(points, normal, rms, trim_noise) / scale, bends))
     if flat and not bent:

@@ -8,7 +8,8 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 from .grid import group_by_label
 from .inline import NO_MOMENTS, _add_moments, _distance, _distance_noise
 from .kinds import PARAM_SLOTS, PLANE
-from .linalg import collinear, flat_by_quadric, hesse_form, noise_rms_bound, plane_tolerance, quadric_resolved, solve
+from .linalg import (NOISE_CHI2_SIGMAS, collinear, flat_by_quadric, hesse_form, noise_rms_bound, plane_tolerance,
+                     quadric_resolved, solve)
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
@@ -384,9 +385,16 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     settled = np.zeros(n, np.bool_)
     for k in range(n):
         # the quadric's gain is uncertain only where the plane's rms is the noise's
-        within = rms[k] <= noise_floor + rms_per_range2 * (centroid[k] @ centroid[k])
+        noise = noise_floor + rms_per_range2 * (centroid[k] @ centroid[k])
+        within = rms[k] <= noise
         spread_points = moments[k, 0] if within else np.inf
         settled[k] = candidate[k] and flat_by_quadric(gain[k], curvature_gain, spread_points)
+        if (settled[k] and not within and 0.0 < bends < 1.0 and noise_floor > 0.0
+                and rms[k] <= noise_rms_bound(noise, moments[k, 0] - 3.0, NOISE_CHI2_SIGMAS)):
+            # as the decision (fitting._decide.primitive_decision): where the points' noise
+            # errs together (under one independent sample each) an rms that noise gives
+            # them up its chi-square is noise too, and the bend test counts their samples
+            spread_points = moments[k, 0]
         if settled[k] and bends > 0.0 and quadric_resolved(gain[k], spread_points * bends):
             settled[k] = False
     kinds = np.zeros(n, np.int8)
