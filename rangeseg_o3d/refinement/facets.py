@@ -36,7 +36,6 @@ from ..fitting.primitives import Cylinder, Plane
 from ..fitting.region_fitter import fresh_label, model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from ..kernels.linalg import noise_rms_bound
-from ..scales import GRAZING_COSINE
 from .context import Context, without
 from .grow import SETTLE_MARGIN
 
@@ -469,8 +468,8 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     one of the plane's), cut to their largest connected piece, are the cap when that plane lowers
     their squared distances by more than noise would (the F-test of
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
-    against the cylinder's none on those pixels) and it faces the sensor
-    (:func:`_faces_the_sensor`); the cylinder is refitted to the rest.
+    against the cylinder's none on those pixels) and it lies on more than one row and column
+    of the grid (:func:`_off_one_grid_line`); the cylinder is refitted to the rest.
     """
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []
@@ -491,7 +490,7 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     if piece is None:
         return []
     plane = fit_plane(rows_at(ctx.xyz, piece))
-    if not plane or not _faces_the_sensor(ctx, piece, plane):
+    if not plane or not _off_one_grid_line(ctx, piece):
         return []
     on_piece = np.searchsorted(idx, piece)
     plane_squares = float(np.sum(plane.distances(rows_at(ctx.xyz, piece)) ** 2))
@@ -510,7 +509,7 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     if again is not None and not np.array_equal(again, piece):
         cap = fit_plane(rows_at(ctx.xyz, again))
         pipe = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, again)), cylinder)
-        if cap and pipe and pipe.kind == model.kind and _faces_the_sensor(ctx, again, cap):
+        if cap and pipe and pipe.kind == model.kind and _off_one_grid_line(ctx, again):
             # kept when likelier: fewer squared noise sigmas over the region
             other = [(without(idx, again), pipe), (again, cap)]
             if _squared_sigmas(ctx, other) < _squared_sigmas(ctx, split):
@@ -518,19 +517,21 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     return split
 
 
-def _faces_the_sensor(ctx: Context, piece: np.ndarray, plane: Plane) -> bool:
-    """Whether the cap ``plane`` of the pixels ``piece`` faces the sensor: the median
-    ``|cos|`` between their viewing rays (:meth:`Context.viewing_rays`) and its normal at
-    least ``scales.GRAZING_COSINE``. A sensor's rays fan out in planes (a nodding laser's
-    scan row sweeps one through its mirror, a camera's image row one through its centre),
-    and range noise moves each return along its ray: the returns of a row lie in the plane
+def _off_one_grid_line(ctx: Context, piece: np.ndarray) -> bool:
+    """Whether the pixels ``piece`` lie on more than one row and more than one column of
+    the grid. A sensor's rays fan out in planes (a nodding laser's scan row sweeps one
+    through its mirror, a camera's image row or column one through its centre), and range
+    noise moves each return along its ray: the returns of one row or column lie in the plane
     of its rays whatever surface they are on, and across a column's axis that plane is a
     disc at one axial coordinate, rms 0 (nodding_0.25deg seeds 23 and 71: a 20-px row of
     a vertical 24 cm column whose scan plane is level, cut off as its "end cap", then grown
-    to 86-89 px: the column over-segmented). A cap seen nearer grazing than the jump test's
-    angle would be a jump from return to return; the caps split off on the laser rows of
-    the studied seeds face the sensor at 0.23-0.94."""
-    return float(np.median(np.abs(ctx.viewing_rays(piece) @ plane.normal))) >= GRAZING_COSINE
+    to 86-89 px: the column over-segmented). Such a piece tells no plane of its own. A
+    real cap may be seen near grazing all the same: stereo_1280x720 seed 89 scan 0, a pipe's
+    end cap of 14 tile means on several rows at median incidence cosine 0.15 (below
+    scales.GRAZING_COSINE, which refused it and left it to the pipe)."""
+    width = ctx.width
+    rows, columns = piece // width, piece % width
+    return bool(rows.min() < rows.max() and columns.min() < columns.max())
 
 
 def _squared_sigmas(ctx: Context, surfaces: list) -> float:
