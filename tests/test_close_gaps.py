@@ -257,6 +257,25 @@ def test_pixels_beside_a_crease_go_to_the_face_their_rays_meet(slope):
     np.testing.assert_allclose(stats.squares[1:3], fresh.squares[1:3], rtol=1e-9, atol=1e-24)
 
 
+def test_crease_settling_passes_over_a_plane_pixel_at_the_sensor():
+    # a valid point at the origin (a zero return) has no ray to decide by: it stays where it
+    # is, and the compiled pass does not raise ZeroDivisionError on it
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(1.2)
+    first_b = int(np.argmax(truth[0] == 2))
+    labels = truth.copy()
+    labels[:, first_b:first_b + 2] = 1
+    xyz[10, first_b] = 0.0
+    sigma = np.full(truth.shape, 0.001)
+    out, _ = settle_creases(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                            k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert out[10, first_b] == 1
+    others = np.ones(truth.shape, bool)
+    others[10, first_b] = False
+    np.testing.assert_array_equal(out[others], truth[others])
+
+
 def test_crease_settling_leaves_planes_turned_less_than_the_limit_and_far_pixels_alone():
     from rangeseg_o3d.fullres import settle_creases
 

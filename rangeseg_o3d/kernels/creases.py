@@ -140,6 +140,8 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             continue
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
         dist = np.sqrt(x * x + y * y + z * z)
+        if not dist > 0.0:  # a point at the sensor (or NaN) has no ray; numba raises on / 0
+            continue
         rx, ry, rz = x / dist, y / dist, z / dist
         noise = k_sigma * sigma[i]
         for s in range(steps.shape[0]):
