@@ -267,10 +267,13 @@ def capture_continuous(lms, tilt, config) -> OrganizedCloud:
             _salvage(lms, scans)
             _add_streamed_rows(partial, scans, samples, ramp, latency)
 
-        failure = _fail(err, partial, config, tilt, collect=last_rows)
-        # after the rows are saved, as a dead laser port may take its timeouts; a scan arriving
-        # now is after the last tilt sample, so no row could be dated from it anyway
-        _end_stream(lms)
+        try:
+            failure = _fail(err, partial, config, tilt, collect=last_rows)
+        finally:
+            # after the rows are saved, as a dead laser port may take its timeouts; a scan arriving
+            # now is after the last tilt sample, so no row could be dated from it anyway (also when
+            # a second Ctrl-C cuts the halt short, or the save fails)
+            _end_stream(lms)
         raise failure
     _add_streamed_rows(partial, scans, samples, ramp, latency)
     damaged = _damaged_scans(lms) - damaged_before

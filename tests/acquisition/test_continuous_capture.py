@@ -192,3 +192,38 @@ def test_a_failed_sweep_halts_the_unit_before_taking_the_last_scans(monkeypatch)
         capture_continuous(Lms(), Tilt(), config)
     assert order == ["halt", "drain", "stop"]  # the stream stopped last, after the rows are saved
     assert info.value.partial.n_rows == 0
+
+
+def test_a_second_ctrl_c_during_the_halt_still_stops_the_stream(monkeypatch):
+    """A second Ctrl-C cuts the halt short: the rows are still taken and saved (capture._fail),
+    and the laser is still asked to stop streaming after them."""
+    import importlib
+
+    capture = importlib.import_module("rangeseg_o3d.acquisition.capture")
+    order = []
+
+    class Lms:
+        stats = {}
+        streaming = True
+
+        def drain_streamed(self):
+            order.append("drain")
+            return []
+
+        def stop_streaming(self):
+            order.append("stop")
+
+    class Tilt:
+        def halt(self):
+            order.append("halt")
+            raise KeyboardInterrupt  # the second Ctrl-C
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(capture, "_sweep", interrupted)
+    config = CaptureConfig.model_validate({"schedule": {"start": START, "stop": STOP}, "mode": "continuous",
+                                           "scan_latency": 0.0})
+    with pytest.raises(KeyboardInterrupt):
+        capture_continuous(Lms(), Tilt(), config)
+    assert order == ["halt", "drain", "stop"]
