@@ -50,7 +50,9 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     ``decide_planes``), and, with or without ``decide_planes``, the curved models a laser's
     mixed returns at jump edges bent replaced by the plane of their inner pixels
     (:func:`_bent_by_border`, after :func:`_unbent`; the planes either gives are not
-    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`).
+    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`); and
+    :func:`_curved_planes` leaves the planes seen near grazing as they are
+    (:func:`_seen_near_grazing`).
 
     Refitted only where the region outgrew the points the model was fitted to by more than
     20 % (a model's ``inliers`` counts those): a few more pixels move nothing.
