@@ -425,6 +425,9 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
         normals[k], offsets[k], rms[k], is_plane[k] = sign * np.asarray(m.normal), sign * m.d, m.rms, True
     xyz = _flat_points(cloud)
     noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    if noise.size != labels.size or xyz.shape[0] != labels.size:  # the kernel does not check its bounds
+        raise ValueError(f"settle_creases: sigma and the cloud need one value a pixel of the {labels.shape} labels, "
+                         f"got {noise.size} and {xyz.shape[0]}")
     out, moved = crease_moves(xyz, np.ascontiguousarray(labels, dtype=np.int32), is_plane, normals, offsets, rms,
                               noise, float(k_sigma), float(np.cos(np.radians(min_angle_deg))),
                               float(np.sin(np.arctan(GRAZING_TAN))), _STEPS, CREASE_RINGS)

@@ -276,6 +276,17 @@ def test_crease_settling_passes_over_a_plane_pixel_at_the_sensor():
     np.testing.assert_array_equal(out[others], truth[others])
 
 
+def test_crease_settling_wants_one_noise_value_a_pixel():
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(1.2)
+    sigma = np.full(truth.shape, 0.001)
+    stats = _stats(xyz, truth, fits, sigma)
+    with pytest.raises(ValueError, match="one value a pixel"):
+        settle_creases(rs.OrganizedCloud(xyz), truth, fits, stats, sigma=0.001, k_sigma=3.0, min_angle_deg=3.0,
+                       inlier_factor=INLIER_SIGMAS)
+
+
 def test_crease_settling_leaves_planes_turned_less_than_the_limit_and_far_pixels_alone():
     from rangeseg_o3d.fullres import settle_creases
 
