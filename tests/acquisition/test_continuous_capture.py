@@ -25,6 +25,11 @@ TIME_SCALE = 1.0  # the devices' own speed: 1 ms of the host's scheduling is 0.5
 # the time the simulator's threads or the driver's reader may wait for a core on a loaded machine
 # (at most 14 mrad seen beside a busy loop at nice 0, these tests at nice 10); the median within 5 mrad.
 ROW_TOLERANCE, MEDIAN_TOLERANCE = 0.025, 0.005
+# The failure tests check that the rows so far are kept at their tilts, not the dating's precision (the
+# slow-host test does): every row within 200 ms of scheduling delay (a row taken at the wrong end of the
+# sweep would be 0.5 rad off), the median as above. In a full parallel run of the suite beside the wheel
+# build's compile, one such row was seen 47 mrad off (94 ms late).
+FAILURE_ROW_TOLERANCE = 0.1
 SLOW = 0.1  # device seconds a slow host spends on each tilt query: two a turn, two scans' time
 
 
@@ -104,7 +109,8 @@ def test_a_failure_mid_sweep_keeps_the_rows_streamed_so_far(tmp_path):
     assert partial is not None and partial.shape[0] >= 3  # five turns of 200 ms device time, a scan per 97 ms
     truth = true_tilts(partial)
     assert truth.max() > START + 0.01  # the sweep had started
-    assert np.abs(partial.geometry.tilt_angles - truth).max() < ROW_TOLERANCE
+    error = np.abs(partial.geometry.tilt_angles - truth)
+    assert error.max() < FAILURE_ROW_TOLERANCE and np.median(error) < MEDIAN_TOLERANCE, error
 
 
 def test_ctrl_c_mid_sweep_halts_the_tilt_unit_and_saves_the_rows_so_far(tmp_path):
@@ -133,7 +139,8 @@ def test_ctrl_c_mid_sweep_halts_the_tilt_unit_and_saves_the_rows_so_far(tmp_path
     assert partial is not None and partial.shape[0] >= 3
     saved = OrganizedCloud.load(tmp_path / "sweep.partial.npz")
     np.testing.assert_array_equal(saved.ranges, partial.ranges)
-    assert np.abs(partial.geometry.tilt_angles - true_tilts(partial)).max() < ROW_TOLERANCE
+    error = np.abs(partial.geometry.tilt_angles - true_tilts(partial))
+    assert error.max() < FAILURE_ROW_TOLERANCE and np.median(error) < MEDIAN_TOLERANCE, error
 
 
 def test_a_sweep_on_a_noisy_line_counts_its_damaged_scans():
