@@ -308,7 +308,8 @@ GRAZING_RMS_SHARE = 0.5
 
 
 def _seen_near_grazing(ctx: Context, plane: Plane, idx: np.ndarray) -> bool:
-    """Whether the plane of the laser returns ``idx`` leaves them an rms under
+    """Whether the plane of the laser returns ``idx`` leaves them an rms (``plane.rms``: the
+    one of its fit, which the callers make on these returns or most of them) under
     ``GRAZING_RMS_SHARE`` of their median range noise, and so far under it that the noise of
     returns facing the sensor could not (under the ``CHI_SQUARE_SIGMAS`` lower bound of the
     chi-square spread of that many pixels' mean square). A return errs along its ray, so its
