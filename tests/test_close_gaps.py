@@ -257,6 +257,29 @@ def test_pixels_beside_a_crease_go_to_the_face_their_rays_meet(slope):
     np.testing.assert_allclose(stats.squares[1:3], fresh.squares[1:3], rtol=1e-9, atol=1e-24)
 
 
+@pytest.mark.parametrize("slope", [1.2, -1.2])
+def test_crease_settling_updates_the_statistics_as_measuring_them_afresh_would(slope):
+    # with range noise (0.3 mm along the rays, under the 3-sigma tolerance of 3 mm) the
+    # squares are no longer rounding: the moved pixels' part of them must follow them
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(slope)
+    rays = xyz / np.linalg.norm(xyz, axis=2, keepdims=True)
+    xyz = xyz + rays * np.random.default_rng(3).normal(0.0, 0.0003, truth.shape)[..., None]
+    first_b = int(np.argmax(truth[0] == 2))
+    labels = truth.copy()
+    labels[:, first_b:first_b + 2] = 1
+    sigma = np.full(truth.shape, 0.001)
+    out, stats = settle_creases(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                                k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert np.count_nonzero(out != labels) >= truth.shape[0]  # (premise: pixels moved)
+    fresh = _stats(xyz, out, fits, sigma)
+    assert fresh.squares[1] > 1e-7 and fresh.squares[2] > 1e-7  # (premise: ~0.3 mm a pixel)
+    np.testing.assert_array_equal(stats.counts[1:3], fresh.counts[1:3])
+    np.testing.assert_array_equal(stats.inliers[1:3], fresh.inliers[1:3])
+    np.testing.assert_allclose(stats.squares[1:3], fresh.squares[1:3], rtol=1e-9)
+
+
 def test_crease_settling_passes_over_a_plane_pixel_at_the_sensor():
     # a valid point at the origin (a zero return) has no ray to decide by: it stays where it
     # is, and the compiled pass does not raise ZeroDivisionError on it
