@@ -41,7 +41,7 @@ _SOURCES = {
     "raygroups": ("ray_groups_ruled_out", "free_pieces"),
     "sides": ("crease_sides",),
     "creases": ("crease_moves",),
-    "modelnoise": ("plane_noise_sums", "plane_noise_near"),
+    "modelnoise": ("plane_noise_sums", "plane_noise_near", "pieces_near_models"),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",

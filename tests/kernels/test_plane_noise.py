@@ -98,3 +98,51 @@ def test_near_plane_matches_numpy_and_defers_on_a_tie():
                                  64 * np.finfo(float).eps)
     assert unsure
     assert Context(_Cloud(tied), None, sigma, 10)._near_plane(idx, plane) is None
+
+
+def _numpy_pretest(model, points, sigma, k_sigma):
+    # merge_into_curved's pretest as numpy words it: 1 near, 0 far
+    from rangeseg_o3d._numeric import median
+
+    return int(not median(np.abs(model.distances(points))) > k_sigma * median(sigma))
+
+
+def test_pieces_near_models_answers_as_numpy_for_each_kind():
+    from rangeseg_o3d.fitting.primitives import Cylinder, Sphere
+    from rangeseg_o3d.fitting.region_fitter import model_row
+    from rangeseg_o3d.kernels import pieces_near_models
+
+    rng = np.random.default_rng(13)
+    models = [Plane(normal=np.array([0.0, 0.6, 0.8]), d=2.0, rms=0.0, inliers=0),
+              Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.2, 0.0, 2.5]), radius=0.3, rms=0.0, inliers=0),
+              Sphere(center=np.array([-0.3, 0.1, 3.0]), radius=0.4, rms=0.0, inliers=0)]
+    points = rng.uniform(-1.0, 1.0, (4000, 3)) * [1.0, 1.0, 0.5] + [0.0, 0.0, 2.5]
+    sigma = rng.uniform(0.002, 0.01, 4000)
+    # pieces of 1 to 401 pixels (odd and even counts), each against each kind, at 3 and 300 sigmas
+    sizes = [1, 2, 7, 40, 401, 400]
+    starts = np.concatenate([[0], np.cumsum(sizes * 3)])
+    pixels = rng.permutation(4000)[:starts[-1]].astype(np.int64)
+    rows = [model_row(m) for m in models for _ in sizes]
+    kinds, params = np.array([k for k, _ in rows], np.int8), np.array([p for _, p in rows])
+    answers = set()
+    for k_sigma in (3.0, 300.0):
+        got = pieces_near_models(points, sigma, pixels, starts, kinds, params, k_sigma, 1e-9, 64 * np.finfo(float).eps)
+        want = [_numpy_pretest(models[j // len(sizes)], points[pixels[a:b]], sigma[pixels[a:b]], k_sigma)
+                for j, (a, b) in enumerate(zip(starts[:-1], starts[1:]))]
+        assert got.tolist() == want
+        answers.update(want)
+    assert answers == {0, 1}  # (both answers given)
+
+
+def test_pieces_near_models_leaves_a_tie_and_an_empty_piece_to_numpy():
+    from rangeseg_o3d.fitting.region_fitter import model_row
+    from rangeseg_o3d.kernels import pieces_near_models
+
+    plane = Plane(normal=np.array([0.0, 0.0, 1.0]), d=2.0, rms=0.0, inliers=0)
+    sigma = np.full(3, 0.01)
+    points = np.array([[0.0, 0.0, 2.0 + 0.01], [0.1, 0.0, 2.0 - 0.03], [0.2, 0.0, 2.0 + 0.05]])  # median 0.03 = 3 sigma
+    kind, row = model_row(plane)
+    starts = np.array([0, 3, 3], np.int64)
+    got = pieces_near_models(points, sigma, np.arange(3, dtype=np.int64), starts, np.array([kind, kind], np.int8),
+                             np.array([row, row]), 3.0, 1e-9, 64 * np.finfo(float).eps)
+    assert got.tolist() == [-1, -1]
