@@ -89,6 +89,21 @@ def test_label_regions_validates():
         label_regions(np.zeros(9, bool))
 
 
+@pytest.mark.parametrize("call, fragment", [
+    (lambda: jump_edges(np.ones((4, 4)), jump_ratio=-0.1), "jump_ratio must be a finite number >= 0; got -0.1"),
+    (lambda: jump_edges(np.ones((4, 4)), jump_min=float("nan")), "jump_min must be a finite number >= 0; got nan"),
+    (lambda: close_residual(np.ones((4, 4)), kernel=0), "kernel must be an integer >= 1; got 0"),
+    (lambda: edge_mask(np.ones(4), threshold=0.5), r"closed must have shape \(H, W\); got \(4,\)"),
+    (lambda: edge_mask(np.ones((4, 4)), threshold=0.5, valid=np.ones((3, 4), bool)),
+     r"valid must have the shape of closed \(4, 4\); got \(3, 4\)"),
+    (lambda: edge_mask(np.ones((4, 4)), threshold=0.5, jumps=np.ones((4, 4, 1), bool)),
+     r"jumps must have the shape of closed \(4, 4\); got \(4, 4, 1\)"),
+])
+def test_edge_stages_name_a_bad_argument(call, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        call()
+
+
 def test_relabel_sequential():
     out = relabel_sequential(np.array([[0, 7, 7], [3, 0, 9]]))
     assert out.tolist() == [[0, 2, 2], [1, 0, 3]]
