@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.segmentation.edges import close_residual, edge_mask, jump_edges
-from rangeseg_o3d.segmentation.regions import label_regions, relabel_sequential
+from rangeseg_o3d.segmentation.regions import join_wrapped, label_regions, relabel_sequential, wrap_columns
 
 
 def test_jump_edges_mark_the_far_side_and_scale_with_range():
@@ -107,3 +107,16 @@ def test_edge_stages_name_a_bad_argument(call, fragment):
 def test_relabel_sequential():
     out = relabel_sequential(np.array([[0, 7, 7], [3, 0, 9]]))
     assert out.tolist() == [[0, 2, 2], [1, 0, 3]]
+
+
+def test_region_helpers_name_a_bad_argument():
+    with pytest.raises(ValueError, match="labels must be integers; got dtype float64"):
+        relabel_sequential(np.array([[0.0, 2.5]]))
+    with pytest.raises(ValueError, match=r"padded must be \(H, W\) integer labels; got shape \(6,\)"):
+        join_wrapped(np.arange(6), 1)
+    with pytest.raises(ValueError, match="pad must be an integer >= 1; got 0"):
+        join_wrapped(np.zeros((2, 6), np.int32), 0)
+    # the flood fill of a padded grid (wrap_columns) joins each pad to its neighbour: one region
+    # across the seam, numbered 1 on the left, 2 on the right
+    assert wrap_columns(np.array([[5, 0, 0, 6]]), 1).tolist() == [[6, 5, 0, 0, 6, 5]]
+    assert join_wrapped(np.array([[1, 1, 0, 0, 2, 2]], np.int32), 1).tolist() == [[1, 0, 0, 1]]
