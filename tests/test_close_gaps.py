@@ -299,6 +299,32 @@ def test_crease_settling_passes_over_a_plane_pixel_at_the_sensor():
     np.testing.assert_array_equal(out[others], truth[others])
 
 
+def test_crease_settling_scales_with_the_label_pairs_met_not_the_labels_squared():
+    # each row of the crease its own pair of regions (4000 labels, 2000 creases met), numbered
+    # from 250 000: a table of every label pair would take 254 000^2 bytes (65 GB, which this
+    # machine cannot allocate); the moves are those of the two-region image
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits = _crease(1.2, h=2000)
+    first_b = int(np.argmax(truth[0] == 2))
+    labels = truth.copy()
+    labels[:, first_b:first_b + 2] = 1
+    sigma = np.full(truth.shape, 0.001)
+    cloud = rs.OrganizedCloud(xyz)
+    two, _ = settle_creases(cloud, labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                            k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert np.count_nonzero(two != labels) >= truth.shape[0]  # (premise: pixels moved)
+    base = 250_000
+    rows = np.arange(truth.shape[0])[:, None]
+    strips = (base + 2 * rows + labels - 1).astype(np.int32)  # A of row r: base + 2r, B: base + 2r + 1
+    many = {int(k): fits[1 + (int(k) - base) % 2] for k in np.unique(strips)}
+    assert len(many) == 2 * truth.shape[0] and int(strips.max()) + 1 > 250_000
+    out, stats = settle_creases(cloud, strips, many, _stats(xyz, strips, many, sigma), sigma=sigma,
+                                k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    np.testing.assert_array_equal(1 + (out - base) % 2, two)
+    np.testing.assert_array_equal(stats.counts[base:], np.bincount(out.ravel() - base))
+
+
 def test_crease_settling_wants_one_noise_value_a_pixel():
     from rangeseg_o3d.fullres import settle_creases
 

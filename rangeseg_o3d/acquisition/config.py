@@ -19,6 +19,10 @@ class _Strict(BaseModel):
 
 
 class LmsSettings(_Strict):
+    """The LMS2xx: its port, baud rates (the device starts at ``initial_baudrate``), the
+    scan variant (``fov`` degrees at ``resolution`` hundredths of a degree, ``units``), and
+    the timeouts and resends of its protocol."""
+
     port: str | None = None
     baudrate: Literal[9600, 19200, 38400, 500000] = 38400
     initial_baudrate: Literal[9600, 19200, 38400, 500000] = 9600
@@ -46,6 +50,8 @@ class LmsSettings(_Strict):
 
 
 class TiltSettings(_Strict):
+    """The PowerCube tilt unit: its port, module id, baud rate, ramp motion, timeouts and resends."""
+
     port: str | None = None
     module_id: int = Field(11, ge=1, le=31)
     baudrate: Literal[9600, 19200, 38400] = 9600
@@ -60,15 +66,22 @@ class TiltSettings(_Strict):
 
 
 class TiltSchedule(_Strict):
+    """The tilt angles of a stop-and-go capture: ``rows`` evenly from ``start`` to ``stop`` (rad)."""
+
     start: float = -0.4
     stop: float = 0.3
     rows: int = Field(70, ge=1)
 
     def angles(self) -> np.ndarray:
+        """The ``rows`` tilt angles (rad), ``start`` to ``stop`` inclusive."""
         return np.linspace(self.start, self.stop, self.rows)
 
 
 class MountGeometry(_Strict):
+    """The scanner on the tilt unit: ``offset``, the mirror centre from the tilt axis in the
+    tilting frame (m), and ``tilt_sign``, which turns the unit's angle into the scan's
+    (:class:`rangeseg_o3d.geometry.NoddingGeometry`)."""
+
     offset: tuple[float, float, float] = (0.0, 0.0, 0.1)
     tilt_sign: Literal[-1, 1] = 1
 

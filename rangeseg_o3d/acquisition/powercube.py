@@ -274,6 +274,7 @@ def pack_float(value: float) -> bytes:
 
 
 def unpack_float(data: bytes) -> float:
+    """The float32 little-endian in the 4 bytes ``data``; PowerCubeProtocolError for another length."""
     if len(data) != 4:
         raise PowerCubeProtocolError(f"a float32 needs 4 bytes; got {len(data)}")
     return struct.unpack("<f", bytes(data))[0]

@@ -177,5 +177,6 @@ class ChunkReader:
 
 
 def sleep(seconds: float) -> None:
+    """``time.sleep(seconds)``, nothing for 0 or less (a deadline already past)."""
     if seconds > 0:
         time.sleep(seconds)

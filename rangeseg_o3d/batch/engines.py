@@ -22,7 +22,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Iterable, Iterator
 
-from .task import InputSummary, InputTask, SegmentOptions, segment_input, warm_worker
+from .task import InputSummary, InputTask, SegmentOptions, segment_input, warm_worker, worker_pipeline
 
 __all__ = ["run_serial", "run_pool", "run_dask", "available_cores", "MAX_ATTEMPTS"]
 
@@ -49,8 +49,6 @@ def _lost(task: InputTask, attempts: int) -> InputSummary:
 def run_serial(tasks: Iterable[InputTask], options: SegmentOptions, *,
                recording=None) -> Iterator[InputSummary]:
     """Run every task in this process, in order."""
-    from .task import worker_pipeline
-
     pipeline = None
     for task in tasks:
         if pipeline is None:

@@ -181,6 +181,9 @@ def cmd_segment(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    """``rangeseg demo``: a simulated LMS200 scan (a capture over serial ptys, or with
+    ``--no-capture`` a ray-cast one) segmented and written to ``--out`` (scan, result, labels,
+    panel); 0 on success. ValueError for a ``--faults`` rate outside [0, 1)."""
     from ..pipeline import Pipeline
 
     if not (math.isfinite(args.faults) and 0.0 <= args.faults < 1.0):
@@ -235,6 +238,8 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``rangeseg`` command line: its options and the subcommands ``segment``, ``demo``,
+    ``capture`` and the others below."""
     parser = argparse.ArgumentParser(
         prog="rangeseg",
         description="Segment organized 3-D scans into planes, cylinders and spheres.",

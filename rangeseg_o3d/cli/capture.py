@@ -132,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
+    """``rangeseg capture`` on its own (``python -m rangeseg_o3d.cli.capture``): the exit code of :func:`run`."""
     parser = argparse.ArgumentParser(prog="rangeseg capture", description=__doc__)
     add_arguments(parser)
     return run(parser.parse_args(argv))

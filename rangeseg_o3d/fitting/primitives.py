@@ -10,11 +10,18 @@ import numpy as np
 __all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model", "with_statistics"]
 
 
-def _vec(value) -> np.ndarray:
+def _vec(value, name: str) -> np.ndarray:
+    # a model's 3-vector field, read-only; ValueError naming the field for anything else
     if (type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64
             and not value.flags.writeable):
         return value  # already a model's vector (dataclasses.replace passes it again)
-    arr = np.asarray(value, dtype=float).reshape(3)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 numbers; got {type(value).__name__} {value!r:.60}") from None
+    if arr.size != 3:
+        raise ValueError(f"{name} must be 3 numbers; got shape {arr.shape}")
+    arr = arr.reshape(3)
     arr.setflags(write=False)
     return arr
 
@@ -35,7 +42,7 @@ class Plane:
     kind: ClassVar[str] = "plane"
 
     def __post_init__(self):
-        object.__setattr__(self, "normal", _vec(self.normal))
+        object.__setattr__(self, "normal", _vec(self.normal, "normal"))
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Signed orthogonal distances of ``(N, 3)`` points."""
@@ -60,7 +67,7 @@ class Sphere:
     kind: ClassVar[str] = "sphere"
 
     def __post_init__(self):
-        object.__setattr__(self, "center", _vec(self.center))
+        object.__setattr__(self, "center", _vec(self.center, "center"))
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         return np.linalg.norm(np.asarray(points, dtype=float) - self.center, axis=1) - self.radius
@@ -86,8 +93,8 @@ class Cylinder:
     kind: ClassVar[str] = "cylinder"
 
     def __post_init__(self):
-        object.__setattr__(self, "axis", _vec(self.axis))
-        object.__setattr__(self, "point", _vec(self.point))
+        object.__setattr__(self, "axis", _vec(self.axis, "axis"))
+        object.__setattr__(self, "point", _vec(self.point, "point"))
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         rel = np.asarray(points, dtype=float) - self.point

@@ -117,7 +117,6 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
     for k in range(n):
         count = max(sums[k, 3], 1.0)
         centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
-    pairs = np.full((n, n), 2, np.int8)  # 2: not looked at yet
     near = np.zeros(h * w, np.bool_)
     spread = reach - 1
     for i in borders:
@@ -151,10 +150,11 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             b = labels[r, c]
             if b == a or b <= 0 or b >= n or not is_plane[b]:
                 continue
-            if pairs[a, b] == 2:
-                pairs[a, b] = _crease_pair(a, b, normals, offsets, centroids, max_cos)
-            if pairs[a, b] != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, pairs[a, b] > 0, noise, normals, offsets,
-                                               rms, k_sigma, least_cos):
+            # judged afresh at each meeting (a few products): a table of the label pairs
+            # would take n^2 bytes, 2.5 GB at 50 000 labels
+            crease = _crease_pair(a, b, normals, offsets, centroids, max_cos)
+            if crease != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, crease > 0, noise, normals, offsets,
+                                          rms, k_sigma, least_cos):
                 out[r0, c0] = b
                 moved[count] = i
                 count += 1

@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .._numeric import median, rows_at
-from ..fitting.batch_planes import planes_from_moments
+from ..fitting.batch_planes import plane_rms_from_moments, planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
@@ -281,12 +281,6 @@ def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:
     return lut[labels]
 
 
-def _plane_rms(moments: np.ndarray) -> np.ndarray:
-    # planes_from_moments(moments).rms for a few float64 rows of moments: the kernel alone,
-    # without the table the merge loop's one-union calls do not read (a third of their cost)
-    return np.sqrt(kernels.planes_from_moment_rows(np.ascontiguousarray(moments))[3][:, 0])
-
-
 class _Unions:
     """Union-find over the labels of ``fits`` (which it updates: a root holds its union's
     model) and the models of candidate unions, cached until a part merges."""
@@ -354,7 +348,7 @@ class _Unions:
         row = self.moments[a] + self.moments[b]
         if isinstance(fits[a], Plane) and isinstance(fits[b], Plane):
             parts = [k for k in (a, b) if k not in self.current_rms and k < len(self.moments)]
-            rms = _plane_rms(np.array([row, *(self.moments[k] for k in parts)])).tolist()
+            rms = plane_rms_from_moments(np.array([row, *(self.moments[k] for k in parts)])).tolist()
             self.current_rms.update(zip(parts, rms[1:]))
             limit = self.rms_factor * np.maximum(self.part_rms(a), self.part_rms(b))
             if rms[0] > limit:
@@ -380,7 +374,7 @@ class _Unions:
         if self.moments is None or k >= len(self.moments):
             return float(model.rms)
         if k not in self.current_rms:
-            self.current_rms[k] = float(_plane_rms(self.moments[k:k + 1])[0])
+            self.current_rms[k] = float(plane_rms_from_moments(self.moments[k:k + 1])[0])
         return max(float(model.rms), self.current_rms[k])
 
     def model(self, ra: int, rb: int):

@@ -140,19 +140,24 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
     return out
 
 
+def _four_neighbours(grid: np.ndarray, wrap_columns: bool, off_grid) -> tuple:
+    """``(above, below, left, right)``: each pixel's 4-neighbours' values in ``grid`` (H, W),
+    views of one padded copy; across the seam on a 360-degree grid, ``off_grid`` beyond the
+    grid's other edges."""
+    padded = np.pad(grid, ((1, 1), (0, 0)), constant_values=off_grid)
+    if wrap_columns:
+        padded = np.pad(padded, ((0, 0), (1, 1)), mode="wrap")
+    else:
+        padded = np.pad(padded, ((0, 0), (1, 1)), constant_values=off_grid)
+    return padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]
+
+
 def _interior(labels: np.ndarray, wrap_columns: bool) -> np.ndarray:
     """``(H, W)`` whether each pixel's four neighbours on the grid carry its label (across
     the seam on a 360-degree grid; off the grid's other edges, not)."""
     inside = labels > 0
-    inside[1:] &= labels[1:] == labels[:-1]
-    inside[:-1] &= labels[:-1] == labels[1:]
-    inside[0] = inside[-1] = False
-    if wrap_columns:
-        inside &= (labels == np.roll(labels, 1, axis=1)) & (labels == np.roll(labels, -1, axis=1))
-    else:
-        inside[:, 1:] &= labels[:, 1:] == labels[:, :-1]
-        inside[:, :-1] &= labels[:, :-1] == labels[:, 1:]
-        inside[:, 0] = inside[:, -1] = False
+    for neighbour in _four_neighbours(labels, wrap_columns, 0):  # (off the grid: 0, no label)
+        inside &= labels == neighbour
     return inside
 
 
@@ -224,13 +229,8 @@ def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, mod
     that far beyond it."""
     mine = labels == k
     near = mine.copy()
-    near[1:] |= mine[:-1]
-    near[:-1] |= mine[1:]
-    if ctx.wrap_columns:
-        near |= np.roll(mine, 1, axis=1) | np.roll(mine, -1, axis=1)
-    else:
-        near[:, 1:] |= mine[:, :-1]
-        near[:, :-1] |= mine[:, 1:]
+    for neighbour in _four_neighbours(mine, ctx.wrap_columns, False):
+        near |= neighbour
     flat_valid = np.isfinite(ctx.xyz).all(axis=1)
     beside = np.flatnonzero(near.ravel() & ~mine.ravel() & flat_valid)
     if beside.size == 0:

@@ -819,17 +819,20 @@ def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
 def _merged_rms_as_found(found_rms: dict, fits: dict, found: np.ndarray, labels: np.ndarray,
                          pool: np.ndarray) -> dict:
     """``found_rms`` (per plane found in the blobs, its rms on the pixels it was found on, all
-    among the flat ``pool``, increasing) with, for each region of ``fits`` that has none and
-    took such planes by a merge (a tile region), the largest of theirs: the rms of pixels of
-    its surface found apart from those it took with them. ``found``: the labels when they
-    were found; ``labels``: now."""
+    among the flat ``pool``, increasing) with, for each region of ``fits`` that took such
+    planes by a merge, the largest of theirs and its own (a tile region has none): the rms of
+    pixels of its surface found apart from those it took with them. A plane found in the
+    blobs that merged others is held to the largest too, not to its own: which of the pieces
+    kept its label is the merge's choice, and the pieces' own pixels, taken by the survivor,
+    would be held to the smaller rms of another piece. ``found``: the labels when they were
+    found; ``labels``: now."""
     gone = [k for k in found_rms if k not in fits]
     if not gone:
         return found_rms
     floors, now = dict(found_rms), labels.reshape(-1)
     for k, idx in _grouped(pool, found.reshape(-1)[pool], gone).items():
         owner = int(np.bincount(now[idx]).argmax())
-        if owner and owner not in found_rms and fits.get(owner):
+        if owner and fits.get(owner):
             floors[owner] = max(floors.get(owner, 0.0), found_rms[k])
     return floors
 

@@ -50,6 +50,9 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
     r = np.asarray(ranges, dtype=np.float64)
     if r.ndim != 2:
         raise ValueError(f"ranges must have shape (H, W); got {r.shape}")
+    for name, value in (("jump_ratio", jump_ratio), ("jump_min", jump_min), ("continuation", continuation)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
     # one compiled pass: the same test as a dozen whole-image numpy operations, at a tenth
     return jump_mask(np.ascontiguousarray(r), float(jump_ratio), float(jump_min), float(continuation))
 
@@ -65,6 +68,8 @@ def close_residual(residual: np.ndarray, *, iterations: int = 2, kernel: int = 3
         raise ValueError(f"residual must have shape (H, W); got {res.shape}")
     if iterations < 0:
         raise ValueError(f"iterations must be >= 0; got {iterations}")
+    if not (isinstance(kernel, (int, np.integer)) and kernel >= 1):  # (OpenCV asserts on 0)
+        raise ValueError(f"kernel must be an integer >= 1; got {kernel!r}")
     # fmin drops NaN for the ceiling; in float32 (rounding first, then the minimum, gives
     # the same image: the ceiling is exact in float32) without whole-image temporaries
     img = np.fmin(res, EDGE_CEILING, dtype=np.float32)
@@ -84,6 +89,11 @@ def edge_mask(closed: np.ndarray, *, threshold: float, valid: np.ndarray | None 
     if not threshold > 0:
         raise ValueError(f"threshold must be positive; got {threshold}")
     edges = np.asarray(closed) > threshold
+    if edges.ndim != 2:
+        raise ValueError(f"closed must have shape (H, W); got {edges.shape}")
+    for name, mask in (("jumps", jumps), ("valid", valid)):
+        if mask is not None and np.shape(mask) != edges.shape:
+            raise ValueError(f"{name} must have the shape of closed {edges.shape}; got {np.shape(mask)}")
     if jumps is not None:
         edges |= jumps
     if valid is not None:
@@ -143,7 +153,13 @@ def crease_edges(xyz: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, *,
     if xyz.ndim != 3 or xyz.shape[2] != 3:
         raise ValueError(f"xyz must have shape (H, W, 3); got {xyz.shape}")
     ranges = np.ascontiguousarray(ranges, dtype=np.float64)
-    sigma = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma, dtype=np.float64), ranges.shape))
+    if ranges.shape != xyz.shape[:2]:  # the kernels read ranges and sigma at xyz's pixels, unchecked
+        raise ValueError(f"ranges must have the shape of the grid {xyz.shape[:2]}; got {ranges.shape}")
+    sigma = np.asarray(sigma, dtype=np.float64)
+    try:
+        sigma = np.ascontiguousarray(np.broadcast_to(sigma, ranges.shape))
+    except ValueError:
+        raise ValueError(f"sigma must broadcast to the {ranges.shape} grid; got {sigma.shape}") from None
     # The spacing is the range times the smaller angular step (angular_steps: the
     # worse-sampled direction sets how well a window's tilt is determined), kept where it is
     # blind; one compiled pass, which skips the steps' arc sines where the spacing is

@@ -10,6 +10,8 @@ __all__ = ["label_regions", "relabel_sequential", "wrap_columns", "join_wrapped"
 def relabel_sequential(labels: np.ndarray) -> np.ndarray:
     """Renumber the positive labels 1..n, keeping their order; 0 (and negatives) become 0."""
     labels = np.asarray(labels)
+    if labels.dtype.kind not in "iub":  # a float label would index the table only after rounding
+        raise ValueError(f"labels must be integers; got dtype {labels.dtype}")
     present = np.unique(labels[labels > 0])
     lut = np.zeros(int(labels.max(initial=0)) + 1, dtype=np.int32)
     lut[present] = np.arange(1, present.size + 1, dtype=np.int32)
@@ -70,6 +72,10 @@ def join_wrapped(padded: np.ndarray, pad: int) -> np.ndarray:
     those labels are one region. Returns (H, W) int32 labels renumbered 1..n.
     """
     padded = np.asarray(padded)
+    if padded.ndim != 2 or padded.dtype.kind not in "iu":
+        raise ValueError(f"padded must be (H, W) integer labels; got shape {padded.shape}, dtype {padded.dtype}")
+    if not (isinstance(pad, (int, np.integer)) and pad >= 1):
+        raise ValueError(f"pad must be an integer >= 1; got {pad!r}")
     width = padded.shape[1] - 2 * pad
     if width < pad:
         raise ValueError(f"a padded grid of {padded.shape[1]} columns cannot carry pads of {pad}")

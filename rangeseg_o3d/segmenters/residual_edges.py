@@ -8,7 +8,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
 
 from ..segmentation.edges import close_residual, crease_edges, edge_mask, jump_edges
-from ..segmentation.regions import label_regions
+from ..segmentation.regions import join_wrapped, label_regions, wrap_columns
 from ..registry import Plugin, params_model
 from ..segmentation.residual import MIN_VALID, residual_image
 from ..result import Segmentation
@@ -125,7 +125,6 @@ def _segment_wrapped(cloud, sensor, params: dict) -> Segmentation:
     from dataclasses import replace
 
     from ..cloud import OrganizedCloud
-    from ..segmentation.regions import join_wrapped, wrap_columns
 
     pad = min(_SEAM_PAD, cloud.shape[1] // 2)
     if pad < 1:

@@ -1,4 +1,5 @@
-"""fitting.primitives.with_statistics: dataclasses.replace of a model's fit statistics, faster."""
+"""fitting.primitives: dataclasses.replace of a model's fit statistics, faster (with_statistics); a
+model's vector fields checked."""
 
 from dataclasses import replace
 
@@ -47,3 +48,15 @@ def test_other_changes_and_other_models_go_through_replace():
         with_statistics(plane, normal=[1, 0])  # a bad vector is refused as replace refuses it
     failure = with_statistics(FitFailure("plane", "too few points"), rms=0.1)
     assert not failure and failure.rms == 0.1 and failure.reason == "too few points"
+
+
+@pytest.mark.parametrize("make, field, got", [
+    (lambda: Plane([0.0, 1.0], 1.0, 0.0, 3), "normal", r"shape \(2,\)"),
+    (lambda: Sphere(np.zeros((2, 3)), 1.0, 0.0, 3), "center", r"shape \(2, 3\)"),
+    (lambda: Cylinder([0.0, 0.0, 1.0], "origin", 1.0, 0.0, 3), "point", "str 'origin'"),
+    (lambda: Cylinder(None, np.zeros(3), 1.0, 0.0, 3), "axis", r"shape \(\)"),
+])
+def test_a_model_built_with_a_vector_not_of_three_numbers_names_the_field(make, field, got):
+    with pytest.raises(ValueError, match=rf"{field} must be 3 numbers; got {got}"):
+        make()
+    assert Plane(np.array([[0.0], [0.0], [1.0]]), 1.0, 0.0, 3).normal.shape == (3,)  # a column still reads

@@ -12,7 +12,7 @@ from rangeseg_o3d.fitting.classify import (
     refit_planes_from_moments,
 )
 from rangeseg_o3d.fitting.primitives import FitFailure, Plane
-from rangeseg_o3d.fitting.batch_planes import planes_from_moments, quadric_gains, region_moments
+from rangeseg_o3d.fitting.batch_planes import plane_rms_from_moments, planes_from_moments, quadric_gains, region_moments
 from rangeseg_o3d.kernels import adjacency_matrix, block_means, count_inliers, group_by_label, grow_rings
 from rangeseg_o3d.refinement.merge import region_adjacency
 from rangeseg_o3d.segmentation.residual import block_means as tile_means
@@ -74,6 +74,18 @@ def test_planes_from_moments_flag_degenerate_rows():
     assert not table.ok[3]  # empty
     with pytest.raises(ValueError, match=r"\(K, 10\)"):
         planes_from_moments(np.zeros((3, 9)))
+
+
+def test_plane_rms_from_moments_is_the_tables_rms():
+    # the merge loop's one-union rms (no table): the same values as the table's, the same check
+    rng = np.random.default_rng(4)
+    groups = [_plane_points(rng, 100, [0, 0, 1], 2.0, 0.005), _plane_points(rng, 50, [1, 2, -0.5], 4.0, 0.02)]
+    pts, labels = _labelled(rng, groups)
+    moments = region_moments(pts, labels)
+    np.testing.assert_array_equal(plane_rms_from_moments(moments), planes_from_moments(moments).rms)
+    assert plane_rms_from_moments(moments[1:2] + moments[2:3])[0] == planes_from_moments(moments[1:2] + moments[2:3]).rms[0]
+    with pytest.raises(ValueError, match=r"\(K, 10\); got \(10,\)"):
+        plane_rms_from_moments(moments[1])
 
 
 def test_quadric_gains_match_quadric_shape():

@@ -526,3 +526,26 @@ def test_along_the_rays_a_plane_decided_on_a_flat_piece_of_a_pipe_is_still_decid
     polished = polish_models(ctx, labels, {1: piece, 2: fit_plane(xyz[labels == 2])}, resolve_bends=1.0,
                              along_rays=True)
     assert polished[1].kind == "cylinder"
+
+
+@pytest.mark.parametrize("wrap_columns", [False, True])
+def test_four_neighbours_of_the_grid_pixel_by_pixel(wrap_columns):
+    # the interior test (_interior) and the ring beside a region (_seen_through) read each
+    # pixel's 4-neighbours from one helper: across the seam on a 360-degree grid, else the fill
+    from rangeseg_o3d.refinement.polish import _four_neighbours, _interior
+
+    labels = np.random.default_rng(5).integers(0, 3, (6, 7)).astype(np.int32)
+    labels[2:5, 2:5] = 1
+    labels[1:5, [0, 1, 5, 6]] = 2  # a region across the seam
+    h, w = labels.shape
+    views = _four_neighbours(labels, wrap_columns, -1)
+    inside = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            left = labels[r, (c - 1) % w] if wrap_columns or c > 0 else -1
+            right = labels[r, (c + 1) % w] if wrap_columns or c < w - 1 else -1
+            expected = (labels[r - 1, c] if r > 0 else -1, labels[r + 1, c] if r < h - 1 else -1, left, right)
+            assert tuple(int(v[r, c]) for v in views) == expected, (r, c)
+            inside[r, c] = labels[r, c] > 0 and all(v == labels[r, c] for v in expected)
+    np.testing.assert_array_equal(_interior(labels, wrap_columns), inside)
+    assert inside[3, 3] and inside[2:4, 0].all() == wrap_columns

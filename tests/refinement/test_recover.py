@@ -587,7 +587,8 @@ def test_a_region_that_merged_recovered_planes_is_held_to_their_rms_as_found():
     from rangeseg_o3d.refinement.recover import _merged_rms_as_found
 
     # planes 10 and 11 found in the blobs (pool: flat pixels 0-9); 10 merged into tile region
-    # 3 since, 11 into 12 (found in the blobs too, with its own rms)
+    # 3 since, 11 into 12 (found in the blobs too, with its own rms): each held to the largest
+    # rms as found of the planes it holds
     found = np.array([10, 10, 10, 10, 11, 11, 12, 12, 0, 0, 3, 3], np.int32)
     labels = np.array([3, 3, 3, 0, 12, 12, 12, 12, 0, 0, 3, 3], np.int32)
     pool = np.arange(10)
@@ -595,6 +596,10 @@ def test_a_region_that_merged_recovered_planes_is_held_to_their_rms_as_found():
     fits = {3: plane, 12: plane}
     found_rms = {10: 3e-5, 11: 5e-5, 12: 2e-5}
     floors = _merged_rms_as_found(found_rms, fits, found, labels, pool)
+    assert floors == {10: 3e-5, 11: 5e-5, 12: 5e-5, 3: 3e-5}
+    # 12 merged into 11 instead: the same floor, whichever piece kept its label
+    swapped = {3: plane, 11: plane}
+    floors = _merged_rms_as_found(found_rms, swapped, found, np.where(labels == 12, 11, labels), pool)
     assert floors == {10: 3e-5, 11: 5e-5, 12: 2e-5, 3: 3e-5}
     # nothing merged away: the rms as found, unchanged
     assert _merged_rms_as_found({12: 2e-5}, fits, found, labels, pool) == {12: 2e-5}

@@ -130,3 +130,15 @@ def test_blind_spacing_on_a_scanner_grid_equals_the_angular_steps_bit_for_bit():
     sigma = np.full(ranges.shape, 0.005)
     for ratio in (0.5, 1.0, 3.0, 10.0, 100.0):
         _check_blind_spacing(xyz, ranges, sigma, ratio)
+
+
+def test_crease_edges_want_ranges_and_sigma_of_the_grid():
+    # the compiled passes read ranges and sigma at the grid's pixels without a bounds check:
+    # a smaller range image was read past its end
+    xyz = np.dstack([*np.meshgrid(np.arange(10.0), np.arange(12.0)), np.full((12, 10), 2.0)])
+    with pytest.raises(ValueError, match=r"ranges must have the shape of the grid \(12, 10\); got \(11, 10\)"):
+        crease_edges(xyz, np.ones((11, 10)), 0.01)
+    with pytest.raises(ValueError, match=r"sigma must broadcast to the \(12, 10\) grid; got \(11, 10\)"):
+        crease_edges(xyz, np.ones((12, 10)), np.full((11, 10), 0.01))
+    mask, _ = crease_edges(xyz, np.linalg.norm(xyz, axis=2), 0.01)  # one sigma for all: as before
+    assert mask.shape == (12, 10)

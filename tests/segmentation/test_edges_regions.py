@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.segmentation.edges import close_residual, edge_mask, jump_edges
-from rangeseg_o3d.segmentation.regions import label_regions, relabel_sequential
+from rangeseg_o3d.segmentation.regions import join_wrapped, label_regions, relabel_sequential, wrap_columns
 
 
 def test_jump_edges_mark_the_far_side_and_scale_with_range():
@@ -89,6 +89,34 @@ def test_label_regions_validates():
         label_regions(np.zeros(9, bool))
 
 
+@pytest.mark.parametrize("call, fragment", [
+    (lambda: jump_edges(np.ones((4, 4)), jump_ratio=-0.1), "jump_ratio must be a finite number >= 0; got -0.1"),
+    (lambda: jump_edges(np.ones((4, 4)), jump_min=float("nan")), "jump_min must be a finite number >= 0; got nan"),
+    (lambda: close_residual(np.ones((4, 4)), kernel=0), "kernel must be an integer >= 1; got 0"),
+    (lambda: edge_mask(np.ones(4), threshold=0.5), r"closed must have shape \(H, W\); got \(4,\)"),
+    (lambda: edge_mask(np.ones((4, 4)), threshold=0.5, valid=np.ones((3, 4), bool)),
+     r"valid must have the shape of closed \(4, 4\); got \(3, 4\)"),
+    (lambda: edge_mask(np.ones((4, 4)), threshold=0.5, jumps=np.ones((4, 4, 1), bool)),
+     r"jumps must have the shape of closed \(4, 4\); got \(4, 4, 1\)"),
+])
+def test_edge_stages_name_a_bad_argument(call, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        call()
+
+
 def test_relabel_sequential():
     out = relabel_sequential(np.array([[0, 7, 7], [3, 0, 9]]))
     assert out.tolist() == [[0, 2, 2], [1, 0, 3]]
+
+
+def test_region_helpers_name_a_bad_argument():
+    with pytest.raises(ValueError, match="labels must be integers; got dtype float64"):
+        relabel_sequential(np.array([[0.0, 2.5]]))
+    with pytest.raises(ValueError, match=r"padded must be \(H, W\) integer labels; got shape \(6,\)"):
+        join_wrapped(np.arange(6), 1)
+    with pytest.raises(ValueError, match="pad must be an integer >= 1; got 0"):
+        join_wrapped(np.zeros((2, 6), np.int32), 0)
+    # the flood fill of a padded grid (wrap_columns) joins each pad to its neighbour: one region
+    # across the seam, numbered 1 on the left, 2 on the right
+    assert wrap_columns(np.array([[5, 0, 0, 6]]), 1).tolist() == [[6, 5, 0, 0, 6, 5]]
+    assert join_wrapped(np.array([[1, 1, 0, 0, 2, 2]], np.int32), 1).tolist() == [[1, 0, 0, 1]]
