@@ -249,16 +249,17 @@ def _face_by_ray(table, pairs, tr, tc, m, best_j, planes, x, y, z, normals, offs
     # whose side of the crease the ray meets the surface (crease_moves' rule: the noise cannot
     # tell the two faces apart there, the rays can); ``best_j`` when none
     a = table[tr, tc, best_j]
-    dist = np.sqrt(x * x + y * y + z * z)
-    if not dist > 0.0:
-        return best_j
-    rx, ry, rz = x / dist, y / dist, z / dist
+    dist = 0.0  # the ray only once a crease needs it (most pairs of planes there are none)
     for j in range(m):
-        b = table[tr, tc, j]
-        if j == best_j or not planes & (1 << j):
+        if j == best_j or not planes & (1 << j) or pairs[tr, tc, best_j, j] == 0:
             continue
-        pair = pairs[tr, tc, best_j, j]
-        if pair != 0 and _ray_meets_b(rx, ry, rz, a, b, pair > 0, normals, offsets, least_cos):
+        if dist == 0.0:
+            dist = np.sqrt(x * x + y * y + z * z)
+            if not dist > 0.0:
+                return best_j
+        # the point's own vector for the unit ray: every test scales by its length alike
+        if _ray_meets_b(x, y, z, a, table[tr, tc, j], pairs[tr, tc, best_j, j] > 0, normals, offsets,
+                        least_cos * dist):
             return j
     return best_j
 
