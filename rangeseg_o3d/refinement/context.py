@@ -13,7 +13,8 @@ from .._numeric import rows_at
 from .. import kernels
 from ..fitting.plane import fit_plane
 from ..fitting.region_fitter import RegionFitter
-from ..fitting.robust import beyond_noise, distance_noise, trimmed_fit
+from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, trimmed_fit
+from ..kernels.linalg import noise_rms_bound
 
 __all__ = ["Context", "touching", "without"]
 
@@ -258,8 +259,10 @@ class Context:
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
         # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
         # floor and its refit plane explains it within that noise; else (None, None)
-        points = rows_at(self.xyz, pool)
-        near = np.abs(model.distances(points)) <= TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
+        near = self._near_plane(pool, model) if model.kind == "plane" else None
+        if near is None:  # (the test as numpy words it; the compiled pass could not tell)
+            points = rows_at(self.xyz, pool)
+            near = np.abs(model.distances(points)) <= TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
         piece = self.largest_piece(pool[near])
         if piece.size < self.min_size:
             return None, None
@@ -281,10 +284,57 @@ class Context:
         """
         if not model or model.kind != "plane" or idx.size < 3:
             return False
+        beyond = self._plane_beyond_noise(model, idx)
+        if beyond is not None:
+            return beyond
         points = rows_at(self.xyz, idx)
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size))
+
+    def _plane_beyond_noise(self, plane, idx: np.ndarray):
+        # plane_along_rays' answer from one compiled pass over the pixels (kernels.plane_noise_sums),
+        # or None where the two rms lie within _ROUNDING of each other, so that numpy's
+        # rounding could answer the other way (the rays from the origin, as distance_noise's)
+        n = int(idx.size)
+        squares, noise_squares, scale, sigma_max = kernels.plane_noise_sums(
+            self._flat_xyz, self._flat_sigma, np.ascontiguousarray(idx, dtype=np.int64),
+            np.ascontiguousarray(plane.normal, dtype=np.float64), float(plane.d))
+        rms = float(np.sqrt(squares / n))
+        bound = noise_rms_bound.py_func(float(np.sqrt(noise_squares / n)), float(n), CHI_SQUARE_SIGMAS)
+        # each distance is off numpy's by a few roundings of its terms (``scale``), each noise
+        # by a few of ``sigma_max`` (the bound: under 2.3 noises); the sums by n roundings
+        slack = _ROUNDING * (scale + 4.0 * sigma_max) + _RELATIVE * (rms + bound)
+        if rms - bound > slack:
+            return True
+        if bound - rms > slack:
+            return False
+        return None  # (a NaN too)
+
+    def _near_plane(self, idx: np.ndarray, plane):
+        # whether each of the flat pixels idx lies within TRIM_SIGMAS noises of its distance of
+        # the plane (kernels.plane_noise_near), or None where one pixel is within _ROUNDING of
+        # that bound (numpy's rounding could tell it otherwise)
+        near, unsure = kernels.plane_noise_near(
+            self._flat_xyz, self._flat_sigma, np.ascontiguousarray(idx, dtype=np.int64),
+            np.ascontiguousarray(plane.normal, dtype=np.float64), float(plane.d), TRIM_SIGMAS, _RELATIVE, _ROUNDING)
+        return None if unsure else near
+
+    @property
+    def _flat_xyz(self) -> np.ndarray:
+        return np.ascontiguousarray(self.xyz, dtype=np.float64)
+
+    @property
+    def _flat_sigma(self) -> np.ndarray:
+        return np.ascontiguousarray(self.sigma, dtype=np.float64)
+
+
+#: Margins about a bound within which the compiled passes of one plane's noise tests leave the
+#: answer to numpy (:meth:`Context._plane_beyond_noise`, :meth:`Context._near_plane`): many times
+#: the rounding of a few operations on the terms of a distance (float64's epsilon is 2.2e-16)
+#: and of sums over up to a million pixels. Outside them both roundings answer alike.
+_ROUNDING = 64 * np.finfo(np.float64).eps
+_RELATIVE = 1e-9
 
 
 def _row_origins(cloud):

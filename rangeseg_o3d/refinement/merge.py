@@ -14,7 +14,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from .._numeric import median, rows_at
 from ..fitting.batch_planes import planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
-from ..fitting.region_fitter import region_indices
+from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
 from .context import Context
@@ -538,12 +538,21 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
         return labels, fits, adjacency
     fits = dict(fits)
     lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
-    for _, big, small in sorted(pairs):
+    pairs.sort()
+    # the pretest of every pair in one compiled pass, against the models as they stand now
+    # (a pair whose curved region took a piece since is tested again below)
+    near = _pieces_near(ctx, fits, regions, pairs, near_sigmas) if near_sigmas is not None else None
+    as_tested = dict(fits)
+    for turn, (_, big, small) in enumerate(pairs):
         if lut[big] != big or lut[small] != small:
             continue  # one of them was merged already
         if near_sigmas is not None:
             piece = regions[small]
-            if median(np.abs(fits[big].distances(rows_at(ctx.xyz, piece)))) > near_sigmas * median(ctx.sigma[piece]):
+            verdict = int(near[turn]) if fits[big] is as_tested[big] else -1
+            if verdict < 0:  # (numpy's rounding decides: the compiled pass could not tell)
+                verdict = int(not median(np.abs(fits[big].distances(rows_at(ctx.xyz, piece))))
+                              > near_sigmas * median(ctx.sigma[piece]))
+            if not verdict:
                 continue
         parts = (regions[big], regions[small])  # the union's pixels, not concatenated unless it is taken
         n = parts[0].size + parts[1].size
@@ -568,6 +577,29 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
         lut[small] = big
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
     return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas: float) -> np.ndarray:
+    """Per ``(size, big, small)`` of ``pairs``: 1 when the median distance of the pixels of
+    ``small`` (``regions``: flat pixels per label) to the model of ``big`` is within
+    ``near_sigmas`` times their median range noise, 0 when over, -1 where rounding could
+    decide (:func:`rangeseg_o3d.kernels.pieces_near_models`: the numpy form is then asked)."""
+    rows = [model_row(fits[big]) for _, big, _ in pairs]
+    pieces = [regions[small] for _, _, small in pairs]
+    starts = np.zeros(len(pieces) + 1, np.int64)
+    np.cumsum([piece.size for piece in pieces], out=starts[1:])
+    return kernels.pieces_near_models(
+        np.ascontiguousarray(ctx.xyz, dtype=np.float64), np.ascontiguousarray(ctx.sigma, dtype=np.float64),
+        np.ascontiguousarray(np.concatenate(pieces), dtype=np.int64), starts,
+        np.array([kind for kind, _ in rows], np.int8), np.array([row for _, row in rows]),
+        float(near_sigmas), _NEAR_RELATIVE, _NEAR_ROUNDING)
+
+
+#: Margins about the pretest's bound within which merge_into_curved asks numpy
+#: (:func:`_pieces_near`): many times the rounding of a distance's few operations on its
+#: terms, and the bound's own relative rounding.
+_NEAR_ROUNDING = 64 * np.finfo(np.float64).eps
+_NEAR_RELATIVE = 1e-9
 
 
 #: Relative margin about the noise a union's rms is at the bound of, outside which counting

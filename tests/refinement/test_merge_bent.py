@@ -1,0 +1,66 @@
+"""refine_regions' merge after polish (stereo camera): the planes polish's bend test made
+curved join the pieces of their surface beside them (refinement._merge_bent_by_polish)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.fitting import fit_cylinder, fit_plane
+from rangeseg_o3d.refinement import _merge_bent_by_polish
+from rangeseg_o3d.refinement.context import Context
+from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+from rangeseg_o3d.synthetic.scene import Scene, cylinder
+
+NOISE = 0.005
+CONFIG = SimpleNamespace(merge_angle_deg=3.0, merge_tolerance=0.03, merge_disjoint=True, merge_rms_factor=1.3)
+
+
+def _halves(pipeline, pipes, seed=0):
+    """Pipes standing 3 m in front of a camera, each cut along its axis into two regions at
+    its middle column: ``(context, labels, planes, cylinders)``, the halves' fits as planes
+    (what the merge saw) and as cylinders (what polish made of them)."""
+    scene = Scene([part for i, (x, radius) in enumerate(pipes)
+                   for part in cylinder((x, -0.6, 3.0), (0.0, 1.0, 0.0), radius, 1.2, caps=False,
+                                        first_id=1 + 3 * i)])
+    scan = simulate_depth_camera(scene, width=160, height=120, fx=150.0, fy=150.0, cx=79.5, cy=59.5,
+                                 noise_coeff=0.0, noise_sigma0=NOISE, seed=seed)
+    labels = np.zeros(scan.truth_ids.shape, np.int32)
+    for i in range(len(pipes)):
+        rows, cols = np.nonzero(scan.truth_ids == 1 + 3 * i)
+        middle = int(np.median(cols))
+        labels[rows, cols] = np.where(cols < middle, 1 + 2 * i, 2 + 2 * i)
+    ctx = Context(scan.cloud, pipeline.fitter, np.full(labels.shape, NOISE), 10)
+    flat = labels.ravel()
+    planes = {k: fit_plane(ctx.xyz[flat == k]) for k in np.unique(flat[flat > 0]).tolist()}
+    cylinders = {k: fit_cylinder(ctx.xyz[flat == k]) for k in planes}
+    assert all(m.kind == "cylinder" for m in cylinders.values())
+    return ctx, labels, planes, cylinders
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_pipes_two_halves_made_cylinders_by_polish_become_one(pipeline, seed):
+    ctx, labels, planes, cylinders = _halves(pipeline, [(0.0, 0.2)], seed)
+    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
+    kept = [k for k, m in fits.items() if m]
+    assert len(kept) == 1 and fits[kept[0]].kind == "cylinder"
+    assert abs(fits[kept[0]].radius - 0.2) < 0.02
+    assert set(np.unique(out[labels > 0]).tolist()) == set(kept)
+    assert ((out > 0) == (labels > 0)).all()
+
+
+def test_two_pipes_of_other_radii_stay_apart(pipeline):
+    # the failure path: halves of two pipes (radii 0.2 and 0.1 m, 0.6 m apart) each join
+    # their own pipe, never the other's
+    ctx, labels, planes, cylinders = _halves(pipeline, [(-0.3, 0.2), (0.3, 0.1)])
+    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
+    first, second = np.unique(out[np.isin(labels, (1, 2))]), np.unique(out[np.isin(labels, (3, 4))])
+    assert first.size == 1 and second.size == 1 and first[0] != second[0]
+    assert abs(fits[int(first[0])].radius - 0.2) < 0.02 and abs(fits[int(second[0])].radius - 0.1) < 0.02
+
+
+def test_nothing_bent_leaves_the_regions_as_they_are(pipeline):
+    # halves that were cylinders before polish already met the merge: nothing is done
+    ctx, labels, _, cylinders = _halves(pipeline, [(0.0, 0.2)])
+    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, dict(cylinders), CONFIG, False)
+    assert out is labels and fits is cylinders
