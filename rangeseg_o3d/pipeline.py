@@ -284,8 +284,14 @@ class Pipeline:
         # returns, the tile means' measured excess scatter)
         spread = excess * float(noise.mean_scale(settings.tile * settings.tile)) * settings.tile
         # where the noise grows with the range, a far crease's band lies within the noise of
-        # both faces' planes: there the rays choose the face (``tile_means`` places the regions)
-        by_rays = refine.enabled and float(noise.sigma_quadratic) > 0 and tile_means is not None
+        # both faces' planes: there the rays choose the face (``tile_means`` places the regions).
+        # Not where that noise errs together over a matching window (a stereo camera's): there
+        # split_plane_faces cuts the regions the band reaches into the faces they hold, and a
+        # plane region that took a pipe's band from across a crease gave the pipe's piece a
+        # plane of its own that no merge rule joins to the pipe's cylinder (seed 89 scan 1 of
+        # the stereo matrix: 525 of 5557 px, the union's cylinder beyond the noise)
+        by_rays = (refine.enabled and float(noise.sigma_quadratic) > 0 and not noise.matched_window
+                   and tile_means is not None)
         labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                              k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True,
                                              creases_from=tile_means if by_rays else None,
