@@ -101,3 +101,24 @@ def test_tile_means_of_another_grid_are_refused():
     with pytest.raises(ValueError, match="tile means of the \\(2, 2\\) tile labels"):
         label_pixels(cloud, np.ones((2, 2), np.int32), fits, tile=6, sigma=np.full((12, 12), 0.001), k_sigma=3.0,
                      inlier_factor=2.0, creases_from=cloud.tile_means(4))
+
+
+@pytest.mark.parametrize("correlation_px, asked", [(1, True), (3, False)])
+def test_the_pipeline_asks_the_rule_on_a_depth_camera_not_on_a_stereo_one(monkeypatch, correlation_px, asked):
+    # rgbd_vga's Kinect (returns that err alone) gets the tile means; the same camera whose
+    # returns err together over a 3 x 3 matching window (a stereo camera: split_plane_faces
+    # cuts what the crease band reaches) labels by the nearest plane
+    import rangeseg_o3d.pipeline as pipeline
+
+    scene = _crease(3.5, True)
+    scan = simulate_depth_camera(scene, seed=0)
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("creases_from"))
+        return label_pixels(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "label_pixels", spy)
+    config = rs.load_config("rgbd_vga", overrides={"sensor.noise_correlation_px": correlation_px})
+    rs.Pipeline(config).run(scan.cloud)
+    assert len(seen) == 1 and (seen[0] is not None) == asked
