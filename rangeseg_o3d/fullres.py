@@ -90,7 +90,8 @@ class PixelStats:
 
 
 def label_pixels(cloud, tile_labels: np.ndarray, fits: dict, *, tile: int, sigma: np.ndarray,
-                 k_sigma: float, inlier_factor: float, with_blocks: bool = False):
+                 k_sigma: float, inlier_factor: float, with_blocks: bool = False,
+                 creases_from=None, min_angle_deg: float = 0.0):
     """Label every pixel of ``cloud`` by the models of its tile's region and the 8 around it.
 
     A pixel joins the nearest model in units of ``max(sigma, rms)`` if within ``k_sigma``
@@ -98,14 +99,28 @@ def label_pixels(cloud, tile_labels: np.ndarray, fits: dict, *, tile: int, sigma
     (in the tile labels' numbering) and the :class:`PixelStats` of those labels; with
     ``with_blocks`` also the sums per tile and label the same pass gathered, for
     :func:`rangeseg_o3d.off_model.recover_off_model`.
+
+    With ``creases_from`` (the tile means the tile labels label, an OrganizedCloud), a pixel
+    two planes turned by more than ``min_angle_deg`` both explain goes to the face its ray
+    meets at their crease, as :func:`settle_creases` moves it, instead of the nearer plane's:
+    where the range noise grows with the range, a far crease's band of pixels lies within
+    the noise of both planes and the noise picks the side.
     """
     from .kernels import label_pixels as kernel
 
     kinds, params, rms = model_table(fits, int(tile_labels.max(initial=0)) + 1)
+    if creases_from is None:
+        tile_xyz = np.zeros((0, 3))
+    elif creases_from.shape != tile_labels.shape:
+        raise ValueError(f"label_pixels: creases_from must be the tile means of the {tile_labels.shape} tile labels, "
+                         f"got a cloud of shape {creases_from.shape}")
+    else:
+        tile_xyz = _flat_points(creases_from)
     labels, inliers, squares, counts, blocks = kernel(
         _flat_points(cloud), cloud.shape[0], cloud.shape[1],
         np.ascontiguousarray(tile_labels, dtype=np.int32), int(tile), kinds, params, rms,
-        np.ascontiguousarray(sigma, dtype=np.float64).ravel(), float(k_sigma), float(inlier_factor))
+        np.ascontiguousarray(sigma, dtype=np.float64).ravel(), float(k_sigma), float(inlier_factor),
+        tile_xyz, float(np.cos(np.radians(min_angle_deg))), float(np.sin(np.arctan(GRAZING_TAN))))
     if with_blocks:
         return labels, PixelStats(inliers, squares, counts), blocks
     return labels, PixelStats(inliers, squares, counts)

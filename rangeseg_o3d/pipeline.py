@@ -194,7 +194,7 @@ class Pipeline:
         stages, stats = segmentation.stages, None
         if work is not cloud:
             labels, fits, sigma, stats = self._full_resolution(cloud, regions.labels, regions.models, settings,
-                                                               excess, timings=clock.timings)
+                                                               excess, timings=clock.timings, tile_means=work)
             regions = Regions(labels, fits)
             stages = ExpandedStages(stages, settings.tile, cloud.shape)
             clock.lap("full_resolution")
@@ -253,7 +253,8 @@ class Pipeline:
         return regions, sigma
 
     def _full_resolution(self, cloud: OrganizedCloud, tile_labels: np.ndarray, fits: dict,
-                         settings: _Settings, excess: float = 1.0, timings: dict | None = None):
+                         settings: _Settings, excess: float = 1.0, timings: dict | None = None,
+                         tile_means: OrganizedCloud | None = None):
         """Label every pixel by the models of its tile's region and the 8 around it.
 
         Returns full-resolution ``(labels, fits, sigma, stats)``, ``stats`` the
@@ -264,6 +265,8 @@ class Pipeline:
         (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
         rms of the pixels' distances. ``timings`` (optional) receives each step's seconds
         under ``full.<step>`` (the steps that ran), as the refinement's go under ``refine.<step>``.
+        ``tile_means`` (the cloud ``tile_labels`` label) places the regions for the crease rule
+        of :func:`rangeseg_o3d.fullres.label_pixels`, taken where the range noise grows with the range.
         """
         from .kernels import ranges_and_noise
 
@@ -280,8 +283,19 @@ class Pipeline:
         # how much more a tile's mean errs than one of independent returns (correlated
         # returns, the tile means' measured excess scatter)
         spread = excess * float(noise.mean_scale(settings.tile * settings.tile)) * settings.tile
+        # where the noise grows with the range, a far crease's band lies within the noise of
+        # both faces' planes: there the rays choose the face (``tile_means`` places the regions).
+        # Not where that noise errs together over a matching window (a stereo camera's): there
+        # split_plane_faces cuts the regions the band reaches into the faces they hold, and a
+        # plane region that took a pipe's band from across a crease gave the pipe's piece a
+        # plane of its own that no merge rule joins to the pipe's cylinder (seed 89 scan 1 of
+        # the stereo matrix: 525 of 5557 px, the union's cylinder beyond the noise)
+        by_rays = (refine.enabled and float(noise.sigma_quadratic) > 0 and not noise.matched_window
+                   and tile_means is not None)
         labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
-                                             k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True)
+                                             k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True,
+                                             creases_from=tile_means if by_rays else None,
+                                             min_angle_deg=refine.merge_angle_deg)
         lap("label_pixels")
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:

@@ -582,19 +582,30 @@ def plane_beside(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, 
     them by a range noise larger than the band is wide): its pixels fit the wall's plane
     along the rays within their noise, and are that wall."""
     from .kernels.linalg import noise_rms_bound
-    from .strips import EXPLAINED_SHARE
 
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     best, label, mask = np.inf, 0, None
+    for other, kept, mean_square in planes_keeping(labels, k, idx, rays, inverse, weight, planes):
+        n = int(np.count_nonzero(kept))
+        if mean_square <= noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2 and mean_square < best:
+            best, label, mask = mean_square, other, kept
+    return label, mask
+
+
+def planes_keeping(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, inverse: np.ndarray,
+                   weight: np.ndarray, planes: dict):
+    """Yields ``(label, kept, mean_square)`` for each plane region (``planes``: label -> Plane)
+    touching region ``k`` of ``labels`` (its flat pixels ``idx``, their
+    :func:`~rangeseg_o3d.ray_planes.ray_terms`) whose plane keeps ``strips.EXPLAINED_SHARE`` of
+    them within TRIM_SIGMAS of their range noise along the rays: the mask of those and the
+    mean of their squares in units of that noise (:func:`plane_beside`'s candidates)."""
+    from .strips import EXPLAINED_SHARE
+
     for other in sorted(touching(labels, idx, 1) - {0, k}):
         if other not in planes:
             continue
         squares = weight * (inverse - rays @ (planes[other].normal / planes[other].d)) ** 2
         kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
-        n = int(np.count_nonzero(kept))
-        if n < EXPLAINED_SHARE * idx.size:
+        if np.count_nonzero(kept) < EXPLAINED_SHARE * idx.size:
             continue
-        mean_square = float(np.mean(squares[kept]))
-        if mean_square <= noise_rms_bound.py_func(1.0, share * n, CHI_SQUARE_SIGMAS) ** 2 and mean_square < best:
-            best, label, mask = mean_square, other, kept
-    return label, mask
+        yield other, kept, float(np.mean(squares[kept]))

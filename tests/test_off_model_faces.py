@@ -164,3 +164,56 @@ def test_screen_leaves_a_turn_at_its_bound_to_numpy():
                                 np.array([0, small.size]), w, 20, np.full((1, 3), np.nan), 0.05,
                                 float(CHI_SQUARE_SIGMAS), float(TRIM_SIGMAS), ROBUST_CHUNKS, TRIM_PASSES,
                                 SCREEN_TOLERANCE)[0]
+
+
+def _wall_and_face(offset_sigmas, turn_deg=0.0, seed=0, h=60, w=80, focal=525.0, distance=3.0):
+    # a head-on wall at `distance` (range noise along the rays); region 1 holds its left half
+    # with a plane moved offset_sigmas of the range noise (and turned by turn_deg) from the
+    # truth, the face 2 its right half with the true plane
+    from rangeseg_o3d.kernels.linalg import noise_rms_bound
+    from rangeseg_o3d.fitting.robust import CHI_SQUARE_SIGMAS
+
+    u, v = np.meshgrid((np.arange(w) - w / 2) / focal, (np.arange(h) - h / 2) / focal)
+    rays = np.dstack([u, v, np.ones_like(u)])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    t = distance / rays[..., 2]
+    noisy = t + np.random.default_rng(seed).normal(0.0, 1.0, t.shape) * KINECT * distance ** 2
+    xyz = np.ascontiguousarray((noisy[..., None] * rays).reshape(-1, 3))
+    sigma = KINECT * np.linalg.norm(xyz, axis=1) ** 2
+    labels = np.ones((h, w), np.int32)
+    labels[:, w // 2:] = 2
+    theta = np.radians(turn_deg)
+    moved = Plane(np.array([np.sin(theta), 0.0, np.cos(theta)]), distance + offset_sigmas * KINECT * distance ** 2,
+                  rms=0.0, inliers=0)
+    fits = {1: moved, 2: Plane(np.array([0.0, 0.0, 1.0]), distance, rms=0.0, inliers=0)}
+    bound = noise_rms_bound.py_func(1.0, float(h * w // 2), CHI_SQUARE_SIGMAS) ** 2
+    return xyz, sigma, labels, fits, np.flatnonzero(labels.ravel() == 2), bound
+
+
+def test_a_face_the_touching_region_explains_by_the_merge_rule_joins_it():
+    # the region's plane half a sigma off: its mean square on the face (~1.25) misses the
+    # chi-square bound of plane_beside (~1.1 for 2400 px), but lies within merge_rms_factor
+    # (1.3) squared of the face's own plane's (~1.0): one surface, the face joins the region
+    from rangeseg_o3d.off_model import _fates
+
+    xyz, sigma, labels, fits, face, bound = _wall_and_face(0.5)
+    assert bound < 1.15
+    assert _fates(xyz, sigma, labels, fits, 2, [face], 1.3) == [1]
+    # not asked (no merge in the config): the face stands as before
+    assert _fates(xyz, sigma, labels, fits, 2, [face], None) == [2]
+
+
+@pytest.mark.parametrize("offset, turn", [(1.5, 0.0), (0.0, 30.0)])
+def test_a_face_the_touching_region_explains_worse_than_the_merge_rule_stands(offset, turn):
+    # the region's plane 1.5 sigma off (mean square ~3 against 1.69), or turned by 30 degrees
+    # about the face's edge (off by more than 3 sigma beyond its first ~12 columns): the face
+    # stands on its own
+    from rangeseg_o3d.off_model import _fates, _merged_into
+    from rangeseg_o3d.ray_planes import ray_terms
+
+    xyz, sigma, labels, fits, face, _ = _wall_and_face(offset, turn)
+    assert _fates(xyz, sigma, labels, fits, 2, [face], 1.3) == [2]
+    rays, inverse, weight = ray_terms(xyz[face], sigma[face])
+    assert _merged_into(labels, 2, face, rays, inverse, weight, {1: fits[1]}, fits[2], 1.3) == 0
+    # a merge factor wide enough takes the offset one (the turned one keeps too few pixels)
+    assert _merged_into(labels, 2, face, rays, inverse, weight, {1: fits[1]}, fits[2], 3.0) == (1 if turn == 0 else 0)

@@ -74,12 +74,11 @@ def _crease_pair(a, b, normals, offsets, centroids, max_cos):
 
 
 @njit(cache=True, nogil=True)
-def _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos):
-    """Whether the pixel at ``(x, y, z)`` (unit ray ``r``) of plane ``a`` lies on plane ``b``'s
-    side of their crease: the ray meets each plane at least ``asin(least_cos)`` from grazing and
-    in front of the sensor, ``b`` first at a concave crease (last at a convex one), and both
-    planes explain the pixel within ``noise`` (``k_sigma`` times its range noise) or ``k_sigma``
-    times their rms."""
+def _ray_meets_b(rx, ry, rz, a, b, concave, normals, offsets, least_cos):
+    """Whether the unit ray ``r`` meets the face of plane ``b`` at the crease of planes ``a`` and
+    ``b``: it meets each plane at least ``asin(least_cos)`` from grazing and in front of the
+    sensor, ``b`` first at a concave crease (last at a convex one). Also read by
+    :func:`rangeseg_o3d.kernels.label_pixels`."""
     ua = rx * normals[a, 0] + ry * normals[a, 1] + rz * normals[a, 2]
     ub = rx * normals[b, 0] + ry * normals[b, 1] + rz * normals[b, 2]
     if not (abs(ua) >= least_cos and abs(ub) >= least_cos):
@@ -87,7 +86,16 @@ def _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms,
     ta, tb = offsets[a] / ua, offsets[b] / ub  # where each plane meets the ray
     if not (ta > 0 and tb > 0):
         return False
-    if not ((tb < ta) if concave else (tb > ta)):
+    return (tb < ta) if concave else (tb > ta)
+
+
+@njit(cache=True, nogil=True)
+def _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos):
+    """Whether the pixel at ``(x, y, z)`` (unit ray ``r``) of plane ``a`` lies on plane ``b``'s
+    side of their crease: the ray meets ``b`` there (:func:`_ray_meets_b`) and both
+    planes explain the pixel within ``noise`` (``k_sigma`` times its range noise) or ``k_sigma``
+    times their rms."""
+    if not _ray_meets_b(rx, ry, rz, a, b, concave, normals, offsets, least_cos):
         return False
     return (abs(x * normals[a, 0] + y * normals[a, 1] + z * normals[a, 2] - offsets[a]) <= max(noise, k_sigma * rms[a])
             and abs(x * normals[b, 0] + y * normals[b, 1] + z * normals[b, 2] - offsets[b]) <= max(noise, k_sigma * rms[b]))

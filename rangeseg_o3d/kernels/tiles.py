@@ -13,10 +13,11 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .kinds import PLANE
+from .creases import _crease_pair, _ray_meets_b
 from .inline import _incidence, _nearest_neighbour_model, _neighbour, _signed_distance
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("inline.py", "kinds.py")
+CACHE_DEPENDS = ("inline.py", "kinds.py", "creases.py")
 
 __all__ = ["label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
 
@@ -64,7 +65,7 @@ def _tile_candidates(tile_labels, kinds):
 
 @njit(cache=True, nogil=True)
 def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigma, k_sigma,
-                 inlier_factor):
+                 inlier_factor, tile_xyz, max_cos, least_cos):
     """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
 
     Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
@@ -79,8 +80,15 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     :func:`rangeseg_o3d.kernels.distance_stats` counts them with a zero rms); ``blocks`` the
     sums per tile and label that tile's pixels joined, in the same pass (see
     :func:`_block_sums_layout`): ``(first, owners, taken, sums, whole)``.
+
+    With ``tile_xyz`` (the tile means, flat (th*tw, 3); empty: off), a pixel two planes
+    both explain within ``k_sigma`` goes to the face its ray meets there when the planes
+    form a crease, whatever the noise says (:func:`_face_by_ray`; ``max_cos`` and
+    ``least_cos`` as :func:`rangeseg_o3d.kernels.crease_moves` takes them).
     """
     table, count = _tile_candidates(tile_labels, kinds)
+    normals, offsets, centroids = _crease_geometry(tile_labels, kinds, params, tile_xyz)
+    creased, pairs = _creased_tiles(table, count, kinds, normals, offsets, centroids, max_cos)
     n = kinds.shape[0]
     th, tw = tile_labels.shape
     out = np.zeros((height, width), np.int32)
@@ -139,6 +147,7 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 _add_block_row(taken_in, sums, slot, taken - before, offset, sx, sy, sz, noise2)
                 continue
             own_first = table[tr, tc, 0] == own
+            by_rays = creased[tr, tc]
             for c in range(c0, c1):
                 i = r * width + c
                 x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
@@ -146,6 +155,7 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     continue
                 noise = sigma[i]
                 best, best_j, best_score, best_dist, best_signed = 0, 0, np.inf, 0.0, 0.0
+                planes = 0  # bit j: candidate j is a plane that explains the pixel
                 for j in range(m):
                     k = table[tr, tc, j]
                     signed = _signed_distance(kinds[k], params[k], x, y, z)  # kept for the block sums
@@ -154,6 +164,8 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     limit = k_sigma * max(noise, rms[k])
                     if not (dist < limit or (j == 0 and own_first and dist <= limit)):
                         continue
+                    if kinds[k] == PLANE:
+                        planes |= 1 << j
                     # ...and of those, the one it is fewest noise sigmas off, each in the noise
                     # of its own distances (range noise x incidence cosine: a pipe's end cap
                     # faces the sensor, the pipe's flanks graze it; a box face seen edge-on
@@ -163,11 +175,93 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                     # neighbours must beat what is found so far
                     if score < best_score or (j == 0 and own_first and score <= best_score):
                         best, best_j, best_score, best_dist, best_signed = k, j, score, dist, signed
+                if by_rays and best != 0 and kinds[best] == PLANE and planes != 1 << best_j:
+                    j = _face_by_ray(table, pairs, tr, tc, m, best_j, planes, x, y, z, normals, offsets, least_cos)
+                    if j != best_j:
+                        best, best_j = table[tr, tc, j], j
+                        best_signed = _signed_distance(PLANE, params[best], x, y, z)
+                        best_dist = abs(best_signed)
                 if best != 0:
                     _take(out, inliers, squares, counts, r, c, best, best_dist, noise, inlier_factor)
                     _add_block_row(taken_in, sums, slot + best_j, 1, best_signed, x, y, z, noise * noise)
     whole = _whole_tiles(taken_in, first, count, th, tw, tile, height, width)
     return out, inliers, squares, counts, (first, owners, taken_in, sums, whole)
+
+
+@njit(cache=True, nogil=True)
+def _crease_geometry(tile_labels, kinds, params, tile_xyz):
+    # The planes with the sensor's side positive (normals, offsets) and each label's
+    # centroid from its tiles' finite means, as crease_moves' _crease_pair reads them;
+    # empty with no tile means
+    n = kinds.shape[0]
+    if tile_xyz.shape[0] == 0:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
+    normals, offsets, sums = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 4))
+    for k in range(n):
+        if kinds[k] == PLANE:
+            sign = -1.0 if params[k, 3] > 0 else 1.0
+            normals[k, 0], normals[k, 1], normals[k, 2] = sign * params[k, 0], sign * params[k, 1], sign * params[k, 2]
+            offsets[k] = sign * params[k, 3]
+    th, tw = tile_labels.shape
+    for t in range(th * tw):
+        k = tile_labels[t // tw, t % tw]
+        if 0 < k < n and kinds[k] == PLANE and np.isfinite(tile_xyz[t, 2]):
+            sums[k, 0] += tile_xyz[t, 0]
+            sums[k, 1] += tile_xyz[t, 1]
+            sums[k, 2] += tile_xyz[t, 2]
+            sums[k, 3] += 1.0
+    centroids = np.zeros((n, 3))
+    for k in range(n):
+        count = max(sums[k, 3], 1.0)
+        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    return normals, offsets, centroids
+
+
+@njit(cache=True, nogil=True)
+def _creased_tiles(table, count, kinds, normals, offsets, centroids, max_cos):
+    # Per tile: whether two of its candidate planes meet at a crease, and per pair of its
+    # candidates (j, q) crease_moves' _crease_pair (1 concave, -1 convex, 0 none); all
+    # none without the crease geometry
+    th, tw = count.shape
+    creased = np.zeros((th, tw), np.bool_)
+    pairs = np.zeros((th, tw, 9, 9) if normals.shape[0] else (0, 0, 9, 9), np.int8)
+    if normals.shape[0] == 0:
+        return creased, pairs
+    for tr in range(th):
+        for tc in range(tw):
+            m = count[tr, tc]
+            for j in range(m):
+                a = table[tr, tc, j]
+                for q in range(j + 1, m):
+                    b = table[tr, tc, q]
+                    if kinds[a] == PLANE and kinds[b] == PLANE:
+                        pair = _crease_pair(a, b, normals, offsets, centroids, max_cos)
+                        pairs[tr, tc, j, q] = pairs[tr, tc, q, j] = pair
+                        if pair != 0:
+                            creased[tr, tc] = True
+    return creased, pairs
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _face_by_ray(table, pairs, tr, tc, m, best_j, planes, x, y, z, normals, offsets, least_cos):
+    # The candidate (index j of tile (tr, tc)'s table) a plane pixel goes to: that of the first other
+    # plane explaining it (bit j of ``planes``) that forms a crease with the nearest one (``pairs``), on
+    # whose side of the crease the ray meets the surface (crease_moves' rule: the noise cannot
+    # tell the two faces apart there, the rays can); ``best_j`` when none
+    a = table[tr, tc, best_j]
+    dist = 0.0  # the ray only once a crease needs it (most pairs of planes there are none)
+    for j in range(m):
+        if j == best_j or not planes & (1 << j) or pairs[tr, tc, best_j, j] == 0:
+            continue
+        if dist == 0.0:
+            dist = np.sqrt(x * x + y * y + z * z)
+            if not dist > 0.0:
+                return best_j
+        # the point's own vector for the unit ray: every test scales by its length alike
+        if _ray_meets_b(x, y, z, a, table[tr, tc, j], pairs[tr, tc, best_j, j] > 0, normals, offsets,
+                        least_cos * dist):
+            return j
+    return best_j
 
 
 #: Sums per tile and label (:func:`label_pixels`' ``blocks``): signed distance, x, y, z, noise**2.
