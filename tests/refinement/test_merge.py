@@ -667,3 +667,45 @@ def test_crease_circle_exact_on_an_arc_and_finite_on_a_line():
     line = np.column_stack([np.linspace(0.0, 1.0, 20), np.full(20, 2.0), np.linspace(0.0, 1.0, 20)])
     assert _crease_circle_mean_square(line, first, second) == pytest.approx(0.024479742456083163, rel=1e-9)
     assert _crease_circle_mean_square(np.tile([1.0, 2.0, 3.0], (5, 1)), first, second) == 0.0
+
+
+def _mosaic(seed: int):
+    # the mixed-returns wall cut into pieces of random widths, some moved off it or turned:
+    # many pairs of planes, joined in chains, some held, some only within their noise
+    ctx, xyz, labels, fits, _ = _wall_with_mixed_returns_and_piece(0.0, seed)
+    rng = np.random.default_rng(seed)
+    cuts = np.sort(rng.choice(np.arange(3, 38), size=9, replace=False))
+    labels = np.zeros_like(labels)
+    for k, (start, stop) in enumerate(zip([0, *cuts], [*cuts, 40]), start=1):
+        labels[:, start:stop] = k
+        if rng.random() < 0.3:
+            xyz[:, start:stop, 2] += rng.choice([0.01, 0.04, 0.08])
+        elif rng.random() < 0.2:
+            xyz[:, start:stop, 2] += 0.1 * (xyz[:, start:stop, 0] - xyz[0, start, 0])
+    labels[:5] += 10 * (labels[:5] > 0)  # the top rows apart: pieces beside and above each other
+    keys = [int(k) for k in np.unique(labels) if k]
+    fits = {k: fit_plane(xyz[labels == k]) for k in keys}
+    adjacency = region_adjacency(labels)
+    held = {pair for pair in sorted(adjacency) if rng.random() < 0.3}
+    ctx = type(ctx)(rs.OrganizedCloud(xyz), ctx.fitter, ctx.sigma, 10)
+    return ctx, labels, fits, adjacency, held
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("disjoint", [True, False])
+def test_the_compiled_loop_over_pairs_of_planes_is_the_python_loop(monkeypatch, seed, disjoint):
+    # merge_plane_pairs makes the loop's tests on the same values in the same order: the
+    # same labels and the same models to the bit as _Unions' Python loop
+    from rangeseg_o3d.refinement import merge as merge_module
+
+    ctx, labels, fits, adjacency, held = _mosaic(seed)
+    options = dict(max_angle_deg=3.0, tolerance=0.2, disjoint=disjoint, rms_factor=1.3, held=held)
+    compiled = merge_regions(ctx, labels, fits, adjacency, **options)
+    monkeypatch.setattr(merge_module._Unions, "plane_pairs_compiled", lambda self, pairs: False)
+    python = merge_regions(ctx, labels, fits, adjacency, **options)
+    assert np.array_equal(compiled[0], python[0]) and compiled[2] == python[2]
+    assert compiled[1].keys() == python[1].keys() and len(compiled[1]) < len(fits)  # some joined
+    for k, model in python[1].items():
+        other = compiled[1][k]
+        assert (other.normal.tolist(), other.d, other.rms, other.inliers) == \
+            (model.normal.tolist(), model.d, model.rms, model.inliers)
