@@ -42,7 +42,7 @@ _SOURCES = {
     "sides": ("crease_sides",),
     "creases": ("crease_moves",),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),
-    "unions": ("merge_plane_pairs",),
+    "unions": ("merge_plane_pairs", "plane_candidates"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "window": ("window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",
                "ray_steps", "blind_spacing"),

@@ -20,7 +20,7 @@ from .linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "labelwise.py", "linalg.py")
 
-__all__ = ["merge_plane_pairs"]
+__all__ = ["merge_plane_pairs", "plane_candidates"]
 
 #: merge.PART_SIGMAS (the smaller part, turned from the union, within this many merge limits)
 _PART_SIGMAS = 5.0
@@ -154,3 +154,61 @@ def merge_plane_pairs(first, second, held, moments, normal, d, rms, count, root,
         if have_noise:
             noise[ra] += noise[rb]
     return joined
+
+
+@njit(cache=True, nogil=True)
+def _maximum(a, b):
+    # np.maximum of two floats (NaN when either is)
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
+
+
+@njit(cache=True, nogil=True)
+def plane_candidates(normals, offsets, rms, rows, noise, adjacent_first, adjacent_second, min_cosine, tolerance,
+                     disjoint, with_moments, with_noise, rms_factor):
+    """merge_candidates' pairs of planes: ``(first, second)`` row indices (``first < second``,
+    in row-major order) of the P planes (``normals`` (P, 3), ``offsets``, ``rms``) that are
+    adjacent (``adjacent_first/second``, rows) or, with ``disjoint``, whose parameters agree
+    (normals within ``min_cosine``, offsets within ``tolerance``) or, ``with_moments``
+    (``rows`` (P, 10), and ``with_noise`` each row's mean range ``noise``), whose smaller
+    region's points lie on the other's plane (merge.pieces_on_planes' test)."""
+    p = normals.shape[0]
+    wanted = np.zeros((p, p), np.bool_)
+    if disjoint:
+        for i in range(p):
+            for j in range(p):
+                dot = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+                sign = 1.0 if dot >= 0 else -1.0
+                wanted[i, j] = abs(dot) >= min_cosine and abs(offsets[i] - sign * offsets[j]) <= tolerance
+        if with_moments:
+            for i in range(p):  # row i: the points of region i against plane j
+                count_i = max(rows[i, 0], 1.0)
+                floor = 0.0
+                if with_noise:
+                    floor = noise_rms_bound(noise[i], count_i - 3.0, NOISE_CHI2_SIGMAS)
+                for j in range(p):
+                    if not count_i <= max(rows[j, 0], 1.0):
+                        continue  # only the smaller region's points are weighed
+                    limit = rms_factor * max(rms[i], rms[j])
+                    limit = limit * limit
+                    if with_noise:
+                        limit = _maximum(limit, floor * floor)
+                    if _mean_square_distance(rows[i], normals[j], offsets[j]) <= limit:
+                        wanted[i, j] = True
+                        wanted[j, i] = True
+    for k in range(adjacent_first.shape[0]):
+        wanted[adjacent_first[k], adjacent_second[k]] = True
+    count = 0
+    for i in range(p):
+        for j in range(i + 1, p):
+            count += wanted[i, j]
+    first = np.empty(count, np.int64)
+    second = np.empty(count, np.int64)
+    count = 0
+    for i in range(p):
+        for j in range(i + 1, p):
+            if wanted[i, j]:
+                first[count], second[count] = i, j
+                count += 1
+    return first, second

@@ -163,29 +163,23 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
     out = []
     planes = [k for k in keys if isinstance(models[k], Plane)]
     if len(planes) > 1:
-        # planes: every pair's parameter test at once
+        # planes: every pair's tests in one compiled pass
         normals = np.array([models[k].normal for k in planes])
-        offsets = np.array([models[k].d for k in planes])
-        dots = normals @ normals.T
-        sign = np.where(dots >= 0, 1.0, -1.0)
-        close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
-        close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
-        if moments is not None:
-            rows = np.zeros((len(planes), moments.shape[1]))
+        offsets = np.array([float(models[k].d) for k in planes])
+        rows, own_noise = np.zeros((len(planes), 10)), np.zeros(len(planes))
+        if moments is not None and disjoint:
             inside = np.array(planes) < len(moments)
             rows[inside] = moments[np.array(planes)[inside]]
-            own_noise = None
             if noise is not None:
-                own_noise = np.zeros(len(planes))
                 own_noise[inside] = noise[np.array(planes)[inside]]
-            close |= pieces_on_planes(normals, offsets, np.array([models[k].rms for k in planes]),
-                                      rows, rms_factor, own_noise)
-        wanted = close if disjoint else np.zeros_like(close)
         position = {k: i for i, k in enumerate(planes)}
-        for a, b in adjacency:
-            if a in position and b in position:
-                wanted[position[a], position[b]] = True
-        first, second = np.nonzero(np.triu(wanted, 1))
+        adjacent = np.array([(position[a], position[b]) for a, b in adjacency if a in position and b in position],
+                            dtype=np.int64).reshape(-1, 2)
+        first, second = kernels.plane_candidates(
+            normals, offsets, np.array([float(models[k].rms) for k in planes]), rows, own_noise,
+            adjacent[:, 0].copy(), adjacent[:, 1].copy(), float(np.cos(np.radians(max_angle_deg)) - 1e-12),
+            float(tolerance), bool(disjoint), moments is not None and disjoint, noise is not None,
+            float(rms_factor))
         out.extend((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist()))
     others = [k for k in keys if not isinstance(models[k], Plane)]
     for i, a in enumerate(others):
