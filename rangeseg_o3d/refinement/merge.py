@@ -13,6 +13,7 @@ import numpy as np
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .._numeric import median, rows_at
 from ..fitting.batch_planes import plane_rms_from_moments, planes_from_moments
+from ..fitting.classify import refit_planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
@@ -162,29 +163,23 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
     out = []
     planes = [k for k in keys if isinstance(models[k], Plane)]
     if len(planes) > 1:
-        # planes: every pair's parameter test at once
+        # planes: every pair's tests in one compiled pass
         normals = np.array([models[k].normal for k in planes])
-        offsets = np.array([models[k].d for k in planes])
-        dots = normals @ normals.T
-        sign = np.where(dots >= 0, 1.0, -1.0)
-        close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
-        close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
-        if moments is not None:
-            rows = np.zeros((len(planes), moments.shape[1]))
+        offsets = np.array([float(models[k].d) for k in planes])
+        rows, own_noise = np.zeros((len(planes), 10)), np.zeros(len(planes))
+        if moments is not None and disjoint:
             inside = np.array(planes) < len(moments)
             rows[inside] = moments[np.array(planes)[inside]]
-            own_noise = None
             if noise is not None:
-                own_noise = np.zeros(len(planes))
                 own_noise[inside] = noise[np.array(planes)[inside]]
-            close |= pieces_on_planes(normals, offsets, np.array([models[k].rms for k in planes]),
-                                      rows, rms_factor, own_noise)
-        wanted = close if disjoint else np.zeros_like(close)
         position = {k: i for i, k in enumerate(planes)}
-        for a, b in adjacency:
-            if a in position and b in position:
-                wanted[position[a], position[b]] = True
-        first, second = np.nonzero(np.triu(wanted, 1))
+        adjacent = np.array([(position[a], position[b]) for a, b in adjacency if a in position and b in position],
+                            dtype=np.int64).reshape(-1, 2)
+        first, second = kernels.plane_candidates(
+            normals, offsets, np.array([float(models[k].rms) for k in planes]), rows, own_noise,
+            adjacent[:, 0].copy(), adjacent[:, 1].copy(), float(np.cos(np.radians(max_angle_deg)) - 1e-12),
+            float(tolerance), bool(disjoint), moments is not None and disjoint, noise is not None,
+            float(rms_factor))
         out.extend((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist()))
     others = [k for k in keys if not isinstance(models[k], Plane)]
     for i, a in enumerate(others):
@@ -231,6 +226,16 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
     if not pairs:
         return labels, fits, adjacency
+    if unions.plane_pairs_compiled(pairs):
+        # pairs of planes join only planes and other pairs only their own kind: the planes'
+        # loop runs apart, in their order (one compiled pass), the others' below
+        planar = [_both_planes(fits, pair) for pair in pairs]
+        unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg)
+        pairs = [pair for pair, flat in zip(pairs, planar) if not flat]
+        if not pairs:
+            lut = unions.lookup()
+            mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
+            return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
     unions.add(pairs)
     for a, b in pairs:
         ra, rb = unions.find(a), unions.find(b)
@@ -254,6 +259,10 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
     return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+
+
+def _both_planes(fits: dict, pair) -> bool:
+    return isinstance(fits.get(pair[0]), Plane) and isinstance(fits.get(pair[1]), Plane)
 
 
 def _noise_sums(ctx: Context, labels: np.ndarray, rows: int) -> np.ndarray:
@@ -355,6 +364,47 @@ class _Unions:
                 self.cache[(a, b)] = _NO_UNION
                 return
         self.cache[(a, b)] = self.ctx.fitter.refit_from_moments(row[None, :], [fits[a]])[0]
+
+    def plane_pairs_compiled(self, pairs) -> bool:
+        """Whether :meth:`merge_planes` can take the pairs of planes among ``pairs``: the
+        union-find is fresh, every plane has its moments and the fitter refits planes from
+        moments as :func:`rangeseg_o3d.fitting.classify.refit_planes_from_moments` does."""
+        return (self.moments is not None and not self.cache and self.noise is None
+                and all(root == k for k, root in self.root.items())
+                and self.ctx.fitter.plugin.refit_moments is refit_planes_from_moments
+                and any(_both_planes(self.fits, pair) for pair in pairs)
+                and max(max(pair) for pair in pairs) < len(self.moments))
+
+    def merge_planes(self, pairs, held, max_angle_deg: float) -> None:
+        """merge_regions' loop over ``pairs`` of planes (in order): the same tests as
+        :meth:`model`, :meth:`plane_within_larger`, :meth:`parts_on` and
+        :meth:`part_centred` on the same values, the parts joined as :meth:`join` does, in one
+        compiled pass (:func:`rangeseg_o3d.kernels.merge_plane_pairs`). ``held``: the pairs
+        held as merge_regions' ``held``."""
+        n = len(self.moments)
+        keys = sorted({k for pair in pairs for k in pair})
+        normal, d, rms, count = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
+        for k in keys:
+            model = self.fits[k]
+            normal[k], d[k], rms[k], count[k] = model.normal, model.d, model.rms, model.inliers
+        root = np.arange(n, dtype=np.int64)
+        first, second = np.array(pairs, dtype=np.int64).reshape(-1, 2).T.copy()
+        flat = self.labels.ravel()
+        if flat.dtype != np.int32:  # (the label images' type: one compiled signature)
+            flat = flat.astype(np.int32)
+        params = self.ctx.fitter.params
+        joined = kernels.merge_plane_pairs(
+            first, second, np.array([pair in held for pair in pairs], dtype=np.bool_), self.moments,
+            normal, d, rms, count, root, np.ascontiguousarray(flat),
+            np.ascontiguousarray(self.ctx.sigma.ravel(), dtype=np.float64), float(self.rms_factor),
+            float(max_angle_deg), float(params["plane_rms"]), float(params["rms_per_range2"]),
+            int(params["min_points"]), float(params["noise_floor"]))
+        for k in keys:
+            if root[k] != k:
+                self.root[k] = int(root[k])
+                self.fits.pop(k)
+            elif joined[k]:
+                self.fits[k] = Plane(normal=normal[k], d=float(d[k]), rms=float(rms[k]), inliers=int(count[k]))
 
     def part_rms(self, k: int) -> float:
         """The rms a union of root ``k`` is compared with: the larger of its model's and

@@ -667,3 +667,94 @@ def test_crease_circle_exact_on_an_arc_and_finite_on_a_line():
     line = np.column_stack([np.linspace(0.0, 1.0, 20), np.full(20, 2.0), np.linspace(0.0, 1.0, 20)])
     assert _crease_circle_mean_square(line, first, second) == pytest.approx(0.024479742456083163, rel=1e-9)
     assert _crease_circle_mean_square(np.tile([1.0, 2.0, 3.0], (5, 1)), first, second) == 0.0
+
+
+def _mosaic(seed: int):
+    # the mixed-returns wall cut into pieces of random widths, some moved off it or turned:
+    # many pairs of planes, joined in chains, some held, some only within their noise
+    ctx, xyz, labels, fits, _ = _wall_with_mixed_returns_and_piece(0.0, seed)
+    rng = np.random.default_rng(seed)
+    cuts = np.sort(rng.choice(np.arange(3, 38), size=9, replace=False))
+    labels = np.zeros_like(labels)
+    for k, (start, stop) in enumerate(zip([0, *cuts], [*cuts, 40]), start=1):
+        labels[:, start:stop] = k
+        if rng.random() < 0.3:
+            xyz[:, start:stop, 2] += rng.choice([0.01, 0.04, 0.08])
+        elif rng.random() < 0.2:
+            xyz[:, start:stop, 2] += 0.1 * (xyz[:, start:stop, 0] - xyz[0, start, 0])
+    labels[:5] += 10 * (labels[:5] > 0)  # the top rows apart: pieces beside and above each other
+    keys = [int(k) for k in np.unique(labels) if k]
+    fits = {k: fit_plane(xyz[labels == k]) for k in keys}
+    adjacency = region_adjacency(labels)
+    held = {pair for pair in sorted(adjacency) if rng.random() < 0.3}
+    ctx = type(ctx)(rs.OrganizedCloud(xyz), ctx.fitter, ctx.sigma, 10)
+    return ctx, labels, fits, adjacency, held
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("disjoint", [True, False])
+def test_the_compiled_loop_over_pairs_of_planes_is_the_python_loop(monkeypatch, seed, disjoint):
+    # merge_plane_pairs makes the loop's tests on the same values in the same order: the
+    # same labels and the same models to the bit as _Unions' Python loop
+    from rangeseg_o3d.refinement import merge as merge_module
+
+    ctx, labels, fits, adjacency, held = _mosaic(seed)
+    options = dict(max_angle_deg=3.0, tolerance=0.2, disjoint=disjoint, rms_factor=1.3, held=held)
+    compiled = merge_regions(ctx, labels, fits, adjacency, **options)
+    monkeypatch.setattr(merge_module._Unions, "plane_pairs_compiled", lambda self, pairs: False)
+    python = merge_regions(ctx, labels, fits, adjacency, **options)
+    assert np.array_equal(compiled[0], python[0]) and compiled[2] == python[2]
+    assert compiled[1].keys() == python[1].keys() and len(compiled[1]) < len(fits)  # some joined
+    for k, model in python[1].items():
+        other = compiled[1][k]
+        assert (other.normal.tolist(), other.d, other.rms, other.inliers) == \
+            (model.normal.tolist(), model.d, model.rms, model.inliers)
+
+
+def _candidates_by_arrays(models, *, max_angle_deg, tolerance, adjacency, disjoint, moments, rms_factor, noise):
+    # merge_candidates' pairs of planes as whole-matrix numpy tests (its earlier form)
+    from rangeseg_o3d.refinement.merge import pieces_on_planes
+
+    planes = sorted(models)
+    normals = np.array([models[k].normal for k in planes])
+    offsets = np.array([models[k].d for k in planes])
+    dots = normals @ normals.T
+    sign = np.where(dots >= 0, 1.0, -1.0)
+    close = np.abs(dots) >= np.cos(np.radians(max_angle_deg)) - 1e-12
+    close &= np.abs(offsets[:, None] - sign * offsets[None, :]) <= tolerance
+    if moments is not None:
+        close |= pieces_on_planes(normals, offsets, np.array([models[k].rms for k in planes]),
+                                  moments[planes], rms_factor, None if noise is None else noise[planes])
+    wanted = close if disjoint else np.zeros_like(close)
+    for a, b in adjacency:
+        wanted[planes.index(a), planes.index(b)] = True
+    first, second = np.nonzero(np.triu(wanted, 1))
+    return sorted(((planes[i], planes[j]) for i, j in zip(first, second)),
+                  key=lambda ab: (models[ab[0]].rms + models[ab[1]].rms, ab))
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("disjoint", [True, False])
+def test_merge_candidates_of_planes_are_the_whole_matrix_tests(seed, disjoint):
+    # pieces of a few walls (some turned a little, some moved), their moments and noise: the
+    # compiled pass finds the pairs the matrix tests find, in the same order
+    from rangeseg_o3d.fitting.batch_planes import region_moments
+
+    rng = np.random.default_rng(seed)
+    xyz = plane_grid(24, 48, noise=0.004, seed=seed)
+    labels = np.zeros((24, 48), np.int32)
+    for k, (start, stop) in enumerate(zip(range(0, 48, 6), range(6, 49, 6)), start=1):
+        labels[:12, start:stop], labels[12:, start:stop] = k, k + 8
+        xyz[:12, start:stop, 2] += rng.choice([0.0, 0.0, 0.003, 0.02, 0.2])
+        xyz[12:, start:stop, 2] += rng.choice([0.0, 0.01]) * (xyz[12:, start:stop, 0] - xyz[12, start, 0])
+    models = {k: fit_plane(xyz[labels == k]) for k in range(1, 17)}
+    moments = region_moments(xyz.reshape(-1, 3), labels.ravel())
+    noise = rng.uniform(0.001, 0.006, len(moments))
+    adjacency = {pair for pair in region_adjacency(labels) if rng.random() < 0.5}
+    for with_moments in (False, True):
+        options = dict(max_angle_deg=2.0, tolerance=0.01, adjacency=adjacency, disjoint=disjoint,
+                       moments=moments if with_moments else None, rms_factor=1.3,
+                       noise=noise if with_moments and seed % 2 else None)
+        expected = _candidates_by_arrays(models, **options)
+        assert merge_candidates(models, **options) == expected
+        assert len(expected) > len(adjacency) or not disjoint  # some pairs apart
