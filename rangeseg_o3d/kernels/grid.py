@@ -14,7 +14,7 @@ CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["group_by_label", "count_either_side", "jump_mask", "adjacency_matrix", "grow_rings", "grow_rings_in_boxes", "claim_rings",
            "claim_rings_in_boxes", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "moved_labels", "member_pixels", "box_members", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "moved_labels", "member_pixels", "member_counts", "group_counted", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -39,9 +39,40 @@ def group_members(labels, members):
 
 @njit(cache=True, nogil=True)
 def _sort_by_label(labels, keep):
-    # The counting sort of the labels k < len(keep) with keep[k]. Labels come in runs along
-    # the rows: a run's count and write position are kept in registers, where a store and
-    # reload per pixel would chain each pixel to the last.
+    # The counting sort of the labels k < len(keep) with keep[k].
+    return _fill_by_label(labels, keep, _count_by_label(labels, keep))
+
+
+@njit(cache=True, nogil=True)
+def member_counts(labels, members):
+    """Pixel count per label ``k`` with ``members[k]`` (``0 < k < len(members)``; 0 for the
+    others): the first pass of :func:`group_members`, whose second (:func:`group_counted`)
+    may then be asked for fewer labels."""
+    keep = members.copy()
+    if keep.shape[0]:
+        keep[0] = False
+    return _count_by_label(labels, keep)[1:]
+
+
+@njit(cache=True, nogil=True)
+def group_counted(labels, members, counts):
+    """:func:`group_members` of ``members`` given ``counts`` (:func:`member_counts` of
+    ``members`` or of more labels): one pass over the labels instead of two."""
+    keep = members.copy()
+    if keep.shape[0]:
+        keep[0] = False
+    shifted = np.zeros(keep.shape[0] + 1, np.int64)
+    for k in range(keep.shape[0]):
+        if keep[k]:
+            shifted[k + 1] = counts[k]
+    return _fill_by_label(labels, keep, shifted)
+
+
+@njit(cache=True, nogil=True)
+def _count_by_label(labels, keep):
+    # counts[k + 1]: pixels of label k (k < len(keep), keep[k]). Labels come in runs along
+    # the rows: a run's count is kept in a register, where a store and reload per pixel
+    # would chain each pixel to the last.
     n = keep.shape[0]
     counts = np.zeros(n + 1, np.int64)
     last, run, kept = -1, 0, False
@@ -55,6 +86,14 @@ def _sort_by_label(labels, keep):
         run += 1
     if kept:
         counts[last + 1] += run
+    return counts
+
+
+@njit(cache=True, nogil=True)
+def _fill_by_label(labels, keep, counts):
+    # (order, starts) of the kept labels from their counts (counts[k + 1], as
+    # _count_by_label's); a run's write position is kept in a register
+    n = keep.shape[0]
     starts = np.cumsum(counts)
     fill = starts[:-1].copy()
     order = np.empty(starts[-1], np.int64)

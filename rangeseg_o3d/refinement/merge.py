@@ -570,19 +570,11 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
              and (only is None or a in only or b in only)]
     if not mixed:  # no curved region touches another kind: no pass over the grid
         return labels, fits, adjacency
-    regions = region_indices(labels, only={k for pair in mixed for k in pair})
-    sizes = {k: idx.size for k, idx in regions.items()}
-    pairs = []
-    for a, b in mixed:
-        if a not in sizes or b not in sizes:
-            continue
-        big, small = (a, b) if sizes[a] >= sizes[b] else (b, a)
-        if not isinstance(fits[big], Plane):
-            pairs.append((sizes[small], big, small))
+    regions, pairs, n = _curved_pairs(labels, fits, mixed)
     if not pairs:
         return labels, fits, adjacency
     fits = dict(fits)
-    lut = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int32)
+    lut = np.arange(n, dtype=np.int32)
     pairs.sort()
     # the pretest of every pair in one compiled pass, against the models as they stand now
     # (a pair whose curved region took a piece since is tested again below)
@@ -627,6 +619,39 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     # nothing merged: the labels as they came, as the early returns above give them (a
     # copy of the frame costs 0.2-0.5 ms on a 640 x 480 frame)
     return (_relabelled(labels, lut) if merged else labels), fits, adjacency
+
+
+def _curved_pairs(labels: np.ndarray, fits: dict, mixed: list):
+    """``(regions, pairs, n)`` of merge_into_curved: the ``(size of small, big, small)`` of
+    each pair of ``mixed`` whose larger region (more pixels) is curved, the flat pixels
+    (increasing) of those pairs' labels only, and ``labels.max() + 1``.
+
+    The sizes come from one counting pass over the labels of ``mixed``; the pixels are
+    gathered for the pairs' labels only (a table's plane beside a mug's strip is counted,
+    not gathered: on a 640 x 480 frame 200 000 pixels, where the pairs hold 3000-16000).
+    """
+    flat = np.ascontiguousarray(labels.ravel())
+    if flat.dtype != np.int32:  # (the label images' type: one compiled signature)
+        flat = flat.astype(np.int32)
+    n = int(flat.max(initial=0)) + 1
+    members = np.zeros(n, bool)
+    members[[k for pair in mixed for k in pair if 0 < k < n]] = True
+    counts = kernels.member_counts(flat, members)
+    sizes = counts.tolist()
+    pairs = []
+    for a, b in mixed:
+        if not (0 < a < n and 0 < b < n and sizes[a] and sizes[b]):
+            continue  # a label without pixels
+        big, small = (a, b) if sizes[a] >= sizes[b] else (b, a)
+        if not isinstance(fits[big], Plane):
+            pairs.append((sizes[small], big, small))
+    if not pairs:
+        return {}, pairs, n
+    wanted = np.zeros(n, bool)
+    wanted[[k for _, big, small in pairs for k in (big, small)]] = True
+    order, starts = kernels.group_counted(flat, wanted, counts)
+    bounds = starts.tolist()  # Python ints: slicing by numpy scalars costs more than the slice
+    return {k: order[bounds[k]:bounds[k + 1]] for k in np.flatnonzero(wanted).tolist()}, pairs, n
 
 
 def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas: float) -> np.ndarray:

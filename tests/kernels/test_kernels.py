@@ -390,6 +390,17 @@ def test_group_by_label_matches_a_stable_sort(seed):
     assert empty_order.size == 0 and (empty_starts == 0).all()
 
 
+def _runs_and_members(seed):
+    # label runs along a flat image (negatives, 0 and labels beyond the mask among them) and
+    # a mask of labels 0, 2, 5 and 8
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(1, 40, 400)
+    labels = np.repeat(rng.integers(-2, 12, runs.size), runs).astype(np.int32)
+    members = np.zeros(9, bool)
+    members[[0, 2, 5, 8]] = True
+    return labels, members
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_group_members_and_region_indices_of_some_labels_match_the_full_grouping(seed):
     # only the member labels are grouped (each in increasing order); others, 0, negative
@@ -398,11 +409,7 @@ def test_group_members_and_region_indices_of_some_labels_match_the_full_grouping
     from rangeseg_o3d.fitting.region_fitter import region_indices
     from rangeseg_o3d.kernels import group_members
 
-    rng = np.random.default_rng(seed)
-    runs = rng.integers(1, 40, 400)
-    labels = np.repeat(rng.integers(-2, 12, runs.size), runs).astype(np.int32)
-    members = np.zeros(9, bool)
-    members[[0, 2, 5, 8]] = True
+    labels, members = _runs_and_members(seed)
     order, starts = group_members(labels, members)
     for k in range(9):
         expected = np.flatnonzero(labels == k) if k in (2, 5, 8) else np.zeros(0, np.int64)
@@ -415,6 +422,25 @@ def test_group_members_and_region_indices_of_some_labels_match_the_full_grouping
     assert sorted(some) == [k for k in (3, 11) if k in full]
     for k, idx in some.items():
         np.testing.assert_array_equal(idx, full[k])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_member_counts_then_group_counted_of_fewer_labels_match_group_members(seed):
+    # the counts of some labels (0, negatives and labels beyond the mask not counted), then
+    # the grouping of a subset of them from those counts: group_members of the subset
+    from rangeseg_o3d.kernels import group_counted, group_members, member_counts
+
+    labels, members = _runs_and_members(seed)
+    counts = member_counts(labels, members)
+    assert counts.shape == (9,)
+    np.testing.assert_array_equal(counts, [np.count_nonzero(labels == k) if k in (2, 5, 8) else 0 for k in range(9)])
+    fewer = np.zeros(9, bool)
+    fewer[[0, 5, 8]] = True
+    order, starts = group_counted(labels, fewer, counts)
+    expected_order, expected_starts = group_members(labels, fewer)
+    np.testing.assert_array_equal(order, expected_order)
+    np.testing.assert_array_equal(starts, expected_starts)
+    assert order.size == np.count_nonzero(np.isin(labels, [5, 8]))
 
 
 def test_batched_planes_of_a_few_blobs_in_a_large_image_are_those_of_the_blobs_alone():
