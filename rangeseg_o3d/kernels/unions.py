@@ -22,10 +22,6 @@ CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "labelwise.py", "linalg.py"
 
 __all__ = ["merge_plane_pairs", "plane_candidates"]
 
-#: merge.PART_SIGMAS (the smaller part, turned from the union, within this many merge limits)
-_PART_SIGMAS = 5.0
-
-
 @njit(cache=True, nogil=True)
 def _find(root, k):
     while root[k] != k:
@@ -83,10 +79,10 @@ def _noise_by_root(labels, sigma, root, n):
 
 @njit(cache=True, nogil=True)
 def merge_plane_pairs(first, second, held, moments, normal, d, rms, count, root, labels, sigma,
-                      rms_factor, max_angle_deg, plane_rms, rms_per_range2, min_points, noise_floor):
+                      rms_factor, max_angle_deg, part_sigmas, plane_rms, rms_per_range2, min_points, noise_floor):
     """merge_regions' loop over its candidate pairs of planes ``(first[i], second[i])``, in
     that order; ``held[i]``: the pair is held (its smaller part must lie on the union's
-    plane on the mean). Per label (row): ``moments`` (K, 10), the model's ``normal``, ``d``,
+    plane on the mean; ``part_sigmas``: merge.PART_SIGMAS). Per label (row): ``moments`` (K, 10), the model's ``normal``, ``d``,
     ``rms`` and ``count`` (inliers), ``root`` (union-find parents, labels their own at the
     start); ``labels`` and ``sigma`` the flat label image and range noise (each root's noise
     summed when a union first needs it). The fitter's plane refit from moments takes
@@ -134,7 +130,7 @@ def merge_plane_pairs(first, second, held, moments, normal, d, rms, count, root,
         small = ra if moments[ra, 0] <= moments[rb, 0] else rb
         # the smaller part, turned from the union, on its plane (_Unions.parts_on)
         if not _angle_deg(normal[small], union_normal) <= max_angle_deg:
-            reach = _PART_SIGMAS * limit
+            reach = part_sigmas * limit
             if not _mean_square_distance(moments[small], union_normal, union_d) <= reach * reach:
                 continue
         if held[i]:  # on the union's plane on the mean (_Unions.part_centred)

@@ -397,7 +397,7 @@ class _Unions:
             first, second, np.array([pair in held for pair in pairs], dtype=np.bool_), self.moments,
             normal, d, rms, count, root, np.ascontiguousarray(flat),
             np.ascontiguousarray(self.ctx.sigma.ravel(), dtype=np.float64), float(self.rms_factor),
-            float(max_angle_deg), float(params["plane_rms"]), float(params["rms_per_range2"]),
+            float(max_angle_deg), PART_SIGMAS, float(params["plane_rms"]), float(params["rms_per_range2"]),
             int(params["min_points"]), float(params["noise_floor"]))
         for k in keys:
             if root[k] != k:
