@@ -14,7 +14,11 @@ from rangeseg_o3d import OrganizedCloud
 from rangeseg_o3d.acquisition import CaptureConfig, simulated_capture
 from rangeseg_o3d.cli import capture as cli
 from rangeseg_o3d.acquisition.consensus import consensus
+from rangeseg_o3d.acquisition.lms2xx import decode_telegram, parse_scan
+from rangeseg_o3d.acquisition.sim.clock import SimClock
 from rangeseg_o3d.acquisition.sim.faults import LineFaults
+from rangeseg_o3d.acquisition.sim.lms200 import VirtualLms200
+from rangeseg_o3d.acquisition.sim.powercube import VirtualPowerCube
 from rangeseg_o3d.acquisition.simulate import simulation_config
 
 from acquisition_helpers import wall_ranges
@@ -72,8 +76,39 @@ def test_three_percent_faults_every_row_equals_the_fault_free_capture():
                                            "lms": {"timeout": 3.0, "probe_timeout": 0.2}})
     clean = simulated_capture(config, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
     noisy = simulated_capture(config, faults=0.03, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
-    np.testing.assert_array_equal(noisy.ranges, clean.ranges)
-    np.testing.assert_array_equal(noisy.geometry.tilt_angles, clean.geometry.tilt_angles)
+    # The tilt module does not check the BCC (like some real ones): a move target hit in its last
+    # mantissa bits is obeyed, and the unit stops up to the position tolerance (1e-6 rad in the
+    # simulation) off. The capture must then record the angle it reached, with the ranges measured there.
+    tolerance = simulation_config(config, lms_port="-", tilt_port="-", time_scale=0.05).tilt.position_tolerance
+    tilts, clean_tilts = noisy.geometry.tilt_angles, clean.geometry.tilt_angles
+    assert np.all(np.abs(tilts - clean_tilts) <= tolerance), tilts - clean_tilts
+    same = tilts == clean_tilts
+    np.testing.assert_array_equal(noisy.ranges[same], clean.ranges[same])
+    for row, tilt in enumerate(tilts):
+        np.testing.assert_array_equal(noisy.ranges[row], ranges_measured_at(tilt, noise=0.005, seed=5),
+                                      err_msg=f"row {row} at tilt {tilt!r}")
+
+
+def ranges_measured_at(tilt, *, noise, seed):
+    """The simulated LMS200's scan at ``tilt`` as the capture decodes it (mm units, 181 beams)."""
+    lms = VirtualLms200(SimClock(1.0), row_ranges=wall, tilt_at=lambda t: tilt, noise=noise, seed=seed)
+    lms.config[6] = 1  # mm units, as the capture configures the device
+    return parse_scan(decode_telegram(lms._scan_telegram(tilt))).ranges
+
+
+def test_a_unit_stopping_inside_the_tolerance_is_recorded_where_it_stopped(monkeypatch):
+    # what a corrupted move target does on the 3 % line above, made to happen on every move
+    offset = 5e-7  # rad, inside the simulation's 1e-6 position tolerance (17 float32 steps at 0.3 rad)
+    obey = VirtualPowerCube._start_move
+    monkeypatch.setattr(VirtualPowerCube, "_start_move", lambda cube, target: obey(cube, target + offset))
+    config = CaptureConfig.model_validate({"schedule": {"rows": 3, "start": -0.3, "stop": 0.2}})
+    cloud = simulated_capture(config, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
+    commanded = config.schedule.angles()
+    np.testing.assert_allclose(cloud.geometry.tilt_angles - commanded, offset, atol=5e-8)  # float32 angles
+    for row, tilt in enumerate(cloud.geometry.tilt_angles):
+        np.testing.assert_array_equal(cloud.ranges[row], ranges_measured_at(tilt, noise=0.005, seed=5))
+        assert not np.array_equal(cloud.ranges[row], ranges_measured_at(float(np.float32(commanded[row])),
+                                                                          noise=0.005, seed=5))
 
 
 def test_progress_is_quiet_when_not_a_terminal_and_complete_on_one():
