@@ -16,6 +16,7 @@ install never compiles here: ``scripts/bootstrap.sh`` warms the checkout up inst
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -31,6 +32,29 @@ def _compiled_kernels(package: Path) -> list[Path]:
     return [p for p in package.rglob("__pycache__/*") if p.suffix in (".nbi", ".nbc")]
 
 
+def _seed_from_checkout(source: Path, package: Path) -> int:
+    """Copy the kernels the checkout ``source`` has compiled into the build folder ``package``.
+
+    Only when every one of them is newer than every source file of the package (a checkout
+    warmed up after its last edit, as ``scripts/bootstrap.sh`` leaves it): a kernel compiled
+    before an edit to a callee in another file would pass numba's check of its own file.
+    numba still checks each copied kernel against its module's content, numba version and
+    CPU, and compiles again what does not match. Returns the number of files copied.
+    """
+    kernels = _compiled_kernels(source)
+    if not kernels or source.resolve() == package.resolve():
+        return 0
+    newest_source = max(p.stat().st_mtime for p in source.rglob("*.py"))
+    if min(p.stat().st_mtime for p in kernels) <= newest_source:
+        return 0
+    for kernel in kernels:
+        target = package / kernel.relative_to(source)
+        if target.parent.parent.is_dir():  # the module's folder is part of the wheel
+            target.parent.mkdir(exist_ok=True)
+            shutil.copy2(kernel, target)
+    return len(kernels)
+
+
 class BuildPyWithKernels(build_py):
     """``build_py``, then the kernels compiled into the build folder (see the module docstring)."""
 
@@ -43,6 +67,7 @@ class BuildPyWithKernels(build_py):
         # that has changed since (numba checks each kernel against its own file only).
         for stale in _compiled_kernels(package):
             stale.unlink()
+        seeded = _seed_from_checkout(Path(__file__).resolve().parent / "rangeseg_o3d", package)
         env = {k: v for k, v in os.environ.items()
                if k not in ("NUMBA_CACHE_DIR", "RANGESEG_CACHE_DIR", "NUMBA_DISABLE_JIT", "PYTHONPATH")}
         env.update(PYTHONPATH=str(Path(self.build_lib).resolve()), PYTHONDONTWRITEBYTECODE="1")
@@ -57,7 +82,7 @@ class BuildPyWithKernels(build_py):
                 partial.unlink()
             return
         print(f"rangeseg_o3d: {len(_compiled_kernels(package))} compiled kernel files in the wheel "
-              f"({time.perf_counter() - start:.0f} s)")
+              f"({seeded} taken from the checkout; {time.perf_counter() - start:.0f} s)")
 
 
 setup(cmdclass={"build_py": BuildPyWithKernels})

@@ -2,9 +2,12 @@
 
 Steps, each printed with its figures:
 
-1. ``python -m build`` (sdist, then the wheel from the sdist); both must carry the presets.
-   Building the wheel compiles the numba kernels into it (setup.py): the build time includes
-   that compilation, and the step says how many compiled kernels the wheel carries.
+1. ``python -m build`` without kernels (the sdist, then a wheel from the sdist), then
+   ``python -m build --wheel`` from the tree, the wheel installed next: all must carry the
+   presets, and both wheels the same files. Building the tree's wheel compiles the numba
+   kernels into it (setup.py; it takes those the checkout compiled after its last edit, as
+   ``scripts/bootstrap.sh`` leaves a fresh clone, and compiles the rest): the step says how
+   long and how many compiled kernels the wheel carries.
 2. A fresh venv from an interpreter every user may run; the wheel installed with
    ``pip --no-deps``; the dependencies are those of the interpreter running this script
    (a ``.pth`` file), so nothing is downloaded but the build's own requirements (setuptools,
@@ -91,12 +94,26 @@ def clean_env(**extra) -> dict:
     return env
 
 
+def _names(wheel: Path) -> set[str]:
+    with zipfile.ZipFile(wheel) as archive:
+        return {n for n in archive.namelist() if "/__pycache__/" not in n and ".dist-info/RECORD" not in n}
+
+
 def build(dist: Path, precompile: bool = True) -> tuple[Path, Path]:
+    """The sdist and a wheel built from it (without kernels), then the wheel to install, from the tree."""
+    start = time.perf_counter()
+    run([sys.executable, "-m", "build", "--outdir", dist / "from-sdist", ROOT],
+        env=clean_env(RANGESEG_NO_PRECOMPILE="1"), timeout=1800)
+    (sdist,) = (dist / "from-sdist").glob("*.tar.gz")
+    (from_sdist,) = (dist / "from-sdist").glob("*.whl")
+    sdist_time = time.perf_counter() - start
     start = time.perf_counter()
     env = clean_env() if precompile else clean_env(RANGESEG_NO_PRECOMPILE="1")
-    run([sys.executable, "-m", "build", "--outdir", dist, ROOT], env=env, timeout=1800)
-    (sdist,) = dist.glob("*.tar.gz")
+    done = run([sys.executable, "-m", "build", "--wheel", "--outdir", dist, ROOT], env=env, timeout=1800)
     (wheel,) = dist.glob("*.whl")
+    if _names(from_sdist) != _names(wheel):
+        raise StepFailed(f"FAILED: the wheel built from the sdist differs from the tree's in "
+                         f"{sorted(_names(from_sdist) ^ _names(wheel))[:20]}")
     presets = sorted(p.name for p in (ROOT / "configs").glob("*.yaml"))
     with tarfile.open(sdist) as archive:
         in_sdist = sorted(Path(n).name for n in archive.getnames() if "/configs/" in n and n.endswith(".yaml"))
@@ -105,8 +122,11 @@ def build(dist: Path, precompile: bool = True) -> tuple[Path, Path]:
         kernels = sum(1 for n in archive.namelist() if n.endswith(".nbi"))
     if in_sdist != presets or in_wheel != presets:
         raise StepFailed(f"FAILED: presets {presets}; sdist has {in_sdist}, wheel has {in_wheel}")
-    print(f"build: sdist and wheel in {time.perf_counter() - start:.1f} s; both carry the {len(presets)} presets; "
-          f"the wheel carries {kernels} compiled kernels")
+    seeded = [line for line in done.stdout.splitlines() if "compiled kernel files in the wheel" in line]
+    print(f"build: sdist and a wheel from it (no kernels) in {sdist_time:.1f} s; both carry the {len(presets)} "
+          f"presets and the same files as the tree's wheel")
+    print(f"build: the wheel from the tree in {time.perf_counter() - start:.1f} s; the wheel carries {kernels} "
+          f"compiled kernels{' (' + seeded[-1].split(' (', 1)[1] if seeded else ''}")
     return sdist, wheel
 
 
