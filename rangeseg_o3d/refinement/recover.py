@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .._numeric import rows_at
+from .._numeric import rows_at, unique_ints
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
@@ -512,8 +512,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     ``changes`` (optional, a dict): receives ``where``, a box or boxes (as
     :func:`_differing` takes them) holding every pixel whose label this call changed but
-    those the last claim of free pixels took (None: they may lie anywhere), and
-    ``claimed``, the labels those took.
+    those the last claim of free pixels took (None: they may lie anywhere), ``claimed``,
+    the labels those took, and ``claimed_at``, their flat indices (increasing).
     """
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
@@ -624,12 +624,15 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     if changes is not None:  # every step above changes the blobs or pixels the rings reach from them
         changes["where"] = where
         changes["claimed"] = set()
+        changes["claimed_at"] = np.zeros(0, np.int64)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
         free = free_pixels(labels, _read_only_bool(cloud.valid))
         labels = claim_on_distance_noise(ctx, labels, fits, free, k_sigma=config.k_sigma)
         if changes is not None:
-            changes["claimed"] = set(np.unique(labels.reshape(-1)[free]).tolist()) - {0}
+            taken = free[labels.reshape(-1)[free] > 0]
+            changes["claimed"] = set(np.unique(labels.reshape(-1)[taken]).tolist())
+            changes["claimed_at"] = taken
     return labels, fits
 
 
@@ -812,8 +815,10 @@ def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
         if r1 > r0 and c1 > c0:
             rows, cols = np.nonzero(a[r0:r1, c0:c1] != b[r0:r1, c0:c1])
             parts.append((rows + r0) * w + cols + c0)
-    # (overlapping boxes list a pixel more than once: unique sorts and drops them)
-    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+    if len(parts) == 1:  # one box's pixels in raster order: increasing, each once
+        return parts[0]
+    # (overlapping boxes list a pixel more than once: unique_ints sorts and drops them)
+    return unique_ints(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
 
 def _merged_rms_as_found(found_rms: dict, fits: dict, found: np.ndarray, labels: np.ndarray,
