@@ -52,6 +52,8 @@ def test_unique_ints_equals_numpys_unique():
             values = rng.integers(-50 if np.dtype(dtype).kind == "i" else 0, 200, n).astype(dtype)
             got, want = unique_ints(values), np.unique(values)
             assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+    empty = np.concatenate([np.zeros(0), np.zeros(0, np.int64)])  # (a float dtype, as numpy promotes it)
+    assert unique_ints(empty).dtype == np.unique(empty).dtype and unique_ints(empty).size == 0
 
 
 def test_unique_ints_refuses_floats_and_2d_arrays():

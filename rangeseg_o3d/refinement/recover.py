@@ -423,7 +423,7 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     from ..kernels import member_pixels
 
     if np.ndim(box) == 2:  # (overlapping boxes list a pixel more than once: unique sorts and drops them)
-        return np.unique(np.concatenate([_members_in_box(labels, members, one) for one in box]))
+        return unique_ints(np.concatenate([_members_in_box(labels, members, one) for one in box]))
     top, bottom = max(int(box[0]), 0), min(int(box[1]), labels.shape[0])
     left, right = max(int(box[2]), 0), min(int(box[3]), labels.shape[1])
     rows, cols = np.divmod(member_pixels(np.ascontiguousarray(labels[top:bottom, left:right]), members),
@@ -434,7 +434,11 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
 def _grouped(pixels: np.ndarray, owner: np.ndarray, only) -> dict[int, np.ndarray]:
     # the flat ``pixels`` (increasing) of each label of ``only`` by their labels ``owner``, as
     # region_indices(labels, only=only) gives them when all those labels' pixels are among them
-    keep = np.isin(owner, list(only))
+    # (a look-up by label, not np.isin's sort of both: the labels are small numbers)
+    wanted = [k for k in only if k >= 0]
+    lut = np.zeros(max(int(owner.max(initial=0)), max(wanted, default=0)) + 1, bool)
+    lut[wanted] = True
+    keep = lut[owner]
     pixels, owner = pixels[keep], owner[keep]
     order = np.argsort(owner, kind="stable")  # each label's pixels stay increasing
     keys, starts = np.unique(owner[order], return_index=True)
@@ -587,7 +591,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         if config.merge:  # a recovered piece of a surface the tile grid already has
             claimed = _members_in_box(labels, challengers, box)
             owner = labels.ravel()[claimed]
-            regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
+            regions = {k: claimed[owner == k] for k in unique_ints(owner).tolist()}
             near = {(min(k, j), max(k, j)) for k, idx in regions.items()
                     for j in touching(labels, idx, reach=2) if j != k}
             # a plane beyond its distance noise would tilt the plane it merged into: it may
@@ -631,7 +635,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         labels = claim_on_distance_noise(ctx, labels, fits, free, k_sigma=config.k_sigma)
         if changes is not None:
             taken = free[labels.reshape(-1)[free] > 0]
-            changes["claimed"] = set(np.unique(labels.reshape(-1)[taken]).tolist())
+            changes["claimed"] = set(unique_ints(labels.reshape(-1)[taken]).tolist())
             changes["claimed_at"] = taken
     return labels, fits
 
@@ -659,7 +663,7 @@ def _released_from(regions: dict, released: np.ndarray | None) -> set:
         return set()
     flat, pairs = released.reshape(-1), set()
     for k, idx in regions.items():
-        for source in np.unique(flat[idx]).tolist():
+        for source in unique_ints(flat[idx]).tolist():
             if source > 0 and source != k:
                 pairs.add((min(k, source), max(k, source)))
     return pairs
