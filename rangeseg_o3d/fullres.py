@@ -343,12 +343,12 @@ def stats_after_moves(xyz: np.ndarray, sigma: np.ndarray, before: np.ndarray, af
         raise ValueError(f"stats_after_moves: moved must be flat indices of the {after.shape} labels, "
                          f"got shape {moved.shape}" + (f", {int(moved.min())}..{int(moved.max())}" if moved.size else ""))
     touched = unique_ints(np.concatenate([before.ravel()[moved], after.ravel()[moved]]).astype(np.int64)).tolist()
-    first = int(after.max(initial=0)) + 1 if first_new is None else int(first_new)
+    n = int(after.max(initial=0)) + 1
+    first = n if first_new is None else int(first_new)
     # (a label the known statistics do not cover is measured too)
     anew = {k for k in refitted if k > 0} | {k for k in touched if k >= stats.counts.size}
     if any(k < first for k in anew):  # its pixels lie anywhere: one pass over the frame for all
         return region_stats(xyz, after, fits, sigma, inlier_factor, known=stats, stale=set(touched) | anew)
-    n = int(after.max(initial=0)) + 1
     flat_xyz = np.ascontiguousarray(xyz.reshape(-1, 3))
     noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
     table = model_table(fits, n)

@@ -783,3 +783,34 @@ def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims
     assert set(np.flatnonzero(outside.ravel()).tolist()) <= set(claimed_at.tolist())
     assert whole == {k for k in set(labels.ravel()[boxed].tolist()) | set(after.ravel()[boxed].tolist()) if k > 0}
     assert whole
+
+
+def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
+    # a noisy plane with a swell and a patch on its crest fitted as a small cylinder, a second
+    # plane beside it: the patch joins the swollen plane; the statistics that follow its pixels
+    # are those measured over the frame (counts and inliers exactly, squared sums to their last
+    # digits), none for the patch, the second plane's as they were
+    from rangeseg_o3d.fitting import fit_plane
+    from rangeseg_o3d.pipeline import _absorb_pixel_ripples
+
+    rng = np.random.default_rng(7)
+    v, u = np.mgrid[0:40, 0:70].astype(float)
+    z = 2.9 + rng.normal(0.0, 0.0005, u.shape) + 0.002 * np.sqrt(2.0) * np.sin(u / 60 * 4 * np.pi)
+    z[:, 60:] = 2.5 + rng.normal(0.0, 0.0005, (40, 10))
+    xyz = np.dstack([(u - 35) * 0.005 * z / 2.9, (v - 20) * 0.005 * z / 2.9, z])
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.where(u < 60, 1, 3).astype(np.int32)
+    labels[16:24, 34:42] = 2
+    labels[0, :3] = 0
+    fits = {1: fit_plane(xyz[labels == 1]), 3: fit_plane(xyz[labels == 3]),
+            2: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.02, 0.0, 2.9]), 0.1, 0.0005, 64)}
+    sigma = np.full(u.shape, 0.0005)
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    assert 2 not in kept and (out[16:24, 34:42] == 1).any() and (labels[16:24, 34:42] == 2).all()  # the premise
+    full = region_stats(xyz, out, kept, sigma, INLIER_SIGMAS)
+    np.testing.assert_array_equal(after.counts, full.counts)
+    np.testing.assert_array_equal(after.inliers, full.inliers)
+    np.testing.assert_allclose(after.squares, full.squares, rtol=1e-12)
+    assert after.counts[2] == 0 and after.squares[2] == 0.0
+    assert after.squares[3] == stats.squares[3] and after.counts[3] == stats.counts[3]
