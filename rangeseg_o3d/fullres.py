@@ -24,13 +24,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ._numeric import unique_ints
 from . import kernels  # the package: its names load on first use (no compiler at import)
 from .fitting.primitives import with_statistics
 from .fitting.region_fitter import fresh_label, model_table
 from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refinement
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
-           "region_stats", "stats_with_moved",
+           "region_stats", "stats_with_moved", "stats_after_moves",
            "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases",
            "recovered_region_floor"]
@@ -296,31 +297,75 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
                                   sensor=sensor, ranges=ranges, sigma=sigma, candidates=candidates,
                                   min_size=_split_floor(config, min_size, correlation_px), boxes=boxes,
                                   thin_from=first_thin, released=released, changes=changes)
-    stale = _moved_labels(before, np.ascontiguousarray(labels, dtype=before.dtype), changes.get("where"))
-    stale |= changes.get("claimed", set())  # (free pixels before the recovery: they had label 0)
-    stale |= {k for k, model in fits.items() if fits_before.get(k) is not model}
-    stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=stale)
+    # the statistics follow the pixels that moved, not a pass over the regions they moved between
+    after = np.ascontiguousarray(labels, dtype=before.dtype)
+    moved = _moved_pixels(before, after, changes.get("where"), changes.get("claimed_at"))
+    refitted = {k for k, model in fits.items() if fits_before.get(k) is not model}
+    stats = stats_after_moves(cloud.xyz, sigma, before, after, fits, stats, moved, refitted,
+                              inlier_factor=inlier_factor, first_new=first)
     return labels, fits, stats
 
 
-def _moved_labels(before: np.ndarray, after: np.ndarray, where=None) -> set:
-    """The labels the pixels whose label differs between ``before`` and ``after`` had or
-    have (:func:`rangeseg_o3d.kernels.moved_labels`), compared only in ``where`` (a
-    ``(row0, row1, col0, col1)`` box or a ``(K, 4)`` array of them) when given, which must
-    hold every such pixel: the recovery changes its blobs and the rings around them, not
-    the frame."""
-    from .kernels import moved_labels
+def _moved_pixels(before: np.ndarray, after: np.ndarray, where=None, claimed_at=None) -> np.ndarray:
+    """Flat indices (increasing) of the pixels whose label differs between ``before`` and
+    ``after``, compared only in ``where`` (a ``(row0, row1, col0, col1)`` box or a ``(K, 4)``
+    array of them; None: the whole grid) which must hold every such pixel but those of
+    ``claimed_at`` (flat indices): the recovery changes its blobs and the rings around them,
+    and the free pixels its last claim took, not the frame."""
+    from .refinement.recover import _differing
 
-    if where is None:
-        return set(moved_labels(before, after).tolist())
-    h, w = before.shape
-    found = set()
-    for r0, r1, c0, c1 in np.asarray(where, dtype=np.int64).reshape(-1, 4).tolist():
-        r0, r1, c0, c1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
-        if r1 > r0 and c1 > c0:
-            found.update(moved_labels(np.ascontiguousarray(before[r0:r1, c0:c1]),
-                                      np.ascontiguousarray(after[r0:r1, c0:c1])).tolist())
-    return found
+    moved = _differing(before, after, where)
+    if claimed_at is not None and len(claimed_at):
+        moved = unique_ints(np.concatenate([moved, np.asarray(claimed_at, dtype=np.int64)]))
+    return moved
+
+
+def stats_after_moves(xyz: np.ndarray, sigma: np.ndarray, before: np.ndarray, after: np.ndarray, fits: dict,
+                      stats: PixelStats, moved: np.ndarray, refitted, *, inlier_factor: float,
+                      first_new: int | None = None) -> PixelStats:
+    """The :class:`PixelStats` of the labels ``after`` under ``fits``, from ``stats`` (those
+    of ``before``) and the flat pixels ``moved`` (increasing), which must hold every pixel
+    whose label differs: :func:`region_stats` of the labels ``after`` with the labels the
+    moves touched and those of ``refitted`` (a new or refitted model) measured again.
+
+    Labels numbered from ``first_new`` on lie above every label of ``before``: all their
+    pixels moved. When every label of ``refitted`` is such a label, no pass over the frame is
+    made: a label whose model is the one ``stats`` were measured with gives and takes the
+    moved pixels' shares (:func:`stats_with_moved`: the same counts, the squared sum to its
+    last digits, as the order of the sum differs), a label left without a model has none,
+    and a refitted one is measured over the moved pixels in raster order, as
+    :func:`region_stats` measures it. A refitted region ``before`` had (its pixels lie
+    anywhere) is measured over the frame with every label the moves touched, by one
+    :func:`region_stats`. ``xyz`` (H, W, 3) or (N, 3); ``sigma`` one value per pixel.
+    """
+    moved = np.asarray(moved, dtype=np.int64)
+    if moved.ndim != 1 or (moved.size and (moved.min() < 0 or moved.max() >= after.size)):
+        raise ValueError(f"stats_after_moves: moved must be flat indices of the {after.shape} labels, "
+                         f"got shape {moved.shape}" + (f", {int(moved.min())}..{int(moved.max())}" if moved.size else ""))
+    touched = unique_ints(np.concatenate([before.ravel()[moved], after.ravel()[moved]]).astype(np.int64)).tolist()
+    n = int(after.max(initial=0)) + 1
+    first = n if first_new is None else int(first_new)
+    # (a label the known statistics do not cover is measured too)
+    anew = {k for k in refitted if k > 0} | {k for k in touched if k >= stats.counts.size}
+    if any(k < first for k in anew):  # its pixels lie anywhere: one pass over the frame for all
+        return region_stats(xyz, after, fits, sigma, inlier_factor, known=stats, stale=set(touched) | anew)
+    flat_xyz = np.ascontiguousarray(xyz.reshape(-1, 3))
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    table = model_table(fits, n)
+    kinds = table[0]
+    out = stats_with_moved(stats, flat_xyz, noise, before, after, table, moved, inlier_factor)
+    new = sorted(k for k in anew if k < n)
+    if new:  # every pixel of a new region moved to it: the raster order of its pixels
+        measure = np.zeros(n, bool)
+        measure[new] = True
+        inliers, squares, counts = kernels.distance_stats(
+            flat_xyz[moved], np.ascontiguousarray(after.ravel()[moved], dtype=np.int32),
+            np.where(measure, kinds, 0).astype(kinds.dtype), table[1], np.zeros(n), noise[moved], float(inlier_factor))
+        out.inliers[new], out.squares[new], out.counts[new] = inliers[new], squares[new], counts[new]
+    for k in touched:  # (region_stats gives a label without a model nothing)
+        if 0 < k < n and kinds[k] == 0:
+            out.inliers[k], out.squares[k], out.counts[k] = 0, 0.0, 0
+    return out
 
 
 def with_pixel_rms(fits: dict, stats: PixelStats) -> dict:

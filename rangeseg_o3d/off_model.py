@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._numeric import unique_ints
 from .fitting.region_fitter import fresh_label, model_table
 from .fullres import PixelStats, leftover_blob_labels, recover_thin_surfaces, smallest_region
 
@@ -142,7 +143,7 @@ def _recover_freed(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, fre
     if found is None:
         return labels, fits, stats
     candidates, boxes, _ = found
-    held = np.unique(candidates.reshape(-1)[pixels])
+    held = unique_ints(candidates.reshape(-1)[pixels])
     held = _turned_from_source(held[held > 0], candidates, cloud.xyz.reshape(-1, 3), pixels,
                                released.reshape(-1)[pixels], fits, config.merge_angle_deg)
     if held.size:  # the blobs the recovery before left over (it tried them): not again for a few freed pixels
@@ -407,11 +408,11 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     units = _unit_rows(rows)  # (each row alone: a refit sets its face's rows of both)
     # every pixel a face may hold, increasing: those it was given and those its growth moved
     # (another face's growth only takes from it), so no pass over the frame finds its pixels
-    held = [np.unique(kept) for kept, _, _ in faces]
+    held = [unique_ints(kept) for kept, _, _ in faces]
 
     def grow(j):  # (one face at a time: each in its own box)
         moved[j].append(_grow_along_rays(xyz, out, rows, units, first + j, held[j], noise, k_sigma, max_angle_deg))
-        held[j] = np.union1d(held[j], moved[j][-1])
+        held[j] = unique_ints(np.concatenate([held[j], moved[j][-1]]))
 
     for _ in range(REFITS):
         for j in range(len(faces)):
@@ -441,7 +442,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
         if fate[j] is not None:  # (another face, or a region the merge rule joins it to)
             flat[flat == first + j] = fate[j]
             continue
-        touched = np.unique(np.concatenate(moved[j]))
+        touched = unique_ints(np.concatenate(moved[j]))
         touched = touched[~alive[np.minimum(flat[touched], alive.size - 1)] | (flat[touched] >= alive.size)]
         flat[touched] = labels.ravel()[touched]
     table = extended_table(model_table(fits, first), [fits.get(first + j) or faces[j][1] for j in range(len(faces))])

@@ -19,7 +19,7 @@ from .free_faces import faces_from_free
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor,
-                      refit_planes_to_pixels, region_stats, settle_creases, smallest_region)
+                      refit_planes_to_pixels, region_stats, settle_creases, smallest_region, stats_after_moves)
 from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, split_plane_faces
 from .strips import recover_strips
@@ -405,10 +405,15 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
     from .scales import GRAZING_COSINE
 
     scatter = {k: rms for k in fits if k > 0 and (rms := stats.rms(k)) is not None}
+    before = labels
     labels, fits, changed = absorb_ripples(cloud.xyz.reshape(-1, 3), labels, fits, sigma.ravel(),
                                            scatter, k_sigma=k_sigma, sizes=stats.counts, min_cosine=GRAZING_COSINE)
     if changed:
-        stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS, known=stats, stale=changed)
+        # a ripple's pixels went to a plane whose model stays, or became free: the statistics
+        # follow them (not a pass over the plane's pixels)
+        moved = np.flatnonzero(labels.ravel() != before.ravel())
+        stats = stats_after_moves(cloud.xyz, sigma, before, labels, fits, stats, moved, set(),
+                                  inlier_factor=INLIER_SIGMAS)
     return labels, fits, stats
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._numeric import unique_ints
 from . import kernels
 from .fitting.batch_planes import planes_from_moments, region_moments
 from .fitting.region_fitter import extended_table, fresh_label, model_table
@@ -113,7 +114,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
              + [kept for _, kept, _ in faces])
     if faces:
         moved.append(_grow_faces(xyz, out, table, noise, first, grown_boxes, config.k_sigma))
-    changed = np.unique(np.concatenate(moved))
+    changed = unique_ints(np.concatenate(moved))
     return out, fits, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 

@@ -305,6 +305,83 @@ def test_statistics_updated_for_the_pixels_that_moved_equal_a_full_measure():
     assert full.counts[3] == 50 and 0 < full.inliers[2] < full.counts[2]  # the premise: a new region, outliers too
 
 
+def _noisy_scene_labels():
+    # a noisy wall (labels 1, 2), a cylinder (3) in front of it and a plane region (4) whose
+    # model will go; each label's noise and pixels as a camera's
+    rng = np.random.default_rng(11)
+    v, u = np.mgrid[0:30, 0:40].astype(float)
+    x, y = (u - 20) * 0.01, (v - 15) * 0.01
+    z = 2.0 + rng.normal(0.0, 0.003, u.shape)
+    near = (u >= 25) & (u < 33)
+    z[near] = 1.6 - np.sqrt(np.maximum(0.05 ** 2 - (x[near] - 0.09) ** 2, 0.0)) + rng.normal(0.0, 0.003, near.sum())
+    xyz = np.dstack([x * z, y * z, z])
+    xyz[3, 4] = np.nan  # an invalid pixel in a region
+    sigma = np.full(u.shape, 0.003)
+    labels = np.where(u < 12, 1, 2).astype(np.int32)
+    labels[near] = 3
+    labels[20:, :6] = 4
+    labels[0, :5] = 0
+    fits = {1: Plane(np.array([0.0, 0.0, 1.0]), 2.0, 0.003, 1), 2: Plane(np.array([0.0, 0.0, 1.0]), 2.001, 0.003, 1),
+            3: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.09 * 1.6, 0.0, 1.6]), 0.05, 0.003, 1),
+            4: Plane(np.array([0.0, 0.0, 1.0]), 1.999, 0.003, 1)}
+    return xyz, sigma, labels, fits
+
+
+def test_statistics_after_moves_equal_those_measured_over_the_frame():
+    # pixels move between regions whose models stay, to a new region (numbered above every
+    # label before) and out of a region whose model goes: counts and inliers as a full
+    # measure's, the squared sums to their last digits (the new region's bit for bit, summed
+    # in raster order over its pixels), nothing for the region without a model
+    from rangeseg_o3d.fullres import stats_after_moves
+
+    xyz, sigma, before, fits = _noisy_scene_labels()
+    stats = region_stats(xyz, before, fits, sigma, INLIER_SIGMAS)
+    after = before.copy()
+    after[0, :5] = 1  # free pixels taken
+    after[5:25, 10:14] = 2  # a strip of 1 to 2
+    after[10:14, 22:28] = 3  # wall pixels to the cylinder
+    after[2:8, 30:38] = 5  # a new region, from the cylinder and the wall
+    after[20:, :6] = np.where(np.arange(6) < 3, 1, 0)[None, :]  # region 4 gone: half to 1, half freed
+    after[29, 39] = 0
+    fits_after = {k: m for k, m in fits.items() if k != 4}
+    fits_after[5] = Plane(np.array([0.0, 0.0, 1.0]), 1.99, 0.003, 1)
+    moved = np.flatnonzero(after.ravel() != before.ravel())
+    got = stats_after_moves(xyz, sigma, before, after, fits_after, stats, moved, {5}, inlier_factor=INLIER_SIGMAS,
+                            first_new=5)
+    full = region_stats(xyz, after, fits_after, sigma, INLIER_SIGMAS)
+    assert got.counts.size == full.counts.size == 6
+    np.testing.assert_array_equal(got.counts, full.counts)
+    np.testing.assert_array_equal(got.inliers, full.inliers)
+    np.testing.assert_allclose(got.squares, full.squares, rtol=1e-12)
+    assert got.squares[5] == full.squares[5] and got.counts[5] == 48
+    assert got.counts[4] == 0 and got.squares[4] == 0.0 and got.inliers[4] == 0
+    assert 0 < full.inliers[3] < full.counts[3]  # the premise: noisy, outliers too
+    # a region the frame had, refitted: one measure over the frame, region_stats' own answer
+    refit = dict(fits_after)
+    refit[3] = Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.09 * 1.6, 0.0, 1.6]), 0.051, 0.003, 1)
+    got = stats_after_moves(xyz, sigma, before, after, refit, stats, moved, {3, 5}, inlier_factor=INLIER_SIGMAS,
+                            first_new=5)
+    want = region_stats(xyz, after, refit, sigma, INLIER_SIGMAS, known=stats, stale={0, 1, 2, 3, 4, 5})
+    for a, b in zip((got.inliers, got.squares, got.counts), (want.inliers, want.squares, want.counts)):
+        np.testing.assert_array_equal(a, b)
+    # nothing moved: the statistics as they were
+    same = stats_after_moves(xyz, sigma, before, before, fits, stats, np.zeros(0, np.int64), set(),
+                             inlier_factor=INLIER_SIGMAS, first_new=5)
+    for a, b in zip((same.inliers, same.squares, same.counts), (stats.inliers, stats.squares, stats.counts)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_statistics_after_moves_refuse_pixels_off_the_grid():
+    from rangeseg_o3d.fullres import stats_after_moves
+
+    xyz, sigma, labels, fits = _noisy_scene_labels()
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    for moved in (np.array([0, labels.size]), np.array([-1, 3]), np.zeros((2, 2), np.int64)):
+        with pytest.raises(ValueError, match="moved must be flat indices"):
+            stats_after_moves(xyz, sigma, labels, labels, fits, stats, moved, set(), inlier_factor=INLIER_SIGMAS,
+                              first_new=5)
+
+
 def test_a_model_table_extended_by_models_is_the_table_of_them_all():
     from rangeseg_o3d.fitting.region_fitter import extended_table
 
@@ -667,7 +744,7 @@ def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims
     # recovery changes lies in the boxes it reports (each blob's own, grown by its rings)
     # or is a free pixel its last claim took, and the labels measured again from them are
     # those a comparison of the whole frame finds
-    from rangeseg_o3d.fullres import _moved_labels, leftover_blob_labels, smallest_region
+    from rangeseg_o3d.fullres import _moved_pixels, leftover_blob_labels, smallest_region
     from rangeseg_o3d.kernels import moved_labels
     from rangeseg_o3d.refinement.recover import recover_pixels
     from rangeseg_o3d.scales import with_derived_refinement
@@ -698,5 +775,42 @@ def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims
     outside = changed & ~inside
     assert (labels[outside] == 0).all() and set(np.unique(after[outside]).tolist()) <= changes["claimed"]
     whole = {k for k in moved_labels(labels, np.ascontiguousarray(after, dtype=labels.dtype)).tolist() if k > 0}
-    boxed = _moved_labels(labels, np.ascontiguousarray(after, dtype=labels.dtype), changes["where"])
-    assert whole == {k for k in boxed | changes["claimed"] if k > 0} and whole
+    boxed = _moved_pixels(labels, np.ascontiguousarray(after, dtype=labels.dtype), changes["where"],
+                          changes["claimed_at"])
+    np.testing.assert_array_equal(boxed, np.flatnonzero(after.ravel() != labels.ravel()))
+    claimed_at = changes["claimed_at"]  # free pixels the last claim took, outside the boxes or in them
+    assert (labels.ravel()[claimed_at] == 0).all() and (after.ravel()[claimed_at] > 0).all()
+    assert set(np.flatnonzero(outside.ravel()).tolist()) <= set(claimed_at.tolist())
+    assert whole == {k for k in set(labels.ravel()[boxed].tolist()) | set(after.ravel()[boxed].tolist()) if k > 0}
+    assert whole
+
+
+def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
+    # a noisy plane with a swell and a patch on its crest fitted as a small cylinder, a second
+    # plane beside it: the patch joins the swollen plane; the statistics that follow its pixels
+    # are those measured over the frame (counts and inliers exactly, squared sums to their last
+    # digits), none for the patch, the second plane's as they were
+    from rangeseg_o3d.fitting import fit_plane
+    from rangeseg_o3d.pipeline import _absorb_pixel_ripples
+
+    rng = np.random.default_rng(7)
+    v, u = np.mgrid[0:40, 0:70].astype(float)
+    z = 2.9 + rng.normal(0.0, 0.0005, u.shape) + 0.002 * np.sqrt(2.0) * np.sin(u / 60 * 4 * np.pi)
+    z[:, 60:] = 2.5 + rng.normal(0.0, 0.0005, (40, 10))
+    xyz = np.dstack([(u - 35) * 0.005 * z / 2.9, (v - 20) * 0.005 * z / 2.9, z])
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.where(u < 60, 1, 3).astype(np.int32)
+    labels[16:24, 34:42] = 2
+    labels[0, :3] = 0
+    fits = {1: fit_plane(xyz[labels == 1]), 3: fit_plane(xyz[labels == 3]),
+            2: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.02, 0.0, 2.9]), 0.1, 0.0005, 64)}
+    sigma = np.full(u.shape, 0.0005)
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    assert 2 not in kept and (out[16:24, 34:42] == 1).any() and (labels[16:24, 34:42] == 2).all()  # the premise
+    full = region_stats(xyz, out, kept, sigma, INLIER_SIGMAS)
+    np.testing.assert_array_equal(after.counts, full.counts)
+    np.testing.assert_array_equal(after.inliers, full.inliers)
+    np.testing.assert_allclose(after.squares, full.squares, rtol=1e-12)
+    assert after.counts[2] == 0 and after.squares[2] == 0.0
+    assert after.squares[3] == stats.squares[3] and after.counts[3] == stats.counts[3]

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rangeseg_o3d._numeric import median, rows_at
+from rangeseg_o3d._numeric import median, rows_at, unique_ints
 
 
 def test_median_equals_numpys_bit_for_bit():
@@ -42,3 +42,22 @@ def test_rows_at_equals_fancy_indexing():
         assert got.flags.c_contiguous and got.flags.writeable
     with pytest.raises(IndexError):
         rows_at(points, np.array([50]))
+
+
+def test_unique_ints_equals_numpys_unique():
+    # repeated, unsorted, negative, of every integer width, bool, one value, none
+    rng = np.random.default_rng(7)
+    for dtype in (np.int64, np.int32, np.int16, np.uint8, np.uint32, np.bool_):
+        for n in (0, 1, 2, 17, 4000):
+            values = rng.integers(-50 if np.dtype(dtype).kind == "i" else 0, 200, n).astype(dtype)
+            got, want = unique_ints(values), np.unique(values)
+            assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+    empty = np.concatenate([np.zeros(0), np.zeros(0, np.int64)])  # (a float dtype, as numpy promotes it)
+    assert unique_ints(empty).dtype == np.unique(empty).dtype and unique_ints(empty).size == 0
+
+
+def test_unique_ints_refuses_floats_and_2d_arrays():
+    with pytest.raises(ValueError, match="1-D integer array"):
+        unique_ints(np.array([1.0, 2.0]))
+    with pytest.raises(ValueError, match="1-D integer array"):
+        unique_ints(np.zeros((2, 2), np.int64))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .._numeric import rows_at
+from .._numeric import rows_at, unique_ints
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
@@ -423,7 +423,7 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     from ..kernels import member_pixels
 
     if np.ndim(box) == 2:  # (overlapping boxes list a pixel more than once: unique sorts and drops them)
-        return np.unique(np.concatenate([_members_in_box(labels, members, one) for one in box]))
+        return unique_ints(np.concatenate([_members_in_box(labels, members, one) for one in box]))
     top, bottom = max(int(box[0]), 0), min(int(box[1]), labels.shape[0])
     left, right = max(int(box[2]), 0), min(int(box[3]), labels.shape[1])
     rows, cols = np.divmod(member_pixels(np.ascontiguousarray(labels[top:bottom, left:right]), members),
@@ -434,7 +434,11 @@ def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
 def _grouped(pixels: np.ndarray, owner: np.ndarray, only) -> dict[int, np.ndarray]:
     # the flat ``pixels`` (increasing) of each label of ``only`` by their labels ``owner``, as
     # region_indices(labels, only=only) gives them when all those labels' pixels are among them
-    keep = np.isin(owner, list(only))
+    # (a look-up by label, not np.isin's sort of both: the labels are small numbers)
+    wanted = [k for k in only if k >= 0]
+    lut = np.zeros(max(int(owner.max(initial=0)), max(wanted, default=0)) + 1, bool)
+    lut[wanted] = True
+    keep = lut[owner]
     pixels, owner = pixels[keep], owner[keep]
     order = np.argsort(owner, kind="stable")  # each label's pixels stay increasing
     keys, starts = np.unique(owner[order], return_index=True)
@@ -512,8 +516,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     ``changes`` (optional, a dict): receives ``where``, a box or boxes (as
     :func:`_differing` takes them) holding every pixel whose label this call changed but
-    those the last claim of free pixels took (None: they may lie anywhere), and
-    ``claimed``, the labels those took.
+    those the last claim of free pixels took (None: they may lie anywhere), ``claimed``,
+    the labels those took, and ``claimed_at``, their flat indices (increasing).
     """
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
@@ -587,7 +591,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         if config.merge:  # a recovered piece of a surface the tile grid already has
             claimed = _members_in_box(labels, challengers, box)
             owner = labels.ravel()[claimed]
-            regions = {k: claimed[owner == k] for k in np.unique(owner).tolist()}
+            regions = {k: claimed[owner == k] for k in unique_ints(owner).tolist()}
             near = {(min(k, j), max(k, j)) for k, idx in regions.items()
                     for j in touching(labels, idx, reach=2) if j != k}
             # a plane beyond its distance noise would tilt the plane it merged into: it may
@@ -624,12 +628,15 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     if changes is not None:  # every step above changes the blobs or pixels the rings reach from them
         changes["where"] = where
         changes["claimed"] = set()
+        changes["claimed_at"] = np.zeros(0, np.int64)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
         labels = np.ascontiguousarray(labels)
         free = free_pixels(labels, _read_only_bool(cloud.valid))
         labels = claim_on_distance_noise(ctx, labels, fits, free, k_sigma=config.k_sigma)
         if changes is not None:
-            changes["claimed"] = set(np.unique(labels.reshape(-1)[free]).tolist()) - {0}
+            taken = free[labels.reshape(-1)[free] > 0]
+            changes["claimed"] = set(unique_ints(labels.reshape(-1)[taken]).tolist())
+            changes["claimed_at"] = taken
     return labels, fits
 
 
@@ -656,7 +663,7 @@ def _released_from(regions: dict, released: np.ndarray | None) -> set:
         return set()
     flat, pairs = released.reshape(-1), set()
     for k, idx in regions.items():
-        for source in np.unique(flat[idx]).tolist():
+        for source in unique_ints(flat[idx]).tolist():
             if source > 0 and source != k:
                 pairs.add((min(k, source), max(k, source)))
     return pairs
@@ -812,8 +819,10 @@ def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
         if r1 > r0 and c1 > c0:
             rows, cols = np.nonzero(a[r0:r1, c0:c1] != b[r0:r1, c0:c1])
             parts.append((rows + r0) * w + cols + c0)
-    # (overlapping boxes list a pixel more than once: unique sorts and drops them)
-    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+    if len(parts) == 1:  # one box's pixels in raster order: increasing, each once
+        return parts[0]
+    # (overlapping boxes list a pixel more than once: unique_ints sorts and drops them)
+    return unique_ints(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
 
 def _merged_rms_as_found(found_rms: dict, fits: dict, found: np.ndarray, labels: np.ndarray,

@@ -603,3 +603,22 @@ def test_a_region_that_merged_recovered_planes_is_held_to_their_rms_as_found():
     assert floors == {10: 3e-5, 11: 5e-5, 12: 2e-5, 3: 3e-5}
     # nothing merged away: the rms as found, unchanged
     assert _merged_rms_as_found({12: 2e-5}, fits, found, labels, pool) == {12: 2e-5}
+
+
+def test_grouped_pixels_are_those_of_a_membership_test_by_label():
+    # the flat pixels (increasing) of each wanted label, as np.isin and a comparison per label
+    # give them: labels absent, wanted labels above every owner, none wanted, no pixels
+    from rangeseg_o3d.refinement.recover import _grouped
+
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        n = int(rng.integers(0, 2000))
+        pixels = np.sort(rng.choice(10 ** 6, n, replace=False))
+        owner = rng.integers(0, 40, n).astype(np.int32)
+        only = set(rng.integers(0, 60, int(rng.integers(0, 8))).tolist())
+        keep = np.isin(owner, list(only))
+        want = {k: pixels[keep][owner[keep] == k] for k in np.unique(owner[keep]).tolist()}
+        got = _grouped(pixels, owner, only)
+        assert got.keys() == want.keys(), trial
+        for k in want:
+            np.testing.assert_array_equal(got[k], want[k])
