@@ -22,6 +22,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region, stats_after_moves)
 from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, split_plane_faces
+from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
@@ -357,6 +358,13 @@ class Pipeline:
                                                        inlier_factor=INLIER_SIGMAS,
                                                        correlation_px=noise.correlation_px)
                 lap("claim_along_rays")
+                # pixels a region took within the noise of their distances to its plane that lie
+                # beyond the range noise along their rays (a floor seen near grazing under a far
+                # face) go to the plane beside them that explains them along the rays
+                labels, stats = claim_outliers_along_rays(cloud, labels, fits, stats, sigma=sigma,
+                                                          inlier_factor=INLIER_SIGMAS,
+                                                          correlation_px=noise.correlation_px)
+                lap("claim_outliers")
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
             min_size = smallest_region(refine, self.sensor, cloud)
@@ -543,6 +551,10 @@ def warm_up() -> float:
     valid = np.ones((2, 2), bool)
     valid.flags.writeable = False  # (as a cloud's validity is)
     free_pieces(np.zeros((2, 2), np.int32), valid, 1)
+    # and the pixels plane regions pass on along the rays (ray_claims.claim_outliers_along_rays)
+    from .kernels import outlier_claims
+
+    outlier_claims(np.zeros((2, 2), np.int32), points, np.ones(4), np.zeros((1, 3)), np.zeros(1, bool), 3.0, 1)
     # the abw preset's crease settling (fullres.settle_creases)
     from .fullres import _STEPS, CREASE_RINGS
     from .kernels import crease_moves

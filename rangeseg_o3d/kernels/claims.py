@@ -1,0 +1,116 @@
+"""Pixels passed between plane regions along the viewing rays, round by round over the grid."""
+
+from __future__ import annotations
+
+import numpy as np
+from .inline import _neighbour
+from .jit import njit  # numba.njit, with this package's cache locator installed
+
+__all__ = ["outlier_claims"]
+
+
+@njit(cache=True, nogil=True)
+def _off_along_ray(xyz, noise, i, a):
+    # how far, in range sigmas, the plane a . p = 1 meets the ray of pixel i from its return
+    # (NaN without a return: never beyond, never within)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    r = np.sqrt(x * x + y * y + z * z)
+    return r * abs(1.0 - (a[0] * x + a[1] * y + a[2] * z)) / noise[i]
+
+
+@njit(cache=True, nogil=True)
+def _other_plane(out, is_plane, j, own):
+    # whether pixel j lies in a plane region other than own
+    other = out[j]
+    return other != own and is_plane[other]
+
+
+@njit(cache=True, nogil=True)
+def outlier_claims(labels, xyz, noise, inverse_planes, is_plane, limit, rounds):
+    """The labels after plane regions pass on the pixels their planes leave beyond ``limit``
+    range sigmas along the rays: each such pixel goes to the plane region of a 4-neighbour
+    whose plane meets its ray within ``limit`` and nearest, in range sigmas. It starts at the
+    pixels of a plane region with a 4-neighbour in another plane region; a pixel given passes
+    the claim on to the pixels beside it, looked at once each, round by round (at most
+    ``rounds``). Each round judges its pixels by the labels at its start, and a pixel not given
+    is judged again only once a pixel beside it has been given (nothing else it depends on
+    changes).
+
+    ``labels`` (H, W) int32; ``xyz`` (H*W, 3) and ``noise`` (H*W,) flat; ``inverse_planes``
+    (n, 3) the plane ``a . p = 1`` of each label ``k`` with ``is_plane[k]`` (n > every label).
+    Returns the new labels, flat int32 (a copy)."""
+    h, w = labels.shape
+    out = labels.copy().reshape(-1)
+    size = out.size
+    seen = np.zeros(size, np.bool_)
+    waiting = np.zeros(size, np.bool_)  # looked at, beyond its plane, not given
+    far = np.empty(size)
+    queued = np.full(size, -1, np.int64)  # the round a pixel was last queued for
+    active = np.empty(size, np.int64)
+    count = 0
+    for row in range(h):  # the start: plane pixels beside another plane region
+        for col in range(w):
+            i = row * w + col
+            own = out[i]
+            if not is_plane[own]:
+                continue
+            if not ((row > 0 and _other_plane(out, is_plane, i - w, own))
+                    or (row < h - 1 and _other_plane(out, is_plane, i + w, own))
+                    or (col > 0 and _other_plane(out, is_plane, i - 1, own))
+                    or (col < w - 1 and _other_plane(out, is_plane, i + 1, own))):
+                continue
+            seen[i] = True
+            d = _off_along_ray(xyz, noise, i, inverse_planes[own])
+            if d > limit:
+                waiting[i], far[i] = True, d
+                active[count] = i
+                count += 1
+    best = np.empty(size, np.int32)
+    for round_ in range(rounds):
+        if count == 0:
+            break
+        moved = 0
+        for t in range(count):
+            i = active[t]
+            own = out[i]
+            choice, nearest = own, far[i]
+            for s in range(4):
+                j = _neighbour(i, s, h, w)
+                if j < 0:
+                    continue
+                other = out[j]
+                if other == own or not is_plane[other]:
+                    continue
+                d = _off_along_ray(xyz, noise, i, inverse_planes[other])
+                if d <= limit and d < nearest:
+                    choice, nearest = other, d
+            best[t] = choice
+            if choice != own:
+                moved += 1
+        if moved == 0:
+            break
+        given = np.empty(moved, np.int64)
+        g = 0
+        for t in range(count):
+            i = active[t]
+            if best[t] != out[i]:
+                out[i] = best[t]
+                waiting[i] = False
+                given[g] = i
+                g += 1
+        count = 0
+        for t in range(moved):  # the next round: the pixels beside those given
+            for s in range(4):
+                j = _neighbour(given[t], s, h, w)
+                if j < 0 or queued[j] == round_ or not is_plane[out[j]]:
+                    continue
+                if not seen[j]:
+                    seen[j] = True
+                    d = _off_along_ray(xyz, noise, j, inverse_planes[out[j]])
+                    if d > limit:
+                        waiting[j], far[j] = True, d
+                if waiting[j]:
+                    queued[j] = round_
+                    active[count] = j
+                    count += 1
+    return out
