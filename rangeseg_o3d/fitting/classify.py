@@ -51,11 +51,10 @@ from ..registry import Plugin, StrictParams, defaults_of, params_model
 from . import _decide  # numba is loaded already (kernels.linalg below): one import, not one a fit
 from ._codes import ACCEPTED, COLLINEAR, MIN_POINTS, NON_FINITE
 from ._common import Prepared, as_points, decision_reason, input_failure
-from .batch_planes import planes_from_moments
 from .cylinder import _search_grids, axis_from_normals, cylinder_model
 from .primitives import Cylinder, FitFailure, Plane, Sphere
 from .plane import UNDETERMINED, plane_from_prepared
-from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound, plane_tolerance
+from ..kernels.linalg import plane_tolerance
 from .sphere import sphere_model
 
 __all__ = ["fit_primitive", "refit_primitive", "model_of_decision", "trimmed_primitive", "trimmed_plane",
@@ -399,15 +398,6 @@ def plane_threshold(n: int, centroid: np.ndarray, *, plane_rms: float, noise_flo
             + float(rms_per_range2) * float(centroid @ centroid))
 
 
-def _plane_tolerances(planes, plane_rms: float, rms_per_range2: float, noise_floor: float) -> np.ndarray:
-    # plane_tolerance over every region at once
-    counts = np.atleast_1d(planes.count).astype(np.float64)
-    floor = np.full(counts.shape, float(plane_rms))
-    if noise_floor > 0.0:
-        floor = np.maximum(floor, noise_rms_bound.py_func(float(noise_floor), counts - 3.0, NOISE_CHI2_SIGMAS))
-    return floor + rms_per_range2 * np.square(planes.centroid).sum(axis=1)
-
-
 @defaults_of(fit_primitive)
 def fit_planes_batch(
     xyz,
@@ -480,12 +470,15 @@ def refit_planes_from_moments(
         raise ValueError(f"need one moments row per model; got {len(moments)} rows and {len(models)} models")
     if not any(isinstance(model, Plane) for model in models):
         return [None] * len(models)
-    planes = planes_from_moments(moments)
+    if moments.ndim != 2 or moments.shape[1] != 10:
+        raise ValueError(f"moments must have shape (K, 10); got {moments.shape}")
+    # the planes and their thresholds in one compiled call (the numpy form of the
+    # thresholds cost more than the planes)
+    normal, d, rms, tol, ok = kernels.plane_refit_rows(np.ascontiguousarray(moments), float(plane_rms),
+                                                       float(noise_floor), float(rms_per_range2))
     minimum = max(int(min_points), 3)
     # Python scalars and read-only normal rows: per row, numpy scalars cost more than the test
-    tol = _plane_tolerances(planes, plane_rms, rms_per_range2, noise_floor).tolist()
-    count, ok, rms, d = planes.count.tolist(), planes.ok.tolist(), planes.rms.tolist(), planes.d.tolist()
-    normal = planes.normal
+    count, ok, rms, d, tol = moments[:, 0].tolist(), ok.tolist(), rms.tolist(), d.tolist(), tol.tolist()
     normal.setflags(write=False)
     out = []
     for i, model in enumerate(models):

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 
 from .._numeric import rows_at
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .batch_planes import region_moments
-from .primitives import Cylinder, FitFailure, Plane, Sphere
+from .primitives import Cylinder, FitFailure, Plane, Sphere, with_statistics
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
 __all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "extended_table", "pixel_rms", "fresh_label"]
@@ -121,7 +120,7 @@ def pixel_rms(xyz_flat: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
     _, squares, counts = kernels.distance_stats(np.ascontiguousarray(xyz_flat, dtype=np.float64),
                                                 np.ascontiguousarray(labels.ravel(), dtype=np.int32),
                                                 kinds, params, rms, np.ascontiguousarray(sigma.ravel()), 3.0)
-    return {k: replace(m, rms=float(np.sqrt(squares[k] / counts[k]))) if counts[k] else m
+    return {k: with_statistics(m, rms=float(np.sqrt(squares[k] / counts[k]))) if counts[k] else m
             for k, m in fits.items()}
 
 

@@ -32,7 +32,7 @@ _SOURCES = {
              "label_counts",
              "relabel", "grow_rings", "grow_rings_in_boxes", "jump_mask", "largest_piece", "labels_near", "free_pixels", "moved_labels", "member_pixels", "member_counts", "group_counted", "box_members", "piece_ids",
              "ranges_and_noise"),
-    "labelwise": ("label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes",
+    "labelwise": ("label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
     "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"),

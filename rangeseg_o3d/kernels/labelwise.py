@@ -14,7 +14,7 @@ from .linalg import (NOISE_CHI2_SIGMAS, collinear, flat_by_quadric, hesse_form, 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
+__all__ = ["label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half", "rows_with_any",
            "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
@@ -139,6 +139,26 @@ def planes_from_moment_rows(moments):
         d[i] = dist
         ok[i] = n >= 3 and not collinear(vals)
     return centroid, normal, d, eigvals, frame, ok
+
+@njit(cache=True, nogil=True)
+def plane_refit_rows(moments, plane_rms, noise_floor, rms_per_range2):
+    """The least-squares plane of each row of (K, 10) moments with the fitter's rms
+    threshold for it (``classify.refit_planes_from_moments``): :func:`planes_from_moment_rows`
+    and, per row, :func:`.linalg.plane_tolerance` over its count plus ``rms_per_range2``
+    times the centroid's squared norm (summed x, y, z, as numpy sums a row).
+
+    Returns ``(normal (K, 3), d (K,), rms (K,), tolerance (K,), ok (K,))``.
+    """
+    centroid, normal, d, eigvals, _, ok = planes_from_moment_rows(moments)
+    k = moments.shape[0]
+    rms = np.empty(k)
+    tolerance = np.empty(k)
+    for i in range(k):
+        rms[i] = np.sqrt(eigvals[i, 0])
+        c = centroid[i]
+        tolerance[i] = (plane_tolerance(plane_rms, noise_floor, moments[i, 0])
+                        + rms_per_range2 * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]))
+    return normal, d, rms, tolerance, ok
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _height_field_sums(u, v, h, m, out):

@@ -81,9 +81,10 @@ def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: n
     settled = np.array(labels, dtype=np.int32, copy=True)
     fits = dict(fits)
     n = int(settled.max(initial=0)) + 1
+    normals, offsets = table = _plane_table(fits, n)  # kept as the planes are refitted
     for _ in range(iterations):
-        idx, targets = _moves(ctx, settled, _plane_table(fits, n), ranges, k_sigma=k_sigma,
-                              jump_ratio=jump_ratio, jump_min=jump_min)
+        idx, targets = _moves(ctx, settled, table, ranges, k_sigma=k_sigma, jump_ratio=jump_ratio,
+                              jump_min=jump_min)
         if not idx.size:
             break
         flat = settled.reshape(-1)
@@ -92,6 +93,8 @@ def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: n
         for k, refit in ctx.fitter.refit_regions(ctx.xyz, settled, fits, touched, from_points=False).items():
             if refit and refit.kind == "plane":
                 fits[k] = refit
+                if 0 < k < n:  # its row of _plane_table(fits, n)
+                    normals[k], offsets[k] = (refit.normal, refit.d) if isinstance(refit, Plane) else (0.0, 0.0)
     left = np.bincount(settled.ravel(), minlength=n)
     for k in [k for k in fits if 0 < k < n and left[k] == 0 and np.any(labels == k)]:
         del fits[k]

@@ -17,6 +17,7 @@ see through it, is the plane of its inner pixels (:func:`_bent_by_border`).
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,18 +67,21 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
                                              regions=pixels.every if grown else None).items():
         if refit and refit.kind == fits[k].kind:
             fits[k] = refit
+    sums = None
     if curved:
-        flat = _still_flat(ctx, labels, fits, curved)
+        sums = _curved_sums(ctx, labels, fits, curved)
+        flat = _still_flat(ctx, labels, fits, curved, sums=sums)
         for k, idx in pixels.of(flat).items():
             decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
             if isinstance(decided, Plane):
                 fits[k] = decided
+    # (the models of the regions still curved are those the sums measured: refitted above only)
     unbent = (_unbent(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)], resolve_bends,
-                      pixels=pixels) if resolve_bends else {})
+                      pixels=pixels, sums=sums) if resolve_bends else {})
     fits.update(unbent)
     if along_rays:  # a laser's mixed returns at jump edges are no bend
         unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)],
-                                      pixels=pixels))
+                                      pixels=pixels, sums=sums))
         fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
@@ -112,14 +116,16 @@ class _Pixels:
 
 
 def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0, *,
-            pixels: _Pixels | None = None) -> dict:
+            pixels: _Pixels | None = None, sums: _CurvedSums | None = None) -> dict:
     """The planes of the regions among ``curved`` whose pixels' plane is within the
     fitter's plane threshold and whose bend does not outlive the pixels beyond 2 plane rms
     (:func:`rangeseg_o3d.fitting._decide.bend_resolved`): a curved model a plane just over
     the noise took only for a few pixels of a neighbouring face (noise_20mm seed 37 scan
     7: a 4-column wall strip with 26 px of its neighbours, rms 20.4 mm over 20 mm noise,
     a 0.53 m cylinder). Asked with ``resolve_bends``; ``samples`` per pixel as there; ``pixels``
-    (optional) the labels' grouped pixels."""
+    (optional) the labels' grouped pixels; ``sums`` (optional, :func:`_curved_sums` of these
+    labels and models): a region whose pixels' plane by their moments is over the threshold
+    by more than their rounding could move it is not fitted (its plane is no answer)."""
     from ..fitting import fit_plane
     from ..fitting._decide import bend_resolved
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
@@ -129,6 +135,8 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
         return {}
     out = {}
     for k, idx in (pixels or _Pixels(labels)).of(curved).items():
+        if sums is not None and _plane_surely_over(ctx, sums, k, idx.size):
+            continue
         pts = ctx.fitter.points(ctx.xyz, idx)
         centroid = pts.mean(axis=0)
         tolerance = plane_threshold(len(pts), centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
@@ -162,7 +170,7 @@ def _interior(labels: np.ndarray, wrap_columns: bool) -> np.ndarray:
 
 
 def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, *,
-                    pixels: _Pixels | None = None) -> dict:
+                    pixels: _Pixels | None = None, sums: _CurvedSums | None = None) -> dict:
     """The planes of the curved regions among ``curved`` that a laser's mixed returns bent:
     the model is beyond the range noise (``ctx.sigma``, the chi-square bound); over the
     pixels whose four neighbours are in the region (one grid step in from its border, the
@@ -185,7 +193,11 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
     balls fitted right the rays it counts are the ring of mixed returns their edge band
     left out, behind the model too (on the laser rows of the studied seeds, 487 of 776
     cylinders and 285 of 415 spheres would pass it); it only follows the F-test on the
-    inner pixels, which two regions of those rows reached (that face and that pipe)."""
+    inner pixels, which two regions of those rows reached (that face and that pipe).
+
+    ``sums`` (optional, :func:`_curved_sums` of these labels and of the models of ``fits``):
+    a region whose model's rms by those sums is within the noise by more than their rounding
+    could move it is not measured again (it is not beyond the noise)."""
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
     p = ctx.fitter.params
@@ -194,9 +206,11 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
     inside = None
     out = {}
     for k, idx in (pixels or _Pixels(labels)).of(curved).items():
+        noise = float(np.sqrt(np.mean(ctx.sigma[idx] ** 2)))
+        if sums is not None and _model_surely_within(sums, k, idx.size, noise):
+            continue
         model, points = fits[k], rows_at(ctx.xyz, idx)
         squares = model.distances(points) ** 2
-        noise = float(np.sqrt(np.mean(ctx.sigma[idx] ** 2)))
         if not beyond_noise(float(np.sqrt(np.mean(squares))), noise, idx.size):
             continue
         if inside is None:  # (one pass over the grid, only where a curved model is beyond the noise)
@@ -328,19 +342,80 @@ def _seen_near_grazing(ctx: Context, plane: Plane, idx: np.ndarray) -> bool:
     return float(plane.rms) < GRAZING_RMS_SHARE * median(ctx.sigma[idx])
 
 
-def _still_flat(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> list:
-    """The curved regions among ``curved`` whose model does not lower their pixels' least-
-    squares plane's sum of squared distances by more than noise would (the F-test of
-    :func:`rangeseg_o3d.fitting.robust.curvature_resolved`): two passes over the grid,
-    the label-wise moments and the curved models' distances."""
+class _CurvedSums(NamedTuple):
+    """One pass over the grid for the curved regions of polish's labels (:func:`_curved_sums`):
+    per label, its pixels with a finite distance to its model (``counts``) and the sum of
+    their squared distances (``squares``); per row of ``rows`` (the curved labels, in the
+    order given) its pixels' least-squares plane by their moments: ``count``, ``centroid``,
+    ``variance`` (the smallest eigenvalue of their covariance)."""
+
+    counts: np.ndarray
+    squares: np.ndarray
+    rows: dict
+    count: np.ndarray
+    centroid: np.ndarray
+    variance: np.ndarray
+
+
+def _curved_sums(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> _CurvedSums:
+    """The :class:`_CurvedSums` of the curved regions ``curved`` of ``labels`` under their
+    models in ``fits``: two compiled passes, the models' distances and the label-wise moments."""
     n = max(curved) + 1
     flat_labels = np.ascontiguousarray(labels.ravel(), dtype=np.int32)
     kinds, params, rms = model_table({k: fits[k] for k in curved}, n)
-    _, curved_squares, counts = kernels.distance_stats(ctx.xyz, flat_labels, kinds, params, rms,
-                                                       np.ascontiguousarray(ctx.sigma, dtype=np.float64), 3.0)
-    eigvals = kernels.planes_from_moment_rows(kernels.label_moments(ctx.xyz, flat_labels, n)[curved])[3]
-    return [k for k, plane_variance in zip(curved, eigvals[:, 0]) if counts[k] > 3 and not curvature_resolved(
+    _, squares, counts = kernels.distance_stats(ctx.xyz, flat_labels, kinds, params, rms,
+                                                np.ascontiguousarray(ctx.sigma, dtype=np.float64), 3.0)
+    moments = kernels.label_moments(ctx.xyz, flat_labels, n)[curved]
+    centroid, _, _, eigvals, _, _ = kernels.planes_from_moment_rows(moments)
+    return _CurvedSums(counts, squares, {k: i for i, k in enumerate(curved)}, moments[:, 0], centroid,
+                       eigvals[:, 0])
+
+
+def _still_flat(ctx: Context, labels: np.ndarray, fits: dict, curved: list, *,
+                sums: _CurvedSums | None = None) -> list:
+    """The curved regions among ``curved`` whose model does not lower their pixels' least-
+    squares plane's sum of squared distances by more than noise would (the F-test of
+    :func:`rangeseg_o3d.fitting.robust.curvature_resolved`), from :func:`_curved_sums` (``sums``
+    when the caller has them)."""
+    sums = _curved_sums(ctx, labels, fits, curved) if sums is None else sums
+    counts, curved_squares = sums.counts, sums.squares
+    return [k for k, plane_variance in zip(curved, sums.variance) if counts[k] > 3 and not curvature_resolved(
         plane_variance * counts[k], curved_squares[k], int(counts[k]), EXTRA_PARAMETERS[fits[k].kind])]
+
+
+#: How far (relative) a plane's rms or a model's, measured from sums over a region's pixels
+#: (moments, a compiled pass's squared distances), must clear a threshold for a pre-test to
+#: answer for the fit on the gathered points: their roundings differ by under 1e-8
+#: relative (the moments' covariance cancels at most range^2 / variance, 6e-8 at 80 m for
+#: a 5 mm rms); the regions nearer their threshold are measured as before.
+SUMS_MARGIN = 1e-4
+
+
+def _plane_surely_over(ctx: Context, sums: _CurvedSums, k: int, size: int) -> bool:
+    """Whether the least-squares plane of region ``k``'s ``size`` pixels is over the fitter's
+    plane threshold by more than ``SUMS_MARGIN``, by its moments (:func:`_unbent`'s test,
+    without gathering the points); False when the fitter would subsample them or the sums do
+    not hold all of them."""
+    from ..fitting.classify import plane_threshold
+
+    row = sums.rows.get(k)
+    if row is None or sums.count[row] != size or ctx.fitter.kept(size, size) != size:
+        return False
+    p = ctx.fitter.params
+    tolerance = plane_threshold(size, sums.centroid[row], plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                rms_per_range2=p["rms_per_range2"])
+    return bool(float(np.sqrt(sums.variance[row])) > (1.0 + SUMS_MARGIN) * tolerance)
+
+
+def _model_surely_within(sums: _CurvedSums, k: int, size: int, noise: float) -> bool:
+    """Whether region ``k``'s model leaves its ``size`` pixels an rms under the noise bound
+    of :func:`rangeseg_o3d.fitting.robust.beyond_noise` by more than ``SUMS_MARGIN``, by the
+    compiled sums of their squared distances (:func:`_bent_by_border`'s first test); False
+    when the sums do not hold all of them."""
+    if k not in sums.rows or sums.counts[k] != size or size == 0:
+        return False
+    rms = float(np.sqrt(sums.squares[k] / size))
+    return bool(rms < (1.0 - SUMS_MARGIN) * noise_rms_bound.py_func(noise, float(size), CHI_SQUARE_SIGMAS))
 
 
 #: Chi-square deviations beyond which a plane's distances are not its range noise along the

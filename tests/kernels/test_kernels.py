@@ -147,6 +147,89 @@ def test_refit_planes_from_summed_moments_is_the_union_fit():
         refit_planes_from_moments(moments, [union])
 
 
+def _numpy_refits(moments, models, *, plane_rms, rms_per_range2, min_points, noise_floor):
+    # refit_planes_from_moments as it was before its thresholds were compiled (numpy over
+    # every row): the reference the compiled form must equal to the bit
+    from rangeseg_o3d.kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
+    from rangeseg_o3d.fitting.plane import UNDETERMINED
+
+    planes = planes_from_moments(moments)
+    counts = planes.count.astype(np.float64)
+    floor = np.full(counts.shape, float(plane_rms))
+    if noise_floor > 0.0:
+        floor = np.maximum(floor, noise_rms_bound.py_func(float(noise_floor), counts - 3.0, NOISE_CHI2_SIGMAS))
+    tol = (floor + rms_per_range2 * np.square(planes.centroid).sum(axis=1)).tolist()
+    minimum = max(int(min_points), 3)
+    out = []
+    for i, model in enumerate(models):
+        if not isinstance(model, Plane):
+            out.append(None)
+        elif planes.count[i] < minimum:
+            out.append(FitFailure("plane", f"a plane fit needs at least {minimum} points; got {int(planes.count[i])}"))
+        elif not planes.ok[i]:
+            out.append(FitFailure("plane", UNDETERMINED))
+        elif planes.rms[i] > tol[i]:
+            out.append(FitFailure("plane", f"plane rms {planes.rms[i]:.3g} > {tol[i]:.3g}"))
+        else:
+            out.append(Plane(normal=planes.normal[i], d=float(planes.d[i]), rms=float(planes.rms[i]),
+                             inliers=int(planes.count[i])))
+    return out
+
+
+def test_refit_planes_from_moments_equals_the_numpy_thresholds_to_the_bit():
+    # noisy planes of 1-3000 points, 1-25 mm noise, 0.3-40 m away, turned every way, with
+    # collinear and coincident sets among them: the compiled thresholds (kernels.plane_refit_rows)
+    # give the same planes, the same verdicts and the same reasons as numpy's did
+    from rangeseg_o3d.kernels import plane_refit_rows
+
+    rng = np.random.default_rng(23)
+    groups = []
+    for size in rng.integers(1, 3000, 120).tolist() + [1, 2, 3, 4, 6, 10]:
+        normal = rng.normal(size=3)
+        pts = _plane_points(rng, size, normal, rng.uniform(0.3, 40.0), rng.uniform(0.001, 0.025))
+        groups.append(pts * rng.uniform(0.2, 3.0, 3))  # stretched: some planes bend off their fit
+    groups.append(np.outer(np.linspace(0, 1, 40), [1.0, 2.0, 0.5]) + [0.0, 0.0, 5.0])  # collinear
+    groups.append(np.tile([[1.0, 2.0, 3.0]], (30, 1)))  # coincident
+    pts = np.vstack(groups)
+    labels = np.concatenate([np.full(len(g), k, np.int32) for k, g in enumerate(groups, 1)])
+    moments = region_moments(pts, labels)[1:]
+    moments = np.vstack([moments, moments[3] + moments[7], np.zeros(10)])  # a union, an empty row
+    plane = Plane(normal=[0.0, 0.0, 1.0], d=1.0, rms=0.0, inliers=3)
+    sphere = fit_sphere(rng.normal(size=(50, 3)) / 10 + [0, 0, 3])
+    models = [sphere if i % 17 == 5 else plane for i in range(len(moments))]
+    verdicts = set()
+    for params in (dict(plane_rms=0.01, rms_per_range2=0.0, min_points=10, noise_floor=0.005),
+                   dict(plane_rms=0.004, rms_per_range2=1.425e-3, min_points=5, noise_floor=0.0),
+                   dict(plane_rms=0.002, rms_per_range2=2e-4, min_points=3, noise_floor=0.02)):
+        got = refit_planes_from_moments(moments, models, **params)
+        want = _numpy_refits(moments, models, **params)
+        for g, w in zip(got, want):
+            assert type(g) is type(w)
+            if isinstance(w, Plane):
+                assert g.normal.tobytes() == w.normal.tobytes()
+                assert (g.d, g.rms, g.inliers) == (w.d, w.rms, w.inliers)
+            elif isinstance(w, FitFailure):
+                assert (g.kind, g.reason) == (w.kind, w.reason)
+            verdicts.add(type(w).__name__ if w is None or isinstance(w, Plane) else w.reason.split(" ")[0])
+        # the kernel's rows: planes_from_moment_rows' to the bit, its thresholds numpy's
+        normal, d, rms, tol, ok = plane_refit_rows(moments, params["plane_rms"], params["noise_floor"],
+                                                   params["rms_per_range2"])
+        planes = planes_from_moments(moments)
+        assert normal.tobytes() == planes.normal.tobytes() and d.tobytes() == planes.d.tobytes()
+        assert rms.tobytes() == planes.rms.tobytes() and ok.tolist() == planes.ok.tolist()
+    # every path was taken: planes, not planes, too few points ("a plane fit needs"), undetermined
+    # ("points are coincident"), over the threshold ("plane rms")
+    assert verdicts == {"Plane", "NoneType", "a", "points", "plane"}
+
+
+def test_refit_planes_from_moments_refuses_moments_of_another_shape():
+    plane = Plane(normal=[0.0, 0.0, 1.0], d=1.0, rms=0.0, inliers=3)
+    with pytest.raises(ValueError, match=r"shape \(K, 10\); got \(2, 9\)"):
+        refit_planes_from_moments(np.ones((2, 9)), [plane, plane])
+    with pytest.raises(ValueError, match="one moments row per model"):
+        refit_planes_from_moments(np.ones((2, 10)), [plane])
+
+
 def test_count_inliers_matches_model_distances():
     rng = np.random.default_rng(6)
     t = rng.uniform(0, 2 * np.pi, 200)

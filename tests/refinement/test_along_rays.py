@@ -232,3 +232,31 @@ def test_the_ring_skips_only_pixels_inside_their_region(wrap):
         want = _moves_every_pixel(*args)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
         assert want[0].size or (h, w) != (12, 20)  # (the large grid moves pixels: the test bites)
+
+
+@pytest.mark.parametrize("seed", [4, 5, 6])
+def test_each_ring_reads_the_planes_as_refitted_after_the_ring_before(context, monkeypatch, seed):
+    # the planes' table is kept and its refitted rows replaced, not built again each ring:
+    # every ring's table equals _plane_table of the models as they are then
+    import rangeseg_o3d.refinement.along_rays as along_rays
+
+    cloud, truth = _box_seen_from_above(seed)
+    labels, _, _ = _top_took_front_rows(truth, rows=4)
+    fits = _fits(cloud, labels)
+    ctx = context(cloud, sigma=np.full(cloud.shape, NOISE))
+    tables, refits = [], []
+    moves, refit_regions = along_rays._moves, ctx.fitter.refit_regions
+    monkeypatch.setattr(along_rays, "_moves", lambda c, lab, table, *a, **k: (
+        tables.append(tuple(t.copy() for t in table)), moves(c, lab, table, *a, **k))[1])
+    monkeypatch.setattr(ctx.fitter, "refit_regions", lambda *a, **k: (
+        refits.append(refit_regions(*a, **k)), refits[-1])[1])
+    ranges = np.where(cloud.valid, cloud.range_image(), np.nan)
+    settle_along_rays(ctx, labels, fits, ranges=ranges, iterations=3, k_sigma=3.0, jump_ratio=0.08, jump_min=0.05)
+    assert len(tables) >= 2 and refits  # rings after a refit were run
+    now, n = dict(fits), tables[0][0].shape[0]
+    for i, (normals, offsets) in enumerate(tables):
+        want_normals, want_offsets = along_rays._plane_table(now, n)
+        assert normals.tobytes() == want_normals.tobytes() and offsets.tobytes() == want_offsets.tobytes()
+        for k, refit in (refits[i] if i < len(refits) else {}).items():
+            if refit and refit.kind == "plane":
+                now[k] = refit

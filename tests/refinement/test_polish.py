@@ -350,6 +350,14 @@ def test_band_bend_counts_the_standard_errors_of_the_bend_in_the_noise():
         assert np.sign(bend) == np.sign(curvature) and abs(bend) > 5.0  # 1 mm of sagitta under 1 mm of noise: 6.4
 
 
+def _rays_one_degree_apart() -> np.ndarray:
+    """(40, 40, 3) unit rays from the origin 1 degree apart, the grid's middle on the z axis."""
+    focal = 1.0 / np.tan(np.radians(1.0))
+    v, u = np.mgrid[0:40, 0:40].astype(float)
+    rays = np.dstack([(u - 19.5) / focal, (v - 19.5) / focal, np.ones((40, 40))])
+    return rays / np.linalg.norm(rays, axis=2, keepdims=True)
+
+
 def _narrow_face_or_pipe(seed: int, pipe: bool):
     """A 40 x 40 grid of rays 1 degree apart from the origin, 5 mm range noise along them, a
     wall 4.2 m away and in front of it (label 1, rows 10-29) either a face 6 columns wide at
@@ -359,10 +367,7 @@ def _narrow_face_or_pipe(seed: int, pipe: bool):
     from rangeseg_o3d.refinement.context import Context
 
     rng = np.random.default_rng(seed)
-    focal = 1.0 / np.tan(np.radians(1.0))
-    v, u = np.mgrid[0:40, 0:40].astype(float)
-    rays = np.dstack([(u - 19.5) / focal, (v - 19.5) / focal, np.ones((40, 40))])
-    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    rays = _rays_one_degree_apart()
     wall = 4.2 / rays[..., 2]
     ranges, labels, rows = wall.copy(), np.zeros((40, 40), np.int32), slice(10, 30)
     if pipe:  # the ray meets x^2 + (z - 3.3)^2 = 0.3^2
@@ -428,10 +433,7 @@ def _narrow_pipe_or_face_with_mixed_limbs(seed: int, pipe: bool):
     from rangeseg_o3d.refinement.context import Context
 
     rng = np.random.default_rng(seed)
-    focal = 1.0 / np.tan(np.radians(1.0))
-    v, u = np.mgrid[0:40, 0:40].astype(float)
-    rays = np.dstack([(u - 19.5) / focal, (v - 19.5) / focal, np.ones((40, 40))])
-    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    rays = _rays_one_degree_apart()
     wall = (5.42 if pipe else 6.0) / rays[..., 2]
     ranges, labels, rows = wall.copy(), np.zeros((40, 40), np.int32), slice(10, 30)
     if pipe:  # the ray meets x^2 + (z - 5)^2 = 0.12^2
@@ -549,3 +551,108 @@ def test_four_neighbours_of_the_grid_pixel_by_pixel(wrap_columns):
             inside[r, c] = labels[r, c] > 0 and all(v == labels[r, c] for v in expected)
     np.testing.assert_array_equal(_interior(labels, wrap_columns), inside)
     assert inside[3, 3] and inside[2:4, 0].all() == wrap_columns
+
+
+def _wall_strips_under_curved_models(seed: int, noise: float):
+    """A 40 x 40 grid of rays 1 degree apart, ``noise`` range noise along them: a wall 3.5 m
+    away whose strips (labels 1-4, 6-12 columns wide, some with a few pixels of a nearer face)
+    carry curved models fitted to a pipe, a ball and to themselves: some strips' planes lie
+    within the fitter's threshold, some far over it, some just about it.
+    ``(context, labels, fits)``."""
+    from rangeseg_o3d.fitting.primitives import Cylinder, Sphere
+    from rangeseg_o3d.refinement.context import Context
+
+    rng = np.random.default_rng(seed)
+    rays = _rays_one_degree_apart()
+    ranges = 3.5 / rays[..., 2]
+    labels = np.zeros((40, 40), np.int32)
+    edges = np.cumsum(rng.integers(6, 13, 4))
+    for k, (start, stop) in enumerate(zip(np.r_[0, edges[:-1]], edges), start=1):
+        labels[5:35, start:min(stop, 40)] = k
+    # a few pixels of a nearer face in strips 2 and 4 (their planes over the threshold or about it)
+    for k, depth in ((2, 0.2), (4, rng.uniform(0.005, 0.03))):
+        rows, cols = np.nonzero(labels == k)
+        pick = rng.choice(rows.size, 6, replace=False)
+        ranges[rows[pick], cols[pick]] -= depth
+    xyz = rays * (ranges + rng.normal(0.0, noise, ranges.shape))[..., None]
+    ctx = Context(rs.OrganizedCloud(xyz), rs.Pipeline("lms200").fitter, np.full((40, 40), noise), 10)
+    pipe = Cylinder(axis=[0.0, 1.0, 0.0], point=[0.0, 0.0, 3.5 + 0.4], radius=0.4, rms=noise, inliers=100)
+    centre = 3.5 + float(rng.uniform(2.0, 50.0))
+    ball = Sphere(center=[0.0, 0.0, centre], radius=centre - 3.5, rms=noise, inliers=100)
+    # strip 3: a vertical cylinder tangent to the wall at its middle, 20-200 m in radius
+    # (within the noise of the strip's pixels); strip 4 the pipe's or, in half the draws, this one
+    middle = float(np.mean(xyz[labels == 3][:, 0]))
+    radius = float(rng.uniform(20.0, 200.0))
+    tangent = Cylinder(axis=[0.0, 1.0, 0.0], point=[middle, 0.0, 3.5 + radius], radius=radius, rms=noise,
+                       inliers=100)
+    fits = {1: pipe, 2: ball, 3: tangent, 4: pipe if seed % 2 else tangent}
+    return ctx, labels, fits
+    return ctx, labels, {k: m for k, m in fits.items() if m}
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_polish_pretests_from_the_curved_sums_answer_as_the_fits_on_the_points(seed, monkeypatch):
+    # _unbent and _bent_by_border given the curved regions' sums (moments, the compiled
+    # distances) skip only regions the fits on the gathered points would refuse: the same
+    # answers as without them, on noisy strips within, over and about the thresholds
+    import rangeseg_o3d.refinement.polish as polish
+    from rangeseg_o3d.refinement.polish import (_bent_by_border, _curved_sums, _model_surely_within,
+                                                _plane_surely_over, _unbent)
+
+    for noise in (0.002, 0.005, 0.02):
+        ctx, labels, fits = _wall_strips_under_curved_models(seed, noise)
+        curved = sorted(fits)
+        sums = _curved_sums(ctx, labels, fits, curved)
+        assert _unbent(ctx, labels, curved, 1.0, sums=sums).keys() == _unbent(ctx, labels, curved, 1.0).keys()
+        for k, plane in _unbent(ctx, labels, curved, 1.0, sums=sums).items():
+            reference = _unbent(ctx, labels, curved, 1.0)[k]
+            assert plane.normal.tobytes() == reference.normal.tobytes() and plane.rms == reference.rms
+        with_sums, without = (_bent_by_border(ctx, labels, fits, curved, sums=sums),
+                              _bent_by_border(ctx, labels, fits, curved))
+        assert with_sums.keys() == without.keys()
+        for k in with_sums:
+            assert with_sums[k].normal.tobytes() == without[k].normal.tobytes()
+        # the pre-tests against the measures they stand for, on every region
+        for k in curved:
+            idx = np.flatnonzero(labels.ravel() == k)
+            pts = ctx.xyz[idx]
+            p = ctx.fitter.params
+            from rangeseg_o3d.fitting.classify import plane_threshold
+            from rangeseg_o3d.fitting.robust import beyond_noise
+
+            tolerance = plane_threshold(idx.size, pts.mean(axis=0), plane_rms=p["plane_rms"],
+                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
+            if _plane_surely_over(ctx, sums, k, idx.size):
+                assert fit_plane(pts).rms > tolerance
+            rms = float(np.sqrt(np.mean(fits[k].distances(pts) ** 2)))
+            if _model_surely_within(sums, k, idx.size, noise):
+                assert not beyond_noise(rms, noise, idx.size)
+    # polish as a whole: the same models with the sums as with the fits alone
+    ctx, labels, fits = _wall_strips_under_curved_models(seed, 0.005)
+    polished = polish_models(ctx, labels, fits, resolve_bends=1.0, along_rays=True)
+    monkeypatch.setattr(polish, "_plane_surely_over", lambda *a: False)
+    monkeypatch.setattr(polish, "_model_surely_within", lambda *a: False)
+    reference = polish_models(ctx, labels, fits, resolve_bends=1.0, along_rays=True)
+    assert polished.keys() == reference.keys()
+    for k in polished:
+        assert polished[k].kind == reference[k].kind and polished[k].params() == reference[k].params()
+
+
+def test_polish_pretests_take_both_answers_and_refuse_sums_that_miss_pixels():
+    # over the scenes above each pre-test both skips regions and leaves some to the fits;
+    # sums that do not hold every pixel of a region (another label image's) answer nothing
+    from rangeseg_o3d.refinement.polish import _curved_sums, _model_surely_within, _plane_surely_over
+
+    over, within = set(), set()
+    for seed in range(8):
+        for noise in (0.002, 0.005, 0.02):
+            ctx, labels, fits = _wall_strips_under_curved_models(seed, noise)
+            sums = _curved_sums(ctx, labels, fits, sorted(fits))
+            for k in fits:
+                size = int(np.count_nonzero(labels == k))
+                over.add(_plane_surely_over(ctx, sums, k, size))
+                within.add(_model_surely_within(sums, k, size, noise))
+                assert not _plane_surely_over(ctx, sums, k, size + 1)
+                assert not _model_surely_within(sums, k, size - 1, noise)
+            assert not _plane_surely_over(ctx, sums, 99, 10) and not _model_surely_within(sums, 99, 10, noise)
+    assert over == {True, False} and within == {True, False}
