@@ -125,6 +125,9 @@ class Lms2xx:
         self._streaming = False
         self._reader: ChunkReader | None = None  # reads the port while the LMS streams
         self._streamed: list[tuple[Scan, float]] = []  # (scan, arrival) not taken yet
+        # True while a request sent earlier may still be answered: a send ended without its
+        # reply (unanswered in time, damaged, NAK) or was left behind by a resend. See _settle.
+        self._unsettled = False
 
     # -- low level --------------------------------------------------------------
     def close(self) -> None:
@@ -262,17 +265,22 @@ class Lms2xx:
             rescue = self._rescue(reply_code)
         silent_since = time.monotonic()
         silent_in_a_row = 0
+        unsettled_before = self._unsettled
         for attempt in range(attempts):
             if not (keep_input if attempt == 0 else self._streaming):
                 self._flush()
             self.transport.write(frame)
             self.stats["sent"] += 1
+            self._unsettled = True  # until this send's reply is in: a failure or a resend leaves it owed
             remaining = timeout - (time.monotonic() - silent_since)
             outcome, telegram, heard = self._await(reply_code, min(reply_timeout, max(remaining, 0.001)),
                                                    ack_timeout)
             if heard:
                 silent_since = time.monotonic()
             if outcome == "reply":
+                # The one send of this call answered: nothing more is owed than before. After a
+                # resend, the reply taken may answer an earlier send and the last one's is owed.
+                self._unsettled = unsettled_before if attempt == 0 else True
                 return telegram
             self.stats[outcome] += 1
             if outcome == "broken" and rescue is not None:
@@ -471,13 +479,36 @@ class Lms2xx:
 
         return rescue
 
+    def _settle(self) -> None:
+        """Wait until every reply still owed to earlier sends has come, by a request the LMS
+        answers with another reply code (device type, 3A -> BA).
+
+        The LMS answers the requests it received in order, with no sequence number. A send
+        left unanswered in time (a slow device, a lost ACK, a simulator without a core) may
+        still be answered later, after the request that follows: a scan measured before or
+        during a tilt move would then be taken as the answer to a request made at the next
+        stop. Counting the sends owed a reply cannot tell: a request lost on the line is
+        never answered. A reply to the fence comes after the replies to everything the LMS
+        received before it, so the first scan after it answers a request sent after it.
+        """
+        self.request(b"\x3a", 0xBA)
+        self._unsettled = False
+        self.stats["settled"] = self.stats.get("settled", 0) + 1
+
     def request_scan(self, *, attempts: int | None = None) -> Scan:
         """One complete scan (30 01) in send-on-request mode; resent until CRC, count and unit check.
+
+        The scan returned answers a request sent by this call: when an earlier request may
+        still be answered (it was resent or failed), the line is first settled (:meth:`_settle`),
+        so a late reply to it is never taken for this one's (it may have been measured at
+        another tilt).
 
         On a line too noisy for a whole copy to arrive, the scan is rebuilt from its damaged
         copies (:mod:`~rangeseg_o3d.acquisition.consensus`; the device repeats a scan at a
         standstill) and must then pass the same checks.
         """
+        if self._unsettled:
+            self._settle()
         attempts = self.attempts if attempts is None else attempts
         # STX, address, length, command, count, values, status, CRC
         length = None if self.n_values is None else 10 + 2 * self.n_values

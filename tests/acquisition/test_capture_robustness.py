@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import io
+import time
 
 import numpy as np
 import pytest
@@ -195,3 +196,71 @@ def test_library_attaches_and_saves_the_partial_capture(tmp_path):
         simulated_capture(config, row_ranges=wall, time_scale=0.05, progress=progress)
     assert info.value.partial.n_rows == 2 and calls == [1, 2]
     assert OrganizedCloud.load(tmp_path / "p.npz").shape == (2, 181)
+
+
+def test_a_late_reply_to_an_earlier_send_is_never_a_later_rows_scan(monkeypatch):
+    # The LMS answers in order but without sequence numbers. Here its answer to the first send of
+    # row 1's scan comes only after the driver has resent twice (a device slower than the host's
+    # reply timeout, a lost ACK, or a simulator thread without a core: the demo at load 10), and
+    # the two resends' answers only after the driver's next sends, after the move to row 2. The
+    # schedule is set by the driver's writes, not by time: before the fix, row 2 always got a scan
+    # measured for row 1 (its discard_stale protects one deep only).
+    from rangeseg_o3d.acquisition.lms_driver import Lms2xx
+    from rangeseg_o3d.acquisition.logged_transport import LoggedTransport
+    from rangeseg_o3d.acquisition.sim.pty import Output, PtyDevice
+
+    sends, drivers = [], []
+
+    class Counted(LoggedTransport):
+        __slots__ = ()
+
+        def write(self, data):
+            sends.append(bytes(data))  # before the bytes go out, so the simulator never sees them first
+            return super().write(data)
+
+    init = Lms2xx.__init__
+
+    def counting_init(driver, *args, **kwargs):
+        init(driver, *args, **kwargs)
+        drivers.append(driver)
+        driver.transport = Counted(driver.transport.inner, driver.port)
+
+    class Held(Output):
+        pass
+
+    first_late = 4  # scan requests: row 0's discard 1 and scan 2, row 1's discard 3, scan 4
+    handled_at = []
+    answer = VirtualLms200._answer
+
+    def late_answer(lms, telegram):
+        outputs = answer(lms, telegram)
+        late = lms.scan_requests - first_late
+        if telegram.command == 0x30 and 0 <= late <= 2:
+            if late == 0:
+                handled_at.append(len(sends))
+            # the first held until two resends went out, each resend's until one more send after that
+            release = handled_at[0] + 2 + late
+            scan = outputs[-1]
+            outputs[-1] = Held(scan.delay, scan.data, scan.baud)
+            outputs[-1].release = release
+        return outputs
+
+    send = PtyDevice._send
+
+    def held_send(link, out):
+        if isinstance(out, Held):
+            deadline = time.monotonic() + 5.0
+            while len(sends) < out.release and time.monotonic() < deadline:
+                time.sleep(0.0005)
+        send(link, out)
+
+    monkeypatch.setattr(Lms2xx, "__init__", counting_init)
+    monkeypatch.setattr(VirtualLms200, "_answer", late_answer)
+    monkeypatch.setattr(PtyDevice, "_send", held_send)
+    config = CaptureConfig.model_validate({"schedule": {"rows": 4, "start": -0.3, "stop": 0.3}})
+    cloud = simulated_capture(config, row_ranges=wall, noise=0.005, seed=5, time_scale=0.05)
+    np.testing.assert_allclose(cloud.geometry.tilt_angles, config.schedule.angles(), atol=1e-6)
+    for row, tilt in enumerate(cloud.geometry.tilt_angles):
+        np.testing.assert_array_equal(cloud.ranges[row], ranges_measured_at(tilt, noise=0.005, seed=5),
+                                      err_msg=f"row {row} at tilt {tilt!r}")
+    assert drivers[0].stats["settled"] >= 1

@@ -124,6 +124,32 @@ def test_request_one_scan(scripted):
     np.testing.assert_allclose(scan.ranges, ranges)
 
 
+def test_a_reply_owed_to_an_earlier_send_is_not_taken_for_the_next_scan(scripted):
+    # The first scan's send 1 goes unanswered in time and send 2 gets send 1's late answer (scan 1);
+    # send 2's own answer (scan 2) comes only with the next request, which may follow a tilt move. So
+    # the next scan first settles the line (3A, device type): what comes before its BA was owed.
+    one, two, three = (encode_telegram(encode_scan_values(np.full(3, v)), 0x80) for v in (1.0, 2.0, 3.0))
+    _, lms = make(scripted, [(req("30 01"), b""), (req("30 01"), ACK + one),
+                             (req("3A"), ACK + two + ACK + rep("BA 41")),
+                             (req("30 01"), ACK + three), (req("30 01"), ACK + one)], reply_timeout=0.02)
+    lms.n_values, lms.unit = 3, 0.001
+    assert lms.request_scan().ranges[0] == 1.0
+    assert lms.request_scan().ranges[0] == 3.0
+    assert lms.request_scan().ranges[0] == 1.0  # answered at the first send: nothing owed, no 3A
+    assert lms.stats["settled"] == 1 and lms.stats["silent"] == 1
+
+
+def test_a_failed_scan_request_settles_the_line_before_the_next(scripted):
+    # discard_stale's single try fails (its answer may still come): the next scan is not its answer
+    one, two = (encode_telegram(encode_scan_values(np.full(3, v)), 0x80) for v in (1.0, 2.0))
+    _, lms = make(scripted, [(req("30 01"), ACK), (req("3A"), one + ACK + rep("BA 41")),
+                             (req("30 01"), ACK + two)], reply_timeout=0.02)
+    lms.n_values, lms.unit = 3, 0.001
+    with pytest.raises(LmsProtocolError):
+        lms.request_scan(attempts=1)
+    assert lms.request_scan().ranges[0] == 2.0
+
+
 def test_nak_waits_at_least_30ms_then_resends(scripted, monkeypatch):
     pauses = []
     monkeypatch.setattr(lms_driver, "sleep", pauses.append)
