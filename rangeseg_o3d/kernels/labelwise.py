@@ -373,6 +373,12 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
         # full decision (which tries the curved models against it)
         candidate[k] = (ok[k] and moments[k, 0] >= max(min_points, 3)
                         and rms[k] <= min(tolerance[k], max(plane_rms, noise_floor) + extra))
+        # and so is a plane within a threshold over the noise (a preset's plane_rms over a
+        # quiet sensor's noise) yet beyond what that noise gives its points up their
+        # chi-square: the decision calls it marginal too (fitting._decide.primitive_decision)
+        if (candidate[k] and noise_floor > 0.0
+                and rms[k] > noise_rms_bound(noise_floor + extra, moments[k, 0] - 3.0, NOISE_CHI2_SIGMAS)):
+            candidate[k] = False
         # The floor keeps rounding-level residuals of exact planes from looking "curved".
         active[k] = candidate[k] and rms[k] > 0.1 * tolerance[k]
         spread = np.sqrt(eigvals[k, 1] + eigvals[k, 2])
