@@ -366,8 +366,10 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
     :func:`.linalg.flat_by_quadric`; not tested when
     the rms is under a tenth of the threshold). With ``bends`` (the independent samples
     each point carries, > 0) a plane within the noise whose quadric resolves a bend over its
-    points' samples (:func:`.linalg.quadric_resolved`) is not settled either. Returns ``(settled, normal, d, rms,
-    inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
+    points' samples (:func:`.linalg.quadric_resolved`) is not settled either, nor is a plane
+    beyond what ``noise_floor`` gives its points' samples up their chi-square
+    (``NOISE_CHI2_SIGMAS``: the decision's marginal plane). Returns ``(settled, normal, d,
+    rms, inliers)``, the inliers counted within ``inlier_factor`` times the threshold.
     """
     # np.intp, not a literal 0: while numba's type inference settles, a variable seen only as
     # the literal 0 so far compiles the call below once more for that literal type
@@ -393,6 +395,15 @@ def settle_planes(xyz, labels, n, plane_rms, rms_per_range2, min_points, curvatu
         # full decision (which tries the curved models against it)
         candidate[k] = (ok[k] and moments[k, 0] >= max(min_points, 3)
                         and rms[k] <= min(tolerance[k], max(plane_rms, noise_floor) + extra))
+        # with bends (a region's final pixels) so is a plane within a threshold over the noise
+        # (a preset's plane_rms over a quiet sensor's noise) yet beyond what that noise gives
+        # its independent samples up their chi-square: the decision calls it marginal too and
+        # tries the curved models against it (fitting._decide.primitive_decision). Points whose
+        # noise errs together (bends < 1) spread their rms as fewer samples do
+        if (candidate[k] and bends > 0.0 and noise_floor > 0.0
+                and rms[k] > noise_rms_bound(noise_floor + extra, moments[k, 0] * min(bends, 1.0) - 3.0,
+                                             NOISE_CHI2_SIGMAS)):
+            candidate[k] = False
         # The floor keeps rounding-level residuals of exact planes from looking "curved".
         active[k] = candidate[k] and rms[k] > 0.1 * tolerance[k]
         spread = np.sqrt(eigvals[k, 1] + eigvals[k, 2])

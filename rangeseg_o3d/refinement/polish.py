@@ -84,8 +84,15 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
                                       pixels=pixels, sums=sums))
         fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
-        fits.update(_curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
-                                   pixels=pixels, grazing_flat=along_rays))
+        bent = _curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
+                              pixels=pixels, grazing_flat=along_rays)
+        if resolve_bends and bent:
+            # a plane the decision now bends is held to the test the curved models met above: a
+            # bend only a neighbour's pixels carry is none (the batch leaves the decision the
+            # planes beyond the noise's chi-square, and a few such pixels put a wall there)
+            refused = _unbent(ctx, labels, list(bent), resolve_bends, pixels=pixels)
+            bent = {k: m for k, m in bent.items() if k not in refused}
+        fits.update(bent)
         if along_rays:
             fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
     return fits
