@@ -6,6 +6,8 @@ import numpy as np
 from .inline import _neighbour
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
+CACHE_DEPENDS = ("inline.py", "kinds.py")
+
 __all__ = ["outlier_claims"]
 
 
