@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._numeric import unique_ints
 from . import kernels  # the package: its names load on first use (no compiler at import)
 from .fitting.primitives import Plane
 from .fitting.region_fitter import model_table, region_indices
@@ -71,7 +72,7 @@ def claim_outliers_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, s
     changed = np.flatnonzero(out != flat)
     if not changed.size:
         return labels, stats
-    givers = np.unique(flat[changed]).tolist()
+    givers = unique_ints(flat[changed]).tolist()
     curved = [k for k, idx in region_indices(out.reshape(labels.shape), only=givers).items()
               if _left_curved(xyz, noise, idx, inverse_planes[k], correlation_px)]
     if curved:  # those regions keep what they had
