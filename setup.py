@@ -60,13 +60,16 @@ class BuildPyWithKernels(build_py):
 
     def run(self) -> None:
         super().run()
-        if self.editable_mode or os.environ.get("RANGESEG_NO_PRECOMPILE"):
+        if self.editable_mode:
             return
         package = Path(self.build_lib) / "rangeseg_o3d"
-        # An older build's cache could hold a kernel compiled against a callee in another file
-        # that has changed since (numba checks each kernel against its own file only).
+        # An older build's cache (the build folder of a checkout persists) could hold a kernel
+        # compiled against a callee in another file that has changed since (numba checks each
+        # kernel against its own file only); a wheel asked for without kernels carries none.
         for stale in _compiled_kernels(package):
             stale.unlink()
+        if os.environ.get("RANGESEG_NO_PRECOMPILE"):
+            return
         seeded = _seed_from_checkout(Path(__file__).resolve().parent / "rangeseg_o3d", package)
         env = {k: v for k, v in os.environ.items()
                if k not in ("NUMBA_CACHE_DIR", "RANGESEG_CACHE_DIR", "NUMBA_DISABLE_JIT", "PYTHONPATH")}

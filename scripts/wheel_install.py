@@ -120,6 +120,8 @@ def build(dist: Path, precompile: bool = True) -> tuple[Path, Path]:
     with zipfile.ZipFile(wheel) as archive:
         in_wheel = sorted(Path(n).name for n in archive.namelist() if n.startswith("rangeseg_o3d/configs/"))
         kernels = sum(1 for n in archive.namelist() if n.endswith(".nbi"))
+    if not precompile and kernels:
+        raise StepFailed(f"FAILED: a wheel built with RANGESEG_NO_PRECOMPILE=1 carries {kernels} compiled kernels")
     if in_sdist != presets or in_wheel != presets:
         raise StepFailed(f"FAILED: presets {presets}; sdist has {in_sdist}, wheel has {in_wheel}")
     seeded = [line for line in done.stdout.splitlines() if "compiled kernel files in the wheel" in line]
