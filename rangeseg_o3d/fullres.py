@@ -312,9 +312,9 @@ def _moved_pixels(before: np.ndarray, after: np.ndarray, where=None, claimed_at=
     array of them; None: the whole grid) which must hold every such pixel but those of
     ``claimed_at`` (flat indices): the recovery changes its blobs and the rings around them,
     and the free pixels its last claim took, not the frame."""
-    from .refinement.recover import _differing
+    from .refinement.recover import differing_pixels
 
-    moved = _differing(before, after, where)
+    moved = differing_pixels(before, after, where)
     if claimed_at is not None and len(claimed_at):
         moved = unique_ints(np.concatenate([moved, np.asarray(claimed_at, dtype=np.int64)]))
     return moved

@@ -14,7 +14,7 @@ CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["group_by_label", "count_either_side", "jump_mask", "adjacency_matrix", "grow_rings", "grow_rings_in_boxes", "claim_rings",
            "claim_rings_in_boxes", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "moved_labels", "member_pixels", "member_counts", "group_counted", "box_members", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "box_members", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -667,24 +667,6 @@ def free_pixels(labels, valid):
             m += 1
     return out
 
-
-@njit(cache=True, nogil=True)
-def moved_labels(before, after):
-    """The labels (increasing, 0 included when present) that the pixels whose label differs
-    between the label images ``before`` and ``after`` (same shape) had or have:
-    ``np.union1d(before[moved], after[moved])`` without the whole-grid comparison array."""
-    a, b = before.ravel(), after.ravel()
-    count = 0
-    for i in range(a.shape[0]):
-        if a[i] != b[i]:
-            count += 1
-    values = np.empty(2 * count, np.int64)
-    m = 0
-    for i in range(a.shape[0]):
-        if a[i] != b[i]:
-            values[m], values[m + 1] = a[i], b[i]
-            m += 2
-    return np.unique(values)
 
 @njit(cache=True, nogil=True)
 def member_pixels(labels, members):

@@ -25,7 +25,7 @@ from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["leftover_candidates", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
+__all__ = ["differing_pixels", "leftover_candidates", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
            "recover_leftovers", "recover_pixels"]
 
 
@@ -515,7 +515,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     on such pixels merges back into that plane only when it lies on the union's plane on
     the mean (:func:`_released_from`, :func:`rangeseg_o3d.refinement.merge.merge_regions`).
     ``changes`` (optional, a dict): receives ``where``, a box or boxes (as
-    :func:`_differing` takes them) holding every pixel whose label this call changed but
+    :func:`differing_pixels` takes them) holding every pixel whose label this call changed but
     those the last claim of free pixels took (None: they may lie anywhere), ``claimed``,
     the labels those took, and ``claimed_at``, their flat indices (increasing).
     """
@@ -805,7 +805,7 @@ def _alive(fits: dict, old: np.ndarray, below: int | None) -> np.ndarray:
     return alive
 
 
-def _differing(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
+def differing_pixels(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
     """Flat indices (increasing) of the pixels where the label images ``a`` and ``b`` differ:
     ``np.flatnonzero(a != b)``, compared only in ``where`` (a ``(row0, row1, col0, col1)``
     box or a ``(K, 4)`` array of them, clipped to the grid) when given, which must hold every
@@ -856,7 +856,7 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
     they had ``before`` (free where that region has no model). The planes of ``refused``
     were cut to their distance noise already. ``below`` (optional): a number above every
     label of ``before``; ``where`` (optional): a box or boxes holding every pixel whose label
-    changed since ``found`` (:func:`_differing`). ``found_rms`` (optional): per plane found in
+    changed since ``found`` (:func:`differing_pixels`). ``found_rms`` (optional): per plane found in
     the blobs, its rms on the pixels it was found on; when smaller, that is the floor instead
     of the plane's rms now, which the pixels it took since may have raised (a box side seen
     at 87 degrees whose pieces merged after their rims took pixels of the table and of the
@@ -872,7 +872,7 @@ def _gains_within_distance_noise(ctx: Context, before: np.ndarray, found: np.nda
     labels = np.ascontiguousarray(labels)
     flat, old = labels.reshape(-1), before.reshape(-1)
     # the few pixels whose label changed since the fit, not a pass per region over the grid
-    moved = _differing(labels, found, where)
+    moved = differing_pixels(labels, found, where)
     owner = flat[moved]
     order = np.argsort(owner, kind="stable")
     moved, owner = moved[order], owner[order]
