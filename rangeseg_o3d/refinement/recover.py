@@ -25,7 +25,7 @@ from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["differing_pixels", "leftover_candidates", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
+__all__ = ["differing_pixels", "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
            "recover_leftovers", "recover_pixels"]
 
 
@@ -501,7 +501,9 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs are fitted, their pixels on a plane region's surface join it
     (:func:`claim_on_distance_noise`; apart from it only with ``config.merge_disjoint``);
     after, a recovered plane beyond the noise of its pixels' distances
-    (:func:`_planes_along_rays`; unless, where the sensor states a lateral noise, it is one
+    (:func:`_planes_along_rays`; unless, where the noise errs together over a matching window,
+    its plane fitted along its pixels' rays explains them: :func:`planes_fitted_along_rays`,
+    or, where the sensor states a lateral noise, it is one
     of several pieces of one face the jump edges cut: :func:`_join_grazing_pieces`) merges into no plane and, unless it rejoins a curved region,
     keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
     ``config.merge_disjoint`` the free pixels are offered to the planes once more.
@@ -553,6 +555,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # below looks only in their boxes grown by the rings it may add (same answers).
     blobs = None if boxes is None or not len(boxes) else np.asarray(boxes, dtype=np.int64)
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
+    if refused and sensor.noise.matched_window:
+        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool)
     if refused and sensor.lateral_noise_px > 0:
         refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
     # (a curved model taking a refused plane's place is recovered as any: its rim, claims, merges)
@@ -684,6 +688,53 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
         return set()
     pixels = _grouped(pool, labels.reshape(-1)[pool], planes)  # the blobs' pixels read, not the grid
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
+
+
+def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
+                             pool: np.ndarray) -> set:
+    """The planes of ``refused`` (found in the blobs, their pixels among the flat ``pool``,
+    increasing) that stay refused once each is fitted along its pixels' rays; the others
+    take that plane in ``fits`` and ``new`` (both changed in place).
+
+    The fitter's plane is the least squares of the orthogonal distances. Where a return errs
+    along its ray only (a stereo camera's disparity noise: ``sigma / range**2`` in inverse
+    range, the same for every pixel) and that error spans the blob's width (a face 20 pixels
+    wide at 4-5 m: 0.1 m across, a range sigma of 0.04-0.08 m), those distances spread
+    along the rays, and the least-squares plane turns towards them: a face seen head-on gets
+    a plane seen at grazing, beyond the noise of its distances, and is refused with the bands
+    that plane test is for. The likeliest plane under that noise is the weighted least
+    squares of the inverse ranges (:func:`rangeseg_o3d.ray_planes.ray_fits`); the same test
+    (:meth:`Context.plane_along_rays`: the noise of the distances, range noise times incidence
+    cosine, chi-square bound) asked of that plane tells a face from a band, whose pixels no
+    one plane meets within the range noise. The fit is
+    :func:`rangeseg_o3d.ray_planes.robust_ray_plane` (a blob may hold a few pixels of the
+    surfaces beside it), and the face is the pixels it keeps within TRIM_SIGMAS of their
+    range noise, at least ``ctx.min_size``; the others go free (``labels``, C-ordered, is
+    changed in place)."""
+    from ..ray_planes import ray_plane, ray_terms, robust_ray_plane
+
+    if not (isinstance(labels, np.ndarray) and labels.ndim == 2 and labels.flags.c_contiguous):
+        raise ValueError("planes_fitted_along_rays: labels must be a C-ordered (H, W) array (the pixels a face "
+                         f"leaves go free in place), got {type(labels).__name__} of shape {np.shape(labels)}")
+    flat = labels.reshape(-1)
+    pixels = _grouped(pool, flat[pool], sorted(refused))
+    kept = set()
+    for k in sorted(refused):
+        idx = pixels.get(k)
+        found = None if idx is None else robust_ray_plane(*ray_terms(rows_at(ctx.xyz, idx), ctx.sigma[idx]),
+                                                          *np.divmod(idx, labels.shape[1]))
+        if found is None:
+            kept.add(k)
+            continue
+        a, keep, _ = found
+        face = idx[keep]
+        plane = ray_plane(a, rows_at(ctx.xyz, face))
+        if plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face):
+            kept.add(k)
+            continue
+        flat[idx[~keep]] = 0  # (a few pixels of the surfaces beside it, off its plane along their rays)
+        fits[k] = new[k] = plane
+    return kept
 
 
 def _lateral_step(sensor, cloud) -> float:

@@ -1,0 +1,129 @@
+"""recover.planes_fitted_along_rays: a blob's plane refused because the orthogonal least
+squares turned it towards the rays is fitted along the rays instead, on far faces under a
+stereo camera's range noise (COEFF r^2, erring together over a 3 x 3 matching window)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting.primitives import Plane
+from rangeseg_o3d.refinement.context import Context
+from rangeseg_o3d.refinement.recover import planes_fitted_along_rays
+
+#: a stereo camera's range noise per squared metre (the sensor matrix's stereo row)
+COEFF = 0.1 / (640 * 0.05)
+LABEL = 5
+
+
+def _faces(seed, *, rows=90, cols=20, crease=None, turn_deg=40.0, z=4.9, f=900.0, behind=None):
+    """A face ``cols`` pixels wide at ``z`` m, its normal turned ``turn_deg`` about the
+    vertical; with ``crease``, the columns from it on are a second face turned the other
+    way (a convex crease); with ``behind`` (a column), the columns from it on lie 0.5 m
+    further along their rays (a surface behind the face). Range noise ``COEFF r^2`` along
+    the rays, the mean of a 3 x 3 window of independent errors. Returns ``(cloud, sigma,
+    normal)``, ``normal`` the first face's."""
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) / f, (v - rows / 2) / f, np.ones((rows, cols))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    turn = np.radians(turn_deg)
+    normal = np.array([np.sin(turn), 0.0, np.cos(turn)])
+    ranges = normal[2] * z / (rays @ normal)
+    if crease is not None:
+        other = np.array([-np.sin(turn), 0.0, np.cos(turn)])
+        ranges = np.where(u >= crease, other[2] * z / (rays @ other), ranges)
+    if behind is not None:
+        ranges = np.where(u >= behind, ranges + 0.5, ranges)
+    sigma = COEFF * ranges ** 2
+    window = 3.0 * ndimage.uniform_filter(np.random.default_rng(seed).normal(size=ranges.shape), 3, mode="reflect")
+    return rs.OrganizedCloud(rays * (ranges + window * sigma)[..., None]), sigma, normal
+
+
+def _least_squares_plane(points):
+    # the plane of least orthogonal squares, as the fitter's plane is
+    centre = points.mean(axis=0)
+    normal = np.linalg.svd(points - centre, full_matrices=False)[2][-1]
+    normal = normal if normal @ centre > 0 else -normal
+    d = float(normal @ centre)
+    return Plane(normal=normal, d=d, rms=float(np.sqrt(np.mean((points @ normal - d) ** 2))), inliers=len(points))
+
+
+def _refused_blob(cloud, sigma, min_size=288):
+    # the whole grid as one blob, region LABEL with its least-squares plane
+    ctx = Context(cloud, rs.Pipeline("rgbd_vga").fitter, sigma, min_size)
+    labels = np.full(cloud.valid.shape, LABEL, np.int32)
+    plane = _least_squares_plane(cloud.xyz.reshape(-1, 3))
+    return ctx, labels, {LABEL: plane}, np.arange(labels.size)
+
+
+def _degrees(a, b):
+    return float(np.degrees(np.arccos(min(1.0, abs(float(a @ b))))))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_far_face_narrower_than_its_range_noise_takes_the_plane_along_its_rays(seed):
+    cloud, sigma, normal = _faces(seed)
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma)
+    first = fits[LABEL]
+    # the least-squares plane turned towards the rays and lies beyond the noise of its distances
+    assert _degrees(first.normal, normal) > 30.0
+    assert ctx.plane_along_rays(first, pool)
+    new = dict(fits)
+    assert planes_fitted_along_rays(ctx, labels, fits, new, {LABEL}, pool) == set()
+    plane = fits[LABEL]
+    assert new[LABEL] is plane and plane.kind == "plane"
+    # the face's own plane, within the noise of the distances, to the normal's spread over
+    # about 200 independent returns 0.1 m across (about 10 degrees)
+    assert _degrees(plane.normal, normal) < 15.0
+    assert not ctx.plane_along_rays(plane, np.flatnonzero(labels == LABEL))
+    assert (labels == LABEL).sum() > 0.97 * labels.size
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_band_over_a_crease_the_noise_resolves_stays_refused(seed):
+    # two faces 20 columns wide each at 90 degrees: no one plane meets both within the noise
+    cloud, sigma, _ = _faces(seed, cols=40, crease=20, turn_deg=45.0)
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma)
+    first = fits[LABEL]
+    before = labels.copy()
+    new = dict(fits)
+    assert planes_fitted_along_rays(ctx, labels, fits, new, {LABEL}, pool) == {LABEL}
+    assert fits[LABEL] is first and new[LABEL] is first
+    assert np.array_equal(labels, before)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_pixels_of_a_surface_behind_the_face_are_left_free(seed):
+    # the last 2 of 22 columns lie 0.5 m behind (about 6 range sigmas): the robust fit leaves them out
+    cloud, sigma, normal = _faces(seed, cols=22, behind=20)
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma)
+    new = dict(fits)
+    assert planes_fitted_along_rays(ctx, labels, fits, new, {LABEL}, pool) == set()
+    assert _degrees(fits[LABEL].normal, normal) < 15.0
+    free = labels == 0
+    assert free[:, 20:].mean() > 0.9 and free[:, :19].mean() < 0.03
+
+
+def test_a_face_under_the_size_floor_or_without_pixels_stays_refused():
+    cloud, sigma, _ = _faces(0)
+    # the face's pixels are fewer than the floor
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma, min_size=cloud.valid.size + 1)
+    first = fits[LABEL]
+    assert planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, pool) == {LABEL}
+    assert fits[LABEL] is first
+    # a refused label with no pixel in the pool, and one with too few for the robust fit
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma)
+    first = fits[LABEL]
+    assert planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL, 9}, pool[:0]) == {LABEL, 9}
+    assert planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, pool[:10]) == {LABEL}
+    assert fits[LABEL] is first and (labels == LABEL).all()
+
+
+
+def test_labels_it_cannot_change_in_place_are_refused_with_a_value_error():
+    cloud, sigma, _ = _faces(0)
+    ctx, labels, fits, pool = _refused_blob(cloud, sigma)
+    with pytest.raises(ValueError, match="C-ordered"):
+        planes_fitted_along_rays(ctx, np.asfortranarray(labels), fits, dict(fits), {LABEL}, pool)
+    with pytest.raises(ValueError, match="C-ordered"):
+        planes_fitted_along_rays(ctx, labels.ravel(), fits, dict(fits), {LABEL}, pool)
