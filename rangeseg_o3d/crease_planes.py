@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._numeric import unique_ints
 from .fitting.region_fitter import fresh_label
 from .fullres import PixelStats, LabelBoxes, pixel_box, region_sample, region_stats
 
@@ -143,7 +144,7 @@ def _exchange_with_neighbours(cloud, labels: np.ndarray, fits: dict, box: tuple[
     from .fitting.primitives import Plane
 
     window = labels[box]
-    planes = [int(k) for k in np.unique(window) if k > 0 and isinstance(fits.get(int(k)), Plane)]
+    planes = [int(k) for k in unique_ints(window.ravel()) if k > 0 and isinstance(fits.get(int(k)), Plane)]
     if len(planes) < 2:
         return []
     column = np.full(int(window.max()) + 1, -1, np.int64)
@@ -167,7 +168,7 @@ def _exchange_with_neighbours(cloud, labels: np.ndarray, fits: dict, box: tuple[
     move = (best != own_column) & (CREASE_RMS_FACTOR * nearest < own) & (nearest <= k_sigma * scale) & involved
     if not move.any():
         return []
-    changed = set(np.unique(window[rows[move], cols[move]]).tolist()) | set(np.unique(to[move]).tolist())
+    changed = set(unique_ints(window[rows[move], cols[move]]).tolist()) | set(unique_ints(to[move]).tolist())
     window[rows[move], cols[move]] = to[move]
     return sorted(changed)
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtri, ndtr
 
+from ._numeric import unique_ints
 from .fitting.plane import fit_plane
 from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import fresh_label, region_indices
@@ -538,7 +539,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         mine = np.sqrt(wt) * np.abs(q - u @ a)
         theirs = np.full(mine.size, np.inf)
         owner = box.reshape(-1)
-        for j in np.unique(owner).tolist():
+        for j in unique_ints(owner).tolist():
             if j in planes and j != k:
                 at = owner == j
                 aj = planes[j].normal / planes[j].d
@@ -549,7 +550,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         grown = ndimage.binary_propagation(region, mask=region | eligible.reshape(box.shape))
         taken = grown & ~region
         if taken.any():
-            changed |= set(np.unique(box[taken]).tolist()) | {k}
+            changed |= set(unique_ints(box[taken]).tolist()) | {k}
             box[taken] = k
             along[k] = a
     if not changed:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
+from .._numeric import unique_ints
 from ..fitting.primitives import Plane
 from ..scales import GRAZING_COSINE
 from .context import Context
@@ -88,7 +89,7 @@ def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: n
         if not idx.size:
             break
         flat = settled.reshape(-1)
-        touched = np.unique(np.concatenate([flat[idx], targets])).tolist()
+        touched = unique_ints(np.concatenate([flat[idx], targets])).tolist()
         flat[idx] = targets
         for k, refit in ctx.fitter.refit_regions(ctx.xyz, settled, fits, touched, from_points=False).items():
             if refit and refit.kind == "plane":

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numeric import rows_at
+from .._numeric import rows_at, unique_ints
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
@@ -80,7 +80,7 @@ def _stands_apart(points: np.ndarray, own, hosts: list, best: np.ndarray) -> boo
     (a pipe's end cap, within a far stereo camera's range noise of the pipe's cylinder),
     not a blob at a junction. Hosts of its own kind were weighed by the merge already (a
     piece of a plane whose small fit a quantised camera tilts stays with its plane)."""
-    if not own or any(hosts[i].kind == own.kind for i in np.unique(best).tolist()):
+    if not own or any(hosts[i].kind == own.kind for i in unique_ints(best).tolist()):
         return False
     host_squares = sum(float(np.sum(host.distances(points[best == i]) ** 2)) for i, host in enumerate(hosts))
     own_squares = float(np.sum(own.distances(points) ** 2))

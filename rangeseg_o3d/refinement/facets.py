@@ -239,7 +239,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     if not curved:
         return labels, fits
     wanted = set(curved)
-    regions = {k: idx for k, idx in region_indices(labels).items() if k in wanted}
+    regions = region_indices(labels, only=wanted)  # (the curved labels' pixels alone: no sort of the others)
     labels, fits = labels.copy(), dict(fits)
     flat = labels.ravel()
     next_label = fresh_label(labels, fits)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from .._numeric import median, rows_at
+from .._numeric import median, rows_at, unique_ints
 from ..fitting.batch_planes import plane_rms_from_moments, planes_from_moments
 from ..fitting.classify import refit_planes_from_moments
 from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
@@ -62,7 +62,7 @@ def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool =
             touch = (labels > 0) & (other > 0) & (labels != other)
             if touch.any():
                 a, b = labels[touch], other[touch]
-                codes = np.unique(np.minimum(a, b).astype(np.int64) << 32 | np.maximum(a, b))
+                codes = unique_ints(np.minimum(a, b).astype(np.int64) << 32 | np.maximum(a, b))
                 pairs.update((int(c >> 32), int(c & 0xFFFFFFFF)) for c in codes)
     return pairs
 
@@ -759,7 +759,7 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
             continue  # one of them was joined already (it may have kept its label: a pair's first)
         for k in (a, b):
             if k not in squares:
-                squares[k] = float(np.sum(fits[k].distances(ctx.xyz[regions[k]]) ** 2))
+                squares[k] = float(np.sum(fits[k].distances(rows_at(ctx.xyz, regions[k])) ** 2))
         planes = squares[a] + squares[b]
         parts = (regions[a], regions[b])
         points = ctx.fitter.points_of(ctx.xyz, parts)

@@ -18,6 +18,28 @@ def test_region_adjacency_reach():
     assert region_adjacency(labels, reach=1) == set()
 
 
+
+def _touching_pairs(labels: np.ndarray, reach: int) -> set:
+    # the pairs (a < b) of positive labels within ``reach`` rows and columns of each other, pixel by pixel
+    h, w = labels.shape
+    pairs = set()
+    for r, c in zip(*np.nonzero(labels)):
+        a = int(labels[r, c])
+        window = labels[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1]
+        pairs.update((min(a, int(b)), max(a, int(b))) for b in np.unique(window) if b > 0 and b != a)
+    return pairs
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_region_adjacency_of_many_labels_is_every_pair_within_reach(seed):
+    # more than 4096 labels: the pairs are collected shift by shift, not from a matrix
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(1, 6000, size=(70, 90)).astype(np.int32)
+    labels[rng.random(labels.shape) < 0.3] = 0
+    assert int(labels.max()) + 1 > 4096
+    for reach in (1, 2):
+        assert region_adjacency(labels, reach=reach) == _touching_pairs(labels, reach)
+
 def test_merge_candidates_need_adjacency_or_similar_parameters():
     a = Plane(normal=[0, 0, 1], d=1.0, rms=0.004, inliers=100)
     b = Plane(normal=[0, 0.01, 1], d=1.01, rms=0.004, inliers=100)
