@@ -771,20 +771,37 @@ def free_pixels_in_boxes(labels, valid, free, boxes):
     h, w = labels.shape
     clipped = _clipped_boxes(boxes, h, w)
     n_boxes = clipped.shape[0]
-    out = np.empty(free.shape[0] + _area(clipped), np.int64)
-    m = 0
+    kept = np.empty(free.shape[0], np.int64)  # the listed pixels outside every box, increasing
+    a = 0
     for i in range(free.shape[0]):
         p = free[i]
         if not _in_earlier_box(p // w, p % w, clipped, n_boxes):
-            out[m] = p
-            m += 1
+            kept[a] = p
+            a += 1
+    found = np.empty(_area(clipped), np.int64)  # the free pixels within the boxes
+    b = 0
     for j in range(n_boxes):
         for r in range(clipped[j, 0], clipped[j, 1]):
             for c in range(clipped[j, 2], clipped[j, 3]):
                 if labels[r, c] == 0 and valid[r, c] and not _in_earlier_box(r, c, clipped, j):
-                    out[m] = r * w + c
-                    m += 1
-    return np.sort(out[:m])
+                    found[b] = r * w + c
+                    b += 1
+    found = _increasing(found, b, n_boxes)
+    # the two increasing lists (no pixel in both) merged: no sort of the listed pixels
+    out = np.empty(a + b, np.int64)
+    i = j = m = 0
+    while i < a and j < b:
+        if kept[i] < found[j]:
+            out[m] = kept[i]
+            i += 1
+        else:
+            out[m] = found[j]
+            j += 1
+        m += 1
+    out[m:m + a - i] = kept[i:a]
+    m += a - i
+    out[m:] = found[j:b]
+    return out
 
 
 @njit(cache=True, nogil=True)
