@@ -279,10 +279,11 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     correlation_px = sensor.noise.correlation_px
     thin = recovered_region_floor(config, min_size, correlation_px) if strips else 0
     found = blobs if blobs is not None else leftover_blob_labels(labels, cloud.valid, min_size=min_size,
-                                                                 first_label=first, thin_min_size=thin)
+                                                                 first_label=first, thin_min_size=thin, with_free=True)
     if found is None:
         return labels, fits, stats
-    candidates, boxes, first_thin = found
+    candidates, boxes, first_thin = found[:3]
+    free = found[3] if len(found) > 3 else None  # (the free pixels of ``labels``: the pass listed them)
     # The tile models carry the rms of the tile means (a tile of t x t returns averages
     # the range noise down by up to t); from here on they are compared with models fitted
     # to pixels (the merge's rms test, the claim's noise floor), so they carry the rms of
@@ -296,7 +297,7 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     labels, fits = recover_pixels(cloud, labels, dict(fits), fitter=fitter, config=config,
                                   sensor=sensor, ranges=ranges, sigma=sigma, candidates=candidates,
                                   min_size=_split_floor(config, min_size, correlation_px), boxes=boxes,
-                                  thin_from=first_thin, released=released, changes=changes)
+                                  thin_from=first_thin, released=released, changes=changes, free=free)
     # the statistics follow the pixels that moved, not a pass over the regions they moved between
     after = np.ascontiguousarray(labels, dtype=before.dtype)
     moved = _moved_pixels(before, after, changes.get("where"), changes.get("claimed_at"))
@@ -686,7 +687,7 @@ def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -
 
 
 def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int, first_label: int,
-                         thin_min_size: int = 0):
+                         thin_min_size: int = 0, with_free: bool = False):
     """Every blob of valid unlabelled pixels, numbered from ``first_label``, with its box:
     ``(candidates, boxes, first_thin)``, blob ``first_label + j``'s bounding box ``(row0, row1,
     col0, col1)``, half-open, in row ``j``; None if there are none.
@@ -696,12 +697,16 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
     With ``thin_min_size``, the 4-connected pieces of at least that many leftover pixels that
     no such blob took (strips too thin for a 3x3 core) follow them, numbered from ``first_thin``
     (:func:`rangeseg_o3d.kernels.leftover_blobs`; without, ``first_thin`` is past the last blob).
+    With ``with_free``, the flat indices (increasing) of every valid unlabelled pixel, which
+    the pass lists, follow as a fourth item (:func:`recover_thin_surfaces` hands them to the
+    recovery's last claim of free pixels, which then scans only where the recovery worked).
     """
-    candidates, boxes, n_cored = kernels.leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
-                                                        int(min_size), int(first_label), int(thin_min_size))
+    candidates, boxes, n_cored, free = kernels.leftover_blobs(np.ascontiguousarray(labels), np.ascontiguousarray(valid),
+                                                              int(min_size), int(first_label), int(thin_min_size))
     if not boxes.shape[0]:
         return None
-    return candidates, boxes, int(first_label) + int(n_cored)
+    found = candidates, boxes, int(first_label) + int(n_cored)
+    return (*found, free) if with_free else found
 
 
 def _flat_points(cloud) -> np.ndarray:

@@ -783,6 +783,20 @@ def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims
     assert set(np.flatnonzero(outside.ravel()).tolist()) <= set(claimed_at.tolist())
     assert whole == {k for k in set(labels.ravel()[boxed].tolist()) | set(after.ravel()[boxed].tolist()) if k > 0}
     assert whole
+    # the free pixels the blobs' pass listed: the last claim finds its pool from them and the
+    # boxes, with the same answer as a pass over the grid
+    assert config.merge_disjoint
+    *again, free = leftover_blob_labels(labels, cloud.valid, min_size=min_size, first_label=first, with_free=True)
+    np.testing.assert_array_equal(free, np.flatnonzero(cloud.valid.ravel() & (labels.ravel() == 0)))
+    arguments = dict(fitter=pipe.fitter, config=config, sensor=pipe.sensor,
+                     ranges=np.where(cloud.valid, cloud.range_image(), np.nan), sigma=sigma,
+                     candidates=again[0], min_size=min_size, boxes=again[1], thin_from=again[2])
+    listed = {}
+    from_free, _ = recover_pixels(cloud, labels, dict(fits), changes=listed, free=free, **arguments)
+    np.testing.assert_array_equal(from_free, after)
+    np.testing.assert_array_equal(listed["claimed_at"], changes["claimed_at"])
+    with pytest.raises(ValueError, match="free must be flat indices"):
+        recover_pixels(cloud, labels, dict(fits), free=np.array([labels.size]), **arguments)
 
 
 def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():

@@ -14,7 +14,8 @@ CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["group_by_label", "count_either_side", "jump_mask", "adjacency_matrix", "grow_rings", "grow_rings_in_boxes", "claim_rings",
            "claim_rings_in_boxes", "settle_borders",
-           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "box_members", "label_counts", "relabel", "ranges_and_noise"]
+           "block_means", "largest_piece", "piece_ids", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "box_members", "member_pixels_in_boxes",
+           "differing_in_boxes", "free_pixels_in_boxes", "label_counts", "relabel", "ranges_and_noise"]
 
 @njit(cache=True, nogil=True)
 def group_by_label(labels, n):
@@ -687,6 +688,121 @@ def member_pixels(labels, members):
             out[m] = i
             m += 1
     return out[:m].copy()
+
+@njit(cache=True, nogil=True)
+def _clipped_boxes(boxes, h, w):
+    # (K, 4) boxes (row0, row1, col0, col1), half-open, clipped to an h x w grid (an empty
+    # box keeps row1 <= row0 or col1 <= col0)
+    out = np.empty((boxes.shape[0], 4), np.int64)
+    for j in range(boxes.shape[0]):
+        out[j, 0], out[j, 1] = max(boxes[j, 0], 0), min(boxes[j, 1], h)
+        out[j, 2], out[j, 3] = max(boxes[j, 2], 0), min(boxes[j, 3], w)
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _in_earlier_box(r, c, boxes, j):
+    # whether (r, c) lies in one of boxes 0..j-1 (a pixel of overlapping boxes is listed once)
+    for b in range(j):
+        if boxes[b, 0] <= r < boxes[b, 1] and boxes[b, 2] <= c < boxes[b, 3]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _area(boxes):
+    total = 0
+    for j in range(boxes.shape[0]):
+        total += max(boxes[j, 1] - boxes[j, 0], 0) * max(boxes[j, 3] - boxes[j, 2], 0)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _increasing(out, m, n_boxes):
+    # the first m entries, increasing: one box lists its pixels in raster order already
+    return out[:m].copy() if n_boxes < 2 else np.sort(out[:m])
+
+
+@njit(cache=True, nogil=True)
+def member_pixels_in_boxes(labels, members, boxes):
+    """:func:`member_pixels` of the pixels within ``boxes`` ((K, 4) int64, rows ``(row0, row1,
+    col0, col1)``, half-open, clipped to the grid): flat indices, increasing, each once where
+    boxes overlap. Costs the boxes' area, not the grid's."""
+    h, w = labels.shape
+    clipped = _clipped_boxes(boxes, h, w)
+    n = members.shape[0]
+    out = np.empty(_area(clipped), np.int64)
+    m = 0
+    for j in range(clipped.shape[0]):
+        for r in range(clipped[j, 0], clipped[j, 1]):
+            for c in range(clipped[j, 2], clipped[j, 3]):
+                k = labels[r, c]
+                if 0 < k < n and members[k] and not _in_earlier_box(r, c, clipped, j):
+                    out[m] = r * w + c
+                    m += 1
+    return _increasing(out, m, clipped.shape[0])
+
+
+@njit(cache=True, nogil=True)
+def differing_in_boxes(a, b, boxes):
+    """Flat indices (increasing, each once) of the pixels within ``boxes`` ((K, 4) int64, rows
+    ``(row0, row1, col0, col1)``, half-open, clipped to the grid) where the label images ``a``
+    and ``b`` (same shape) differ. Costs the boxes' area, not the grid's."""
+    h, w = a.shape
+    clipped = _clipped_boxes(boxes, h, w)
+    out = np.empty(_area(clipped), np.int64)
+    m = 0
+    for j in range(clipped.shape[0]):
+        for r in range(clipped[j, 0], clipped[j, 1]):
+            for c in range(clipped[j, 2], clipped[j, 3]):
+                if a[r, c] != b[r, c] and not _in_earlier_box(r, c, clipped, j):
+                    out[m] = r * w + c
+                    m += 1
+    return _increasing(out, m, clipped.shape[0])
+
+
+@njit(cache=True, nogil=True)
+def free_pixels_in_boxes(labels, valid, free, boxes):
+    """:func:`free_pixels` of ``labels`` and ``valid`` when only the pixels within ``boxes``
+    ((K, 4) int64, rows ``(row0, row1, col0, col1)``, half-open, clipped to the grid) may have
+    changed label since ``free`` (flat, increasing) listed the free pixels: those of ``free``
+    outside every box, and the valid unlabelled pixels within the boxes, increasing. Costs
+    the free pixels and the boxes' area, not the grid's."""
+    h, w = labels.shape
+    clipped = _clipped_boxes(boxes, h, w)
+    n_boxes = clipped.shape[0]
+    kept = np.empty(free.shape[0], np.int64)  # the listed pixels outside every box, increasing
+    a = 0
+    for i in range(free.shape[0]):
+        p = free[i]
+        if not _in_earlier_box(p // w, p % w, clipped, n_boxes):
+            kept[a] = p
+            a += 1
+    found = np.empty(_area(clipped), np.int64)  # the free pixels within the boxes
+    b = 0
+    for j in range(n_boxes):
+        for r in range(clipped[j, 0], clipped[j, 1]):
+            for c in range(clipped[j, 2], clipped[j, 3]):
+                if labels[r, c] == 0 and valid[r, c] and not _in_earlier_box(r, c, clipped, j):
+                    found[b] = r * w + c
+                    b += 1
+    found = _increasing(found, b, n_boxes)
+    # the two increasing lists (no pixel in both) merged: no sort of the listed pixels
+    out = np.empty(a + b, np.int64)
+    i = j = m = 0
+    while i < a and j < b:
+        if kept[i] < found[j]:
+            out[m] = kept[i]
+            i += 1
+        else:
+            out[m] = found[j]
+            j += 1
+        m += 1
+    out[m:m + a - i] = kept[i:a]
+    m += a - i
+    out[m:] = found[j:b]
+    return out
+
 
 @njit(cache=True, nogil=True)
 def box_members(labels, boxes, first_label):

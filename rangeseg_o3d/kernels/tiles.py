@@ -496,9 +496,11 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
     compiled reshape cannot copy); :mod:`rangeseg_o3d.fullres` passes them through
     ``np.ascontiguousarray``.
 
-    Returns ``(candidates (H, W) int32, boxes (n, 4) int64, n_cored)``: each blob's bounding box
-    ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``; the
-    first ``n_cored`` blobs are the cored ones.
+    Returns ``(candidates (H, W) int32, boxes (n, 4) int64, n_cored, free)``: each blob's bounding
+    box ``(row0, row1, col0, col1)`` (half-open), blob ``first_label + j`` in row ``j``; the
+    first ``n_cored`` blobs are the cored ones; ``free`` the flat indices of the valid
+    unlabelled pixels, increasing (the pass lists them: a caller that needs them later need
+    not scan the grid again).
     """
     h, w = labels.shape
     candidates = np.zeros((h, w), np.int32)
@@ -516,8 +518,9 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
             marks[i] = -1
             listed[n_free] = i
             n_free += 1
+    free = listed[:n_free].copy()
     if n_free == 0:
-        return candidates, none, 0
+        return candidates, none, 0, free
     rows = np.empty(n_free, np.int64)
     cols = np.empty(n_free, np.int64)
     for j in range(n_free):
@@ -574,7 +577,7 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
                 thin_lut[k] = first_label + kept
                 kept += 1
     if kept == 0:
-        return candidates, none, 0
+        return candidates, none, 0, free
     boxes = np.empty((kept, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
     for j in range(n_free):
@@ -587,7 +590,7 @@ def leftover_blobs(labels, valid, min_size, first_label, thin_min_size=0):
             b = k - first_label
             boxes[b, 0], boxes[b, 1] = min(boxes[b, 0], r), max(boxes[b, 1], r + 1)
             boxes[b, 2], boxes[b, 3] = min(boxes[b, 2], c), max(boxes[b, 3], c + 1)
-    return candidates, boxes, n_cored
+    return candidates, boxes, n_cored, free
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -17,7 +17,7 @@ from .._numeric import rows_at, unique_ints
 from ..fitting.region_fitter import fresh_label, label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
-from ..kernels.grid import free_pixels
+from ..kernels.grid import free_pixels, free_pixels_in_boxes
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_TAN
 from .context import TRIM_SIGMAS, Context, touching
@@ -419,16 +419,17 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
 def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
     # kernels.member_pixels (flat indices, increasing) of the pixels within ``box``
     # (top, bottom, left, right; clipped to the grid), or within the boxes of a (K, 4)
-    # array: every member pixel must lie in it (in one of them)
-    from ..kernels import member_pixels
+    # array: every member pixel must lie in it (in one of them). One compiled pass over the
+    # boxes (a pixel of overlapping boxes listed once), no copy of each box's labels
+    from ..kernels import member_pixels_in_boxes
 
-    if np.ndim(box) == 2:  # (overlapping boxes list a pixel more than once: unique sorts and drops them)
-        return unique_ints(np.concatenate([_members_in_box(labels, members, one) for one in box]))
-    top, bottom = max(int(box[0]), 0), min(int(box[1]), labels.shape[0])
-    left, right = max(int(box[2]), 0), min(int(box[3]), labels.shape[1])
-    rows, cols = np.divmod(member_pixels(np.ascontiguousarray(labels[top:bottom, left:right]), members),
-                           right - left)
-    return (rows + top) * labels.shape[1] + cols + left
+    return member_pixels_in_boxes(np.ascontiguousarray(labels), np.ascontiguousarray(members, dtype=np.bool_),
+                                  _box_rows(box))
+
+
+def _box_rows(box) -> np.ndarray:
+    # a (row0, row1, col0, col1) box or a (K, 4) array of them as a C-contiguous (K, 4) int64 array
+    return np.ascontiguousarray(np.asarray(box, dtype=np.int64).reshape(-1, 4))
 
 
 def _grouped(pixels: np.ndarray, owner: np.ndarray, only) -> dict[int, np.ndarray]:
@@ -486,7 +487,7 @@ def grown_box(box, by: int, shape: tuple[int, int] | None = None) -> tuple[int, 
 def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.ndarray,
                    sigma: np.ndarray, candidates: np.ndarray, min_size: int, boxes: np.ndarray | None = None,
                    thin_from: int | None = None, released: np.ndarray | None = None,
-                   changes: dict | None = None):
+                   changes: dict | None = None, free: np.ndarray | None = None):
     """After a run on tile means: recover, at full resolution, the surfaces the tiles lost.
 
     A table top seen at a grazing angle may be a band 5-15 pixels thick: under three 6x6
@@ -519,7 +520,11 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     ``changes`` (optional, a dict): receives ``where``, a box or boxes (as
     :func:`differing_pixels` takes them) holding every pixel whose label this call changed but
     those the last claim of free pixels took (None: they may lie anywhere), ``claimed``,
-    the labels those took, and ``claimed_at``, their flat indices (increasing).
+    the labels those took, and ``claimed_at``, their flat indices (increasing). ``free``
+    (optional): the flat indices (increasing) of the valid unlabelled pixels of ``labels``
+    (:func:`rangeseg_o3d.fullres.leftover_blob_labels` lists them); with ``boxes`` the last
+    claim's free pixels are then found from them and the boxes where this call changed
+    labels, not by a pass over the grid.
     """
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
@@ -634,8 +639,14 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
         changes["claimed"] = set()
         changes["claimed_at"] = np.zeros(0, np.int64)
     if config.merge_disjoint:  # what is left of the blobs may be a piece of a plane the scan has
-        labels = np.ascontiguousarray(labels)
-        free = free_pixels(labels, _read_only_bool(cloud.valid))
+        labels, valid = np.ascontiguousarray(labels), _read_only_bool(cloud.valid)
+        if free is not None and where is not None:  # outside ``where`` no label changed
+            if free.ndim != 1 or (free.size and (free[0] < 0 or free[-1] >= labels.size)):
+                raise ValueError(f"recover_pixels: free must be flat indices (increasing) of the {labels.shape} "
+                                 f"labels, got shape {free.shape}")
+            free = free_pixels_in_boxes(labels, valid, np.ascontiguousarray(free, dtype=np.int64), _box_rows(where))
+        else:
+            free = free_pixels(labels, valid)
         labels = claim_on_distance_noise(ctx, labels, fits, free, k_sigma=config.k_sigma)
         if changes is not None:
             taken = free[labels.reshape(-1)[free] > 0]
@@ -863,17 +874,12 @@ def differing_pixels(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
     such pixel."""
     if where is None:
         return np.flatnonzero(a.reshape(-1) != b.reshape(-1))
-    h, w = a.shape
-    parts = []
-    for r0, r1, c0, c1 in np.asarray(where, dtype=np.int64).reshape(-1, 4).tolist():
-        r0, r1, c0, c1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
-        if r1 > r0 and c1 > c0:
-            rows, cols = np.nonzero(a[r0:r1, c0:c1] != b[r0:r1, c0:c1])
-            parts.append((rows + r0) * w + cols + c0)
-    if len(parts) == 1:  # one box's pixels in raster order: increasing, each once
-        return parts[0]
-    # (overlapping boxes list a pixel more than once: unique_ints sorts and drops them)
-    return unique_ints(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+    from ..kernels import differing_in_boxes
+
+    if a.shape != b.shape:  # (the kernel reads both at the same indices)
+        raise ValueError(f"differing_pixels: the label images must have one shape, got {a.shape} and {b.shape}")
+    # one compiled pass over the boxes (a pixel of overlapping boxes listed once)
+    return differing_in_boxes(np.ascontiguousarray(a), np.ascontiguousarray(b), _box_rows(where))
 
 
 def _merged_rms_as_found(found_rms: dict, fits: dict, found: np.ndarray, labels: np.ndarray,

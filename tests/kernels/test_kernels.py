@@ -782,3 +782,58 @@ def test_label_noise_sums_equal_the_bincount_of_the_finite_noise_bit_for_bit(see
         want = np.bincount(labels, weights=np.where(np.isfinite(sigma), sigma, 0.0), minlength=n)[:n]
         got = label_noise_sums(labels, sigma, n)
         assert got.shape == (n,) and got.tobytes() == want.tobytes()
+
+
+def _random_boxes(rng, shape, k):
+    # k boxes (row0, row1, col0, col1) anywhere around a grid of ``shape``: overlapping,
+    # empty, reaching past the border and wholly outside it
+    rows = np.sort(rng.integers(-5, shape[0] + 5, (k, 2)), axis=1)
+    cols = np.sort(rng.integers(-5, shape[1] + 5, (k, 2)), axis=1)
+    return np.stack([rows[:, 0], rows[:, 1], cols[:, 0], cols[:, 1]], axis=1).astype(np.int64)
+
+
+def _inside(shape, boxes):
+    # the reference: a mask of the pixels within one of the boxes
+    mask = np.zeros(shape, bool)
+    for r0, r1, c0, c1 in boxes.tolist():
+        mask[max(r0, 0):max(r1, 0), max(c0, 0):max(c1, 0)] = True
+    return mask
+
+
+def test_pixels_in_boxes_equal_numpys_within_the_boxes():
+    from rangeseg_o3d.kernels import differing_in_boxes, free_pixels_in_boxes, member_pixels_in_boxes
+
+    rng = np.random.default_rng(21)
+    for trial in range(40):
+        shape = (int(rng.integers(1, 30)), int(rng.integers(1, 40)))
+        boxes = _random_boxes(rng, shape, int(rng.integers(0, 6)))
+        inside = _inside(shape, boxes)
+        a = np.where(rng.random(shape) < 0.4, 0, rng.integers(-1, 8, shape)).astype(np.int32)
+        b = np.where(rng.random(shape) < 0.3, rng.integers(0, 8, shape), a).astype(np.int32)
+        members = rng.random(6) < 0.5
+        wanted = [k for k in range(1, 6) if members[k]]
+        np.testing.assert_array_equal(member_pixels_in_boxes(a, members, boxes),
+                                      np.flatnonzero(np.isin(a, wanted) & inside))
+        np.testing.assert_array_equal(differing_in_boxes(a, b, boxes), np.flatnonzero((a != b) & inside))
+        # the free pixels of ``b`` from those of ``a`` where the labels changed only in the boxes
+        valid = rng.random(shape) < 0.8
+        after = np.where(inside, b, a)
+        free = np.flatnonzero((a == 0) & valid)
+        got = free_pixels_in_boxes(after, valid, free, boxes)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, np.flatnonzero((after == 0) & valid))
+
+
+def test_pixels_in_no_box_are_none_and_outside_boxes_stay_as_listed():
+    from rangeseg_o3d.kernels import differing_in_boxes, free_pixels_in_boxes, member_pixels_in_boxes
+
+    labels = np.zeros((4, 5), np.int32)
+    none = np.zeros((0, 4), np.int64)
+    assert member_pixels_in_boxes(labels + 1, np.ones(2, bool), none).size == 0
+    assert differing_in_boxes(labels, labels + 1, none).size == 0
+    # no box: the listed free pixels are the answer, whatever the labels say now
+    listed = np.array([0, 7, 19], np.int64)
+    np.testing.assert_array_equal(free_pixels_in_boxes(labels, np.ones((4, 5), bool), listed, none), listed)
+    # a box off the grid reads nothing
+    off = np.array([[10, 12, 0, 5], [0, 4, -9, -1]], np.int64)
+    np.testing.assert_array_equal(free_pixels_in_boxes(labels, np.ones((4, 5), bool), listed, off), listed)

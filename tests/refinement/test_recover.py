@@ -202,6 +202,26 @@ def test_members_in_a_box_are_the_members_of_the_grid_when_the_box_holds_them():
     for box in ((10, 14, 20, 27), (7, 17, 17, 30), (-3, 40, -3, 50)):  # tight, grown, clipped
         assert np.array_equal(_members_in_box(labels, members, box), member_pixels(labels, members))
     assert _members_in_box(np.ones((5, 5), np.int32), members, (0, 5, 0, 5)).size == 0
+    # overlapping boxes, one clipped: each member pixel once, increasing
+    boxes = np.array([[8, 14, 18, 27], [10, 16, 20, 45], [-2, 3, 0, 2]], np.int64)
+    assert np.array_equal(_members_in_box(labels, members, boxes), member_pixels(labels, members))
+
+
+def test_differing_pixels_in_boxes_are_those_of_the_grid_and_refuse_two_shapes():
+    from rangeseg_o3d.refinement.recover import differing_pixels
+
+    rng = np.random.default_rng(6)
+    a = rng.integers(0, 5, (20, 30)).astype(np.int32)
+    b = a.copy()
+    b[3:7, 4:9] = rng.integers(0, 5, (4, 5))
+    b[12:18, 20:29] = rng.integers(0, 5, (6, 9))
+    whole = np.flatnonzero(a != b)
+    for where in ((0, 20, 0, 30), (-5, 50, -5, 50), np.array([[3, 7, 4, 9], [12, 18, 20, 29]]),
+                  np.array([[2, 8, 3, 10], [0, 20, 18, 30], [5, 15, 0, 25]])):
+        assert np.array_equal(differing_pixels(a, b, where), whole)
+    assert np.array_equal(differing_pixels(a, b), whole)
+    with pytest.raises(ValueError, match="one shape"):
+        differing_pixels(a, b[:10], (0, 10, 0, 30))
 
 
 def _pipe_top_lost_by_the_tiles(seed):
