@@ -50,6 +50,7 @@ from .along_rays import settle_along_rays
 from .context import Context
 from .dissolve import absorb_ripples, dissolve_small
 from .facets import planes_for_curved
+from .grid_lines import release_grid_lines
 from .grow import grow_regions, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
@@ -218,6 +219,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     timer.lap("settle")
     if config.merge:  # the merge's adjacency tells the small regions' neighbours
         labels, fits = dissolve_small(ctx, labels, fits, adjacency, k_sigma=config.k_sigma)
+    labels, fits = release_grid_lines(labels, fits)  # the steps before may leave one; none after makes one
     # on tile means a ripple is judged by the noise of its distances to the plane (range
     # noise x incidence cosine): a tile's mean lies on its face but for the noise along its
     # ray, while a laser's single return near grazing spreads across the face (3DTK scans

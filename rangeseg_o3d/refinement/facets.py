@@ -37,6 +37,7 @@ from ..fitting.region_fitter import fresh_label, model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from ..kernels.linalg import noise_rms_bound
 from .context import Context, without
+from .grid_lines import on_one_grid_line
 from .grow import SETTLE_MARGIN
 
 __all__ = ["planes_for_curved"]
@@ -529,9 +530,7 @@ def _off_one_grid_line(ctx: Context, piece: np.ndarray) -> bool:
     real cap may be seen near grazing all the same: stereo_1280x720 seed 89 scan 0, a pipe's
     end cap of 14 tile means on several rows at median incidence cosine 0.15 (below
     scales.GRAZING_COSINE, which refused it and left it to the pipe)."""
-    width = ctx.width
-    rows, columns = piece // width, piece % width
-    return bool(rows.min() < rows.max() and columns.min() < columns.max())
+    return not on_one_grid_line(piece, ctx.width)
 
 
 def _squared_sigmas(ctx: Context, surfaces: list) -> float:
