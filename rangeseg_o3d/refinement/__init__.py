@@ -25,7 +25,8 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    while growing first).
 7. :mod:`.dissolve`: small blobs at junctions are dissolved into the larger neighbours
    that explain them, and curved patches into a neighbouring plane that explains them
-   within its own rms (a ripple of the camera's error, not a surface).
+   within its own rms (a ripple of the camera's error, not a surface); then :mod:`.grid_lines`
+   frees every region on one row or one column of the grid (no surface of its own).
 8. :mod:`.polish`: spheres and cylinders are refitted once on their final pixels (planes
    are refitted from moments whenever they change, which costs nothing), and a plane whose
    final pixels the fitter no longer settles as one is decided anew on them.
