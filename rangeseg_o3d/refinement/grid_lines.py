@@ -20,19 +20,26 @@ import numpy as np
 
 from ..fitting.region_fitter import region_indices
 
-__all__ = ["on_one_grid_line", "release_grid_lines"]
+__all__ = ["lines_across", "on_one_grid_line", "release_grid_lines"]
+
+
+def lines_across(idx: np.ndarray, width: int) -> int:
+    """How many grid lines the flat pixel indices ``idx`` of a grid ``width`` columns wide
+    span in their narrower direction: the fewer of the rows and of the columns from their
+    first to their last (0 for no pixel)."""
+    if width < 1:
+        raise ValueError(f"width must be a positive number of columns; got {width}")
+    idx = np.asarray(idx)
+    if idx.size == 0:
+        return 0
+    rows, columns = idx // width, idx % width
+    return int(min(rows.max() - rows.min(), columns.max() - columns.min())) + 1
 
 
 def on_one_grid_line(idx: np.ndarray, width: int) -> bool:
     """Whether the flat pixel indices ``idx`` of a grid ``width`` columns wide all lie on
     one row or all on one column (an empty set does)."""
-    if width < 1:
-        raise ValueError(f"width must be a positive number of columns; got {width}")
-    idx = np.asarray(idx)
-    if idx.size == 0:
-        return True
-    rows, columns = idx // width, idx % width
-    return bool(rows.min() == rows.max() or columns.min() == columns.max())
+    return lines_across(idx, width) <= 1
 
 
 def release_grid_lines(labels: np.ndarray, fits: dict) -> tuple[np.ndarray, dict]:

@@ -19,6 +19,7 @@ from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
 from .context import Context
+from .grid_lines import lines_across
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
 
@@ -747,9 +748,13 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         return labels, fits, adjacency
     regions = region_indices(labels, only={k for pair in pairs for k in pair})
     bent = {}  # whether each plane is beyond the noise of its distances, asked once and when needed
+    # a strip two grid lines across a column's axis fits a plane whatever the column's
+    # curvature (two lines of returns along the axis are parallel, so coplanar) and tells no
+    # bend of its own (a 0.3 m column at 4.7 m under 2 mm noise, cut into strips of one and
+    # two columns by a 1-degree nodding laser's edge image)
     pairs = [(regions[a].size + regions[b].size, a, b) for a, b in pairs
              if _bent(ctx, fits, regions, bent, a) or _bent(ctx, fits, regions, bent, b)
-             or _two_lines_across(regions[a], ctx.width) or _two_lines_across(regions[b], ctx.width)]
+             or min(lines_across(regions[a], ctx.width), lines_across(regions[b], ctx.width)) <= 2]
     if not pairs:
         return labels, fits, adjacency
     fits = dict(fits)
@@ -800,16 +805,6 @@ def _bent(ctx: Context, fits: dict, regions: dict, bent: dict, k: int) -> bool:
     if bent.get(k) is None:
         bent[k] = ctx.plane_along_rays(fits[k], regions[k])
     return bent[k]
-
-
-def _two_lines_across(idx: np.ndarray, width: int) -> bool:
-    # whether the flat pixels ``idx`` span at most two columns or at most two rows of the
-    # grid: a strip that narrow across a column's axis fits a plane whatever the column's
-    # curvature (two lines of returns along the axis are parallel, so coplanar), and so
-    # tells no bend of its own (a 0.3 m column at 4.7 m under 2 mm noise, cut into strips
-    # of one and two columns by a 1-degree nodding laser's edge image)
-    rows, columns = idx // width, idx % width
-    return bool(columns.max() - columns.min() < 2 or rows.max() - rows.min() < 2)
 
 
 def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre: np.ndarray) -> bool:

@@ -872,12 +872,12 @@ def differing_pixels(a: np.ndarray, b: np.ndarray, where=None) -> np.ndarray:
     ``np.flatnonzero(a != b)``, compared only in ``where`` (a ``(row0, row1, col0, col1)``
     box or a ``(K, 4)`` array of them, clipped to the grid) when given, which must hold every
     such pixel."""
+    if a.shape != b.shape:  # (the kernel reads both at the same indices)
+        raise ValueError(f"differing_pixels: the label images must have one shape, got {a.shape} and {b.shape}")
     if where is None:
         return np.flatnonzero(a.reshape(-1) != b.reshape(-1))
     from ..kernels import differing_in_boxes
 
-    if a.shape != b.shape:  # (the kernel reads both at the same indices)
-        raise ValueError(f"differing_pixels: the label images must have one shape, got {a.shape} and {b.shape}")
     # one compiled pass over the boxes (a pixel of overlapping boxes listed once)
     return differing_in_boxes(np.ascontiguousarray(a), np.ascontiguousarray(b), _box_rows(where))
 

@@ -5,7 +5,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.evaluation import evaluate
-from rangeseg_o3d.refinement.grid_lines import on_one_grid_line, release_grid_lines
+from rangeseg_o3d.refinement.grid_lines import lines_across, on_one_grid_line, release_grid_lines
 from rangeseg_o3d.synthetic.lms200 import lms200_beam_angles, lms200_tilt_angles
 from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
 
@@ -49,6 +49,16 @@ def test_on_one_grid_line_tells_rows_and_columns_from_areas():
     assert not on_one_grid_line(np.array([0, 19]), width)  # a 360-degree seam's two columns are two
 
 
+def test_lines_across_counts_the_narrower_direction():
+    # merge.planes_into_curved lets strips up to two lines across be pieces of a column
+    width = 10
+    assert lines_across(np.array([3, 4, 13, 14, 23, 24, 33, 34]), width) == 2  # two columns
+    assert lines_across(np.array([3, 13, 23]), width) == 1  # one column
+    assert lines_across(np.array([20, 21, 22, 23, 30, 31, 32, 33]), width) == 2  # two rows
+    assert lines_across(np.array([0, 1, 2, 10, 11, 12, 20, 21, 22]), width) == 3  # 3 x 3
+    assert lines_across(np.array([], dtype=np.int64), width) == 0
+
+
 def test_on_one_grid_line_refuses_a_grid_without_columns():
     with pytest.raises(ValueError, match="width must be a positive number of columns; got 0"):
         on_one_grid_line(np.array([1, 2]), 0)
@@ -60,7 +70,7 @@ def test_release_grid_lines_frees_rows_and_columns_and_keeps_areas():
     labels[:, 8] = 2  # one column
     labels[3:6, 1:4] = 3  # an area
     labels[3, 5:7] = 4  # two pixels of one row
-    labels[4:6, 5] = 5  # two pixels of one column... with one beside: an area
+    labels[4:6, 5] = 5  # an L of three pixels over two rows and two columns: an area
     labels[5, 6] = 5
     fits = {1: "row", 2: "column", 3: "area", 4: "pair", 5: "corner", 9: "no pixels"}
     out, kept = release_grid_lines(labels, fits)

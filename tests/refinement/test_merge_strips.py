@@ -6,16 +6,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.evaluation import evaluate
-from rangeseg_o3d.refinement.merge import _two_lines_across
 from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
-
-
-def test_two_lines_across_counts_columns_and_rows():
-    width = 10
-    assert _two_lines_across(np.array([3, 4, 13, 14, 23, 24, 33, 34]), width)  # two columns
-    assert _two_lines_across(np.array([3, 13, 23]), width)  # one column
-    assert _two_lines_across(np.array([20, 21, 22, 23, 30, 31, 32, 33]), width)  # two rows
-    assert not _two_lines_across(np.array([0, 1, 2, 10, 11, 12, 20, 21, 22]), width)  # 3 x 3
 
 
 def test_parallel_lines_of_returns_on_a_column_fit_a_plane_whatever_its_radius():

@@ -222,6 +222,8 @@ def test_differing_pixels_in_boxes_are_those_of_the_grid_and_refuse_two_shapes()
     assert np.array_equal(differing_pixels(a, b), whole)
     with pytest.raises(ValueError, match="one shape"):
         differing_pixels(a, b[:10], (0, 10, 0, 30))
+    with pytest.raises(ValueError, match="one shape"):
+        differing_pixels(a, b[:10])
 
 
 def _pipe_top_lost_by_the_tiles(seed):
