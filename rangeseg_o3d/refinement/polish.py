@@ -30,6 +30,7 @@ from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .context import TRIM_SIGMAS, Context
+from .grid_lines import lines_across
 
 __all__ = ["polish_models"]
 
@@ -82,6 +83,9 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     if along_rays:  # a laser's mixed returns at jump edges are no bend
         unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)],
                                       pixels=pixels, sums=sums))
+        fits.update(unbent)
+        unbent.update(_bent_by_one_side(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)],
+                                        resolve_bends, pixels=pixels))
         fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         bent = _curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
@@ -238,6 +242,113 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
         claimed, through = _seen_through(ctx, labels, k, idx, model)
         if 2 * through > claimed:
             out[k] = plane
+    return out
+
+
+#: The fewest grid lines across (:func:`rangeseg_o3d.refinement.grid_lines.lines_across`) on which
+#: returns show a bend: two lines of returns along a column's axis are parallel, so two lines fit a
+#: plane whatever the surface's curvature (:func:`_bent_by_one_side`).
+BEND_LINES = 3
+
+
+def border_sides(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.ndarray:
+    """``(4, len(idx))`` for the pixels ``idx`` (flat, one region's) of ``labels`` (H, W):
+    whether the neighbour above, below, left and right of each is outside their region
+    (off the grid counts as outside; across the seam on a 360-degree grid it does not).
+    The region's label is that of ``idx[0]``. Each row of the answer is one side's border."""
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise ValueError(f"labels must be (H, W); got shape {labels.shape}")
+    idx = np.asarray(idx, dtype=np.int64)
+    if idx.ndim != 1 or idx.size == 0:
+        raise ValueError(f"idx must be a non-empty 1-D array of flat pixel indices; got shape {idx.shape}")
+    h, w = labels.shape
+    flat = labels.ravel()
+    own = flat[idx[0]]
+    r, c = np.divmod(idx, w)
+    out = np.ones((4, idx.size), dtype=bool)
+    steps = ((r - 1, c, r > 0), (r + 1, c, r < h - 1))
+    if wrap_columns:
+        steps += ((r, (c - 1) % w, np.ones(idx.size, bool)), (r, (c + 1) % w, np.ones(idx.size, bool)))
+    else:
+        steps += ((r, c - 1, c > 0), (r, c + 1, c < w - 1))
+    for side, (rr, cc, on_grid) in enumerate(steps):
+        out[side, on_grid] = flat[rr[on_grid] * w + cc[on_grid]] != own
+    return out
+
+
+def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: float = 0.0, *,
+                      pixels: _Pixels | None = None) -> dict:
+    """The planes of the curved regions among ``curved`` whose bend rests on one side's border
+    alone: without the pixels of one side (those whose neighbour above, below, left or right is
+    outside the region: one grid line's returns along that side), the region's least-squares plane
+    is within the fitter's plane threshold and the fitter's decision on those pixels
+    (``resolve_bends=samples``) is that plane, while the side's pixels lie off it by more than
+    their range noise explains (:func:`beyond_noise`, ``ctx.sigma``). The plane becomes the model.
+
+    A laser's return whose footprint a jump edge crosses is mixed, lying along its ray between
+    the two surfaces, many range sigmas off both: a face three to five columns wide with such a
+    column along one side bends like a cylinder that explains it within the noise, so neither
+    :func:`_unbent` (its plane is over the threshold) nor :func:`_bent_by_border` (the model is
+    within the noise) frees it (noise_10mm seed 17 scan 3: a face 3 columns wide at 5.2 m, seen
+    at 57 degrees, with 20 mixed returns 6-8 sigmas behind it along its left side, a 1.26 m
+    cylinder at 6.1 mm rms under 10 mm noise; its plane 17.9 mm). A cylinder or sphere bends
+    on every side: without one side its other flank still bends the rest's plane over the noise
+    or the decision finds the curve again, and a smooth surface that the rest shows flat within
+    the noise cannot put its next grid line many sigmas off that plane.
+
+    Asked only on a laser's single returns (``along_rays`` of :func:`polish_models`). Cost: per
+    curved region four planes by moments (one per side removed, from the region's moments less
+    the side's); a decision only where such a plane is within the threshold. ``sums``
+    (optional, :func:`_curved_sums`): a region whose plane is within the threshold is left to
+    :func:`_unbent` (``sums`` tells it without gathering the points)."""
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
+
+    p = ctx.fitter.params
+    if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
+        return {}
+    minimum = max(int(p.get("min_points", 10)), 10)
+    bends = {"resolve_bends": float(samples)} if samples else {}
+    out = {}
+    for k, idx in (pixels or _Pixels(labels)).of(curved).items():
+        points = rows_at(ctx.xyz, idx)
+        centroid = points.mean(axis=0)
+        centred = points - centroid
+        first = centred.T @ centred  # the region's scatter about its centroid; a side's removed below
+        whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                rms_per_range2=p["rms_per_range2"])
+        if np.sqrt(max(np.linalg.eigvalsh(first)[0], 0.0) / idx.size) <= whole:
+            continue  # its plane is within the threshold: _unbent's question, answered
+        sides = border_sides(labels, idx, ctx.wrap_columns)
+        total = centred.sum(axis=0)
+        best, best_rms = None, np.inf
+        for side in sides:
+            rest = ~side
+            n = int(np.count_nonzero(rest))
+            if n < minimum or n == idx.size or idx.size - n < 3:
+                continue
+            if lines_across(idx[rest], labels.shape[1]) < BEND_LINES:
+                continue  # two lines of returns fit a plane whatever the surface's bend: no evidence
+            # the rest's scatter from the region's less the side's (about the region's centroid)
+            part = centred[side]
+            mean = (total - part.sum(axis=0)) / n
+            scatter = first - part.T @ part - n * np.outer(mean, mean)
+            rms = float(np.sqrt(max(np.linalg.eigvalsh(scatter)[0], 0.0) / n))
+            tolerance = plane_threshold(n, centroid + mean, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                        rms_per_range2=p["rms_per_range2"])
+            if rms > tolerance or rms >= best_rms:
+                continue
+            plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
+            if not plane or plane.rms > tolerance:
+                continue
+            off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
+            if not beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())):
+                continue
+            if not isinstance(ctx.fitter.fit(points[rest], **bends), Plane):
+                continue
+            best, best_rms = plane, rms
+        if best is not None:
+            out[k] = best
     return out
 
 
