@@ -23,7 +23,7 @@ import numpy as np
 
 from .._numeric import median, rows_at
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from ..kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
+from ..kernels.linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis
 from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
@@ -245,6 +245,19 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
     return out
 
 
+def under_range_noise(sigma: float, n: int) -> float:
+    """The rms under which a plane's ``n`` returns of range noise ``sigma`` are surely not
+    facing the sensor: ``sigma`` times the square root of the chi-square law's lower bound,
+    ``NOISE_CHI2_SIGMAS`` deviations under its mean (``1 - 3 sqrt(2 / (n - 3))``; 0 when that is
+    not positive). A return errs along its ray, so its distance to its plane carries the range
+    noise times the incidence cosine: below this rms the returns lie on a plane seen obliquely
+    (or over fewer independent samples than ``n``)."""
+    if sigma < 0 or n < 0:
+        raise ValueError(f"sigma and n must be non-negative; got sigma={sigma}, n={n}")
+    low = 1.0 - NOISE_CHI2_SIGMAS * np.sqrt(2.0 / max(n - 3.0, 1.0))
+    return float(sigma * np.sqrt(low)) if low > 0.0 else 0.0
+
+
 #: The fewest grid lines across (:func:`rangeseg_o3d.refinement.grid_lines.lines_across`) on which
 #: returns show a bend: two lines of returns along a column's axis are parallel, so two lines fit a
 #: plane whatever the surface's curvature (:func:`_bent_by_one_side`).
@@ -280,30 +293,37 @@ def border_sides(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.
 def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: float = 0.0, *,
                       pixels: _Pixels | None = None) -> dict:
     """The planes of the curved regions among ``curved`` whose bend rests on one side's border
-    alone: without the pixels of one side (those whose neighbour above, below, left or right is
-    outside the region: one grid line's returns along that side), the region's least-squares plane
-    is within the fitter's plane threshold and within their range noise (:func:`beyond_noise`: the
-    lms200 preset's 1 cm threshold is five of the noise_2mm row's sigmas, and there a 0.137 m
-    column at 4.6 m seen on three columns leaves a plane of 4.6 mm rms without one side), and the fitter's decision on those pixels
-    (``resolve_bends=samples``) is that plane, while the side's pixels lie off it by more than
-    their range noise explains (:func:`beyond_noise`, ``ctx.sigma``). The plane becomes the model.
+    alone, on a laser's single returns. A side is the region's pixels whose neighbour above, below,
+    left or right is outside it (:func:`border_sides`: one grid line's returns along that side).
+    The region's own plane is over the fitter's plane threshold (else :func:`_unbent` asks), and
+    without one side the rest's least-squares plane is within that threshold and under the range
+    noise's chi-square lower bound (:func:`under_range_noise`: its returns are seen obliquely,
+    their distances carry the range noise times the incidence cosine), spans at least
+    ``BEND_LINES`` grid lines across, the fitter's decision on it (``resolve_bends=samples``) is a
+    plane, and the side's pixels lie off that plane by more than their range noise explains
+    (:func:`beyond_noise`, ``ctx.sigma``). That plane becomes the model (of the sides that pass,
+    the one whose rest fits best).
 
     A laser's return whose footprint a jump edge crosses is mixed, lying along its ray between
-    the two surfaces, many range sigmas off both: a face three to five columns wide with such a
-    column along one side bends like a cylinder that explains it within the noise, so neither
-    :func:`_unbent` (its plane is over the threshold) nor :func:`_bent_by_border` (the model is
-    within the noise) frees it (noise_10mm seed 17 scan 3: a face 3 columns wide at 5.2 m, seen
-    at 57 degrees, with 20 mixed returns 6-8 sigmas behind it along its left side, a 1.26 m
-    cylinder at 6.1 mm rms under 10 mm noise; its plane 17.9 mm). A cylinder or sphere bends
-    on every side: without one side its other flank still bends the rest's plane over the noise
-    or the decision finds the curve again, and a smooth surface that the rest shows flat within
-    the noise cannot put its next grid line many sigmas off that plane.
+    the two surfaces, many range sigmas off both: a face three to six columns wide with a column
+    of them along one side bends like a cylinder that explains it within the range noise, so
+    neither :func:`_unbent` (the plane is over the threshold) nor :func:`_bent_by_border` (the
+    model is within the noise) frees it (noise_10mm seed 17 scan 3: a face 3 columns wide at
+    5.2 m, seen at 57 degrees, with 20 mixed returns 6-8 range sigmas behind it along its left
+    side, a 1.26 m cylinder at 6.1 mm rms under 10 mm noise; its plane 17.9 mm, without that side
+    5.8 mm). On the laser rows of the 14 study seeds four of the five false fittings were such
+    faces. A pipe seen on four columns is flat within 10-20 mm noise without either limb too,
+    and its limb lies many sigmas off that plane; but its front faces the sensor, so that plane
+    leaves its returns about the range noise (noise_10mm seed 5 scan 2, a 0.13 m pipe at 4.1 m:
+    11.2 mm under 10 mm noise; noise_20mm seed 23 scan 6: 19.9 mm under 20 mm), where the
+    oblique face's leaves its cosine's share: the lower bound tells them apart. The rest must
+    also span three grid lines: on two a cylinder fits a plane as well, and its bend only shows
+    with the next line (noise_20mm seed 17 scan 5: a 0.13 m column at 5.4 m seen on two columns,
+    whose third column of mixed returns gave the cylinder its right radius).
 
-    Asked only on a laser's single returns (``along_rays`` of :func:`polish_models`). Cost: per
-    curved region four planes by moments (one per side removed, from the region's moments less
-    the side's); a decision only where such a plane is within the threshold. ``sums``
-    (optional, :func:`_curved_sums`): a region whose plane is within the threshold is left to
-    :func:`_unbent` (``sums`` tells it without gathering the points)."""
+    Cost: per curved region five plane rms by its scatter (the region's, and the rest's for each
+    side: the region's scatter less the side's); a plane fit and a decision only where a rest is
+    flat by them."""
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
     p = ctx.fitter.params
@@ -323,25 +343,35 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
             continue  # its plane is within the threshold: _unbent's question, answered
         sides = border_sides(labels, idx, ctx.wrap_columns)
         total = centred.sum(axis=0)
-        best, best_rms = None, np.inf
-        for side in sides:
+        # per side (above, below, left, right): the rest's plane rms by its scatter (the region's
+        # less the side's, about the region's centroid), its size and centroid, and whether it is
+        # flat (within the fitter's threshold and under the range noise's lower bound)
+        flat, rests = np.zeros(4, bool), []
+        for s, side in enumerate(sides):
             rest = ~side
             n = int(np.count_nonzero(rest))
+            rests.append((np.inf, n, centroid))
             if n < minimum or n == idx.size or idx.size - n < 3:
                 continue
-            if lines_across(idx[rest], labels.shape[1]) < BEND_LINES:
-                continue  # two lines of returns fit a plane whatever the surface's bend: no evidence
-            # the rest's scatter from the region's less the side's (about the region's centroid)
             part = centred[side]
             mean = (total - part.sum(axis=0)) / n
             scatter = first - part.T @ part - n * np.outer(mean, mean)
             rms = float(np.sqrt(max(np.linalg.eigvalsh(scatter)[0], 0.0) / n))
+            rests[s] = (rms, n, centroid + mean)
             tolerance = plane_threshold(n, centroid + mean, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
                                         rms_per_range2=p["rms_per_range2"])
-            if rms > tolerance or rms >= best_rms:
-                continue
-            if beyond_noise(rms, float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2))), n):
-                continue  # (a preset's plane threshold may lie far over a quiet sensor's noise)
+            # under what the range noise gives returns facing the sensor (seen obliquely; a preset's
+            # plane threshold may also lie far over a quiet sensor's noise)
+            noise = float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2)))
+            flat[s] = rms <= tolerance and rms < under_range_noise(noise, n)
+        best, best_rms = None, np.inf
+        for s in np.flatnonzero(flat):
+            rms, n, rest_centroid = rests[s]
+            side, rest = sides[s], ~sides[s]
+            if rms >= best_rms or lines_across(idx[rest], labels.shape[1]) < BEND_LINES:
+                continue  # two lines of returns fit a plane whatever the surface's bend: no evidence
+            tolerance = plane_threshold(n, rest_centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                        rms_per_range2=p["rms_per_range2"])
             plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
             if not plane or plane.rms > tolerance:
                 continue
