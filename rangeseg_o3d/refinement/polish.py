@@ -336,34 +336,32 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
         points = rows_at(ctx.xyz, idx)
         centroid = points.mean(axis=0)
         centred = points - centroid
-        first = centred.T @ centred  # the region's scatter about its centroid; a side's removed below
+        sides = border_sides(labels, idx, ctx.wrap_columns)
+        # the scatter about the region's centroid of the region (row 0) and of each rest, the
+        # region less one side (rows 1-4: above, below, left, right), in one batch
+        weights = np.vstack([np.ones((1, idx.size)), ~sides]).astype(np.float64)
+        sizes = weights.sum(axis=1)
+        means = (weights @ centred) / np.maximum(sizes, 1.0)[:, None]
+        scatter = np.einsum("sn,ni,nj->sij", weights, centred, centred) - sizes[:, None, None] * (
+            means[:, :, None] * means[:, None, :])
+        rms = np.sqrt(np.maximum(np.linalg.eigvalsh(scatter)[:, 0], 0.0) / np.maximum(sizes, 1.0))
         whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
                                 rms_per_range2=p["rms_per_range2"])
-        if np.sqrt(max(np.linalg.eigvalsh(first)[0], 0.0) / idx.size) <= whole:
+        if rms[0] <= whole:
             continue  # its plane is within the threshold: _unbent's question, answered
-        sides = border_sides(labels, idx, ctx.wrap_columns)
-        total = centred.sum(axis=0)
-        # per side (above, below, left, right): the rest's plane rms by its scatter (the region's
-        # less the side's, about the region's centroid), its size and centroid, and whether it is
-        # flat (within the fitter's threshold and under the range noise's lower bound)
+        noise2 = ctx.sigma[idx] ** 2
         flat, rests = np.zeros(4, bool), []
-        for s, side in enumerate(sides):
-            rest = ~side
-            n = int(np.count_nonzero(rest))
-            rests.append((np.inf, n, centroid))
+        for s in range(4):
+            n = int(sizes[s + 1])
+            rests.append((float(rms[s + 1]), n, centroid + means[s + 1]))
             if n < minimum or n == idx.size or idx.size - n < 3:
                 continue
-            part = centred[side]
-            mean = (total - part.sum(axis=0)) / n
-            scatter = first - part.T @ part - n * np.outer(mean, mean)
-            rms = float(np.sqrt(max(np.linalg.eigvalsh(scatter)[0], 0.0) / n))
-            rests[s] = (rms, n, centroid + mean)
-            tolerance = plane_threshold(n, centroid + mean, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
-                                        rms_per_range2=p["rms_per_range2"])
+            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
+                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
             # under what the range noise gives returns facing the sensor (seen obliquely; a preset's
             # plane threshold may also lie far over a quiet sensor's noise)
-            noise = float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2)))
-            flat[s] = rms <= tolerance and rms < under_range_noise(noise, n)
+            noise = float(np.sqrt(weights[s + 1] @ noise2 / n))
+            flat[s] = rms[s + 1] <= tolerance and rms[s + 1] < under_range_noise(noise, n)
         best, best_rms = None, np.inf
         for s in np.flatnonzero(flat):
             rms, n, rest_centroid = rests[s]
