@@ -290,6 +290,37 @@ def border_sides(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.
     return out
 
 
+#: The margin by which :func:`_one_side_flat`'s moments pass a rest: their rounding differs from
+#: the points' by far less (``SUMS_MARGIN``), and the points decide.
+ONE_SIDE_MARGIN = 1.01
+
+
+def _one_side_flat(ctx: Context, labels: np.ndarray, curved: list, minimum: int) -> list:
+    """The regions among ``curved`` of which the region less one side (:func:`border_sides`)
+    of at least ``minimum`` pixels leaves its least-squares plane an rms under
+    :func:`under_range_noise` of the largest range noise (within ``ONE_SIDE_MARGIN``), by one
+    compiled pass over the label image (``kernels.side_rest_planes``): :func:`_bent_by_one_side`
+    gathers and fits the points of those alone."""
+    if not curved:
+        return []
+    n = max(curved) + 1
+    wanted = np.zeros(n, bool)
+    wanted[list(curved)] = True
+    counts, rms = kernels.side_rest_planes(ctx.xyz, np.ascontiguousarray(labels.ravel()),
+                                           labels.shape[1], wanted, bool(ctx.wrap_columns))
+    valid = ctx.sigma[np.isfinite(ctx.sigma)]  # (no noise where no return)
+    if valid.size == 0:
+        return []
+    sigma = float(valid.max())  # (a bound: the rest's own noise is at most this)
+    keep = []
+    for k in curved:
+        for s in range(4):
+            if counts[k, s] >= minimum and rms[k, s] < ONE_SIDE_MARGIN * under_range_noise(sigma, int(counts[k, s])):
+                keep.append(int(k))
+                break
+    return keep
+
+
 def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: float = 0.0, *,
                       pixels: _Pixels | None = None) -> dict:
     """The planes of the curved regions among ``curved`` whose bend rests on one side's border
@@ -332,7 +363,7 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
     minimum = max(int(p.get("min_points", 10)), 10)
     bends = {"resolve_bends": float(samples)} if samples else {}
     out = {}
-    for k, idx in (pixels or _Pixels(labels)).of(curved).items():
+    for k, idx in (pixels or _Pixels(labels)).of(_one_side_flat(ctx, labels, curved, minimum)).items():
         points = rows_at(ctx.xyz, idx)
         centroid = points.mean(axis=0)
         centred = points - centroid

@@ -168,3 +168,30 @@ def test_border_sides_pixel_by_pixel(wrap_columns):
         border_sides(labels.ravel(), idx, False)
     with pytest.raises(ValueError, match="idx must be"):
         border_sides(labels, idx[:0], False)
+
+
+@pytest.mark.parametrize("wrap_columns", [False, True])
+def test_side_rest_planes_are_the_rests_least_squares_planes(wrap_columns):
+    from rangeseg_o3d import kernels
+
+    rng = np.random.default_rng(11)
+    labels = rng.integers(0, 4, (9, 12)).astype(np.int32)
+    labels[1:8, 0:5] = 1
+    labels[2:6, 9:12] = 2
+    labels[4, 0] = 2  # (2's pixel across the seam from its others on a 360-degree grid)
+    xyz = rng.normal(0.0, 1.0, (labels.size, 3)) + 50.0  # far from the origin: sums about a point of each
+    xyz[5] = np.nan  # skipped
+    wanted = np.array([False, True, True, False])
+    counts, rms = kernels.side_rest_planes(xyz, labels.ravel(), 12, wanted, wrap_columns)
+    for k in (1, 2):
+        idx = np.flatnonzero(labels.ravel() == k)
+        sides = border_sides(labels, idx, wrap_columns)
+        for s in range(4):
+            rest = idx[~sides[s]]
+            rest = rest[np.isfinite(xyz[rest]).all(axis=1)]
+            assert counts[k, s] == rest.size
+            if rest.size >= 3:
+                centred = xyz[rest] - xyz[rest].mean(axis=0)
+                expected = np.sqrt(np.linalg.eigvalsh(centred.T @ centred)[0] / rest.size)
+                assert rms[k, s] == pytest.approx(expected, rel=1e-8, abs=1e-10)
+    assert np.all(counts[[0, 3]] == 0) and np.all(rms[[0, 3]] == 0)
