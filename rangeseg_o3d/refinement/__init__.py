@@ -145,7 +145,9 @@ def grow_recovered_curves(ctx: Context, labels: np.ndarray, fits: dict, before, 
     the part two columns wide, which has no core, stayed free (noise_2mm seed 17 scan 1: a
     0.137 m column at 4.6 m, 109 of its 152 px recovered as a cylinder, its upper 43 px free). A
     plane recovered there takes such strips already (``recover.claim_thin_strips``); a curved
-    surface took none."""
+    surface took none. Asked on a laser's single returns (:func:`single_returns`): on the
+    region-growing preset's real 640 x 480 frames (tile 1, a camera) it grew a 41-px plane of
+    pcl_office1 into a 3.3 cm cylinder of 306 px at 14 mm rms."""
     recovered = [k for k, m in fits.items() if m and m.kind != "plane" and k not in before]
     if not recovered:
         return labels, fits
@@ -207,7 +209,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
                                          claim_strips=config.merge_disjoint,  # a strip is a piece apart
                                          thin_strips=tile == 1, **growth)  # (tile grid: see fullres)
-        if tile == 1:
+        if single_returns(sensor, tile):  # (a laser's grid, where it was measured; see its docstring)
             labels, fits = grow_recovered_curves(ctx, labels, fits, before, **growth)
     timer.lap("recover")
     before = fits
