@@ -55,7 +55,9 @@ def _plane_borders(xyz, labels, is_plane, sums):
     return found
 
 
-@njit(cache=True, nogil=True)
+# inline: read per pixel (and per step around it) by crease_moves and label_pixels; as a
+# call of its own, each use paid a call with two arrays' worth of arguments (same operations)
+@njit(cache=True, nogil=True, inline="always")
 def _crease_pair(a, b, normals, offsets, centroids, max_cos):
     """1 when planes ``a`` and ``b`` are turned by more than ``acos(max_cos)`` and meet at a
     concave crease (each region's centroid on the sensor's side of the other's plane), -1 at a
@@ -73,7 +75,9 @@ def _crease_pair(a, b, normals, offsets, centroids, max_cos):
     return 0
 
 
-@njit(cache=True, nogil=True)
+# inline: read per pixel (and per step around it) by crease_moves and label_pixels; as a
+# call of its own, each use paid a call with two arrays' worth of arguments (same operations)
+@njit(cache=True, nogil=True, inline="always")
 def _ray_meets_b(rx, ry, rz, a, b, concave, normals, offsets, least_cos):
     """Whether the unit ray ``r`` meets the face of plane ``b`` at the crease of planes ``a`` and
     ``b``: it meets each plane at least ``asin(least_cos)`` from grazing and in front of the
@@ -89,7 +93,9 @@ def _ray_meets_b(rx, ry, rz, a, b, concave, normals, offsets, least_cos):
     return (tb < ta) if concave else (tb > ta)
 
 
-@njit(cache=True, nogil=True)
+# inline: read per pixel (and per step around it) by crease_moves and label_pixels; as a
+# call of its own, each use paid a call with two arrays' worth of arguments (same operations)
+@njit(cache=True, nogil=True, inline="always")
 def _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos):
     """Whether the pixel at ``(x, y, z)`` (unit ray ``r``) of plane ``a`` lies on plane ``b``'s
     side of their crease: the ray meets ``b`` there (:func:`_ray_meets_b`) and both
