@@ -711,3 +711,45 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
 
 def _flat_points(cloud) -> np.ndarray:
     return np.ascontiguousarray(cloud.xyz.reshape(-1, 3))
+
+
+def settle_curved_into_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,
+                              ranges: np.ndarray, config, sensor, recovered_from: int, inlier_factor: float,
+                              iterations: int = 8):
+    """The border pixels of curved regions that a touching plane found at full resolution
+    (labels ``>= recovered_from``) explains nearer, within ``config.k_sigma`` noise sigmas,
+    move to it, ring by ring (:func:`rangeseg_o3d.kernels.settle_borders` with the
+    refinement's curved-to-plane rule, ``grow.PLANE_MARGIN``; no other move, none across a
+    range jump). Returns ``(labels, fits, stats)``; the inputs when nothing moved.
+
+    A pipe's end cap seen near edge-on is a few pixels wide: the tile means straddle it,
+    so the pipe's tile model took its pixels within the noise, and the plane recovered from
+    the pixels left off that model (:func:`rangeseg_o3d.off_model.recover_off_model`)
+    claims only a few rings back. The cap's pixels lie on its plane far within the noise
+    of their distances, and on the cylinder a sigma or more off it: the tile grid's settle
+    step, run again here with the cap's plane, gives them back. The models do not change.
+    """
+    from .refinement.grow import PLANE_MARGIN
+
+    n = int(labels.max(initial=0)) + 1
+    curved = [k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n]
+    planes = [k for k, m in fits.items() if m and m.kind == "plane" and recovered_from <= k < n]
+    if not (curved and planes):
+        return labels, fits, stats
+    table = model_table(fits, n)
+    kinds = table[0].copy()
+    involved = np.zeros(n, bool)
+    involved[curved + planes] = True
+    kinds[~involved] = 0  # neither moving nor taking: only curved regions and recovered planes
+    config = with_derived_refinement(config, sensor, cloud)
+    settled = np.array(labels, dtype=np.int32, order="C", copy=True)
+    xyz = np.ascontiguousarray(cloud.xyz.reshape(-1, 3), dtype=np.float64)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    moved = kernels.settle_borders(xyz, settled, kinds, table[1], table[2], noise,
+                                   np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
+                                   float(config.k_sigma), np.inf, float(config.jump_ratio), float(config.jump_min),
+                                   PLANE_MARGIN, bool(sensor.wrap_columns))
+    if not moved:
+        return labels, fits, stats
+    changed = np.flatnonzero(settled.ravel() != labels.ravel())
+    return settled, fits, stats_with_moved(stats, xyz, noise, labels, settled, table, changed, inlier_factor)
