@@ -525,14 +525,16 @@ class _Unions:
         the mean (from its moments), within ``STEP_SIGMAS`` times the scatter of its samples:
         its model's rms, at least their distance noise (its summed range noise times the
         incidence cosine at its centroid, floored at ``GRAZING_COSINE``). True for other kinds
-        or without moments. merge_regions asks it of pieces apart (not adjacent).
+        or without moments, or with ``STEP_SIGMAS <= 0``. merge_regions asks it of pieces apart
+        (not adjacent).
 
         Two box tops a couple of centimetres apart (two boxes of different heights) seen near
         grazing lie within a Kinect's range noise of each other's plane, and their union's rms
         stays within the parts' (their own planes are as noisy, turned by half a degree), but
         along their normals the step is many times the scatter of either: no piece of one
         surface stands that far off it."""
-        if self.moments is None or not isinstance(union, Plane) or not isinstance(self.fits[ra], Plane) \
+        if STEP_SIGMAS <= 0 or self.moments is None or not isinstance(union, Plane) \
+                or not isinstance(self.fits[ra], Plane) \
                 or not isinstance(self.fits[rb], Plane) or max(ra, rb) >= len(self.moments):
             return True
         small, big = (ra, rb) if self.moments[ra, 0] <= self.moments[rb, 0] else (rb, ra)
