@@ -711,3 +711,67 @@ def leftover_blob_labels(labels: np.ndarray, valid: np.ndarray, *, min_size: int
 
 def _flat_points(cloud) -> np.ndarray:
     return np.ascontiguousarray(cloud.xyz.reshape(-1, 3))
+
+
+def settle_curved_into_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,
+                              ranges: np.ndarray, config, sensor, recovered_from: int, inlier_factor: float,
+                              iterations: int = 8):
+    """The border pixels of curved regions that a touching plane found at full resolution
+    (labels ``>= recovered_from``) explains nearer, within ``config.k_sigma`` noise sigmas,
+    move to it, ring by ring (:func:`rangeseg_o3d.kernels.settle_borders` with the
+    refinement's curved-to-plane rule, ``grow.PLANE_MARGIN``; no other move, none across a
+    range jump), plane by plane within its box grown by ``iterations + 1`` pixels (no
+    seam of a 360-degree grid). Returns ``(labels, fits, stats)``; the inputs when nothing
+    moved.
+
+    A pipe's end cap seen near edge-on is a few pixels wide: the tile means straddle it,
+    so the pipe's tile model took its pixels within the noise, and the plane recovered from
+    the pixels left off that model (:func:`rangeseg_o3d.off_model.recover_off_model`)
+    claims only a few rings back. The cap's pixels lie on its plane far within the noise
+    of their distances, and on the cylinder a sigma or more off it: the tile grid's settle
+    step, run again here with the cap's plane, gives them back. The models do not change.
+    """
+    from .kernels import label_boxes
+    from .refinement.grow import PLANE_MARGIN
+
+    n = int(labels.max(initial=0)) + 1
+    curved = [k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n]
+    planes = [k for k, m in fits.items() if m and m.kind == "plane" and recovered_from <= k < n]
+    if not (curved and planes):
+        return labels, fits, stats
+
+    table = model_table(fits, n)
+    config = with_derived_refinement(config, sensor, cloud)
+    h, w = labels.shape
+    boxes = label_boxes(np.ascontiguousarray(labels, dtype=np.int32), n)
+    reach = int(iterations) + 1
+    settled = np.array(labels, dtype=np.int32, order="C", copy=True)
+    xyz = cloud.xyz
+    moved = 0
+    # plane by plane, in its box grown by the rings it may take (a pass over the frame per
+    # ring cost 9-13 ms on the real frames that have curved regions): only that plane and the
+    # curved regions move or take there, and only where a curved region's box meets it
+    for k in planes:
+        r0, r1 = max(boxes[k, 0] - reach, 0), min(boxes[k, 1] + reach, h)
+        c0, c1 = max(boxes[k, 2] - reach, 0), min(boxes[k, 3] + reach, w)
+        near = [j for j in curved if boxes[j, 0] < r1 and boxes[j, 1] > r0 and boxes[j, 2] < c1 and boxes[j, 3] > c0]
+        if not near or r1 <= r0 or c1 <= c0:
+            continue
+        kinds = np.zeros_like(table[0])
+        kinds[[k] + near] = table[0][[k] + near]  # neither moving nor taking: every other region
+        crop = np.ascontiguousarray(settled[r0:r1, c0:c1])
+        step = kernels.settle_borders(
+            np.ascontiguousarray(xyz[r0:r1, c0:c1].reshape(-1, 3), dtype=np.float64), crop, kinds, table[1], table[2],
+            np.ascontiguousarray(sigma[r0:r1, c0:c1], dtype=np.float64).ravel(),
+            np.ascontiguousarray(ranges[r0:r1, c0:c1], dtype=np.float64).ravel(), int(iterations),
+            float(config.k_sigma), np.inf, float(config.jump_ratio), float(config.jump_min), PLANE_MARGIN,
+            False)  # (a crop's first and last columns are no seam)
+        if step:
+            settled[r0:r1, c0:c1] = crop
+            moved += step
+    if not moved:
+        return labels, fits, stats
+    xyz = np.ascontiguousarray(cloud.xyz.reshape(-1, 3), dtype=np.float64)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    changed = np.flatnonzero(settled.ravel() != labels.ravel())
+    return settled, fits, stats_with_moved(stats, xyz, noise, labels, settled, table, changed, inlier_factor)

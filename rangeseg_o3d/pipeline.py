@@ -18,7 +18,7 @@ from .fitting.region_fitter import RegionFitter
 from .free_faces import faces_from_free
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_unresolved,
-                      recover_thin_surfaces, recovered_region_floor,
+                      recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region, stats_after_moves)
 from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, split_plane_faces
@@ -317,6 +317,11 @@ class Pipeline:
                     cloud, labels, fits, stats, fitter=self.fitter, config=refine, sensor=self.sensor,
                     ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
                 lap("strips")
+            # a pipe's end cap the pipe's tile model took, given back to the cap's plane found since
+            labels, fits, stats = settle_curved_into_planes(
+                cloud, labels, fits, stats, sigma=sigma, ranges=ranges, config=refine, sensor=self.sensor,
+                recovered_from=recovered_from, inlier_factor=INLIER_SIGMAS)
+            lap("settle_curved")
         if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
             # their pixels hold. Only where the range noise grows with the range (a depth camera's), so that

@@ -828,3 +828,48 @@ def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
     np.testing.assert_allclose(after.squares, full.squares, rtol=1e-12)
     assert after.counts[2] == 0 and after.squares[2] == 0.0
     assert after.squares[3] == stats.squares[3] and after.counts[3] == stats.counts[3]
+
+
+def _cylinder_beside_plane(seed: int = 0):
+    """A cylinder (radius 0.5 m, axis along y) tangent at x = 0.4 m to the plane z = 3 m
+    beyond it, 1 mm noise, on a 20 x 40 grid of 2 cm steps; the cylinder's region (label 1)
+    holds columns 0-25 (six columns of the plane), the plane's (label 2) the rest:
+    ``(cloud, labels, fits, sigma, ranges, u)`` with ``u`` the column of each pixel."""
+    from rangeseg_o3d.fitting.primitives import Cylinder, Plane
+
+    v, u = np.mgrid[0:20, 0:40].astype(float)
+    x, y = u * 0.02, v * 0.02
+    z = np.where(x < 0.4, 3.5 - np.sqrt(np.maximum(0.25 - (x - 0.4) ** 2, 0.0)), 3.0)
+    xyz = np.dstack([x, y, z + np.random.default_rng(seed).normal(0.0, 0.001, z.shape)])
+    labels = np.where(u < 26, 1, 2).astype(np.int32)
+    fits = {1: Cylinder(axis=[0, 1, 0], point=[0.4, 0, 3.5], radius=0.5, rms=0.001, inliers=520),
+            2: Plane(normal=[0, 0, 1], d=3.0, rms=0.001, inliers=280)}
+    return rs.OrganizedCloud(xyz), labels, fits, np.full((20, 40), 0.001), np.linalg.norm(xyz, axis=2), u
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_settle_curved_into_planes_gives_a_recovered_plane_its_pixels_from_the_cylinder(seed):
+    from rangeseg_o3d.fullres import region_stats, settle_curved_into_planes
+
+    cloud, labels, fits, sigma, ranges, u = _cylinder_beside_plane(seed)
+    pipe = rs.Pipeline("rgbd_vga")
+    xyz = cloud.xyz.reshape(-1, 3)
+    stats = region_stats(xyz, labels, fits, sigma.ravel(), 2.0)
+    out, fits_out, settled = settle_curved_into_planes(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
+                                                       config=pipe.config.refine, sensor=pipe.sensor,
+                                                       recovered_from=2, inlier_factor=2.0)
+    moved = out != labels
+    # only cylinder pixels of the plane's columns move, to the plane; the cylinder keeps its own
+    assert (labels[moved] == 1).all() and (out[moved] == 2).all()
+    # columns 24-25 (4.9-10 mm, as many sigmas off the cylinder) whole, most of 21-23 (1.6-3.6)
+    assert (out[u < 20] == 1).all() and (out[u >= 24] == 2).all()
+    assert moved.sum() >= 2 * 20 + 30
+    assert fits_out is fits  # the models stay
+    fresh = region_stats(xyz, out, fits, sigma.ravel(), 2.0)
+    for name in ("inliers", "squares", "counts"):
+        np.testing.assert_allclose(getattr(settled, name), getattr(fresh, name), rtol=1e-9, atol=1e-12)
+    # a plane the tile grid had (label below recovered_from) competed in label_pixels already
+    same, _, _ = settle_curved_into_planes(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
+                                           config=pipe.config.refine, sensor=pipe.sensor,
+                                           recovered_from=3, inlier_factor=2.0)
+    assert same is labels

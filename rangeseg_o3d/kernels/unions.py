@@ -63,6 +63,21 @@ def _angle_deg(u, v):
 
 
 @njit(cache=True, nogil=True)
+def _within_step(row, noise_sum, own_rms, normal, d, step_sigmas, min_cosine):
+    # merge._Unions.no_step for one part (moments ``row``, summed range noise ``noise_sum``,
+    # its model's rms ``own_rms``) against the plane ``normal . p = d``
+    part = row[0]
+    if part <= 0.0:
+        return True
+    cx, cy, cz = row[1] / part, row[2] / part, row[3] / part
+    offset = normal[0] * cx + normal[1] * cy + normal[2] * cz - d
+    norm = np.sqrt(cx * cx + cy * cy + cz * cz)
+    cosine = abs(offset + d) / norm if norm > 0.0 else 1.0
+    noise = max(noise_sum / part * max(cosine, min_cosine), own_rms)
+    return abs(offset) <= step_sigmas * noise
+
+
+@njit(cache=True, nogil=True)
 def _noise_by_root(labels, sigma, root, n):
     # each root's summed finite range noise, its pixels added in raster order (as
     # label_noise_sums over the labels mapped to their roots)
@@ -78,15 +93,19 @@ def _noise_by_root(labels, sigma, root, n):
 
 
 @njit(cache=True, nogil=True)
-def merge_plane_pairs(first, second, held, moments, normal, d, rms, count, root, labels, sigma,
-                      rms_factor, max_angle_deg, part_sigmas, plane_rms, rms_per_range2, min_points, noise_floor):
+def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count, root, labels, sigma,
+                      rms_factor, max_angle_deg, part_sigmas, plane_rms, rms_per_range2, min_points, noise_floor,
+                      step_sigmas, min_cosine):
     """merge_regions' loop over its candidate pairs of planes ``(first[i], second[i])``, in
     that order; ``held[i]``: the pair is held (its smaller part must lie on the union's
     plane on the mean; ``part_sigmas``: merge.PART_SIGMAS). Per label (row): ``moments`` (K, 10), the model's ``normal``, ``d``,
     ``rms`` and ``count`` (inliers), ``root`` (union-find parents, labels their own at the
     start); ``labels`` and ``sigma`` the flat label image and range noise (each root's noise
     summed when a union first needs it). The fitter's plane refit from moments takes
-    ``plane_rms``, ``rms_per_range2``, ``min_points`` and ``noise_floor``.
+    ``plane_rms``, ``rms_per_range2``, ``min_points`` and ``noise_floor``. ``apart[i]``: the
+    pair's regions do not touch, and its smaller part must lie on the larger's plane within
+    ``step_sigmas`` of its scatter (merge._Unions.no_step, ``min_cosine`` its floor of the
+    incidence cosine; ``step_sigmas <= 0``: no such test).
 
     Changes the arrays in place: a union's model goes to its root (``rb`` joins ``ra``,
     the pair's roots in its order). Returns a bool per label: its model is a union's.
@@ -140,6 +159,14 @@ def merge_plane_pairs(first, second, held, moments, normal, d, rms, count, root,
                         + moments[small, 3] * union_normal[2]) / part - union_d
                 if not abs(mean) <= CHI_SQUARE_SIGMAS * rms[small] / np.sqrt(part):
                     continue
+        if apart[i] and step_sigmas > 0.0:  # no step between the parts apart (_Unions.no_step)
+            if not have_noise:
+                noise = _noise_by_root(labels, sigma, root, n)
+                have_noise = True
+            big = rb if small == ra else ra
+            if not _within_step(moments[small], noise[small], rms[small], normal[big], d[big], step_sigmas,
+                                min_cosine):
+                continue
         root[rb] = ra
         normal[ra] = union_normal
         d[ra] = union_d

@@ -18,6 +18,7 @@ from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
 from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
+from ..scales import GRAZING_COSINE
 from .context import Context
 from .grid_lines import lines_across
 
@@ -27,6 +28,16 @@ __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adj
 #: this many times the merge's rms limit (rms of its points): a piece of a rippled face a
 #: millimetre off, yes; a small face a few millimetres off, no.
 PART_SIGMAS = 5.0
+#: Two planes' pieces apart are two surfaces a step apart, not one, when the smaller piece's
+#: mean lies off the larger's plane by more than this many times the scatter of its own
+#: samples (its plane's rms, at least their distance noise: range noise times the incidence
+#: cosine): then hardly a sample of it lies within the larger's band. Two box tops 2 cm apart
+#: seen near grazing at 3.6 m are 7-8 of them apart on a Kinect's tile grid (13-19 distance
+#: noises), while the pieces of one surface the study seeds join lie within 3 (a nodding
+#: laser's floor seen near grazing scatters several distance noises: the beam's footprint).
+#: One sample's scatter, not the noise of a mean: a real wall's pieces lie a fraction of a
+#: millimetre apart, systematically, which the noise of a mean of thousands would call a step.
+STEP_SIGMAS = 5.0
 # the merge's answer for a union of planes whose least-squares plane is over the merge limit
 _NO_UNION = FitFailure("plane", "the union's least-squares plane rms is over the merge limit")
 
@@ -231,7 +242,8 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         # pairs of planes join only planes and other pairs only their own kind: the planes'
         # loop runs apart, in their order (one compiled pass), the others' below
         planar = [_both_planes(fits, pair) for pair in pairs]
-        unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg)
+        unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg,
+                            adjacency)
         pairs = [pair for pair, flat in zip(pairs, planar) if not flat]
         if not pairs:
             lut = unions.lookup()
@@ -255,7 +267,8 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         if (union and union.kind == fits[ra].kind
                 and union.rms <= rms_factor * max(unions.part_rms(ra), unions.part_rms(rb))
                 and unions.parts_on(ra, rb, union, limit, max_angle_deg)
-                and ((a, b) not in (held or ()) or unions.part_centred(ra, rb, union))):
+                and ((a, b) not in (held or ()) or unions.part_centred(ra, rb, union))
+                and ((a, b) in adjacency or unions.no_step(ra, rb, union))):
             unions.join(ra, rb, union)
     lut = unions.lookup()
     mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
@@ -376,12 +389,13 @@ class _Unions:
                 and any(_both_planes(self.fits, pair) for pair in pairs)
                 and max(max(pair) for pair in pairs) < len(self.moments))
 
-    def merge_planes(self, pairs, held, max_angle_deg: float) -> None:
+    def merge_planes(self, pairs, held, max_angle_deg: float, adjacency=frozenset()) -> None:
         """merge_regions' loop over ``pairs`` of planes (in order): the same tests as
         :meth:`model`, :meth:`plane_within_larger`, :meth:`parts_on` and
         :meth:`part_centred` on the same values, the parts joined as :meth:`join` does, in one
         compiled pass (:func:`rangeseg_o3d.kernels.merge_plane_pairs`). ``held``: the pairs
-        held as merge_regions' ``held``."""
+        held as merge_regions' ``held``; the pairs not in ``adjacency`` are held to
+        :meth:`no_step`."""
         n = len(self.moments)
         keys = sorted({k for pair in pairs for k in pair})
         normal, d, rms, count = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
@@ -395,11 +409,12 @@ class _Unions:
             flat = flat.astype(np.int32)
         params = self.ctx.fitter.params
         joined = kernels.merge_plane_pairs(
-            first, second, np.array([pair in held for pair in pairs], dtype=np.bool_), self.moments,
+            first, second, np.array([pair in held for pair in pairs], dtype=np.bool_),
+            np.array([pair not in adjacency for pair in pairs], dtype=np.bool_), self.moments,
             normal, d, rms, count, root, np.ascontiguousarray(flat),
             np.ascontiguousarray(self.ctx.sigma.ravel(), dtype=np.float64), float(self.rms_factor),
             float(max_angle_deg), PART_SIGMAS, float(params["plane_rms"]), float(params["rms_per_range2"]),
-            int(params["min_points"]), float(params["noise_floor"]))
+            int(params["min_points"]), float(params["noise_floor"]), STEP_SIGMAS, GRAZING_COSINE)
         for k in keys:
             if root[k] != k:
                 self.root[k] = int(root[k])
@@ -504,6 +519,36 @@ class _Unions:
             return True
         mean = float(self.moments[small, 1:4] @ union.normal) / count - union.d
         return abs(mean) <= CHI_SQUARE_SIGMAS * float(self.fits[small].rms) / np.sqrt(count)
+
+    def no_step(self, ra: int, rb: int, union) -> bool:
+        """Whether the smaller part of a union of planes lies on the larger part's plane, on
+        the mean (from its moments), within ``STEP_SIGMAS`` times the scatter of its samples:
+        its model's rms, at least their distance noise (its summed range noise times the
+        incidence cosine at its centroid, floored at ``GRAZING_COSINE``). True for other kinds
+        or without moments, or with ``STEP_SIGMAS <= 0``. merge_regions asks it of pieces apart
+        (not adjacent).
+
+        Two box tops a couple of centimetres apart (two boxes of different heights) seen near
+        grazing lie within a Kinect's range noise of each other's plane, and their union's rms
+        stays within the parts' (their own planes are as noisy, turned by half a degree), but
+        along their normals the step is many times the scatter of either: no piece of one
+        surface stands that far off it."""
+        if STEP_SIGMAS <= 0 or self.moments is None or not isinstance(union, Plane) \
+                or not isinstance(self.fits[ra], Plane) \
+                or not isinstance(self.fits[rb], Plane) or max(ra, rb) >= len(self.moments):
+            return True
+        small, big = (ra, rb) if self.moments[ra, 0] <= self.moments[rb, 0] else (rb, ra)
+        count = float(self.moments[small, 0])
+        if count <= 0:
+            return True
+        if self.noise is None:  # each root's summed range noise (as plane_within_larger)
+            self.noise = _noise_sums(self.ctx, self.lookup()[self.labels], len(self.moments))
+        plane = self.fits[big]
+        centroid = self.moments[small, 1:4] / count
+        offset = float(centroid @ plane.normal) - float(plane.d)
+        cosine = abs(offset + float(plane.d)) / max(float(np.linalg.norm(centroid)), 1e-300)
+        noise = max(float(self.noise[small]) / count * max(cosine, GRAZING_COSINE), float(self.fits[small].rms))
+        return abs(offset) <= STEP_SIGMAS * noise
 
     def join(self, ra: int, rb: int, union) -> None:
         """Merge root ``rb`` into root ``ra``, whose model becomes ``union``."""

@@ -780,3 +780,70 @@ def test_merge_candidates_of_planes_are_the_whole_matrix_tests(seed, disjoint):
         expected = _candidates_by_arrays(models, **options)
         assert merge_candidates(models, **options) == expected
         assert len(expected) > len(adjacency) or not disjoint  # some pairs apart
+
+
+def _wall_and_piece_apart(offset: float, seed: int):
+    """A wall 3 m ahead under 2 mm noise (columns 0-35, label 1) and a piece of it apart
+    (columns 40-49, label 2) moved ``offset`` metres back: ``(context, xyz, labels, fits)``."""
+    from rangeseg_o3d.config import load_config
+    from rangeseg_o3d.refinement.context import Context
+
+    pipe = rs.Pipeline(load_config("lms200", overrides={"sensor.sigma0": 0.002}))
+    xyz = plane_grid(30, 50, noise=0.002, seed=seed)
+    xyz[:, 40:, 2] += offset
+    labels = np.zeros((30, 50), np.int32)
+    labels[:, :36], labels[:, 40:] = 1, 2
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
+    cloud = rs.OrganizedCloud(xyz)
+    return Context(cloud, pipe.fitter, pipe.sensor.noise.sigma(cloud.range_image()), 10), xyz, labels, fits
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("offset", [0.012, 0.02])
+def test_a_parallel_piece_apart_a_step_behind_stays_apart(monkeypatch, seed, offset):
+    # 6 and 10 noise sigmas behind: the union's rms (3.7-5.7 mm) is within 3 times the
+    # parts' (2 mm), so only the step test (STEP_SIGMAS = 5 of the piece's own scatter)
+    # refuses; both loops (compiled and Python) alike
+    from rangeseg_o3d.refinement import merge as merge_module
+
+    ctx, xyz, labels, fits = _wall_and_piece_apart(offset, seed)
+    options = dict(max_angle_deg=3.0, tolerance=0.2, disjoint=True, rms_factor=3.0)
+    assert 0.0035 < fit_plane(xyz[labels > 0]).rms < 3.0 * fits[2].rms  # the premise
+    out, merged, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), **options)
+    assert set(merged) == {1, 2} and np.array_equal(out, labels)
+    monkeypatch.setattr(merge_module._Unions, "plane_pairs_compiled", lambda self, pairs: False)
+    out, merged, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), **options)
+    assert set(merged) == {1, 2} and np.array_equal(out, labels)
+    monkeypatch.setattr(merge_module, "STEP_SIGMAS", 0.0)  # without the test: one region
+    out, merged, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), **options)
+    assert set(merged) == {1} and (out[labels > 0] == 1).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("offset", [0.0, 0.006])
+def test_a_parallel_piece_apart_within_its_scatter_joins(monkeypatch, seed, offset):
+    # on the wall, or 3 noise sigmas behind it (within 5): one region, on both loops
+    from rangeseg_o3d.refinement import merge as merge_module
+
+    ctx, xyz, labels, fits = _wall_and_piece_apart(offset, seed)
+    options = dict(max_angle_deg=3.0, tolerance=0.2, disjoint=True, rms_factor=3.0)
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(merge_module._Unions, "plane_pairs_compiled", lambda self, pairs: False)
+        out, merged, _ = merge_regions(ctx, labels, fits, region_adjacency(labels), **options)
+        assert set(merged) == {1} and (out[labels > 0] == 1).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_touching_pieces_are_not_held_to_the_step(monkeypatch, seed):
+    # the same piece 10 sigmas behind, named adjacent: the edge image met them, and the step
+    # test (pieces apart only) does not ask; both loops join it
+    from rangeseg_o3d.refinement import merge as merge_module
+
+    ctx, xyz, labels, fits = _wall_and_piece_apart(0.02, seed)
+    options = dict(max_angle_deg=3.0, tolerance=0.2, disjoint=True, rms_factor=3.0)
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(merge_module._Unions, "plane_pairs_compiled", lambda self, pairs: False)
+        out, merged, _ = merge_regions(ctx, labels, fits, {(1, 2)}, **options)
+        assert set(merged) == {1} and (out[labels > 0] == 1).all()
