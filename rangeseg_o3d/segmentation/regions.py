@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import kernels  # the package: its names load on first use (no compiler at import)
-
 __all__ = ["label_regions", "relabel_sequential", "wrap_columns", "join_wrapped"]
 
 
@@ -42,22 +40,17 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
         raise ValueError(f"min_size must be >= 1; got {min_size}")
     import cv2  # here, not at module level: importing the stage stays light
 
-    from ..fitting.region_fitter import label_sizes
-
     free = (~edges).astype(np.uint8)
     # the labels alone, their sizes by one count: OpenCV's statistics (boxes, centroids)
     # cost twice the labelling on a scan-sized grid
     n, labels = cv2.connectedComponents(free, connectivity=connectivity, ltype=cv2.CV_32S)
     keep = np.zeros(n, dtype=bool)
-    # the sizes and the renumbering in compiled passes (kernels.label_counts, kernels.relabel:
-    # numpy's bincount widens the labels to 64 bits first, and its gather costs four times
-    # the loop on a scan-sized grid)
-    keep[1:] = label_sizes(labels, minlength=n)[1:n] >= min_size
+    keep[1:] = np.bincount(labels.ravel(), minlength=n)[1:] >= min_size
     # OpenCV numbers components by first pixel (row-major): renumbering the kept ones
     # 1..n in that order needs no sort
     lut = np.zeros(n, dtype=np.int32)
     lut[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return kernels.relabel(labels, lut)
+    return lut[labels]
 
 
 def wrap_columns(image: np.ndarray, pad: int) -> np.ndarray:

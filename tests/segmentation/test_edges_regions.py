@@ -120,25 +120,3 @@ def test_region_helpers_name_a_bad_argument():
     # across the seam, numbered 1 on the left, 2 on the right
     assert wrap_columns(np.array([[5, 0, 0, 6]]), 1).tolist() == [[6, 5, 0, 0, 6, 5]]
     assert join_wrapped(np.array([[1, 1, 0, 0, 2, 2]], np.int32), 1).tolist() == [[1, 0, 0, 1]]
-
-
-@pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("connectivity", [4, 8])
-def test_label_regions_matches_numpy_sizes_and_renumbering(seed, connectivity):
-    # the compiled counts and renumbering against OpenCV's components renumbered by numpy
-    # (np.bincount, lut[labels]), on random edges leaving regions of many sizes
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    edges = rng.random((37, 53)) < 0.35
-    n, components = cv2.connectedComponents((~edges).astype(np.uint8), connectivity=connectivity,
-                                            ltype=cv2.CV_32S)
-    for min_size in (1, 3, 12):
-        keep = np.zeros(n, bool)
-        keep[1:] = np.bincount(components.ravel(), minlength=n)[1:] >= min_size
-        lut = np.zeros(n, np.int32)
-        lut[keep] = np.arange(1, keep.sum() + 1)
-        labels = label_regions(edges, min_size=min_size, connectivity=connectivity)
-        assert labels.dtype == np.int32 and labels.shape == edges.shape
-        np.testing.assert_array_equal(labels, lut[components])
-    assert label_regions(np.ones((4, 5), bool), min_size=1).tolist() == np.zeros((4, 5), int).tolist()
