@@ -516,6 +516,39 @@ def test_claim_thin_strips_gives_each_surface_its_border_column_at_a_step(contex
     assert (small == labels).all()
 
 
+
+@pytest.mark.parametrize("seed", range(3))
+def test_claim_thin_strips_offers_the_strips_numpy_keeps(context, seed, monkeypatch):
+    # the pool of strips offered to the planes (kernels.member_pixels of the kept strips)
+    # is numpy's flatnonzero(kept[strips]), on random leftovers of many strip sizes
+    import cv2
+
+    import rangeseg_o3d.refinement.recover as recover
+
+    rng = np.random.default_rng(seed)
+    labels = np.where(rng.random((30, 40)) < 0.3, 0, 1).astype(np.int32)
+    candidates = np.where(rng.random(labels.shape) < 0.1, 7, 0).astype(np.int32)
+    valid = rng.random(labels.shape) > 0.05
+    xyz = plane_grid(30, 40, z=3.0, noise=0.002, seed=seed)
+    offered = []
+    monkeypatch.setattr(recover, "claim_on_distance_noise",
+                        lambda ctx, labels, fits, pool, **kw: offered.append(pool) or labels)
+    for min_size in (1, 3, 6):
+        free = valid & (labels == 0) & (candidates == 0)
+        n, strips = cv2.connectedComponents(free.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        kept = np.bincount(strips.ravel(), minlength=n) >= min_size
+        kept[0] = False
+        expected = np.flatnonzero(kept[strips].ravel())
+        offered.clear()
+        recover.claim_thin_strips(context(rs.OrganizedCloud(xyz), min_size=min_size), labels, {}, candidates,
+                                  valid=valid, k_sigma=3.0)
+        if expected.size:
+            assert len(offered) == 1
+            np.testing.assert_array_equal(offered[0], expected)
+        else:
+            assert not offered
+
+
 def test_fresh_label_is_above_every_label_and_every_model():
     from rangeseg_o3d.fitting.region_fitter import fresh_label
 
