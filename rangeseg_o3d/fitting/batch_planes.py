@@ -38,12 +38,21 @@ class PlaneTable:
     ok: np.ndarray
 
 
-def region_moments(xyz_flat: np.ndarray, labels_flat: np.ndarray, n: int | None = None) -> np.ndarray:
-    """(n, 10) moments (count, sums, sums of products) of the points of each label 1..n-1."""
+def region_moments(xyz_flat: np.ndarray, labels_flat: np.ndarray, n: int | None = None, *,
+                   only=None) -> np.ndarray:
+    """(n, 10) moments (count, sums, sums of products) of the points of each label 1..n-1.
+
+    With ``only`` (labels), those labels' rows alone (the same values), the others zero:
+    the other labels' pixels are read, not summed (:func:`rangeseg_o3d.kernels.member_moments`)."""
     labels_flat = np.ascontiguousarray(labels_flat, dtype=np.int32)
     if n is None:
         n = int(labels_flat.max(initial=0)) + 1
-    return kernels.label_moments(np.ascontiguousarray(xyz_flat, dtype=np.float64), labels_flat, int(n))
+    xyz_flat = np.ascontiguousarray(xyz_flat, dtype=np.float64)
+    if only is None:
+        return kernels.label_moments(xyz_flat, labels_flat, int(n))
+    members = np.zeros(int(n), np.bool_)
+    members[[k for k in only if 0 < k < n]] = True
+    return kernels.member_moments(xyz_flat, labels_flat, members)
 
 
 def _moment_rows(moments) -> np.ndarray:

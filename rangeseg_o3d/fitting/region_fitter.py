@@ -212,11 +212,12 @@ class RegionFitter:
         return {k: settled[k] if k in settled else self.fit(self.points(xyz_flat, idx))
                 for k, idx in region_indices(labels).items()}
 
-    def moments(self, xyz_flat: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
-        """Label-wise moments when the plugin refits from them, else None."""
+    def moments(self, xyz_flat: np.ndarray, labels: np.ndarray, only=None) -> np.ndarray | None:
+        """Label-wise moments when the plugin refits from them, else None; with ``only``
+        (labels) those labels' rows alone, the others zero (:func:`region_moments`)."""
         if self.plugin.refit_moments is None:
             return None
-        return region_moments(xyz_flat, labels.ravel())
+        return region_moments(xyz_flat, labels.ravel(), only=only)
 
     def refit_from_moments(self, moments: np.ndarray | None, models: list) -> list:
         """Per model the plugin's refit from its moments row, or None (refit from points)."""
@@ -239,7 +240,8 @@ class RegionFitter:
         which = [k for k in which if fits.get(k)]
         if not which:
             return {}
-        moments = self.moments(xyz_flat, labels) if from_moments else None
+        # (the rows of ``which`` alone: a refit of a few grown or settled regions sums their pixels only)
+        moments = self.moments(xyz_flat, labels, only=which) if from_moments else None
         out = {}
         if moments is not None:
             rows = np.zeros((len(which), moments.shape[1]))

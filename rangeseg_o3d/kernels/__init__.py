@@ -33,7 +33,7 @@ _SOURCES = {
              "relabel", "grow_rings", "grow_rings_in_boxes", "jump_mask", "largest_piece", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "box_members", "piece_ids",
              "member_pixels_in_boxes", "differing_in_boxes", "free_pixels_in_boxes",
              "ranges_and_noise"),
-    "labelwise": ("label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes",
+    "labelwise": ("label_moments", "member_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
     "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"),

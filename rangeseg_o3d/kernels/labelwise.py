@@ -14,7 +14,7 @@ from .linalg import (NOISE_CHI2_SIGMAS, collinear, flat_by_quadric, hesse_form, 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["label_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
+__all__ = ["label_moments", "member_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes", "height_field_shape",
            "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half", "rows_with_any",
            "piece_votes", "nearer_models", "voted_columns", "claim_parts"]
 
@@ -29,15 +29,30 @@ def label_moments(xyz, labels, n):
     them keeps about 6 significant digits for millimetre noise at 100 m, far below what a
     threshold test needs.
     """
+    return member_moments(xyz, labels, np.ones(n, np.bool_))
+
+
+@njit(cache=True, nogil=True)
+def member_moments(xyz, labels, members):
+    """:func:`label_moments` of the labels ``k`` with ``members[k]`` (``n = len(members)``),
+    zero rows for the others: each member's row is label_moments' to the bit (its pixels
+    added in the same order), the other labels' pixels are only read (a refit of a few
+    regions of a scan costs their pixels' sums, not the whole grid's)."""
+    n = members.shape[0]
     out = np.zeros((n, N_MOMENTS))
     # Labels come in runs along the rows: a run's sums stay in registers (loaded from the
     # label's row when the run starts, stored when it ends: the same additions in the same
-    # order), where a store and reload per pixel would chain each pixel to the last.
+    # order), where a store and reload per pixel would chain each pixel to the last; a
+    # run's membership is looked up once.
     last = -1
+    seen, inside = -1, False
     sums = NO_MOMENTS
     for i in range(labels.shape[0]):
         k = labels[i]
-        if k <= 0 or k >= n:
+        if k != seen:
+            seen = k
+            inside = 0 < k < n and members[k]
+        if not inside:
             continue
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
         if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):

@@ -26,6 +26,7 @@ import numpy as np
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from .._numeric import unique_ints
 from ..fitting.primitives import Plane
+from ..fitting.region_fitter import label_sizes
 from ..scales import GRAZING_COSINE
 from .context import Context
 from .grow import SETTLE_MARGIN
@@ -96,7 +97,7 @@ def settle_along_rays(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: n
                 fits[k] = refit
                 if 0 < k < n:  # its row of _plane_table(fits, n)
                     normals[k], offsets[k] = (refit.normal, refit.d) if isinstance(refit, Plane) else (0.0, 0.0)
-    left = np.bincount(settled.ravel(), minlength=n)
+    left = label_sizes(settled, minlength=n)  # (compiled: numpy's bincount widens the labels first)
     for k in [k for k in fits if 0 < k < n and left[k] == 0 and np.any(labels == k)]:
         del fits[k]
     return settled, fits

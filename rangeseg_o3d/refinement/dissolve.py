@@ -191,7 +191,10 @@ def _candidate_pixels(xyz, labels, candidates, sizes, table: _PlaneTable, sigma,
             level = max(0.0, 0.5 - 1.5 / np.sqrt(sample.size))
             wanted[k] = bigger.any() and bool(np.any(
                 np.quantile(_scores(xyz, sample, table, bigger, sigma, min_cosine), level, axis=0) <= k_sigma))
-    return _grouped(kernels.member_pixels(labels, wanted), labels) if wanted.any() else {}
+    # grouped by one compiled counting sort of the wanted labels (region_indices' ``only``): the
+    # same pixels in the same order as _grouped of their member_pixels, without its argsort,
+    # np.unique and np.split (~50 us a scan)
+    return region_indices(labels, only=np.flatnonzero(wanted).tolist()) if wanted.any() else {}
 
 
 def _scores(xyz, idx, table: _PlaneTable, which, sigma, min_cosine: float = 1.0) -> np.ndarray:

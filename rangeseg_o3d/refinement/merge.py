@@ -63,8 +63,11 @@ def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool =
         return region_adjacency(labels, reach=reach) | region_adjacency(seam, reach=reach)
     n = int(labels.max(initial=0)) + 1
     if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
-        a, b = np.nonzero(np.triu(kernels.adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)))
-        return set(zip(a.tolist(), b.tolist()))
+        # the matrix is symmetric with an empty diagonal: its pairs a < b are np.triu's,
+        # without building the triangle's n x n mask
+        a, b = np.nonzero(kernels.adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach))
+        upper = a < b
+        return set(zip(a[upper].tolist(), b[upper].tolist()))
     pairs = set()
     for dy in range(-reach, reach + 1):
         for dx in range(0, reach + 1):

@@ -546,7 +546,9 @@ def _curved_sums(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> 
     kinds, params, rms = model_table({k: fits[k] for k in curved}, n)
     _, squares, counts = kernels.distance_stats(ctx.xyz, flat_labels, kinds, params, rms,
                                                 np.ascontiguousarray(ctx.sigma, dtype=np.float64), 3.0)
-    moments = kernels.label_moments(ctx.xyz, flat_labels, n)[curved]
+    members = np.zeros(n, np.bool_)
+    members[curved] = True
+    moments = kernels.member_moments(ctx.xyz, flat_labels, members)[curved]  # (label_moments' rows, the curved alone)
     centroid, _, _, eigvals, _, _ = kernels.planes_from_moment_rows(moments)
     return _CurvedSums(counts, squares, {k: i for i, k in enumerate(curved)}, moments[:, 0], centroid,
                        eigvals[:, 0])

@@ -723,6 +723,30 @@ def test_label_moments_sum_in_pixel_order_exactly():
     assert np.array_equal(label_moments(pts, labels, 6), expected)
 
 
+
+@pytest.mark.parametrize("seed", range(3))
+def test_member_moments_are_the_members_rows_of_label_moments_exactly(seed):
+    # the members' rows to the bit (their pixels added in the same order), zero rows for the
+    # other labels; negative labels and labels beyond the table left out; region_moments'
+    # ``only`` and the refits from moments give the same values as over every label
+    from rangeseg_o3d.fitting.batch_planes import region_moments
+    from rangeseg_o3d.kernels import label_moments, member_moments
+
+    rng = np.random.default_rng(seed)
+    pts, labels = _runs_of_labels(rng)
+    labels[rng.random(labels.size) < 0.05] = -1
+    every = label_moments(pts, labels, 6)
+    for members in (np.ones(6, bool), np.zeros(6, bool), rng.random(6) < 0.5, rng.random(4) < 0.7):
+        got = member_moments(pts, labels, members)
+        assert got.shape == (members.size, 10)
+        for k in range(members.size):
+            expected = every[k] if members[k] and k > 0 else np.zeros(10)
+            assert np.array_equal(got[k], expected)
+    only = [2, 5, 9]  # (9: no such label)
+    rows = region_moments(pts, labels, only=only)
+    assert np.array_equal(rows[[2, 5]], every[[2, 5]]) and not rows[[1, 3, 4]].any()
+
+
 def test_member_centres_are_the_means_of_the_gathered_points_exactly():
     # planes_into_curved's convex test reads these centres where it read the mean of each
     # region's gathered points: the same sums, so the same labels; NaN points count (a NaN mean)

@@ -192,3 +192,24 @@ def test_compiled_median_test_refuses_only_what_the_numpy_one_refuses():
     assert same == 200
     empty = planes_may_hold_half(xyz, sigma, np.zeros(0, np.int64), normals, offsets, scatter, 3.0, _SCORE_SLACK)
     assert empty.all() and median_may_pass(np.zeros((0, p)), 3.0).all()
+
+
+def test_ripple_candidates_are_grouped_as_their_member_pixels():
+    # _candidate_pixels groups the small candidates' pixels by one counting sort
+    # (region_indices' only): the same labels, in the same order, with the same increasing
+    # pixels as grouping kernels.member_pixels by label (_grouped)
+    from rangeseg_o3d import kernels
+    from rangeseg_o3d.refinement.dissolve import _candidate_pixels, _grouped
+
+    rng = np.random.default_rng(5)
+    runs = rng.integers(1, 25, 500)
+    labels = np.repeat(rng.integers(0, 12, runs.size), runs)[:60 * 70].astype(np.int32).reshape(60, 70)
+    sizes = np.bincount(labels.ravel(), minlength=12)
+    for trial in range(4):
+        candidates = rng.random(12) < 0.5
+        candidates[0] = False
+        got = _candidate_pixels(None, labels, candidates, sizes, None, None, 3.0, 1.0)
+        expected = _grouped(kernels.member_pixels(labels, candidates), labels) if candidates.any() else {}
+        assert list(got) == list(expected) == [k for k in range(1, 12) if candidates[k] and sizes[k]]
+        for k in expected:
+            np.testing.assert_array_equal(got[k], expected[k])

@@ -118,3 +118,32 @@ def test_a_surface_is_not_split_by_a_line_of_mixed_returns(noise_2mm, seed, scan
     region = result.labels == score.correct[wall]
     on_wall = made.truth_ids == wall
     assert (region & on_wall).sum() >= 0.95 * on_wall.sum()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_release_grid_lines_frees_the_regions_lines_across_calls_lines(seed):
+    # the compiled bounding boxes (kernels.label_boxes) against lines_across of each region's
+    # pixel indices, on random images of small regions (runs, rows, columns, single pixels),
+    # a label without pixels in the fits and labels beyond them
+    rng = np.random.default_rng(seed)
+    h, w = 17, 23
+    labels = np.zeros((h, w), np.int32)
+    for k in range(1, 30):
+        r, c = rng.integers(0, h), rng.integers(0, w)
+        shape = rng.integers(0, 4)
+        if shape == 0:
+            labels[r, c:c + rng.integers(1, 6)] = k  # a run along a row
+        elif shape == 1:
+            labels[r:r + rng.integers(1, 6), c] = k  # a run down a column
+        elif shape == 2:
+            labels[r:r + rng.integers(2, 4), c:c + rng.integers(2, 4)] = k  # an area
+        else:
+            labels[r, c] = k
+            labels[min(r + 1, h - 1), min(c + 1, w - 1)] = k  # a diagonal pair
+    fits = {k: f"model {k}" for k in range(1, 33)}
+    present = {k: np.flatnonzero(labels == k) for k in np.unique(labels) if k > 0}
+    lines = sorted(k for k, idx in present.items() if lines_across(idx, w) <= 1)
+    out, kept = release_grid_lines(labels, fits)
+    np.testing.assert_array_equal(out, np.where(np.isin(labels, lines), 0, labels))
+    assert kept == {k: m for k, m in fits.items() if k not in lines}
+    assert (out is labels) == (not lines)

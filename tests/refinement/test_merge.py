@@ -40,6 +40,18 @@ def test_region_adjacency_of_many_labels_is_every_pair_within_reach(seed):
     for reach in (1, 2):
         assert region_adjacency(labels, reach=reach) == _touching_pairs(labels, reach)
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_region_adjacency_of_a_few_labels_is_every_pair_within_reach(seed):
+    # under 4096 labels: the pairs (a < b) of the compiled matrix, pixel by pixel as above
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(1, 12, 900)
+    labels = np.repeat(rng.integers(0, 40, runs.size), runs)[:50 * 60].astype(np.int32).reshape(50, 60)
+    for reach in (1, 2, 3):
+        pairs = region_adjacency(labels, reach=reach)
+        assert pairs == _touching_pairs(labels, reach)
+        assert all(a < b for a, b in pairs)
+
 def test_merge_candidates_need_adjacency_or_similar_parameters():
     a = Plane(normal=[0, 0, 1], d=1.0, rms=0.004, inliers=100)
     b = Plane(normal=[0, 0.01, 1], d=1.01, rms=0.004, inliers=100)

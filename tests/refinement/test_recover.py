@@ -36,6 +36,35 @@ def test_leftover_candidates_keep_strips_along_the_grid_border():
     assert not cand[9:11].any()
 
 
+
+@pytest.mark.parametrize("seed", range(4))
+def test_leftover_candidates_match_the_numpy_renumbering(seed):
+    # the compiled renumbering (kernels.relabel) against numpy's lut[comp] of the same
+    # steps, on random leftovers with jumps and invalid pixels, blobs of many sizes
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    labels = np.where(rng.random((40, 50)) < 0.45, 0, 1).astype(np.int32)
+    labels[5:15, 5:20] = 0  # one blob sure to survive the erosion
+    valid = rng.random(labels.shape) > 0.05
+    jumps = rng.random(labels.shape) < 0.05
+    for min_size, first in ((1, 2), (9, 7), (40, 3)):
+        free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
+        kernel = np.ones((3, 3), np.uint8)
+        n, comp = cv2.connectedComponents(cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE),
+                                          connectivity=4, ltype=cv2.CV_32S)
+        grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
+        comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
+        keep = np.bincount(comp.ravel(), minlength=n) >= min_size
+        keep[0] = False
+        lut = np.zeros(n, np.int32)
+        lut[keep] = np.arange(first, first + keep.sum())
+        cand = leftover_candidates(labels, valid, jumps, min_size=min_size, first_label=first)
+        assert cand.dtype == np.int32
+        np.testing.assert_array_equal(cand, lut[comp])
+        assert cand.max() >= first  # (the blob at least)
+
+
 def _board_in_front_of_a_wall():
     # a wall at z = 3 and a 16 x 16 pixel board tilted in front of it; the wall's region
     # stops a pixel short of the board (the edge band), the board has no region
@@ -485,6 +514,39 @@ def test_claim_thin_strips_gives_each_surface_its_border_column_at_a_step(contex
     small = claim_thin_strips(context(cloud, min_size=81, sigma=sigma), labels, fits, candidates,
                               valid=cloud.valid, k_sigma=3.0)
     assert (small == labels).all()
+
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_claim_thin_strips_offers_the_strips_numpy_keeps(context, seed, monkeypatch):
+    # the pool of strips offered to the planes (kernels.member_pixels of the kept strips)
+    # is numpy's flatnonzero(kept[strips]), on random leftovers of many strip sizes
+    import cv2
+
+    import rangeseg_o3d.refinement.recover as recover
+
+    rng = np.random.default_rng(seed)
+    labels = np.where(rng.random((30, 40)) < 0.3, 0, 1).astype(np.int32)
+    candidates = np.where(rng.random(labels.shape) < 0.1, 7, 0).astype(np.int32)
+    valid = rng.random(labels.shape) > 0.05
+    xyz = plane_grid(30, 40, z=3.0, noise=0.002, seed=seed)
+    offered = []
+    monkeypatch.setattr(recover, "claim_on_distance_noise",
+                        lambda ctx, labels, fits, pool, **kw: offered.append(pool) or labels)
+    for min_size in (1, 3, 6):
+        free = valid & (labels == 0) & (candidates == 0)
+        n, strips = cv2.connectedComponents(free.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        kept = np.bincount(strips.ravel(), minlength=n) >= min_size
+        kept[0] = False
+        expected = np.flatnonzero(kept[strips].ravel())
+        offered.clear()
+        recover.claim_thin_strips(context(rs.OrganizedCloud(xyz), min_size=min_size), labels, {}, candidates,
+                                  valid=valid, k_sigma=3.0)
+        if expected.size:
+            assert len(offered) == 1
+            np.testing.assert_array_equal(offered[0], expected)
+        else:
+            assert not offered
 
 
 def test_fresh_label_is_above_every_label_and_every_model():
