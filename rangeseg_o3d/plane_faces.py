@@ -634,6 +634,7 @@ def join_pieces_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigm
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane) and 0 < k < counts.size and m.d != 0}
     if len(planes) < 2:
         return labels, fits, stats
+    share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     out = np.array(labels, dtype=np.int32, order="C")
     flat = out.reshape(-1)
     indices = region_indices(out, only=list(planes))
@@ -649,6 +650,14 @@ def join_pieces_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigm
         larger = {j: m for j, m in planes.items() if j not in joined and j != k and size.get(j, 0) > idx.size}
         if not larger:
             continue
+        larger = {j: m for j, m in larger.items() if j in touching(out, idx, 1)}
+        if not larger:
+            continue
+        # first on an even subsample (its fewer returns get a looser bound): most regions beside
+        # a larger plane are other surfaces, and the gate spares their every pixel's terms
+        sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
+        if sample.size < idx.size and not _explained_along_rays(xyz[sample], noise[sample], larger, share):
+            continue
         rays, inverse, weight = ray_terms(xyz[idx], noise[idx])
         wall, kept = plane_beside(out, k, idx, rays, inverse, weight, larger, correlation_px)
         if not wall:
@@ -663,3 +672,22 @@ def join_pieces_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigm
     fits = {k: m for k, m in fits.items() if k not in joined}
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
     return out, fits, stats
+
+
+def _explained_along_rays(points: np.ndarray, sigma: np.ndarray, planes: dict, share: float) -> bool:
+    """Whether one of ``planes`` (label -> Plane) keeps :data:`strips.EXPLAINED_SHARE` of
+    ``points`` within TRIM_SIGMAS of their range noise ``sigma`` along the rays with a mean
+    square within the chi-square bound of ``share`` independent returns a kept point
+    (:func:`plane_beside`'s test, without the search for touching regions)."""
+    from .kernels.linalg import noise_rms_bound
+    from .strips import EXPLAINED_SHARE
+
+    rays, inverse, weight = ray_terms(points, sigma)
+    for plane in planes.values():
+        squares = weight * (inverse - rays @ (plane.normal / plane.d)) ** 2
+        kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+        n = int(np.count_nonzero(kept))
+        if n >= EXPLAINED_SHARE * points.shape[0] and float(np.mean(squares[kept])) <= noise_rms_bound.py_func(
+                1.0, share * n, CHI_SQUARE_SIGMAS) ** 2:
+            return True
+    return False
