@@ -21,7 +21,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
                       refit_planes_to_pixels, region_stats, settle_creases, smallest_region, stats_after_moves)
 from .off_model import recover_off_model
-from .plane_faces import claim_along_rays, split_plane_faces
+from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
@@ -385,6 +385,17 @@ class Pipeline:
                 labels, fits, stats = faces_from_free(cloud, labels, fits, stats, sigma=sigma, noise=noise,
                                                       inlier_factor=INLIER_SIGMAS)
                 lap("free_faces")
+                # pieces of a far wall the tile means left as plane regions of their own under
+                # models turned from the wall's join it where its plane explains them along the
+                # rays; then the pixels beside a crease between two planes go to the face their
+                # rays meet there (settle_creases, as close_gaps ends on the abw preset): within
+                # the range noise of both planes the nearer model is the noise's choice
+                labels, fits, stats = join_pieces_along_rays(cloud, labels, fits, stats, sigma=sigma,
+                                                             inlier_factor=INLIER_SIGMAS,
+                                                             correlation_px=noise.correlation_px)
+                labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
+                                               min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)
+                lap("settle")
         return labels, fits, sigma, stats
 
     @staticmethod

@@ -29,7 +29,7 @@ from .ray_planes import moment_columns, ray_fits, ray_moments, ray_plane, ray_te
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -610,3 +610,84 @@ def planes_keeping(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray
         if np.count_nonzero(kept) < EXPLAINED_SHARE * idx.size:
             continue
         yield other, kept, float(np.mean(squares[kept]))
+
+
+def join_pieces_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray,
+                           inlier_factor: float, correlation_px: int = 1):
+    """Each plane region joins the larger plane region beside it whose plane explains it along
+    the rays (:func:`plane_beside`: :data:`strips.EXPLAINED_SHARE` of its pixels within
+    TRIM_SIGMAS of their range noise, their mean square within the chi-square bound of their
+    independent returns, ``correlation_px`` squared pixels each); its pixels that plane leaves
+    beyond TRIM_SIGMAS become free. Regions are asked from the smallest up, on the labels as
+    the joins before left them. Returns ``(labels, fits, stats)``, the regions that joined
+    gone from ``fits`` and the regions changed measured again; the inputs when none joins.
+
+    A stereo camera's tile means beside a curved or near object (a pipe, a ball) average it
+    with the wall behind, and the wall's pixels there come out as a plane region of their own
+    whose model is turned from the wall's by the mean's error: no angle test joins it, while
+    along the rays, the noise's own direction, the wall's plane explains its pixels. Such a
+    piece of a far head-on wall, a few hundred to a few thousand pixels, makes the wall count
+    as over-segmented. A face of its own, even parallel to the wall a few range sigmas in
+    front, leaves a mean square beyond the bound over its independent returns and stays."""
+    counts = stats.counts
+    xyz, noise = cloud.xyz.reshape(-1, 3), sigma.ravel()
+    planes = {k: m for k, m in fits.items() if isinstance(m, Plane) and 0 < k < counts.size and m.d != 0}
+    if len(planes) < 2:
+        return labels, fits, stats
+    share = 1.0 / float(max(int(correlation_px), 1)) ** 2
+    out = np.array(labels, dtype=np.int32, order="C")
+    flat = out.reshape(-1)
+    indices = region_indices(out, only=list(planes))
+    size = {k: idx.size for k, idx in indices.items()}
+    changed, joined = set(), set()
+    for k in sorted(indices, key=lambda j: (size[j], j)):
+        if k in joined:
+            continue
+        idx = indices[k]
+        idx = idx[flat[idx] == k]
+        if idx.size == 0:
+            continue
+        larger = {j: m for j, m in planes.items() if j not in joined and j != k and size.get(j, 0) > idx.size}
+        if not larger:
+            continue
+        larger = {j: m for j, m in larger.items() if j in touching(out, idx, 1)}
+        if not larger:
+            continue
+        # first on an even subsample (its fewer returns get a looser bound): most regions beside
+        # a larger plane are other surfaces, and the gate spares their every pixel's terms
+        sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
+        if sample.size < idx.size and not _explained_along_rays(xyz[sample], noise[sample], larger, share):
+            continue
+        rays, inverse, weight = ray_terms(xyz[idx], noise[idx])
+        wall, kept = plane_beside(out, k, idx, rays, inverse, weight, larger, correlation_px)
+        if not wall:
+            continue
+        flat[idx] = 0
+        flat[idx[kept]] = wall
+        size[wall] += int(np.count_nonzero(kept))
+        changed |= {k, wall}
+        joined.add(k)
+    if not joined:
+        return labels, fits, stats
+    fits = {k: m for k, m in fits.items() if k not in joined}
+    stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)
+    return out, fits, stats
+
+
+def _explained_along_rays(points: np.ndarray, sigma: np.ndarray, planes: dict, share: float) -> bool:
+    """Whether one of ``planes`` (label -> Plane) keeps :data:`strips.EXPLAINED_SHARE` of
+    ``points`` within TRIM_SIGMAS of their range noise ``sigma`` along the rays with a mean
+    square within the chi-square bound of ``share`` independent returns a kept point
+    (:func:`plane_beside`'s test, without the search for touching regions)."""
+    from .kernels.linalg import noise_rms_bound
+    from .strips import EXPLAINED_SHARE
+
+    rays, inverse, weight = ray_terms(points, sigma)
+    for plane in planes.values():
+        squares = weight * (inverse - rays @ (plane.normal / plane.d)) ** 2
+        kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
+        n = int(np.count_nonzero(kept))
+        if n >= EXPLAINED_SHARE * points.shape[0] and float(np.mean(squares[kept])) <= noise_rms_bound.py_func(
+                1.0, share * n, CHI_SQUARE_SIGMAS) ** 2:
+            return True
+    return False
