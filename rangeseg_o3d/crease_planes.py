@@ -229,9 +229,12 @@ def _crease_cut(points: np.ndarray, cylinder, min_side: int):
     side = max(min_side, int(np.ceil(CREASE_SIDE_SHARE * n)))
     if n < 2 * side:
         return None
-    sizes = np.unique(np.linspace(side, n - side, CREASE_CUTS).astype(np.int64))
-    left = _least_squares(firsts[sizes - 1], seconds[sizes - 1], sizes)
-    right = _least_squares(firsts[-1] - firsts[sizes - 1], seconds[-1] - seconds[sizes - 1], n - sizes)
+    sizes = unique_ints(np.linspace(side, n - side, CREASE_CUTS).astype(np.int64))
+    # both sides of every cut in one call (each scatter matrix's eigenvalues are its own)
+    both = _least_squares(np.concatenate([firsts[sizes - 1], firsts[-1] - firsts[sizes - 1]]),
+                          np.concatenate([seconds[sizes - 1], seconds[-1] - seconds[sizes - 1]]),
+                          np.concatenate([sizes, n - sizes]))
+    left, right = both[:sizes.size], both[sizes.size:]
     best = int(np.argmin(left + right))
     planes_squares = max(float(left[best] + right[best]), 0.0)
     cylinder_squares = float(np.sum((np.linalg.norm(radial, axis=1) - cylinder.radius) ** 2))  # its distances

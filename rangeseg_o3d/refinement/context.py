@@ -43,6 +43,8 @@ _GRAZING_NOISE = 0.5
 #: A point within this many sigmas of its distance noise lies on the plane (refinement.context
 #: and recover.py's trims of a plane's pixels).
 TRIM_SIGMAS = 3.0
+#: No pixels taken (:meth:`Context.pieces`).
+_NO_PIXELS = np.zeros(0, np.int64)
 
 
 class Context:
@@ -108,9 +110,23 @@ class Context:
         ids, sizes = self.piece_ids(idx)
         return idx[ids == np.argmax(sizes)] if sizes.size else idx.copy()
 
-    def pieces(self, idx: np.ndarray) -> list[np.ndarray]:
-        """The 4-connected pieces of the flat pixels ``idx`` with at least ``min_size``
-        pixels, smallest first."""
+    def pieces(self, idx: np.ndarray, taken: np.ndarray | None = None) -> list[np.ndarray]:
+        """The 4-connected pieces of the flat pixels ``idx`` (increasing) with at least
+        ``min_size`` pixels, smallest first; with ``taken`` (increasing, among ``idx``),
+        those of ``without(idx, taken)``."""
+        if not self.wrap_columns:
+            # one compiled call (the difference, the pieces, their order), not a handful of
+            # small-array calls: a split asks it after each of its dozens of searches a frame
+            if idx.size < self.min_size:
+                return []
+            pixels, bounds = kernels.pool_pieces(np.ascontiguousarray(idx, dtype=np.int64),
+                                                 _NO_PIXELS if taken is None
+                                                 else np.ascontiguousarray(taken, dtype=np.int64),
+                                                 self.width, self.min_size)
+            ends = bounds.tolist()
+            return [pixels[a:b] for a, b in zip(ends[:-1], ends[1:])]
+        if taken is not None:
+            idx = without(idx, taken)
         if idx.size < self.min_size:
             return []
         ids, sizes = self.piece_ids(idx)
@@ -150,8 +166,9 @@ class Context:
         model, inliers = found if found is not None else trimmed_fit(
             self.xyz, self.fitter.fit, pool=pool, sigma=sigma, min_points=self.min_size)
         piece = None if model is None else self.largest_piece(pool[inliers])
-        if model is None or (piece.size < _ONE_PIECE * inliers.sum()
-                             and beyond_noise(model.rms, sigma, int(inliers.sum()))):
+        # (the inliers' count once: a bool array's sum goes through numpy's reduction each time)
+        count = 0 if model is None else int(np.count_nonzero(inliers))
+        if model is None or (piece.size < _ONE_PIECE * count and beyond_noise(model.rms, sigma, count)):
             found = (self.fitter.trimmed(self.xyz, pool, sigma=sigma, min_points=self.min_size, starts=True)
                      if hasattr(self.fitter, "trimmed") else None)
             local, near = found if found is not None else trimmed_fit(
@@ -159,6 +176,7 @@ class Context:
             if local is not None:
                 model, inliers = local, near
                 piece = self.largest_piece(pool[inliers])
+                count = int(np.count_nonzero(inliers))
         if self.grazing_search and (model is None or piece.size < self.min_size
                                     or self.seen_along_rays(model, piece)):
             grazing = self.grazing_piece(pool, sigma, model)
@@ -168,7 +186,7 @@ class Context:
             return (*self._face_in_noise(pool, sigma), True) if face_band else (None, None, False)
         if piece.size < self.min_size:
             return None, None, False
-        if piece.size < _ONE_PIECE * inliers.sum():  # a piece was cut off: fit the piece itself
+        if piece.size < _ONE_PIECE * count:  # a piece was cut off: fit the piece itself
             refit = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
             if not refit and model.kind != "plane":
                 return (*self._face_plane(pool, sigma), False)

@@ -120,7 +120,7 @@ def _surfaces_of(ctx: Context, idx: np.ndarray, judge) -> list[tuple[np.ndarray,
             continue
         found.append((piece, plane))
         taken += piece.size
-        pools.extend(planar.pieces(without(pool, piece)))
+        pools.extend(planar.pieces(pool, piece))
         pools.sort(key=len)
     return found
 

@@ -74,7 +74,7 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
             fits[label] = model
             surfaces.append(label)
             label, next_label = next_label, next_label + 1
-            pools.extend(ctx.pieces(without(pool, piece)))
+            pools.extend(ctx.pieces(pool, piece))
             pools.sort(key=len)
         if by_band:  # (the labels found increase: the region's own, then new ones above the largest)
             _to_nearest_plane(ctx, flat, fits, idx, [s for s in surfaces if fits[s].kind == "plane"])

@@ -34,6 +34,48 @@ def test_pieces_are_every_connected_piece_above_the_floor_smallest_first(context
     assert context(cloud, min_size=10).pieces(np.arange(5)) == []  # under the floor
 
 
+def test_pieces_of_a_pool_without_a_piece_are_those_of_the_set_difference(context):
+    # ctx.pieces(pool, taken) (one compiled call, kernels.pool_pieces) against the pieces of
+    # the difference found by OpenCV: the same pixels, pieces and order, ties included
+    from rangeseg_o3d.refinement.context import without
+
+    rng = np.random.default_rng(11)
+    cloud = rs.OrganizedCloud(np.dstack([*np.mgrid[0:30, 0:40].astype(float), np.full((30, 40), 3.0)]))
+    checked = 0
+    for density in (0.5, 0.6, 0.8, 1.0):
+        for min_size in (1, 2, 6):
+            pool = np.flatnonzero(rng.random(cloud.shape).ravel() < density)
+            for share in (0.0, 0.2, 0.5, 1.0):
+                taken = np.sort(rng.choice(pool, int(share * pool.size), replace=False))
+                got = context(cloud, min_size=min_size).pieces(pool, taken)
+                want = _reference_pieces(without(pool, taken), cloud.shape, min_size)
+                assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
+                checked += len(want)
+    assert checked > 100  # the cases hold many pieces
+    # a 2 x 2 block, a pixel taken from it, and two 1-pixel pieces left: sizes 3, 1, 1
+    pool = np.array([0, 1, 40, 41, 3, 5], np.int64)
+    pool.sort()
+    got = context(cloud, min_size=1).pieces(pool, np.array([41]))
+    assert [p.tolist() for p in got] == [[3], [5], [0, 1, 40]]
+    assert context(cloud, min_size=4).pieces(pool, np.array([41])) == []  # 5 left, no piece of 4
+    assert context(cloud, min_size=1).pieces(pool, pool) == []  # nothing left
+
+
+def test_pool_pieces_numbers_ties_in_raster_order():
+    from rangeseg_o3d.kernels import pool_pieces
+
+    # three pieces of 2 pixels on a 10-wide grid and one of 3: the 2s first, by first pixel
+    pool = np.array([0, 1, 5, 15, 30, 31, 32, 50, 60], np.int64)
+    pixels, bounds = pool_pieces(pool, np.zeros(0, np.int64), 10, 2)
+    assert bounds.tolist() == [0, 2, 4, 6, 9]
+    assert pixels.tolist() == [0, 1, 5, 15, 50, 60, 30, 31, 32]
+    # taking 31 cuts the 3-pixel piece into two of 1, under the floor of 2
+    pixels, bounds = pool_pieces(pool, np.array([31], np.int64), 10, 2)
+    assert bounds.tolist() == [0, 2, 4, 6] and pixels.tolist() == [0, 1, 5, 15, 50, 60]
+    pixels, bounds = pool_pieces(pool, np.zeros(0, np.int64), 10, 10)  # under the floor: none
+    assert pixels.size == 0 and bounds.tolist() == [0]
+
+
 def test_without_is_the_set_difference_of_a_pool_and_its_piece():
     from rangeseg_o3d.refinement.context import without
 
