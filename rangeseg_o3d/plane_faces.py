@@ -650,7 +650,8 @@ def join_pieces_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigm
         larger = {j: m for j, m in planes.items() if j not in joined and j != k and size.get(j, 0) > idx.size}
         if not larger:
             continue
-        larger = {j: m for j, m in larger.items() if j in touching(out, idx, 1)}
+        beside = touching(out, idx, 1)  # once: inside the filter it was searched again for every larger region
+        larger = {j: m for j, m in larger.items() if j in beside}
         if not larger:
             continue
         # first on an even subsample (its fewer returns get a looser bound): most regions beside

@@ -143,6 +143,7 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             for c in range(max(c0 - left, 0), min(c0 + left + 1, w)):
                 near[r * w + c] = True
     moved = np.empty(h * w, np.int64)
+    tried = np.empty(steps.shape[0], labels.dtype)  # the regions a pixel refused (see below)
     count = 0
     for i in range(h * w):
         if not near[i]:
@@ -157,12 +158,23 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             continue
         rx, ry, rz = x / dist, y / dist, z / dist
         noise = k_sigma * sigma[i]
+        # a pixel's verdict on region b depends on the pixel and b alone, not on the step
+        # that met b: the regions already refused here are skipped (the steps of one pixel
+        # meet a few regions, most of them many times; the same moves as judging each step)
+        refused = 0
         for s in range(steps.shape[0]):
             r, c = r0 + steps[s, 0], c0 + steps[s, 1]
             if r < 0 or r >= h or c < 0 or c >= w:
                 continue
             b = labels[r, c]
             if b == a or b <= 0 or b >= n or not is_plane[b]:
+                continue
+            seen = False
+            for j in range(refused):
+                if tried[j] == b:
+                    seen = True
+                    break
+            if seen:
                 continue
             # judged afresh at each meeting (a few products): a table of the label pairs
             # would take n^2 bytes, 2.5 GB at 50 000 labels
@@ -173,4 +185,6 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
                 moved[count] = i
                 count += 1
                 break
+            tried[refused] = b
+            refused += 1
     return out, moved[:count]
