@@ -980,9 +980,10 @@ def claim_grazing_limbs(ctx: Context, labels: np.ndarray, fits: dict, *, valid: 
     # beside the last): the masks of a whole grid per region and ring cost ~0.2 ms an LMS200 scan
     boxes = kernels.label_boxes(np.ascontiguousarray(labels, dtype=np.int32), int(labels.max(initial=0)) + 1)
     reach = int(rings) + 1
+    active = curved
     for _ in range(int(rings)):
-        added = False
-        for k in curved:
+        grew = []
+        for k in active:
             if k >= len(boxes) or boxes[k, 1] <= boxes[k, 0]:
                 continue  # (a model without pixels)
             r0, r1 = max(boxes[k, 0] - reach, 0), min(boxes[k, 1] + reach, h)
@@ -1004,7 +1005,9 @@ def claim_grazing_limbs(ctx: Context, labels: np.ndarray, fits: dict, *, valid: 
             ok = np.abs(fits[k].distances(points)) <= k_sigma * ctx.sigma[idx] * cosines
             if ok.any():
                 labels.reshape(-1)[idx[ok]] = k
-                added = True
-        if not added:
+                grew.append(k)
+        # a region that took nothing takes nothing later: it is the same and the free pixels fewer
+        active = grew
+        if not active:
             break
     return labels
