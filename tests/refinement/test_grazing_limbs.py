@@ -59,3 +59,24 @@ def test_claim_grazing_limbs_leaves_planes_alone_and_refuses_bad_shapes(context)
         claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid[:-1], k_sigma=3.0)
     with pytest.raises(ValueError, match=r"\(H, W\) array"):
         claim_grazing_limbs(ctx, labels.ravel(), fits, valid=cloud.valid, k_sigma=3.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_claim_grazing_limbs_compiled_and_numpy_forms_agree(context, monkeypatch, seed):
+    # the compiled pass (kernels.claim_limbs) and the numpy form it hands a test within rounding
+    # of its bound to: forced unsure everywhere (a huge margin), the numpy form answers alike
+    from rangeseg_o3d.refinement import recover
+
+    xyz, labels, limbs, hit, centre, radius = _column_before_a_wall(seed)
+    cloud = rs.OrganizedCloud(xyz)
+    fits = {1: Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=centre, radius=radius, rms=0.005, inliers=int((labels == 1).sum()))}
+    ctx = context(cloud, sigma=np.full(labels.shape, 0.005))
+    compiled = claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid, k_sigma=3.0)
+    asked = []
+    numpy_form = recover._claim_grazing_limbs_numpy
+    monkeypatch.setattr(recover, "_claim_grazing_limbs_numpy", lambda *a, **kw: asked.append(1) or numpy_form(*a, **kw))
+    monkeypatch.setattr(recover, "_LIMB_ROUNDING", 1e6)
+    fallback = claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid, k_sigma=3.0)
+    assert asked == [1]
+    assert np.array_equal(compiled, fallback)
+    assert (compiled != labels).sum() >= 4 and compiled.dtype == labels.dtype
