@@ -984,9 +984,10 @@ def claim_grazing_limbs(ctx: Context, labels: np.ndarray, fits: dict, *, valid: 
     params = np.zeros((len(curved), PARAM_SLOTS))
     for t, k in enumerate(curved):
         kinds[t], params[t] = model_row(fits[k])
-    h = labels.shape[0]
+    if not kinds.all():  # another plugin's curved model (no table row): its own distances decide
+        return _claim_grazing_limbs_numpy(ctx, labels, fits, curved, valid=valid, k_sigma=k_sigma, rings=rings)
     origins = ctx.row_origins
-    origins = np.zeros((h, 3)) if origins is None else np.ascontiguousarray(origins, dtype=np.float64)
+    origins = np.zeros((labels.shape[0], 3)) if origins is None else np.ascontiguousarray(origins, dtype=np.float64)
     claimed, unsure = kernels.claim_limbs(
         np.ascontiguousarray(labels), np.ascontiguousarray(valid, dtype=np.bool_), np.ascontiguousarray(ctx.xyz, dtype=np.float64),
         np.ascontiguousarray(ctx.sigma, dtype=np.float64), origins, np.asarray(curved, dtype=np.int64), kinds, params,

@@ -80,3 +80,27 @@ def test_claim_grazing_limbs_compiled_and_numpy_forms_agree(context, monkeypatch
     assert asked == [1]
     assert np.array_equal(compiled, fallback)
     assert (compiled != labels).sum() >= 4 and compiled.dtype == labels.dtype
+
+
+def test_claim_grazing_limbs_asks_another_plugins_curved_model_itself(context):
+    # a plugin's own cylinder type (no row in the kernels' model table) answers by its own
+    # distances and normals, as the built-in one does
+    class PluginCylinder:
+        kind = "cylinder"
+
+        def __init__(self, inner):
+            self.inner = inner
+
+        def distances(self, points):
+            return self.inner.distances(points)
+
+        def normals(self, points):
+            return self.inner.normals(points)
+
+    xyz, labels, limbs, hit, centre, radius = _column_before_a_wall(0)
+    cloud = rs.OrganizedCloud(xyz)
+    cylinder = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=centre, radius=radius, rms=0.005, inliers=int((labels == 1).sum()))
+    ctx = context(cloud, sigma=np.full(labels.shape, 0.005))
+    built_in = claim_grazing_limbs(ctx, labels, {1: cylinder}, valid=cloud.valid, k_sigma=3.0)
+    plugin = claim_grazing_limbs(ctx, labels, {1: PluginCylinder(cylinder)}, valid=cloud.valid, k_sigma=3.0)
+    assert np.array_equal(built_in, plugin) and (plugin != labels).sum() >= 4
