@@ -120,3 +120,22 @@ def test_region_helpers_name_a_bad_argument():
     # across the seam, numbered 1 on the left, 2 on the right
     assert wrap_columns(np.array([[5, 0, 0, 6]]), 1).tolist() == [[6, 5, 0, 0, 6, 5]]
     assert join_wrapped(np.array([[1, 1, 0, 0, 2, 2]], np.int32), 1).tolist() == [[1, 0, 0, 1]]
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivity):
+    # the renumbering by lut.take gives lut[labels]: components of random edges, small ones dropped
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    edges = rng.random((37, 53)) < 0.45
+    n, components = cv2.connectedComponents((~edges).astype(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S)
+    keep = np.zeros(n, bool)
+    keep[1:] = np.bincount(components.ravel(), minlength=n)[1:] >= 3
+    lut = np.zeros(n, np.int32)
+    lut[keep] = np.arange(1, keep.sum() + 1, dtype=np.int32)
+    labels = label_regions(edges, min_size=3, connectivity=connectivity)
+    assert labels.dtype == np.int32 and np.array_equal(labels, lut[components])
+    assert 1 <= labels.max() == keep.sum() < n - 1  # some components kept, some dropped
+    assert np.array_equal(label_regions(np.ones((4, 5), bool), min_size=1), np.zeros((4, 5), np.int32))  # all edges
