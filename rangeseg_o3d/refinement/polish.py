@@ -355,7 +355,7 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
     Cost: per curved region five plane rms by its scatter (the region's, and the rest's for each
     side: the region's scatter less the side's); a plane fit and a decision only where a rest is
     flat by them."""
-    from ..fitting.classify import INLIER_FACTOR, plane_threshold
+    from ..fitting.classify import plane_threshold
 
     p = ctx.fitter.params
     if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
@@ -368,14 +368,7 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
         centroid = points.mean(axis=0)
         centred = points - centroid
         sides = border_sides(labels, idx, ctx.wrap_columns)
-        # the scatter about the region's centroid of the region (row 0) and of each rest, the
-        # region less one side (rows 1-4: above, below, left, right), in one batch
-        weights = np.vstack([np.ones((1, idx.size)), ~sides]).astype(np.float64)
-        sizes = weights.sum(axis=1)
-        means = (weights @ centred) / np.maximum(sizes, 1.0)[:, None]
-        scatter = np.einsum("sn,ni,nj->sij", weights, centred, centred) - sizes[:, None, None] * (
-            means[:, :, None] * means[:, None, :])
-        rms = np.sqrt(np.maximum(np.linalg.eigvalsh(scatter)[:, 0], 0.0) / np.maximum(sizes, 1.0))
+        weights, sizes, means, rms = _plane_rms_without_each_side(centred, sides)
         whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
                                 rms_per_range2=p["rms_per_range2"])
         if rms[0] <= whole:
@@ -396,23 +389,49 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
         best, best_rms = None, np.inf
         for s in np.flatnonzero(flat):
             rms, n, rest_centroid = rests[s]
-            side, rest = sides[s], ~sides[s]
-            if rms >= best_rms or lines_across(idx[rest], labels.shape[1]) < BEND_LINES:
+            if rms >= best_rms or lines_across(idx[~sides[s]], labels.shape[1]) < BEND_LINES:
                 continue  # two lines of returns fit a plane whatever the surface's bend: no evidence
             tolerance = plane_threshold(n, rest_centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
                                         rms_per_range2=p["rms_per_range2"])
-            plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
-            if not plane or plane.rms > tolerance:
-                continue
-            off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
-            if not beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())):
-                continue
-            if not isinstance(ctx.fitter.fit(points[rest], **bends), Plane):
-                continue
-            best, best_rms = plane, rms
+            plane = _rest_plane(ctx, points, idx, sides[s], tolerance, bends)
+            if plane is not None:
+                best, best_rms = plane, rms
         if best is not None:
             out[k] = best
     return out
+
+
+def _plane_rms_without_each_side(centred: np.ndarray, sides: np.ndarray) -> tuple:
+    """``(weights, sizes, means, rms)`` of the region's points (``centred`` on its centroid;
+    row 0) and of each rest, the region less one of the four ``sides`` (rows 1-4: above, below,
+    left, right): the rests' means about the centroid and their least-squares plane rms, from
+    one batch of scatter matrices rather than a fit per rest."""
+    weights = np.vstack([np.ones((1, centred.shape[0])), ~sides]).astype(np.float64)
+    sizes = weights.sum(axis=1)
+    means = (weights @ centred) / np.maximum(sizes, 1.0)[:, None]
+    scatter = np.einsum("sn,ni,nj->sij", weights, centred, centred) - sizes[:, None, None] * (
+        means[:, :, None] * means[:, None, :])
+    rms = np.sqrt(np.maximum(np.linalg.eigvalsh(scatter)[:, 0], 0.0) / np.maximum(sizes, 1.0))
+    return weights, sizes, means, rms
+
+
+def _rest_plane(ctx: Context, points: np.ndarray, idx: np.ndarray, side: np.ndarray, tolerance: float,
+                bends: dict):
+    """The plane of the region's ``points`` (pixels ``idx``) less one ``side``, when it fits
+    within ``tolerance``, the side's returns lie off it by more than their range noise explains,
+    and the fitter decides the rest is a plane; else None."""
+    from ..fitting.classify import INLIER_FACTOR
+
+    rest = ~side
+    plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
+    if not plane or plane.rms > tolerance:
+        return None
+    off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
+    if not beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())):
+        return None
+    if not isinstance(ctx.fitter.fit(points[rest], **bends), Plane):
+        return None
+    return plane
 
 
 def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, model) -> tuple[int, int]:
