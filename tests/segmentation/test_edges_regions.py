@@ -124,8 +124,10 @@ def test_region_helpers_name_a_bad_argument():
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("connectivity", [4, 8])
-def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivity):
-    # the renumbering by lut.take gives lut[labels]: components of random edges, small ones dropped
+@pytest.mark.parametrize("compiled", [False, True])
+def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivity, compiled):
+    # the renumbering by lut.take, or the compiled count and renumbering (kernels.label_counts,
+    # relabel), give np.bincount's sizes and lut[labels]: components of random edges, small ones dropped
     import cv2
 
     rng = np.random.default_rng(seed)
@@ -135,7 +137,8 @@ def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivit
     keep[1:] = np.bincount(components.ravel(), minlength=n)[1:] >= 3
     lut = np.zeros(n, np.int32)
     lut[keep] = np.arange(1, keep.sum() + 1, dtype=np.int32)
-    labels = label_regions(edges, min_size=3, connectivity=connectivity)
+    labels = label_regions(edges, min_size=3, connectivity=connectivity, compiled=compiled)
     assert labels.dtype == np.int32 and np.array_equal(labels, lut[components])
     assert 1 <= labels.max() == keep.sum() < n - 1  # some components kept, some dropped
-    assert np.array_equal(label_regions(np.ones((4, 5), bool), min_size=1), np.zeros((4, 5), np.int32))  # all edges
+    all_edges = label_regions(np.ones((4, 5), bool), min_size=1, compiled=compiled)
+    assert all_edges.dtype == np.int32 and np.array_equal(all_edges, np.zeros((4, 5), np.int32))
