@@ -142,3 +142,25 @@ def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivit
     assert 1 <= labels.max() == keep.sum() < n - 1  # some components kept, some dropped
     all_edges = label_regions(np.ones((4, 5), bool), min_size=1, compiled=compiled)
     assert all_edges.dtype == np.int32 and np.array_equal(all_edges, np.zeros((4, 5), np.int32))
+
+
+@pytest.mark.parametrize("ranges, quadratic", [(None, 0.0), (None, 0.002), ("image", 0.002), ("image", "image"), (2.5, 0.002)])
+def test_residual_image_without_normals_takes_numbers_or_images_alike(ranges, quadratic):
+    # the one-pass residual (with_normals=False) fills a number's grid itself: the same values
+    # as the numpy steps (with_normals=True), for ranges and noise scales given as numbers or images
+    from rangeseg_o3d.segmentation.residual import _grid_of, residual_image
+
+    rng = np.random.default_rng(3)
+    xyz = np.dstack([*np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-0.5, 0.5, 7)), np.full((7, 9), 3.0)])
+    xyz = xyz + rng.normal(0.0, 0.004, xyz.shape)
+    xyz[2, 3] = np.nan
+    r = np.linalg.norm(xyz, axis=2) if ranges == "image" else ranges
+    scale = rng.uniform(0.5, 1.0, (7, 9)) if quadratic == "image" else 1.0
+    q = 0.002 if quadratic == "image" else quadratic
+    fast, _ = residual_image(xyz, ranges=r, sigma_quadratic=q, noise_scale=scale, with_normals=False)
+    slow, _ = residual_image(xyz, ranges=r, sigma_quadratic=q, noise_scale=scale, with_normals=True)
+    assert np.allclose(fast, slow, rtol=1e-9) and np.isinf(fast[2, 3]) and np.isfinite(fast[3:5, 4:6]).all()
+    for value in (0.0, 2.5, np.full((7, 9), 1.5)):
+        grid = _grid_of(value, (7, 9))
+        assert grid.shape == (7, 9) and grid.dtype == np.float64 and grid.flags.c_contiguous
+        assert np.array_equal(grid, np.broadcast_to(value, (7, 9)))
