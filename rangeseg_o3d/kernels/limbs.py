@@ -16,10 +16,11 @@ import numpy as np
 
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
+from .inline import _neighbour
 from .kinds import CYLINDER, SPHERE
 
-#: Files whose constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("kinds.py",)
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 __all__ = ["claim_limbs"]
 
@@ -92,16 +93,8 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
             for i in range(n):
                 if flat[i] != 0 or not free_ok[i]:
                     continue
-                r, c = i // w, i % w
                 for step in range(4):
-                    if step == 0:
-                        j = i - w if r > 0 else -1
-                    elif step == 1:
-                        j = i + w if r < h - 1 else -1
-                    elif step == 2:
-                        j = i - 1 if c > 0 else -1
-                    else:
-                        j = i + 1 if c < w - 1 else -1
+                    j = _neighbour(i, step, h, w)
                     if j >= 0 and 0 < flat[j] <= top and rank[flat[j]] >= 0:
                         cand[n_cand] = i
                         n_cand += 1
@@ -112,16 +105,8 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
             # additions bring new candidates
             for t in range(n_added):
                 i = added[t]
-                r, c = i // w, i % w
                 for step in range(4):
-                    if step == 0:
-                        j = i - w if r > 0 else -1
-                    elif step == 1:
-                        j = i + w if r < h - 1 else -1
-                    elif step == 2:
-                        j = i - 1 if c > 0 else -1
-                    else:
-                        j = i + 1 if c < w - 1 else -1
+                    j = _neighbour(i, step, h, w)
                     if j >= 0 and flat[j] == 0 and free_ok[j] and queued[j] != ring:
                         queued[j] = ring
                         cand[n_cand] = j
@@ -131,18 +116,11 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
         # decide every candidate on the labels as the ring began, then write
         for t in range(n_cand):
             i = cand[t]
-            r, c = i // w, i % w
+            r = i // w
             # the curved regions beside the pixel, by rank (at most four)
             m = 0
             for step in range(4):
-                if step == 0:
-                    j = i - w if r > 0 else -1
-                elif step == 1:
-                    j = i + w if r < h - 1 else -1
-                elif step == 2:
-                    j = i - 1 if c > 0 else -1
-                else:
-                    j = i + 1 if c < w - 1 else -1
+                j = _neighbour(i, step, h, w)
                 if j < 0:
                     continue
                 k = flat[j]
