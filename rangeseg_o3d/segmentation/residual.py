@@ -37,6 +37,18 @@ def _check_grid(xyz, window: int) -> np.ndarray:
     return view
 
 
+def _grid_of(values, shape) -> np.ndarray:
+    # ``np.ascontiguousarray(np.broadcast_to(values, shape))`` as float64, the same values:
+    # an image of that shape or a number without numpy's broadcast machinery (2-4 us a call,
+    # twice per residual image; the plausibility check and the segmenter make one each a scan)
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape == tuple(shape):
+        return np.ascontiguousarray(values)
+    if values.ndim == 0:
+        return np.full(shape, values)
+    return np.ascontiguousarray(np.broadcast_to(values, shape))
+
+
 def _read_only(array: np.ndarray) -> np.ndarray:
     # a read-only view: the kernel then has one specialisation whatever the caller passed
     view = array.view()
@@ -146,9 +158,9 @@ def residual_image(
         if ranges is None:
             # the ranges enter through the quadratic term only: without it, sigma0 + 0 r^2 is
             # sigma0 at any range (and the windows of non-finite points are edges either way)
-            ranges = np.linalg.norm(xyz, axis=2) if np.any(quadratic) else 0.0
-        ranges = np.ascontiguousarray(np.broadcast_to(np.asarray(ranges, dtype=np.float64), shape))
-        quadratic = np.ascontiguousarray(np.broadcast_to(quadratic, shape))
+            ranges = np.linalg.norm(xyz, axis=2) if quadratic.any() else 0.0
+        ranges = _grid_of(ranges, shape)
+        quadratic = _grid_of(quadratic, shape)
         return kernels.window_residuals(xyz, int(window), int(min_valid), _read_only(ranges),
                                         float(sigma0), _read_only(quadratic)), None
     if ranges is None:

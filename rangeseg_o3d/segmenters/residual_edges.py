@@ -107,7 +107,8 @@ def segment_residual_edges(
         t3 = time.perf_counter()
         timings["creases"], t2 = t3 - t2, t3
     min_size = max(1, -(-min_region_size // (tile * tile)))
-    labels = label_regions(edges, min_size=min_size, connectivity=connectivity)
+    # (compiled: the residual above ran the kernels already)
+    labels = label_regions(edges, min_size=min_size, connectivity=connectivity, compiled=True)
     timings["regions"] = time.perf_counter() - t2
     return Segmentation(labels=labels, stages=stages, timings=timings, jumps=jumps)
 

@@ -120,3 +120,47 @@ def test_region_helpers_name_a_bad_argument():
     # across the seam, numbered 1 on the left, 2 on the right
     assert wrap_columns(np.array([[5, 0, 0, 6]]), 1).tolist() == [[6, 5, 0, 0, 6, 5]]
     assert join_wrapped(np.array([[1, 1, 0, 0, 2, 2]], np.int32), 1).tolist() == [[1, 0, 0, 1]]
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("connectivity", [4, 8])
+@pytest.mark.parametrize("compiled", [False, True])
+def test_label_regions_matches_the_numpy_count_and_renumbering(seed, connectivity, compiled):
+    # the renumbering by lut.take, or the compiled count and renumbering (kernels.label_counts,
+    # relabel), give np.bincount's sizes and lut[labels]: components of random edges, small ones dropped
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    edges = rng.random((37, 53)) < 0.45
+    n, components = cv2.connectedComponents((~edges).astype(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S)
+    keep = np.zeros(n, bool)
+    keep[1:] = np.bincount(components.ravel(), minlength=n)[1:] >= 3
+    lut = np.zeros(n, np.int32)
+    lut[keep] = np.arange(1, keep.sum() + 1, dtype=np.int32)
+    labels = label_regions(edges, min_size=3, connectivity=connectivity, compiled=compiled)
+    assert labels.dtype == np.int32 and np.array_equal(labels, lut[components])
+    assert 1 <= labels.max() == keep.sum() < n - 1  # some components kept, some dropped
+    all_edges = label_regions(np.ones((4, 5), bool), min_size=1, compiled=compiled)
+    assert all_edges.dtype == np.int32 and np.array_equal(all_edges, np.zeros((4, 5), np.int32))
+
+
+@pytest.mark.parametrize("ranges, quadratic", [(None, 0.0), (None, 0.002), ("image", 0.002), ("image", "image"), (2.5, 0.002)])
+def test_residual_image_without_normals_takes_numbers_or_images_alike(ranges, quadratic):
+    # the one-pass residual (with_normals=False) fills a number's grid itself: the same values
+    # as the numpy steps (with_normals=True), for ranges and noise scales given as numbers or images
+    from rangeseg_o3d.segmentation.residual import _grid_of, residual_image
+
+    rng = np.random.default_rng(3)
+    xyz = np.dstack([*np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-0.5, 0.5, 7)), np.full((7, 9), 3.0)])
+    xyz = xyz + rng.normal(0.0, 0.004, xyz.shape)
+    xyz[2, 3] = np.nan
+    r = np.linalg.norm(xyz, axis=2) if ranges == "image" else ranges
+    scale = rng.uniform(0.5, 1.0, (7, 9)) if quadratic == "image" else 1.0
+    q = 0.002 if quadratic == "image" else quadratic
+    fast, _ = residual_image(xyz, ranges=r, sigma_quadratic=q, noise_scale=scale, with_normals=False)
+    slow, _ = residual_image(xyz, ranges=r, sigma_quadratic=q, noise_scale=scale, with_normals=True)
+    assert np.allclose(fast, slow, rtol=1e-9) and np.isinf(fast[2, 3]) and np.isfinite(fast[3:5, 4:6]).all()
+    for value in (0.0, 2.5, np.full((7, 9), 1.5)):
+        grid = _grid_of(value, (7, 9))
+        assert grid.shape == (7, 9) and grid.dtype == np.float64 and grid.flags.c_contiguous
+        assert np.array_equal(grid, np.broadcast_to(value, (7, 9)))
