@@ -115,7 +115,7 @@ def _fill_by_label(labels, keep, counts):
 
 
 @njit(cache=True, nogil=True)
-def _continues(ranges, r, c, dr, dc, step, continuation, noise):
+def _continues(ranges, r, c, dr, dc, step, continuation, noise, jump_ratio, jump_min):
     # Is the step ``step`` from (r, c) to (r + dr, c + dc) continued on both sides along
     # the same line by steps within ``continuation`` of it (a surface seen at a grazing
     # angle: its range steps change slowly)? An occlusion onto such a surface has the
@@ -142,7 +142,31 @@ def _continues(ranges, r, c, dr, dc, step, continuation, noise):
     if noise <= 0:
         return False
     strict = limit - _NOISE_REACH * np.sqrt(6.0) * noise
-    return (before_ok and abs(before - step) <= strict) or (after_ok and abs(after - step) <= strict)
+    # a pair of steps continuing each other between two small steps (no jump on either side
+    # of the pair) is a mixed return, one footprint straddling an occlusion: its two steps
+    # split the gap. A narrow face's pair has the jump onto what lies behind it on one side.
+    if after_ok and abs(after - step) <= strict:
+        if not (_small(ranges, rp, cp, r, c, jump_ratio, jump_min)
+                and _small(ranges, rn, cn, rn + dr, cn + dc, jump_ratio, jump_min)):
+            return True
+    if before_ok and abs(before - step) <= strict:
+        if not (_small(ranges, rp - dr, cp - dc, rp, cp, jump_ratio, jump_min)
+                and _small(ranges, r + dr, c + dc, rn, cn, jump_ratio, jump_min)):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _small(ranges, r0, c0, r1, c1, jump_ratio, jump_min):
+    # whether the step from (r0, c0) to (r1, c1) is no jump; off the grid or NaN counts as
+    # small (nothing there tells the pair from a mixed return)
+    h, w = ranges.shape
+    if r0 < 0 or c0 < 0 or r1 < 0 or c1 < 0 or r0 >= h or c0 >= w or r1 >= h or c1 >= w:
+        return True
+    a, b = ranges[r0, c0], ranges[r1, c1]
+    if not (abs(a - b) > max(jump_min, jump_ratio * min(a, b))):
+        return True
+    return False
 
 
 #: Noise sigmas (of a difference of two steps) by which a one-sided continuation must hold.
@@ -167,7 +191,7 @@ def jump_mask(ranges, jump_ratio, jump_min, continuation, noise):
                     continue
                 b = ranges[r + dr, c + dc]
                 if abs(a - b) > max(jump_min, jump_ratio * min(a, b)):
-                    if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation, noise):
+                    if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation, noise, jump_ratio, jump_min):
                         continue
                     if a > b:
                         mask[r, c] = True

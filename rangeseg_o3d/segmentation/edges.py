@@ -49,7 +49,10 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
         jump onto what lies behind it, and the face would be cut into grid lines. Each of a
         laser's returns errs by the range noise alone (millimetres against steps of
         decimetres), so one step continuing the next beyond the noise is that face's steady
-        stepping. Not for a camera (the segmenter passes 0): a tile mean straddling an
+        stepping. A pair of steps continuing each other with no jump on either side of
+        the pair is a mixed return (a beam's footprint straddling an occlusion, its two steps
+        splitting the gap) and stays a jump; a narrow face's pair has the jump onto what lies
+        behind it on one side. Not for a camera (the segmenter passes 0): a tile mean straddling an
         occlusion is a depth between the two surfaces, and its two steps, each about half
         the gap, would continue each other.
 

@@ -163,3 +163,14 @@ def test_an_occlusion_between_flat_surfaces_stays_a_jump_with_one_side_continued
     face = _narrow_grazing_face(3)
     assert np.array_equal(jump_edges(face, jump_ratio=0.08, jump_min=0.05, continuation=0, single_return_noise=0.005),
                           jump_edges(face, jump_ratio=0.08, jump_min=0.05, continuation=0))
+
+
+def test_a_mixed_return_between_two_flat_surfaces_stays_a_jump_with_one_side_continued():
+    # a flat occluder at 2 m, one mixed return at 2.5 m (its footprint half on each), a flat
+    # wall at 3 m: its two steps continue each other, but no jump flanks the pair
+    ranges = np.full((3, 10), 3.0)
+    ranges[:, :5] = 2.0
+    ranges[:, 5] = 2.5
+    mask = jump_edges(ranges, jump_ratio=0.06, jump_min=0.05, single_return_noise=0.005)
+    assert np.array_equal(mask, jump_edges(ranges, jump_ratio=0.06, jump_min=0.05))
+    assert mask[:, 5].all() and mask[:, 6].all() and mask.sum() == 6
