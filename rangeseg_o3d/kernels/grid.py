@@ -115,29 +115,72 @@ def _fill_by_label(labels, keep, counts):
 
 
 @njit(cache=True, nogil=True)
-def _continues(ranges, r, c, dr, dc, step, continuation):
+def _continues(ranges, r, c, dr, dc, step, continuation, noise, jump_ratio, jump_min):
     # Is the step ``step`` from (r, c) to (r + dr, c + dc) continued on both sides along
     # the same line by steps within ``continuation`` of it (a surface seen at a grazing
     # angle: its range steps change slowly)? An occlusion onto such a surface has the
-    # occluder's small steps on one side.
+    # occluder's small steps on one side. With ``noise`` > 0 (a laser's single returns,
+    # each range off by that rms alone) a step continued on one side is enough when it is
+    # continued beyond the noise's reach: the difference of two steps carries sqrt(6)
+    # noises, and within ``continuation`` of the step by ``_NOISE_REACH`` of them it is the
+    # steady stepping of a face two to four grid lines wide (see jump_mask), not chance.
     h, w = ranges.shape
     limit = continuation * abs(step)
     rp, cp = r - dr, c - dc
     rn, cn = r + 2 * dr, c + 2 * dc
-    if rp < 0 or cp < 0 or rn >= h or cn >= w:
+    before = np.nan
+    after = np.nan
+    if rp >= 0 and cp >= 0:
+        before = ranges[r, c] - ranges[rp, cp]
+    if rn < h and cn < w:
+        after = ranges[rn, cn] - ranges[r + dr, c + dc]
+    # (NaN compares False: an invalid or missing neighbour continues nothing)
+    before_ok = before * step > 0 and abs(before - step) <= limit
+    after_ok = after * step > 0 and abs(after - step) <= limit
+    if before_ok and after_ok:
+        return True
+    if noise <= 0:
         return False
-    before = ranges[r, c] - ranges[rp, cp]
-    after = ranges[rn, cn] - ranges[r + dr, c + dc]
-    return (before * step > 0 and abs(before - step) <= limit
-            and after * step > 0 and abs(after - step) <= limit)
+    strict = limit - _NOISE_REACH * np.sqrt(6.0) * noise
+    # a pair of steps continuing each other between two small steps (no jump on either side
+    # of the pair) is a mixed return, one footprint straddling an occlusion: its two steps
+    # split the gap. A narrow face's pair has the jump onto what lies behind it on one side.
+    if after_ok and abs(after - step) <= strict:
+        if not (_small(ranges, rp, cp, r, c, jump_ratio, jump_min)
+                and _small(ranges, rn, cn, rn + dr, cn + dc, jump_ratio, jump_min)):
+            return True
+    if before_ok and abs(before - step) <= strict:
+        if not (_small(ranges, rp - dr, cp - dc, rp, cp, jump_ratio, jump_min)
+                and _small(ranges, r + dr, c + dc, rn, cn, jump_ratio, jump_min)):
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True)
-def jump_mask(ranges, jump_ratio, jump_min, continuation):
+def _small(ranges, r0, c0, r1, c1, jump_ratio, jump_min):
+    # whether the step from (r0, c0) to (r1, c1) is no jump; off the grid or NaN counts as
+    # small (nothing there tells the pair from a mixed return)
+    h, w = ranges.shape
+    if r0 < 0 or c0 < 0 or r1 < 0 or c1 < 0 or r0 >= h or c0 >= w or r1 >= h or c1 >= w:
+        return True
+    a, b = ranges[r0, c0], ranges[r1, c1]
+    if not (abs(a - b) > max(jump_min, jump_ratio * min(a, b))):
+        return True
+    return False
+
+
+#: Noise sigmas (of a difference of two steps) by which a one-sided continuation must hold.
+_NOISE_REACH = 3.0
+
+
+@njit(cache=True, nogil=True)
+def jump_mask(ranges, jump_ratio, jump_min, continuation, noise):
     """The farther pixel of every 4-neighbour pair whose ranges differ by more than
     ``max(jump_min, jump_ratio * nearer)`` (see ``edges.jump_edges``); NaN is no jump.
     With ``continuation > 0`` a step that the steps before and after it along the same
-    line continue (within that share of itself) is a grazing surface, no jump."""
+    line continue (within that share of itself) is a grazing surface, no jump; with
+    ``noise > 0`` (the range noise of a laser's single returns) so is a step that one side
+    continues within that share less three noises of the steps' difference."""
     h, w = ranges.shape
     mask = np.zeros((h, w), np.bool_)
     for r in range(h):
@@ -148,7 +191,7 @@ def jump_mask(ranges, jump_ratio, jump_min, continuation):
                     continue
                 b = ranges[r + dr, c + dc]
                 if abs(a - b) > max(jump_min, jump_ratio * min(a, b)):
-                    if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation):
+                    if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation, noise, jump_ratio, jump_min):
                         continue
                     if a > b:
                         mask[r, c] = True

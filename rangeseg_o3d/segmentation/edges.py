@@ -17,7 +17,7 @@ EDGE_CEILING = 1e6
 
 
 def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float = 0.05,
-               continuation: float = JUMP_CONTINUATION) -> np.ndarray:
+               continuation: float = JUMP_CONTINUATION, single_return_noise: float = 0.0) -> np.ndarray:
     """Occluded side of every depth discontinuity.
 
     Between 4-neighbours whose ranges differ by more than ``max(jump_min, jump_ratio * r)``
@@ -40,6 +40,21 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
         steps steadily, pixel after pixel (on a fine grid such a face is many pixels wide
         and would otherwise be all edge), while an occlusion's step has the occluder's
         small steps on one side at least. 0 turns this off.
+    single_return_noise : the range noise (m) of a laser's single returns, 0 for any other
+        sensor. Above 0, a step continued on ONE side is no jump either when the continuing
+        step is within ``continuation`` of it by three noises of the difference of two steps
+        (``sqrt(6)`` noises) besides. A face two to four grid lines wide seen near grazing
+        (a box side a few degrees from the beam) has no step with its own steps on both
+        sides: its first step has the corner with the next face on one side, its last the
+        jump onto what lies behind it, and the face would be cut into grid lines. Each of a
+        laser's returns errs by the range noise alone (millimetres against steps of
+        decimetres), so one step continuing the next beyond the noise is that face's steady
+        stepping. A pair of steps continuing each other with no jump on either side of
+        the pair is a mixed return (a beam's footprint straddling an occlusion, its two steps
+        splitting the gap) and stays a jump; a narrow face's pair has the jump onto what lies
+        behind it on one side. Not for a camera (the segmenter passes 0): a tile mean straddling an
+        occlusion is a depth between the two surfaces, and its two steps, each about half
+        the gap, would continue each other.
 
     Returns
     -------
@@ -50,11 +65,13 @@ def jump_edges(ranges: np.ndarray, *, jump_ratio: float = 0.08, jump_min: float 
     r = np.asarray(ranges, dtype=np.float64)
     if r.ndim != 2:
         raise ValueError(f"ranges must have shape (H, W); got {r.shape}")
-    for name, value in (("jump_ratio", jump_ratio), ("jump_min", jump_min), ("continuation", continuation)):
+    for name, value in (("jump_ratio", jump_ratio), ("jump_min", jump_min), ("continuation", continuation),
+                        ("single_return_noise", single_return_noise)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
     # one compiled pass: the same test as a dozen whole-image numpy operations, at a tenth
-    return jump_mask(np.ascontiguousarray(r), float(jump_ratio), float(jump_min), float(continuation))
+    return jump_mask(np.ascontiguousarray(r), float(jump_ratio), float(jump_min), float(continuation),
+                     float(single_return_noise))
 
 
 def close_residual(residual: np.ndarray, *, iterations: int = 2, kernel: int = 3) -> np.ndarray:

@@ -92,8 +92,12 @@ def segment_residual_edges(
     t1 = time.perf_counter()
     timings["residual"] = t1 - t0
     # jump_ratio is per sensor pixel; neighbouring tile means are ``tile`` pixels apart.
+    # On a laser's single returns (refinement.single_returns' test: no tile, a constant
+    # range noise) a step continued on one side beyond that noise is a narrow face near
+    # grazing, no jump (jump_edges' single_return_noise).
+    single = noise.sigma0 if tile == 1 and sensor.laser_returns else 0.0
     jumps = jump_edges(np.where(valid, ranges, np.nan), jump_ratio=jump_ratio * tile,
-                       jump_min=jump_min)
+                       jump_min=jump_min, single_return_noise=single)
     closed = close_residual(residual, iterations=closing_iterations)
     edges = edge_mask(closed, threshold=threshold, valid=valid, jumps=jumps)
     t2 = time.perf_counter()

@@ -51,3 +51,33 @@ def test_malformed_jumps_from_a_plugin_are_an_error():
     pipeline = rs.Pipeline({"segmenter": {"name": "bad_jumps_test", "params": {}}})
     with pytest.raises(ValueError, match=r"jumps of shape \(2, 2\); expected \(20, 30\)"):
         pipeline.run(_step_cloud())
+
+
+def _narrow_face_cloud():
+    # a 0.5-deg grid (12 x 16): a front face at 2 m, a face three grid columns wide seen
+    # 8 deg from grazing (columns 4-6, column 4 its corner with the front face; each step
+    # ~7 % of the range, over the derived jump ratio of 6 x 0.5 deg = 5.2 %), then a wall
+    # 1.2 m behind it (columns 7-15)
+    angle, step = np.radians(8.0), np.radians(0.5)
+    face = 2.0 / (1.0 - np.arange(1, 3) * step / np.tan(angle))
+    line = np.concatenate([np.full(5, 2.0), face, np.full(9, face[-1] + 1.2)])
+    az, el = np.meshgrid((np.arange(16) - 8) * step, (np.arange(12) - 6) * step)
+    rays = np.dstack([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+    return rs.OrganizedCloud(rays * line[None, :, None])
+
+
+def test_a_laser_keeps_a_narrow_face_near_grazing_whole_and_a_camera_does_not():
+    from rangeseg_o3d.sensor import NoiseModel, Sensor
+
+    cloud = _narrow_face_cloud()
+    grid = dict(row_spacing_deg=0.5, column_spacing_deg=0.5)
+    laser = Sensor(noise=NoiseModel(sigma0=0.005), **grid)
+    camera = Sensor(noise=NoiseModel(sigma0=0.001, sigma_quadratic=1.425e-3), **grid)
+    assert laser.laser_returns and not camera.laser_returns
+    seen = segment_residual_edges(cloud, sensor=laser).jumps
+    # the laser's single returns: the face's two steps continue each other beyond the noise,
+    # so neither is a jump; the wall behind it still is, in every row
+    assert not seen[:, :7].any() and seen[:, 7].all() and seen.sum() == 12
+    # a camera's (its steps continued on both sides only): each step of the face is a jump
+    cut = segment_residual_edges(cloud, sensor=camera).jumps
+    assert cut[:, 5].all() and cut[:, 6].all() and cut[:, 7].all() and cut.sum() == 36

@@ -164,3 +164,57 @@ def test_residual_image_without_normals_takes_numbers_or_images_alike(ranges, qu
         grid = _grid_of(value, (7, 9))
         assert grid.shape == (7, 9) and grid.dtype == np.float64 and grid.flags.c_contiguous
         assert np.array_equal(grid, np.broadcast_to(value, (7, 9)))
+
+
+def _narrow_grazing_face(width):
+    # a row of a 0.5-deg grid: a front face at 2 m (flat steps), a face ``width`` pixels wide
+    # (pixels 4 .. 3 + width; pixel 4 is the corner) seen 8 deg from grazing (each step
+    # ~7 % of the range, over jump_ratio), then a wall 1.2 m behind the face's far end
+    angle, step = np.radians(8.0), np.radians(0.5)
+    front = np.full(5, 2.0)
+    face = 2.0 / (1.0 - np.arange(1, width) * step / np.tan(angle))
+    wall = np.full(5, face[-1] + 1.2)
+    return np.tile(np.concatenate([front, face, wall]), (4, 1))
+
+
+@pytest.mark.parametrize("width", [3, 4])
+def test_a_narrow_face_near_grazing_is_no_jump_when_one_side_continues_its_steps(width):
+    ranges = _narrow_grazing_face(width)
+    steps = np.diff(ranges[0])
+    assert (steps[4:3 + width] / ranges[0, 4:3 + width] > 0.06).all()  # every step of the face is over the ratio
+    both = jump_edges(ranges, jump_ratio=0.06, jump_min=0.05)
+    # both sides asked: the face's first step has the front face's flat steps before it, its
+    # last the jump onto the wall after it; only a middle step (width 4) has its own steps on
+    # both sides: the face is cut into grid lines
+    assert both[:, 5].all() and both[:, 3 + width].all() and both[:, 4 + width].all()
+    assert both[:, :4 + width].sum() == 4 * 2
+    # one side: each step of the face continues the next one or the one before, so none of
+    # its pixels is marked; the wall's first pixel, 1.2 m behind, still is (its step
+    # continues neither the face's last step nor the wall's flat ones)
+    one = jump_edges(ranges, jump_ratio=0.06, jump_min=0.05, single_return_noise=0.005)
+    assert not one[:, :4 + width].any()
+    assert one[:, 4 + width].all() and one.sum() == 4
+
+
+def test_an_occlusion_between_flat_surfaces_stays_a_jump_with_one_side_continued():
+    # flat occluder at 1 m, flat background at 2 m: neither side continues the 1 m step
+    ranges = np.full((3, 10), 2.0)
+    ranges[:, :5] = 1.0
+    for noise in (0.0, 0.005):
+        mask = jump_edges(ranges, jump_ratio=0.08, jump_min=0.05, single_return_noise=noise)
+        assert mask[:, 5].all() and mask.sum() == 3
+    # continuation 0 turns the grazing test off, one side or not
+    face = _narrow_grazing_face(3)
+    assert np.array_equal(jump_edges(face, jump_ratio=0.08, jump_min=0.05, continuation=0, single_return_noise=0.005),
+                          jump_edges(face, jump_ratio=0.08, jump_min=0.05, continuation=0))
+
+
+def test_a_mixed_return_between_two_flat_surfaces_stays_a_jump_with_one_side_continued():
+    # a flat occluder at 2 m, one mixed return at 2.5 m (its footprint half on each), a flat
+    # wall at 3 m: its two steps continue each other, but no jump flanks the pair
+    ranges = np.full((3, 10), 3.0)
+    ranges[:, :5] = 2.0
+    ranges[:, 5] = 2.5
+    mask = jump_edges(ranges, jump_ratio=0.06, jump_min=0.05, single_return_noise=0.005)
+    assert np.array_equal(mask, jump_edges(ranges, jump_ratio=0.06, jump_min=0.05))
+    assert mask[:, 5].all() and mask[:, 6].all() and mask.sum() == 6
