@@ -520,42 +520,75 @@ def settle_caps(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sig
     region's behind the plane). A pixel moves only when both models explain it within
     ``k_sigma`` times its range noise (or their rms) and its ray meets both at least
     ``atan(GRAZING_TAN)`` from grazing, within ``CREASE_RINGS`` 4-steps of the border, for up
-    to ``CAP_ROUNDS`` rounds. The models do not change. Returns ``(labels, stats)``; the
-    inputs when no pixel moves.
+    to ``CAP_ROUNDS`` rounds, cylinder by cylinder in its box grown by the rings the rounds may
+    move (the regions' centroids are those of their pixels there; a plane is asked only when
+    the cylinder's model point lies behind it). The models do not change. Returns ``(labels,
+    stats)``; the inputs when no pixel moves.
     """
     from .fitting.primitives import Cylinder, Plane
-    from .kernels import cap_moves
+    from .kernels import cap_moves, label_boxes
 
     n = int(labels.max(initial=0)) + 1
-    kind = np.zeros(n, np.int8)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64)
+    if noise.shape != labels.shape or cloud.xyz.shape[:2] != labels.shape:  # the kernel does not check its bounds
+        raise ValueError(f"settle_caps: sigma and the cloud need one value a pixel of the {labels.shape} labels, "
+                         f"got {noise.shape} and {cloud.xyz.shape[:2]}")
+    planes = {k: m for k, m in fits.items() if isinstance(m, Plane) and 0 < k < n}
+    cylinders = {k: m for k, m in fits.items() if isinstance(m, Cylinder) and 0 < k < n}
+    if not (planes and cylinders):
+        return labels, stats
     normals, offsets, axes, points = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3))
     radii, rms = np.zeros(n), np.zeros(n)
-    for k, m in fits.items():
-        if not 0 < k < n:
+    for k, m in planes.items():
+        sign = -1.0 if m.d > 0 else 1.0  # the sensor's side of every plane positive
+        normals[k], offsets[k], rms[k] = sign * np.asarray(m.normal), sign * m.d, m.rms
+    for k, m in cylinders.items():
+        axes[k], points[k], radii[k], rms[k] = m.axis, m.point, m.radius, m.rms
+    plane_ids = np.array(sorted(planes), np.int64)
+    # the caps the models allow (the kernel checks the regions' centroids): a plane facing along
+    # the axis with the cylinder's middle (its model's point, nearest its pixels' centroid) behind it
+    candidates = {}
+    for q in cylinders:
+        facing = np.abs(normals[plane_ids] @ axes[q]) >= CAP_COS
+        behind = normals[plane_ids] @ points[q] - offsets[plane_ids] < 0
+        if (facing & behind).any():
+            candidates[q] = plane_ids[facing & behind]
+    if not candidates:
+        return labels, stats
+    boxes = label_boxes(np.ascontiguousarray(labels, dtype=np.int32), n)
+    h, w = labels.shape
+    margin = CREASE_RINGS * CAP_ROUNDS + 1  # the rounds move the border by fewer 4-steps than this
+    settled = np.array(labels, dtype=np.int32, order="C", copy=True)
+    xyz = cloud.xyz
+    least_cos = float(np.sin(np.arctan(GRAZING_TAN)))
+    moved = 0
+    # cylinder by cylinder, within its box grown by the rings the rounds may move (a pass over
+    # the 1280 x 720 frame per round cost 30-60 ms a stereo scan); there only it and its caps move
+    for q, caps in candidates.items():
+        r0, r1 = max(boxes[q, 0] - margin, 0), min(boxes[q, 1] + margin, h)
+        c0, c1 = max(boxes[q, 2] - margin, 0), min(boxes[q, 3] + margin, w)
+        caps = [p for p in caps if boxes[p, 0] < r1 and boxes[p, 1] > r0 and boxes[p, 2] < c1 and boxes[p, 3] > c0]
+        if not caps or r1 <= r0 or c1 <= c0:
             continue
-        if isinstance(m, Plane):
-            sign = -1.0 if m.d > 0 else 1.0  # the sensor's side of every plane positive
-            kind[k], normals[k], offsets[k], rms[k] = 1, sign * np.asarray(m.normal), sign * m.d, m.rms
-        elif isinstance(m, Cylinder):
-            kind[k], axes[k], points[k], radii[k], rms[k] = 2, m.axis, m.point, m.radius, m.rms
-    if not ((kind == 1).any() and (kind == 2).any()):
+        kind = np.zeros(n, np.int8)  # neither moving nor taking: every other region
+        kind[caps], kind[q] = 1, 2
+        crop = np.ascontiguousarray(settled[r0:r1, c0:c1])
+        out, step = cap_moves(np.ascontiguousarray(xyz[r0:r1, c0:c1].reshape(-1, 3), dtype=np.float64), crop, kind,
+                              normals, offsets, axes, points, radii, rms,
+                              np.ascontiguousarray(noise[r0:r1, c0:c1]).ravel(), float(k_sigma), least_cos, CAP_COS,
+                              _STEPS, CREASE_RINGS, CAP_ROUNDS)
+        if step.size:
+            settled[r0:r1, c0:c1] = out
+            moved += step.size
+    if not moved:
         return labels, stats
-    xyz = _flat_points(cloud)
-    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
-    if noise.size != labels.size or xyz.shape[0] != labels.size:  # the kernel does not check its bounds
-        raise ValueError(f"settle_caps: sigma and the cloud need one value a pixel of the {labels.shape} labels, "
-                         f"got {noise.size} and {xyz.shape[0]}")
-    out, moved = cap_moves(xyz, np.ascontiguousarray(labels, dtype=np.int32), kind, normals, offsets, axes, points,
-                           radii, rms, noise, float(k_sigma), float(np.sin(np.arctan(GRAZING_TAN))), CAP_COS,
-                           _STEPS, CREASE_RINGS, CAP_ROUNDS)
-    if not moved.size:
-        return labels, stats
-    out = out.astype(labels.dtype, copy=False)
-    changed = np.flatnonzero(out.ravel() != labels.ravel())  # a pixel may have moved there and back
+    changed = np.flatnonzero(settled.ravel() != labels.ravel())  # a pixel may have moved there and back
     if not changed.size:
         return labels, stats
+    settled = settled.astype(labels.dtype, copy=False)
     table = model_table(fits, max(n, stats.counts.size))
-    return out, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
+    return settled, stats_with_moved(stats, _flat_points(cloud), noise.ravel(), labels, settled, table, changed,
+                                     inlier_factor)
 
 
 def grow_into_free(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,

@@ -43,7 +43,8 @@ def _capped_pipe(seed, *, rows=100, cols=240, f=640.0, z=4.0):
     sigma = COEFF * np.nan_to_num(ranges) ** 2
     noisy = ranges + _unit_noise(np.random.default_rng(seed), ranges.shape, 3) * sigma
     fits = {1: Plane(normal=normal, d=d, rms=0.0, inliers=1),
-            2: Cylinder(axis=axis, point=centre, radius=RADIUS, rms=0.0, inliers=1)}
+            # (a fitted cylinder's point is the axis point nearest its pixels' centroid: along the pipe)
+            2: Cylinder(axis=axis, point=centre + 0.5 * axis, radius=RADIUS, rms=0.0, inliers=1)}
     return rs.OrganizedCloud(rays * noisy[..., None]), sigma, truth, fits
 
 
@@ -107,3 +108,17 @@ def test_no_cylinder_or_no_plane_returns_the_inputs_and_bad_sigma_raises():
         assert out is labels and out_stats is stats
     with pytest.raises(ValueError, match="one value a pixel"):
         settle_caps(cloud, labels, fits, stats, sigma=sigma[:-1], k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+
+
+def test_a_plane_in_front_of_the_pipes_middle_is_not_asked():
+    # the cylinder's model point on the sensor's side of the plane (a pipe standing out of a
+    # wall): no cap, though the regions' pixels alone would not say so in a crop
+    cloud, sigma, truth, fits = _capped_pipe(0)
+    band = _rim(truth, 1, 3)
+    labels = np.where(band, 2, truth).astype(np.int32)
+    stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    pipe = fits[2]
+    out, _ = settle_caps(cloud, labels, {1: fits[1], 2: Cylinder(axis=pipe.axis, point=pipe.point - 1.0 * pipe.axis,
+                                                                   radius=RADIUS, rms=0.0, inliers=1)},
+                         stats, sigma=sigma, k_sigma=3.0, inlier_factor=INLIER_SIGMAS)
+    assert out is labels
