@@ -558,10 +558,10 @@ def settle_caps(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sig
     boxes = label_boxes(np.ascontiguousarray(labels, dtype=np.int32), n)
     h, w = labels.shape
     margin = CREASE_RINGS * CAP_ROUNDS + 1  # the rounds move the border by fewer 4-steps than this
-    settled = np.array(labels, dtype=np.int32, order="C", copy=True)
+    settled = None  # the frame's labels copied at the first move (most frames have none)
     xyz = cloud.xyz
     least_cos = float(np.sin(np.arctan(GRAZING_TAN)))
-    moved = 0
+    changed = []
     # cylinder by cylinder, within its box grown by the rings the rounds may move (a pass over
     # the 1280 x 720 frame per round cost 30-60 ms a stereo scan); there only it and its caps move
     for q, caps in candidates.items():
@@ -572,20 +572,24 @@ def settle_caps(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sig
             continue
         kind = np.zeros(n, np.int8)  # neither moving nor taking: every other region
         kind[caps], kind[q] = 1, 2
-        crop = np.ascontiguousarray(settled[r0:r1, c0:c1])
+        source = labels if settled is None else settled
+        crop = np.ascontiguousarray(source[r0:r1, c0:c1], dtype=np.int32)
         out, step = cap_moves(np.ascontiguousarray(xyz[r0:r1, c0:c1].reshape(-1, 3), dtype=np.float64), crop, kind,
                               normals, offsets, axes, points, radii, rms,
                               np.ascontiguousarray(noise[r0:r1, c0:c1]).ravel(), float(k_sigma), least_cos, CAP_COS,
                               _STEPS, CREASE_RINGS, CAP_ROUNDS)
-        if step.size:
-            settled[r0:r1, c0:c1] = out
-            moved += step.size
-    if not moved:
+        if not step.size:
+            continue
+        if settled is None:
+            settled = labels.copy()
+        settled[r0:r1, c0:c1] = out
+        rows, cols = np.nonzero(out != labels[r0:r1, c0:c1])  # a pixel may have moved there and back
+        changed.append((rows + r0) * w + cols + c0)
+    if settled is None:
         return labels, stats
-    changed = np.flatnonzero(settled.ravel() != labels.ravel())  # a pixel may have moved there and back
+    changed = np.unique(np.concatenate(changed))  # (crops of two cylinders may overlap)
     if not changed.size:
         return labels, stats
-    settled = settled.astype(labels.dtype, copy=False)
     table = model_table(fits, max(n, stats.counts.size))
     return settled, stats_with_moved(stats, _flat_points(cloud), noise.ravel(), labels, settled, table, changed,
                                      inlier_factor)
