@@ -43,7 +43,7 @@ _SOURCES = {
     "raygroups": ("ray_groups_ruled_out", "free_pieces"),
     "sides": ("crease_sides",),
     "borders": ("side_rest_planes",),
-    "creases": ("crease_moves",),
+    "creases": ("crease_moves", "cap_moves"),
     "modelnoise": ("plane_noise_sums", "plane_noise_near", "pieces_near_models"),
     "limbs": ("claim_limbs",),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["crease_moves"]
+__all__ = ["crease_moves", "cap_moves"]
 
 
 @njit(cache=True, nogil=True)
@@ -188,3 +188,151 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             tried[refused] = b
             refused += 1
     return out, moved[:count]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cylinder_entry(rx, ry, rz, axis, point, radius):
+    """Where the unit ray ``r`` from the sensor enters the infinite cylinder (the nearer root),
+    and the cosine between the ray and the surface's normal there; ``(-1, 0)`` when it misses."""
+    ox, oy, oz = -point[0], -point[1], -point[2]
+    ua = rx * axis[0] + ry * axis[1] + rz * axis[2]
+    oa = ox * axis[0] + oy * axis[1] + oz * axis[2]
+    px, py, pz = rx - ua * axis[0], ry - ua * axis[1], rz - ua * axis[2]  # the ray across the axis
+    qx, qy, qz = ox - oa * axis[0], oy - oa * axis[1], oz - oa * axis[2]  # the sensor off the axis
+    a = px * px + py * py + pz * pz
+    b = 2.0 * (px * qx + py * qy + pz * qz)
+    c = qx * qx + qy * qy + qz * qz - radius * radius
+    disc = b * b - 4.0 * a * c
+    if not (a > 0.0 and disc > 0.0):
+        return -1.0, 0.0
+    t = (-b - np.sqrt(disc)) / (2.0 * a)
+    if not t > 0.0:
+        return -1.0, 0.0
+    # the surface's normal at the entry is the entry point's offset from the axis over the radius
+    nx, ny, nz = t * px + qx, t * py + qy, t * pz + qz
+    return t, abs(rx * nx + ry * ny + rz * nz) / radius
+
+
+@njit(cache=True, nogil=True)
+def cap_moves(xyz, labels, kind, normals, offsets, axes, points, radii, rms, sigma, k_sigma, least_cos, cap_cos,
+              steps, reach, rounds):
+    """The labels after :func:`rangeseg_o3d.fullres.settle_caps`' moves, and the flat indices
+    of the pixels that moved (a pixel that moved twice is listed twice).
+
+    ``labels`` (H, W) int32; ``xyz`` (H*W, 3) and ``sigma`` (H*W,) flat; ``kind`` by label
+    (1 plane, 2 cylinder, 0 neither); ``normals``, ``offsets`` the planes' (sensor side
+    positive), ``axes``, ``points``, ``radii`` the cylinders', ``rms`` each model's; ``steps``
+    (K, 2) the (row, column) steps within ``reach`` 4-steps, nearest first. A plane and a
+    cylinder form a cap when the plane faces along the axis (``|n . axis| >= cap_cos``), the
+    plane region's centroid lies inside the cylinder and the cylinder region's behind the
+    plane: the solid is their intersection, and a ray shows the surface it enters last. A
+    pixel of either region within ``reach - 1`` 4-steps of a border between the two moves to
+    the other when its ray enters the other's surface later, both models explain it within
+    ``k_sigma`` times its range noise (or their rms) and the ray meets both at least
+    ``asin(least_cos)`` from grazing. Up to ``rounds`` passes, each on the labels the one
+    before left, until none moves.
+    """
+    h, w = labels.shape
+    n = kind.shape[0]
+    out = labels.copy()
+    sums = np.zeros((n, 4))
+    for i in range(h * w):
+        a = labels[i // w, i % w]
+        if 0 < a < n and kind[a] > 0:
+            sums[a, 0] += xyz[i, 0]
+            sums[a, 1] += xyz[i, 1]
+            sums[a, 2] += xyz[i, 2]
+            sums[a, 3] += 1.0
+    centroids = np.zeros((n, 3))
+    for k in range(n):
+        count = max(sums[k, 3], 1.0)
+        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    moved = np.empty(0, np.int64)
+    before = labels.copy()
+    spread = reach - 1
+    for _ in range(rounds):
+        # the pixels on a plane-cylinder border, then those within spread 4-steps of one
+        near = np.zeros(h * w, np.bool_)
+        any_border = False
+        for r in range(h):
+            for c in range(w):
+                a = before[r, c]
+                if a <= 0 or a >= n or kind[a] == 0:
+                    continue
+                edge = False
+                if c + 1 < w:
+                    b = before[r, c + 1]
+                    edge = 0 < b < n and kind[b] > 0 and kind[b] != kind[a]
+                if not edge and r + 1 < h:
+                    b = before[r + 1, c]
+                    edge = 0 < b < n and kind[b] > 0 and kind[b] != kind[a]
+                if not edge:
+                    continue
+                any_border = True
+                for dr in range(-spread, spread + 2):  # both pixels of the pair, (r, c) and the next
+                    rr = r + dr
+                    if rr < 0 or rr >= h:
+                        continue
+                    left = spread + 1 - abs(dr)
+                    for cc in range(max(c - left, 0), min(c + left + 1, w)):
+                        near[rr * w + cc] = True
+        if not any_border:
+            break
+        step_moved = np.empty(h * w, np.int64)
+        count = 0
+        for i in range(h * w):
+            if not near[i]:
+                continue
+            r0, c0 = i // w, i % w
+            a = before[r0, c0]
+            if a <= 0 or a >= n or kind[a] == 0:
+                continue
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            dist = np.sqrt(x * x + y * y + z * z)
+            if not dist > 0.0:
+                continue
+            rx, ry, rz = x / dist, y / dist, z / dist
+            noise = k_sigma * sigma[i]
+            for s in range(steps.shape[0]):
+                r, c = r0 + steps[s, 0], c0 + steps[s, 1]
+                if r < 0 or r >= h or c < 0 or c >= w:
+                    continue
+                b = before[r, c]
+                if b <= 0 or b >= n or kind[b] == 0 or kind[b] == kind[a]:
+                    continue
+                p, q = (a, b) if kind[a] == 1 else (b, a)  # the plane, the cylinder
+                if not abs(normals[p, 0] * axes[q, 0] + normals[p, 1] * axes[q, 1]
+                           + normals[p, 2] * axes[q, 2]) >= cap_cos:
+                    continue
+                behind = (normals[p, 0] * centroids[q, 0] + normals[p, 1] * centroids[q, 1]
+                          + normals[p, 2] * centroids[q, 2] - offsets[p])
+                ex, ey, ez = centroids[p, 0] - points[q, 0], centroids[p, 1] - points[q, 1], centroids[p, 2] - points[q, 2]
+                along = ex * axes[q, 0] + ey * axes[q, 1] + ez * axes[q, 2]
+                off = np.sqrt(max(ex * ex + ey * ey + ez * ez - along * along, 0.0))
+                if not (behind < 0.0 and off < radii[q]):
+                    continue  # not a cap: no convex solid
+                un = rx * normals[p, 0] + ry * normals[p, 1] + rz * normals[p, 2]
+                if not abs(un) >= least_cos:
+                    continue
+                tp = offsets[p] / un
+                tc, cc_ = _cylinder_entry(rx, ry, rz, axes[q], points[q], radii[q])
+                if not (tp > 0.0 and tc > 0.0 and cc_ >= least_cos):
+                    continue
+                # both explain the pixel within the noise (the rays cannot tell otherwise)
+                dp = abs(x * normals[p, 0] + y * normals[p, 1] + z * normals[p, 2] - offsets[p])
+                ox, oy, oz = x - points[q, 0], y - points[q, 1], z - points[q, 2]
+                oa = ox * axes[q, 0] + oy * axes[q, 1] + oz * axes[q, 2]
+                dc = abs(np.sqrt(max(ox * ox + oy * oy + oz * oz - oa * oa, 0.0)) - radii[q])
+                if not (dp <= max(noise, k_sigma * rms[p]) and dc <= max(noise, k_sigma * rms[q])):
+                    continue
+                # the solid's surface is where the ray enters it: the later of the two entries
+                if (tp > tc) == (b == p):
+                    out[r0, c0] = b
+                    step_moved[count] = i
+                    count += 1
+                break  # the nearest other-kind neighbour decides
+        if count == 0:
+            break
+        moved = np.concatenate((moved, step_moved[:count]))
+        before = out.copy()
+    return out, moved
