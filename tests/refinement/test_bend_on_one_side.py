@@ -77,3 +77,35 @@ def test_polish_keeps_the_plane_the_decision_would_bend_on_a_lasers_single_retur
     assert polish_models(ctx, labels, {1: plane}, resolve_bends=1.0)[1].kind == "cylinder"  # not a laser's
     monkeypatch.setattr(polish, "bend_on_one_side", lambda *a, **k: [])
     assert polish_models(ctx, labels, {1: plane}, resolve_bends=1.0, along_rays=True)[1].kind == "cylinder"
+
+
+def test_lines_beside_counts_the_grid_lines_across_line_by_line():
+    from rangeseg_o3d.refinement.polish import _lines_beside
+
+    labels = np.zeros((8, 10), np.int32)
+    labels[1:7, 2:6] = 1  # a block 6 rows deep and 4 columns wide
+    idx = np.flatnonzero(labels.ravel())
+    assert _lines_beside(idx, 10, rows=False) == 4.0  # columns across, on each row
+    assert _lines_beside(idx, 10, rows=True) == 6.0  # rows across, on each column
+    band = np.zeros((8, 10), np.int32)
+    for r in range(8):  # two pixels wide, drifting one column a row: 9 columns spanned
+        band[r, r:r + 2] = 1
+    idx = np.flatnonzero(band.ravel())
+    assert _lines_beside(idx, 10, rows=False) == 2.0
+    assert _lines_beside(idx[:0], 10, rows=False) == 0.0
+
+
+def test_a_diagonal_band_two_pixels_wide_is_no_evidence(monkeypatch):
+    # the face's scene cut so that the region drifts by one column halfway down: the upper
+    # half holds the mixed column and the face's first two, the lower half the face's last two;
+    # without its left side the rest spans all three face columns, but holds at most two
+    # pixels on any row
+    ctx, labels, columns = _scenes._scene(0, "face")
+    assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
+    cut = labels.copy()
+    rows = np.arange(40)
+    cut[(rows >= 10) & (rows <= 20), columns[-1]] = 0
+    cut[(rows > 20) & (rows <= 30), columns[0] - 1:columns[0] + 1] = 0
+    assert bend_on_one_side(ctx, cut, [1], 1.0) == []
+    monkeypatch.setattr(polish, "BEND_LINES", 2)  # the line-by-line count alone refused it
+    assert bend_on_one_side(ctx, cut, [1], 1.0) == [1]
