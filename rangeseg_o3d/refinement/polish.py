@@ -413,8 +413,9 @@ def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: floa
     ``BEND_LINES`` grid lines across beside that side (:func:`_lines_beside`, line by line),
     its least-squares plane is within the fitter's plane threshold, the fitter's decision on the
     rest (``resolve_bends=samples``) is a plane, the side's returns lie off that plane by more
-    than their range noise explains
-    (:func:`beyond_noise`, ``ctx.sigma``) and the opposite side's returns do not, and that plane
+    than their range noise explains (:func:`beyond_noise`, ``ctx.sigma``) and the opposite side's
+    returns do not lie off the plane of the returns between the two sides (themselves on at least
+    ``BEND_LINES`` lines across), and the rest's plane
     leaves the rest's returns no more than their range noise along their rays gives a plane
     (:func:`_ray_noise`: the range noise times each ray's incidence cosine), up to the noise
     floor's ``NOISE_CHI2_SIGMAS`` chi-square deviations.
@@ -425,7 +426,9 @@ def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: floa
     columns wide at 2.5 m seen at cos 0.53, its plane 13.4 mm under 20 mm noise, a 0.91 m
     cylinder by the decision's bend test; its left column lies off the rest's plane). A pipe's
     bend is in all its columns: seen on a narrow arc its two limbs both fall behind the plane of
-    its front, so the opposite side's returns lie off the rest's plane too; and where noise hides
+    its front, so the opposite side's returns lie off the plane between the sides too (off the
+    rest's own plane, which leans to them, they may not: noise_20mm seed 13 scan 0, a 0.13 m pipe
+    seen head-on, a band 3-4 pixels wide); and where noise hides
     the far limb (a 0.13 m pipe on four columns under 20 mm noise), the rest's plane, tilted
     across the arc, is seen obliquely while its returns lie off it as much as head-on ones
     (noise_20mm seed 1004 scan 4, without its right limb: 15.4 mm where a plane at that incidence
@@ -460,12 +463,20 @@ def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: floa
             plane = fit_plane(points[~sides[s]], inlier_distance=INLIER_FACTOR * tolerance)
             if not plane or plane.rms > tolerance:
                 continue
+            middle = ~sides[s] & ~sides[opposite[s]]
+            if middle.sum() < minimum or _lines_beside(idx[middle], labels.shape[1], s < 2) < BEND_LINES:
+                continue  # between the sides too few lines to tell the far side's bend
+            # the opposite side against the plane of the returns between the two sides: a plane
+            # through it as well leans to it (a pipe seen head-on: its far limb on that plane)
+            between = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
+            if not between:
+                continue
             far = []
-            for side in (sides[s], sides[opposite[s]] & ~sides[s]):
+            for side, model in ((sides[s], plane), (sides[opposite[s]] & ~sides[s], between)):
                 if not side.any():
                     far.append(False)
                     continue
-                off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
+                off = float(np.sqrt(np.mean(model.distances(points[side]) ** 2)))
                 far.append(beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())))
             if not far[0] or far[1]:
                 continue  # the bend is not that side's alone

@@ -22,9 +22,28 @@ _spec.loader.exec_module(_scenes)
 SIGMA = _scenes.SIGMA
 
 
+def _wide_face(seed: int):
+    """The wall of test_bent_by_one_side's scenes 7 m away and in front of it (label 1, rows
+    10-30) a face turned 57 degrees from the rays about the vertical, six columns wide (17-22)
+    at 5.2 m, with one column of mixed returns on its left, 30-70 % of the way across a range
+    step of ``JUMP`` behind its edge along the ray: ``(context, labels, columns of the face)``."""
+    rng = np.random.default_rng(seed)
+    rays = _scenes._rays()
+    ranges, labels, rows = 7.0 / rays[..., 2], np.zeros((40, 40), np.int32), slice(10, 31)
+    turn = np.radians(57.0)
+    normal = np.array([np.sin(turn), 0.0, np.cos(turn)])
+    near = 5.2 * normal[2] / (rays @ normal)
+    columns = np.arange(17, 23)
+    ranges[rows, 17:23] = near[rows, 17:23]
+    ranges[rows, 16] = near[rows, 16] + rng.uniform(0.3, 0.7, 21) * _scenes.JUMP
+    labels[rows, 16:23] = 1
+    xyz = rays * (ranges + rng.normal(0.0, SIGMA, ranges.shape))[..., None]
+    return _scenes._context(xyz), labels, columns
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_face_bent_by_one_column_of_mixed_returns_is_found(seed):
-    ctx, labels, columns = _scenes._scene(seed, "face")
+    ctx, labels, columns = _wide_face(seed)
     idx = np.flatnonzero(labels.ravel())
     # the premise: the mixed column lies off the face's plane beyond the noise, the face's own
     # columns do not
@@ -49,13 +68,18 @@ def test_a_rest_on_two_grid_lines_tells_nothing(seed, monkeypatch):
     ctx, labels, columns = _scenes._scene(seed, "narrow face")
     assert columns.size == 2
     assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    # nor does a face three columns wide: between its mixed column and its far side one
+    # column is left, on which the far side's bend cannot be told
+    ctx, labels, columns = _scenes._scene(seed, "face")
+    assert columns.size == 3
+    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
 
 
 def test_a_tilted_rest_whose_returns_lie_off_it_as_head_on_ones_is_a_bent_arc(monkeypatch):
     # the face's rest passes; hold its plane to a fifth of the range noise along its rays (as if
     # its returns lay off it five times as much as a plane there leaves) and it no longer does:
     # the ray-noise test alone refuses it
-    ctx, labels, _ = _scenes._scene(0, "face")
+    ctx, labels, _ = _wide_face(0)
     assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
     real = polish._ray_noise
     monkeypatch.setattr(polish, "_ray_noise", lambda points, sigma, model, rays, each=False:
@@ -65,7 +89,7 @@ def test_a_tilted_rest_whose_returns_lie_off_it_as_head_on_ones_is_a_bent_arc(mo
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_polish_keeps_the_plane_the_decision_would_bend_on_a_lasers_single_returns(seed, monkeypatch):
-    ctx, labels, _ = _scenes._scene(seed, "face")
+    ctx, labels, _ = _wide_face(seed)
     points = ctx.xyz[labels.ravel() == 1]
     plane, cylinder = fit_plane(points), fit_cylinder(points)
     assert cylinder.kind == "cylinder"
@@ -95,17 +119,23 @@ def test_lines_beside_counts_the_grid_lines_across_line_by_line():
     assert _lines_beside(idx[:0], 10, rows=False) == 0.0
 
 
-def test_a_diagonal_band_two_pixels_wide_is_no_evidence(monkeypatch):
-    # the face's scene cut so that the region drifts by one column halfway down: the upper
-    # half holds the mixed column and the face's first two, the lower half the face's last two;
-    # without its left side the rest spans all three face columns, but holds at most two
-    # pixels on any row
-    ctx, labels, columns = _scenes._scene(0, "face")
+def test_the_lines_between_the_sides_are_counted_line_by_line(monkeypatch):
+    # the wide face: six columns without its mixed one, five between that and its far side;
+    # asking six lines refuses it there
+    ctx, labels, _ = _wide_face(0)
     assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
-    cut = labels.copy()
-    rows = np.arange(40)
-    cut[(rows >= 10) & (rows <= 20), columns[-1]] = 0
-    cut[(rows > 20) & (rows <= 30), columns[0] - 1:columns[0] + 1] = 0
-    assert bend_on_one_side(ctx, cut, [1], 1.0) == []
-    monkeypatch.setattr(polish, "BEND_LINES", 2)  # the line-by-line count alone refused it
-    assert bend_on_one_side(ctx, cut, [1], 1.0) == [1]
+    monkeypatch.setattr(polish, "BEND_LINES", 6)
+    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+
+
+def test_a_pipe_whose_far_limb_leans_the_rests_plane_is_not_taken():
+    # the pipe of test_bent_by_one_side (six columns, a mixed column on its left): its far
+    # limb lies off the plane between the two sides
+    ctx, labels, columns = _scenes._scene(0, "pipe")
+    idx = np.flatnonzero(labels.ravel())
+    col = idx % 40
+    middle = (col > columns[0] - 1) & (col < columns[-1])
+    plane = fit_plane(ctx.xyz[idx[middle]])
+    far = idx[col == columns[-1]]
+    assert beyond_noise(float(np.sqrt(np.mean(plane.distances(ctx.xyz[far]) ** 2))), SIGMA, far.size)
+    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
