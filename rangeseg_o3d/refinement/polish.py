@@ -95,6 +95,9 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
             # bend only a neighbour's pixels carry is none (the batch leaves the decision the
             # planes beyond the noise's chi-square, and a few such pixels put a wall there)
             refused = _unbent(ctx, labels, list(bent), resolve_bends, pixels=pixels)
+            if along_rays:  # a laser's mixed returns along one side are no bend either
+                refused = set(refused) | set(bend_on_one_side(ctx, labels, [k for k in bent if k not in refused],
+                                                              resolve_bends, pixels=pixels))
             bent = {k: m for k, m in bent.items() if k not in refused}
         fits.update(bent)
         if along_rays:
@@ -399,6 +402,104 @@ def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: f
         if best is not None:
             out[k] = best
     return out
+
+
+def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: float = 0.0, *,
+                     pixels: _Pixels | None = None) -> list:
+    """The regions among ``bent`` (plane regions the fitter's decision bends on their final
+    pixels, :func:`_curved_planes`) whose bend rests on one side's returns alone, on a laser's
+    single returns. A side is one grid line's returns along the region's border
+    (:func:`border_sides`). It carries the bend when, without it, the rest spans at least
+    ``BEND_LINES`` grid lines across beside that side (:func:`_lines_beside`, line by line),
+    its least-squares plane is within the fitter's plane threshold, the fitter's decision on the
+    rest (``resolve_bends=samples``) is a plane, the side's returns lie off that plane by more
+    than their range noise explains (:func:`beyond_noise`, ``ctx.sigma``) and the opposite side's
+    returns do not lie off the plane of the returns between the two sides (themselves on at least
+    ``BEND_LINES`` lines across), and the rest's plane
+    leaves the rest's returns no more than their range noise along their rays gives a plane
+    (:func:`_ray_noise`: the range noise times each ray's incidence cosine), up to the noise
+    floor's ``NOISE_CHI2_SIGMAS`` chi-square deviations.
+
+    A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
+    and what lies beyond its edge: one column of them bends a face's quadric over its hundreds
+    of returns although its plane is within the noise (noise_20mm seed 1014 scan 1: a face 6
+    columns wide at 2.5 m seen at cos 0.53, its plane 13.4 mm under 20 mm noise, a 0.91 m
+    cylinder by the decision's bend test; its left column lies off the rest's plane). A pipe's
+    bend is in all its columns: seen on a narrow arc its two limbs both fall behind the plane of
+    its front, so the opposite side's returns lie off the plane between the sides too (off the
+    rest's own plane, which leans to them, they may not: noise_20mm seed 13 scan 0, a 0.13 m pipe
+    seen head-on, a band 3-4 pixels wide); and where noise hides
+    the far limb (a 0.13 m pipe on four columns under 20 mm noise), the rest's plane, tilted
+    across the arc, is seen obliquely while its returns lie off it as much as head-on ones
+    (noise_20mm seed 1004 scan 4, without its right limb: 15.4 mm where a plane at that incidence
+    leaves 13.0 mm, 1.189 of it over a floor of 1.183; the five faces of noise_20mm seeds
+    1001-1020 it frees left 0.89-1.08 of theirs). ``pixels``
+    (optional) the labels' grouped pixels. Cost: only the regions the decision bent (a few a
+    scan), four plane rms by their scatter and a plane fit and decision per passing side."""
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
+
+    p = ctx.fitter.params
+    if not bent or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
+        return []
+    minimum = max(int(p.get("min_points", 10)), 10)
+    bends = {"resolve_bends": float(samples)} if samples else {}
+    opposite = (1, 0, 3, 2)
+    out = []
+    for k, idx in (pixels or _Pixels(labels)).of(bent).items():
+        points = rows_at(ctx.xyz, idx)
+        centroid = points.mean(axis=0)
+        sides = border_sides(labels, idx, ctx.wrap_columns)
+        _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, sides)
+        for s in np.argsort(rms[1:]):  # the flattest rest first
+            n = int(sizes[s + 1])
+            if n < minimum or idx.size - n < 3 or not sides[opposite[s]].any():
+                continue
+            if _lines_beside(idx[~sides[s]], labels.shape[1], s < 2) < BEND_LINES:
+                continue  # two lines of returns fit a plane whatever the surface's bend
+            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
+                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
+            if rms[s + 1] > tolerance:
+                continue
+            plane = fit_plane(points[~sides[s]], inlier_distance=INLIER_FACTOR * tolerance)
+            if not plane or plane.rms > tolerance:
+                continue
+            middle = ~sides[s] & ~sides[opposite[s]]
+            if middle.sum() < minimum or _lines_beside(idx[middle], labels.shape[1], s < 2) < BEND_LINES:
+                continue  # between the sides too few lines to tell the far side's bend
+            # the opposite side against the plane of the returns between the two sides: a plane
+            # through it as well leans to it (a pipe seen head-on: its far limb on that plane)
+            between = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
+            if not between:
+                continue
+            far = []
+            for side, model in ((sides[s], plane), (sides[opposite[s]] & ~sides[s], between)):
+                if not side.any():
+                    far.append(False)
+                    continue
+                off = float(np.sqrt(np.mean(model.distances(points[side]) ** 2)))
+                far.append(beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())))
+            if not far[0] or far[1]:
+                continue  # the bend is not that side's alone
+            rest = idx[~sides[s]]
+            _, noise, _ = _ray_noise(points[~sides[s]], ctx.sigma[rest], plane, ctx.viewing_rays(rest))
+            if plane.rms > noise_rms_bound.py_func(noise, n - 3.0, NOISE_CHI2_SIGMAS):
+                continue  # more than its returns' range noise leaves a plane (its noise floor): a bent arc's
+            if isinstance(ctx.fitter.fit(points[~sides[s]], **bends), Plane):
+                out.append(int(k))
+                break
+    return out
+
+
+def _lines_beside(idx: np.ndarray, width: int, rows: bool) -> float:
+    """The median count of the flat pixels ``idx`` (of a grid ``width`` wide) on each grid column
+    that holds any (``rows``: how many rows deep the region is, across a side above or below
+    it) or on each grid row (how many columns wide, across a side left or right of it): the
+    grid lines across the region beside that side, line by line. A band crossing the grid
+    diagonally spans many columns but is as wide as its rows' runs (noise_20mm seed 1020 scan 5:
+    a 0.29 m pipe's band 2-3 pixels wide drifting over 6 columns)."""
+    line = idx % width if rows else idx // width
+    _, counts = np.unique(line, return_counts=True)
+    return float(np.median(counts)) if counts.size else 0.0
 
 
 def _plane_rms_without_each_side(centred: np.ndarray, sides: np.ndarray) -> tuple:
