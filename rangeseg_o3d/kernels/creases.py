@@ -15,6 +15,18 @@ __all__ = ["crease_moves", "cap_moves"]
 
 
 @njit(cache=True, nogil=True)
+def _centroids(sums):
+    # each label's centroid from its rows of (sum x, sum y, sum z, count); a label with no
+    # point keeps the origin
+    n = sums.shape[0]
+    centroids = np.zeros((n, 3))
+    for k in range(n):
+        count = max(sums[k, 3], 1.0)
+        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    return centroids
+
+
+@njit(cache=True, nogil=True)
 def _plane_borders(xyz, labels, is_plane, sums):
     """Flat indices of the pixels of a plane region 4-adjacent to another plane region; adds
     each plane pixel's point and a count to ``sums[label]`` (x, y, z, count)."""
@@ -127,10 +139,7 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
     borders = _plane_borders(xyz, labels, is_plane, sums)
     if borders.size == 0:
         return out, np.empty(0, np.int64)
-    centroids = np.zeros((n, 3))
-    for k in range(n):
-        count = max(sums[k, 3], 1.0)
-        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    centroids = _centroids(sums)
     near = np.zeros(h * w, np.bool_)
     spread = reach - 1
     for i in borders:
@@ -243,10 +252,7 @@ def cap_moves(xyz, labels, kind, normals, offsets, axes, points, radii, rms, sig
             sums[a, 1] += xyz[i, 1]
             sums[a, 2] += xyz[i, 2]
             sums[a, 3] += 1.0
-    centroids = np.zeros((n, 3))
-    for k in range(n):
-        count = max(sums[k, 3], 1.0)
-        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    centroids = _centroids(sums)
     moved = np.empty(0, np.int64)
     before = labels.copy()
     spread = reach - 1

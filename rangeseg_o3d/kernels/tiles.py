@@ -13,7 +13,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .kinds import PLANE
-from .creases import _crease_pair, _ray_meets_b
+from .creases import _centroids, _crease_pair, _ray_meets_b
 from .inline import _incidence, _nearest_neighbour_model, _neighbour, _signed_distance
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
@@ -210,10 +210,7 @@ def _crease_geometry(tile_labels, kinds, params, tile_xyz):
             sums[k, 1] += tile_xyz[t, 1]
             sums[k, 2] += tile_xyz[t, 2]
             sums[k, 3] += 1.0
-    centroids = np.zeros((n, 3))
-    for k in range(n):
-        count = max(sums[k, 3], 1.0)
-        centroids[k, 0], centroids[k, 1], centroids[k, 2] = sums[k, 0] / count, sums[k, 1] / count, sums[k, 2] / count
+    centroids = _centroids(sums)
     return normals, offsets, centroids
 
 
