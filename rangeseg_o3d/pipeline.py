@@ -470,6 +470,12 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                                           jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)
     if refine.merge:
         near = adjacency_matrix(np.ascontiguousarray(tile_labels, dtype=np.int32), touch.shape[0], 3)
+        # regions found at full resolution (recovered from the blobs) have no tiles, and two
+        # such pieces of one face that already met before the growth are in neither ``touch``
+        # nor the tile grid's ``near``: the pixels' own adjacency (a U-shaped box top cut in
+        # two by a recovered arm, tabletop_abw seed 1010 scan 2: 6185 and 3904 px, 0.54 deg
+        # apart, the union's rms their own)
+        near |= adjacency_matrix(labels, touch.shape[0], 1)
         labels, fits, stats = merge_touching_planes(cloud, labels, fits, stats, touch, sigma=sigma,
                                                     max_angle_deg=refine.merge_angle_deg,
                                                     rms_factor=refine.merge_rms_factor,

@@ -184,6 +184,30 @@ def test_pieces_that_do_not_touch_stay_apart():
     assert set(out_fits) == {1, 2}
 
 
+@pytest.mark.parametrize("offset, merges", [(0.0, True), (0.01, False)])
+def test_close_gaps_merges_touching_pieces_that_have_no_tiles(offset, merges):
+    # two pieces found at full resolution (recovered regions: no tiles in tile_labels) that
+    # already touch, every pixel labelled so no growth makes them meet: the pixels' own
+    # adjacency makes them a candidate pair (one plane: merged; a 1 cm step: kept apart)
+    from rangeseg_o3d.pipeline import _close_gaps
+
+    xyz, labels, fits, sigma = _two_pieces(offset)
+    stats = _stats(xyz, labels, fits, sigma)
+    # the preset's jump test comes from the sensor (scales); a 2 m wall's own here
+    refine = rs.load_config("abw").refine.model_copy(update={"jump_ratio": 0.01, "jump_min": 0.005})
+    ranges = np.linalg.norm(xyz, axis=2)
+    tiles = np.zeros((labels.shape[0] // 2, labels.shape[1] // 2), np.int32)
+    out, out_fits, out_stats = _close_gaps(rs.OrganizedCloud(xyz), labels.copy(), fits, stats, sigma, ranges,
+                                           refine, tiles)
+    if merges:
+        assert (out == 1).all() and set(out_fits) == {1}
+        assert abs(out_fits[1].d - 2.0) < 1e-3 and abs(out_fits[1].normal[2]) > np.cos(np.radians(0.5))
+        assert out_stats.counts[1] == out.size and out_stats.counts[2] == 0
+    else:
+        assert set(np.unique(out).tolist()) == {1, 2} and set(out_fits) == {1, 2}
+        assert (out[:, :30] == 1).all() and (out[:, 31:] == 2).all()
+
+
 def test_abw_surfaces_the_tile_grid_split_are_found_whole():
     # ABW test images 2, 3 and 4 (SegComp ground truth): the wall of image 2 left in two
     # pieces either side of a band (gt 21), the thin grazing face of image 3 (gt 10), a
