@@ -458,7 +458,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
     three tiles of each other: a pixel takes the region of its tile or of one of the 8
     around it (:func:`rangeseg_o3d.fullres.label_pixels`), so the pixels of two such
-    regions can be neighbours (a pass over the tile grid, not the frame)."""
+    regions can be neighbours (a pass over the tile grid, not the frame), or where their
+    pixels already are neighbours (a pass over the frame's label runs: the regions recovered
+    at full resolution have no tiles)."""
     from .kernels import adjacency_matrix
 
     if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
