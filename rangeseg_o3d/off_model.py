@@ -334,7 +334,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     so does one a touching plane region explains by the merge rule (``rms_factor``, the
     config's merge_rms_factor; None: not asked; :func:`_merged_into`)."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
-    from .kernels import tile_groups, tile_members
+    from .kernels import grow_face, tile_groups, tile_members
     from .kernels.linalg import noise_rms_bound
     from .fitting.primitives import Plane
     from .fitting.region_fitter import extended_table
@@ -408,18 +408,19 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     units = _unit_rows(rows)  # (each row alone: a refit sets its face's rows of both)
     # every pixel a face may hold, increasing: those it was given and those its growth moved
     # (another face's growth only takes from it), so no pass over the frame finds its pixels
-    held = [unique_ints(kept) for kept, _, _ in faces]
+    held = [unique_ints(kept).astype(np.int64, copy=False) for kept, _, _ in faces]
+    cos_angle = float(np.cos(np.radians(max_angle_deg)))
 
-    def grow(j):  # (one face at a time: each in its own box)
-        moved[j].append(_grow_along_rays(xyz, out, rows, units, first + j, held[j], noise, k_sigma, max_angle_deg))
-        held[j] = unique_ints(np.concatenate([held[j], moved[j][-1]]))
+    def grow(j):  # (one face at a time: each in its own box; one compiled call, as _grow_along_rays)
+        step, held[j] = grow_face(xyz, flat, h, w, rows, units, noise, first + j, held[j], float(k_sigma), cos_angle,
+                                  GROWTH_RINGS)
+        moved[j].append(step)
 
     for _ in range(REFITS):
         for j in range(len(faces)):
             grow(j)
         for j, (_, _, source) in enumerate(faces):
-            plane = _refit_apart(xyz, noise, held[j][flat[held[j]] == first + j], fits[first + j], source,
-                                 k_sigma, floor)
+            plane = _refit_apart(xyz, noise, flat, held[j], first + j, fits[first + j], source, k_sigma, floor)
             if plane is not None:
                 fits[first + j] = plane
                 rows[first + j] = _plane_rows({first + j: plane}, first + j + 1)[first + j]
@@ -553,7 +554,9 @@ def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, units
     farther. Near the crease a pixel's range lies within the noise of both planes; which
     plane is nearer in range there is a coin's toss (a 10-pixel strip at 7 m lost a third of
     itself so).
-    Returns the flat pixels that changed hands."""
+    Returns the flat pixels that changed hands. (:func:`faces_along_rays` grows with
+    :func:`rangeseg_o3d.kernels.grow_face`, this wrapper's decisions in one compiled call;
+    this stays as the reference its tests hold it to.)"""
     from .kernels import grow_along_rays
 
     h, w = out.shape
@@ -572,26 +575,32 @@ def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, units
                            GROWTH_RINGS)
 
 
-def _refit_apart(xyz: np.ndarray, noise: np.ndarray, mine: np.ndarray, face, source, k_sigma: float, floor: int):
-    """The plane of a face (flat pixels ``mine``, plane ``face``) fitted along their rays again,
+def _refit_apart(xyz: np.ndarray, noise: np.ndarray, flat: np.ndarray, held: np.ndarray, label: int, face, source,
+                 k_sigma: float, floor: int):
+    """The plane of a face (label ``label`` of the flat labels ``flat``, its pixels among
+    ``held``, flat, increasing; plane ``face``) fitted along their rays again,
     to those of its pixels whose rays meet it and the plane ``source`` it was found beside
     more than ``k_sigma`` range-noise sigmas apart (all of them when ``source`` is no plane or
     fewer than ``floor`` are): near their crease a pixel lies within the noise of both, and
     which one took it says nothing of the face's tilt but drags it towards the other.
     The choice depends on the rays alone, not on the ranges the noise moved. None when no
-    plane comes out."""
+    plane comes out. The pixels and their sums come from one compiled call
+    (:func:`rangeseg_o3d.kernels.refit_terms`: the same sums as ``ray_moments`` of
+    ``ray_terms``, without their dozen numpy temporaries over the face's pixels); the solve
+    and the plane are numpy's."""
     from .fitting.primitives import Plane
-    from .ray_planes import ray_moments, ray_plane, ray_solutions, ray_terms
+    from .kernels import refit_terms
+    from .ray_planes import ray_plane, ray_solutions
 
-    points = xyz[mine]
-    rays, inverse, weight = ray_terms(points, noise[mine])
+    own = np.asarray(face.normal, dtype=np.float64) / face.d
     if isinstance(source, Plane) and source.d > 0:
-        apart = np.abs(rays @ (face.normal / face.d) - rays @ (np.asarray(source.normal) / source.d))
-        apart = apart * np.sqrt(weight) > k_sigma
-        if np.count_nonzero(apart) >= max(floor, 3):
-            rays, inverse, weight, points = rays[apart], inverse[apart], weight[apart], points[apart]
-    a = ray_solutions(*ray_moments(rays, inverse, weight)[:2])
-    return ray_plane(a[0], points)
+        other = np.asarray(source.normal, dtype=np.float64) / source.d
+    else:
+        other = np.full(3, np.nan)
+    outer, first, pixels = refit_terms(xyz, noise, flat, np.ascontiguousarray(held, dtype=np.int64), int(label),
+                                       own, other, float(k_sigma), int(floor))
+    a = ray_solutions(outer[None], first[None])
+    return ray_plane(a[0], xyz[pixels])
 
 
 def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) -> bool:

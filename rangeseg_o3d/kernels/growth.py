@@ -160,3 +160,123 @@ def grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, first, coun
                     b0, b1, b2, b3 = min(b0, r), max(b1, r + 1), min(b2, c), max(b3, c + 1)
             n_last = n_take
     return moved[:n_moved]
+
+
+@njit(cache=True, nogil=True)
+def grow_face(xyz, flat, h, w, planes, units, noise, face, held, k_sigma, cos_angle, rings):
+    """One face's ring growth of :func:`rangeseg_o3d.off_model.faces_along_rays` in one call:
+    face ``face`` of the flat labels ``flat`` (in place; its pixels among ``held``, flat,
+    increasing) grows by :func:`grow_along_rays` alone, with its ``concave`` row (the face's
+    centre on the sensor's side of each region's plane row of ``planes``) and its ``crease``
+    row (each unit row of ``units`` turned from the face's by more than the angle whose cosine
+    is ``cos_angle``). Returns ``(moved, held)``: the flat pixels that changed hands and the
+    pixels the face may hold now (``held`` with ``moved``, increasing, each once). No pixel
+    held: nothing moves. The same decisions as the numpy wrapper it replaces (the centre is
+    the same sum in the same order; a plane's side is taken against 1.0 and a crease against
+    ``cos_angle``, which only the last bit of a dot product could move) without its dozen
+    small numpy calls a face."""
+    n = planes.shape[0]
+    count = 0
+    sx, sy, sz = 0.0, 0.0, 0.0
+    r0, r1, c0, c1 = h, -1, w, -1
+    for i in range(held.size):
+        p = held[i]
+        if flat[p] != face:
+            continue
+        count += 1
+        # (numpy's mean over the rows: each column summed in row order, then divided)
+        sx += xyz[p, 0]
+        sy += xyz[p, 1]
+        sz += xyz[p, 2]
+        r, c = p // w, p % w
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    if count == 0:
+        return np.zeros(0, np.int64), held
+    cx, cy, cz = sx / count, sy / count, sz / count
+    concave = np.zeros((1, n), np.bool_)
+    crease = np.zeros((1, n), np.bool_)
+    ux, uy, uz = units[face, 0], units[face, 1], units[face, 2]
+    for k in range(n):
+        concave[0, k] = planes[k, 0] * cx + planes[k, 1] * cy + planes[k, 2] * cz < 1.0
+        crease[0, k] = abs(units[k, 0] * ux + units[k, 1] * uy + units[k, 2] * uz) < cos_angle
+    box = np.array([r0, r1 + 1, c0, c1 + 1], np.int64)
+    moved = grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, face, 1, box, k_sigma, rings)
+    both = np.empty(held.size + moved.size, np.int64)
+    both[:held.size] = held
+    both[held.size:] = moved
+    both.sort()
+    keep = np.ones(both.size, np.bool_)
+    for i in range(1, both.size):
+        keep[i] = both[i] != both[i - 1]
+    return moved, both[keep]
+
+
+@njit(cache=True, nogil=True)
+def _maximum(a, b):
+    """``np.maximum`` of two floats (a NaN wins, as numpy's does)."""
+    if np.isnan(a) or a >= b:
+        return a
+    return b
+
+
+@njit(cache=True, nogil=True)
+def refit_terms(xyz, noise, flat, held, face, own, source, k_sigma, floor):
+    """The sums of a face's plane fitted along its rays again (the refit of
+    :func:`rangeseg_o3d.off_model._refit_apart`, less its solve): over the pixels of ``held``
+    (flat, increasing) that face ``face`` of the flat labels ``flat`` holds, those whose rays
+    meet its plane row ``own`` (``normal / d``) and the plane row ``source`` of the plane it
+    was found beside more than ``k_sigma`` range-noise sigmas (``noise``) apart; all of them
+    when fewer than ``max(floor, 3)`` are, or when ``source`` is NaN (no plane). Returns
+    ``(outer, first, pixels)``: ``sum w u u^T`` (3 x 3), ``sum w q u`` and the flat pixels
+    summed, in the terms of :func:`rangeseg_o3d.ray_planes.ray_terms` (unit ray ``u``, inverse
+    range ``q``, weight ``w = range**4 / sigma**2``). Each term and each sum is numpy's, in its
+    order (a point's norm summed over x, y, z; the sums over the points in their order): the
+    same bits as ``ray_moments`` of ``ray_terms``. Only the choice of the pixels apart takes
+    its dot products in its own order, a decision the last bit moves only at its threshold."""
+    m = 0
+    for i in range(held.size):
+        if flat[held[i]] == face:
+            m += 1
+    mine = np.empty(m, np.int64)
+    m = 0
+    for i in range(held.size):
+        if flat[held[i]] == face:
+            mine[m] = held[i]
+            m += 1
+    rays = np.empty((m, 3))
+    inverse = np.empty(m)
+    weight = np.empty(m)
+    apart = np.zeros(m, np.bool_)
+    n_apart = 0
+    for i in range(m):
+        p = mine[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        r = _maximum(np.sqrt(x * x + y * y + z * z), 1e-12)
+        rays[i, 0], rays[i, 1], rays[i, 2] = x / r, y / r, z / r
+        inverse[i] = 1.0 / r
+        sig = _maximum(noise[p], 1e-12) / (r * r)
+        weight[i] = 1.0 / (sig * sig)
+        if not np.isnan(source[0]):
+            gap = abs((rays[i, 0] * own[0] + rays[i, 1] * own[1] + rays[i, 2] * own[2])
+                      - (rays[i, 0] * source[0] + rays[i, 1] * source[1] + rays[i, 2] * source[2]))
+            apart[i] = gap * np.sqrt(weight[i]) > k_sigma
+            if apart[i]:
+                n_apart += 1
+    use_apart = n_apart >= max(floor, 3)
+    outer = np.zeros((3, 3))
+    first = np.zeros(3)
+    pixels = np.empty(n_apart if use_apart else m, np.int64)
+    n = 0
+    for i in range(m):
+        if use_apart and not apart[i]:
+            continue
+        pixels[n] = mine[i]
+        n += 1
+        wi = weight[i]
+        wq = wi * inverse[i]
+        for a in range(3):
+            wa = wi * rays[i, a]
+            for b in range(3):
+                outer[a, b] += wa * rays[i, b]
+            first[a] += wq * rays[i, a]
+    return outer, first, pixels

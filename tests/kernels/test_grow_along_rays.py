@@ -86,3 +86,105 @@ def test_growth_to_the_edge_of_its_window_stays_in_its_buffers():
     v, u = np.divmod(np.arange(rows * cols), cols)
     assert np.array_equal(grown[0][0], np.abs(v - 20) + np.abs(u - 25) <= rings)
     assert np.array_equal(grown[0][0], grown[1][0]) and np.array_equal(grown[0][1], grown[1][1])
+
+
+def _corner(rows=40, cols=60, sigma=0.005, seed=0):
+    """A wall 4 m ahead (columns < 30) meeting a wall turned 40 degrees from it (columns >= 30),
+    with ``sigma`` of range noise: ``(xyz, noise, plane rows: 1 the turned wall, 2 the face's)``."""
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) * 0.005, (v - rows / 2) * 0.005, np.ones(u.shape)]).reshape(-1, 3)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    face = np.array([0.0, 0.0, 0.25])
+    turn = np.radians(40.0)
+    other = np.array([-np.sin(turn), 0.0, np.cos(turn)])
+    other = other / (other @ (rays[30] / (rays[30] @ face)))  # through the face's plane at column 30
+    a = np.where((u.ravel() < 30)[:, None], face, other)
+    ranges = 1.0 / np.einsum("ij,ij->i", rays, a)
+    ranges = ranges + np.random.default_rng(seed).normal(0.0, sigma, ranges.shape)
+    planes = np.full((3, 3), np.nan)
+    planes[1], planes[2] = other, face
+    return rays * ranges[:, None], np.full(rows * cols, sigma), planes
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_grow_face_is_the_numpy_wrapper_in_one_call(seed):
+    # grow_face (the face's centre, its concave and crease rows, the growth and the merged
+    # held pixels in one compiled call) against off_model._grow_along_rays and unique_ints
+    from rangeseg_o3d._numeric import unique_ints
+    from rangeseg_o3d.kernels import grow_face
+    from rangeseg_o3d.off_model import GROWTH_RINGS, _grow_along_rays, _unit_rows
+
+    rows, cols = 40, 60
+    xyz, noise, planes = _corner(rows, cols, seed=seed)
+    units = _unit_rows(planes)
+    labels = np.zeros((rows, cols), np.int32)
+    labels[:, 24:] = 1  # the turned wall's region took six columns of the face's wall
+    labels[15:25, 5:12] = 2  # the face
+    held = np.flatnonzero(labels.ravel() == 2).astype(np.int64)
+    old = labels.copy()
+    moved_old = _grow_along_rays(xyz, old, planes, units, 2, held, noise, K_SIGMA, 10.0)
+    new = labels.copy()
+    moved_new, held_new = grow_face(xyz, new.ravel(), rows, cols, planes, units, noise, 2, held, K_SIGMA,
+                                    float(np.cos(np.radians(10.0))), GROWTH_RINGS)
+    assert np.array_equal(new, old)
+    assert np.array_equal(moved_new, moved_old)
+    assert np.array_equal(held_new, unique_ints(np.concatenate([held, moved_old])))
+    # the face grew over the free pixels of its wall and took back most of the columns the
+    # turned wall's region held on its side of the crease
+    assert np.count_nonzero(new == 2) > 0.9 * rows * 24
+    assert np.count_nonzero(new[:, 24:30] == 2) > 0.8 * rows * 6
+    assert np.count_nonzero(new[:, 31:] == 2) == 0
+
+
+def test_grow_face_without_pixels_moves_nothing():
+    from rangeseg_o3d.kernels import grow_face
+    from rangeseg_o3d.off_model import _unit_rows
+
+    xyz, noise, planes = _corner()
+    flat = np.ones(xyz.shape[0], np.int32)
+    held = np.array([3, 4, 5], np.int64)  # (the region's now: no pixel of face 2 among them)
+    moved, kept = grow_face(xyz, flat, 40, 60, planes, _unit_rows(planes), noise, 2, held, K_SIGMA, 0.98, 64)
+    assert moved.size == 0 and np.array_equal(kept, held) and np.all(flat == 1)
+
+
+def _refit_reference(xyz, noise, mine, own, source, k_sigma, floor):
+    """The numpy refit terms refit_terms replaces (off_model._refit_apart before it): the
+    pixels kept and ray_moments of their ray_terms."""
+    from rangeseg_o3d.ray_planes import ray_moments, ray_terms
+
+    rays, inverse, weight = ray_terms(xyz[mine], noise[mine])
+    kept = mine
+    if not np.isnan(source[0]):
+        apart = np.abs(rays @ own - rays @ source) * np.sqrt(weight) > k_sigma
+        if np.count_nonzero(apart) >= max(floor, 3):
+            rays, inverse, weight, kept = rays[apart], inverse[apart], weight[apart], mine[apart]
+    outer, first, _ = ray_moments(rays, inverse, weight)
+    return outer[0], first[0], kept
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("floor", [3, 500, 10 ** 6])
+def test_refit_terms_are_numpys_sums_bit_for_bit(seed, floor):
+    from rangeseg_o3d.kernels import refit_terms
+
+    rows, cols = 40, 60
+    xyz, noise, planes = _corner(rows, cols, seed=seed)
+    noise = noise * np.random.default_rng(seed).uniform(0.5, 2.0, noise.size)  # (each pixel its own weight)
+    flat = np.zeros(rows * cols, np.int32)
+    grid = flat.reshape(rows, cols)
+    grid[5:35, 10:40] = 2  # the face: its wall and ten columns of the turned one
+    grid[20, 15] = 1  # (a held pixel another label took since: not summed)
+    held = np.flatnonzero((grid >= 1).ravel()).astype(np.int64)
+    mine = held[flat[held] == 2]
+    for source in (planes[1], np.full(3, np.nan)):
+        outer, first, pixels = refit_terms(xyz, noise, flat, held, 2, planes[2], source, K_SIGMA, floor)
+        ref_outer, ref_first, ref_pixels = _refit_reference(xyz, noise, mine, planes[2], source, K_SIGMA, floor)
+        assert np.array_equal(pixels, ref_pixels)
+        assert np.array_equal(outer, ref_outer) and np.array_equal(first, ref_first)
+        if np.isnan(source[0]) or floor > mine.size:
+            assert np.array_equal(pixels, mine)  # (no plane beside it, or too few apart: all of them)
+        else:
+            # the face's pixels on the turned wall lie within the noise of both planes near the
+            # crease: the refit leaves those out, and keeps its own wall's
+            assert 0 < pixels.size < mine.size
+            assert np.count_nonzero(pixels % cols < 30) > 0.9 * np.count_nonzero(mine % cols < 30)
