@@ -299,7 +299,7 @@ def _turned_plane(centre: np.ndarray, scatter: np.ndarray, count: int, model, ma
     return bool(np.arccos(cosine) > max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * tilt_noise))
 
 
-#: Rings a face :func:`faces_along_rays` found may grow by, and give back (:func:`_grow_along_rays`):
+#: Rings a face :func:`faces_along_rays` found may grow by, and give back (:func:`rangeseg_o3d.kernels.grow_face`):
 #: a strip 140 rows long from a seed of three 6-pixel tiles in its middle (compiled, a ring looks
 #: only at the neighbours of the pixels the last one moved: kernels.grow_along_rays). (32 rings left a 120-row strip half grown when its plane was refitted, which
 #: then tilted 16 degrees towards the wall beside it: tests/test_off_model_faces.py, seed 1.)
@@ -328,7 +328,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     (:func:`_tilt_bound`, :func:`_turned_from`; a plane region that explains it along the rays within their
     noise takes none: it is a piece of that region): how many pixels settle a face is the
     noise's to say, not a count of tiles. A face takes those pixels, grows into the pixels on
-    its side of the crease with each plane region beside it (:func:`_grow_along_rays`), is
+    its side of the crease with each plane region beside it (:func:`rangeseg_o3d.kernels.grow_face`), is
     refitted to what it holds away from that crease (:func:`_refit_apart`) and grows again;
     a face a touching region (or another face) then explains along the rays joins it, and
     so does one a touching plane region explains by the merge rule (``rms_factor``, the
@@ -411,7 +411,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     held = [unique_ints(kept).astype(np.int64, copy=False) for kept, _, _ in faces]
     cos_angle = float(np.cos(np.radians(max_angle_deg)))
 
-    def grow(j):  # (one face at a time: each in its own box; one compiled call, as _grow_along_rays)
+    def grow(j):  # (one face at a time: each in its own box; one compiled call)
         step, held[j] = grow_face(xyz, flat, h, w, rows, units, noise, first + j, held[j], float(k_sigma), cos_angle,
                                   GROWTH_RINGS)
         moved[j].append(step)
@@ -535,44 +535,6 @@ def _unit_rows(planes: np.ndarray) -> np.ndarray:
     """The rows of ``planes`` (:func:`_plane_rows`) scaled to unit length, each row on its own
     (NaN rows stay NaN)."""
     return planes / np.linalg.norm(np.nan_to_num(planes), axis=1, keepdims=True).clip(1e-300)
-
-
-def _grow_along_rays(xyz: np.ndarray, out: np.ndarray, planes: np.ndarray, units: np.ndarray, face: int,
-                     held: np.ndarray, noise: np.ndarray, k_sigma: float, max_angle_deg: float) -> np.ndarray:
-    """The face ``face`` of ``out`` (in place; its flat pixels among ``held``, increasing;
-    ``planes``: every label's plane row, :func:`_plane_rows`, one for each label of ``out``;
-    ``units``: those rows of unit length, :func:`_unit_rows`)
-    grows ring by ring (:func:`rangeseg_o3d.kernels.grow_along_rays`: 4-neighbours, at most
-    ``GROWTH_RINGS``) into the free pixels whose range its plane meets within ``k_sigma``
-    range-noise sigmas (``noise``, flat), and into those of a plane region beside it on the
-    face's side of their crease, then gives back its pixels on the other side of it (within
-    ``k_sigma`` of that region's plane); a curved region, and a plane within
-    ``max_angle_deg`` of the face's (no crease between them to tell the sides by), keeps its
-    pixels. The side of the crease is where each ray meets the two planes, which the noise
-    does not move: across a concave crease (a room's corner, the face on the sensor's side of
-    the other plane) the nearer plane is the one seen, across a convex one (a box's edge) the
-    farther. Near the crease a pixel's range lies within the noise of both planes; which
-    plane is nearer in range there is a coin's toss (a 10-pixel strip at 7 m lost a third of
-    itself so).
-    Returns the flat pixels that changed hands. (:func:`faces_along_rays` grows with
-    :func:`rangeseg_o3d.kernels.grow_face`, this wrapper's decisions in one compiled call;
-    this stays as the reference its tests hold it to.)"""
-    from .kernels import grow_along_rays
-
-    h, w = out.shape
-    flat = out.ravel()
-    mine = held[flat[held] == face]
-    if not mine.size:
-        return np.zeros(0, np.int64)
-    centre = xyz[mine].mean(axis=0)
-    # per region k: the face on the sensor's side of its plane (a . c < 1: nearer along the
-    # ray), and the two planes turned from each other
-    concave = (planes @ centre < 1.0)[None]
-    crease = (np.abs(units @ units[face]) < np.cos(np.radians(max_angle_deg)))[None]
-    rows, cols = np.divmod(mine, w)
-    box = np.array([rows.min(), rows.max() + 1, cols.min(), cols.max() + 1], np.int64)  # the faces' box
-    return grow_along_rays(xyz, flat, h, w, planes, concave, crease, noise, int(face), 1, box, float(k_sigma),
-                           GROWTH_RINGS)
 
 
 def _refit_apart(xyz: np.ndarray, noise: np.ndarray, flat: np.ndarray, held: np.ndarray, label: int, face, source,
