@@ -515,19 +515,20 @@ def bent_on_two_sides(ctx: Context, labels: np.ndarray, cylinders: dict, samples
 
     A face a jump edge bounds on both sides carries a column of mixed returns (lying along
     their rays between the face and what lies beyond) along each: with both, no one side's rest
-    is flat and :func:`_bent_by_one_side` cannot free it (noise_20mm seed 1009 scan 3, a face
-    eight columns wide whose left and right columns lie 3.5 and 3.2 sigmas off the rest's
-    plane). A pipe's limbs lie behind the plane of its front too, but its bend is in the
+    is flat and :func:`_bent_by_one_side` cannot free it (noise_20mm seed 1021 scan 3, a face at
+    cos 0.51 whose left and right columns lie about 1 and 3.6 sigmas behind the plane between
+    them, a 2.5 m cylinder over 31 degrees). A pipe's limbs lie behind the plane of its front too, but its bend is in the
     returns between them as well: the fitter's decision and the ray-noise bound on them are
     what keep it where the returns between its limbs still show the bend. Where they do not
     (a pipe of 0.1-0.2 m under 10-20 mm noise: without its limbs its returns fit a plane within
     the noise, 13 pipes of noise_20mm seeds 1001-1040 and 5 of noise_10mm), its arc does: a pipe
     whose two sides are its limbs spans about half a turn around its axis (118-278 degrees there,
-    by the largest gap), a face's mixed returns bend a cylinder of a far wider radius over a
-    shallow arc (31-102 degrees for five of the seven such faces there).
-    ``pixels`` (optional) the labels' grouped pixels. Cost: per curved region whose plane is
-    over the threshold two plane rms by its scatter; a plane fit and a decision per passing
-    pair."""
+    by the largest gap, about a least-squares cylinder on the region), a face's mixed returns
+    bend a cylinder of a far wider radius over a shallow arc (31-102 degrees for five of the
+    seven such faces there; the other two, 134 and 213 degrees, stay cylinders). Spheres are
+    left as they are. ``pixels`` (optional) the labels' grouped pixels. Cost: per cylinder its
+    arc (one compiled pass over its returns); where that is shallow two plane rms by its
+    scatter, and a plane fit and a decision per passing pair."""
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
     p = ctx.fitter.params
