@@ -26,32 +26,31 @@ JUMP = 0.08  # m: a step of 8 noise sigmas, so its mixed returns lie 2.4-5.6 sig
 
 def _two_sided(seed: int, kind: str):
     """A wall 7 m away and in front of it (label 1, rows 10-30) ``"face"``, a face turned 57 degrees
-    from the rays about the vertical, six columns wide (17-22) at 5.2 m, or ``"pipe"``, an upright
-    pipe of radius 0.2 m whose axis is 4 m away; on each side one column of mixed returns 30-70 %
-    of the way across a range step of ``JUMP`` behind the edge along the ray, that the region took:
-    ``(context, labels, columns of the surface)``."""
+    from the rays about the vertical, six columns wide (17-22) at 5.2 m, with on each side one
+    column of mixed returns 30-70 % of the way across a range step of ``JUMP`` behind the edge
+    along the ray; or ``"pipe"``, test_bent_by_one_side's pipe (radius 0.2 m, axis 4 m away, its
+    left column of mixed returns) with such a column beside its right limb too; the region took
+    them: ``(context, labels, columns of the surface)``."""
     rng = np.random.default_rng(seed)
     rays = _scenes._rays()
-    ranges, labels, rows = 7.0 / rays[..., 2], np.zeros((40, 40), np.int32), slice(10, 31)
-    if kind == "face":
-        turn = np.radians(57.0)
-        normal = np.array([np.sin(turn), 0.0, np.cos(turn)])
-        near = 5.2 * normal[2] / (rays @ normal)
-        columns = np.arange(17, 23)
-    else:
-        radius, distance = 0.2, 4.0
-        across, depth = rays[..., 0], rays[..., 2]
-        a, b = across ** 2 + depth ** 2, -distance * depth
-        disc = b * b - a * (distance ** 2 - radius ** 2)
-        near = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
-        columns = np.flatnonzero(disc[20] > 0)
-    ranges[rows, columns[0]:columns[-1] + 1] = near[rows, columns[0]:columns[-1] + 1]
-    for mixed in (columns[0] - 1, columns[-1] + 1):
-        edge = near[rows, mixed - 1 if mixed > columns[0] else mixed + 1]
-        if kind != "face":  # beside a limb the mixed return lies beyond the limb's range
-            edge = np.sqrt(distance ** 2 - radius ** 2) / rays[rows, mixed, 2]
-        ranges[rows, mixed] = edge + rng.uniform(0.3, 0.7, 21) * JUMP
-    labels[rows, columns[0] - 1:columns[-1] + 2] = 1
+    rows = slice(10, 31)
+    if kind == "pipe":
+        ctx, labels, columns = _scenes._scene(seed, "pipe")
+        right = columns[-1] + 1  # beside a limb the mixed return lies beyond the limb's range
+        ranges = np.sqrt(4.0 ** 2 - 0.2 ** 2) / rays[rows, right, 2] + rng.uniform(0.3, 0.7, 21) * JUMP
+        xyz = ctx.xyz.reshape(40, 40, 3).copy()
+        xyz[rows, right] = rays[rows, right] * (ranges + rng.normal(0.0, SIGMA, 21))[:, None]
+        labels[rows, right] = 1
+        return _scenes._context(xyz), labels, columns
+    ranges, labels = 7.0 / rays[..., 2], np.zeros((40, 40), np.int32)
+    turn = np.radians(57.0)
+    normal = np.array([np.sin(turn), 0.0, np.cos(turn)])
+    near = 5.2 * normal[2] / (rays @ normal)
+    columns = np.arange(17, 23)
+    ranges[rows, 17:23] = near[rows, 17:23]
+    for mixed, edge in ((16, 17), (23, 22)):
+        ranges[rows, mixed] = near[rows, edge] + rng.uniform(0.3, 0.7, 21) * JUMP
+    labels[rows, 16:24] = 1
     xyz = rays * (ranges + rng.normal(0.0, SIGMA, ranges.shape))[..., None]
     return _scenes._context(xyz), labels, columns
 
