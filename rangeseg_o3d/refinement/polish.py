@@ -527,7 +527,8 @@ def bent_on_two_sides(ctx: Context, labels: np.ndarray, cylinders: dict, samples
     bend a cylinder of a far wider radius over a shallow arc (31-102 degrees for five of the
     seven such faces there; the other two, 134 and 213 degrees, stay cylinders). Spheres are
     left as they are. ``pixels`` (optional) the labels' grouped pixels. Cost: per cylinder its
-    arc (one compiled pass over its returns); where that is shallow two plane rms by its
+    arc (a compiled pass over every fourth return, and over all where that is shallow); where
+    that is shallow too two plane rms by its
     scatter, and a plane fit and a decision per passing pair."""
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
