@@ -87,6 +87,9 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
         unbent.update(_bent_by_one_side(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)],
                                         resolve_bends, pixels=pixels))
         fits.update(unbent)
+        unbent.update(bent_on_two_sides(ctx, labels, {k: fits[k] for k in curved if isinstance(fits[k], Cylinder)},
+                                        resolve_bends, pixels=pixels))
+        fits.update(unbent)
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         bent = _curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
                               pixels=pixels, grazing_flat=along_rays)
@@ -486,6 +489,102 @@ def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: floa
                 continue  # more than its returns' range noise leaves a plane (its noise floor): a bent arc's
             if isinstance(ctx.fitter.fit(points[~sides[s]], **bends), Plane):
                 out.append(int(k))
+                break
+    return out
+
+
+#: The widest arc around its axis (radians) a cylinder bounded by two jump edges may show and its
+#: bend still be taken for mixed returns along them (:func:`bent_on_two_sides`): a convex cylinder
+#: seen from outside shows the sensor about half a turn between its limbs, so a region of a pipe
+#: whose two sides are its limbs spans far more than half of that.
+TWO_SIDES_ARC = 0.5 * np.pi
+
+
+def bent_on_two_sides(ctx: Context, labels: np.ndarray, cylinders: dict, samples: float = 0.0, *,
+                      pixels: _Pixels | None = None) -> dict:
+    """The planes of the regions of ``cylinders`` (label -> :class:`Cylinder`) whose bend rests on
+    two opposite sides' borders (above and below, or left and right, :func:`border_sides`), on a
+    laser's single returns: the region's returns span less than ``TWO_SIDES_ARC`` around the
+    cylinder's axis (``arc_around_axis``), its own plane is over the fitter's plane threshold, and without both sides
+    the returns between them span at least ``BEND_LINES`` grid lines across, line by line
+    (:func:`_lines_beside`), their least-squares plane is within the plane threshold and leaves
+    them no more than their range noise along their rays gives a plane (:func:`_ray_noise`, up
+    to ``NOISE_CHI2_SIGMAS`` chi-square deviations), the fitter's decision on them
+    (``resolve_bends=samples``) is a plane, and each side's returns lie off that plane by more
+    than their range noise explains (:func:`beyond_noise`). That plane becomes the model.
+
+    A face a jump edge bounds on both sides carries a column of mixed returns (lying along
+    their rays between the face and what lies beyond) along each: with both, no one side's rest
+    is flat and :func:`_bent_by_one_side` cannot free it (noise_20mm seed 1021 scan 3, a face at
+    cos 0.51 whose left and right columns lie about 1 and 3.6 sigmas behind the plane between
+    them, a 2.5 m cylinder over 31 degrees). A pipe's limbs lie behind the plane of its front too, but its bend is in the
+    returns between them as well: the fitter's decision and the ray-noise bound on them are
+    what keep it where the returns between its limbs still show the bend. Where they do not
+    (a pipe of 0.1-0.2 m under 10-20 mm noise: without its limbs its returns fit a plane within
+    the noise, 13 pipes of noise_20mm seeds 1001-1040 and 5 of noise_10mm), its arc does: a pipe
+    whose two sides are its limbs spans about half a turn around its axis (118-278 degrees there,
+    by the largest gap, about a least-squares cylinder on the region), a face's mixed returns
+    bend a cylinder of a far wider radius over a shallow arc (31-102 degrees for five of the
+    seven such faces there; the other two, 134 and 213 degrees, stay cylinders). Spheres are
+    left as they are. ``pixels`` (optional) the labels' grouped pixels. Cost: per cylinder its
+    arc (a compiled pass over every fourth return, and over all where that is shallow); where
+    that is shallow too two plane rms by its
+    scatter, and a plane fit and a decision per passing pair."""
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
+
+    p = ctx.fitter.params
+    if not cylinders or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
+        return {}
+    minimum = max(int(p.get("min_points", 10)), 10)
+    bends = {"resolve_bends": float(samples)} if samples else {}
+    out = {}
+    for k, idx in (pixels or _Pixels(labels)).of(list(cylinders)).items():
+        if idx.size < 2 * minimum:
+            continue
+        model = cylinders[k]
+        # every fourth return first: a subset's largest gap is no narrower, so its arc is no wider
+        # than all the returns' (a pipe's wide arc shows on a quarter of them, at a quarter of the cost)
+        if arc_around_axis(rows_at(ctx.xyz, idx[::4]), model.axis, model.point) >= TWO_SIDES_ARC:
+            continue  # about half a turn between its sides: a pipe's limbs
+        points = rows_at(ctx.xyz, idx)
+        if arc_around_axis(points, model.axis, model.point) >= TWO_SIDES_ARC:
+            continue
+        centroid = points.mean(axis=0)
+        sides = border_sides(labels, idx, ctx.wrap_columns)
+        pairs = np.vstack([sides[0] | sides[1], sides[2] | sides[3]])
+        _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, pairs)
+        whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                                rms_per_range2=p["rms_per_range2"])
+        if rms[0] <= whole:
+            continue  # its plane is within the threshold: _unbent's question, answered
+        for s in np.argsort(rms[1:]):  # the flatter middle first
+            n = int(sizes[s + 1])
+            if n < minimum or min(_lines_beside(idx[~pairs[s]], labels.shape[1], True),
+                                  _lines_beside(idx[~pairs[s]], labels.shape[1], False)) < BEND_LINES:
+                continue  # two lines of returns either way fit a plane whatever the surface's bend
+            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
+                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
+            if rms[s + 1] > tolerance:
+                continue
+            middle = ~pairs[s]
+            plane = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
+            if not plane or plane.rms > tolerance:
+                continue
+            far = True
+            for side in (sides[2 * s], sides[2 * s + 1] & ~sides[2 * s]):  # (a pixel on both: the first)
+                if side.sum() < 3:
+                    far = False
+                    break
+                off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
+                far &= beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum()))
+            if not far:
+                continue  # the bend is not on both sides
+            rest = idx[middle]
+            _, noise, _ = _ray_noise(points[middle], ctx.sigma[rest], plane, ctx.viewing_rays(rest))
+            if plane.rms > noise_rms_bound.py_func(noise, n - 3.0, NOISE_CHI2_SIGMAS):
+                continue  # more than its returns' range noise leaves a plane: a bent arc's
+            if isinstance(ctx.fitter.fit(points[middle], **bends), Plane):
+                out[int(k)] = plane
                 break
     return out
 
