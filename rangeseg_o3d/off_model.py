@@ -20,6 +20,9 @@ import numpy as np
 from ._numeric import unique_ints
 from .fitting.region_fitter import fresh_label, model_table
 from .fullres import PixelStats, leftover_blob_labels, recover_thin_surfaces, smallest_region
+# (:func:`_ruled_out`'s screen leaves a decision within this of its threshold to numpy; its kernel
+# takes no tilt decision on sums whose condition number passes 1e9, so the two stay far closer)
+from .ray_planes import SCREEN_TOLERANCE
 
 __all__ = ["OFF_MODEL_MARGIN", "faces_along_rays", "off_model_blocks", "recover_off_model"]
 
@@ -451,11 +454,6 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     return out, fits, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 
-#: Relative distance from a threshold within which :func:`_ruled_out`'s compiled arithmetic
-#: leaves a decision to numpy's. The two round differently (their own 3x3 solves and sums);
-#: the kernel takes no tilt decision on sums whose condition number passes 1e9, so that the
-#: difference, about that number times 1e-16, stays far under it.
-SCREEN_TOLERANCE = 1e-5
 
 
 def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.ndarray, width: int, floor: int,

@@ -33,6 +33,11 @@ ROBUST_CHUNKS = 8
 #: The pairs of chunks :func:`robust_ray_plane` leaves out together, in row-major order (once:
 #: np.triu_indices cost more than the rest of a small strip's fit).
 _CHUNK_PAIRS = np.triu_indices(ROBUST_CHUNKS, 1)
+#: Relative distance from a threshold within which a compiled decision is left to numpy's
+#: (:func:`robust_ray_plane`, :func:`rangeseg_o3d.off_model._ruled_out`). The two round
+#: differently (their own 3x3 solves and sums), by about the sums' condition number times
+#: 1e-16 on the planes, far less on the residuals at the pixels' own rays.
+SCREEN_TOLERANCE = 1e-5
 
 
 def ray_terms(points: np.ndarray, sigma: np.ndarray):
@@ -107,11 +112,42 @@ def robust_ray_plane(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, 
     into ROBUST_CHUNKS equal-count pieces along its longer axis on the grid; the plane of
     every set leaving out up to two of them is tried, and the one of least truncated
     chi-square over every pixel is refitted to the pixels within TRIM_SIGMAS of it,
-    TRIM_PASSES times."""
+    TRIM_PASSES times.
+
+    The 37 trial planes and the trims are decided in one compiled call
+    (:func:`rangeseg_o3d.kernels.robust_ray_sets`; numpy's ~40 calls on a strip of a hundred
+    pixels cost ~0.1 ms) and the plane it ends with is solved here from numpy's sums, as numpy
+    solves it: the same answer as numpy's fit (:func:`_robust_ray_plane_numpy`), which decides
+    the strips where a decision lies within SCREEN_TOLERANCE of going the other way."""
+    from .kernels import robust_ray_sets
+
     n = inverse.size
     if n < 3 * ROBUST_CHUNKS:
         return None
     along = cols if cols.max() - cols.min() >= rows.max() - rows.min() else rows
+    status, keep, sums = robust_ray_sets(np.ascontiguousarray(rays, dtype=np.float64),
+                                         np.ascontiguousarray(inverse, dtype=np.float64),
+                                         np.ascontiguousarray(weight, dtype=np.float64),
+                                         np.ascontiguousarray(along, dtype=np.int64), ROBUST_CHUNKS, TRIM_PASSES,
+                                         float(TRIM_SIGMAS), SCREEN_TOLERANCE)
+    if status == 1:
+        return None
+    if status == 0:
+        # numpy's last solve and trim, on the sums numpy adds (the same bits); the kernel's
+        # kept set must be what that trim keeps (a check: its decisions were clear of the bound)
+        a = ray_solutions(*split_columns(sums[None])[:2])
+        residual = weight * (inverse - rays @ a[0]) ** 2
+        now = residual <= TRIM_SIGMAS * TRIM_SIGMAS
+        if np.array_equal(now, keep) or not now.any():
+            return a[0], keep, float(np.mean(residual[keep]))
+    return _robust_ray_plane_numpy(rays, inverse, weight, along)
+
+
+def _robust_ray_plane_numpy(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, along: np.ndarray):
+    """:func:`robust_ray_plane` in numpy (the strip's pixels in chunks by ``along``, its
+    longer grid axis): the reference its compiled decisions reproduce, and the fit of the
+    strips whose decisions lie too near their thresholds for them."""
+    n = inverse.size
     order = np.argsort(along, kind="stable")
     chunk = np.empty(n, np.int64)
     chunk[order] = np.arange(n) * ROBUST_CHUNKS // n

@@ -51,3 +51,85 @@ def test_a_far_floor_is_seen_near_grazing_and_a_head_on_wall_is_not():
     nearer = floor * np.array([1.0, 1.2 / 0.5, 1.0])
     assert np.median(np.abs(nearer[:, 1]) / np.linalg.norm(nearer, axis=1)) > GRAZING_COSINE  # the premise
     assert not seen_near_grazing(np.array([0.0, 1.0, 0.0]) / 1.2, nearer)
+
+
+def _strip(seed, rows=3, cols=60, noise=0.004, ends=4):
+    # a face strip rows x cols on the plane z = 2 + 0.4 x seen along a pinhole camera's rays,
+    # range noise ``noise`` along the rays, its last ``ends`` columns on a wall 0.3 m nearer
+    # (pixels of the surface beside it): (rays, inverse, weight, rows, cols, truth a, wall pixels)
+    rng = np.random.default_rng(seed)
+    normal = np.array([-0.4, 0.0, 1.0]) / np.linalg.norm([-0.4, 0.0, 1.0])
+    d = 2.0 / np.linalg.norm([-0.4, 0.0, 1.0])
+    points = _on_plane(normal, d, rows, cols)
+    grid_r, grid_c = np.divmod(np.arange(rows * cols), cols)
+    wall = grid_c >= cols - ends
+    points[wall] *= ((points[wall, 2] - 0.3) / points[wall, 2])[:, None]
+    ranges = np.linalg.norm(points, axis=1)
+    points *= ((ranges + rng.normal(0.0, noise, ranges.size)) / ranges)[:, None]
+    rays, inverse, weight = ray_terms(points, np.full(len(points), noise))
+    return rays, inverse, weight, grid_r, grid_c, normal / d, wall
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_robust_fit_is_numpys_fit_bit_for_bit(seed):
+    # robust_ray_plane decides its trial planes and trims in compiled arithmetic and solves its
+    # plane from numpy's sums: the same a, kept pixels and mean square as the numpy fit
+    from rangeseg_o3d.ray_planes import _robust_ray_plane_numpy, robust_ray_plane
+
+    shapes = [(3, 60, 4), (2, 40, 0), (5, 30, 6), (1, 80, 3)]
+    rows, cols, ends = shapes[seed % len(shapes)]
+    rays, inverse, weight, r, c, truth, wall = _strip(seed, rows, cols, ends=ends)
+    along = c if c.max() - c.min() >= r.max() - r.min() else r
+    found = robust_ray_plane(rays, inverse, weight, r, c)
+    reference = _robust_ray_plane_numpy(rays, inverse, weight, along)
+    assert found is not None and reference is not None
+    assert np.array_equal(found[0], reference[0])  # (bits: array_equal on floats)
+    assert np.array_equal(found[1], reference[1])
+    assert found[2] == reference[2]
+    # the values: the face's inverse ranges along its rays within 0.2 % (its tilt across a strip
+    # this thin is the noise's), the wall's pixels left out, most face pixels kept
+    np.testing.assert_allclose(rays[~wall] @ found[0], rays[~wall] @ truth, rtol=2e-3)
+    np.testing.assert_allclose(found[0][[0, 2]], truth[[0, 2]], rtol=0.02)
+    assert not found[1][wall].any()
+    assert found[1][~wall].mean() > 0.9
+    assert 0.3 < found[2] < 2.0
+
+
+def test_the_robust_fit_leaves_a_decision_at_its_threshold_to_numpy():
+    # every chunk the same points: the 37 trial planes tie, so the compiled pick is too near to
+    # call (status 2) and numpy's own fit answers
+    from rangeseg_o3d.kernels import robust_ray_sets
+    from rangeseg_o3d.ray_planes import (ROBUST_CHUNKS, SCREEN_TOLERANCE, TRIM_PASSES, _robust_ray_plane_numpy,
+                                         robust_ray_plane)
+    from rangeseg_o3d.refinement.context import TRIM_SIGMAS
+
+    rays, inverse, weight, r, c, truth, _ = _strip(3, 1, 8, ends=0)
+    rays, inverse, weight = np.tile(rays, (4, 1)), np.tile(inverse, 4), np.tile(weight, 4)
+    along = np.repeat(np.arange(8), 4)
+    status, _, _ = robust_ray_sets(rays, inverse, weight, along, ROBUST_CHUNKS, TRIM_PASSES, float(TRIM_SIGMAS),
+                                   SCREEN_TOLERANCE)
+    assert status == 2
+    found = robust_ray_plane(rays, inverse, weight, np.zeros(32, np.int64), along)
+    reference = _robust_ray_plane_numpy(rays, inverse, weight, along)
+    assert np.array_equal(found[0], reference[0]) and np.array_equal(found[1], reference[1])
+    np.testing.assert_allclose(rays @ found[0], rays @ truth, rtol=5e-3)  # (8 pixels, 0.2 % noise each)
+
+
+def test_the_robust_fit_of_too_few_pixels_or_no_plane_is_none():
+    from rangeseg_o3d.ray_planes import ROBUST_CHUNKS, robust_ray_plane
+
+    rays, inverse, weight, r, c, _, _ = _strip(0, 1, 3 * ROBUST_CHUNKS - 1, ends=0)
+    assert robust_ray_plane(rays, inverse, weight, r, c) is None
+    # zero weights: every trial's chi-square is 0 and no system is solvable -> numpy's answer
+    rays, inverse, weight, r, c, _, _ = _strip(0, 2, 30, ends=0)
+    from rangeseg_o3d.ray_planes import _robust_ray_plane_numpy
+    with np.errstate(all="ignore"):
+        try:
+            reference = _robust_ray_plane_numpy(rays, inverse, np.zeros_like(weight), c)
+        except np.linalg.LinAlgError:
+            reference = "raises"
+        try:
+            found = robust_ray_plane(rays, inverse, np.zeros_like(weight), r, c)
+        except np.linalg.LinAlgError:
+            found = "raises"
+    assert type(found) is type(reference)

@@ -14,7 +14,7 @@ from .linalg import noise_rms_bound, solve_in_place
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("linalg.py",)
 
-__all__ = ["ray_groups_ruled_out", "free_pieces"]
+__all__ = ["ray_groups_ruled_out", "robust_ray_sets", "free_pieces"]
 
 
 @njit(cache=True, nogil=True)
@@ -39,6 +39,18 @@ def _add_terms(sums, row, u, q, w):
             sums[row, 3 * a + b] += w * u[a] * u[b]
         sums[row, 9 + a] += w * q * u[a]
     sums[row, 12] += w * q * q
+
+
+@njit(cache=True, nogil=True)
+def _terms(out, u, q, w):
+    """One pixel's 13 moment terms into ``out``, each rounded as
+    :func:`rangeseg_o3d.ray_planes.moment_columns` rounds it (``(w u_a) u_b``, ``(w q) u_a``,
+    ``(w q) q``)."""
+    for a in range(3):
+        for b in range(3):
+            out[3 * a + b] = w * u[a] * u[b]
+        out[9 + a] = w * q * u[a]
+    out[12] = w * q * q
 
 
 @njit(cache=True, nogil=True)
@@ -71,11 +83,13 @@ def _squares(rays, inverse, weight, a, out):
 
 
 @njit(cache=True, nogil=True)
-def _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance, a, keep):
+def _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance, a, keep, fitted):
     """:func:`rangeseg_o3d.ray_planes.robust_ray_plane` in compiled arithmetic: ``a`` and
     ``keep`` (in place) and the mean square of the kept pixels; ``(status, mean square)``
     with status 0 for a plane, 1 for none, 2 when a decision on the way (the best set of
-    chunks, a pixel within the trim) lies within ``tolerance`` of going the other way."""
+    chunks, a pixel within the trim) lies within ``tolerance`` of going the other way.
+    ``fitted`` (in place): the pixels ``a`` was last fitted to (``keep`` but after a last
+    pass that changed the kept set: the trimmed fit's passes ran out)."""
     n = inverse.shape[0]
     order = np.argsort(along, kind="mergesort")
     chunk = np.empty(n, np.int64)
@@ -127,6 +141,7 @@ def _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tol
     now = np.empty(n, np.bool_)
     sums_keep = np.empty((1, 13))
     for _ in range(passes):
+        fitted[:] = keep
         sums_keep[:] = 0.0
         for i in range(n):
             if keep[i]:
@@ -212,7 +227,7 @@ def ray_groups_ruled_out(xyz, noise, idx, bounds, width, floor, facing, max_angl
         along = cols if cols.max() - cols.min() >= rows.max() - rows.min() else rows
         a, keep = np.zeros(3), np.zeros(n, np.bool_)
         status, mean_square = _robust_plane(rays, inverse, weight, along, chunks, passes, trim_square, tolerance,
-                                            a, keep)
+                                            a, keep, np.zeros(n, np.bool_))
         if status == 1:
             out[g] = True
         if status != 0:
@@ -232,6 +247,43 @@ def ray_groups_ruled_out(xyz, noise, idx, bounds, width, floor, facing, max_angl
         if np.isfinite(facing[g, 0]):
             out[g] = _tilt_turned(rays, inverse, weight, keep, a, facing[g], max_angle, sigmas, tolerance) == 0
     return out
+
+
+@njit(cache=True, nogil=True)
+def robust_ray_sets(rays, inverse, weight, along, chunks, passes, trim, tolerance):
+    """The decisions of :func:`rangeseg_o3d.ray_planes.robust_ray_plane` (``chunks`` pieces
+    along ``along``, ``passes`` trims at ``trim`` noises) taken in compiled arithmetic, and the
+    sums its plane is solved from in numpy's arithmetic, so that its caller solves that plane
+    as numpy does: ``(status, keep, sums)``. Status 0: a plane, ``keep`` the pixels it keeps,
+    ``sums`` the 13 moment sums (:func:`rangeseg_o3d.ray_planes.moment_columns`) of the pixels
+    its last fit took, added row after row as numpy's ``columns[fitted].sum(axis=0)`` adds
+    them; 1: no plane; 2: a decision on the way lies within ``tolerance`` (relative) of going
+    the other way, or a system is singular: numpy must fit the strip itself. The chosen set of
+    chunks and the trims are those of numpy's fit wherever a decision is clear (numpy's own
+    solves differ from these in the last bits only)."""
+    n = inverse.shape[0]
+    a, keep, fitted = np.zeros(3), np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+    sums = np.zeros(13)
+    for i in range(n):  # (non-finite terms: numpy's NaN comparisons decide, not these)
+        if not (np.isfinite(inverse[i]) and np.isfinite(weight[i]) and np.isfinite(rays[i, 0])
+                and np.isfinite(rays[i, 1]) and np.isfinite(rays[i, 2])):
+            return 2, keep, sums
+    status, _ = _robust_plane(rays, inverse, weight, along, chunks, passes, trim * trim, tolerance, a, keep,
+                              fitted)
+    if status != 0:
+        return status, keep, sums
+    terms = np.empty(13)
+    first = True
+    for i in range(n):
+        if not fitted[i]:
+            continue
+        _terms(terms, rays[i], inverse[i], weight[i])
+        if first:  # (numpy's sum starts from the first row: a -0.0 stays -0.0)
+            sums[:] = terms
+            first = False
+        else:
+            sums += terms
+    return 0, keep, sums
 
 
 @njit(cache=True, nogil=True)
