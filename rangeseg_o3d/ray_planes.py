@@ -46,7 +46,22 @@ def ray_terms(points: np.ndarray, sigma: np.ndarray):
     ``u`` at inverse range ``(n / d) . u``: linear in ``a = n / d``, and a range error moves
     only the inverse range, by ``sigma / range**2`` (a stereo camera's disparity noise, the
     same everywhere), so the plane of a face is the weighted least squares ``a`` of the
-    inverse ranges, whatever the face's incidence (:func:`ray_plane`)."""
+    inverse ranges, whatever the face's incidence (:func:`ray_plane`).
+
+    Float64 ``(N, 3)`` points with ``N`` sigmas go through one compiled pass
+    (:func:`rangeseg_o3d.kernels.ray_terms_of`, the same bits); anything else through numpy."""
+    points = np.asarray(points)
+    if (points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 3 and type(sigma) is np.ndarray
+            and sigma.dtype == np.float64 and sigma.shape == (points.shape[0],)):
+        from .kernels import ray_terms_of
+
+        return ray_terms_of(np.ascontiguousarray(points), np.ascontiguousarray(sigma))
+    return _ray_terms_numpy(points, sigma)
+
+
+def _ray_terms_numpy(points: np.ndarray, sigma) -> tuple:
+    """:func:`ray_terms` in numpy: the form its compiled pass reproduces, and the one for
+    other dtypes and shapes."""
     ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
     noise = np.maximum(sigma, 1e-12) / ranges ** 2
     return points / ranges[:, None], 1.0 / ranges, 1.0 / noise ** 2

@@ -133,3 +133,36 @@ def test_the_robust_fit_of_too_few_pixels_or_no_plane_is_none():
         except np.linalg.LinAlgError:
             found = "raises"
     assert type(found) is type(reference)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_ray_terms_are_numpys_bit_for_bit(seed):
+    # ray_terms of float64 points takes one compiled pass (kernels.ray_terms_of): the same bits
+    # as the numpy form, over ranges from millimetres to kilometres, sigmas at and under the
+    # 1e-12 floor, a NaN sigma and a point at the origin (its range floored at 1e-12)
+    from rangeseg_o3d.ray_planes import _ray_terms_numpy
+
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(500, 3)) * 10.0 ** rng.uniform(-3, 3, size=(500, 1))
+    sigma = 10.0 ** rng.uniform(-14, -1, size=500)
+    points[0] = 0.0
+    sigma[1] = np.nan
+    sigma[2] = 1e-12
+    found = ray_terms(points, sigma)
+    reference = _ray_terms_numpy(points, sigma)
+    for got, want in zip(found, reference):
+        assert got.shape == want.shape and got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)  # (NaN where numpy has NaN, every other bit equal)
+        assert np.array_equal(got, want, equal_nan=True)
+    # the values: unit rays, the inverse range, the weight range**4 / sigma**2 (sigma floored)
+    ranges = np.linalg.norm(points[3:], axis=1)
+    np.testing.assert_allclose(np.linalg.norm(found[0][3:], axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(found[1][3:], 1.0 / ranges, rtol=1e-12)
+    np.testing.assert_allclose(found[2][3:], ranges ** 4 / np.maximum(sigma[3:], 1e-12) ** 2, rtol=1e-9)
+    assert found[1][0] == 1e12 and np.isnan(found[2][1])
+    # a strided view and a float32 cloud give numpy's answers too (the latter in numpy itself)
+    view = np.asfortranarray(points)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(ray_terms(view, sigma), reference))
+    single = points.astype(np.float32)
+    assert all(np.array_equal(a, b, equal_nan=True)
+               for a, b in zip(ray_terms(single, sigma), _ray_terms_numpy(single, sigma)))

@@ -39,7 +39,7 @@ _SOURCES = {
     "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"),
     "claims": ("outlier_claims",),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
-    "growth": ("grow_along_rays", "grow_face", "refit_terms"),
+    "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),
     "raygroups": ("ray_groups_ruled_out", "robust_ray_sets", "free_pieces"),
     "sides": ("crease_sides",),
     "borders": ("side_rest_planes",),
