@@ -66,9 +66,13 @@ def ray_solutions(outer: np.ndarray, first: np.ndarray) -> np.ndarray:
 
 def ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray):
     """The sums :func:`ray_fits` takes, over all points (stacked, one set)."""
-    terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
-             weight * inverse * inverse)
-    return tuple(term.sum(axis=0)[None] for term in terms)
+    from .kernels.rays import ray_moment_sums
+
+    # compiled: numpy's terms and sums bit for bit, without the (N, 3, 3) products
+    outer, first, second = ray_moment_sums(np.ascontiguousarray(rays, dtype=np.float64),
+                                           np.ascontiguousarray(inverse, dtype=np.float64),
+                                           np.ascontiguousarray(weight, dtype=np.float64))
+    return outer[None], first[None], np.array([second])
 
 
 def moment_columns(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray) -> np.ndarray:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"]
+__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
+           "pairwise_sum"]
 
 
 @njit(cache=True, nogil=True)
@@ -233,3 +234,87 @@ def settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, origin
                 pixels[moved], targets[moved] = i, best_k
                 moved += 1
     return pixels[:moved], targets[:moved]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _block_sum(a, lo, n):
+    # numpy's pairwise leaf: up to 7 in a row from 0, else eight running sums joined in pairs
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]`` as numpy sums a contiguous float64 vector (from 0, spans of
+    up to 128 in eight running sums, larger spans halved at a multiple of 8 and their halves'
+    sums added): the same bits as ``a[lo:lo + n].sum()``. The halving runs on a stack of its
+    own (a cached recursive kernel crashed when loaded from the cache)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    spans = np.empty((128, 3), np.int64)  # (lo, n, halves done): depth <= 2 log2(n)
+    sums = np.empty(128)
+    top, count = 0, 0
+    spans[0, 0], spans[0, 1], spans[0, 2] = lo, n, 0
+    while top >= 0:
+        s_lo, s_n, done = spans[top, 0], spans[top, 1], spans[top, 2]
+        if s_n <= 128:
+            sums[count] = _block_sum(a, s_lo, s_n)
+            count += 1
+            top -= 1
+        elif done:  # both halves summed: the left's sum below the right's
+            sums[count - 2] = sums[count - 2] + sums[count - 1]
+            count -= 1
+            top -= 1
+        else:
+            half = s_n // 2
+            half -= half % 8
+            spans[top, 2] = 1
+            spans[top + 1, 0], spans[top + 1, 1], spans[top + 1, 2] = s_lo + half, s_n - half, 0
+            spans[top + 2, 0], spans[top + 2, 1], spans[top + 2, 2] = s_lo, half, 0
+            top += 2
+    return sums[0]
+
+
+@njit(cache=True, nogil=True)
+def ray_moment_sums(rays, inverse, weight):
+    """``(outer, first, second)``: ``sum w u u^T`` (3 x 3), ``sum w q u`` (3) and ``sum w q^2``
+    over the points' unit rays ``rays`` (N, 3), inverse ranges ``inverse`` and weights
+    ``weight`` (:func:`rangeseg_o3d.ray_planes.ray_terms`). Each term is numpy's (``(w u_a) u_b``,
+    ``(w q) u_a``, ``(w q) q``) and each sum is numpy's too (the (N, 3, 3) and (N, 3) terms
+    summed point by point in their order, the (N,) squares pairwise, :func:`pairwise_sum`):
+    the same bits as :func:`rangeseg_o3d.ray_planes.ray_moments`' numpy form, without its
+    (N, 3, 3) products."""
+    outer = np.zeros((3, 3))
+    first = np.zeros(3)
+    squares = np.empty(inverse.shape[0])
+    for i in range(inverse.shape[0]):
+        wi = weight[i]
+        wq = wi * inverse[i]
+        for a in range(3):
+            wa = wi * rays[i, a]
+            for b in range(3):
+                outer[a, b] += wa * rays[i, b]
+            first[a] += wq * rays[i, a]
+        squares[i] = wq * inverse[i]
+    return outer, first, pairwise_sum(squares, 0, squares.shape[0])

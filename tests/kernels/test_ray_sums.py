@@ -1,0 +1,48 @@
+"""The compiled sums along the rays give numpy's bits: ``pairwise_sum`` against ``ndarray.sum``,
+``ray_moment_sums`` against ``ray_moments``' earlier numpy form (kept here)."""
+
+import numpy as np
+import pytest
+
+from rangeseg_o3d.kernels.rays import pairwise_sum, ray_moment_sums
+from rangeseg_o3d.ray_planes import ray_moments, ray_terms
+
+
+def _terms(rng, n):
+    points = rng.normal(size=(n, 3)) * [2.0, 1.0, 0.5] + [0.3, -0.2, 4.0]
+    return ray_terms(points, rng.uniform(0.001, 0.05, n))
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 127, 128, 129, 135, 256, 1000, 8193, 100003])
+def test_pairwise_sum_is_numpys_sum(n):
+    rng = np.random.default_rng(n)
+    a = rng.lognormal(size=n + 7) * 1e5
+    assert pairwise_sum(a, 3, n) == a[3:3 + n].sum()
+    assert pairwise_sum(a, 0, n) == a[:n].sum()
+
+
+def test_pairwise_sum_differs_from_a_running_sum():
+    # the test above would not notice a plain running sum if the two always agreed
+    a = np.random.default_rng(1).lognormal(size=100003) * 1e5
+    assert pairwise_sum(a, 0, a.size) != float(np.cumsum(a)[-1])
+
+
+def _numpy_moments(rays, inverse, weight):
+    # ray_moments before the kernel: the (N, 3, 3) products summed by numpy
+    terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
+             weight * inverse * inverse)
+    return tuple(term.sum(axis=0)[None] for term in terms)
+
+
+@pytest.mark.parametrize("n", [0, 1, 5, 64, 129, 1000, 40000, 250000])
+def test_ray_moments_are_numpys_bits(n):
+    rays, inverse, weight = _terms(np.random.default_rng(100 + n), n)
+    want = _numpy_moments(rays, inverse, weight)
+    got = ray_moments(rays, inverse, weight)
+    assert [g.shape for g in got] == [(1, 3, 3), (1, 3), (1,)]
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    outer, first, second = ray_moment_sums(rays, inverse, weight)
+    assert np.array_equal(outer, want[0][0]) and np.array_equal(first, want[1][0]) and second == want[2][0]
+    if n > 1:
+        assert second > 0.0 and outer[2, 2] > 0.0
