@@ -24,6 +24,7 @@ from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
+from .kernels.rays import cut_prefix_sums
 from .fullres import region_stats
 from .ray_planes import moment_columns, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane, split_columns
 from .refinement.context import TRIM_SIGMAS, touching
@@ -217,15 +218,11 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     columns = moment_columns(rays, inverse, weight)
     starts = np.concatenate([[0], sizes])
     angles = np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS)
-    orders, lefts, totals = [], [], []
-    for angle in angles:
-        order = np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable")
-        prefix = np.cumsum(np.add.reduceat(columns[order], starts, axis=0), axis=0)
-        orders.append(order)
-        lefts.append(prefix[:-1])
-        totals.append(prefix[-1])
-    lefts = np.stack(lefts)  # (directions, cuts, 13)
-    rights = np.stack(totals)[:, None, :] - lefts
+    orders = np.stack([np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable") for angle in angles])
+    # compiled: numpy's gather, reduceat and cumsum per direction, bit for bit, in one call
+    prefix = cut_prefix_sums(columns, orders, starts)
+    lefts = prefix[:, :-1]  # (directions, cuts, 13)
+    rights = prefix[:, -1:] - lefts
     left, _ = ray_fits(split_columns(lefts.reshape(-1, lefts.shape[-1])))
     right, _ = ray_fits(split_columns(rights.reshape(-1, rights.shape[-1])))
     total = left + right

@@ -6,7 +6,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
-           "pairwise_sum"]
+           "pairwise_sum", "cut_prefix_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -318,3 +318,33 @@ def ray_moment_sums(rays, inverse, weight):
             first[a] += wq * rays[i, a]
         squares[i] = wq * inverse[i]
     return outer, first, pairwise_sum(squares, 0, squares.shape[0])
+
+
+@njit(cache=True, nogil=True)
+def cut_prefix_sums(columns, orders, starts):
+    """``(D, B, C)`` running sums of the rows of ``columns`` (N, C) taken in each order of
+    ``orders`` (D, N): row ``b`` of direction ``d`` sums the rows ``orders[d, :starts[b + 1]]``
+    (the last row, every row), ``starts`` (B, increasing from 0, each block non-empty) the
+    first positions of the blocks. The same bits as ``np.cumsum(np.add.reduceat(columns[order],
+    starts, axis=0), axis=0)`` (numpy sums a block column by column, its first row plus the
+    rest pairwise, :func:`pairwise_sum`; the blocks are then added in order), without
+    gathering ``columns[order]`` for every direction."""
+    d_count, n = orders.shape
+    b_count, c_count = starts.shape[0], columns.shape[1]
+    out = np.empty((d_count, b_count, c_count))
+    by_column = np.ascontiguousarray(columns.T)  # one column's gather reads one short row
+    values = np.empty(n)
+    for d in range(d_count):
+        order = orders[d]
+        for c in range(c_count):
+            column = by_column[c]
+            for j in range(n):
+                values[j] = column[order[j]]
+            running = 0.0
+            for b in range(b_count):
+                lo = starts[b]
+                end = starts[b + 1] if b + 1 < b_count else n
+                block = values[lo] + pairwise_sum(values, lo + 1, end - lo - 1)
+                running = block if b == 0 else running + block
+                out[d, b, c] = running
+    return out
