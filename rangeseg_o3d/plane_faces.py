@@ -288,12 +288,10 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
     return out
 
 
-def _off_model(model, points: np.ndarray, sigma: np.ndarray, independent: float) -> bool:
-    """Whether ``points`` (range noise ``sigma``) lie off ``model`` beyond the noise of their
-    distances to it (:func:`~rangeseg_o3d.fitting.robust.distance_noise`), their rms over the
-    chi-square bound of ``independent`` returns."""
-    distances = model.distances(points)
-    noise = distance_noise(model, points, sigma)
+def _off_model(distances: np.ndarray, noise: np.ndarray, independent: float) -> bool:
+    """Whether points at ``distances`` from a model lie off it beyond the noise of their
+    distances to it (``noise``, :func:`~rangeseg_o3d.fitting.robust.distance_noise`), their
+    rms over the chi-square bound of ``independent`` returns."""
     return beyond_noise(float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(noise * noise))),
                         max(int(independent), 1))
 
@@ -341,10 +339,12 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     points = ctx.xyz[idx]
     distances = model.distances(points)
     rms = float(np.sqrt(np.mean(distances * distances)))
+    # the noise of the distances once, for both gates (each computed it over every pixel)
+    noise = distance_noise(model, points, ctx.sigma[idx])
     # pixel by pixel; else, on a matched window, over the independent returns (see above)
-    held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False)
+    held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False, noise=noise)
     window = float(max(int(correlation_px), 1)) ** 2
-    if not held and (window == 1.0 or not _off_model(model, points, ctx.sigma[idx], idx.size / window)):
+    if not held and (window == 1.0 or not _off_model(distances, noise, idx.size / window)):
         return []
     chi2, sides = crease_line(ctx, idx)
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
