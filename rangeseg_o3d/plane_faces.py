@@ -26,7 +26,8 @@ from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .kernels.rays import cut_prefix_sums
 from .fullres import region_stats
-from .ray_planes import moment_columns, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane, split_columns
+from .ray_planes import (moment_columns, pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane,
+                         split_columns)
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
@@ -174,8 +175,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
-            pixels = np.flatnonzero(labels.reshape(-1) == other)
-            walls[other] = ray_moments(*ray_terms(ctx.xyz[pixels], ctx.sigma[pixels]))
+            walls[other] = pixel_moments(ctx.xyz, ctx.sigma, np.flatnonzero(labels.reshape(-1) == other))
         wall = walls[other]
         union = float(ray_fits(tuple(x + y for x, y in zip(wall, own)))[0][0])
         growth = union - float(ray_fits(wall)[0][0]) - own_chi2
@@ -253,10 +253,9 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
     ordered = across(idx[full_order])
     full_size = int(np.clip(np.searchsorted(ordered, 0.5 * (ends[0] + ends[1]), side="left"),
                             side, idx.size - side))
-    rays, inverse, weight = ray_terms(ctx.xyz[idx], ctx.sigma[idx])
     chi2 = 0.0
     for part in (full_order[:full_size], full_order[full_size:]):
-        squares, _ = ray_fits(ray_moments(rays[part], inverse[part], weight[part]))
+        squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx[part]))
         chi2 += float(squares[0])
     return chi2, full_order, full_size
 
@@ -275,9 +274,7 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
         return []
     normals, out = [], []
     for side in sides:
-        points = ctx.xyz[side]
-        rays, inverse, weight = ray_terms(points, ctx.sigma[side])
-        _, a = ray_fits(ray_moments(rays, inverse, weight))
+        _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, side))
         normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
         piece = np.sort(ctx.largest_piece(side))
         plane = ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
@@ -302,7 +299,7 @@ def _within_noise_along_rays(ctx, idx: np.ndarray, window: float) -> bool:
     bound of their independent returns (``window`` pixels each)."""
     from .kernels.linalg import noise_rms_bound
 
-    squares, _ = ray_fits(ray_moments(*ray_terms(ctx.xyz[idx], ctx.sigma[idx])))
+    squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
     bound = noise_rms_bound.py_func(1.0, max(idx.size / window, 1.0), CHI_SQUARE_SIGMAS)
     return float(squares[0]) / idx.size <= bound * bound
 
@@ -355,8 +352,7 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     # one plane along the rays against the two, in independent returns: the chi-squares and
     # counts over the matching window's pixels (the F-test of curvature_resolved, a second
     # plane and the crease line: four parameters more)
-    rays, inverse, weight = ray_terms(points, ctx.sigma[idx])
-    one, _ = ray_fits(ray_moments(rays, inverse, weight))
+    one, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     if not curvature_resolved(share * float(one[0]), share * chi2, max(int(share * idx.size), 1), 4):
         return []

@@ -37,7 +37,7 @@ _SOURCES = {
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
     "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
-             "pairwise_sum", "cut_prefix_sums"),
+             "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums"),
     "claims": ("outlier_claims",),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms"),

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+from .growth import _maximum
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
-           "pairwise_sum", "cut_prefix_sums"]
+           "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -318,6 +319,37 @@ def ray_moment_sums(rays, inverse, weight):
             first[a] += wq * rays[i, a]
         squares[i] = wq * inverse[i]
     return outer, first, pairwise_sum(squares, 0, squares.shape[0])
+
+
+@njit(cache=True, nogil=True)
+def pixel_ray_moments(xyz, sigma, pixels):
+    """:func:`ray_moment_sums` of the pixels ``pixels`` (flat, into ``xyz`` (N, 3) and their
+    range noise ``sigma`` (N,)), their terms made as :func:`rangeseg_o3d.ray_planes.ray_terms`
+    makes them (the range ``max(sqrt((x x + y y) + z z), 1e-12)``, the ray ``p / range``, the
+    inverse ``1 / range``, the weight ``1 / (s s)`` of ``s = max(sigma, 1e-12) / (range
+    range)``, NaN kept as numpy keeps it): the same bits as ``ray_moments(*ray_terms(xyz[pixels],
+    sigma[pixels]))`` in one pass, without the gathers and the terms' arrays."""
+    n = pixels.shape[0]
+    outer = np.zeros((3, 3))
+    first = np.zeros(3)
+    squares = np.empty(n)
+    ray = np.empty(3)
+    for i in range(n):
+        p = pixels[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
+        ray[0], ray[1], ray[2] = x / r, y / r, z / r
+        q = 1.0 / r
+        s = _maximum(sigma[p], 1e-12) / (r * r)
+        wi = 1.0 / (s * s)
+        wq = wi * q
+        for a in range(3):
+            wa = wi * ray[a]
+            for b in range(3):
+                outer[a, b] += wa * ray[b]
+            first[a] += wq * ray[a]
+        squares[i] = wq * q
+    return outer, first, pairwise_sum(squares, 0, n)
 
 
 @njit(cache=True, nogil=True)

@@ -1,12 +1,13 @@
 """The compiled sums along the rays give numpy's bits: ``pairwise_sum`` against ``ndarray.sum``,
-``ray_moment_sums`` against ``ray_moments``' earlier numpy form (kept here), ``cut_prefix_sums``
+``ray_moment_sums`` against ``ray_moments``' earlier numpy form (kept here), ``pixel_ray_moments``
+against that form of ``ray_terms`` of the pixels, ``cut_prefix_sums``
 against ``crease_line``'s earlier gather, reduceat and cumsum (kept here)."""
 
 import numpy as np
 import pytest
 
 from rangeseg_o3d.kernels.rays import cut_prefix_sums, pairwise_sum, ray_moment_sums
-from rangeseg_o3d.ray_planes import moment_columns, ray_moments, ray_terms
+from rangeseg_o3d.ray_planes import moment_columns, pixel_moments, ray_moments, ray_terms
 
 
 def _terms(rng, n):
@@ -47,6 +48,23 @@ def test_ray_moments_are_numpys_bits(n):
     assert np.array_equal(outer, want[0][0]) and np.array_equal(first, want[1][0]) and second == want[2][0]
     if n > 1:
         assert second > 0.0 and outer[2, 2] > 0.0
+
+
+@pytest.mark.parametrize("n", [0, 1, 9, 300, 5000, 120000])
+def test_pixel_moments_are_the_moments_of_the_pixels_terms(n):
+    rng = np.random.default_rng(200 + n)
+    xyz = rng.normal(size=(n + 50, 3)) * [2.0, 1.0, 0.5] + [0.3, -0.2, 4.0]
+    sigma = rng.uniform(0.001, 0.05, n + 50)
+    xyz[:3] = [0.0, 0.0, 0.0]  # at the origin: the floored range
+    sigma[3:6] = 0.0  # no noise: the floored sigma
+    pixels = np.sort(rng.choice(n + 50, n, replace=False)) if n else np.empty(0, np.int64)
+    want = _numpy_moments(*ray_terms(xyz[pixels], sigma[pixels]))
+    got = pixel_moments(xyz, sigma, pixels)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    # NaN stays NaN, as numpy's terms keep it
+    xyz[pixels[:1]] = np.nan
+    assert (np.isnan(pixel_moments(xyz, sigma, pixels)[2]).all() if n else True)
 
 
 def _numpy_prefix(columns, orders, starts):
