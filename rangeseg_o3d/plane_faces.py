@@ -24,7 +24,7 @@ from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
-from .kernels.rays import cut_prefix_sums
+from .kernels.rays import box_ray_terms, cut_prefix_sums
 from .fullres import region_stats
 from .ray_planes import (moment_columns, pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane,
                          split_columns)
@@ -526,9 +526,8 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         r0, r1 = max(int(rows.min()) - down, 0), min(int(rows.max()) + down + 1, h)
         c0, c1 = max(int(cols.min()) - across, 0), min(int(cols.max()) + across + 1, w)
         box = out[r0:r1, c0:c1]
-        points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
-        valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
-        u, q, wt = ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
+        # compiled: the box's validity and ray terms (of (1, 1, 1) where not valid) without its copies
+        valid, u, q, wt = box_ray_terms(cloud.xyz[r0:r1, c0:c1], sigma[r0:r1, c0:c1], cloud.valid[r0:r1, c0:c1])
         mine = np.sqrt(wt) * np.abs(q - u @ a)
         theirs = np.full(mine.size, np.inf)
         owner = box.reshape(-1)

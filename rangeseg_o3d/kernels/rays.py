@@ -7,7 +7,8 @@ from .growth import _maximum
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 __all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
-           "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums"]
+           "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums",
+           "box_ray_terms"]
 
 
 @njit(cache=True, nogil=True)
@@ -380,3 +381,32 @@ def cut_prefix_sums(columns, orders, starts):
                 running = block if b == 0 else running + block
                 out[d, b, c] = running
     return out
+
+
+@njit(cache=True, nogil=True)
+def box_ray_terms(xyz, sigma, valid):
+    """``(valid, rays, inverse, weight)`` of the pixels of a box of the grid, row by row
+    (``xyz`` (H, W, 3), ``sigma`` and ``valid`` (H, W), views of the frame's): a pixel is valid
+    when ``valid`` says so and its point is finite; its terms are
+    :func:`rangeseg_o3d.ray_planes.ray_terms`', bit for bit, of its point, or of the point
+    (1, 1, 1) where it is not valid (numpy's ``np.where(valid, points, 1.0)``), without the
+    box's copies."""
+    h, w = valid.shape
+    n = h * w
+    ok = np.empty(n, np.bool_)
+    rays = np.empty((n, 3))
+    inverse = np.empty(n)
+    weight = np.empty(n)
+    for row in range(h):
+        for col in range(w):
+            i = row * w + col
+            x, y, z = xyz[row, col, 0], xyz[row, col, 1], xyz[row, col, 2]
+            ok[i] = valid[row, col] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+            if not ok[i]:
+                x, y, z = 1.0, 1.0, 1.0
+            r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
+            rays[i, 0], rays[i, 1], rays[i, 2] = x / r, y / r, z / r
+            inverse[i] = 1.0 / r
+            s = _maximum(sigma[row, col], 1e-12) / (r * r)
+            weight[i] = 1.0 / (s * s)
+    return ok, rays, inverse, weight

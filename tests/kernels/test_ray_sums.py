@@ -87,3 +87,26 @@ def test_cut_prefix_sums_are_numpys_bits(m):
     assert np.array_equal(got, want)
     # the last row of every direction holds every row: the totals agree across directions
     assert np.allclose(got[:, -1], columns.sum(axis=0), rtol=1e-12)
+
+
+def test_box_ray_terms_are_the_numpy_terms_of_a_box_of_the_frame():
+    # claim_along_rays' box before the kernel: copies, validity, np.where and ray_terms
+    from rangeseg_o3d.kernels.rays import box_ray_terms
+
+    rng = np.random.default_rng(7)
+    h, w = 60, 80
+    xyz = rng.normal(size=(h, w, 3)) * [1.0, 1.0, 0.2] + [0.0, 0.0, 3.0]
+    sigma = rng.uniform(0.001, 0.05, (h, w))
+    valid = rng.uniform(size=(h, w)) > 0.1
+    xyz[5, 7] = np.nan  # a NaN point marked valid: not valid
+    valid[5, 7] = True
+    xyz[9, 30] = 0.0  # at the origin: the floored range
+    r0, r1, c0, c1 = 3, 41, 5, 70  # a view, not contiguous
+    points = xyz[r0:r1, c0:c1].reshape(-1, 3)
+    want_valid = valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
+    want = ray_terms(np.where(want_valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
+    got_valid, *got = box_ray_terms(xyz[r0:r1, c0:c1], sigma[r0:r1, c0:c1], valid[r0:r1, c0:c1])
+    assert np.array_equal(got_valid, want_valid) and not got_valid[(5 - r0) * (c1 - c0) + 7 - c0]
+    assert 0.05 < 1.0 - got_valid.mean() < 0.2
+    for g, wv in zip(got, want):
+        assert g.shape == wv.shape and np.array_equal(g, wv)
