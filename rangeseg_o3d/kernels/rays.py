@@ -1,10 +1,15 @@
-"""Label-wise sums along a sensor's viewing rays (the range noise a plane's distances keep)."""
+"""Label-wise sums along a sensor's viewing rays (the range noise a plane's distances keep), and numpy's sums of
+the planes fitted along them, bit for bit (the terms of :mod:`rangeseg_o3d.ray_planes`)."""
 
 from __future__ import annotations
 
 import numpy as np
 from .growth import _maximum
+from .inline import _add_ray_terms
 from .jit import njit  # numba.njit, with this package's cache locator installed
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py")
 
 __all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
            "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums",
@@ -313,11 +318,7 @@ def ray_moment_sums(rays, inverse, weight):
     for i in range(inverse.shape[0]):
         wi = weight[i]
         wq = wi * inverse[i]
-        for a in range(3):
-            wa = wi * rays[i, a]
-            for b in range(3):
-                outer[a, b] += wa * rays[i, b]
-            first[a] += wq * rays[i, a]
+        _add_ray_terms(outer, first, wi, wq, rays[i, 0], rays[i, 1], rays[i, 2])
         squares[i] = wq * inverse[i]
     return outer, first, pairwise_sum(squares, 0, squares.shape[0])
 
@@ -334,21 +335,15 @@ def pixel_ray_moments(xyz, sigma, pixels):
     outer = np.zeros((3, 3))
     first = np.zeros(3)
     squares = np.empty(n)
-    ray = np.empty(3)
     for i in range(n):
         p = pixels[i]
         x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
         r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
-        ray[0], ray[1], ray[2] = x / r, y / r, z / r
         q = 1.0 / r
         s = _maximum(sigma[p], 1e-12) / (r * r)
         wi = 1.0 / (s * s)
         wq = wi * q
-        for a in range(3):
-            wa = wi * ray[a]
-            for b in range(3):
-                outer[a, b] += wa * ray[b]
-            first[a] += wq * ray[a]
+        _add_ray_terms(outer, first, wi, wq, x / r, y / r, z / r)
         squares[i] = wq * q
     return outer, first, pairwise_sum(squares, 0, n)
 
