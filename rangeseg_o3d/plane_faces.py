@@ -18,14 +18,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtri, ndtr
 
-from ._numeric import unique_ints
+from ._numeric import rows_at, unique_ints
 from .fitting.plane import fit_plane
 from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
+from .kernels.rays import box_ray_terms, cut_prefix_sums
 from .fullres import region_stats
-from .ray_planes import moment_columns, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane, split_columns
+from .ray_planes import (moment_columns, pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane,
+                         split_columns)
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
@@ -173,8 +175,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
-            pixels = np.flatnonzero(labels.reshape(-1) == other)
-            walls[other] = ray_moments(*ray_terms(ctx.xyz[pixels], ctx.sigma[pixels]))
+            walls[other] = pixel_moments(ctx.xyz, ctx.sigma, np.flatnonzero(labels.reshape(-1) == other))
         wall = walls[other]
         union = float(ray_fits(tuple(x + y for x, y in zip(wall, own)))[0][0])
         growth = union - float(ray_fits(wall)[0][0]) - own_chi2
@@ -217,15 +218,11 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     columns = moment_columns(rays, inverse, weight)
     starts = np.concatenate([[0], sizes])
     angles = np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS)
-    orders, lefts, totals = [], [], []
-    for angle in angles:
-        order = np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable")
-        prefix = np.cumsum(np.add.reduceat(columns[order], starts, axis=0), axis=0)
-        orders.append(order)
-        lefts.append(prefix[:-1])
-        totals.append(prefix[-1])
-    lefts = np.stack(lefts)  # (directions, cuts, 13)
-    rights = np.stack(totals)[:, None, :] - lefts
+    orders = np.stack([np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable") for angle in angles])
+    # compiled: numpy's gather, reduceat and cumsum per direction, bit for bit, in one call
+    prefix = cut_prefix_sums(columns, orders, starts)
+    lefts = prefix[:, :-1]  # (directions, cuts, 13)
+    rights = prefix[:, -1:] - lefts
     left, _ = ray_fits(split_columns(lefts.reshape(-1, lefts.shape[-1])))
     right, _ = ray_fits(split_columns(rights.reshape(-1, rights.shape[-1])))
     total = left + right
@@ -256,10 +253,9 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
     ordered = across(idx[full_order])
     full_size = int(np.clip(np.searchsorted(ordered, 0.5 * (ends[0] + ends[1]), side="left"),
                             side, idx.size - side))
-    rays, inverse, weight = ray_terms(ctx.xyz[idx], ctx.sigma[idx])
     chi2 = 0.0
     for part in (full_order[:full_size], full_order[full_size:]):
-        squares, _ = ray_fits(ray_moments(rays[part], inverse[part], weight[part]))
+        squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx[part]))
         chi2 += float(squares[0])
     return chi2, full_order, full_size
 
@@ -278,9 +274,7 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
         return []
     normals, out = [], []
     for side in sides:
-        points = ctx.xyz[side]
-        rays, inverse, weight = ray_terms(points, ctx.sigma[side])
-        _, a = ray_fits(ray_moments(rays, inverse, weight))
+        _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, side))
         normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
         piece = np.sort(ctx.largest_piece(side))
         plane = ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
@@ -291,12 +285,10 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
     return out
 
 
-def _off_model(model, points: np.ndarray, sigma: np.ndarray, independent: float) -> bool:
-    """Whether ``points`` (range noise ``sigma``) lie off ``model`` beyond the noise of their
-    distances to it (:func:`~rangeseg_o3d.fitting.robust.distance_noise`), their rms over the
-    chi-square bound of ``independent`` returns."""
-    distances = model.distances(points)
-    noise = distance_noise(model, points, sigma)
+def _off_model(distances: np.ndarray, noise: np.ndarray, independent: float) -> bool:
+    """Whether points at ``distances`` from a model lie off it beyond the noise of their
+    distances to it (``noise``, :func:`~rangeseg_o3d.fitting.robust.distance_noise`), their
+    rms over the chi-square bound of ``independent`` returns."""
     return beyond_noise(float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(noise * noise))),
                         max(int(independent), 1))
 
@@ -307,7 +299,7 @@ def _within_noise_along_rays(ctx, idx: np.ndarray, window: float) -> bool:
     bound of their independent returns (``window`` pixels each)."""
     from .kernels.linalg import noise_rms_bound
 
-    squares, _ = ray_fits(ray_moments(*ray_terms(ctx.xyz[idx], ctx.sigma[idx])))
+    squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
     bound = noise_rms_bound.py_func(1.0, max(idx.size / window, 1.0), CHI_SQUARE_SIGMAS)
     return float(squares[0]) / idx.size <= bound * bound
 
@@ -344,10 +336,12 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     points = ctx.xyz[idx]
     distances = model.distances(points)
     rms = float(np.sqrt(np.mean(distances * distances)))
+    # the noise of the distances once, for both gates (each computed it over every pixel)
+    noise = distance_noise(model, points, ctx.sigma[idx])
     # pixel by pixel; else, on a matched window, over the independent returns (see above)
-    held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False)
+    held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False, noise=noise)
     window = float(max(int(correlation_px), 1)) ** 2
-    if not held and (window == 1.0 or not _off_model(model, points, ctx.sigma[idx], idx.size / window)):
+    if not held and (window == 1.0 or not _off_model(distances, noise, idx.size / window)):
         return []
     chi2, sides = crease_line(ctx, idx)
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
@@ -358,8 +352,7 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     # one plane along the rays against the two, in independent returns: the chi-squares and
     # counts over the matching window's pixels (the F-test of curvature_resolved, a second
     # plane and the crease line: four parameters more)
-    rays, inverse, weight = ray_terms(points, ctx.sigma[idx])
-    one, _ = ray_fits(ray_moments(rays, inverse, weight))
+    one, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     if not curvature_resolved(share * float(one[0]), share * chi2, max(int(share * idx.size), 1), 4):
         return []
@@ -533,9 +526,8 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
         r0, r1 = max(int(rows.min()) - down, 0), min(int(rows.max()) + down + 1, h)
         c0, c1 = max(int(cols.min()) - across, 0), min(int(cols.max()) + across + 1, w)
         box = out[r0:r1, c0:c1]
-        points = cloud.xyz[r0:r1, c0:c1].reshape(-1, 3)
-        valid = cloud.valid[r0:r1, c0:c1].reshape(-1) & np.isfinite(points).all(axis=1)
-        u, q, wt = ray_terms(np.where(valid[:, None], points, 1.0), sigma[r0:r1, c0:c1].reshape(-1))
+        # compiled: the box's validity and ray terms (of (1, 1, 1) where not valid) without its copies
+        valid, u, q, wt = box_ray_terms(cloud.xyz[r0:r1, c0:c1], sigma[r0:r1, c0:c1], cloud.valid[r0:r1, c0:c1])
         mine = np.sqrt(wt) * np.abs(q - u @ a)
         theirs = np.full(mine.size, np.inf)
         owner = box.reshape(-1)
@@ -561,7 +553,7 @@ def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.
     fits = {k: m for k, m in fits.items() if k not in joined}
     flat = out.reshape(-1)
     for k, a in along.items():
-        plane = ray_plane(a, xyz[flat == k])
+        plane = ray_plane(a, rows_at(xyz, np.flatnonzero(flat == k)))  # a gather: a third of a mask's time
         if plane is not None:
             fits[k] = plane
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=changed)

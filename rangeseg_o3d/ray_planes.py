@@ -22,7 +22,7 @@ from .fitting.primitives import Plane
 from .refinement.context import TRIM_SIGMAS
 from .scales import GRAZING_COSINE
 
-__all__ = ["ROBUST_CHUNKS", "TRIM_PASSES", "moment_columns", "ray_fits", "ray_moments", "ray_plane", "ray_solutions", "ray_terms",
+__all__ = ["ROBUST_CHUNKS", "TRIM_PASSES", "moment_columns", "pixel_moments", "ray_fits", "ray_moments", "ray_plane", "ray_solutions", "ray_terms",
            "robust_ray_plane", "seen_near_grazing", "split_columns"]
 
 #: Passes of :func:`robust_ray_plane`'s trimmed fit (each refits to the pixels the last
@@ -86,9 +86,25 @@ def ray_solutions(outer: np.ndarray, first: np.ndarray) -> np.ndarray:
 
 def ray_moments(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray):
     """The sums :func:`ray_fits` takes, over all points (stacked, one set)."""
-    terms = (weight[:, None, None] * rays[:, :, None] * rays[:, None, :], (weight * inverse)[:, None] * rays,
-             weight * inverse * inverse)
-    return tuple(term.sum(axis=0)[None] for term in terms)
+    from .kernels.rays import ray_moment_sums
+
+    # compiled: numpy's terms and sums bit for bit, without the (N, 3, 3) products
+    outer, first, second = ray_moment_sums(np.ascontiguousarray(rays, dtype=np.float64),
+                                           np.ascontiguousarray(inverse, dtype=np.float64),
+                                           np.ascontiguousarray(weight, dtype=np.float64))
+    return outer[None], first[None], np.array([second])
+
+
+def pixel_moments(xyz: np.ndarray, sigma: np.ndarray, pixels: np.ndarray):
+    """``ray_moments(*ray_terms(xyz[pixels], sigma[pixels]))``: the sums :func:`ray_fits` takes
+    over the flat ``pixels`` of the points ``xyz`` (N, 3) and their range noise ``sigma`` (N,),
+    the same bits in one compiled pass (:func:`rangeseg_o3d.kernels.pixel_ray_moments`)."""
+    from .kernels.rays import pixel_ray_moments
+
+    outer, first, second = pixel_ray_moments(np.ascontiguousarray(xyz, dtype=np.float64),
+                                             np.ascontiguousarray(sigma, dtype=np.float64),
+                                             np.ascontiguousarray(pixels, dtype=np.int64))
+    return outer[None], first[None], np.array([second])
 
 
 def moment_columns(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray) -> np.ndarray:

@@ -117,6 +117,8 @@ def test_a_far_corner_under_a_matching_windows_noise_is_split_though_no_pixel_is
     # the corner pixel by pixel: no connected piece of the stereo row's floor (288 pixels) is
     # beyond 4 sigmas of the merged plane. Over the faces' independent returns (a ninth of
     # their pixels) the merged plane is far beyond the noise, and the faces come apart
+    from rangeseg_o3d.fitting.robust import distance_noise
+    from rangeseg_o3d.plane_faces import _off_model
     from rangeseg_o3d.refinement.facets import _holds_another
 
     xyz, sigma, truth, normals = _box_corner(seed, cols=100, crease=40, z=5.8, turn_deg=25.0, correlation=3)
@@ -127,6 +129,10 @@ def test_a_far_corner_under_a_matching_windows_noise_is_split_though_no_pixel_is
     distances = merged.distances(points)
     rms = float(np.sqrt(np.mean(distances ** 2)))
     assert not _holds_another(ctx, merged, idx, distances, rms, count_outliers=False)  # pixel by pixel
+    # the same answer from the noise faces_of_plane computes once for both gates
+    noise = distance_noise(merged, points, ctx.sigma[idx])
+    assert not _holds_another(ctx, merged, idx, distances, rms, count_outliers=False, noise=noise)
+    assert _off_model(distances, noise, idx.size / 9.0) and not _off_model(distances, noise, 1.0)
     assert faces_of_plane(ctx, merged, idx, correlation_px=1) == []  # returns erring alone: that test only
     _assert_the_two_faces(faces_of_plane(ctx, merged, idx, correlation_px=3), truth, normals, 0.9)
     # each face alone, with its plane along the rays: within the noise, no split

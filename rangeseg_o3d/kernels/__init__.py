@@ -13,7 +13,7 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitting.r
 Modules: ``labelwise`` (label-wise sums, planes, quadric test, distances to models),
 ``grid`` (grouping by label, jump edges, adjacency, growth, tile means), ``tiles`` (full-resolution
 labels from the tile grid with their distance statistics, leftover blobs),
-``trimmed`` (the trimmed fit's proposals), ``rays`` (label-wise sums along the viewing rays), ``claims`` (pixels passed between plane regions along the rays), ``growth`` (the ring growth of faces fitted along the rays, and the sums of their refits), ``raygroups`` (the screen of the tile groups those faces are fitted to, the free pieces stereo faces grow from), ``sides`` (a cylinder region as the two sides of a crease), ``borders`` (every curved region less one side's returns), ``creases`` (the plane pixels settled by the rays at a crease), ``modelnoise`` (models' distances to pixels against the pixels' noise), ``limbs`` (the ring claim of curved regions' limbs seen near grazing), ``strips`` (the leftover strips' statistics), ``unions`` (the merge's loop over its pairs of planes), ``pieces`` (the pieces a split searches next), ``window`` (the residual image: every pixel's
+``trimmed`` (the trimmed fit's proposals), ``rays`` (label-wise sums along the viewing rays; numpy's sums of planes fitted along them, bit for bit), ``claims`` (pixels passed between plane regions along the rays), ``growth`` (the ring growth of faces fitted along the rays, and the sums of their refits), ``raygroups`` (the screen of the tile groups those faces are fitted to, the free pieces stereo faces grow from), ``sides`` (a cylinder region as the two sides of a crease), ``borders`` (every curved region less one side's returns), ``creases`` (the plane pixels settled by the rays at a crease), ``modelnoise`` (models' distances to pixels against the pixels' noise), ``limbs`` (the ring claim of curved regions' limbs seen near grazing), ``strips`` (the leftover strips' statistics), ``unions`` (the merge's loop over its pairs of planes), ``pieces`` (the pieces a split searches next), ``window`` (the residual image: every pixel's
 window plane), ``project`` (points from ranges or depth, used by the cloud constructors), ``inline`` (inline helpers: model distances, grid neighbours), ``linalg``
 (small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
 kinds, plain Python). The package imports nothing from the rest of ``rangeseg_o3d``.
@@ -36,7 +36,9 @@ _SOURCES = {
     "labelwise": ("label_moments", "member_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes",
                   "height_field_shape", "settle_planes", "count_inliers", "distance_stats", "within_plane_noise", "planes_may_hold_half",
                   "rows_with_any", "piece_votes", "nearer_models", "voted_columns", "claim_parts"),
-    "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"),
+    "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
+             "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums",
+             "box_ray_terms"),
     "claims": ("outlier_claims",),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),

@@ -5,7 +5,11 @@ millisecond however few pixels it looked at, and most faces grown so are undone.
 from __future__ import annotations
 
 import numpy as np
+from .inline import _add_ray_terms
 from .jit import njit  # numba.njit, with this package's cache locator installed
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("inline.py", "kinds.py")
 
 
 @njit(cache=True, nogil=True)
@@ -294,10 +298,5 @@ def refit_terms(xyz, noise, flat, held, face, own, source, k_sigma, floor):
         pixels[n] = mine[i]
         n += 1
         wi = weight[i]
-        wq = wi * inverse[i]
-        for a in range(3):
-            wa = wi * rays[i, a]
-            for b in range(3):
-                outer[a, b] += wa * rays[i, b]
-            first[a] += wq * rays[i, a]
+        _add_ray_terms(outer, first, wi, wi * inverse[i], rays[i, 0], rays[i, 1], rays[i, 2])
     return outer, first, pixels

@@ -25,6 +25,29 @@ def _add_moments(m, x, y, z):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _add_ray_terms(outer, first, wi, wq, u0, u1, u2):
+    # A point's terms of the sums of a plane fitted along the rays added in place to ``outer``
+    # (3 x 3, sum w u u^T) and ``first`` (3, sum w q u): its weight ``wi``, ``wq = wi q`` and
+    # unit ray (u0, u1, u2), numpy's products ``(w u_a) u_b`` and ``(w q) u_a``; the same bits
+    # wherever it is used (kernels.rays' sums, kernels.growth.refit_terms).
+    wa = wi * u0
+    outer[0, 0] += wa * u0
+    outer[0, 1] += wa * u1
+    outer[0, 2] += wa * u2
+    wa = wi * u1
+    outer[1, 0] += wa * u0
+    outer[1, 1] += wa * u1
+    outer[1, 2] += wa * u2
+    wa = wi * u2
+    outer[2, 0] += wa * u0
+    outer[2, 1] += wa * u1
+    outer[2, 2] += wa * u2
+    first[0] += wq * u0
+    first[1] += wq * u1
+    first[2] += wq * u2
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _distance(kind, prm, x, y, z):
     # Absolute orthogonal distance of (x, y, z) from the model (a row of a model table, see
     # kinds.py); inf for "no model".

@@ -1,11 +1,19 @@
-"""Label-wise sums along a sensor's viewing rays (the range noise a plane's distances keep)."""
+"""Label-wise sums along a sensor's viewing rays (the range noise a plane's distances keep), and numpy's sums of
+the planes fitted along them, bit for bit (the terms of :mod:`rangeseg_o3d.ray_planes`)."""
 
 from __future__ import annotations
 
 import numpy as np
+from .growth import _maximum
+from .inline import _add_ray_terms
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays"]
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py")
+
+__all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
+           "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums",
+           "box_ray_terms"]
 
 
 @njit(cache=True, nogil=True)
@@ -233,3 +241,167 @@ def settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, origin
                 pixels[moved], targets[moved] = i, best_k
                 moved += 1
     return pixels[:moved], targets[:moved]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _block_sum(a, lo, n):
+    # numpy's pairwise leaf: up to 7 in a row from 0, else eight running sums joined in pairs
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]`` as numpy sums a contiguous float64 vector (from 0, spans of
+    up to 128 in eight running sums, larger spans halved at a multiple of 8 and their halves'
+    sums added): the same bits as ``a[lo:lo + n].sum()``. The halving runs on a stack of its
+    own (a cached recursive kernel crashed when loaded from the cache)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    spans = np.empty((128, 3), np.int64)  # (lo, n, halves done): depth <= 2 log2(n)
+    sums = np.empty(128)
+    top, count = 0, 0
+    spans[0, 0], spans[0, 1], spans[0, 2] = lo, n, 0
+    while top >= 0:
+        s_lo, s_n, done = spans[top, 0], spans[top, 1], spans[top, 2]
+        if s_n <= 128:
+            sums[count] = _block_sum(a, s_lo, s_n)
+            count += 1
+            top -= 1
+        elif done:  # both halves summed: the left's sum below the right's
+            sums[count - 2] = sums[count - 2] + sums[count - 1]
+            count -= 1
+            top -= 1
+        else:
+            half = s_n // 2
+            half -= half % 8
+            spans[top, 2] = 1
+            spans[top + 1, 0], spans[top + 1, 1], spans[top + 1, 2] = s_lo + half, s_n - half, 0
+            spans[top + 2, 0], spans[top + 2, 1], spans[top + 2, 2] = s_lo, half, 0
+            top += 2
+    return sums[0]
+
+
+@njit(cache=True, nogil=True)
+def ray_moment_sums(rays, inverse, weight):
+    """``(outer, first, second)``: ``sum w u u^T`` (3 x 3), ``sum w q u`` (3) and ``sum w q^2``
+    over the points' unit rays ``rays`` (N, 3), inverse ranges ``inverse`` and weights
+    ``weight`` (:func:`rangeseg_o3d.ray_planes.ray_terms`). Each term is numpy's (``(w u_a) u_b``,
+    ``(w q) u_a``, ``(w q) q``) and each sum is numpy's too (the (N, 3, 3) and (N, 3) terms
+    summed point by point in their order, the (N,) squares pairwise, :func:`pairwise_sum`):
+    the same bits as :func:`rangeseg_o3d.ray_planes.ray_moments`' numpy form, without its
+    (N, 3, 3) products."""
+    outer = np.zeros((3, 3))
+    first = np.zeros(3)
+    squares = np.empty(inverse.shape[0])
+    for i in range(inverse.shape[0]):
+        wi = weight[i]
+        wq = wi * inverse[i]
+        _add_ray_terms(outer, first, wi, wq, rays[i, 0], rays[i, 1], rays[i, 2])
+        squares[i] = wq * inverse[i]
+    return outer, first, pairwise_sum(squares, 0, squares.shape[0])
+
+
+@njit(cache=True, nogil=True)
+def pixel_ray_moments(xyz, sigma, pixels):
+    """:func:`ray_moment_sums` of the pixels ``pixels`` (flat, into ``xyz`` (N, 3) and their
+    range noise ``sigma`` (N,)), their terms made as :func:`rangeseg_o3d.ray_planes.ray_terms`
+    makes them (the range ``max(sqrt((x x + y y) + z z), 1e-12)``, the ray ``p / range``, the
+    inverse ``1 / range``, the weight ``1 / (s s)`` of ``s = max(sigma, 1e-12) / (range
+    range)``, NaN kept as numpy keeps it): the same bits as ``ray_moments(*ray_terms(xyz[pixels],
+    sigma[pixels]))`` in one pass, without the gathers and the terms' arrays."""
+    n = pixels.shape[0]
+    outer = np.zeros((3, 3))
+    first = np.zeros(3)
+    squares = np.empty(n)
+    for i in range(n):
+        p = pixels[i]
+        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
+        q = 1.0 / r
+        s = _maximum(sigma[p], 1e-12) / (r * r)
+        wi = 1.0 / (s * s)
+        wq = wi * q
+        _add_ray_terms(outer, first, wi, wq, x / r, y / r, z / r)
+        squares[i] = wq * q
+    return outer, first, pairwise_sum(squares, 0, n)
+
+
+@njit(cache=True, nogil=True)
+def cut_prefix_sums(columns, orders, starts):
+    """``(D, B, C)`` running sums of the rows of ``columns`` (N, C) taken in each order of
+    ``orders`` (D, N): row ``b`` of direction ``d`` sums the rows ``orders[d, :starts[b + 1]]``
+    (the last row, every row), ``starts`` (B, increasing from 0, each block non-empty) the
+    first positions of the blocks. The same bits as ``np.cumsum(np.add.reduceat(columns[order],
+    starts, axis=0), axis=0)`` (numpy sums a block column by column, its first row plus the
+    rest pairwise, :func:`pairwise_sum`; the blocks are then added in order), without
+    gathering ``columns[order]`` for every direction."""
+    d_count, n = orders.shape
+    b_count, c_count = starts.shape[0], columns.shape[1]
+    out = np.empty((d_count, b_count, c_count))
+    by_column = np.ascontiguousarray(columns.T)  # one column's gather reads one short row
+    values = np.empty(n)
+    for d in range(d_count):
+        order = orders[d]
+        for c in range(c_count):
+            column = by_column[c]
+            for j in range(n):
+                values[j] = column[order[j]]
+            running = 0.0
+            for b in range(b_count):
+                lo = starts[b]
+                end = starts[b + 1] if b + 1 < b_count else n
+                block = values[lo] + pairwise_sum(values, lo + 1, end - lo - 1)
+                running = block if b == 0 else running + block
+                out[d, b, c] = running
+    return out
+
+
+@njit(cache=True, nogil=True)
+def box_ray_terms(xyz, sigma, valid):
+    """``(valid, rays, inverse, weight)`` of the pixels of a box of the grid, row by row
+    (``xyz`` (H, W, 3), ``sigma`` and ``valid`` (H, W), views of the frame's): a pixel is valid
+    when ``valid`` says so and its point is finite; its terms are
+    :func:`rangeseg_o3d.ray_planes.ray_terms`', bit for bit, of its point, or of the point
+    (1, 1, 1) where it is not valid (numpy's ``np.where(valid, points, 1.0)``), without the
+    box's copies."""
+    h, w = valid.shape
+    n = h * w
+    ok = np.empty(n, np.bool_)
+    rays = np.empty((n, 3))
+    inverse = np.empty(n)
+    weight = np.empty(n)
+    for row in range(h):
+        for col in range(w):
+            i = row * w + col
+            x, y, z = xyz[row, col, 0], xyz[row, col, 1], xyz[row, col, 2]
+            ok[i] = valid[row, col] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+            if not ok[i]:
+                x, y, z = 1.0, 1.0, 1.0
+            r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
+            rays[i, 0], rays[i, 1], rays[i, 2] = x / r, y / r, z / r
+            inverse[i] = 1.0 / r
+            s = _maximum(sigma[row, col], 1e-12) / (r * r)
+            weight[i] = 1.0 / (s * s)
+    return ok, rays, inverse, weight

@@ -288,16 +288,18 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
 
 
 def _holds_another(ctx: Context, model, idx: np.ndarray, distances: np.ndarray, rms: float, *,
-                   count_outliers: bool = True) -> bool:
+                   count_outliers: bool = True, noise: np.ndarray | None = None) -> bool:
     """Whether ``model``'s region (its ``distances``, their ``rms``) is beyond the noise of its
     distances and its pixels beyond CHI_SQUARE_SIGMAS of that noise hold a connected piece
     of ``ctx.min_size``: another surface, not a model a little off everywhere (a tapered
     mug) or the noise's tail. ``count_outliers``: first the cheap test, a region's worth of
     the model's outliers (beyond INLIER_FACTOR x its rms); a plane over two faces has
-    none (its rms spreads over both)."""
+    none (its rms spreads over both). ``noise``: the pixels' distance noise
+    (:func:`~rangeseg_o3d.fitting.robust.distance_noise`), when the caller has it."""
     if count_outliers and np.count_nonzero(np.abs(distances) > INLIER_FACTOR * rms) < ctx.min_size:
         return False
-    noise = distance_noise(model, rows_at(ctx.xyz, idx), ctx.sigma[idx])
+    if noise is None:
+        noise = distance_noise(model, rows_at(ctx.xyz, idx), ctx.sigma[idx])
     if not beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), idx.size):
         return False
     far = idx[np.abs(distances) > CHI_SQUARE_SIGMAS * noise]
