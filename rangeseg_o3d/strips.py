@@ -25,7 +25,7 @@ from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from .ray_planes import ray_plane, ray_terms, robust_ray_plane
 from .refinement.recover import grown_box
 
-__all__ = ["recover_strips"]
+__all__ = ["noise_spans_the_grid", "recover_strips"]
 
 #: The share of a strip's pixels a model must explain (within its noise band) to take it,
 #: as a blob's plane must (:func:`rangeseg_o3d.refinement.recover._one_plane`).
@@ -54,7 +54,12 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     rays and is left free; except on a stereo camera (range noise growing with the range and
     erring together over a matching window, ``noise.correlation_px > 1``), where it may be a
     face seen near grazing whose depth the noise spans: it becomes a region when its plane
-    fitted along the rays explains it (:meth:`_Strips.faces_along_rays`). A strip of which a touching region's model explains
+    fitted along the rays explains it (:meth:`_Strips.faces_along_rays`); so too, where the
+    range noise grows with the range alone and spans more than a pixel's footprint at every
+    range (a Kinect, :func:`noise_spans_the_grid`), a strip the frame's edge cuts thin, lying
+    along it, unless a region's model explains it within the range noise
+    (:func:`_on_a_found_surface`). A strip
+    of which a touching region's model explains
     ``EXPLAINED_SHARE`` of the pixels within ``k_sigma`` of that noise (at least the model's
     rms), with an rms distance within its chi-square bound, joins the region that explains
     it best. Otherwise a strip the fitter's batch settles as a plane explaining that share
@@ -85,15 +90,28 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     noise_model = sensor.noise
     # a stereo camera's grazing faces: the strips whose least-squares plane lies along their
     # rays may be faces whose depth its range noise spans (_Strips.faces_along_rays); only
-    # where that noise grows with the range and errs together over a matching window
-    along = (~across & (strips.sizes >= floor) if noise_model.matched_window
-             else np.zeros_like(across))
+    # where that noise grows with the range and errs together over a matching window. Where
+    # it grows with the range alone (a Kinect), the strips the frame's edge cuts: a face the
+    # edge leaves a few pixels wide lies in the partial, mixed tiles there (640 = 106 x 6 + 4),
+    # and its few columns' least-squares plane turns towards the rays as a grazing face's does
+    # (a strip along the edge: one across it, a pipe's limb from the top edge down, is not cut
+    # thin by it), where the range noise spans more than a pixel's footprint at every range
+    # (a laser whose noise is stated growing with the range spans less at the ranges it sees)
+    along = ~across & (strips.sizes >= floor)
+    if not noise_model.matched_window:
+        h, w = labels.shape
+        along &= _along_the_frames_edge(boxes, h, w)
+        if along.any() and not noise_spans_the_grid(sensor, cloud):
+            along[:] = False
     if not (open_.any() or along.any()):
         return labels, fits, stats
     table = model_table(fits, first)  # (the regions' models: the strips change none of them)
     joins, merges = strips.joins(labels, table, open_, stats, config.merge_rms_factor if config.merge else None)
     faces = strips.faces(fitter, open_ & (joins == 0) & (merges == 0), floor)
-    faces += strips.faces_along_rays(along, floor, 1.0 / noise_model.correlation_px ** 2, labels.shape[1])
+    along_faces = strips.faces_along_rays(along, floor, 1.0 / noise_model.correlation_px ** 2, labels.shape[1])
+    if along_faces and not noise_model.matched_window:  # (a band of a surface found: no face)
+        along_faces = [f for f in along_faces if not _on_a_found_surface(xyz, noise, fits, f[1])]
+    faces += along_faces
     if not (joins.any() or merges.any() or faces):
         return labels, fits, stats
     out = np.array(labels, dtype=np.int32, order="C", copy=True)
@@ -301,3 +319,56 @@ def _grow_faces(xyz, out, table, sigma, first, boxes, k_sigma):
     return kernels.grow_faces(xyz, out.ravel(), out.shape[0], out.shape[1], kinds, params, rms, sigma, first,
                               np.array(boxes, np.int64).reshape(-1, 4), RIM_RINGS, CLAIM_RINGS, float(k_sigma),
                               TRIM_SIGMAS)
+
+
+def _along_the_frames_edge(boxes: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Per strip box ``(row0, row1, col0, col1)`` (ends exclusive) in an ``h`` x ``w`` frame:
+    whether it touches the frame's left or right edge and is narrower in columns than in
+    rows, or its top or bottom edge and narrower in rows than in columns: a strip the edge
+    cut thin, lying along it."""
+    tall = (boxes[:, 1] - boxes[:, 0]) > (boxes[:, 3] - boxes[:, 2])
+    wide = (boxes[:, 3] - boxes[:, 2]) > (boxes[:, 1] - boxes[:, 0])
+    sides = (boxes[:, 2] == 0) | (boxes[:, 3] == w)
+    ends = (boxes[:, 0] == 0) | (boxes[:, 1] == h)
+    return (sides & tall) | (ends & wide)
+
+
+def _on_a_found_surface(xyz: np.ndarray, sigma: np.ndarray, fits: dict, idx: np.ndarray) -> bool:
+    """Whether any region's model in ``fits`` explains the pixels ``idx`` (flat) within their
+    range noise: their distances to it, in range sigmas ``sigma``, with a mean square within
+    the chi-square bound of their count. Such a strip is a band of a surface already found
+    (a large plane's edge the frame's edge cuts off from its region, a pipe's flank) whose
+    depth the noise spreads along the rays, not a face of its own."""
+    bound = noise_rms_bound.py_func(1.0, float(idx.size), CHI_SQUARE_SIGMAS) ** 2
+    points = xyz[idx]
+    for label, model in fits.items():
+        if label <= 0 or not model or not hasattr(model, "distances"):  # (no model: a failed fit)
+            continue
+        units = model.distances(points) / sigma[idx]
+        if float(np.mean(units * units)) <= bound:
+            return True
+    return False
+
+
+def noise_spans_the_grid(sensor, cloud=None) -> bool:
+    """Whether ``sensor``'s range noise, growing with the range (``sigma_quadratic`` > 0),
+    exceeds the footprint of its grid's coarser angular step ``d`` (radians) at every range:
+    ``sigma0 + sigma_quadratic r**2 > r d`` for all ``r``, i.e. ``d**2 < 4 sigma0
+    sigma_quadratic``. On such a camera (a Kinect: 0.11 deg, 1 mm + 1.425e-3 r^2, the noise
+    1.2-4 footprints from 0.5 to 5 m) a face a few pixels wide spreads farther along its rays
+    than across them, so its least-squares plane turns towards the rays. A laser whose noise
+    is stated growing with the range (a SICK at 0.5 deg, 3 mm + 1e-3 r^2) stays under its
+    footprint from 0.35 to 8.7 m. The step is the sensor's, else measured on ``cloud``
+    (:func:`rangeseg_o3d.scales.measured_spacing`); False with neither."""
+    noise = sensor.noise
+    if noise.sigma_quadratic <= 0.0:
+        return False
+    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
+        step = float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
+    elif cloud is not None:
+        from .scales import measured_spacing
+
+        step = float(max(measured_spacing(cloud)))
+    else:
+        return False
+    return step * step < 4.0 * noise.sigma0 * noise.sigma_quadratic

@@ -127,15 +127,25 @@ def _box_top_strip(seed=0, top=0.6, near=3.3, far=3.355, wall=5.0):
     return points * (noisy / ranges)[..., None], truth, sigma
 
 
-def _stereo_strip_step(correlation_px):
+def _stereo_strip_step(correlation_px, inset=0, crop=False, **sensor):
+    # (``inset``: the strip's first and last ``inset`` columns given to the front face, so
+    # that the free strip does not reach the frame's edges; ``crop``: the frame ends at the
+    # strip's last row, the front face below cut off, and keeps the middle 120 columns, so
+    # that the strip (240 px) is under the smallest region: at the edge, the grid's border
+    # replicated, its two rows have a blob's 3x3 core; ``sensor``: facts stated besides)
     xyz, truth, sigma = _box_top_strip()
+    if crop:
+        end, cols = int(np.flatnonzero((truth == 2).any(axis=1)).max()) + 1, slice(60, 180)
+        xyz, truth, sigma = (np.ascontiguousarray(a[:end, cols]) for a in (xyz, truth, sigma))
     cloud = rs.OrganizedCloud(xyz)
     cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.001, "sigma_quadratic": STEREO_COEFF,
-                                                "noise_correlation_px": correlation_px},
+                                                "noise_correlation_px": correlation_px, **sensor},
                           "refine": {"min_region_size": 300}})
     pipe = rs.Pipeline(cfg)
     fits = {1: Plane([0, 0, 1.0], 5.0, 0.0, 1), 3: Plane([0, 0, 1.0], 3.3, 0.0, 1)}
     labels = np.where(truth == 2, 0, truth).astype(np.int32)
+    cols = np.arange(truth.shape[1])[None, :]
+    labels[(truth == 2) & ((cols < inset) | (cols >= truth.shape[1] - inset))] = 3
     stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
     common = dict(fitter=pipe.fitter, config=cfg.refine, sensor=pipe.sensor, ranges=cloud.range_image(),
                   sigma=sigma, inlier_factor=INLIER_SIGMAS)
@@ -160,10 +170,91 @@ def test_a_stereo_cameras_grazing_strip_becomes_the_faces_plane_fitted_along_its
 
 
 def test_a_grazing_strip_stays_free_where_the_noise_errs_alone():
-    # the same strip on a camera whose returns err one by one (a Kinect-type camera): the
-    # step is the one before it, the strip refused and left free
-    truth, labels, fits, stats, out = _stereo_strip_step(1)
+    # the same strip, inside the frame, on a camera whose returns err one by one (a
+    # Kinect-type camera): the step is the one before it, the strip refused and left free
+    truth, labels, fits, stats, out = _stereo_strip_step(1, inset=8)
     assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_a_strip_the_frames_edge_cuts_becomes_its_plane_fitted_along_its_rays_on_a_kinect():
+    # the same strip where the frame's bottom edge runs along it (the front face below cut
+    # off), on a Kinect-type camera (range noise growing with the range, returns erring one by
+    # one): a face the edge cuts is left a few pixels wide in the partial tiles there, so its
+    # plane is fitted along its rays too
+    truth, labels, fits, _, (out, out_fits, _) = _stereo_strip_step(1, crop=True)
+    assert (truth[-1] == 2).all() and not (truth == 3).any()
+    found, counts = np.unique(out[truth == 2], return_counts=True)
+    new = int(found[np.argmax(counts)])
+    assert new not in fits and counts.max() >= 0.9 * (truth == 2).sum()
+    model = out_fits[new]
+    assert model.kind == "plane" and abs(model.normal[1]) > np.cos(np.radians(3.0))
+    assert np.all(out[truth == 1] == 1)  # (the wall keeps its pixels)
+
+
+def test_a_strip_across_the_frames_edges_stays_free_on_a_kinect():
+    # the uncut strip reaches the frame's left and right edges but runs across them (2 rows
+    # by 240 columns): no edge cut it thin (as a pipe's limb from the top edge down), so on a
+    # Kinect-type camera it is refused as one inside the frame is
+    truth, labels, fits, stats, out = _stereo_strip_step(1)
+    assert (truth[:, 0] == 2).any() and (truth[:, -1] == 2).any()
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_along_the_frames_edge_boxes():
+    from rangeseg_o3d.strips import _along_the_frames_edge
+
+    boxes = np.array([[256, 282, 0, 5],     # the left edge's 5 columns, 26 rows: along it
+                      [200, 230, 635, 640],  # the right edge's: along it
+                      [0, 157, 323, 324],    # a limb from the top edge down: across it
+                      [0, 3, 100, 140],      # the top edge's 3 rows: along it
+                      [470, 480, 0, 4],      # the bottom-left corner, taller than wide: along the left
+                      [100, 130, 5, 10]])    # inside the frame
+    assert _along_the_frames_edge(boxes, 480, 640).tolist() == [True, True, False, True, True, False]
+
+
+def test_a_strip_the_frames_edge_cuts_stays_free_where_the_noise_is_under_the_grids_footprint():
+    # the same edge strip where the sensor states a grid of 0.5 deg (a laser whose noise is
+    # stated growing with the range: noise_spans_the_grid false): the step before, left free
+    truth, labels, fits, stats, out = _stereo_strip_step(1, row_spacing_deg=0.5, column_spacing_deg=0.5)
+    assert out[0] is labels and out[1] is fits and out[2] is stats
+
+
+def test_noise_spans_the_grid_on_the_presets():
+    # a Kinect's noise exceeds its 0.11-deg footprint at every range (0.11 deg = 1.92 mrad,
+    # 1.92e-3^2 = 3.7e-6 < 4 x 1e-3 x 1.425e-3 = 5.7e-6); the SICK of the 3DTK scans (0.517 deg:
+    # 8.1e-5 > 4 x 3e-3 x 1e-3 = 1.2e-5) and every laser of constant noise do not
+    from rangeseg_o3d.strips import noise_spans_the_grid
+
+    def sensor(preset):
+        return rs.Pipeline(rs.load_config(preset)).sensor
+
+    assert noise_spans_the_grid(sensor("rgbd_vga"))
+    for preset in ("sick_3dtk", "lms200", "spinning_lidar", "abw"):
+        assert not noise_spans_the_grid(sensor(preset)), preset
+    # the bound itself: a Kinect's noise at a grid just finer / coarser than sqrt(4 s0 sq)
+    limit = np.degrees(np.sqrt(4 * 0.001 * 0.001425))
+    for step, expected in ((0.99 * limit, True), (1.01 * limit, False)):
+        cfg = rs.load_config({"sensor": {"sigma0": 0.001, "sigma_quadratic": 0.001425,
+                                         "row_spacing_deg": step, "column_spacing_deg": step}})
+        assert noise_spans_the_grid(rs.Pipeline(cfg).sensor) is expected
+    # no spacing stated: measured on the cloud (1/640 rad here), else false
+    xyz, _, _ = _box_top_strip()
+    bare = rs.Pipeline(rs.load_config({"sensor": {"sigma0": 0.001, "sigma_quadratic": 0.001425}})).sensor
+    assert noise_spans_the_grid(bare, rs.OrganizedCloud(xyz)) and not noise_spans_the_grid(bare)
+
+
+def test_a_strip_at_the_frames_edge_that_a_found_surface_explains_is_no_face():
+    # a strip of the wall itself, cut from its region at the frame's edge: the wall's model
+    # explains it within the range noise (_on_a_found_surface), so no face is made of it
+    from rangeseg_o3d.strips import _on_a_found_surface
+
+    xyz, truth, sigma = _box_top_strip()
+    flat, noise = np.ascontiguousarray(xyz.reshape(-1, 3)), sigma.ravel()
+    fits = {1: Plane([0, 0, 1.0], 5.0, 0.0, 1), 3: Plane([0, 0, 1.0], 3.3, 0.0, 1)}
+    wall = np.flatnonzero(truth.ravel() == 1)[:200]
+    top = np.flatnonzero(truth.ravel() == 2)
+    assert _on_a_found_surface(flat, noise, fits, wall)
+    assert not _on_a_found_surface(flat, noise, fits, top)
 
 
 def test_a_strips_plane_along_its_rays_leaves_out_the_pixels_of_another_surface_at_its_end():
