@@ -146,21 +146,12 @@ def test_a_wide_cylinder_bent_over_a_box_corner_gives_way_to_the_plane_of_a_face
     # a 2.5 m cylinder within the noise bent over the corner and the wall; its inliers fall
     # apart and it fits none of its pieces alone. The dominant piece is then the plane of
     # one face (the planes-only search), not nothing.
-    from rangeseg_o3d.refinement.context import Context
-    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
-
-    spec = get_sensor("noise_20mm")
-    scan = spec.simulate(matrix_rng(11, spec.name, 4), False)
-    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
-    pipe = rs.Pipeline(rs.load_config(spec.preset, overrides={**facts, "refine.enabled": False}))
-    cloud, truth = scan.cloud, scan.truth_ids.ravel()
-    labels = pipe.run(cloud).labels.ravel()
+    scan, labels, ctx = _unrefined_matrix_scan("noise_20mm", 11, 4)
+    truth = scan.truth_ids.ravel()
     faces = (17, 20)  # the box's two faces (their truth ids in this scan)
     region = np.bincount(labels[truth == faces[0]]).argmax()
     pool = np.flatnonzero(labels == region)
     assert all(np.isin(truth[pool], face).sum() > 0.9 * (truth == face).sum() for face in faces)
-    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
-    ctx = Context(cloud, pipe.fitter, np.asarray(sigma, float), 20)
     piece, model = ctx.dominant_piece(pool)
     assert model is not None and model.kind == "plane"
     face = np.bincount(truth[piece]).argmax()
@@ -193,24 +184,29 @@ def test_dominant_piece_with_face_band_finds_a_face_of_a_narrow_corner(seed):
     assert max(left.mean(), 1 - left.mean()) > 0.8 and piece.size > 0.7 * h * 22
 
 
+def _unrefined_matrix_scan(sensor: str, seed: int, scan_index: int):
+    """Scan ``scan_index`` of the matrix row ``sensor`` for ``seed``, the labels of the paper's
+    pipeline on it (refinement off, flat) and the refinement's Context (size floor 20)."""
+    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+
+    spec = get_sensor(sensor)
+    scan = spec.simulate(matrix_rng(seed, spec.name, scan_index), False)
+    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
+    pipe = rs.Pipeline(rs.load_config(spec.preset, overrides={**facts, "refine.enabled": False}))
+    cloud = scan.cloud
+    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
+    return scan, pipe.run(cloud).labels.ravel(), Context(cloud, pipe.fitter, np.asarray(sigma, float), 20)
+
+
 def _noise_10mm_columns_pool():
     # A room of the sensor matrix at 10 mm range noise (noise_10mm, fresh study seed 1032,
     # scan 2): two columns of 568 and 827 returns standing side by side and a strip of the
     # floor, all in the region the paper's pipeline could not fit (with a wall the split
     # finds first). Returns the Context, the pool (those returns of the region), the truth
     # ids and the scan.
-    from rangeseg_o3d.refinement.context import Context
-    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
-
-    spec = get_sensor("noise_10mm")
-    scan = spec.simulate(matrix_rng(1032, spec.name, 2), False)
-    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
-    pipe = rs.Pipeline(rs.load_config(spec.preset, overrides={**facts, "refine.enabled": False}))
-    cloud, truth = scan.cloud, scan.truth_ids.ravel()
-    labels = pipe.run(cloud).labels.ravel()
+    scan, labels, ctx = _unrefined_matrix_scan("noise_10mm", 1032, 2)
+    truth = scan.truth_ids.ravel()
     region = np.bincount(labels[truth == 12]).argmax()
-    sigma = pipe.sensor.noise.sigma(np.where(cloud.valid, cloud.range_image(), np.nan))
-    ctx = Context(cloud, pipe.fitter, np.asarray(sigma, float), 20)
     # as the split goes: the wall (truth 6) first, then a piece of the floor joining the
     # two columns; the largest piece left is the pool no search explained
     pool = ctx.largest_piece(np.flatnonzero((labels == region) & (truth != 6)))
