@@ -20,7 +20,7 @@ from ..kernels.linalg import curvature_resolved as linalg_curvature_resolved
 from .primitives import Cylinder, Sphere
 from .region_fitter import model_row
 
-__all__ = ["trimmed_fit", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
+__all__ = ["trimmed_fit", "distinct_masks", "beyond_noise", "union_out_of_reach", "curvature_resolved", "distance_noise",
            "lateral_distance_noise",
            "CHI_SQUARE_SIGMAS", "REACH_MARGIN", "REACH_TRUSTED_SHARE"]
 
@@ -223,7 +223,7 @@ def trimmed_fit(points: np.ndarray, judge: Callable, *, sigma: float, min_points
         return None, None
     seeds = local_seeds(size, max_points)
     local = local_proposals(pts, float(sigma), int(rounds), seeds, max(len(pts) // _LOCAL_SEEDS, 6))
-    if search.judge_all(_distinct(local), limit=_LOCAL_JUDGED, first_at_noise=True):
+    if search.judge_all(distinct_masks(local), limit=_LOCAL_JUDGED, first_at_noise=True):
         return search.best, search.best_mask
     return None, None
 
@@ -246,7 +246,7 @@ def local_seeds(size: int, max_points: int = MAX_POINTS) -> np.ndarray:
     return np.array([int(i * spacing) for i in range(_LOCAL_SEEDS - 1)] + [last], np.int64)
 
 
-def _distinct(masks) -> list[np.ndarray]:
+def distinct_masks(masks) -> list[np.ndarray]:
     """The masks, largest first, without those mostly covered by a larger one (starts on
     one surface find the same points)."""
     out = []
@@ -255,6 +255,10 @@ def _distinct(masks) -> list[np.ndarray]:
         if count and all(np.count_nonzero(mask & kept) < 0.8 * count for kept in out):
             out.append(mask)
     return out
+
+
+# the name fitting._trimmed's compiled twin cites
+_distinct = distinct_masks
 
 
 class _Search:

@@ -13,7 +13,8 @@ from .._numeric import rows_at
 from .. import kernels
 from ..fitting.plane import fit_plane
 from ..fitting.region_fitter import RegionFitter
-from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, trimmed_fit
+from ..fitting.robust import (CHI_SQUARE_SIGMAS, ROUNDS, beyond_noise, distance_noise, distinct_masks, local_seeds,
+                               trimmed_fit)
 from ..kernels.linalg import noise_rms_bound
 
 __all__ = ["Context", "touching", "without"]
@@ -43,6 +44,10 @@ _GRAZING_NOISE = 0.5
 #: A point within this many sigmas of its distance noise lies on the plane (refinement.context
 #: and recover.py's trims of a plane's pixels).
 TRIM_SIGMAS = 3.0
+#: The most pixels :meth:`Context._start_pieces` searches (its starts see every one).
+_START_POOL_MAX = 4000
+#: Local starts per pool (as :func:`rangeseg_o3d.fitting.robust.trimmed_fit`'s).
+_LOCAL_STARTS = 8
 #: No pixels taken (:meth:`Context.pieces`).
 _NO_PIXELS = np.zeros(0, np.int64)
 
@@ -183,7 +188,12 @@ class Context:
             if grazing is not None:
                 return (*grazing, False)
         if model is None:
-            return (*self._face_in_noise(pool, sigma), True) if face_band else (None, None, False)
+            if not face_band:
+                return None, None, False
+            piece, model = self._face_in_noise(pool, sigma)
+            if piece is not None:
+                return piece, model, True
+            return (*self._start_pieces(pool, sigma), False)
         if piece.size < self.min_size:
             return None, None, False
         if piece.size < _ONE_PIECE * count:  # a piece was cut off: fit the piece itself
@@ -254,6 +264,44 @@ class Context:
             return None, None
         model = self.fitter.refit(self.fitter.points(self.xyz, piece), plane)
         return (piece, model) if model else (None, None)
+
+    def _start_pieces(self, pool: np.ndarray, sigma: float):
+        """``(piece, model)`` of the first local start of ``pool`` whose proposal, cut to its
+        largest 4-connected piece, the fitter accepts at the noise, grown to the largest
+        connected piece of the pool within ``TRIM_SIGMAS`` of it and refitted; or (None, None).
+
+        The last try of :meth:`dominant_search` at sensor resolution, when the trimmed
+        searches and the one-sigma face band found nothing. The local starts' quadric
+        (:func:`rangeseg_o3d.kernels.local_proposals`) spreads over its seed's surface, but
+        its band also holds the few returns of other surfaces it crosses farther off (the
+        floor below a column, a column beside it, 0.3-2 m from the surface): a handful of
+        them lift a column's cylinder to twice the range noise and the fitter refuses it,
+        while the surface's own returns fit at the noise. Those returns lie apart from the
+        proposal's connected piece on the grid. Here the starts run on all of the pool's
+        pixels (the search's subsample of a large pool is no grid), at most
+        ``_START_POOL_MAX`` of them. (noise_10mm seed 1032 scan 2: two columns of 568 and
+        827 returns and a strip of floor, one region the segmenter could not fit, were
+        freed whole.)"""
+        if pool.size < 2 * self.min_size or pool.size > _START_POOL_MAX:
+            return None, None  # (no room for two surfaces; a pool that large is left as it was)
+        points = np.ascontiguousarray(rows_at(self.xyz, pool), dtype=np.float64)
+        proposals = kernels.local_proposals(points, float(sigma), int(ROUNDS), local_seeds(pool.size, pool.size),
+                                            max(pool.size // _LOCAL_STARTS, 6))
+        for near in distinct_masks(proposals):
+            piece = self.largest_piece(pool[near])
+            if piece.size < self.min_size:
+                continue
+            model = self.fitter.fit(self.fitter.points(self.xyz, piece))
+            if not model or beyond_noise(model.rms, sigma, piece.size):
+                continue
+            # the whole surface: the pool's returns near the model, in one connected piece
+            grown = self.largest_piece(pool[np.abs(model.distances(points)) <= TRIM_SIGMAS * max(sigma, model.rms)])
+            if grown.size > piece.size:
+                refit = self.fitter.refit(self.fitter.points(self.xyz, grown), model)
+                if refit and not beyond_noise(refit.rms, sigma, grown.size):
+                    return grown, refit
+            return piece, model
+        return None, None
 
     def _face_in_noise(self, pool: np.ndarray, sigma: float):
         # The dominant plane of ``pool`` found with a one-sigma band (a planes-only trimmed
