@@ -294,6 +294,32 @@ def border_sides(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.
     return out
 
 
+#: The margin by which :func:`_one_side_flat`'s moments pass a rest: their rounding differs from
+#: the points' by far less (``SUMS_MARGIN``), and the points decide.
+ONE_SIDE_MARGIN = 1.01
+
+
+def _one_side_flat(ctx: Context, labels: np.ndarray, curved: list, minimum: int) -> set:
+    """The regions among ``curved`` of which the region less one side (:func:`border_sides`)
+    of at least ``minimum`` pixels leaves its least-squares plane an rms within what the largest
+    range noise gives a plane (``noise_rms_bound`` at ``NOISE_CHI2_SIGMAS``, within
+    ``ONE_SIDE_MARGIN``), by one compiled pass over the label image (``kernels.side_rest_planes``):
+    a rest's noise along its rays is at most that, so :func:`bent_at_border_lines` frees no
+    other region by one side and gathers the points of those alone."""
+    if not curved:
+        return set()
+    wanted = np.zeros(max(curved) + 1, bool)
+    wanted[list(curved)] = True
+    counts, rms = kernels.side_rest_planes(ctx.xyz, np.ascontiguousarray(labels.ravel()),
+                                           labels.shape[1], wanted, bool(ctx.wrap_columns))
+    valid = ctx.sigma[np.isfinite(ctx.sigma)]  # (no noise where no return)
+    if valid.size == 0:
+        return set()
+    bound = noise_rms_bound.py_func(float(valid.max()), counts[curved] - 3.0, NOISE_CHI2_SIGMAS)
+    flat = (counts[curved] >= minimum) & (rms[curved] <= ONE_SIDE_MARGIN * bound)
+    return {int(k) for k in np.asarray(curved)[flat.any(axis=1)]}
+
+
 #: The widest arc around its axis (radians) a cylinder bounded by two jump edges may show and its
 #: bend still be taken for mixed returns along both (:func:`bent_at_border_lines`): a convex
 #: cylinder seen from outside shows the sensor about half a turn between its limbs, so a region of
@@ -363,6 +389,7 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         return side.sum() >= 3 and beyond_noise(float(np.sqrt(np.mean(plane.distances(points[side]) ** 2))),
                                                  float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum()))
 
+    one_side = _one_side_flat(ctx, labels, list(curved), minimum)
     out = {}
     for k, idx in (pixels or _Pixels(labels)).of(list(curved)).items():
         if idx.size < 2 * minimum:
@@ -372,6 +399,8 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         # is no narrower, so its arc is no wider than all the returns')
         shallow = isinstance(model, Cylinder) and arc_around_axis(
             rows_at(ctx.xyz, idx[::4]), model.axis, model.point) < TWO_SIDES_ARC
+        if not (shallow or k in one_side):
+            continue  # no candidate could pass
         points = rows_at(ctx.xyz, idx)
         if shallow:
             shallow = arc_around_axis(points, model.axis, model.point) < TWO_SIDES_ARC
@@ -380,9 +409,12 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         # candidates 0-3 one side each, 4-5 two opposite ones (a pixel on both: the first)
         dropped = np.vstack([sides, sides[0] | sides[1], sides[2] | sides[3]])
         _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
+        # two sides only where the region's plane is over the threshold: within it, a pipe seen on a
+        # few grid lines across its axis (its limbs the two sides, an arc the fit leaves shallow)
+        shallow = shallow and rms[0] > threshold(idx.size, centroid)
         for c in np.argsort(rms[1:]):  # the flattest rest first
             n, rest = int(sizes[c + 1]), ~dropped[c]
-            if n < minimum or (c >= 4 and not shallow) or not spans(idx[rest]):
+            if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
                 continue
             tolerance = threshold(n, centroid + means[c + 1])
             if rms[c + 1] > tolerance:
