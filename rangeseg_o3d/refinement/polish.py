@@ -9,9 +9,11 @@ must still be one on its final pixels: its kind was decided on the pixels it had
 pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`. For
 a laser's single returns, whose noise is along their rays, a plane must also be within what
 that noise gives its distances, or a cylinder fitted in range residuals takes it where it
-is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`; and a cylinder or
+is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`; a cylinder or
 sphere whose bend only the mixed returns at its border carry, and beside which the rays
-see through it, is the plane of its inner pixels (:func:`_bent_by_border`).
+see through it, is the plane of its inner pixels (:func:`_bent_by_border`); and a bend that
+rests on the returns of one border grid line or of two opposite ones is none
+(:func:`bent_at_border_lines`).
 """
 
 from __future__ import annotations
@@ -51,7 +53,10 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     ``decide_planes``), and, with or without ``decide_planes``, the curved models a laser's
     mixed returns at jump edges bent replaced by the plane of their inner pixels
     (:func:`_bent_by_border`, after :func:`_unbent`; the planes either gives are not
-    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`); and
+    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`), then, after the
+    decision, every region whose model is curved (its own or the decision's) judged once on
+    its pixels less the border lines off the rest (:func:`bent_at_border_lines`: a curved
+    region becomes that plane, a plane the decision bent keeps its own); and
     :func:`_curved_planes` leaves the planes seen near grazing as they are
     (:func:`_seen_near_grazing`).
 
@@ -97,7 +102,7 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
         now = {k: bent.get(k, m) for k, m in fits.items() if k not in unbent}
         for k, plane in bent_at_border_lines(ctx, labels, {k: m for k, m in now.items()
                                                            if m and not isinstance(m, Plane)},
-                                             resolve_bends, pixels=pixels).items():
+                                             resolve_bends, kept=set(bent), pixels=pixels).items():
             if bent.pop(k, None) is None:  # (a plane the decision bent keeps the plane it had)
                 unbent[k] = fits[k] = plane
     fits.update(bent)
@@ -328,7 +333,7 @@ TWO_SIDES_ARC = 0.5 * np.pi
 
 
 def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples: float = 0.0, *,
-                         pixels: _Pixels | None = None) -> dict:
+                         kept=(), pixels: _Pixels | None = None) -> dict:
     """The planes of the regions of ``curved`` (label -> a curved model: the region's, or the one
     the fitter's decision gives a plane region) whose bend rests on the returns of border grid
     lines alone, on a laser's single returns. A side is one grid line's returns along the
@@ -347,7 +352,12 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
     (where those span ``BEND_LINES`` lines both ways; where they do not, when the rest's plane
     leaves it under :func:`under_range_noise`: seen obliquely, as a pipe's front is not), and a
     bend on two sides is theirs only on a cylinder spanning less than ``TWO_SIDES_ARC`` around
-    its axis (``arc_around_axis``).
+    its axis (``arc_around_axis``) whose region's plane is over the plane threshold (within it,
+    pipes of 0.1-0.16 m seen on five rows across their axis, whose fits leave a shallow arc:
+    nodding_1deg seeds 37, 1015, 1016). A curved region becomes the plane; the regions of
+    ``kept`` (plane regions the decision bends, whose plane polish keeps) are asked only where
+    their own plane is within the threshold (so one side only: noise_10mm seed 17 scan 0, a
+    0.22 m pipe on 10 rows whose plane was over it, its two sides the decision's bend).
 
     A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
     and what lies beyond its edge, many range sigmas off both: a column of them bends a face a
@@ -411,7 +421,10 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
         # two sides only where the region's plane is over the threshold: within it, a pipe seen on a
         # few grid lines across its axis (its limbs the two sides, an arc the fit leaves shallow)
-        shallow = shallow and rms[0] > threshold(idx.size, centroid)
+        whole = threshold(idx.size, centroid)
+        if k in kept and rms[0] > whole:
+            continue  # a plane region keeps its own plane: not over the threshold
+        shallow = shallow and rms[0] > whole
         for c in np.argsort(rms[1:]):  # the flattest rest first
             n, rest = int(sizes[c + 1]), ~dropped[c]
             if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
