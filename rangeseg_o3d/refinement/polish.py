@@ -355,9 +355,9 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
     its axis (``arc_around_axis``) whose region's plane is over the plane threshold (within it,
     pipes of 0.1-0.16 m seen on five rows across their axis, whose fits leave a shallow arc:
     nodding_1deg seeds 37, 1015, 1016). A curved region becomes the plane; the regions of
-    ``kept`` (plane regions the decision bends, whose plane polish keeps) are asked only where
-    their own plane is within the threshold (so one side only: noise_10mm seed 17 scan 0, a
-    0.22 m pipe on 10 rows whose plane was over it, its two sides the decision's bend).
+    ``kept`` (plane regions the decision bends, whose plane polish keeps) are asked one side
+    only: the arc of the decision's cylinder on a region found a plane tells no pipe from a face
+    (noise_10mm seed 17 scan 0, a 0.22 m pipe on 10 rows, 24 columns, its cylinder shallow).
 
     A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
     and what lies beyond its edge, many range sigmas off both: a column of them bends a face a
@@ -405,9 +405,9 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         if idx.size < 2 * minimum:
             continue
         model = curved[k]
-        # two sides only on a shallow cylinder (every fourth return first: a subset's largest gap
-        # is no narrower, so its arc is no wider than all the returns')
-        shallow = isinstance(model, Cylinder) and arc_around_axis(
+        # two sides only on a shallow cylinder of the region's own (every fourth return first: a
+        # subset's largest gap is no narrower, so its arc is no wider than all the returns')
+        shallow = isinstance(model, Cylinder) and k not in kept and arc_around_axis(
             rows_at(ctx.xyz, idx[::4]), model.axis, model.point) < TWO_SIDES_ARC
         if not (shallow or k in one_side):
             continue  # no candidate could pass
@@ -421,10 +421,7 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
         # two sides only where the region's plane is over the threshold: within it, a pipe seen on a
         # few grid lines across its axis (its limbs the two sides, an arc the fit leaves shallow)
-        whole = threshold(idx.size, centroid)
-        if k in kept and rms[0] > whole:
-            continue  # a plane region keeps its own plane: not over the threshold
-        shallow = shallow and rms[0] > whole
+        shallow = shallow and rms[0] > threshold(idx.size, centroid)
         for c in np.argsort(rms[1:]):  # the flattest rest first
             n, rest = int(sizes[c + 1]), ~dropped[c]
             if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
