@@ -50,6 +50,8 @@ def test_two_sides_off_give_the_plane_between_them_on_a_shallow_cylinder_only(se
     assert list(out) == [1]
     assert out[1].normal @ expected.normal == pytest.approx(1.0, abs=1e-12)
     assert out[1].d == pytest.approx(expected.d, abs=1e-9)
+    # a plane region the decision bent (its plane kept) is asked one side only
+    assert bent_at_border_lines(ctx, labels, {1: _two._face_cylinder(points)}, 1.0, kept={1}) == {}
     # no arc to weigh on a sphere: both sides off, and neither alone is the bend (the other one
     # lies off the plane between them), so it is left to its model
     sphere = Sphere(center=points.mean(axis=0) + np.array([2.0, 0.0, 2.0]), radius=2.8, rms=0.01, inliers=idx.size)
