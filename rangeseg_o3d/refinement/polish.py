@@ -349,15 +349,18 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
     (``resolve_bends=samples``) must be a plane, which becomes the answer. A pipe's two limbs lie
     off the plane of its front as mixed returns do, so a bend on one side is one side's only
     when the opposite side's returns do not lie off the plane of the returns between the two
-    (where those span ``BEND_LINES`` lines both ways; where they do not, when the rest's plane
-    leaves it under :func:`under_range_noise`: seen obliquely, as a pipe's front is not), and a
+    (where those span ``BEND_LINES`` lines both ways; where they do not, on a curved region's own
+    model, when the rest's plane leaves it under :func:`under_range_noise`: seen obliquely, as a
+    pipe's front is not), and a
     bend on two sides is theirs only on a cylinder spanning less than ``TWO_SIDES_ARC`` around
-    its axis (``arc_around_axis``) whose region's plane is over the plane threshold (within it,
-    pipes of 0.1-0.16 m seen on five rows across their axis, whose fits leave a shallow arc:
-    nodding_1deg seeds 37, 1015, 1016). A curved region becomes the plane; the regions of
-    ``kept`` (plane regions the decision bends, whose plane polish keeps) are asked one side
-    only: the arc of the decision's cylinder on a region found a plane tells no pipe from a face
-    (noise_10mm seed 17 scan 0, a 0.22 m pipe on 10 rows, 24 columns, its cylinder shallow).
+    its axis (``arc_around_axis``). A curved region is asked only where its own plane is over the
+    plane threshold (within it :func:`_unbent` answers; asked, pipes of 0.1-0.16 m seen on five
+    rows across their axis, whose fits leave a shallow arc, were freed on two sides: nodding_1deg
+    seeds 37, 1015, 1016; and pipes of 0.1 m facing the sensor on one: noise_20mm seed 0 scan 7,
+    spinning_32x1024 seed 0 scan 0), and becomes the rest's plane. The regions of ``kept``
+    (plane regions the decision bends, whose plane polish keeps) are asked one side only: the arc
+    of the decision's cylinder on a region found a plane tells no pipe from a face (noise_10mm
+    seed 17 scan 0, a 0.22 m pipe on 10 rows, 24 columns, its cylinder shallow).
 
     A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
     and what lies beyond its edge, many range sigmas off both: a column of them bends a face a
@@ -419,9 +422,8 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         # candidates 0-3 one side each, 4-5 two opposite ones (a pixel on both: the first)
         dropped = np.vstack([sides, sides[0] | sides[1], sides[2] | sides[3]])
         _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
-        # two sides only where the region's plane is over the threshold: within it, a pipe seen on a
-        # few grid lines across its axis (its limbs the two sides, an arc the fit leaves shallow)
-        shallow = shallow and rms[0] > threshold(idx.size, centroid)
+        if k not in kept and rms[0] <= threshold(idx.size, centroid):
+            continue  # a curved region whose plane is within the threshold: _unbent's question, answered
         for c in np.argsort(rms[1:]):  # the flattest rest first
             n, rest = int(sizes[c + 1]), ~dropped[c]
             if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
@@ -447,8 +449,9 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
                     between = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
                     if not between or off(between, points, idx, far):
                         continue  # the bend is not that side's alone
-                elif not rms[c + 1] < under_range_noise(float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2))), n):
-                    continue  # too few lines between to tell, and the rest faces the sensor as a pipe's front
+                elif k in kept or not rms[c + 1] < under_range_noise(float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2))), n):
+                    continue  # too few lines between to tell, and the bend the decision's (noise_20mm seed 13
+                    # scan 0: a 0.12 m pipe seen head-on) or the rest facing the sensor as a pipe's front
             _, noise, _ = _ray_noise(points[rest], ctx.sigma[idx[rest]], plane, ctx.viewing_rays(idx[rest]))
             if plane.rms > noise_rms_bound.py_func(noise, n - 3.0, NOISE_CHI2_SIGMAS):
                 continue  # more than its returns' range noise leaves a plane (its noise floor): a bent arc's
