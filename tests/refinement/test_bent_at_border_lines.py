@@ -70,15 +70,15 @@ def test_the_compiled_pass_only_skips_what_no_single_side_could_free(monkeypatch
 
 
 def test_polish_asks_it_once_for_curved_regions_and_bent_planes_alike(monkeypatch):
-    # region 1: the one-sided face as a cylinder; region 2: the same face shifted 20 columns,
-    # a plane the decision bends
+    # region 1: the one-sided face as a cylinder; region 2: the same face's returns 10 columns
+    # to the right, a plane the decision bends
     ctx, labels, _ = _one._wide_face(0)
     xyz = ctx.xyz.reshape(40, 40, 3)
     two = np.zeros_like(labels)
-    two[:, 20:] = np.where(labels[:, :20] == 1, 2, 0)
-    assert not np.any(labels[:, 20:][two[:, 20:] == 2])  # (the copy lands on the wall alone)
+    two[:, 10:] = np.where(labels[:, :30] == 1, 2, 0)
+    assert not np.any(labels[two == 2]) and (two == 2).sum() == (labels == 1).sum()  # (on the wall alone)
     xyz = xyz.copy()
-    xyz[:, 20:][two[:, 20:] == 2] = xyz[:, :20][labels[:, :20] == 1]
+    xyz[:, 10:][two[:, 10:] == 2] = xyz[:, :30][labels[:, :30] == 1]
     ctx = _one._scenes._context(xyz)
     both = labels + two
     points = {k: ctx.xyz[both.ravel() == k] for k in (1, 2)}
