@@ -9,9 +9,11 @@ must still be one on its final pixels: its kind was decided on the pixels it had
 pipe's flat middle piece, before growth gave it the flanks), :func:`_curved_planes`. For
 a laser's single returns, whose noise is along their rays, a plane must also be within what
 that noise gives its distances, or a cylinder fitted in range residuals takes it where it
-is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`; and a cylinder or
+is (a pipe's limb seen at grazing incidence), :func:`_planes_off_rays`; a cylinder or
 sphere whose bend only the mixed returns at its border carry, and beside which the rays
-see through it, is the plane of its inner pixels (:func:`_bent_by_border`).
+see through it, is the plane of its inner pixels (:func:`_bent_by_border`); and a bend that
+rests on the returns of one border grid line or of two opposite ones is none
+(:func:`bent_at_border_lines`).
 """
 
 from __future__ import annotations
@@ -30,7 +32,6 @@ from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .context import TRIM_SIGMAS, Context
-from .grid_lines import lines_across
 
 __all__ = ["polish_models"]
 
@@ -52,7 +53,10 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     ``decide_planes``), and, with or without ``decide_planes``, the curved models a laser's
     mixed returns at jump edges bent replaced by the plane of their inner pixels
     (:func:`_bent_by_border`, after :func:`_unbent`; the planes either gives are not
-    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`); and
+    decided again by :func:`_curved_planes` or :func:`_planes_off_rays`), then, after the
+    decision, every region whose model is curved (its own or the decision's) judged once on
+    its pixels less the border lines off the rest (:func:`bent_at_border_lines`: a curved
+    region becomes that plane, a plane the decision bent keeps its own); and
     :func:`_curved_planes` leaves the planes seen near grazing as they are
     (:func:`_seen_near_grazing`).
 
@@ -84,12 +88,7 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
         unbent.update(_bent_by_border(ctx, labels, fits, [k for k in curved if not isinstance(fits[k], Plane)],
                                       pixels=pixels, sums=sums))
         fits.update(unbent)
-        unbent.update(_bent_by_one_side(ctx, labels, [k for k in curved if not isinstance(fits[k], Plane)],
-                                        resolve_bends, pixels=pixels))
-        fits.update(unbent)
-        unbent.update(bent_on_two_sides(ctx, labels, {k: fits[k] for k in curved if isinstance(fits[k], Cylinder)},
-                                        resolve_bends, pixels=pixels))
-        fits.update(unbent)
+    bent = {}
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
         bent = _curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
                               pixels=pixels, grazing_flat=along_rays)
@@ -98,13 +97,17 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
             # bend only a neighbour's pixels carry is none (the batch leaves the decision the
             # planes beyond the noise's chi-square, and a few such pixels put a wall there)
             refused = _unbent(ctx, labels, list(bent), resolve_bends, pixels=pixels)
-            if along_rays:  # a laser's mixed returns along one side are no bend either
-                refused = set(refused) | set(bend_on_one_side(ctx, labels, [k for k in bent if k not in refused],
-                                                              resolve_bends, pixels=pixels))
             bent = {k: m for k, m in bent.items() if k not in refused}
-        fits.update(bent)
-        if along_rays:
-            fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
+    if along_rays:  # nor are a laser's mixed returns along one or two sides of a region
+        now = {k: bent.get(k, m) for k, m in fits.items() if k not in unbent}
+        for k, plane in bent_at_border_lines(ctx, labels, {k: m for k, m in now.items()
+                                                           if m and not isinstance(m, Plane)},
+                                             resolve_bends, kept=set(bent), pixels=pixels).items():
+            if bent.pop(k, None) is None:  # (a plane the decision bent keeps the plane it had)
+                unbent[k] = fits[k] = plane
+    fits.update(bent)
+    if decide_planes and along_rays:
+        fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
     return fits
 
 
@@ -264,9 +267,9 @@ def under_range_noise(sigma: float, n: int) -> float:
     return float(sigma * np.sqrt(low)) if low > 0.0 else 0.0
 
 
-#: The fewest grid lines across (:func:`rangeseg_o3d.refinement.grid_lines.lines_across`) on which
-#: returns show a bend: two lines of returns along a column's axis are parallel, so two lines fit a
-#: plane whatever the surface's curvature (:func:`_bent_by_one_side`).
+#: The fewest grid lines across, line by line (:func:`_lines_beside`), on which returns show a
+#: bend: two lines of returns along a column's axis are parallel, so two lines fit a plane
+#: whatever the surface's curvature (:func:`bent_at_border_lines`).
 BEND_LINES = 3
 
 
@@ -301,289 +304,158 @@ def border_sides(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.
 ONE_SIDE_MARGIN = 1.01
 
 
-def _one_side_flat(ctx: Context, labels: np.ndarray, curved: list, minimum: int) -> list:
+def _one_side_flat(ctx: Context, labels: np.ndarray, curved: list, minimum: int) -> set:
     """The regions among ``curved`` of which the region less one side (:func:`border_sides`)
-    of at least ``minimum`` pixels leaves its least-squares plane an rms under
-    :func:`under_range_noise` of the largest range noise (within ``ONE_SIDE_MARGIN``), by one
-    compiled pass over the label image (``kernels.side_rest_planes``): :func:`_bent_by_one_side`
-    gathers and fits the points of those alone."""
+    of at least ``minimum`` pixels leaves its least-squares plane an rms within what the largest
+    range noise gives a plane (``noise_rms_bound`` at ``NOISE_CHI2_SIGMAS``, within
+    ``ONE_SIDE_MARGIN``), by one compiled pass over the label image (``kernels.side_rest_planes``):
+    a rest's noise along its rays is at most that, so :func:`bent_at_border_lines` frees no
+    other region by one side and gathers the points of those alone."""
     if not curved:
-        return []
-    n = max(curved) + 1
-    wanted = np.zeros(n, bool)
+        return set()
+    wanted = np.zeros(max(curved) + 1, bool)
     wanted[list(curved)] = True
     counts, rms = kernels.side_rest_planes(ctx.xyz, np.ascontiguousarray(labels.ravel()),
                                            labels.shape[1], wanted, bool(ctx.wrap_columns))
     valid = ctx.sigma[np.isfinite(ctx.sigma)]  # (no noise where no return)
     if valid.size == 0:
-        return []
-    sigma = float(valid.max())  # (a bound: the rest's own noise is at most this)
-    keep = []
-    for k in curved:
-        for s in range(4):
-            if counts[k, s] >= minimum and rms[k, s] < ONE_SIDE_MARGIN * under_range_noise(sigma, int(counts[k, s])):
-                keep.append(int(k))
-                break
-    return keep
+        return set()
+    bound = noise_rms_bound.py_func(float(valid.max()), counts[curved] - 3.0, NOISE_CHI2_SIGMAS)
+    flat = (counts[curved] >= minimum) & (rms[curved] <= ONE_SIDE_MARGIN * bound)
+    return {int(k) for k in np.asarray(curved)[flat.any(axis=1)]}
 
 
-def _bent_by_one_side(ctx: Context, labels: np.ndarray, curved: list, samples: float = 0.0, *,
-                      pixels: _Pixels | None = None) -> dict:
-    """The planes of the curved regions among ``curved`` whose bend rests on one side's border
-    alone, on a laser's single returns. A side is the region's pixels whose neighbour above, below,
-    left or right is outside it (:func:`border_sides`: one grid line's returns along that side).
-    The region's own plane is over the fitter's plane threshold (else :func:`_unbent` asks), and
-    without one side the rest's least-squares plane is within that threshold and under the range
-    noise's chi-square lower bound (:func:`under_range_noise`: its returns are seen obliquely,
-    their distances carry the range noise times the incidence cosine), spans at least
-    ``BEND_LINES`` grid lines across, the fitter's decision on it (``resolve_bends=samples``) is a
-    plane, and the side's pixels lie off that plane by more than their range noise explains
-    (:func:`beyond_noise`, ``ctx.sigma``). That plane becomes the model (of the sides that pass,
-    the one whose rest fits best).
+#: The widest arc around its axis (radians) a cylinder bounded by two jump edges may show and its
+#: bend still be taken for mixed returns along both (:func:`bent_at_border_lines`): a convex
+#: cylinder seen from outside shows the sensor about half a turn between its limbs, so a region of
+#: a pipe whose two sides are its limbs spans far more than half of that.
+TWO_SIDES_ARC = 0.5 * np.pi
 
-    A laser's return whose footprint a jump edge crosses is mixed, lying along its ray between
-    the two surfaces, many range sigmas off both: a face three to six columns wide with a column
-    of them along one side bends like a cylinder that explains it within the range noise, so
-    neither :func:`_unbent` (the plane is over the threshold) nor :func:`_bent_by_border` (the
-    model is within the noise) frees it (noise_10mm seed 17 scan 3: a face 3 columns wide at
-    5.2 m, seen at 57 degrees, with 20 mixed returns 6-8 range sigmas behind it along its left
-    side, a 1.26 m cylinder at 6.1 mm rms under 10 mm noise; its plane 17.9 mm, without that side
-    5.8 mm). On the laser rows of the 14 study seeds four of the five false fittings were such
-    faces. A pipe seen on four columns is flat within 10-20 mm noise without either limb too,
-    and its limb lies many sigmas off that plane; but its front faces the sensor, so that plane
-    leaves its returns about the range noise (noise_10mm seed 5 scan 2, a 0.13 m pipe at 4.1 m:
-    11.2 mm under 10 mm noise; noise_20mm seed 23 scan 6: 19.9 mm under 20 mm), where the
-    oblique face's leaves its cosine's share: the lower bound tells them apart. The rest must
-    also span three grid lines: on two a cylinder fits a plane as well, and its bend only shows
-    with the next line (noise_20mm seed 17 scan 5: a 0.13 m column at 5.4 m seen on two columns,
-    whose third column of mixed returns gave the cylinder its right radius).
 
-    Cost: per curved region five plane rms by its scatter (the region's, and the rest's for each
-    side: the region's scatter less the side's); a plane fit and a decision only where a rest is
-    flat by them."""
-    from ..fitting.classify import plane_threshold
+def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples: float = 0.0, *,
+                         kept=(), pixels: _Pixels | None = None) -> dict:
+    """The planes of the regions of ``curved`` (label -> a curved model: the region's, or the one
+    the fitter's decision gives a plane region) whose bend rests on the returns of border grid
+    lines alone, on a laser's single returns. A side is one grid line's returns along the
+    region's border (:func:`border_sides`: above, below, left, right). The decision is the
+    fitter's, once, on the region less the sides whose returns lie off the rest's plane beyond
+    their range noise: one side, or two opposite ones. For a candidate (each side, each opposite
+    pair; the flattest rest first) the rest must span at least ``BEND_LINES`` grid lines both
+    ways, line by line (:func:`_lines_beside`); its least-squares plane must be within the
+    fitter's plane threshold and leave it no more than its range noise along its rays gives a
+    plane (:func:`_ray_noise`, up to the noise floor's ``NOISE_CHI2_SIGMAS`` chi-square
+    deviations); each dropped side's returns must lie off that plane by more than their range
+    noise explains (:func:`beyond_noise`); and the fitter's decision on the rest
+    (``resolve_bends=samples``) must be a plane, which becomes the answer. A pipe's two limbs lie
+    off the plane of its front as mixed returns do, so a bend on one side is one side's only
+    when the opposite side's returns do not lie off the plane of the returns between the two
+    (where those span ``BEND_LINES`` lines both ways; where they do not, on a curved region's own
+    model, when the rest's plane leaves it under :func:`under_range_noise`: seen obliquely, as a
+    pipe's front is not), and a
+    bend on two sides is theirs only on a cylinder spanning less than ``TWO_SIDES_ARC`` around
+    its axis (``arc_around_axis``). A curved region is asked only where its own plane is over the
+    plane threshold (within it :func:`_unbent` answers; asked, pipes of 0.1-0.16 m seen on five
+    rows across their axis, whose fits leave a shallow arc, were freed on two sides: nodding_1deg
+    seeds 37, 1015, 1016; and pipes of 0.1 m facing the sensor on one: noise_20mm seed 0 scan 7,
+    spinning_32x1024 seed 0 scan 0), and becomes the rest's plane. The regions of ``kept``
+    (plane regions the decision bends, whose plane polish keeps) are asked one side only: the arc
+    of the decision's cylinder on a region found a plane tells no pipe from a face (noise_10mm
+    seed 17 scan 0, a 0.22 m pipe on 10 rows, 24 columns, its cylinder shallow).
+
+    A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
+    and what lies beyond its edge, many range sigmas off both: a column of them bends a face a
+    few columns wide like a cylinder that explains it within the range noise, on one side
+    (noise_10mm seed 17 scan 3: a face 3 columns wide at 5.2 m seen at 57 degrees, 20 mixed
+    returns 6-8 sigmas behind it, a 1.26 m cylinder at 6.1 mm rms; noise_20mm seed 1014 scan 1:
+    a face 6 columns wide whose plane is within the noise, bent by the decision's bend test) or
+    on both (noise_20mm seed 1021 scan 3: a face at cos 0.51 between columns 1 and 3.6 sigmas
+    behind it, a 2.5 m cylinder over 31 degrees). A pipe's bend is in the returns between its
+    limbs too, which the fitter's decision and the ray-noise bound see; where the noise hides
+    it there (a 0.1-0.2 m pipe under 10-20 mm noise) the far limb's offset, or on two sides the
+    arc, tells: a pipe whose two sides are its limbs spans about half a turn (118-278 degrees
+    on noise_20mm seeds 1001-1040), a face's mixed returns bend a wide cylinder over a shallow
+    arc (31-102 degrees for five of seven such faces there). Two lines of returns along a
+    column's axis are parallel and fit a plane whatever the bend, hence ``BEND_LINES``
+    (noise_20mm seed 17 scan 5: a 0.13 m column seen on two columns).
+
+    ``pixels`` (optional) the labels' grouped pixels. Cost per region: its arc when a cylinder
+    (a compiled pass over every fourth return first), its sides and six rest-plane rms by one
+    batch of scatter matrices; a plane fit, a ray-noise bound and a decision per passing
+    candidate."""
+    from ..fitting.classify import INLIER_FACTOR, plane_threshold
 
     p = ctx.fitter.params
     if not curved or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
         return {}
     minimum = max(int(p.get("min_points", 10)), 10)
     bends = {"resolve_bends": float(samples)} if samples else {}
+    width = labels.shape[1]
+
+    def threshold(n, centroid):
+        return plane_threshold(n, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
+                               rms_per_range2=p["rms_per_range2"])
+
+    def spans(rest):  # grid lines both ways, line by line
+        return min(_lines_beside(rest, width, True), _lines_beside(rest, width, False)) >= BEND_LINES
+
+    def off(plane, points, idx, side):  # the side's returns off the plane beyond their range noise
+        return side.sum() >= 3 and beyond_noise(float(np.sqrt(np.mean(plane.distances(points[side]) ** 2))),
+                                                 float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum()))
+
+    one_side = _one_side_flat(ctx, labels, list(curved), minimum)
     out = {}
-    for k, idx in (pixels or _Pixels(labels)).of(_one_side_flat(ctx, labels, curved, minimum)).items():
-        points = rows_at(ctx.xyz, idx)
-        centroid = points.mean(axis=0)
-        centred = points - centroid
-        sides = border_sides(labels, idx, ctx.wrap_columns)
-        weights, sizes, means, rms = _plane_rms_without_each_side(centred, sides)
-        whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
-                                rms_per_range2=p["rms_per_range2"])
-        if rms[0] <= whole:
-            continue  # its plane is within the threshold: _unbent's question, answered
-        noise2 = ctx.sigma[idx] ** 2
-        flat, rests = np.zeros(4, bool), []
-        for s in range(4):
-            n = int(sizes[s + 1])
-            rests.append((float(rms[s + 1]), n, centroid + means[s + 1]))
-            if n < minimum or n == idx.size or idx.size - n < 3:
-                continue
-            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
-                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
-            # under what the range noise gives returns facing the sensor (seen obliquely; a preset's
-            # plane threshold may also lie far over a quiet sensor's noise)
-            noise = float(np.sqrt(weights[s + 1] @ noise2 / n))
-            flat[s] = rms[s + 1] <= tolerance and rms[s + 1] < under_range_noise(noise, n)
-        best, best_rms = None, np.inf
-        for s in np.flatnonzero(flat):
-            rms, n, rest_centroid = rests[s]
-            if rms >= best_rms or lines_across(idx[~sides[s]], labels.shape[1]) < BEND_LINES:
-                continue  # two lines of returns fit a plane whatever the surface's bend: no evidence
-            tolerance = plane_threshold(n, rest_centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
-                                        rms_per_range2=p["rms_per_range2"])
-            plane = _rest_plane(ctx, points, idx, sides[s], tolerance, bends)
-            if plane is not None:
-                best, best_rms = plane, rms
-        if best is not None:
-            out[k] = best
-    return out
-
-
-def bend_on_one_side(ctx: Context, labels: np.ndarray, bent: list, samples: float = 0.0, *,
-                     pixels: _Pixels | None = None) -> list:
-    """The regions among ``bent`` (plane regions the fitter's decision bends on their final
-    pixels, :func:`_curved_planes`) whose bend rests on one side's returns alone, on a laser's
-    single returns. A side is one grid line's returns along the region's border
-    (:func:`border_sides`). It carries the bend when, without it, the rest spans at least
-    ``BEND_LINES`` grid lines across beside that side (:func:`_lines_beside`, line by line),
-    its least-squares plane is within the fitter's plane threshold, the fitter's decision on the
-    rest (``resolve_bends=samples``) is a plane, the side's returns lie off that plane by more
-    than their range noise explains (:func:`beyond_noise`, ``ctx.sigma``) and the opposite side's
-    returns do not lie off the plane of the returns between the two sides (themselves on at least
-    ``BEND_LINES`` lines across), and the rest's plane
-    leaves the rest's returns no more than their range noise along their rays gives a plane
-    (:func:`_ray_noise`: the range noise times each ray's incidence cosine), up to the noise
-    floor's ``NOISE_CHI2_SIGMAS`` chi-square deviations.
-
-    A return whose footprint a jump edge crosses is mixed, lying along its ray between the face
-    and what lies beyond its edge: one column of them bends a face's quadric over its hundreds
-    of returns although its plane is within the noise (noise_20mm seed 1014 scan 1: a face 6
-    columns wide at 2.5 m seen at cos 0.53, its plane 13.4 mm under 20 mm noise, a 0.91 m
-    cylinder by the decision's bend test; its left column lies off the rest's plane). A pipe's
-    bend is in all its columns: seen on a narrow arc its two limbs both fall behind the plane of
-    its front, so the opposite side's returns lie off the plane between the sides too (off the
-    rest's own plane, which leans to them, they may not: noise_20mm seed 13 scan 0, a 0.13 m pipe
-    seen head-on, a band 3-4 pixels wide); and where noise hides
-    the far limb (a 0.13 m pipe on four columns under 20 mm noise), the rest's plane, tilted
-    across the arc, is seen obliquely while its returns lie off it as much as head-on ones
-    (noise_20mm seed 1004 scan 4, without its right limb: 15.4 mm where a plane at that incidence
-    leaves 13.0 mm, 1.189 of it over a floor of 1.183; the five faces of noise_20mm seeds
-    1001-1020 it frees left 0.89-1.08 of theirs). ``pixels``
-    (optional) the labels' grouped pixels. Cost: only the regions the decision bent (a few a
-    scan), four plane rms by their scatter and a plane fit and decision per passing side."""
-    from ..fitting.classify import INLIER_FACTOR, plane_threshold
-
-    p = ctx.fitter.params
-    if not bent or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
-        return []
-    minimum = max(int(p.get("min_points", 10)), 10)
-    bends = {"resolve_bends": float(samples)} if samples else {}
-    opposite = (1, 0, 3, 2)
-    out = []
-    for k, idx in (pixels or _Pixels(labels)).of(bent).items():
-        points = rows_at(ctx.xyz, idx)
-        centroid = points.mean(axis=0)
-        sides = border_sides(labels, idx, ctx.wrap_columns)
-        _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, sides)
-        for s in np.argsort(rms[1:]):  # the flattest rest first
-            n = int(sizes[s + 1])
-            if n < minimum or idx.size - n < 3 or not sides[opposite[s]].any():
-                continue
-            if _lines_beside(idx[~sides[s]], labels.shape[1], s < 2) < BEND_LINES:
-                continue  # two lines of returns fit a plane whatever the surface's bend
-            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
-                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
-            if rms[s + 1] > tolerance:
-                continue
-            plane = fit_plane(points[~sides[s]], inlier_distance=INLIER_FACTOR * tolerance)
-            if not plane or plane.rms > tolerance:
-                continue
-            middle = ~sides[s] & ~sides[opposite[s]]
-            if middle.sum() < minimum or _lines_beside(idx[middle], labels.shape[1], s < 2) < BEND_LINES:
-                continue  # between the sides too few lines to tell the far side's bend
-            # the opposite side against the plane of the returns between the two sides: a plane
-            # through it as well leans to it (a pipe seen head-on: its far limb on that plane)
-            between = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
-            if not between:
-                continue
-            far = []
-            for side, model in ((sides[s], plane), (sides[opposite[s]] & ~sides[s], between)):
-                if not side.any():
-                    far.append(False)
-                    continue
-                off = float(np.sqrt(np.mean(model.distances(points[side]) ** 2)))
-                far.append(beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())))
-            if not far[0] or far[1]:
-                continue  # the bend is not that side's alone
-            rest = idx[~sides[s]]
-            _, noise, _ = _ray_noise(points[~sides[s]], ctx.sigma[rest], plane, ctx.viewing_rays(rest))
-            if plane.rms > noise_rms_bound.py_func(noise, n - 3.0, NOISE_CHI2_SIGMAS):
-                continue  # more than its returns' range noise leaves a plane (its noise floor): a bent arc's
-            if isinstance(ctx.fitter.fit(points[~sides[s]], **bends), Plane):
-                out.append(int(k))
-                break
-    return out
-
-
-#: The widest arc around its axis (radians) a cylinder bounded by two jump edges may show and its
-#: bend still be taken for mixed returns along them (:func:`bent_on_two_sides`): a convex cylinder
-#: seen from outside shows the sensor about half a turn between its limbs, so a region of a pipe
-#: whose two sides are its limbs spans far more than half of that.
-TWO_SIDES_ARC = 0.5 * np.pi
-
-
-def bent_on_two_sides(ctx: Context, labels: np.ndarray, cylinders: dict, samples: float = 0.0, *,
-                      pixels: _Pixels | None = None) -> dict:
-    """The planes of the regions of ``cylinders`` (label -> :class:`Cylinder`) whose bend rests on
-    two opposite sides' borders (above and below, or left and right, :func:`border_sides`), on a
-    laser's single returns: the region's returns span less than ``TWO_SIDES_ARC`` around the
-    cylinder's axis (``arc_around_axis``), its own plane is over the fitter's plane threshold, and without both sides
-    the returns between them span at least ``BEND_LINES`` grid lines across, line by line
-    (:func:`_lines_beside`), their least-squares plane is within the plane threshold and leaves
-    them no more than their range noise along their rays gives a plane (:func:`_ray_noise`, up
-    to ``NOISE_CHI2_SIGMAS`` chi-square deviations), the fitter's decision on them
-    (``resolve_bends=samples``) is a plane, and each side's returns lie off that plane by more
-    than their range noise explains (:func:`beyond_noise`). That plane becomes the model.
-
-    A face a jump edge bounds on both sides carries a column of mixed returns (lying along
-    their rays between the face and what lies beyond) along each: with both, no one side's rest
-    is flat and :func:`_bent_by_one_side` cannot free it (noise_20mm seed 1021 scan 3, a face at
-    cos 0.51 whose left and right columns lie about 1 and 3.6 sigmas behind the plane between
-    them, a 2.5 m cylinder over 31 degrees). A pipe's limbs lie behind the plane of its front too, but its bend is in the
-    returns between them as well: the fitter's decision and the ray-noise bound on them are
-    what keep it where the returns between its limbs still show the bend. Where they do not
-    (a pipe of 0.1-0.2 m under 10-20 mm noise: without its limbs its returns fit a plane within
-    the noise, 13 pipes of noise_20mm seeds 1001-1040 and 5 of noise_10mm), its arc does: a pipe
-    whose two sides are its limbs spans about half a turn around its axis (118-278 degrees there,
-    by the largest gap, about a least-squares cylinder on the region), a face's mixed returns
-    bend a cylinder of a far wider radius over a shallow arc (31-102 degrees for five of the
-    seven such faces there; the other two, 134 and 213 degrees, stay cylinders). Spheres are
-    left as they are. ``pixels`` (optional) the labels' grouped pixels. Cost: per cylinder its
-    arc (a compiled pass over every fourth return, and over all where that is shallow); where
-    that is shallow too two plane rms by its
-    scatter, and a plane fit and a decision per passing pair."""
-    from ..fitting.classify import INLIER_FACTOR, plane_threshold
-
-    p = ctx.fitter.params
-    if not cylinders or not {"plane_rms", "noise_floor", "rms_per_range2"} <= set(p):  # another plugin
-        return {}
-    minimum = max(int(p.get("min_points", 10)), 10)
-    bends = {"resolve_bends": float(samples)} if samples else {}
-    out = {}
-    for k, idx in (pixels or _Pixels(labels)).of(list(cylinders)).items():
+    for k, idx in (pixels or _Pixels(labels)).of(list(curved)).items():
         if idx.size < 2 * minimum:
             continue
-        model = cylinders[k]
-        # every fourth return first: a subset's largest gap is no narrower, so its arc is no wider
-        # than all the returns' (a pipe's wide arc shows on a quarter of them, at a quarter of the cost)
-        if arc_around_axis(rows_at(ctx.xyz, idx[::4]), model.axis, model.point) >= TWO_SIDES_ARC:
-            continue  # about half a turn between its sides: a pipe's limbs
+        model = curved[k]
+        # two sides only on a shallow cylinder of the region's own (every fourth return first: a
+        # subset's largest gap is no narrower, so its arc is no wider than all the returns')
+        shallow = isinstance(model, Cylinder) and k not in kept and arc_around_axis(
+            rows_at(ctx.xyz, idx[::4]), model.axis, model.point) < TWO_SIDES_ARC
+        if not (shallow or k in one_side):
+            continue  # no candidate could pass
         points = rows_at(ctx.xyz, idx)
-        if arc_around_axis(points, model.axis, model.point) >= TWO_SIDES_ARC:
-            continue
+        if shallow:
+            shallow = arc_around_axis(points, model.axis, model.point) < TWO_SIDES_ARC
         centroid = points.mean(axis=0)
         sides = border_sides(labels, idx, ctx.wrap_columns)
-        pairs = np.vstack([sides[0] | sides[1], sides[2] | sides[3]])
-        _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, pairs)
-        whole = plane_threshold(idx.size, centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
-                                rms_per_range2=p["rms_per_range2"])
-        if rms[0] <= whole:
-            continue  # its plane is within the threshold: _unbent's question, answered
-        for s in np.argsort(rms[1:]):  # the flatter middle first
-            n = int(sizes[s + 1])
-            if n < minimum or min(_lines_beside(idx[~pairs[s]], labels.shape[1], True),
-                                  _lines_beside(idx[~pairs[s]], labels.shape[1], False)) < BEND_LINES:
-                continue  # two lines of returns either way fit a plane whatever the surface's bend
-            tolerance = plane_threshold(n, centroid + means[s + 1], plane_rms=p["plane_rms"],
-                                        noise_floor=p["noise_floor"], rms_per_range2=p["rms_per_range2"])
-            if rms[s + 1] > tolerance:
+        # candidates 0-3 one side each, 4-5 two opposite ones (a pixel on both: the first)
+        dropped = np.vstack([sides, sides[0] | sides[1], sides[2] | sides[3]])
+        _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
+        if k not in kept and rms[0] <= threshold(idx.size, centroid):
+            continue  # a curved region whose plane is within the threshold: _unbent's question, answered
+        for c in np.argsort(rms[1:]):  # the flattest rest first
+            n, rest = int(sizes[c + 1]), ~dropped[c]
+            if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
                 continue
-            middle = ~pairs[s]
-            plane = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
+            tolerance = threshold(n, centroid + means[c + 1])
+            if rms[c + 1] > tolerance:
+                continue
+            plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
             if not plane or plane.rms > tolerance:
                 continue
-            far = True
-            for side in (sides[2 * s], sides[2 * s + 1] & ~sides[2 * s]):  # (a pixel on both: the first)
-                if side.sum() < 3:
-                    far = False
-                    break
-                off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
-                far &= beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum()))
-            if not far:
-                continue  # the bend is not on both sides
-            rest = idx[middle]
-            _, noise, _ = _ray_noise(points[middle], ctx.sigma[rest], plane, ctx.viewing_rays(rest))
+            first = c if c < 4 else 2 * (c - 4)  # (the side dropped, or the first of the two)
+            near, far = sides[first], sides[first ^ 1] & ~sides[first]
+            if not off(plane, points, idx, near):
+                continue
+            if c >= 4:
+                if not off(plane, points, idx, far):
+                    continue  # the bend is not on both sides
+            else:
+                middle = rest & ~far
+                if middle.sum() >= minimum and spans(idx[middle]):
+                    # the far side against the plane between the two sides: a plane through it as
+                    # well leans to it (a pipe seen head-on: its far limb on that plane)
+                    between = fit_plane(points[middle], inlier_distance=INLIER_FACTOR * tolerance)
+                    if not between or off(between, points, idx, far):
+                        continue  # the bend is not that side's alone
+                elif k in kept or not rms[c + 1] < under_range_noise(float(np.sqrt(np.mean(ctx.sigma[idx[rest]] ** 2))), n):
+                    continue  # too few lines between to tell, and the bend the decision's (noise_20mm seed 13
+                    # scan 0: a 0.12 m pipe seen head-on) or the rest facing the sensor as a pipe's front
+            _, noise, _ = _ray_noise(points[rest], ctx.sigma[idx[rest]], plane, ctx.viewing_rays(idx[rest]))
             if plane.rms > noise_rms_bound.py_func(noise, n - 3.0, NOISE_CHI2_SIGMAS):
-                continue  # more than its returns' range noise leaves a plane: a bent arc's
-            if isinstance(ctx.fitter.fit(points[middle], **bends), Plane):
+                continue  # more than its returns' range noise leaves a plane (its noise floor): a bent arc's
+            if isinstance(ctx.fitter.fit(points[rest], **bends), Plane):
                 out[int(k)] = plane
                 break
     return out
@@ -613,25 +485,6 @@ def _plane_rms_without_each_side(centred: np.ndarray, sides: np.ndarray) -> tupl
         means[:, :, None] * means[:, None, :])
     rms = np.sqrt(np.maximum(np.linalg.eigvalsh(scatter)[:, 0], 0.0) / np.maximum(sizes, 1.0))
     return weights, sizes, means, rms
-
-
-def _rest_plane(ctx: Context, points: np.ndarray, idx: np.ndarray, side: np.ndarray, tolerance: float,
-                bends: dict):
-    """The plane of the region's ``points`` (pixels ``idx``) less one ``side``, when it fits
-    within ``tolerance``, the side's returns lie off it by more than their range noise explains,
-    and the fitter decides the rest is a plane; else None."""
-    from ..fitting.classify import INLIER_FACTOR
-
-    rest = ~side
-    plane = fit_plane(points[rest], inlier_distance=INLIER_FACTOR * tolerance)
-    if not plane or plane.rms > tolerance:
-        return None
-    off = float(np.sqrt(np.mean(plane.distances(points[side]) ** 2)))
-    if not beyond_noise(off, float(np.sqrt(np.mean(ctx.sigma[idx[side]] ** 2))), int(side.sum())):
-        return None
-    if not isinstance(ctx.fitter.fit(points[rest], **bends), Plane):
-        return None
-    return plane
 
 
 def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, model) -> tuple[int, int]:

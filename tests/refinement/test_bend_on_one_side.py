@@ -1,4 +1,4 @@
-"""polish.bend_on_one_side: a plane region the fitter's decision bends, whose bend rests on the
+"""polish.bent_at_border_lines (one side, on a bend the decision gives): a plane region the fitter's decision bends, whose bend rests on the
 returns along one side of it (a laser's column of mixed returns beside a face), keeps its plane;
 a pipe, whose far limb falls behind its front's plane too or whose rest's plane is tilted across
 its arc, is left to the decision."""
@@ -12,7 +12,7 @@ import pytest
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
 from rangeseg_o3d.fitting.robust import beyond_noise
 from rangeseg_o3d.refinement import polish
-from rangeseg_o3d.refinement.polish import bend_on_one_side, polish_models
+from rangeseg_o3d.refinement.polish import bent_at_border_lines, polish_models
 
 # the scenes of test_bent_by_one_side (a face or a pipe in front of a wall, one column of mixed
 # returns on its left), loaded by path: the tests are not a package
@@ -20,6 +20,11 @@ _spec = importlib.util.spec_from_file_location("_one_side_scenes", Path(__file__
 _scenes = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_scenes)
 SIGMA = _scenes.SIGMA
+
+
+def bend_on_one_side(ctx, labels) -> list:
+    """The labels bent_at_border_lines frees of region 1 with the least-squares cylinder of its returns."""
+    return list(bent_at_border_lines(ctx, labels, {1: fit_cylinder(ctx.xyz[labels.ravel() == 1])}, 1.0))
 
 
 def _wide_face(seed: int):
@@ -52,27 +57,30 @@ def test_a_face_bent_by_one_column_of_mixed_returns_is_found(seed):
     mixed = idx[(idx % 40) < columns[0]]
     assert beyond_noise(float(np.sqrt(np.mean(plane.distances(ctx.xyz[mixed]) ** 2))), SIGMA, mixed.size)
     assert plane.rms < 0.7 * SIGMA  # seen at 57 degrees: its distances carry the noise's cosine share
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
-    assert bend_on_one_side(ctx, labels, [], 1.0) == []
+    assert bend_on_one_side(ctx, labels) == [1]
+    assert bent_at_border_lines(ctx, labels, {}, 1.0) == {}
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_pipe_with_one_column_of_mixed_returns_is_not(seed):
     ctx, labels, columns = _scenes._scene(seed, "pipe")
     assert columns.size >= 5
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    assert bend_on_one_side(ctx, labels) == []
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_rest_on_two_grid_lines_tells_nothing(seed, monkeypatch):
     ctx, labels, columns = _scenes._scene(seed, "narrow face")
     assert columns.size == 2
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    assert bend_on_one_side(ctx, labels) == []
     # nor does a face three columns wide: between its mixed column and its far side one
-    # column is left, on which the far side's bend cannot be told
+    # column is left, on which the far side's bend cannot be told (the merged decision then asks
+    # whether the rest is seen obliquely, test_bent_by_one_side's rule, which frees this face;
+    # without that rule it is left as here)
     ctx, labels, columns = _scenes._scene(seed, "face")
     assert columns.size == 3
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    monkeypatch.setattr(polish, "under_range_noise", lambda sigma, n: 0.0)
+    assert bend_on_one_side(ctx, labels) == []
 
 
 def test_a_tilted_rest_whose_returns_lie_off_it_as_head_on_ones_is_a_bent_arc(monkeypatch):
@@ -80,11 +88,11 @@ def test_a_tilted_rest_whose_returns_lie_off_it_as_head_on_ones_is_a_bent_arc(mo
     # its returns lay off it five times as much as a plane there leaves) and it no longer does:
     # the ray-noise test alone refuses it
     ctx, labels, _ = _wide_face(0)
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
+    assert bend_on_one_side(ctx, labels) == [1]
     real = polish._ray_noise
     monkeypatch.setattr(polish, "_ray_noise", lambda points, sigma, model, rays, each=False:
                         real(points, 0.2 * sigma, model, rays, each))
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    assert bend_on_one_side(ctx, labels) == []
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -99,7 +107,7 @@ def test_polish_keeps_the_plane_the_decision_would_bend_on_a_lasers_single_retur
     kept = polish_models(ctx, labels, {1: plane}, resolve_bends=1.0, along_rays=True)[1]
     assert kept.kind == "plane" and kept is plane
     assert polish_models(ctx, labels, {1: plane}, resolve_bends=1.0)[1].kind == "cylinder"  # not a laser's
-    monkeypatch.setattr(polish, "bend_on_one_side", lambda *a, **k: [])
+    monkeypatch.setattr(polish, "bent_at_border_lines", lambda *a, **k: {})
     assert polish_models(ctx, labels, {1: plane}, resolve_bends=1.0, along_rays=True)[1].kind == "cylinder"
 
 
@@ -121,11 +129,13 @@ def test_lines_beside_counts_the_grid_lines_across_line_by_line():
 
 def test_the_lines_between_the_sides_are_counted_line_by_line(monkeypatch):
     # the wide face: six columns without its mixed one, five between that and its far side;
-    # asking six lines refuses it there
+    # asking six lines refuses it there (where the lines between cannot tell, the merged decision
+    # asks whether the rest is seen obliquely: that rule off here)
     ctx, labels, _ = _wide_face(0)
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == [1]
+    assert bend_on_one_side(ctx, labels) == [1]
     monkeypatch.setattr(polish, "BEND_LINES", 6)
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    monkeypatch.setattr(polish, "under_range_noise", lambda sigma, n: 0.0)
+    assert bend_on_one_side(ctx, labels) == []
 
 
 def test_a_pipe_whose_far_limb_leans_the_rests_plane_is_not_taken():
@@ -138,4 +148,4 @@ def test_a_pipe_whose_far_limb_leans_the_rests_plane_is_not_taken():
     plane = fit_plane(ctx.xyz[idx[middle]])
     far = idx[col == columns[-1]]
     assert beyond_noise(float(np.sqrt(np.mean(plane.distances(ctx.xyz[far]) ** 2))), SIGMA, far.size)
-    assert bend_on_one_side(ctx, labels, [1], 1.0) == []
+    assert bend_on_one_side(ctx, labels) == []

@@ -1,4 +1,4 @@
-"""polish._bent_by_one_side: a curved region whose bend rests on the returns along one side of
+"""polish.bent_at_border_lines (one side): a curved region whose bend rests on the returns along one side of
 it (a laser's column of mixed returns beside a narrow face) is the plane of the rest; a pipe,
 which bends on every side, is not; nor is a region whose rest spans two grid lines."""
 
@@ -10,7 +10,7 @@ from rangeseg_o3d.config import load_config
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
 from rangeseg_o3d.fitting.robust import beyond_noise
 from rangeseg_o3d.refinement.context import Context
-from rangeseg_o3d.refinement.polish import _bent_by_one_side, border_sides, polish_models
+from rangeseg_o3d.refinement.polish import bent_at_border_lines, border_sides, polish_models
 
 SIGMA = 0.01  # the noise_10mm row's range noise
 JUMP = 0.3  # m: the range step behind the surface's edge that the mixed returns straddle
@@ -27,6 +27,11 @@ def _rays() -> np.ndarray:
 def _context(xyz: np.ndarray) -> Context:
     fitter = rs.Pipeline(load_config("lms200", overrides={"sensor.sigma0": SIGMA})).fitter
     return Context(rs.OrganizedCloud(xyz), fitter, np.full(xyz.shape[:2], SIGMA), 10)
+
+
+def _bent_by_one_side(ctx: Context, labels: np.ndarray) -> dict:
+    """bent_at_border_lines on region 1 with the least-squares cylinder of its returns."""
+    return bent_at_border_lines(ctx, labels, {1: fit_cylinder(ctx.xyz[labels.ravel() == 1])}, 1.0)
 
 
 def _scene(seed: int, kind: str):
@@ -73,7 +78,7 @@ def test_a_narrow_face_bent_by_one_column_of_mixed_returns_is_the_plane_of_the_r
     assert cylinder.kind == "cylinder" and cylinder.radius < 3.0
     assert not beyond_noise(float(cylinder.rms), SIGMA, idx.size)
     assert beyond_noise(float(fit_plane(points).rms), SIGMA, idx.size)
-    plane = _bent_by_one_side(ctx, labels, [1], 1.0)[1]
+    plane = _bent_by_one_side(ctx, labels)[1]
     assert plane.kind == "plane"
     truth = np.array([np.sin(np.radians(57.0)), 0.0, np.cos(np.radians(57.0))])
     assert abs(plane.normal @ truth) > np.cos(np.radians(3.0))  # the face's plane, from its own columns
@@ -90,7 +95,7 @@ def test_without_it_polish_keeps_the_face_a_cylinder(monkeypatch):
 
     ctx, labels, _ = _scene(0, "face")
     cylinder = fit_cylinder(ctx.xyz[labels.ravel() == 1])
-    monkeypatch.setattr(polish, "_bent_by_one_side", lambda *a, **k: {})
+    monkeypatch.setattr(polish, "bent_at_border_lines", lambda *a, **k: {})
     assert polish_models(ctx, labels, {1: cylinder}, resolve_bends=1.0, along_rays=True)[1].kind == "cylinder"
 
 
@@ -101,7 +106,7 @@ def test_a_pipe_with_one_column_of_mixed_returns_stays_a_cylinder(seed):
     idx = np.flatnonzero(labels.ravel())
     cylinder = fit_cylinder(ctx.xyz[idx])
     assert cylinder.kind == "cylinder" and abs(cylinder.radius - 0.2) < 0.08  # (the mixed column pushes it out)
-    assert _bent_by_one_side(ctx, labels, [1], 1.0) == {}
+    assert _bent_by_one_side(ctx, labels) == {}
     polished = polish_models(ctx, labels, {1: cylinder}, resolve_bends=1.0, along_rays=True)[1]
     assert polished.kind == "cylinder" and abs(polished.radius - 0.2) < 0.08
 
@@ -113,10 +118,10 @@ def test_two_grid_lines_tell_no_bend_so_a_region_whose_rest_spans_two_is_left_al
     ctx, labels, columns = _scene(seed, "narrow face")
     assert columns.size == 2  # the premise: two columns of the face, one of mixed returns
     assert fit_cylinder(ctx.xyz[labels.ravel() == 1]).kind == "cylinder"
-    assert _bent_by_one_side(ctx, labels, [1], 1.0) == {}
+    assert _bent_by_one_side(ctx, labels) == {}
     # with one line fewer needed, the same region would be the plane of the face's two columns
     monkeypatch.setattr(polish, "BEND_LINES", 2)
-    assert _bent_by_one_side(ctx, labels, [1], 1.0)[1].kind == "plane"
+    assert _bent_by_one_side(ctx, labels)[1].kind == "plane"
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -130,7 +135,7 @@ def test_a_thin_pipe_whose_front_faces_the_sensor_is_left_alone(seed):
     rest = np.zeros((40, 40), bool)
     rest[10:31, columns] = True
     assert fit_plane(ctx.xyz[rest.ravel()]).rms > under_range_noise(SIGMA, int(rest.sum()))
-    assert _bent_by_one_side(ctx, labels, [1], 1.0) == {}
+    assert _bent_by_one_side(ctx, labels) == {}
 
 
 def test_under_range_noise_values():

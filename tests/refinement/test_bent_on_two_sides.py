@@ -1,4 +1,4 @@
-"""polish.bent_on_two_sides: a cylinder region whose bend rests on mixed returns along two opposite
+"""polish.bent_at_border_lines (two sides): a cylinder region whose bend rests on mixed returns along two opposite
 sides (a laser's columns of mixed returns on both edges of a face) is the plane of the returns
 between them; a pipe, whose two sides are its limbs and which spans about half a turn around its
 axis, is not."""
@@ -14,7 +14,7 @@ from rangeseg_o3d.fitting._compiled import arc_around_axis
 from rangeseg_o3d.fitting.primitives import Cylinder
 from rangeseg_o3d.fitting.robust import beyond_noise
 from rangeseg_o3d.refinement import polish
-from rangeseg_o3d.refinement.polish import TWO_SIDES_ARC, bent_on_two_sides
+from rangeseg_o3d.refinement.polish import TWO_SIDES_ARC, bent_at_border_lines as bent_on_two_sides
 
 # test_bent_by_one_side's rays, context and noise, loaded by path: the tests are not a package
 _spec = importlib.util.spec_from_file_location("_one_side_scenes", Path(__file__).with_name("test_bent_by_one_side.py"))
