@@ -1,6 +1,6 @@
 """Every curved region less the returns along one of its sides, in one pass: the planes of
-those rests, for polish's test of a bend that rests on one side's grid line
-(:func:`rangeseg_o3d.refinement.polish._bent_by_one_side`).
+those rests, for polish's test of a bend that rests on one or two sides' grid lines
+(:func:`rangeseg_o3d.refinement.polish.bent_at_border_lines`).
 
 In numpy the same sums cost some 25 small-array calls per region (a quarter of a millisecond
 each on the LMS200 suite's scans); here one pass over the label image serves every region.
