@@ -230,7 +230,7 @@ LOCAL_JUDGED = 4
 @njit(cache=True, nogil=True)
 def _distinct(masks):
     """The rows of ``masks``, largest first (a stable order), without empty ones and those
-    mostly covered by a larger one kept (``fitting.robust._distinct``)."""
+    mostly covered by a larger one kept (``fitting.robust.distinct_masks``)."""
     k = masks.shape[0]
     counts = np.empty(k, np.int64)
     for s in range(k):

@@ -257,10 +257,6 @@ def distinct_masks(masks) -> list[np.ndarray]:
     return out
 
 
-# the name fitting._trimmed's compiled twin cites
-_distinct = distinct_masks
-
-
 class _Search:
     """The best answer so far of :func:`trimmed_fit` over the proposals judged."""
 
