@@ -13,7 +13,7 @@ def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max
     n = is_plane.shape[0]
     out = labels.copy()
     sums = np.zeros((n, 4))
-    borders = _plane_borders(xyz, labels, is_plane, sums)
+    borders = np.flatnonzero(_plane_borders(xyz, labels, is_plane, sums))
     if borders.size == 0:
         return out, np.empty(0, np.int64)
     centroids = sums[:, :3] / np.maximum(sums[:, 3:], 1.0)
