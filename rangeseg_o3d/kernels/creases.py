@@ -256,7 +256,8 @@ def cap_moves(xyz, labels, kind, normals, offsets, axes, points, radii, rms, sig
     cylinder form a cap when the plane faces along the axis (``|n . axis| >= cap_cos``), the
     plane region's centroid lies inside the cylinder and the cylinder region's behind the
     plane: the solid is their intersection, and a ray shows the surface it enters last. A
-    pixel of either region within ``reach - 1`` 4-steps of a border between the two moves to
+    pixel of either region within ``reach - 1`` 4-steps of a border pixel between the two
+    (the first of a pair across it) or of that pixel's left, right and lower neighbours moves to
     the other when its ray enters the other's surface later, both models explain it within
     ``k_sigma`` times its range noise (or their rms) and the ray meets both at least
     ``asin(least_cos)`` from grazing. Up to ``rounds`` passes, each on the labels the one
