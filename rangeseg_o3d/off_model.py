@@ -454,8 +454,6 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     return out, fits, stats_with_moved(stats, xyz, noise, labels, out, table, changed, inlier_factor)
 
 
-
-
 def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.ndarray, width: int, floor: int,
                models: list, max_angle_deg: float) -> np.ndarray:
     """Per group of :func:`faces_along_rays` (its flat pixels ``idx[bounds[g]:bounds[g + 1]]``,

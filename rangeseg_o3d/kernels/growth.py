@@ -223,11 +223,12 @@ def _maximum(a, b):
     return b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _ray_term(x, y, z, sigma):
     """One point's ``(u_x, u_y, u_z, q, w)`` of :func:`rangeseg_o3d.ray_planes.ray_terms`, each
     rounded as numpy's: the norm ``sqrt((x^2 + y^2) + z^2)`` (np.linalg.norm over a row of
-    three), ``np.maximum`` with NaN winning, ``r ** 2`` and ``noise ** 2`` as one product."""
+    three), ``np.maximum`` with NaN winning, ``r ** 2`` and ``noise ** 2`` as one product
+    (every kernel that makes these terms calls it: kernels.rays' sums and box terms too)."""
     r = _maximum(np.sqrt(x * x + y * y + z * z), 1e-12)
     sig = _maximum(sigma, 1e-12) / (r * r)
     return x / r, y / r, z / r, 1.0 / r, 1.0 / (sig * sig)

@@ -4,7 +4,7 @@ the planes fitted along them, bit for bit (the terms of :mod:`rangeseg_o3d.ray_p
 from __future__ import annotations
 
 import numpy as np
-from .growth import _maximum
+from .growth import _ray_term
 from .inline import _add_ray_terms
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
@@ -327,9 +327,7 @@ def ray_moment_sums(rays, inverse, weight):
 def pixel_ray_moments(xyz, sigma, pixels):
     """:func:`ray_moment_sums` of the pixels ``pixels`` (flat, into ``xyz`` (N, 3) and their
     range noise ``sigma`` (N,)), their terms made as :func:`rangeseg_o3d.ray_planes.ray_terms`
-    makes them (the range ``max(sqrt((x x + y y) + z z), 1e-12)``, the ray ``p / range``, the
-    inverse ``1 / range``, the weight ``1 / (s s)`` of ``s = max(sigma, 1e-12) / (range
-    range)``, NaN kept as numpy keeps it): the same bits as ``ray_moments(*ray_terms(xyz[pixels],
+    makes them (:func:`rangeseg_o3d.kernels.growth._ray_term`, NaN kept as numpy keeps it): the same bits as ``ray_moments(*ray_terms(xyz[pixels],
     sigma[pixels]))`` in one pass, without the gathers and the terms' arrays."""
     n = pixels.shape[0]
     outer = np.zeros((3, 3))
@@ -337,13 +335,9 @@ def pixel_ray_moments(xyz, sigma, pixels):
     squares = np.empty(n)
     for i in range(n):
         p = pixels[i]
-        x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
-        r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
-        q = 1.0 / r
-        s = _maximum(sigma[p], 1e-12) / (r * r)
-        wi = 1.0 / (s * s)
+        u0, u1, u2, q, wi = _ray_term(xyz[p, 0], xyz[p, 1], xyz[p, 2], sigma[p])
         wq = wi * q
-        _add_ray_terms(outer, first, wi, wq, x / r, y / r, z / r)
+        _add_ray_terms(outer, first, wi, wq, u0, u1, u2)
         squares[i] = wq * q
     return outer, first, pairwise_sum(squares, 0, n)
 
@@ -399,9 +393,5 @@ def box_ray_terms(xyz, sigma, valid):
             ok[i] = valid[row, col] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
             if not ok[i]:
                 x, y, z = 1.0, 1.0, 1.0
-            r = _maximum(np.sqrt((x * x + y * y) + z * z), 1e-12)
-            rays[i, 0], rays[i, 1], rays[i, 2] = x / r, y / r, z / r
-            inverse[i] = 1.0 / r
-            s = _maximum(sigma[row, col], 1e-12) / (r * r)
-            weight[i] = 1.0 / (s * s)
+            rays[i, 0], rays[i, 1], rays[i, 2], inverse[i], weight[i] = _ray_term(x, y, z, sigma[row, col])
     return ok, rays, inverse, weight
