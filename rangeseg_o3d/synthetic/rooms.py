@@ -72,7 +72,10 @@ class _Footprints:
 
 def _place(rng, footprints: _Footprints, radius: float, sample_xy) -> tuple[float, float] | None:
     for _ in range(_TRIES):
-        x, y = sample_xy()
+        where = sample_xy()
+        if where is None:
+            return None
+        x, y = where
         if footprints.fits(x, y, radius):
             footprints.take(x, y, radius)
             return x, y
@@ -125,11 +128,20 @@ def random_room(
         count = int(rng.integers(4, 8)) if n_objects is None else int(n_objects)
 
     def sample_xy(radius):
+        # A footprint wider than the room's free floor has no place: None, and the
+        # object is skipped (the room is "full" for it) instead of drawing from an
+        # empty interval.
         def draw():
             if around:
-                return (rng.uniform(x[0] + _WALL_MARGIN + radius, x[1] - _WALL_MARGIN - radius),
-                        rng.uniform(y[0] + _WALL_MARGIN + radius, y[1] - _WALL_MARGIN - radius))
-            px = rng.uniform(1.3 + radius, x[1] - _WALL_MARGIN - radius)
+                low_x, high_x = x[0] + _WALL_MARGIN + radius, x[1] - _WALL_MARGIN - radius
+                low_y, high_y = y[0] + _WALL_MARGIN + radius, y[1] - _WALL_MARGIN - radius
+                if high_x < low_x or high_y < low_y:
+                    return None
+                return rng.uniform(low_x, high_x), rng.uniform(low_y, high_y)
+            low_x, high_x = 1.3 + radius, x[1] - _WALL_MARGIN - radius
+            if high_x < low_x or y[1] - _WALL_MARGIN - radius < 0:
+                return None
+            px = rng.uniform(low_x, high_x)
             limit = min(y[1] - _WALL_MARGIN - radius, px * np.tan(np.deg2rad(60)))
             return px, rng.uniform(-limit, limit)
         return draw

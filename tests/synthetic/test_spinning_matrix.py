@@ -158,3 +158,29 @@ def test_depth_camera_quantised_depths():
     assert len(np.unique(np.round(steps))) > 3  # noise spreads the wall over several steps
     with pytest.raises(ValueError, match="depth_step"):
         simulate_depth_camera(_wall_scene(), depth_step=-1.0)
+
+
+def _x_extent(surface) -> tuple[float, float]:
+    if hasattr(surface, "axis") and hasattr(surface, "length"):  # a pipe or column side
+        ends = np.array([surface.base, surface.base + surface.axis * surface.length])[:, 0]
+        return float(ends.min() - surface.radius), float(ends.max() + surface.radius)
+    centre = float(np.asarray(surface.center)[0])
+    reach = float(getattr(surface, "radius", 0.0))
+    return centre - reach, centre + reach
+
+
+def test_a_room_too_shallow_for_an_object_skips_it_and_keeps_the_others_inside():
+    # max_range 3 m leaves a 3 m deep room: a 1-2.5 m pipe's footprint (the widest
+    # object) cannot be placed between the 1.3 m keep-clear and the far wall, which
+    # used to raise from drawing in an empty interval.
+    placed = []
+    for seed in range(40):
+        scene = random_room(np.random.default_rng(seed), around=False, max_range=3.0, n_objects=7)
+        far_wall = float(scene.surfaces[3].center[0])
+        assert far_wall == pytest.approx(3.0)
+        objects = scene.surfaces[6:]
+        for s in objects:
+            low, high = _x_extent(s)
+            assert low > 1.3 - 1e-9 and high < far_wall - 0.3 + 1e-9
+        placed.append(len({s.id for s in objects}))
+    assert max(placed) > 0  # boxes, columns and balls still find room
