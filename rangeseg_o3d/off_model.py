@@ -381,7 +381,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
             continue
         # turned from the model it lies off, and from every plane region it touches (one it is
         # not turned from, within the noise of its tilt, is the surface it is a piece of)
-        tilt = _tilt_bound(a, rays[keep], weight[keep], max_angle_deg)
+        tilt = _tilt_bound(a, rays, weight, max_angle_deg, keep)
         centre = points[keep].mean(axis=0)
         if tilt is None or not _turned_from(tilt, centre, model):
             continue
@@ -479,15 +479,41 @@ def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.n
     return out | np.array([model is None for model in models], dtype=bool)
 
 
-def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
+def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float,
+                keep: np.ndarray | None = None):
     """``(unit normal, angle)``: the normal of the plane ``a . p = 1`` fitted along ``rays``
-    (inverse-range weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`) and the
-    angle it must be turned by from a model to stand apart from it (:func:`_turned_from`): the
-    largest of ``max_angle_deg`` and ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the
-    largest standard deviation of its unit normal across itself, from the fit's covariance
-    ``(sum w u u^T)^-1`` (rays that span little of the sky leave it large). None when ``a`` is
-    no plane or that covariance is singular (turned from nothing). The same for every model
-    it is tested against: computed once per plane."""
+    (inverse-range weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`; only the rows
+    ``keep`` marks, all when None) and the angle it must be turned by from a model to stand
+    apart from it (:func:`_turned_from`): the largest of ``max_angle_deg`` and
+    ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the largest standard deviation of its
+    unit normal across itself, from the fit's covariance ``(sum w u u^T)^-1`` (rays that span
+    little of the sky leave it large). None when ``a`` is no plane or that covariance is
+    singular (turned from nothing). The same for every model it is tested against: computed
+    once per plane.
+
+    Float64 ``(N, 3)`` rays go through one compiled pass (:func:`rangeseg_o3d.kernels.tilt_noise`:
+    its own rounding, within ~1e-12 relative of numpy's form :func:`_tilt_bound_numpy` on
+    well-conditioned sums; the bound only gates a face); anything else through numpy."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels import tilt_noise
+
+    rays, weight, a = np.asarray(rays), np.asarray(weight), np.asarray(a)
+    if not (rays.dtype == weight.dtype == a.dtype == np.float64 and rays.ndim == 2 and rays.shape[1] == 3
+            and weight.shape == (rays.shape[0],) and a.shape == (3,)):
+        return _tilt_bound_numpy(a, rays if keep is None else rays[keep], weight if keep is None else weight[keep],
+                                 max_angle_deg)
+    mask = np.ones(weight.size, bool) if keep is None else np.ascontiguousarray(keep, dtype=bool)
+    if mask.shape != weight.shape:
+        raise ValueError(f"keep: expected a mask of {weight.size} rows, got shape {mask.shape}")
+    noise = tilt_noise(np.ascontiguousarray(rays), np.ascontiguousarray(weight), mask, a)
+    if noise < 0.0:
+        return None
+    return a / float(np.linalg.norm(a)), max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * noise)
+
+
+def _tilt_bound_numpy(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
+    """:func:`_tilt_bound` in numpy (BLAS and LAPACK; the rows given are the fit's): the form its
+    compiled pass replaced, and the one for other dtypes and shapes."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
 
     size = float(np.linalg.norm(a))
