@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
+from .growth import _ray_term
 from .linalg import noise_rms_bound, solve_in_place
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("linalg.py",)
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise"]
+__all__ = ["ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise", "plane_scores", "pixel_plane_scores"]
 
 
 @njit(cache=True, nogil=True)
@@ -350,6 +351,69 @@ def tilt_noise(rays, weight, keep, a):
     if not np.isfinite(largest):
         return -1.0
     return np.sqrt(max(largest, 0.0)) / size
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _score_pixel(u0, u1, u2, q, w, planes, own, bound, counts, totals, owns):
+    """Add one pixel (its ray ``u``, inverse range ``q``, weight ``w``) to :func:`plane_scores`'
+    sums of every plane that keeps it within ``bound`` (a square in noise units)."""
+    r = q - (u0 * own[0] + u1 * own[1] + u2 * own[2])
+    mine = w * r * r
+    for k in range(planes.shape[0]):
+        r = q - (u0 * planes[k, 0] + u1 * planes[k, 1] + u2 * planes[k, 2])
+        square = w * r * r
+        if square <= bound:
+            counts[k] += 1
+            totals[k] += square
+            owns[k] += mine
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _score_means(counts, totals, owns):
+    """:func:`plane_scores`' means from its sums (in place in ``owns``; NaN where a plane keeps none)."""
+    means = np.full(counts.shape[0], np.nan)
+    for k in range(counts.shape[0]):
+        if counts[k] > 0:
+            means[k] = totals[k] / counts[k]
+            owns[k] = owns[k] / counts[k]
+        else:
+            owns[k] = np.nan
+    return means
+
+
+@njit(cache=True, nogil=True)
+def plane_scores(rays, inverse, weight, keep, planes, own, trim):
+    """For each row ``a`` of ``planes`` (m, 3), over the ``keep`` pixels (their ``rays``,
+    ``inverse`` ranges and weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`),
+    the squares ``w (q - a . u)^2`` within ``trim`` (noise units): ``(counts, means, owns)``,
+    how many there are, the mean of their squares and the mean over them of the squares of
+    the plane ``own`` (NaN when none is or ``own`` is not finite). One pass for the tests of
+    :func:`rangeseg_o3d.plane_faces.planes_keeping` on every plane at once (numpy takes ~6
+    calls a plane; the sums here are added pixel after pixel, numpy's pairwise: the means
+    differ in the last bits)."""
+    m = planes.shape[0]
+    counts, totals, owns = np.zeros(m, np.int64), np.zeros(m), np.zeros(m)
+    bound = trim * trim
+    for i in range(inverse.shape[0]):
+        if keep[i]:
+            _score_pixel(rays[i, 0], rays[i, 1], rays[i, 2], inverse[i], weight[i], planes, own, bound, counts,
+                         totals, owns)
+    return counts, _score_means(counts, totals, owns), owns
+
+
+@njit(cache=True, nogil=True)
+def pixel_plane_scores(xyz, noise, idx, planes, own, trim):
+    """:func:`plane_scores` of the flat pixels ``idx`` of the points ``xyz`` (N, 3) and their
+    range noise ``noise`` (N,), their ray terms made here as ``ray_terms`` makes them
+    (:func:`rangeseg_o3d.kernels.growth._ray_term`, the same bits): no gather, no term arrays."""
+    m = planes.shape[0]
+    counts, totals, owns = np.zeros(m, np.int64), np.zeros(m), np.zeros(m)
+    bound = trim * trim
+    for i in range(idx.shape[0]):
+        p = idx[i]
+        u0, u1, u2, q, w = _ray_term(xyz[p, 0], xyz[p, 1], xyz[p, 2], noise[p])
+        _score_pixel(u0, u1, u2, q, w, planes, own, bound, counts, totals, owns)
+    return counts, _score_means(counts, totals, owns), owns
 
 
 @njit(cache=True, nogil=True)
