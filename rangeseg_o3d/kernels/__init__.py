@@ -43,7 +43,7 @@ _SOURCES = {
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),
     "raygroups": ("ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise", "plane_scores", "pixel_plane_scores"),
-    "sides": ("crease_sides",),
+    "sides": ("crease_sides", "crease_cut"),
     "borders": ("side_rest_planes",),
     "creases": ("crease_moves", "cap_moves"),
     "modelnoise": ("plane_noise_sums", "plane_noise_near", "pieces_near_models"),
