@@ -342,7 +342,6 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     from .fitting.primitives import Plane
     from .fitting.region_fitter import extended_table
     from .fullres import stats_with_moved
-    from .plane_faces import plane_beside
     from .ray_planes import ROBUST_CHUNKS, ray_plane, ray_terms, robust_ray_plane
     from .refinement.context import touching
 
@@ -381,18 +380,18 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
             continue
         # turned from the model it lies off, and from every plane region it touches (one it is
         # not turned from, within the noise of its tilt, is the surface it is a piece of)
-        tilt = _tilt_bound(a, rays[keep], weight[keep], max_angle_deg)
+        tilt = _tilt_bound(a, rays, weight, max_angle_deg, keep)
         centre = points[keep].mean(axis=0)
         if tilt is None or not _turned_from(tilt, centre, model):
             continue
-        inside = np.argsort(idx[keep], kind="stable")
-        around = [planes[k] for k in sorted(touching(labels, idx[keep][inside], 1)) if k in planes]
-        if not all(_turned_from(tilt, centre, other) for other in around):
+        around = [k for k in sorted(touching(labels, unique_ints(idx[keep]), 1)) if k in planes]
+        if not all(_turned_from(tilt, centre, planes[k]) for k in around):
             continue
         # a piece of a plane region the scan has (whose tile model its pixels left): not a face
-        beside, _ = plane_beside(labels, 0, idx[keep][inside], rays[keep][inside], inverse[keep][inside],
-                                 weight[keep][inside], planes, 1)
-        if beside:
+        # (plane_beside's test on the plane regions it touches, in one compiled pass)
+        near = [k for k in around if k != 0]
+        counts, means, _ = _plane_scores(rays, inverse, weight, keep, [planes[k] for k in near], None)
+        if _explaining(near, counts, means, n):
             continue
         plane = ray_plane(a, points[keep])
         if plane is not None:
@@ -479,15 +478,41 @@ def _ruled_out(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, bounds: np.n
     return out | np.array([model is None for model in models], dtype=bool)
 
 
-def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
+def _tilt_bound(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float,
+                keep: np.ndarray | None = None):
     """``(unit normal, angle)``: the normal of the plane ``a . p = 1`` fitted along ``rays``
-    (inverse-range weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`) and the
-    angle it must be turned by from a model to stand apart from it (:func:`_turned_from`): the
-    largest of ``max_angle_deg`` and ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the
-    largest standard deviation of its unit normal across itself, from the fit's covariance
-    ``(sum w u u^T)^-1`` (rays that span little of the sky leave it large). None when ``a`` is
-    no plane or that covariance is singular (turned from nothing). The same for every model
-    it is tested against: computed once per plane."""
+    (inverse-range weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`; only the rows
+    ``keep`` marks, all when None) and the angle it must be turned by from a model to stand
+    apart from it (:func:`_turned_from`): the largest of ``max_angle_deg`` and
+    ``CHI_SQUARE_SIGMAS`` times the noise of its tilt, the largest standard deviation of its
+    unit normal across itself, from the fit's covariance ``(sum w u u^T)^-1`` (rays that span
+    little of the sky leave it large). None when ``a`` is no plane or that covariance is
+    singular (turned from nothing). The same for every model it is tested against: computed
+    once per plane.
+
+    Float64 ``(N, 3)`` rays go through one compiled pass (:func:`rangeseg_o3d.kernels.tilt_noise`:
+    its own rounding, within ~1e-12 relative of numpy's form :func:`_tilt_bound_numpy` on
+    well-conditioned sums; the bound only gates a face); anything else through numpy."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels import tilt_noise
+
+    rays, weight, a = np.asarray(rays), np.asarray(weight), np.asarray(a)
+    if not (rays.dtype == weight.dtype == a.dtype == np.float64 and rays.ndim == 2 and rays.shape[1] == 3
+            and weight.shape == (rays.shape[0],) and a.shape == (3,)):
+        return _tilt_bound_numpy(a, rays if keep is None else rays[keep], weight if keep is None else weight[keep],
+                                 max_angle_deg)
+    mask = np.ones(weight.size, bool) if keep is None else np.ascontiguousarray(keep, dtype=bool)
+    if mask.shape != weight.shape:
+        raise ValueError(f"keep: expected a mask of {weight.size} rows, got shape {mask.shape}")
+    noise = tilt_noise(np.ascontiguousarray(rays), np.ascontiguousarray(weight), mask, a)
+    if noise < 0.0:
+        return None
+    return a / float(np.linalg.norm(a)), max(np.radians(max_angle_deg), CHI_SQUARE_SIGMAS * noise)
+
+
+def _tilt_bound_numpy(a: np.ndarray, rays: np.ndarray, weight: np.ndarray, max_angle_deg: float):
+    """:func:`_tilt_bound` in numpy (BLAS and LAPACK; the rows given are the fit's): the form its
+    compiled pass replaced, and the one for other dtypes and shapes."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
 
     size = float(np.linalg.norm(a))
@@ -561,21 +586,81 @@ def _refit_apart(xyz: np.ndarray, noise: np.ndarray, flat: np.ndarray, held: np.
     return ray_plane(a[0], xyz[pixels])
 
 
+def _plane_scores(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, keep, models: list, own) -> tuple:
+    """:func:`rangeseg_o3d.kernels.plane_scores` of the pixels ``keep`` marks (all when None;
+    their :func:`rangeseg_o3d.ray_planes.ray_terms`) against the planes ``models`` and then
+    ``own`` (a last row; None: none): ``(counts, means, owns)``, per plane the pixels it keeps
+    within TRIM_SIGMAS of their range noise along the rays, the mean of their squares and the
+    mean over them of ``own``'s squares (:func:`rangeseg_o3d.plane_faces.planes_keeping`'s
+    test on every plane in one pass)."""
+    from .kernels import plane_scores
+    from .refinement.context import TRIM_SIGMAS
+
+    table, own_row = _score_rows(models, own)
+    mask = np.ones(inverse.size, bool) if keep is None else np.ascontiguousarray(keep, dtype=bool)
+    return plane_scores(np.ascontiguousarray(rays, dtype=np.float64), np.ascontiguousarray(inverse, dtype=np.float64),
+                        np.ascontiguousarray(weight, dtype=np.float64), mask, table, own_row, float(TRIM_SIGMAS))
+
+
+def _score_rows(models: list, own) -> tuple:
+    """The rows ``a = normal / d`` :func:`_plane_scores` tests: ``(table, own_row)``, the
+    planes ``models`` then ``own`` (a NaN row and no last row when None)."""
+    own_row = np.full(3, np.nan) if own is None else np.asarray(own.normal, dtype=np.float64) / own.d
+    rows = [np.asarray(model.normal, dtype=np.float64) / model.d for model in models]
+    if own is not None:
+        rows.append(own_row)
+    return np.array(rows, dtype=np.float64).reshape(-1, 3), own_row
+
+
+def _explaining(labels: list, counts: np.ndarray, means: np.ndarray, size: int) -> int:
+    """Of the planes ``labels`` (their :func:`_plane_scores` over ``size`` pixels), the one
+    :func:`rangeseg_o3d.plane_faces.plane_beside` picks (one return a pixel): it keeps
+    ``strips.EXPLAINED_SHARE`` of the pixels, their mean square within the chi-square bound of
+    their count, the least such mean square; 0 when none does."""
+    from .fitting.robust import CHI_SQUARE_SIGMAS
+    from .kernels.linalg import noise_rms_bound
+    from .strips import EXPLAINED_SHARE
+
+    best, label = np.inf, 0
+    for other, n, mean_square in zip(labels, counts.tolist(), means.tolist()):
+        if (n >= EXPLAINED_SHARE * size and mean_square <= noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2
+                and mean_square < best):
+            best, label = mean_square, other
+    return label
+
+
+def _merged(labels: list, counts: np.ndarray, means: np.ndarray, owns: np.ndarray, size: int,
+            rms_factor: float) -> int:
+    """Of the planes ``labels`` (their :func:`_plane_scores` over ``size`` pixels, ``owns`` the
+    face's own plane's), the one :func:`_merged_into` picks; 0 when none."""
+    from .strips import EXPLAINED_SHARE
+
+    best, label = np.inf, 0
+    for other, n, mean_square, mine in zip(labels, counts.tolist(), means.tolist(), owns.tolist()):
+        if (n >= EXPLAINED_SHARE * size and mean_square <= rms_factor * rms_factor * mine
+                and mean_square < best):
+            best, label = mean_square, other
+    return label
+
+
 def _one_face(rays: np.ndarray, inverse: np.ndarray, weight: np.ndarray, plane) -> bool:
     """Whether ``plane`` explains the pixels of a face (their :func:`rangeseg_o3d.ray_planes.ray_terms`)
     as one surface: ``strips.EXPLAINED_SHARE`` of them within TRIM_SIGMAS of their range noise
     along the rays, with a mean square of those within the chi-square bound of their count
-    (as :func:`rangeseg_o3d.strips.recover_strips` holds a face found along the rays)."""
+    (as :func:`rangeseg_o3d.strips.recover_strips` holds a face found along the rays).
+    (:func:`_plane_scores`' sums: compiled, added pixel after pixel.)"""
+    counts, means, _ = _plane_scores(rays, inverse, weight, None, [], plane)
+    return _stands(int(counts[0]), float(means[0]), inverse.size)
+
+
+def _stands(n: int, mean_square: float, size: int) -> bool:
+    """:func:`_one_face`'s test on a plane's :func:`_plane_scores` over ``size`` pixels."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
     from .kernels.linalg import noise_rms_bound
-    from .refinement.context import TRIM_SIGMAS
     from .strips import EXPLAINED_SHARE
 
-    squares = weight * (inverse - rays @ (np.asarray(plane.normal) / plane.d)) ** 2
-    kept = squares <= TRIM_SIGMAS * TRIM_SIGMAS
-    n = int(np.count_nonzero(kept))
-    return bool(n >= EXPLAINED_SHARE * squares.size and n > 0
-                and np.mean(squares[kept]) <= noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2)
+    return bool(n >= EXPLAINED_SHARE * size and n > 0
+                and mean_square <= noise_rms_bound.py_func(1.0, float(n), CHI_SQUARE_SIGMAS) ** 2)
 
 
 def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, first: int, pixels: list,
@@ -587,12 +672,16 @@ def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, firs
     would stand but that region's plane explains it by the merge rule (:func:`_merged_into`,
     ``rms_factor`` the config's merge_rms_factor; None: no such join), None when it is
     undone: a region the scan had explains it, or its plane does not explain it as one
-    surface (:func:`_one_face`)."""
+    surface (:func:`_one_face`). Each face's three tests take one compiled pass over its
+    pixels against every plane it touches and its own (:func:`rangeseg_o3d.kernels.pixel_plane_scores`:
+    :func:`_plane_scores` with the ray terms made in the pass)."""
     from .fitting.primitives import Plane
-    from .plane_faces import plane_beside
-    from .ray_planes import ray_terms
+    from .kernels import pixel_plane_scores
+    from .refinement.context import TRIM_SIGMAS, touching
 
     planes = {k: m for k, m in fits.items() if isinstance(m, Plane)}  # (the other faces too)
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3)  # (no copy from faces_along_rays)
+    noise = np.ascontiguousarray(noise, dtype=np.float64).reshape(-1)
     fate = []
     count = len(pixels)
     for j in range(count):
@@ -600,16 +689,19 @@ def _fates(xyz: np.ndarray, noise: np.ndarray, out: np.ndarray, fits: dict, firs
         if not mine.size:
             fate.append(None)
             continue
-        rays, inverse, weight = ray_terms(xyz[mine], noise[mine])
-        beside, _ = plane_beside(out, first + j, mine, rays, inverse, weight, planes, 1)
+        near = [k for k in sorted(touching(out, mine, 1) - {0, first + j}) if k in planes]
+        table, own_row = _score_rows([planes[k] for k in near], fits[first + j])
+        counts, means, owns = pixel_plane_scores(xyz, noise, np.ascontiguousarray(mine, dtype=np.int64), table,
+                                                 own_row, float(TRIM_SIGMAS))
+        beside = _explaining(near, counts[:-1], means[:-1], mine.size)
         if beside:
             fate.append(beside if first <= beside < first + count else None)
-        elif not _one_face(rays, inverse, weight, fits[first + j]):
+        elif not _stands(int(counts[-1]), float(means[-1]), mine.size):
             fate.append(None)
         else:
-            joined = 0 if rms_factor is None else _merged_into(out, first + j, mine, rays, inverse, weight,
-                                                               {k: m for k, m in planes.items() if k < first},
-                                                               fits[first + j], rms_factor)
+            below = [i for i, k in enumerate(near) if k < first]
+            joined = 0 if rms_factor is None else _merged([near[i] for i in below], counts[below], means[below],
+                                                          owns[below], mine.size, rms_factor)
             fate.append(joined or first + j)
     # a face that joins one which does not stand is undone too
     return [f if f is None or f < first or fate[f - first] == f else None for f in fate]
@@ -622,18 +714,15 @@ def _merged_into(labels: np.ndarray, k: int, idx: np.ndarray, rays: np.ndarray, 
     whose plane explains the face as the merge explains a union: it keeps
     ``strips.EXPLAINED_SHARE`` of its pixels within TRIM_SIGMAS of their range noise along the
     rays, with an rms of those within ``rms_factor`` of the face's own plane's (``own``) on the
-    same pixels; the one with the least rms, 0 when none does.
+    same pixels; the one with the least rms, 0 when none does (:func:`_plane_scores`' sums).
 
     A face grown along the rays on a wall beside the crease it was sought at can come out
     parallel to that wall's region; the wall's plane, fitted to thousands of pixels, may then
     miss the chi-square bound of :func:`rangeseg_o3d.plane_faces.plane_beside` by a hair
     (seed 0 kinect scan 0: 447 of 448 pixels kept, mean square 1.2705 against 1.2676) while
     it explains the face as well as the face's own plane does: one surface, not two."""
-    from .plane_faces import planes_keeping
+    from .refinement.context import touching
 
-    mine = weight * (inverse - rays @ (own.normal / own.d)) ** 2
-    best, label = np.inf, 0
-    for other, kept, mean_square in planes_keeping(labels, k, idx, rays, inverse, weight, planes):
-        if mean_square <= rms_factor * rms_factor * float(np.mean(mine[kept])) and mean_square < best:
-            best, label = mean_square, other
-    return label
+    near = [other for other in sorted(touching(labels, idx, 1) - {0, k}) if other in planes]
+    counts, means, owns = _plane_scores(rays, inverse, weight, None, [planes[other] for other in near], own)
+    return _merged(near, counts[:-1], means[:-1], owns[:-1], idx.size, rms_factor)

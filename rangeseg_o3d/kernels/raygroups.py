@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
+from .growth import _ray_term
 from .linalg import noise_rms_bound, solve_in_place
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("linalg.py",)
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py", "linalg.py")
 
-__all__ = ["ray_groups_ruled_out", "robust_ray_sets", "free_pieces"]
+__all__ = ["ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise", "plane_scores", "pixel_plane_scores"]
 
 
 @njit(cache=True, nogil=True)
@@ -284,6 +285,135 @@ def robust_ray_sets(rays, inverse, weight, along, chunks, passes, trim, toleranc
         else:
             sums += terms
     return 0, keep, sums
+
+
+@njit(cache=True, nogil=True)
+def tilt_noise(rays, weight, keep, a):
+    """The noise of the tilt of the plane ``a . p = 1`` fitted along the ``keep`` pixels' ``rays``
+    (inverse-range weights ``weight``): the largest standard deviation of its unit normal
+    across itself, from the fit's covariance ``(sum w u u^T)^-1`` projected off the normal,
+    over ``|a|`` (:func:`rangeseg_o3d.off_model._tilt_bound`). -1.0 when ``a`` is no plane or
+    the sums are singular (a zero or non-finite determinant).
+
+    numpy's form (a BLAS product, LAPACK's inverse and ``eigvalsh`` of the projected 3x3
+    matrix) rounds differently: here the sums are added pixel after pixel, the inverse is
+    the adjugate over the determinant and the largest eigenvalue is that of the 2x2 matrix
+    the covariance makes in a basis across the normal (the projected matrix's other
+    eigenvalue is its zero along the normal), in closed form."""
+    size = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if not np.isfinite(size) or size <= 0.0:
+        return -1.0
+    n0, n1, n2 = a[0] / size, a[1] / size, a[2] / size
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+    for i in range(weight.shape[0]):
+        if keep[i]:
+            w, u0, u1, u2 = weight[i], rays[i, 0], rays[i, 1], rays[i, 2]
+            s00 += w * u0 * u0
+            s01 += w * u0 * u1
+            s02 += w * u0 * u2
+            s11 += w * u1 * u1
+            s12 += w * u1 * u2
+            s22 += w * u2 * u2
+    # the symmetric inverse: cofactors over the determinant
+    c00 = s11 * s22 - s12 * s12
+    c01 = s02 * s12 - s01 * s22
+    c02 = s01 * s12 - s02 * s11
+    det = s00 * c00 + s01 * c01 + s02 * c02
+    if not np.isfinite(det) or det == 0.0:
+        return -1.0
+    c11 = (s00 * s22 - s02 * s02) / det
+    c12 = (s01 * s02 - s00 * s12) / det
+    c22 = (s00 * s11 - s01 * s01) / det
+    c00 /= det
+    c01 /= det
+    c02 /= det
+    # e, f: unit vectors across the normal (e off its smallest component's axis)
+    if abs(n0) <= abs(n1) and abs(n0) <= abs(n2):
+        e0, e1, e2 = 0.0, n2, -n1
+    elif abs(n1) <= abs(n2):
+        e0, e1, e2 = -n2, 0.0, n0
+    else:
+        e0, e1, e2 = n1, -n0, 0.0
+    norm = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / norm, e1 / norm, e2 / norm
+    f0, f1, f2 = n1 * e2 - n2 * e1, n2 * e0 - n0 * e2, n0 * e1 - n1 * e0
+    ce0 = c00 * e0 + c01 * e1 + c02 * e2
+    ce1 = c01 * e0 + c11 * e1 + c12 * e2
+    ce2 = c02 * e0 + c12 * e1 + c22 * e2
+    cf0 = c00 * f0 + c01 * f1 + c02 * f2
+    cf1 = c01 * f0 + c11 * f1 + c12 * f2
+    cf2 = c02 * f0 + c12 * f1 + c22 * f2
+    bee = e0 * ce0 + e1 * ce1 + e2 * ce2
+    bef = f0 * ce0 + f1 * ce1 + f2 * ce2
+    bff = f0 * cf0 + f1 * cf1 + f2 * cf2
+    half = 0.5 * (bee - bff)
+    largest = 0.5 * (bee + bff) + np.sqrt(half * half + bef * bef)
+    if not np.isfinite(largest):
+        return -1.0
+    return np.sqrt(max(largest, 0.0)) / size
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _score_pixel(u0, u1, u2, q, w, planes, own, bound, counts, totals, owns):
+    """Add one pixel (its ray ``u``, inverse range ``q``, weight ``w``) to :func:`plane_scores`'
+    sums of every plane that keeps it within ``bound`` (a square in noise units)."""
+    r = q - (u0 * own[0] + u1 * own[1] + u2 * own[2])
+    mine = w * r * r
+    for k in range(planes.shape[0]):
+        r = q - (u0 * planes[k, 0] + u1 * planes[k, 1] + u2 * planes[k, 2])
+        square = w * r * r
+        if square <= bound:
+            counts[k] += 1
+            totals[k] += square
+            owns[k] += mine
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _score_means(counts, totals, owns):
+    """:func:`plane_scores`' means from its sums (in place in ``owns``; NaN where a plane keeps none)."""
+    means = np.full(counts.shape[0], np.nan)
+    for k in range(counts.shape[0]):
+        if counts[k] > 0:
+            means[k] = totals[k] / counts[k]
+            owns[k] = owns[k] / counts[k]
+        else:
+            owns[k] = np.nan
+    return means
+
+
+@njit(cache=True, nogil=True)
+def plane_scores(rays, inverse, weight, keep, planes, own, trim):
+    """For each row ``a`` of ``planes`` (m, 3), over the ``keep`` pixels (their ``rays``,
+    ``inverse`` ranges and weights ``weight``, :func:`rangeseg_o3d.ray_planes.ray_terms`),
+    the squares ``w (q - a . u)^2`` within ``trim`` (noise units): ``(counts, means, owns)``,
+    how many there are, the mean of their squares and the mean over them of the squares of
+    the plane ``own`` (NaN when none is or ``own`` is not finite). One pass for the tests of
+    :func:`rangeseg_o3d.plane_faces.planes_keeping` on every plane at once (numpy takes ~6
+    calls a plane; the sums here are added pixel after pixel, numpy's pairwise: the means
+    differ in the last bits)."""
+    m = planes.shape[0]
+    counts, totals, owns = np.zeros(m, np.int64), np.zeros(m), np.zeros(m)
+    bound = trim * trim
+    for i in range(inverse.shape[0]):
+        if keep[i]:
+            _score_pixel(rays[i, 0], rays[i, 1], rays[i, 2], inverse[i], weight[i], planes, own, bound, counts,
+                         totals, owns)
+    return counts, _score_means(counts, totals, owns), owns
+
+
+@njit(cache=True, nogil=True)
+def pixel_plane_scores(xyz, noise, idx, planes, own, trim):
+    """:func:`plane_scores` of the flat pixels ``idx`` of the points ``xyz`` (N, 3) and their
+    range noise ``noise`` (N,), their ray terms made here as ``ray_terms`` makes them
+    (:func:`rangeseg_o3d.kernels.growth._ray_term`, the same bits): no gather, no term arrays."""
+    m = planes.shape[0]
+    counts, totals, owns = np.zeros(m, np.int64), np.zeros(m), np.zeros(m)
+    bound = trim * trim
+    for i in range(idx.shape[0]):
+        p = idx[i]
+        u0, u1, u2, q, w = _ray_term(xyz[p, 0], xyz[p, 1], xyz[p, 2], noise[p])
+        _score_pixel(u0, u1, u2, q, w, planes, own, bound, counts, totals, owns)
+    return counts, _score_means(counts, totals, owns), owns
 
 
 @njit(cache=True, nogil=True)

@@ -20,7 +20,7 @@ from .window import eigenvectors, smallest_eigenvalues
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py", "linalg.py", "window.py")
 
-__all__ = ["crease_sides"]
+__all__ = ["crease_sides", "crease_cut"]
 
 
 @njit(cache=True, nogil=True)
@@ -111,8 +111,8 @@ def _cut_positions(n, min_size, cuts):
 @njit(cache=True, nogil=True)
 def _best_cut(points, order, positions):
     # The cut position whose two sides' least-squares planes leave the fewest squared
-    # distances: per side the smallest eigenvalue of its scatter, from running sums of the
-    # centred points taken in angle order.
+    # distances, and those squared distances: per side the smallest eigenvalue of its
+    # scatter, from running sums of the centred points taken in angle order.
     n = order.size
     centre = np.zeros(3)
     for j in range(n):
@@ -153,7 +153,7 @@ def _best_cut(points, order, positions):
         squares = values[2 * c] + values[2 * c + 1]
         if squares < best_squares:
             best, best_squares = c, squares
-    return positions[best]
+    return positions[best], best_squares
 
 
 @njit(cache=True, nogil=True)
@@ -238,10 +238,52 @@ def crease_sides(xyz, sigma, idx, distances, axis, point, radius, min_size, bins
     points = np.empty((n, 3))
     for j in range(n):
         points[j] = xyz[idx[j]]
-    cut = _best_cut(points, order, _cut_positions(n, min_size, cuts))
+    cut, _ = _best_cut(points, order, _cut_positions(n, min_size, cuts))
     if _sides_cannot_explain(points, order, cut, distances, cover, extra, sigmas):
         return none
     first = np.zeros(n, np.bool_)
     for j in range(cut):
         first[order[j]] = True
     return first
+
+
+@njit(cache=True, nogil=True)
+def crease_cut(points, axis, point, radius, side, cuts):
+    """:func:`rangeseg_o3d.crease_planes._crease_cut`'s sums in one pass over ``points`` (N, 3)
+    about the cylinder ``(axis, point, radius)``: ``(status, angle, reference, planes_squares,
+    cylinder_squares)``. ``reference``: the unit mean offset from the axis (status 1 when it
+    is zero or not finite: no cut); the points are ordered by angle about the axis from it,
+    the best of ``cuts`` equal-count cuts leaving ``side`` points a side (:func:`_best_cut`)
+    gives ``planes_squares``, its two sides' least-squares planes' squared distances (at
+    least 0), and ``angle``, midway between the angles either side of it;
+    ``cylinder_squares`` is the cylinder's. numpy's form rounds differently: its mean and
+    sums are pairwise, its products BLAS's, its eigenvalues LAPACK's, its sort not stable
+    (here: added point after point, Newton's smallest eigenvalues, a stable sort)."""
+    n = points.shape[0]
+    radial = np.empty((n, 3))
+    mean = np.zeros(3)
+    for i in range(n):
+        x, y, z = points[i, 0] - point[0], points[i, 1] - point[1], points[i, 2] - point[2]
+        t = x * axis[0] + y * axis[1] + z * axis[2]
+        radial[i, 0], radial[i, 1], radial[i, 2] = x - t * axis[0], y - t * axis[1], z - t * axis[2]
+        for k in range(3):
+            mean[k] += radial[i, k]
+    reference = mean / n
+    norm = np.sqrt(reference[0] * reference[0] + reference[1] * reference[1] + reference[2] * reference[2])
+    if not (norm > 0.0 and np.isfinite(norm)):
+        return 1, 0.0, reference, 0.0, 0.0
+    reference /= norm
+    across = np.array([axis[1] * reference[2] - axis[2] * reference[1], axis[2] * reference[0] - axis[0] * reference[2],
+                       axis[0] * reference[1] - axis[1] * reference[0]])
+    angles = np.empty(n)
+    cylinder_squares = 0.0
+    for i in range(n):
+        x, y, z = radial[i, 0], radial[i, 1], radial[i, 2]
+        angles[i] = math.atan2(x * across[0] + y * across[1] + z * across[2],
+                               x * reference[0] + y * reference[1] + z * reference[2])
+        off = np.sqrt(x * x + y * y + z * z) - radius
+        cylinder_squares += off * off
+    order = np.argsort(angles, kind="mergesort")
+    size, squares = _best_cut(points, order, _cut_positions(n, side, cuts))
+    angle = 0.5 * (angles[order[size - 1]] + angles[order[size]])
+    return 0, angle, reference, max(squares, 0.0), cylinder_squares
