@@ -46,7 +46,7 @@ _SOURCES = {
     "sides": ("crease_sides",),
     "borders": ("side_rest_planes",),
     "creases": ("crease_moves", "cap_moves"),
-    "modelnoise": ("plane_noise_sums", "plane_noise_near", "pieces_near_models"),
+    "modelnoise": ("plane_noise_sums", "plane_noise_near", "plane_distances_noise", "pieces_near_models"),
     "limbs": ("claim_limbs",),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),
     "unions": ("merge_plane_pairs", "plane_candidates"),
