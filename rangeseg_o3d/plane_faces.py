@@ -24,10 +24,10 @@ from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
-from .kernels.rays import box_ray_terms, cut_prefix_sums
+from .kernels.modelnoise import plane_distances_noise, plane_noise_sums
+from .kernels.rays import box_ray_terms, crease_cut_squares
 from .fullres import region_stats
-from .ray_planes import (moment_columns, pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane,
-                         split_columns)
+from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
@@ -70,8 +70,11 @@ def _beyond_distance_noise(points: np.ndarray, sigma: np.ndarray, independent: f
     plane = fit_plane(points)
     if not plane:
         return False
-    noise = distance_noise(plane, points, sigma)
-    return beyond_noise(plane.rms, float(np.sqrt(np.mean(noise * noise))), max(int(independent), 1))
+    # the noise's sum of squares in one compiled pass (numpy's rays, cosines and noise arrays
+    # took half the gate's time; the sum's rounding differs)
+    _, noise_squares, _, _ = plane_noise_sums(points, sigma, np.arange(points.shape[0]),
+                                              np.asarray(plane.normal, dtype=np.float64), float(plane.d))
+    return beyond_noise(plane.rms, float(np.sqrt(noise_squares / points.shape[0])), max(int(independent), 1))
 
 
 def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, sigma: np.ndarray,
@@ -213,19 +216,15 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     if m < 2 * search_side:
         return (np.inf, [], None) if with_order else (np.inf, [])
     sizes = np.unique(np.linspace(search_side, m - search_side, CUTS).astype(np.int64))
-    # each pixel's 13 sums once; per direction, the sums up to each cut from blocks between
-    # cuts (one gather and one pass), and every direction's planes solved at once
-    columns = moment_columns(rays, inverse, weight)
-    starts = np.concatenate([[0], sizes])
     angles = np.arange(CUT_DIRECTIONS) * (np.pi / CUT_DIRECTIONS)
-    orders = np.stack([np.argsort(cols * np.cos(angle) + rows * np.sin(angle), kind="stable") for angle in angles])
-    # compiled: numpy's gather, reduceat and cumsum per direction, bit for bit, in one call
-    prefix = cut_prefix_sums(columns, orders, starts)
-    lefts = prefix[:, :-1]  # (directions, cuts, 13)
-    rights = prefix[:, -1:] - lefts
-    left, _ = ray_fits(split_columns(lefts.reshape(-1, lefts.shape[-1])))
-    right, _ = ray_fits(split_columns(rights.reshape(-1, rights.shape[-1])))
-    total = left + right
+    # compiled, every direction in one call: the pixels ordered across it (numpy's stable
+    # argsort's positions, in linear time), each cut's two sides' sums in one running pass
+    # and their 3 x 3 systems solved in place (numpy's pairwise sums and LAPACK's solves
+    # took three times as long; the chi-squares differ in the last bits)
+    total, orders = crease_cut_squares(rows, cols, rays, inverse, weight, sizes,
+                                       np.array([np.cos(angle) for angle in angles]),
+                                       np.array([np.sin(angle) for angle in angles]))
+    total = total.ravel()
     if not np.isfinite(total).any():
         return (np.inf, [], None) if with_order else (np.inf, [])
     best = int(np.argmin(total))
@@ -333,11 +332,15 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     """
     from .refinement.facets import _holds_another
 
-    points = ctx.xyz[idx]
-    distances = model.distances(points)
+    # the distances and their noise once, for both gates (each computed the noise over
+    # every pixel); a plane's in one compiled pass (numpy's gathers cost ~1 ms a region)
+    if isinstance(model, Plane):
+        distances, noise = plane_distances_noise(ctx.xyz, ctx.sigma, np.ascontiguousarray(idx, dtype=np.int64),
+                                                 np.asarray(model.normal, dtype=np.float64), float(model.d))
+    else:
+        points = ctx.xyz[idx]
+        distances, noise = model.distances(points), distance_noise(model, points, ctx.sigma[idx])
     rms = float(np.sqrt(np.mean(distances * distances)))
-    # the noise of the distances once, for both gates (each computed it over every pixel)
-    noise = distance_noise(model, points, ctx.sigma[idx])
     # pixel by pixel; else, on a matched window, over the independent returns (see above)
     held = _holds_another(ctx, model, idx, distances, rms, count_outliers=False, noise=noise)
     window = float(max(int(correlation_px), 1)) ** 2

@@ -389,3 +389,24 @@ def test_a_band_behind_the_walls_plane_by_several_sigmas_stays_a_region():
     out, out_fits, _ = claim_along_rays(cloud, labels, fits, stats, sigma=sigma, min_size=40,
                                         inlier_factor=INLIER_SIGMAS, correlation_px=1)
     assert (out[band] == 3).all() and out_fits[3] is fits[3]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_split_gate_answers_as_its_numpy_form(seed):
+    # _beyond_distance_noise takes the noise's sum of squares from one compiled pass: the
+    # answer of numpy's distance_noise, on a far box corner (two faces: beyond) and on one face
+    # alone, each counted over all its pixels and over a ninth of them
+    from rangeseg_o3d.fitting.robust import beyond_noise, distance_noise
+    from rangeseg_o3d.plane_faces import _beyond_distance_noise
+
+    xyz, sigma, truth, _ = _box_corner(seed, turn_deg=20.0)
+    points, noise = xyz.reshape(-1, 3), sigma.ravel()
+    answers = []
+    for part in (np.arange(truth.size), np.flatnonzero(truth.ravel() == 0)):
+        for independent in (part.size, part.size / 9.0):
+            plane = fit_plane(points[part])
+            each = distance_noise(plane, points[part], noise[part])
+            want = beyond_noise(plane.rms, float(np.sqrt(np.mean(each * each))), max(int(independent), 1))
+            assert _beyond_distance_noise(points[part], noise[part], independent) == want
+            answers.append(bool(want))
+    assert answers[0] is True  # the two faces under one plane

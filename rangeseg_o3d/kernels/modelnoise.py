@@ -21,7 +21,16 @@ from .kinds import CYLINDER, PLANE, SPHERE
 #: Files whose constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("kinds.py",)
 
-__all__ = ["plane_noise_sums", "plane_noise_near", "pieces_near_models"]
+__all__ = ["plane_noise_sums", "plane_noise_near", "plane_distances_noise", "pieces_near_models"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _plane_distance_noise(x, y, z, s, nx, ny, nz, d):
+    # (signed distance, its noise) of the point (x, y, z) of range noise ``s`` to the plane
+    # ``n . p = d``: the noise is the range noise times the incidence cosine, the ray
+    # ``p / max(|p|, 1e-12)`` dotted with the normal, as fitting.robust.distance_noise has it
+    norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+    return x * nx + y * ny + z * nz - d, s * abs(x / norm * nx + y / norm * ny + z / norm * nz)
 
 
 @njit(cache=True, nogil=True)
@@ -38,9 +47,7 @@ def plane_noise_sums(xyz, sigma, idx, normal, d):
     for t in range(idx.shape[0]):
         i = idx[t]
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
-        noise = sigma[i] * abs(x / norm * nx + y / norm * ny + z / norm * nz)
-        distance = x * nx + y * ny + z * nz - d
+        distance, noise = _plane_distance_noise(x, y, z, sigma[i], nx, ny, nz, d)
         squares += distance * distance
         noise_squares += noise * noise
         scale = max(scale, abs(x * nx) + abs(y * ny) + abs(z * nz) + abs(d))
@@ -62,14 +69,30 @@ def plane_noise_near(xyz, sigma, idx, normal, d, k_sigma, relative, absolute):
     for t in range(n):
         i = idx[t]
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        norm = max(np.sqrt(x * x + y * y + z * z), 1e-12)
-        bound = k_sigma * (sigma[i] * abs(x / norm * nx + y / norm * ny + z / norm * nz))
-        distance = abs(x * nx + y * ny + z * nz - d)
+        distance, noise = _plane_distance_noise(x, y, z, sigma[i], nx, ny, nz, d)
+        bound = k_sigma * noise
+        distance = abs(distance)
         near[t] = distance <= bound
         terms = abs(x * nx) + abs(y * ny) + abs(z * nz) + abs(d) + k_sigma * abs(sigma[i])
         if not abs(distance - bound) > relative * bound + absolute * terms:  # (also a NaN)
             unsure = True
     return near, unsure
+
+
+@njit(cache=True, nogil=True)
+def plane_distances_noise(xyz, sigma, idx, normal, d):
+    """``(distances, noise)`` of the flat pixels ``idx`` (rows of ``xyz`` and ``sigma``): each
+    one's signed distance to the plane ``normal . p = d`` and that distance's noise
+    (:func:`plane_noise_sums`' terms, pixel by pixel), in one pass without the gathered points,
+    rays and cosines of numpy's ``Plane.distances`` and ``distance_noise`` (other rounding: a
+    few units of the last place)."""
+    nx, ny, nz = normal[0], normal[1], normal[2]
+    n = idx.shape[0]
+    distances, noise = np.empty(n), np.empty(n)
+    for t in range(n):
+        i = idx[t]
+        distances[t], noise[t] = _plane_distance_noise(xyz[i, 0], xyz[i, 1], xyz[i, 2], sigma[i], nx, ny, nz, d)
+    return distances, noise
 
 
 @njit(cache=True, nogil=True)

@@ -6,14 +6,15 @@ from __future__ import annotations
 import numpy as np
 from .growth import _ray_term
 from .inline import _add_ray_terms
+from .linalg import solve_in_place
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
-CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py")
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py", "linalg.py")
 
 __all__ = ["plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
-           "pixel_ray_moments", "pairwise_sum", "cut_prefix_sums",
-           "box_ray_terms"]
+           "pixel_ray_moments", "pairwise_sum",
+           "box_ray_terms", "grid_line_order", "crease_cut_squares"]
 
 
 @njit(cache=True, nogil=True)
@@ -343,33 +344,135 @@ def pixel_ray_moments(xyz, sigma, pixels):
 
 
 @njit(cache=True, nogil=True)
-def cut_prefix_sums(columns, orders, starts):
-    """``(D, B, C)`` running sums of the rows of ``columns`` (N, C) taken in each order of
-    ``orders`` (D, N): row ``b`` of direction ``d`` sums the rows ``orders[d, :starts[b + 1]]``
-    (the last row, every row), ``starts`` (B, increasing from 0, each block non-empty) the
-    first positions of the blocks. The same bits as ``np.cumsum(np.add.reduceat(columns[order],
-    starts, axis=0), axis=0)`` (numpy sums a block column by column, its first row plus the
-    rest pairwise, :func:`pairwise_sum`; the blocks are then added in order), without
-    gathering ``columns[order]`` for every direction."""
-    d_count, n = orders.shape
-    b_count, c_count = starts.shape[0], columns.shape[1]
-    out = np.empty((d_count, b_count, c_count))
-    by_column = np.ascontiguousarray(columns.T)  # one column's gather reads one short row
-    values = np.empty(n)
+def grid_line_order(keys, order):
+    """``order`` (N,) filled with ``np.argsort(keys, kind="stable")``, the same positions, in
+    linear time on the positions of pixels across a line of the grid: a counting sort into
+    N buckets of equal width in key (floor of ``(key - min) * scale`` never decreases with the
+    key, so the buckets keep the keys' order; positions enter them in increasing order), each
+    bucket then sorted by key keeping that order among equal keys (insertion sort; numba's
+    stable merge sort for a bucket of more than 16). numpy's timsort of the 32 directions
+    of a 16384-pixel search took a third of :func:`crease_cut_squares`' time."""
+    n = keys.shape[0]
+    if n == 0:
+        return
+    low, high = keys[0], keys[0]
+    for j in range(n):
+        low = min(low, keys[j])
+        high = max(high, keys[j])
+    scale = (n - 1) / (high - low) if high > low else 0.0
+    bucket = np.empty(n, np.int64)
+    first = np.zeros(n + 1, np.int64)
+    for j in range(n):
+        b = min(int((keys[j] - low) * scale), n - 1)
+        bucket[j] = b
+        first[b + 1] += 1
+    for b in range(n):
+        first[b + 1] += first[b]
+    fill = first[:n].copy()
+    for j in range(n):
+        b = bucket[j]
+        order[fill[b]] = j
+        fill[b] += 1
+    for b in range(n):
+        lo, hi = first[b], first[b + 1]
+        ordered = True  # a bucket of equal keys (a grid line across the direction) is common
+        for t in range(lo + 1, hi):
+            if keys[order[t]] < keys[order[t - 1]]:
+                ordered = False
+                break
+        if ordered:
+            continue
+        if hi - lo > 16:
+            part = order[lo:hi].copy()
+            sub = np.argsort(keys[part], kind="mergesort")
+            for t in range(hi - lo):
+                order[lo + t] = part[sub[t]]
+            continue
+        for t in range(lo + 1, hi):  # insertion sort: a later position moves only past larger keys
+            j = order[t]
+            key = keys[j]
+            s = t - 1
+            while s >= lo and keys[order[s]] > key:
+                order[s + 1] = order[s]
+                s -= 1
+            order[s + 1] = j
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cut_squares(sums, m, x):
+    # The chi-square of the plane fitted along the rays from its 10 sums (sum w u u^T's
+    # 00 01 02 11 12 22, sum w q u, sum w q^2): ray_fits' ridge of 1e-12 of the trace on
+    # the diagonal, the 3 x 3 system solved by elimination (scratch ``m``, ``x``); inf when
+    # it is singular (numpy's solve would raise).
+    ridge = 1e-12 * ((sums[0] + sums[3]) + sums[5])
+    m[0, 0], m[0, 1], m[0, 2] = sums[0] + ridge, sums[1], sums[2]
+    m[1, 0], m[1, 1], m[1, 2] = sums[1], sums[3] + ridge, sums[4]
+    m[2, 0], m[2, 1], m[2, 2] = sums[2], sums[4], sums[5] + ridge
+    x[0], x[1], x[2] = sums[6], sums[7], sums[8]
+    if not solve_in_place(m, x):
+        return np.inf
+    return sums[9] - (sums[6] * x[0] + sums[7] * x[1] + sums[8] * x[2])
+
+
+@njit(cache=True, nogil=True)
+def crease_cut_squares(rows, cols, rays, inverse, weight, sizes, cosines, sines):
+    """``(total, orders)`` of the straight lines that cut pixels of the grid (``rows``,
+    ``cols``; their :func:`rangeseg_o3d.ray_planes.ray_terms` ``rays``, ``inverse``,
+    ``weight``) across each direction ``(cosines[d], sines[d])`` after their ``sizes[b]``
+    first pixels (increasing, each in 1..N-1): ``orders[d]`` the pixels' positions ordered by
+    ``cols * cosines[d] + rows * sines[d]``, ties in position order (the same positions as
+    numpy's stable argsort, :func:`grid_line_order`), and ``total[d, b]`` the chi-squares of
+    the two sides' planes fitted along the rays, added (:func:`rangeseg_o3d.ray_planes.ray_fits`,
+    inf where a side's system is singular).
+
+    Each side's sums run along the order in one pass (a running sum; the second side is
+    every pixel's sums less the first's) and each 3 x 3 system is solved by elimination
+    with partial pivoting (:func:`rangeseg_o3d.kernels.linalg.solve_in_place`), not by
+    numpy's pairwise blocks and LAPACK: other rounding, a relative difference of about
+    1e-12 of the sums (tests/kernels/test_crease_cuts.py)."""
+    n = rows.shape[0]
+    d_count, b_count = cosines.shape[0], sizes.shape[0]
+    terms = np.empty((n, 10))  # each pixel's 10 sums, made as ray_planes.moment_columns makes them
+    for j in range(n):
+        w, q = weight[j], inverse[j]
+        u0, u1, u2 = rays[j, 0], rays[j, 1], rays[j, 2]
+        wq = w * q
+        terms[j, 0], terms[j, 1], terms[j, 2] = (w * u0) * u0, (w * u0) * u1, (w * u0) * u2
+        terms[j, 3], terms[j, 4], terms[j, 5] = (w * u1) * u1, (w * u1) * u2, (w * u2) * u2
+        terms[j, 6], terms[j, 7], terms[j, 8], terms[j, 9] = wq * u0, wq * u1, wq * u2, wq * q
+    every = np.zeros(10)
+    for j in range(n):
+        for c in range(10):
+            every[c] += terms[j, c]
+    total = np.empty((d_count, b_count))
+    orders = np.empty((d_count, n), np.int64)
+    keys = np.empty(n)
+    running = np.empty(10)
+    rest = np.empty(10)
+    m = np.empty((3, 3))
+    x = np.empty(3)
     for d in range(d_count):
+        cosine, sine = cosines[d], sines[d]
+        for j in range(n):
+            keys[j] = cols[j] * cosine + rows[j] * sine
         order = orders[d]
-        for c in range(c_count):
-            column = by_column[c]
-            for j in range(n):
-                values[j] = column[order[j]]
-            running = 0.0
-            for b in range(b_count):
-                lo = starts[b]
-                end = starts[b + 1] if b + 1 < b_count else n
-                block = values[lo] + pairwise_sum(values, lo + 1, end - lo - 1)
-                running = block if b == 0 else running + block
-                out[d, b, c] = running
-    return out
+        grid_line_order(keys, order)
+        # the running sums in scalars (kept in registers; an array row updated per pixel
+        # costs several times the time)
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
+        at = 0
+        for b in range(b_count):
+            for t in range(at, sizes[b]):
+                row = terms[order[t]]
+                s0, s1, s2, s3, s4 = s0 + row[0], s1 + row[1], s2 + row[2], s3 + row[3], s4 + row[4]
+                s5, s6, s7, s8, s9 = s5 + row[5], s6 + row[6], s7 + row[7], s8 + row[8], s9 + row[9]
+            at = sizes[b]
+            running[0], running[1], running[2], running[3], running[4] = s0, s1, s2, s3, s4
+            running[5], running[6], running[7], running[8], running[9] = s5, s6, s7, s8, s9
+            for c in range(10):
+                rest[c] = every[c] - running[c]
+            total[d, b] = _cut_squares(running, m, x) + _cut_squares(rest, m, x)
+    return total, orders
 
 
 @njit(cache=True, nogil=True)

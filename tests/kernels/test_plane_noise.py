@@ -146,3 +146,24 @@ def test_pieces_near_models_leaves_a_tie_and_an_empty_piece_to_numpy():
     got = pieces_near_models(points, sigma, np.arange(3, dtype=np.int64), starts, np.array([kind, kind], np.int8),
                              np.array([row, row]), 3.0, 1e-9, 64 * np.finfo(float).eps)
     assert got.tolist() == [-1, -1]
+
+
+@pytest.mark.parametrize("slant", [0.0, 0.9, 1.4])
+def test_plane_distances_noise_are_numpys_values(slant):
+    # faces_of_plane's distances and noise from one pass: numpy's Plane.distances and
+    # distance_noise within a few units of the last place of the terms, pixel by pixel
+    from rangeseg_o3d.kernels import plane_distances_noise
+
+    rng = np.random.default_rng(11)
+    points, sigma, plane = _wall(rng, slant=slant, noise_scale=2.0)
+    idx = np.sort(rng.choice(points.shape[0], 1000, replace=False))
+    distances, noise = plane_distances_noise(points, sigma, idx, plane.normal, plane.d)
+    assert distances.shape == noise.shape == (1000,)
+    terms = np.abs(points[idx]) @ np.abs(plane.normal) + abs(plane.d)
+    assert np.all(np.abs(distances - plane.distances(points[idx])) <= 4e-16 * terms)
+    want = distance_noise(plane, points[idx], sigma[idx])
+    assert np.all(np.abs(noise - want) <= 4e-16 * sigma[idx])
+    assert np.all(noise >= 0.0) and np.any(noise > 0.5 * sigma[idx])
+    # and the sums of plane_noise_sums are theirs
+    squares, noise_squares, _, _ = plane_noise_sums(points, sigma, idx, plane.normal, plane.d)
+    np.testing.assert_allclose([squares, noise_squares], [np.sum(distances ** 2), np.sum(noise ** 2)], rtol=1e-12)

@@ -1,13 +1,12 @@
 """The compiled sums along the rays give numpy's bits: ``pairwise_sum`` against ``ndarray.sum``,
 ``ray_moment_sums`` against ``ray_moments``' earlier numpy form (kept here), ``pixel_ray_moments``
-against that form of ``ray_terms`` of the pixels, ``cut_prefix_sums``
-against ``crease_line``'s earlier gather, reduceat and cumsum (kept here)."""
+against that form of ``ray_terms`` of the pixels (``crease_line``'s search is in test_crease_cuts.py)."""
 
 import numpy as np
 import pytest
 
-from rangeseg_o3d.kernels.rays import cut_prefix_sums, pairwise_sum, ray_moment_sums
-from rangeseg_o3d.ray_planes import moment_columns, pixel_moments, ray_moments, ray_terms
+from rangeseg_o3d.kernels.rays import pairwise_sum, ray_moment_sums
+from rangeseg_o3d.ray_planes import pixel_moments, ray_moments, ray_terms
 
 
 def _terms(rng, n):
@@ -65,28 +64,6 @@ def test_pixel_moments_are_the_moments_of_the_pixels_terms(n):
     # NaN stays NaN, as numpy's terms keep it
     xyz[pixels[:1]] = np.nan
     assert (np.isnan(pixel_moments(xyz, sigma, pixels)[2]).all() if n else True)
-
-
-def _numpy_prefix(columns, orders, starts):
-    # crease_line before the kernel: per direction, numpy's gather, reduceat and cumsum
-    return np.stack([np.cumsum(np.add.reduceat(columns[order], starts, axis=0), axis=0) for order in orders])
-
-
-@pytest.mark.parametrize("m", [40, 300, 2000, 16384])
-def test_cut_prefix_sums_are_numpys_bits(m):
-    rng = np.random.default_rng(m)
-    columns = moment_columns(*_terms(rng, m))
-    rows, cols = np.divmod(np.sort(rng.choice(200 * 300, m, replace=False)), 300)
-    angles = np.arange(32) * (np.pi / 32)
-    orders = np.stack([np.argsort(cols * np.cos(a) + rows * np.sin(a), kind="stable") for a in angles])
-    sizes = np.unique(np.linspace(max(m // 10, 1), m - max(m // 10, 1), 129).astype(np.int64))
-    starts = np.concatenate([[0], sizes])
-    got = cut_prefix_sums(columns, orders, starts)
-    want = _numpy_prefix(columns, orders, starts)
-    assert got.shape == (32, starts.size, 13)
-    assert np.array_equal(got, want)
-    # the last row of every direction holds every row: the totals agree across directions
-    assert np.allclose(got[:, -1], columns.sum(axis=0), rtol=1e-12)
 
 
 def test_box_ray_terms_are_the_numpy_terms_of_a_box_of_the_frame():
