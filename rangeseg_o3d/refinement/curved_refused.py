@@ -112,6 +112,7 @@ def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
         model = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), resolve_bends=float(samples))
         points = rows_at(ctx.xyz, idx)
         within = bool(model) and model.kind != "plane" and _within_noise(ctx, model, points, idx)
+        by_means = False
         if not within and step > 0:  # the pixels' spread along the rays misled the fit: their means
             window = mean_window(float(np.median(ctx.sigma[idx])), float(np.median(np.linalg.norm(points, axis=1))),
                                  step)
@@ -120,11 +121,17 @@ def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
             within = bool(model) and model.kind != "plane" and _within_noise(ctx, model, points, idx)
             if within:  # (its rms, as every recovered model's, is its pixels')
                 model = with_statistics(model, rms=float(np.sqrt(np.mean(model.distances(points) ** 2))))
+                by_means = True
         if within:
             taken.add(k)
-            host = _curved_host(ctx, fits, new, model, points, config,
-                                near=None if config.merge_disjoint else touching(labels, idx, reach=2)
-                                ) if config.merge else None
+            near = None if config.merge_disjoint else touching(labels, idx, reach=2)
+            host = _curved_host(ctx, fits, new, model, points, config, near=near) if config.merge else None
+            if host is None and by_means and config.merge:
+                # a model of the means is known to a few centimetres of radius: the piece is a
+                # piece of a curved region the scan has when that region's model explains its
+                # pixels within the noise of their distances (a pipe's flank beside its tile
+                # cylinder, kinect seeds 37 and 1001: kept apart, the pipe was over-segmented)
+                host = _curved_host_within_noise(ctx, fits, new, points, idx, near)
             if host is None:
                 fits[k] = new[k] = model
                 continue
@@ -140,6 +147,22 @@ def _within_noise(ctx: Context, model, points: np.ndarray, idx: np.ndarray) -> b
     noise = distance_noise(model, points, ctx.sigma[idx])
     rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
     return not beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), int(idx.size))
+
+
+def _curved_host_within_noise(ctx: Context, fits: dict, new: dict, points: np.ndarray, idx: np.ndarray,
+                              near: set | None = None):
+    """The curved region of ``fits`` (not among ``new``; among ``near`` when given) whose model
+    explains ``points`` (pixels ``idx``) within the noise of their distances to it, the
+    closest in rms; or None."""
+    best, best_rms = None, np.inf
+    for c, other in fits.items():
+        if c in new or (near is not None and c not in near) or not other or other.kind == "plane":
+            continue
+        if _within_noise(ctx, other, points, idx):
+            rms = float(np.sqrt(np.mean(other.distances(points) ** 2)))
+            if rms < best_rms:
+                best, best_rms = c, rms
+    return best
 
 
 def _curved_host(ctx: Context, fits: dict, new: dict, model, points: np.ndarray, config, near: set | None = None):
