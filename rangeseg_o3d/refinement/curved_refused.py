@@ -11,8 +11,8 @@ Where the range noise exceeds the grid's footprint (a Kinect: :func:`rangeseg_o3
 a pipe or ball a few dozen pixels across spreads farther along its rays than across them: the
 least-squares plane of its pixels turns towards the rays and fits them closer than the true
 cylinder does, and the geometric curved fits start from that spread and fail. There the fitter
-is asked once more on the blob's range means over a small window of its own pixels
-(:func:`window_means`), whose noise is under the window's footprint, and the model it finds is
+is asked once more on the blob's means over small blocks of its own pixels
+(:func:`block_means`), whose noise is under the block's footprint, and the model it finds is
 held, as ever, to the noise of the raw pixels' distances.
 """
 
@@ -27,7 +27,7 @@ from ..fitting.robust import beyond_noise, distance_noise
 from .context import Context, touching
 from .merge import similar_models
 
-__all__ = ["full_resolution_samples", "curved_for_refused", "mean_window", "window_means"]
+__all__ = ["full_resolution_samples", "curved_for_refused", "mean_window", "block_means"]
 
 
 def full_resolution_samples(sensor) -> float:
@@ -42,8 +42,8 @@ def full_resolution_samples(sensor) -> float:
 
 
 def mean_window(sigma: float, distance: float, step: float) -> int:
-    """The odd window (pixels a side, at least 3) whose mean range has its noise under the
-    window's footprint: ``w`` with ``sigma / w <= w distance step``, ``sigma`` the range noise
+    """The odd window (pixels a side, at least 3) whose mean of independent returns has its
+    noise under the window's footprint: ``w`` with ``sigma / w <= w distance step``, ``sigma`` the range noise
     at ``distance`` (m) and ``step`` the grid's angular step (radians). A Kinect at 2-5 m: 3."""
     if not (sigma > 0 and distance > 0 and step > 0):
         raise ValueError(f"mean_window: expected positive sigma, distance and step; got {sigma}, {distance}, {step}")
@@ -51,29 +51,25 @@ def mean_window(sigma: float, distance: float, step: float) -> int:
     return max(3, w + 1 - w % 2)
 
 
-def window_means(xyz: np.ndarray, width: int, idx: np.ndarray, window: int) -> np.ndarray:
-    """The points of pixels ``idx`` (flat indices into an organized ``(H * W, 3)`` grid
-    ``xyz`` of ``width`` columns) moved along their rays to the mean range of the pixels of
-    ``idx`` within the ``window`` x ``window`` box around each (its own pixels only: no return
-    of a neighbouring surface). Box sums over the pixels' bounding box, one numpy pass."""
+def block_means(xyz: np.ndarray, width: int, idx: np.ndarray, window: int) -> np.ndarray:
+    """The mean points of pixels ``idx`` (flat indices into an organized ``(H * W, 3)`` grid
+    ``xyz`` of ``width`` columns) over disjoint ``window`` x ``window`` blocks of the grid
+    (from the pixels' first row and column), one per block holding at least half a block of
+    them: a tile mean of their own pixels only (no return of a neighbouring surface), each an
+    independent sample with its range noise divided by up to ``window``. Four bincounts."""
     idx = np.asarray(idx, dtype=np.int64)
-    if window < 1 or window % 2 == 0:
-        raise ValueError(f"window_means: expected an odd window >= 1; got {window}")
+    if window < 1:
+        raise ValueError(f"block_means: expected a window >= 1; got {window}")
     if idx.size == 0:
         return np.zeros((0, 3))
     rows, cols = np.divmod(idx, int(width))
-    r0, c0, half = int(rows.min()), int(cols.min()), window // 2
-    h, w = int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1
+    across = (int(cols.max()) - int(cols.min())) // window + 1
+    block = (rows - rows.min()) // window * across + (cols - cols.min()) // window
+    counts = np.bincount(block)
     points = rows_at(xyz, idx)
-    ranges = np.linalg.norm(points, axis=1)
-    grid = np.zeros((2, h + 2 * half + 1, w + 2 * half + 1))  # summed ranges and counts, padded
-    grid[0, rows - r0 + half + 1, cols - c0 + half + 1] = ranges
-    grid[1, rows - r0 + half + 1, cols - c0 + half + 1] = 1.0
-    summed = grid.cumsum(axis=1).cumsum(axis=2)  # (a zero first row and column: box sums by corners)
-    r, c = rows - r0 + 1, cols - c0 + 1  # each box's top-left corner, exclusive, in the padded grid
-    box = (summed[:, r + window - 1, c + window - 1] - summed[:, r - 1, c + window - 1]
-           - summed[:, r + window - 1, c - 1] + summed[:, r - 1, c - 1])
-    return points * (box[0] / box[1] / np.maximum(ranges, 1e-12))[:, None]
+    sums = np.stack([np.bincount(block, weights=points[:, i], minlength=counts.size) for i in range(3)], axis=1)
+    kept = counts >= 0.5 * window * window
+    return sums[kept] / counts[kept, None]
 
 
 def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set, samples: float,
@@ -97,8 +93,8 @@ def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
 
     ``step`` (radians, 0: not asked): the grid's angular step where the range noise exceeds its
     footprint (a Kinect's). When the pixels give no curved model within that noise, the fitter
-    is asked on their range means over :func:`mean_window` (each mean counting as the share of
-    an independent sample its window leaves it, ``samples / window**2``): a pipe 0.13-0.17 m
+    is asked on their means over disjoint blocks of :func:`mean_window` pixels a side
+    (:func:`block_means`, each mean an independent sample): a pipe 0.13-0.17 m
     across at 4 m (kinect fresh seeds 1011 and 1018, 2300-2800 px) fits its pixels' plane at
     10-11 mm against its true cylinder's 12.5-13 mm under 23 mm of range noise, and was freed.
     """
@@ -116,8 +112,8 @@ def curved_for_refused(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
         if not within and step > 0:  # the pixels' spread along the rays misled the fit: their means
             window = mean_window(float(np.median(ctx.sigma[idx])), float(np.median(np.linalg.norm(points, axis=1))),
                                  step)
-            model = ctx.fitter.fit(window_means(ctx.xyz, ctx.width, idx, window),
-                                   resolve_bends=float(samples) / (window * window))
+            # means over disjoint blocks: each an independent sample, and a ninth of the points to fit
+            model = ctx.fitter.fit(block_means(ctx.xyz, ctx.width, idx, window), resolve_bends=float(samples))
             within = bool(model) and model.kind != "plane" and _within_noise(ctx, model, points, idx)
             if within:  # (its rms, as every recovered model's, is its pixels')
                 model = with_statistics(model, rms=float(np.sqrt(np.mean(model.distances(points) ** 2))))

@@ -752,7 +752,7 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
 
 
 def _means_step(sensor, cloud) -> float:
-    # the grid's angular step (radians) where a refused plane's range means are fitted for a
+    # the grid's angular step (radians) where a refused plane's block means are fitted for a
     # curved model (curved_for_refused): where the range noise exceeds the grid's footprint
     # and its returns err one by one (a Kinect; not a stereo camera, whose noise errs together
     # over its matching window, nor any laser: strips.noise_spans_the_grid); 0 elsewhere

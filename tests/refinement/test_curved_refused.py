@@ -118,7 +118,7 @@ def _pipe_half_hidden(seed, edge):
 def test_a_pipe_seen_on_a_narrow_arc_under_kinect_noise_is_fitted_on_its_range_means(edge, radius_error, monkeypatch):
     # Its pixels' plane leaves them beyond the noise of their distances (refused), the fitter
     # calls them a plane, and the geometric cylinder fit started from their spread along the
-    # rays does not converge: the pipe was freed. Fitted on its range means over 3 x 3 of its
+    # rays does not converge: the pipe was freed. Fitted on its means over 3 x 3 blocks of its
     # own pixels, the cylinder holds the pixels within that noise.
     import rangeseg_o3d.refinement.recover as recover
     from rangeseg_o3d.fullres import leftover_blob_labels
@@ -157,9 +157,9 @@ def test_means_step_only_where_the_noise_spans_the_grid_and_errs_pixel_by_pixel(
     assert recover._means_step(rs.Pipeline(stereo).sensor, cloud) == 0.0
 
 
-def test_mean_window_and_window_means():
+def test_mean_window_and_block_means():
     from rangeseg_o3d._numeric import rows_at
-    from rangeseg_o3d.refinement.curved_refused import mean_window, window_means
+    from rangeseg_o3d.refinement.curved_refused import block_means, mean_window
 
     step = np.radians(0.11)
     # a Kinect at 2-5 m: the noise is 1.8-3.9 footprints, the 3 x 3 mean's under its 3
@@ -169,22 +169,20 @@ def test_mean_window_and_window_means():
     assert mean_window(1e-6, 4.0, step) == 3
     with pytest.raises(ValueError, match="positive"):
         mean_window(0.0, 4.0, step)
-    # ranges 1, 2, ... along rays; each pixel moves to the mean range of its set's pixels in its box
+    # a 5 x 6 grid of points (column, row, 10 * column + row)
     h, w = 5, 6
-    rays = np.dstack([np.zeros((h, w)), np.zeros((h, w)), np.ones((h, w))])
-    ranges = np.arange(1.0, h * w + 1).reshape(h, w)
-    xyz = (rays * ranges[..., None]).reshape(-1, 3)
+    r, c = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.dstack([c, r, 10 * c + r]).reshape(-1, 3)
     idx = np.array([7, 8, 9, 13, 14, 15, 27])  # a 2 x 3 block and a lone pixel
-    out = window_means(xyz, w, idx, 3)
-    assert out.shape == (7, 3)
-    # pixel 7 (row 1, col 1): its box holds 7, 8, 13, 14 of the set; pixel 27 is alone
-    assert out[0, 2] == pytest.approx(np.mean(ranges.ravel()[[7, 8, 13, 14]]))
-    assert out[1, 2] == pytest.approx(np.mean(ranges.ravel()[[7, 8, 9, 13, 14, 15]]))
-    assert out[6, 2] == pytest.approx(28.0)
-    assert np.allclose(out[:, :2], 0.0)
-    assert np.array_equal(window_means(xyz, w, idx, 1), rows_at(xyz, idx))
-    with pytest.raises(ValueError, match="odd"):
-        window_means(xyz, w, idx, 2)
+    out = block_means(xyz, w, idx, 3)
+    # blocks from row 1, column 1: rows 1-3 x columns 1-3 holds the six (kept: >= 4.5 of 9),
+    # rows 4-6 the lone pixel 27 (dropped)
+    assert out.shape == (1, 3)
+    assert np.allclose(out[0], rows_at(xyz, idx[:6]).mean(axis=0))
+    assert np.array_equal(block_means(xyz, w, idx, 1), rows_at(xyz, idx))
+    assert block_means(xyz, w, idx[:0], 3).shape == (0, 3)
+    with pytest.raises(ValueError, match="window"):
+        block_means(xyz, w, idx, 0)
 
 
 @pytest.mark.parametrize("edge", [-0.03, -0.05])
@@ -192,7 +190,7 @@ def test_planes_for_unresolved_keeps_a_narrow_pipes_cylinder_its_plane_does_not_
     # The pipe's pixels' plane, turned towards the rays, leaves fewer squared distances than
     # its cylinder (the F-test calls the bend unresolved and gave the pipe that plane); by the
     # noise of their distances only the cylinder explains them, so on a camera whose noise
-    # spans the grid (by_distance_noise) the cylinder stays. A pipe seen whole keeps it anyway.
+    # spans the grid (by_distance_noise) the cylinder stays.
     from rangeseg_o3d.fullres import leftover_blob_labels, planes_for_unresolved, region_stats
     from rangeseg_o3d.refinement.recover import recover_pixels
     from rangeseg_o3d.result import INLIER_SIGMAS
