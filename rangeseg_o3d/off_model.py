@@ -582,6 +582,8 @@ def _refit_apart(xyz: np.ndarray, noise: np.ndarray, flat: np.ndarray, held: np.
         other = np.full(3, np.nan)
     outer, first, pixels = refit_terms(xyz, noise, flat, np.ascontiguousarray(held, dtype=np.int64), int(label),
                                        own, other, float(k_sigma), int(floor))
+    if len(pixels) == 0 or not np.trace(outer) > 0:  # no pixel held (the solve would be singular)
+        return None
     a = ray_solutions(outer[None], first[None])
     return ray_plane(a[0], xyz[pixels])
 

@@ -23,7 +23,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
 from .off_model import recover_off_model
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
-from .strips import recover_strips
+from .strips import noise_spans_the_grid, recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -293,6 +293,9 @@ class Pipeline:
         # the stereo matrix: 525 of 5557 px, the union's cylinder beyond the noise)
         by_rays = (refine.enabled and float(noise.sigma_quadratic) > 0 and not noise.matched_window
                    and tile_means is not None)
+        # where the range noise exceeds the grid's footprint and errs pixel by pixel (a Kinect's),
+        # a pipe's plane turns towards the rays: a curved model is judged by the noise of its distances
+        by_means = (refine.enabled and not noise.matched_window and noise_spans_the_grid(self.sensor, cloud))
         labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                              k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True,
                                              creases_from=tile_means if by_rays else None,
@@ -352,7 +355,7 @@ class Pipeline:
                 lap("close_gaps")
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
-                                                tile=settings.tile)
+                                                tile=settings.tile, by_distance_noise=by_means)
             lap("unresolved")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside

@@ -206,3 +206,24 @@ def test_turned_from_source_keeps_a_face_across_the_model_and_drops_a_bend_along
     # a model whose normal at the freed pixels is the face's own: not turned
     fits = {1: Plane(np.array([1.0, 0.0, 0.0]), 0.0, rms=0.002, inliers=0)}
     assert _turned_from_source(np.array([5]), candidates, xyz, freed, sources, fits, 3.0).size == 0
+
+
+def test_refit_apart_of_a_face_holding_no_pixel_is_none():
+    # a face whose held pixels all went to other labels has no ray sums: no plane comes out
+    # (the solve of its zero sums raised LinAlgError: kinect fresh seed 1025), and one holding
+    # its pixels gets its plane back
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.off_model import _refit_apart
+
+    h, w = 6, 8
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    xyz = np.ascontiguousarray(np.dstack([(u - 3.5) * 0.01, (v - 2.5) * 0.01, np.full((h, w), 2.0)]).reshape(-1, 3))
+    noise = np.full(h * w, 0.004)
+    face = Plane(normal=np.array([0.0, 0.0, 1.0]), d=2.0, rms=0.001, inliers=h * w)
+    held = np.arange(h * w, dtype=np.int64)
+    others = np.full(h * w, 3, np.int32)
+    assert _refit_apart(xyz, noise, others, held, 5, face, None, 3.0, 10) is None
+    assert _refit_apart(xyz, noise, others, held[:0], 5, face, None, 3.0, 10) is None
+    mine = np.full(h * w, 5, np.int32)
+    plane = _refit_apart(xyz, noise, mine, held, 5, face, None, 3.0, 10)
+    assert plane is not None and abs(plane.normal[2]) == pytest.approx(1.0) and plane.d == pytest.approx(2.0)

@@ -570,7 +570,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     samples = full_resolution_samples(sensor)
     if refused and samples:
         labels, refused = curved_for_refused(ctx, labels, fits, new, refused, samples, config,
-                                             pixels=_grouped(pool, labels.reshape(-1)[pool], refused))
+                                             pixels=_grouped(pool, labels.reshape(-1)[pool], refused),
+                                             step=_means_step(sensor, cloud))
     # each plane's rms on the pixels it was found on: what it takes from here on (rim,
     # claims, merges) raises its fit's rms, and must not raise the bar it is held to
     found_rms = {k: m.rms for k, m in new.items() if m and m.kind == "plane"}
@@ -748,6 +749,22 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
         flat[idx[~keep]] = 0  # (a few pixels of the surfaces beside it, off its plane along their rays)
         fits[k] = new[k] = plane
     return kept
+
+
+def _means_step(sensor, cloud) -> float:
+    # the grid's angular step (radians) where a refused plane's block means are fitted for a
+    # curved model (curved_for_refused): where the range noise exceeds the grid's footprint
+    # and its returns err one by one (a Kinect; not a stereo camera, whose noise errs together
+    # over its matching window, nor any laser: strips.noise_spans_the_grid); 0 elsewhere
+    from ..strips import noise_spans_the_grid
+
+    if sensor.noise.matched_window or sensor.wrap_columns or not noise_spans_the_grid(sensor, cloud):
+        return 0.0
+    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
+        return float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
+    from ..scales import measured_spacing
+
+    return float(max(measured_spacing(cloud)))
 
 
 def _lateral_step(sensor, cloud) -> float:
