@@ -352,7 +352,8 @@ class Pipeline:
                 lap("close_gaps")
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
-                                                tile=settings.tile)
+                                                tile=settings.tile, fitter=self.fitter,
+                                                samples=noise.independent_share(1))
             lap("unresolved")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
