@@ -402,7 +402,9 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     models of their tile and the 8 around it), not in the whole frame.
     With ``fitter`` (a :class:`rangeseg_o3d.fitting.region_fitter.RegionFitter` of pixels),
     the model's kind is first refitted to those pixels from the tile model
-    (:func:`resolved_refit`, ``samples`` the independent samples each pixel carries): the
+    (:func:`resolved_refit`; ``samples`` the independent samples each pixel carries, each
+    point of the sample counting those of the ``sample_step`` x ``sample_step`` pixels it
+    stands for, at most one): the
     tile means of a far pipe bend a cylinder whose radius or axis the pixels do not share,
     so its own residuals resolve nothing, while the pipe's pixels resolve the cylinder
     refitted to them; that one replaces it, and only a region whose refit resolves no
@@ -419,14 +421,19 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     fits, replaced, boxes = dict(fits), [], LabelBoxes(labels)
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     for k in curved:
-        points = region_sample(cloud, labels, k, pixel_box(boxes, k, tile_boxes, tile))
+        box = pixel_box(boxes, k, tile_boxes, tile)
+        points = region_sample(cloud, labels, k, box)
         plane = fit_plane(points) if len(points) >= 6 else None
         if not plane:
             continue
         squares = float(np.sum(fits[k].distances(points) ** 2))
         if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
             continue
-        refit = None if fitter is None else resolved_refit(fitter, points, fits[k], plane.rms, samples)
+        # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
+        # independent samples, at most one (a step as wide as a stereo camera's window: one each)
+        spacing = sample_step(labels[box].size) ** 2
+        refit = None if fitter is None else resolved_refit(fitter, points, fits[k], plane.rms,
+                                                           min(1.0, samples * spacing))
         fits[k] = replace(refit if refit is not None else plane, inliers=int(stats.counts[k]))
         replaced.append(k)
     if replaced:
@@ -813,11 +820,16 @@ def pixel_box(boxes: LabelBoxes, k: int, tile_boxes: LabelBoxes | None, tile: in
     return boxes(k)  # a region the tiles did not have (recovered pixels)
 
 
+def sample_step(size: int) -> int:
+    """The grid step of :func:`region_sample` in a box of ``size`` pixels."""
+    return max(int(np.ceil(np.sqrt(size / UNRESOLVED_TEST_PIXELS))), 1)
+
+
 def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -> np.ndarray:
     """The valid points of label ``k`` in ``box`` on an even grid of about
-    ``UNRESOLVED_TEST_PIXELS`` pixels."""
+    ``UNRESOLVED_TEST_PIXELS`` pixels (every :func:`sample_step`-th row and column)."""
     window = labels[box]
-    step = max(int(np.ceil(np.sqrt(window.size / UNRESOLVED_TEST_PIXELS))), 1)
+    step = sample_step(window.size)
     points = cloud.xyz[box][::step, ::step][window[::step, ::step] == k]
     return points[np.isfinite(points).all(axis=1)]
 

@@ -549,6 +549,14 @@ def test_planes_for_unresolved_refits_a_column_whose_tile_cylinder_is_off():
     assert column.inliers == (labels == 2).sum()
     assert out_stats.squares[2] < 0.1 * stats.squares[2]  # measured again under the refit model
     assert isinstance(out[1], Plane) and abs(out[1].d - 2.0) < 0.004
+    # over a stereo camera's 3-px window each pixel is 1/9 of a sample; the test's points lie
+    # sample_step apart (2 in the column's 60 x 40 box: 4/9 each), and the column still resolves
+    from rangeseg_o3d.fullres import sample_step
+
+    assert (sample_step(1024), sample_step(1025), sample_step(9 * 1024), sample_step(60 * 40)) == (1, 2, 3, 2)
+    stereo, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
+                                      fitter=fitter, samples=1 / 9)
+    assert isinstance(stereo[2], Cylinder) and stereo[2].radius == pytest.approx(column.radius)
     # counted as fewer independent samples (a stereo camera's window), the same column's drop
     # is still far beyond the noise; a wall's refit is no curvature at any count
     points = xyz[labels == 2]
