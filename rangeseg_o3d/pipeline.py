@@ -262,8 +262,8 @@ class Pipeline:
         :class:`rangeseg_o3d.fullres.PixelStats` of the labels. The models stay those
         fitted to the tile means (each averages all the region's pixels; refitting the
         pixels moves a plane's normal by far less than its error), except a curved one
-        whose curvature its pixels do not resolve, which becomes their plane
-        (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
+        whose curvature its pixels do not resolve, which becomes their plane unless its kind
+        refitted to them resolves it (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
         rms of the pixels' distances. ``timings`` (optional) receives each step's seconds
         under ``full.<step>`` (the steps that ran), as the refinement's go under ``refine.<step>``.
         ``tile_means`` (the cloud ``tile_labels`` label) places the regions for the crease rule
