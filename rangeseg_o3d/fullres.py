@@ -32,7 +32,7 @@ from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refineme
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats", "stats_with_moved", "stats_after_moves",
-           "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "grow_into_free",
+           "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "resolved_refit", "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases", "settle_caps",
            "recovered_region_floor"]
 
@@ -387,7 +387,8 @@ UNRESOLVED_TEST_PIXELS = 1024
 
 def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *,
                           sigma: np.ndarray, inlier_factor: float, tile_labels: np.ndarray | None = None,
-                          tile: int = 1, by_distance_noise: bool = False) -> tuple[dict, PixelStats]:
+                          tile: int = 1, by_distance_noise: bool = False, fitter=None,
+                          samples: float = 1.0) -> tuple[dict, PixelStats]:
     """Each cylinder or sphere whose curvature its pixels do not resolve becomes their plane.
 
     A curved model fitted to tile means can follow means that straddle an edge (a tile
@@ -408,6 +409,16 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     distances than the true cylinder (kinect fresh seed 1018 scan 0: 10.3 against 12.5 mm)
     while lying beyond the noise of its distances (9.1 mm), which the cylinder's (14.2 mm)
     holds.
+
+    With ``fitter`` (a :class:`rangeseg_o3d.fitting.region_fitter.RegionFitter` of pixels),
+    the model's kind is first refitted to those pixels from the tile model
+    (:func:`resolved_refit`; ``samples`` the independent samples each pixel carries, each
+    point of the sample counting those of the ``sample_step`` x ``sample_step`` pixels it
+    stands for, at most one): the
+    tile means of a far pipe bend a cylinder whose radius or axis the pixels do not share,
+    so its own residuals resolve nothing, while the pipe's pixels resolve the cylinder
+    refitted to them; that one replaces it, and only a region whose refit resolves no
+    curvature either becomes its plane.
     """
     from .fitting.plane import fit_plane
     from .fitting.primitives import Plane
@@ -420,21 +431,58 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     fits, replaced, boxes = dict(fits), [], LabelBoxes(labels)
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     for k in curved:
-        points = region_sample(cloud, labels, k, pixel_box(boxes, k, tile_boxes, tile))
+        box = pixel_box(boxes, k, tile_boxes, tile)
+        points = region_sample(cloud, labels, k, box)
         plane = fit_plane(points) if len(points) >= 6 else None
         if not plane:
             continue
         squares = float(np.sum(fits[k].distances(points) ** 2))
         if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
             continue
-        if by_distance_noise and _only_curved_within_noise(fits[k], cloud.xyz, sigma, labels, k,
-                                                           pixel_box(boxes, k, tile_boxes, tile)):
+        if by_distance_noise and _only_curved_within_noise(fits[k], cloud.xyz, sigma, labels, k, box):
             continue
-        fits[k] = replace(plane, inliers=int(stats.counts[k]))
+        # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
+        # independent samples, at most one (a step as wide as a stereo camera's window: one each)
+        spacing = sample_step(labels[box].size) ** 2
+        refit = None if fitter is None else resolved_refit(fitter, points, fits[k], plane.rms,
+                                                           min(1.0, samples * spacing))
+        fits[k] = replace(refit if refit is not None else plane, inliers=int(stats.counts[k]))
         replaced.append(k)
     if replaced:
         stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
     return fits, stats
+
+
+def resolved_refit(fitter, points: np.ndarray, model, plane_rms: float, samples: float = 1.0):
+    """``model``'s kind refitted to ``points`` from ``model`` when it resolves its curvature
+    there, else None.
+
+    The refit (``fitter.refit``, Levenberg-Marquardt from ``model``) is held to the kind's
+    own thresholds (rms, radius, arc) but not to the fitter's curvature gain: the points'
+    plane (rms ``plane_rms``) was within the noise, where the decision asks a curved model
+    only to beat it by more than noise would (an F-test over the independent samples,
+    ``samples`` per point: a stereo camera's pixels err together over its matching window,
+    :meth:`rangeseg_o3d.sensor.NoiseModel.independent_share`), as for a plane whose quadric
+    resolves a bend (``fit_primitive(resolve_bends=...)``). A kinect pipe at 5.4 m, 0.17 m
+    across: its tile cylinder left its pixels 25.9 mm off against their plane's 23.6, the
+    cylinder refitted to them 22.3 mm, resolved over 420 pixels by 50 noise variances.
+    """
+    from .fitting.primitives import Plane
+    from .fitting.robust import curvature_resolved
+
+    if not samples > 0:
+        raise ValueError(f"samples must be > 0; got {samples}")
+    if isinstance(model, Plane) or not model:
+        return None
+    refit = fitter.refit(points, model, curvature_gain=1.0)
+    if not refit or isinstance(refit, Plane):
+        return None
+    m = len(points) * float(samples)
+    squares = float(np.mean(refit.distances(points) ** 2))
+    extra = 2 if refit.kind == "cylinder" else 1  # the parameters a cylinder, a sphere adds to a plane
+    if not curvature_resolved(m * plane_rms ** 2, m * squares, max(int(m), 1), extra):
+        return None
+    return refit
 
 
 def drop_unresolvable_curves(labels: np.ndarray, fits: dict, *, depth_step: float) -> tuple[np.ndarray, dict]:
@@ -784,11 +832,16 @@ def pixel_box(boxes: LabelBoxes, k: int, tile_boxes: LabelBoxes | None, tile: in
     return boxes(k)  # a region the tiles did not have (recovered pixels)
 
 
+def sample_step(size: int) -> int:
+    """The grid step of :func:`region_sample` in a box of ``size`` pixels."""
+    return max(int(np.ceil(np.sqrt(size / UNRESOLVED_TEST_PIXELS))), 1)
+
+
 def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -> np.ndarray:
     """The valid points of label ``k`` in ``box`` on an even grid of about
-    ``UNRESOLVED_TEST_PIXELS`` pixels."""
+    ``UNRESOLVED_TEST_PIXELS`` pixels (every :func:`sample_step`-th row and column)."""
     window = labels[box]
-    step = max(int(np.ceil(np.sqrt(window.size / UNRESOLVED_TEST_PIXELS))), 1)
+    step = sample_step(window.size)
     points = cloud.xyz[box][::step, ::step][window[::step, ::step] == k]
     return points[np.isfinite(points).all(axis=1)]
 

@@ -262,8 +262,8 @@ class Pipeline:
         :class:`rangeseg_o3d.fullres.PixelStats` of the labels. The models stay those
         fitted to the tile means (each averages all the region's pixels; refitting the
         pixels moves a plane's normal by far less than its error), except a curved one
-        whose curvature its pixels do not resolve, which becomes their plane
-        (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
+        whose curvature its pixels do not resolve, which becomes their plane unless its kind
+        refitted to them resolves it (:func:`rangeseg_o3d.fullres.planes_for_unresolved`); :meth:`_assemble` reports the
         rms of the pixels' distances. ``timings`` (optional) receives each step's seconds
         under ``full.<step>`` (the steps that ran), as the refinement's go under ``refine.<step>``.
         ``tile_means`` (the cloud ``tile_labels`` label) places the regions for the crease rule
@@ -355,7 +355,8 @@ class Pipeline:
                 lap("close_gaps")
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
-                                                tile=settings.tile, by_distance_noise=by_means)
+                                                tile=settings.tile, by_distance_noise=by_means,
+                                                fitter=self.fitter, samples=noise.independent_share(1))
             lap("unresolved")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside

@@ -523,6 +523,53 @@ def test_planes_for_unresolved_gives_a_bent_wall_its_plane_and_keeps_the_column(
     assert np.array_equal(alone[1].normal, wall.normal) and alone[1].d == wall.d and alone[1].rms == wall.rms
 
 
+def test_planes_for_unresolved_refits_a_column_whose_tile_cylinder_is_off():
+    # the column's tile model a 1.2 m cylinder through its front (tile means bent by a far
+    # pipe's noise): its pixels do not resolve that one, but they resolve the cylinder
+    # refitted to them, which replaces it; the wall under its 2 m cylinder still becomes its plane
+    from rangeseg_o3d.fullres import resolved_refit
+
+    rng = np.random.default_rng(3)
+    xyz, labels = _column_and_wall(rng, sigma=0.008)
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full(labels.shape, 0.008)
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    fits = {1: Cylinder(axis=[0, 1, 0], point=[0.0, 0.0, 4.0], radius=2.0, rms=0.008, inliers=0),
+            2: Cylinder(axis=[0, 1, 0], point=[1.0, 0.0, 3.2], radius=1.2, rms=0.008, inliers=0)}
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    without, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    assert isinstance(without[2], Plane)  # premise: the tile cylinder's own residuals resolve nothing
+    out, out_stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
+                                           inlier_factor=INLIER_SIGMAS, fitter=fitter)
+    column = out[2]
+    assert isinstance(column, Cylinder)
+    assert column.radius == pytest.approx(0.3, abs=0.01)
+    assert abs(abs(column.axis[1]) - 1.0) < 1e-3
+    assert np.hypot(column.point[0] - 1.0, column.point[2] - 2.3) < 0.01  # the axis through (1, 2.3)
+    assert column.inliers == (labels == 2).sum()
+    assert out_stats.squares[2] < 0.1 * stats.squares[2]  # measured again under the refit model
+    assert isinstance(out[1], Plane) and abs(out[1].d - 2.0) < 0.004
+    # over a stereo camera's 3-px window each pixel is 1/9 of a sample; the test's points lie
+    # sample_step apart (2 in the column's 60 x 40 box: 4/9 each), and the column still resolves
+    from rangeseg_o3d.fullres import sample_step
+
+    assert (sample_step(1024), sample_step(1025), sample_step(9 * 1024), sample_step(60 * 40)) == (1, 2, 3, 2)
+    stereo, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
+                                      fitter=fitter, samples=1 / 9)
+    assert isinstance(stereo[2], Cylinder) and stereo[2].radius == pytest.approx(column.radius)
+    # counted as fewer independent samples (a stereo camera's window), the same column's drop
+    # is still far beyond the noise; a wall's refit is no curvature at any count
+    points = xyz[labels == 2]
+    plane_rms = rs.fit_plane(points).rms
+    assert resolved_refit(fitter, points, fits[2], plane_rms, samples=1 / 9) is not None
+    wall = xyz[labels == 1]
+    assert resolved_refit(fitter, wall, fits[1], 0.008, samples=1.0) is None
+    assert resolved_refit(fitter, points, Plane(normal=np.array([0.0, 0.0, 1.0]), d=2.0, rms=0.0, inliers=0),
+                          plane_rms) is None  # a plane has no curvature to refit
+    with pytest.raises(ValueError, match="samples must be > 0; got 0"):
+        resolved_refit(fitter, points, fits[2], plane_rms, samples=0.0)
+
+
 def test_planes_for_creases_keeps_a_true_cylinder():
     rng = np.random.default_rng(6)
     xyz, labels = _column_and_wall(rng)

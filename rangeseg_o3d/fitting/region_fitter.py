@@ -257,11 +257,12 @@ class RegionFitter:
                 out[k] = self.refit(self.points(xyz_flat, regions.get(k, empty)), fits[k])
         return out
 
-    def refit(self, points: np.ndarray, model):
-        """A model of ``model``'s kind for ``points`` (the plugin's ``refit``, else ``fit``)."""
+    def refit(self, points: np.ndarray, model, **overrides):
+        """A model of ``model``'s kind for ``points`` (the plugin's ``refit``, else ``fit``);
+        ``overrides``: parameters of the plugin set otherwise for this call."""
         if self.plugin.refit is None:
             return self.fit(points)
         try:
-            return self.plugin.refit(self._subsample(points), model, **self.params)
+            return self.plugin.refit(self._subsample(points), model, **{**self.params, **overrides})
         except ValueError as exc:
             return FitFailure(kind=model.kind, reason=str(exc))
