@@ -605,7 +605,9 @@ def test_labels_near_are_the_labels_under_the_dilated_mask():
     rng = np.random.default_rng(5)
     for trial in range(60):
         h, w = rng.integers(1, 30), rng.integers(1, 40)
-        labels = rng.integers(0, rng.integers(1, 90), (h, w)).astype(np.int32)
+        # labels beyond the kernel's first mask (64) and far beyond its doubling
+        top = rng.choice([rng.integers(1, 90), 100_000])
+        labels = rng.integers(0, top, (h, w)).astype(np.int32)
         mask = (rng.random((h, w)) < rng.uniform(0.01, 0.6)).astype(np.uint8)
         idx = np.flatnonzero(mask)
         for reach in (0, 1, 2, 3):
