@@ -58,7 +58,12 @@ def test_line_arms_are_the_pixels_with_no_neighbour_across_a_line():
     labels[2:5, 4:7] = 1  # a 3 x 3 body
     labels[1, 0:7] = 1  # a row arm above it, reaching left
     labels[2:5, 7] = 2  # a one-column region of its own
-    arms = line_arms(labels, False).reshape(labels.shape)
+    every = np.arange(labels.size)
+    arms = np.zeros(labels.size, bool)
+    for k in (1, 2):
+        idx = every[labels.ravel() == k]
+        arms[idx] = line_arms(labels, idx, False)
+    arms = arms.reshape(labels.shape)
     # the arm's pixels left of the body have no neighbour above or below in region 1; the row
     # above the body's columns has the body below it, so it is no arm
     assert arms[1, 0:4].all() and not arms[1, 4:7].any()
@@ -68,12 +73,13 @@ def test_line_arms_are_the_pixels_with_no_neighbour_across_a_line():
     # across the seam of a 360-degree grid the first and last columns are neighbours
     seam = np.zeros((3, 4), np.int32)
     seam[:, 0] = seam[:, 3] = 1
-    assert line_arms(seam, False).sum() == 6 and line_arms(seam, True).sum() == 0
+    idx = np.flatnonzero(seam.ravel())
+    assert line_arms(seam, idx, False).all() and not line_arms(seam, idx, True).any()
 
 
 def test_line_arms_refuses_a_flat_array():
     with pytest.raises(ValueError, match=r"\(H, W\) image; got shape \(5,\)"):
-        line_arms(np.zeros(5, np.int32), False)
+        line_arms(np.zeros(5, np.int32), np.arange(5), False)
 
 
 def test_without_arms_keeps_a_region_whose_rest_spans_too_few_lines():
@@ -81,14 +87,14 @@ def test_without_arms_keeps_a_region_whose_rest_spans_too_few_lines():
     labels[2:5, 4:7] = 1
     labels[1, 0:7] = 1
     idx = np.flatnonzero(labels.ravel() == 1)
-    arms = line_arms(labels, False)
+    arms = line_arms(labels, idx, False)
     body = _without_arms(idx, arms, 8)
-    assert body.size == 12 and not arms[body].any()  # the 3 x 3 body and the arm's row above it
+    assert np.array_equal(body, idx[~arms]) and body.size == 12  # the 3 x 3 body and the arm's row above it
     thin = labels.copy()
     thin[2:5, 6] = 0  # the body two columns wide: fewer than BEND_LINES lines across
     assert BEND_LINES == 3
     idx = np.flatnonzero(thin.ravel() == 1)
-    assert np.array_equal(_without_arms(idx, line_arms(thin, False), 8), idx)
+    assert np.array_equal(_without_arms(idx, line_arms(thin, idx, False), 8), idx)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -100,10 +106,12 @@ def test_a_pipe_with_a_row_arm_is_decided_without_it(seed):
     # the cylinder off), and without the arm it is not asked: the plane stays
     assert not isinstance(ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), resolve_bends=1.0), Cylinder)
     assert _curved_planes(ctx, labels, {1: plane}, 1.0, grazing_flat=True) == {}
-    armed = set()
-    bent = _curved_planes(ctx, labels, {1: plane}, 1.0, grazing_flat=True, arms=line_arms(labels, False),
-                          armed=armed)
-    assert armed == {1} and isinstance(bent[1], Cylinder)
+    armed = {}
+    bent = _curved_planes(ctx, labels, {1: plane}, 1.0, grazing_flat=True, armed=armed)
+    assert isinstance(bent[1], Cylinder)
+    # decided on the pipe's returns and the arm's over the pipe's columns (the pipe below them)
+    rows, cols = np.divmod(np.arange(H * W), W)
+    assert np.array_equal(armed[1], np.flatnonzero((labels.ravel() == 1) & ((rows > 11) | (cols >= columns[0]))))
     model = polish_models(ctx, labels, {1: plane}, resolve_bends=1.0, along_rays=True)[1]
     assert isinstance(model, Cylinder)
     assert model.radius == pytest.approx(0.14, abs=0.01)
