@@ -90,15 +90,13 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
         fits.update(unbent)
     bent = {}
     if decide_planes:  # (not the planes just found: the decision's marginal path would bend them again)
-        armed = {} if along_rays else None  # the regions bent without their line arms: their pixels left
         bent = _curved_planes(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, resolve_bends,
-                              pixels=pixels, grazing_flat=along_rays, armed=armed)
+                              pixels=pixels, grazing_flat=along_rays, refused_planes=along_rays)
         if resolve_bends and bent:
             # a plane the decision now bends is held to the test the curved models met above: a
             # bend only a neighbour's pixels carry is none (the batch leaves the decision the
-            # planes beyond the noise's chi-square, and a few such pixels put a wall there);
-            # a region bent without its line arms is asked on the same pixels it was bent on
-            refused = _unbent(ctx, labels, list(bent), resolve_bends, pixels=pixels, bodies=armed)
+            # planes beyond the noise's chi-square, and a few such pixels put a wall there)
+            refused = _unbent(ctx, labels, list(bent), resolve_bends, pixels=pixels)
             bent = {k: m for k, m in bent.items() if k not in refused}
     if along_rays:  # nor are a laser's mixed returns along one or two sides of a region
         now = {k: bent.get(k, m) for k, m in fits.items() if k not in unbent}
@@ -138,8 +136,7 @@ class _Pixels:
 
 
 def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0, *,
-            pixels: _Pixels | None = None, sums: _CurvedSums | None = None,
-            bodies: dict | None = None) -> dict:
+            pixels: _Pixels | None = None, sums: _CurvedSums | None = None) -> dict:
     """The planes of the regions among ``curved`` whose pixels' plane is within the
     fitter's plane threshold and whose bend does not outlive the pixels beyond 2 plane rms
     (:func:`rangeseg_o3d.fitting._decide.bend_resolved`): a curved model a plane just over
@@ -148,9 +145,7 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
     a 0.53 m cylinder). Asked with ``resolve_bends``; ``samples`` per pixel as there; ``pixels``
     (optional) the labels' grouped pixels; ``sums`` (optional, :func:`_curved_sums` of these
     labels and models): a region whose pixels' plane by their moments is over the threshold
-    by more than their rounding could move it is not fitted (its plane is no answer);
-    ``bodies`` (optional, label -> flat pixels): the pixels a region is judged on instead of
-    all of its own (those :func:`_curved_planes` bent it on, its line arms left out)."""
+    by more than their rounding could move it is not fitted (its plane is no answer)."""
     from ..fitting import fit_plane
     from ..fitting._decide import bend_resolved
     from ..fitting.classify import INLIER_FACTOR, plane_threshold
@@ -162,8 +157,6 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
     for k, idx in (pixels or _Pixels(labels)).of(curved).items():
         if sums is not None and _plane_surely_over(ctx, sums, k, idx.size):
             continue
-        if bodies and k in bodies:
-            idx = bodies[k]
         pts = ctx.fitter.points(ctx.xyz, idx)
         centroid = pts.mean(axis=0)
         tolerance = plane_threshold(len(pts), centroid, plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
@@ -542,7 +535,7 @@ def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, mod
 
 def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0, *,
                    pixels: _Pixels | None = None, grazing_flat: bool = False,
-                   armed: dict | None = None) -> dict:
+                   refused_planes: bool = False) -> dict:
     """The curved models the fitter's decision gives the plane regions of ``labels`` whose
     final pixels it no longer settles as a plane.
 
@@ -560,13 +553,9 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: 
     but under the preset's plane_rms); earlier decisions, on pieces and unsettled
     regions, do not ask it. ``pixels`` (optional): the labels' grouped pixels. With
     ``grazing_flat`` (a laser's single returns) a plane seen near grazing is not decided anew
-    (:func:`_seen_near_grazing`). With ``armed`` (a dict, for a laser's single returns) a
-    region the decision leaves a plane (or fits no model) whose plane is beyond the range
-    noise is decided again without its line arms (:func:`line_arms`, :func:`_without_arms`),
-    and a curved answer there replaces the plane (``armed`` maps its label to the pixels it
-    was decided on); one whose plane the decision refuses with its curved models gets the
-    curved model within the noise that resolves its curvature
-    (:func:`_curved_over_refused_plane`)."""
+    (:func:`_seen_near_grazing`). With ``refused_planes`` (a laser's single returns) a
+    region whose plane the decision refuses with its curved models gets the curved model
+    within the noise that resolves its curvature (:func:`_curved_over_refused_plane`)."""
     planes = [k for k, m in fits.items() if isinstance(m, Plane)]
     if not planes or ctx.fitter.plugin.fit_batch is None:  # a plugin without the batch test: as decided
         return {}
@@ -578,18 +567,8 @@ def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: 
         if grazing_flat and _seen_near_grazing(ctx, fits[k], idx):
             continue
         decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx), **bends)
-        body = idx
-        # (no model: the plane stays) a plane the range noise explains has nothing to explain
-        # without its arms either (and a second decision costs ~1 ms)
-        if armed is not None and (not decided or isinstance(decided, Plane)) and beyond_noise(
-                float(fits[k].rms), float(np.median(ctx.sigma[idx])), idx.size):
-            body = _without_arms(idx, line_arms(labels, idx, ctx.wrap_columns), labels.shape[1])
-            if body.size < idx.size:
-                decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, body), **bends)
-        if not decided and armed is not None:  # (a laser's returns: the plane refused, no model)
-            decided = _curved_over_refused_plane(ctx, body, bends)
-        if decided and not isinstance(decided, Plane) and body.size < idx.size:
-            armed[k] = body
+        if not decided and refused_planes:  # (no model: the region would keep its plane)
+            decided = _curved_over_refused_plane(ctx, idx, bends)
         if decided and not isinstance(decided, Plane):
             out[k] = decided
     return out
@@ -620,53 +599,6 @@ def _curved_over_refused_plane(ctx: Context, idx: np.ndarray, bends: dict):
     if not curvature_resolved(n * float(plane.rms) ** 2, n * float(model.rms) ** 2, n, extra):
         return None
     return model
-
-
-def line_arms(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.ndarray:
-    """Per flat pixel of ``idx`` (one region's, of the (H, W) ``labels``) whether it has
-    neither grid neighbour across one of the grid's lines in its region (none above or
-    below: an arm along a row; none left or right: one along a column); off the grid is
-    no neighbour, across the seam of a 360-degree grid (``wrap_columns``) is.
-
-    Such a pixel is a single line's return within its region, and one line's returns lie
-    on any surface through the curve the line sweeps: they tell nothing of how the surface
-    bends across the line. A region that grew along one row of another face (a pipe and
-    the single row of a wall above its top, at the same range where they meet) holds
-    them: their plane takes them within its rms while a cylinder of the pipe lies metres
-    from them, and they keep the decision from the pipe's curvature (spinning_64x1024
-    seed 733 scan 2: a 0.14 m pipe of 362 returns with 19 of a wall's row beside its top,
-    plane 27.5 mm under the 30 mm threshold, the cylinder search thrown flat; without
-    them r 0.138 m, 12 mm rms)."""
-    if labels.ndim != 2:
-        raise ValueError(f"labels must be an (H, W) image; got shape {labels.shape}")
-    height, width = labels.shape
-    flat = labels.ravel()
-    idx = np.asarray(idx, np.int64)
-    own = flat[idx]
-    row, column = idx // width, idx % width
-    # (the region's pixels only: one pass over the image costs ~1 ms a polish, these a few us)
-    above = (row > 0) & (flat[np.maximum(idx - width, 0)] == own)
-    below = (row < height - 1) & (flat[np.minimum(idx + width, flat.size - 1)] == own)
-    if wrap_columns:
-        left = flat[row * width + (column - 1) % width] == own
-        right = flat[row * width + (column + 1) % width] == own
-    else:
-        left = (column > 0) & (flat[np.maximum(idx - 1, 0)] == own)
-        right = (column < width - 1) & (flat[np.minimum(idx + 1, flat.size - 1)] == own)
-    return ~(above | below) | ~(left | right)
-
-
-def _without_arms(idx: np.ndarray, arms: np.ndarray, width: int) -> np.ndarray:
-    """The flat pixels ``idx`` of one region less those ``arms`` marks (per pixel of
-    ``idx``, :func:`line_arms`), when what remains still spans ``BEND_LINES`` grid lines
-    both ways (line by line, :func:`_lines_beside`): a curvature across the lines needs
-    them; else ``idx``."""
-    body = idx[~arms]
-    if body.size == idx.size or body.size == 0:
-        return idx
-    if min(_lines_beside(body, width, True), _lines_beside(body, width, False)) < BEND_LINES:
-        return idx
-    return body
 
 
 #: A laser's plane whose rms is under this share of the range noise is seen near grazing
