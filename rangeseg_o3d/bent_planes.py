@@ -16,7 +16,8 @@ plane along the rays explains it within the noise is asked (:func:`cylinders_for
 
 1. the bend, by a linear test: its inverse ranges against their plane along the rays, and
    with a quadratic term across the main direction of the region seen from the camera (an
-   F-test over the region's independent returns, ``NoiseModel.independent_share``);
+   F-test over the region's independent returns, ``NoiseModel.independent_share``, whose drop
+   must also exceed the sqrt(2n) spread of the squares' chi-square);
 2. where it bends, a cylinder fitted along the rays (:func:`_refit_along_rays`, from the
    region's silhouette: the axis along its longest extent across the view, the radius half its
    width across it), kept when its squares fall under the plane's by more than
@@ -115,6 +116,12 @@ def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: 
     if flat > len(points) * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / n)):
         return None  # its plane does not explain it along the rays: another step's question
     if not curvature_resolved(flat * unit, bent * unit, max(int(n), 2), 1):
+        return None
+    if (flat - bent) * unit / (bent / len(points)) < np.sqrt(2.0 * n):
+        # the bend must also take more than one deviation of the squares' own chi-square spread
+        # (sqrt(2n) over n independent returns): the F-test over the returns alone passes the
+        # matching window's leftover correlations (drops of 0.04-0.13 of the decision's bound on
+        # seed 0's walls and boxes, each costing a refit, against 0.32-0.65 for the pipes)
         return None
     # 2. the cylinder along the rays, from the silhouette
     away = view - (view @ axis) * axis
