@@ -21,6 +21,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
                       refit_planes_to_pixels, region_stats, settle_caps, settle_creases, smallest_region, stats_after_moves)
 from .off_model import recover_off_model
+from .bent_planes import cylinders_for_bent_planes
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
 from .strips import noise_spans_the_grid, recover_strips
@@ -405,6 +406,13 @@ class Pipeline:
                 labels, stats = settle_caps(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                             inlier_factor=INLIER_SIGMAS)
                 lap("caps")
+                # a pipe the tile grid left a plane region: its plane in xyz turns to the rays and
+                # hides the bend, which its inverse ranges show (bent_planes)
+                fits, stats = cylinders_for_bent_planes(cloud, labels, fits, stats, sigma=sigma,
+                                                        share=noise.independent_share(1),
+                                                        inlier_factor=INLIER_SIGMAS,
+                                                        max_radius=float(self.fitter.params["max_radius"]))
+                lap("bent_planes")
         return labels, fits, sigma, stats
 
     @staticmethod

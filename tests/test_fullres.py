@@ -786,6 +786,42 @@ def test_pixel_box_from_the_tile_boxes_is_the_tiles_box_grown_by_a_tile(seed):
     assert tile_boxes.bounds(40) == (9, 0, 13, 0)  # above every label
 
 
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_region_sample_is_numpys_slices_mask_and_finite_test(seed, dtype):
+    # the compiled sample (kernels.label_sample) against the numpy form it replaced: the same
+    # points in the same order and dtype, for boxes reaching past the grid (a tile box grown
+    # by a tile), boxes of other labels, empty boxes and NaN in any of the three coordinates
+    from rangeseg_o3d.fullres import region_sample, sample_step
+
+    def numpy_form(xyz, labels, k, box):
+        window = labels[box]
+        step = sample_step(window.size)
+        points = xyz[box][::step, ::step][window[::step, ::step] == k]
+        return points[np.isfinite(points).all(axis=1)]
+
+    rng = np.random.default_rng(seed)
+    h, w = 97, 131
+    runs = rng.integers(1, 60, 800)
+    labels = np.repeat(rng.integers(0, 5, runs.size), runs)[:h * w].astype(np.int32).reshape(h, w)
+    xyz = rng.normal(size=(h, w, 3)).astype(dtype)
+    holes = rng.random((h, w, 3)) < 0.05
+    xyz[holes] = np.nan
+    cloud = rs.OrganizedCloud(xyz)
+    boxes = [(slice(0, h), slice(0, w)), (slice(0, h + 40), slice(5, w + 7)), (slice(13, 14), slice(2, 90)),
+             (slice(30, 30), slice(0, w)), (slice(60, 20), slice(3, 9))]
+    for _ in range(20):
+        r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+        boxes.append((slice(r0, r0 + int(rng.integers(1, 80))), slice(c0, c0 + int(rng.integers(1, 120)))))
+    for box in boxes:
+        for k in range(6):
+            got, expected = region_sample(cloud, labels, k, box), numpy_form(cloud.xyz, labels, k, box)
+            assert got.dtype == expected.dtype and got.shape == expected.shape
+            np.testing.assert_array_equal(got, expected)
+    # a big box is sampled on a grid (step > 1), and the sample is not empty
+    assert sample_step(h * w) > 1 and region_sample(cloud, labels, 1, boxes[0]).shape[0] > 0
+
+
 def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims(generated_frame):
     # two blobs carved out of the frame's regions at opposite corners: every label the
     # recovery changes lies in the boxes it reports (each blob's own, grown by its rings)

@@ -168,9 +168,10 @@ class RegionFitter:
 
     def fit(self, points: np.ndarray, **overrides):
         """The fitter's model of ``points``, or FitFailure (also when the fitter raises ValueError).
-        ``overrides``: keywords the plugin takes beyond its parameters, for this call."""
+        ``overrides``: keywords the plugin takes beyond its parameters, or parameters set
+        otherwise, for this call."""
         try:
-            return self.plugin.run(self._subsample(points), **self.params, **overrides)
+            return self.plugin.run(self._subsample(points), **{**self.params, **overrides})
         except ValueError as exc:
             return FitFailure(kind="any", reason=str(exc))
 

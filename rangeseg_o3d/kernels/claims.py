@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+from .growth import _ray_term
 from .inline import _neighbour
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-CACHE_DEPENDS = ("inline.py", "kinds.py")
+CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py")
 
-__all__ = ["outlier_claims"]
+__all__ = ["outlier_claims", "box_claims"]
 
 
 @njit(cache=True, nogil=True)
@@ -115,4 +116,44 @@ def outlier_claims(labels, xyz, noise, inverse_planes, is_plane, limit, rounds):
                     queued[j] = round_
                     active[count] = j
                     count += 1
+    return out
+
+
+
+@njit(cache=True, nogil=True)
+def box_claims(xyz, sigma, valid, owner, k, a, others, trim):
+    """The (H, W) mask of the pixels of a box of the grid that region ``k``'s plane along the
+    rays ``a`` (``a . p = 1``) may claim, row by row (``xyz`` (H, W, 3), ``sigma``, ``valid``
+    and the labels ``owner`` (H, W), views of the frame's): a valid pixel (:func:`box_ray_terms`)
+    free (label 0) or of another region with a plane along the rays (row ``others[j]`` finite;
+    ``j`` within its rows and not ``k``) that ``a`` meets within ``trim`` of its range noise
+    along its ray, and nearer in those units than its own region's plane. The same decisions
+    as numpy's terms of :func:`box_ray_terms` with ``sqrt(w) |q - u @ a|`` for both planes,
+    without the box's terms, distances and a pass a neighbouring region (the form it replaced
+    in :func:`rangeseg_o3d.plane_faces.claim_along_rays`: 4-5 ms of a stereo scan's 1280 x 720)."""
+    h, w = valid.shape
+    n = others.shape[0]
+    out = np.zeros((h, w), np.bool_)
+    a0, a1, a2 = a[0], a[1], a[2]
+    for row in range(h):
+        for col in range(w):
+            j = owner[row, col]
+            if j == k or not valid[row, col]:
+                continue
+            other = j != 0
+            if other and (j < 0 or j >= n or not np.isfinite(others[j, 0])):
+                continue  # neither free nor of a plane region: not claimed
+            x, y, z = xyz[row, col, 0], xyz[row, col, 1], xyz[row, col, 2]
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+                continue
+            ux, uy, uz, q, wt = _ray_term(x, y, z, sigma[row, col])
+            root = np.sqrt(wt)
+            mine = root * abs(q - (ux * a0 + uy * a1 + uz * a2))
+            if not mine <= trim:
+                continue
+            if other:
+                theirs = root * abs(q - (ux * others[j, 0] + uy * others[j, 1] + uz * others[j, 2]))
+                if not (np.isfinite(theirs) and mine < theirs):
+                    continue
+            out[row, col] = True
     return out

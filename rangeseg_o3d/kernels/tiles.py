@@ -19,7 +19,7 @@ from .inline import _incidence, _nearest_neighbour_model, _neighbour, _signed_di
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py", "creases.py")
 
-__all__ = ["label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "labels_touch"]
+__all__ = ["label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "label_sample", "labels_touch"]
 
 
 @njit(cache=True, nogil=True)
@@ -744,6 +744,22 @@ def grow_free(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_rati
     return total
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _run_end(row, start, stop, k):
+    # The first index from ``start`` (before ``stop``) where ``row`` is not ``k``, else
+    # ``stop``: eight pixels a test while the run goes on (one vector compare; a frame's
+    # runs are dozens to hundreds of pixels long), then pixel by pixel.
+    end = start
+    while end + 8 <= stop:
+        if not ((row[end] == k) & (row[end + 1] == k) & (row[end + 2] == k) & (row[end + 3] == k)
+                & (row[end + 4] == k) & (row[end + 5] == k) & (row[end + 6] == k) & (row[end + 7] == k)):
+            break
+        end += 8
+    while end < stop and row[end] == k:
+        end += 1
+    return end
+
+
 @njit(cache=True, nogil=True)
 def label_boxes(labels, n):
     """(n, 4) int64: label ``k``'s bounding box ``(row0, row1, col0, col1)`` (half-open) in
@@ -752,14 +768,14 @@ def label_boxes(labels, n):
     boxes = np.empty((n, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = h, 0, w, 0
     # a row's runs of one label update its box once each (first and last column of the
-    # run), not once per pixel
+    # run), not once per pixel; a run's end is found eight pixels at a time (a pixel at a
+    # time cost a 640 x 480 frame ~0.2 ms, this ~0.14)
     for r in range(h):
+        row = labels[r]
         c = 0
         while c < w:
-            k = labels[r, c]
-            end = c + 1
-            while end < w and labels[r, end] == k:
-                end += 1
+            k = row[c]
+            end = _run_end(row, c + 1, w, k)
             if 0 < k < n:
                 boxes[k, 0] = min(boxes[k, 0], r)
                 boxes[k, 1] = max(boxes[k, 1], r + 1)
@@ -767,6 +783,27 @@ def label_boxes(labels, n):
                 boxes[k, 3] = max(boxes[k, 3], end)
             c = end
     return boxes
+
+
+@njit(cache=True, nogil=True)
+def label_sample(xyz, labels, k, row0, row1, col0, col1, step):
+    """The points ``xyz[r, c]`` (all three coordinates finite) of the pixels of label ``k``
+    at rows ``row0, row0 + step, ... < row1`` and columns ``col0, col0 + step, ... < col1``,
+    in raster order: ``xyz[box][::step, ::step][labels[box][::step, ::step] == k]`` without
+    its non-finite rows, as one (m, 3) array of ``xyz``'s dtype (numpy's slicing, mask and
+    finite test cost ~30 microseconds a region in small-array calls)."""
+    rows = len(range(row0, row1, step))
+    cols = len(range(col0, col1, step))
+    out = np.empty((rows * cols, 3), xyz.dtype)  # room for every grid pixel: one pass
+    m = 0
+    for r in range(row0, row1, step):
+        for c in range(col0, col1, step):
+            if labels[r, c] == k:
+                x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
+                if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                    out[m, 0], out[m, 1], out[m, 2] = x, y, z
+                    m += 1
+    return out[:m].copy()
 
 
 @njit(cache=True, nogil=True)

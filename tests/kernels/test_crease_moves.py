@@ -97,3 +97,34 @@ def test_the_random_cases_move_pixels():
     # the equality above is about moves, so the cases must hold some
     moved = [_reference(*_random_case(seed))[1].size for seed in range(12)]
     assert sum(m > 0 for m in moved) >= 6, moved
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_plane_borders_sums_are_the_pixel_by_pixel_sums_bit_for_bit(seed):
+    # the sums carried along a row's runs are the additions into sums[label] pixel by pixel,
+    # in raster order, the same bits; the border mask is every plane pixel 4-adjacent to
+    # another plane region's
+    rng = np.random.default_rng(seed)
+    h, w, n = 30, 41, 7
+    labels = np.repeat(rng.integers(-1, n + 2, size=(h, w // 3 + 1)), 3, axis=1)[:, :w].astype(np.int32)
+    labels[rng.uniform(size=(h, w)) < 0.1] = 3  # runs broken by single pixels of another region
+    is_plane = np.array([False, True, True, True, False, True, True])
+    xyz = rng.normal(size=(h * w, 3)) * 1e3 + rng.normal(size=(h * w, 3)) * 1e-6
+    want_sums, want = np.zeros((n, 4)), np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            a = labels[r, c]
+            if not (0 < a < n and is_plane[a]):
+                continue
+            for k in range(3):
+                want_sums[a, k] += xyz[r * w + c, k]
+            want_sums[a, 3] += 1.0
+            for rr, cc in ((r, c + 1), (r + 1, c), (r, c - 1), (r - 1, c)):
+                if 0 <= rr < h and 0 <= cc < w:
+                    b = labels[rr, cc]
+                    if b != a and 0 < b < n and is_plane[b]:
+                        want[r, c] = True
+    sums = np.zeros((n, 4))
+    got = _plane_borders(xyz, labels, is_plane, sums)
+    assert want.any() and np.array_equal(got, want)
+    assert np.array_equal(sums, want_sums)

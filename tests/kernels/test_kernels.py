@@ -459,6 +459,27 @@ def test_member_pixels_and_label_boxes_on_runs_of_labels(seed):
 
 
 @pytest.mark.parametrize("seed", range(4))
+def test_label_boxes_on_long_runs_against_numpy(seed):
+    # runs longer than the kernel's eight-pixel test, ending anywhere in a block of eight
+    # and at rows' ends (widths not a multiple of eight), against each label's nonzero
+    from rangeseg_o3d.kernels import label_boxes
+
+    rng = np.random.default_rng(seed)
+    h, w = 41, [61, 64, 67, 9][seed]
+    runs = rng.integers(1, 90, 600)
+    labels = np.repeat(rng.integers(-1, 12, runs.size), runs)[:h * w].astype(np.int32).reshape(h, w)
+    labels[7] = 3  # a whole row of one label
+    boxes = label_boxes(labels, 10)
+    assert boxes.shape == (10, 4)
+    for k in range(10):
+        rows, cols = np.nonzero(labels == k)
+        if k == 0 or not rows.size:
+            assert boxes[k].tolist() == [h, 0, w, 0]
+        else:
+            assert boxes[k].tolist() == [rows.min(), rows.max() + 1, cols.min(), cols.max() + 1]
+
+
+@pytest.mark.parametrize("seed", range(4))
 def test_group_by_label_matches_a_stable_sort(seed):
     # runs of one label (as along image rows) and labels outside 0..n-1 (left out)
     rng = np.random.default_rng(seed)
@@ -584,7 +605,9 @@ def test_labels_near_are_the_labels_under_the_dilated_mask():
     rng = np.random.default_rng(5)
     for trial in range(60):
         h, w = rng.integers(1, 30), rng.integers(1, 40)
-        labels = rng.integers(0, rng.integers(1, 90), (h, w)).astype(np.int32)
+        # labels beyond the kernel's first mask (64) and far beyond its doubling
+        top = rng.choice([rng.integers(1, 90), 100_000])
+        labels = rng.integers(0, top, (h, w)).astype(np.int32)
         mask = (rng.random((h, w)) < rng.uniform(0.01, 0.6)).astype(np.uint8)
         idx = np.flatnonzero(mask)
         for reach in (0, 1, 2, 3):

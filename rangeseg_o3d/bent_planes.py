@@ -1,0 +1,223 @@
+"""Pipes a stereo camera's full-resolution labels hold as plane regions, given their cylinders.
+
+A stereo camera's range noise lies along the rays and grows with the square of the range
+(8 cm a sigma at 5 m on the matrix's 1280 x 720 row). A pipe 0.1-0.25 m in radius at 4-6 m
+is then a strip 20-40 pixels wide whose least-squares plane in ``xyz`` turns towards the
+rays: its rms (20-65 mm) falls far within the noise, the quadric of its heights over that
+plane gains nothing (1.000-1.009), and the fitter's decision, with or without its bend test
+over the pixels' independent samples, calls it a plane (held-out seeds 709, 719, 727, 739:
+four false fittings on eight seeds). Along the rays, the noise's own direction, the bend is
+there: the pipe's inverse ranges leave their plane a profile across the pipe's axis that a
+quadratic term explains, and a cylinder fitted to the residuals along the rays comes out
+near the pipe's radius with its squares well under the plane's.
+
+Here, on a stereo camera (``NoiseModel.matched_window``) only, each plane region whose
+plane along the rays explains it within the noise is asked (:func:`cylinders_for_bent_planes`):
+
+1. the bend, by a linear test: its inverse ranges against their plane along the rays, and
+   with a quadratic term across the main direction of the region seen from the camera (an
+   F-test over the region's independent returns, ``NoiseModel.independent_share``, whose drop
+   must also exceed the sqrt(2n) spread of the squares' chi-square);
+2. where it bends, a cylinder fitted along the rays (:func:`_refit_along_rays`, from the
+   region's silhouette: the axis along its longest extent across the view, the radius half its
+   width across it), kept when its squares fall under the plane's by more than
+   ``CHI_SQUARE_SIGMAS`` sqrt(2 n) in independent returns, its radius at most the fitter's
+   ``max_radius``, and the region's width across its axis within ``SILHOUETTE_SHARE`` of its
+   diameter (a pipe seen whole shows its diameter; a face a cylinder bends over is wider or
+   narrower than the cylinder it makes).
+
+Only the model's kind changes: the labels stay, the statistics are measured again.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .fitting.primitives import Cylinder, Plane
+from .fitting.region_fitter import region_indices
+from .fitting.robust import curvature_resolved
+from .fullres import region_stats
+from .kernels.linalg import CHI_SQUARE_SIGMAS
+from .scales import GRAZING_COSINE
+
+#: Most pixels of a region the tests read (an even subsample).
+TEST_POINTS = 1200
+#: Most pixels the cylinder is fitted to along the rays.
+REFIT_POINTS = 400
+#: Evaluations of the cylinder's residuals along the rays.
+REFIT_EVALUATIONS = 20
+#: The region's width across the cylinder's axis (its 3rd to 97th percentile) over the
+#: cylinder's diameter may differ from 1 by at most this share.
+SILHOUETTE_SHARE = 0.2
+#: Fewest independent returns a region needs to be asked.
+MIN_SAMPLES = 30
+
+
+def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray,
+                              share: float, inlier_factor: float, max_radius: float):
+    """``(fits, stats)`` with the plane regions of ``labels`` that are pipes given cylinders
+    (see the module's docstring); the inputs when none is.
+
+    ``sigma``: each pixel's range noise (the grid's shape); ``share``: the independent
+    returns each pixel carries (``NoiseModel.independent_share(1)``, 1/9 over a 3-pixel
+    matching window); ``max_radius``: the fitter's largest radius."""
+    if not 0.0 < share <= 1.0:
+        raise ValueError(f"share: expected a number in (0, 1], got {share!r}")
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if sigma.shape != labels.shape:
+        raise ValueError(f"sigma: expected shape {labels.shape}, got {sigma.shape}")
+    planes = [k for k, m in fits.items() if k > 0 and isinstance(m, Plane)]
+    if not planes:
+        return fits, stats
+    xyz, noise = cloud.xyz.reshape(-1, 3), sigma.reshape(-1)
+    found = {}
+    for k, idx in region_indices(labels, only=planes).items():
+        samples = share * idx.size
+        if samples < MIN_SAMPLES:
+            continue
+        cylinder = _pipe_of(xyz[idx[:: max(1, idx.size // TEST_POINTS)]],
+                            noise[idx[:: max(1, idx.size // TEST_POINTS)]], samples, max_radius)
+        if cylinder is not None:
+            found[k] = cylinder
+    if not found:
+        return fits, stats
+    fits = {**fits, **found}
+    stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=set(found))
+    return fits, stats
+
+
+def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: float):
+    # the cylinder of a plane region's pixels ``points`` (their range noise ``noise``; the region
+    # holds ``samples`` independent returns), or None (see cylinders_for_bent_planes)
+    keep = np.isfinite(points).all(axis=1) & np.isfinite(noise) & (noise > 0)
+    points, noise = points[keep], noise[keep]
+    if len(points) < 10:
+        return None
+    n = min(float(samples), float(len(points)))
+    unit = n / len(points)  # independent returns a test point stands for
+    ranges = np.linalg.norm(points, axis=1)
+    rays = points / ranges[:, None]
+    scale = ranges * ranges / noise  # 1 / (the noise of an inverse range)
+    centre = points.mean(axis=0)
+    view = centre / np.linalg.norm(centre)
+    offsets = points - centre
+    across_view = offsets - np.outer(offsets @ view, view)
+    axis = np.linalg.eigh(across_view.T @ across_view)[1][:, 2]  # the longest extent seen
+    across = np.cross(axis, view)
+    across /= np.linalg.norm(across)
+    lateral = offsets @ across
+    width = float(np.percentile(lateral, 97) - np.percentile(lateral, 3))
+    if not 0.0 < 0.5 * width <= max_radius:
+        return None
+    # 1. the plane along the rays (inverse ranges = rays . a) and with a bend across the axis
+    design = np.column_stack([rays, (lateral / width) ** 2]) * scale[:, None]
+    target = scale / ranges
+    flat = _squares(design[:, :3], target)
+    bent = _squares(design, target)
+    if flat > len(points) * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / n)):
+        return None  # its plane does not explain it along the rays: another step's question
+    if not curvature_resolved(flat * unit, bent * unit, max(int(n), 2), 1):
+        return None
+    if (flat - bent) * unit / (bent / len(points)) < np.sqrt(2.0 * n):
+        # the bend must also take more than one deviation of the squares' own chi-square spread
+        # (sqrt(2n) over n independent returns): the F-test over the returns alone passes the
+        # matching window's leftover correlations (drops of 0.04-0.13 of the decision's bound on
+        # seed 0's walls and boxes, each costing a refit, against 0.32-0.65 for the pipes)
+        return None
+    # 2. the cylinder along the rays, from the silhouette
+    away = view - (view @ axis) * axis
+    away /= np.linalg.norm(away)
+    start = Cylinder(axis=axis, point=centre + away * (width / np.pi), radius=0.5 * width, rms=0.0,
+                     inliers=len(points))
+    cylinder = _refit_along_rays(start, points, noise)
+    if cylinder is None or not 0.0 < cylinder.radius <= max_radius:
+        return None
+    seen = np.cross(np.asarray(cylinder.axis), view)
+    seen /= max(np.linalg.norm(seen), 1e-12)
+    lateral = offsets @ seen
+    silhouette = float(np.percentile(lateral, 97) - np.percentile(lateral, 3)) / (2.0 * cylinder.radius)
+    if abs(silhouette - 1.0) > SILHOUETTE_SHARE:
+        return None
+    curved = float(np.sum(_residuals_along_rays(cylinder, points, noise) ** 2))
+    if curved <= 0.0:
+        return None
+    drop = (flat - curved) * unit / (curved / len(points))  # in independent returns' variance units
+    if drop <= CHI_SQUARE_SIGMAS * np.sqrt(2.0 * n):
+        return None
+    return Cylinder(axis=cylinder.axis, point=cylinder.point, radius=cylinder.radius,
+                    rms=float(np.sqrt(np.mean((_residuals_along_rays(cylinder, points, noise) * noise) ** 2))),
+                    inliers=len(points))
+
+
+def _squares(design: np.ndarray, target: np.ndarray) -> float:
+    # the least sum of squares of design @ x - target
+    x, *_ = np.linalg.lstsq(design, target, rcond=None)
+    return float(np.sum((design @ x - target) ** 2))
+
+
+def _along_the_ray(a, b, c, ranges: np.ndarray, noise: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    # the signed residual, in range noise as an inverse range, of each point at ``ranges`` along its
+    # ray to where the ray meets the quadric ``a t^2 + 2 b t + c = 0`` nearest that range; ``bound``
+    # (>= 0) where the ray misses it or meets it farther off than that (stereo8's rule)
+    disc = b * b - a * c
+    root = np.sqrt(np.maximum(disc, 0.0))
+    a = np.maximum(a, 1e-12)
+    near, far = (-b - root) / a, (-b + root) / a
+    meet = np.where(np.abs(near - ranges) < np.abs(far - ranges), near, far)
+    along = (meet - ranges) / noise * ranges / np.maximum(meet, 1e-12)
+    return np.where((disc >= 0) & (meet > 0) & (np.abs(along) < bound), along, bound)
+
+
+def _cylinder_terms(axis, point, radius, points, rays):
+    # the ray-quadric coefficients of a cylinder and each point's distance to it
+    origin = -np.asarray(point, dtype=np.float64)
+    across = rays - np.outer(rays @ axis, axis)
+    offset = origin - (origin @ axis) * axis
+    a, b, c = np.einsum("ij,ij->i", across, across), across @ offset, offset @ offset - radius ** 2
+    radial = points + origin
+    radial = radial - np.outer(radial @ axis, axis)
+    return a, b, c, np.linalg.norm(radial, axis=1) - abs(radius)
+
+
+def _residuals_along_rays(cylinder, points: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    # each point's residual along its ray to ``cylinder`` in range noise (as an inverse range); a
+    # ray that misses it counts the point's distance over the grazing cosine
+    ranges = np.linalg.norm(points, axis=1)
+    a, b, c, distance = _cylinder_terms(np.asarray(cylinder.axis, dtype=np.float64), cylinder.point,
+                                        cylinder.radius, points, points / ranges[:, None])
+    return _along_the_ray(a, b, c, ranges, noise, np.abs(distance) / GRAZING_COSINE / noise)
+
+
+def _refit_along_rays(start: Cylinder, points: np.ndarray, noise: np.ndarray):
+    """``start`` refitted to ``points`` by their residuals along the rays (on at most
+    ``REFIT_POINTS`` of them, ``REFIT_EVALUATIONS`` evaluations): the likeliest cylinder under
+    a stereo camera's range noise; None when the fit fails. (The fit of stereo8's unlanded
+    ``crease_planes._refit_along_rays``, cylinders only.)"""
+    from scipy.optimize import least_squares
+
+    step = max(1, len(points) // REFIT_POINTS)
+    points, noise = points[::step], noise[::step]
+    ranges = np.linalg.norm(points, axis=1)
+    rays = points / ranges[:, None]
+    axis = np.asarray(start.axis, dtype=np.float64)
+    first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    first /= np.linalg.norm(first)
+    second = np.cross(axis, first)
+    centre = np.asarray(start.point, dtype=np.float64)
+
+    def model(x):
+        turned = axis + x[0] * first + x[1] * second
+        return turned / np.linalg.norm(turned), centre + x[2] * first + x[3] * second, x[4]
+
+    def residuals(x):
+        a, b, c, distance = _cylinder_terms(*model(x), points, rays)
+        return _along_the_ray(a, b, c, ranges, noise, np.abs(distance) / GRAZING_COSINE / noise)
+
+    x0 = np.array([0.0, 0.0, 0.0, 0.0, float(start.radius)])
+    try:
+        x = least_squares(residuals, x0, max_nfev=REFIT_EVALUATIONS, x_scale=np.full(5, 0.05)).x
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if not (np.all(np.isfinite(x)) and x[4] != 0):
+        return None
+    turned, point, radius = model(x)
+    return Cylinder(axis=turned, point=point, radius=abs(float(radius)), rms=0.0, inliers=len(points))
