@@ -74,8 +74,8 @@ def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, s
         samples = share * idx.size
         if samples < MIN_SAMPLES:
             continue
-        cylinder = _pipe_of(xyz[idx[:: max(1, idx.size // TEST_POINTS)]],
-                            noise[idx[:: max(1, idx.size // TEST_POINTS)]], samples, max_radius)
+        sample = idx[:: max(1, idx.size // TEST_POINTS)]
+        cylinder = _pipe_of(xyz[sample], noise[sample], samples, max_radius)
         if cylinder is not None:
             found[k] = cylinder
     if not found:
@@ -137,14 +137,15 @@ def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: 
     silhouette = float(np.percentile(lateral, 97) - np.percentile(lateral, 3)) / (2.0 * cylinder.radius)
     if abs(silhouette - 1.0) > SILHOUETTE_SHARE:
         return None
-    curved = float(np.sum(_residuals_along_rays(cylinder, points, noise) ** 2))
+    residuals = _residuals_along_rays(cylinder, points, noise)
+    curved = float(np.sum(residuals ** 2))
     if curved <= 0.0:
         return None
     drop = (flat - curved) * unit / (curved / len(points))  # in independent returns' variance units
     if drop <= CHI_SQUARE_SIGMAS * np.sqrt(2.0 * n):
         return None
     return Cylinder(axis=cylinder.axis, point=cylinder.point, radius=cylinder.radius,
-                    rms=float(np.sqrt(np.mean((_residuals_along_rays(cylinder, points, noise) * noise) ** 2))),
+                    rms=float(np.sqrt(np.mean((residuals * noise) ** 2))),
                     inliers=len(points))
 
 
@@ -157,7 +158,7 @@ def _squares(design: np.ndarray, target: np.ndarray) -> float:
 def _along_the_ray(a, b, c, ranges: np.ndarray, noise: np.ndarray, bound: np.ndarray) -> np.ndarray:
     # the signed residual, in range noise as an inverse range, of each point at ``ranges`` along its
     # ray to where the ray meets the quadric ``a t^2 + 2 b t + c = 0`` nearest that range; ``bound``
-    # (>= 0) where the ray misses it or meets it farther off than that (stereo8's rule)
+    # (>= 0) where the ray misses it or meets it farther off than that (a ray that misses it counts as far off)
     disc = b * b - a * c
     root = np.sqrt(np.maximum(disc, 0.0))
     a = np.maximum(a, 1e-12)
@@ -190,8 +191,7 @@ def _residuals_along_rays(cylinder, points: np.ndarray, noise: np.ndarray) -> np
 def _refit_along_rays(start: Cylinder, points: np.ndarray, noise: np.ndarray):
     """``start`` refitted to ``points`` by their residuals along the rays (on at most
     ``REFIT_POINTS`` of them, ``REFIT_EVALUATIONS`` evaluations): the likeliest cylinder under
-    a stereo camera's range noise; None when the fit fails. (The fit of stereo8's unlanded
-    ``crease_planes._refit_along_rays``, cylinders only.)"""
+    a stereo camera's range noise; None when the fit fails."""
     from scipy.optimize import least_squares
 
     step = max(1, len(points) // REFIT_POINTS)

@@ -211,7 +211,7 @@ def _crease_cut(points: np.ndarray, cylinder, min_side: int):
     cylinder does; ``by_factor``: ``CREASE_RMS_FACTOR`` times closer. None otherwise.
 
     One compiled pass (:func:`rangeseg_o3d.kernels.crease_cut`: the offsets, angles, sort,
-    running sums and the cuts' smallest eigenvalues; numpy's form, :func:`_crease_cut_numpy`,
+    running sums and the cuts' smallest eigenvalues; numpy's form, the reference of its tests,
     took ~25 calls and ~0.2 ms a cylinder). Its own rounding: the cut chosen is numpy's but
     where two cuts tie within rounding, ``rms`` within ~1e-9 relative."""
     from .kernels import crease_cut
@@ -228,44 +228,6 @@ def _crease_cut(points: np.ndarray, cylinder, min_side: int):
     if status != 0 or not cylinder_squares > planes_squares:
         return None
     return (float(angle), reference, np.sqrt(planes_squares / n),
-            bool(cylinder_squares > CREASE_RMS_FACTOR ** 2 * planes_squares))
-
-
-def _crease_cut_numpy(points: np.ndarray, cylinder, min_side: int):
-    """:func:`_crease_cut` in numpy: the form its compiled pass replaced (the reference of its tests)."""
-    n = len(points)
-    if n < 2 * min_side:
-        return None
-    # the offsets from the axis once: the angles and the cylinder's distances reuse them
-    radial = _radial(points, cylinder)
-    reference = radial.mean(axis=0)
-    if not np.linalg.norm(reference) > 0:
-        return None
-    reference /= np.linalg.norm(reference)
-    angles = _radial_angles(radial, cylinder, reference)
-    order = np.argsort(angles)
-    ordered = points[order] - points.mean(axis=0)
-    # every cut's two sides' scatter matrices from cumulative moments (one sort, no refits)
-    firsts = np.cumsum(ordered, axis=0)
-    seconds = np.cumsum(ordered[:, :, None] * ordered[:, None, :], axis=0)
-    # each side CREASE_SIDE_SHARE of the pixels too: a strip along the axis is a line,
-    # which any plane through it fits
-    side = max(min_side, int(np.ceil(CREASE_SIDE_SHARE * n)))
-    if n < 2 * side:
-        return None
-    sizes = unique_ints(np.linspace(side, n - side, CREASE_CUTS).astype(np.int64))
-    # both sides of every cut in one call (each scatter matrix's eigenvalues are its own)
-    both = _least_squares(np.concatenate([firsts[sizes - 1], firsts[-1] - firsts[sizes - 1]]),
-                          np.concatenate([seconds[sizes - 1], seconds[-1] - seconds[sizes - 1]]),
-                          np.concatenate([sizes, n - sizes]))
-    left, right = both[:sizes.size], both[sizes.size:]
-    best = int(np.argmin(left + right))
-    planes_squares = max(float(left[best] + right[best]), 0.0)
-    cylinder_squares = float(np.sum((np.linalg.norm(radial, axis=1) - cylinder.radius) ** 2))  # its distances
-    if not cylinder_squares > planes_squares:
-        return None
-    size = int(sizes[best])
-    return (0.5 * float(angles[order[size - 1]] + angles[order[size]]), reference, np.sqrt(planes_squares / n),
             bool(cylinder_squares > CREASE_RMS_FACTOR ** 2 * planes_squares))
 
 
@@ -288,11 +250,3 @@ def _cylinder_beyond_its_noise(points: np.ndarray, cylinder, noise: float) -> bo
     rms = float(np.sqrt(np.mean(cylinder.distances(points) ** 2)))
     expected = distance_noise(cylinder, points, np.full(len(points), noise))
     return beyond_noise(rms, float(np.sqrt(np.mean(expected ** 2))), len(points))
-
-
-def _least_squares(firsts: np.ndarray, seconds: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    # the least-squares plane's sum of squared distances of each set of points, from their
-    # sums and sums of outer products: the smallest eigenvalue of their scatter matrix
-    counts = counts.astype(np.float64)
-    scatter = seconds - firsts[:, :, None] * firsts[:, None, :] / counts[:, None, None]
-    return np.linalg.eigvalsh(scatter)[:, 0]

@@ -24,7 +24,7 @@ from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
-from .strips import noise_spans_the_grid, recover_strips
+from .strips import pixelwise_noise_spans_the_grid, recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -296,7 +296,7 @@ class Pipeline:
                    and tile_means is not None)
         # where the range noise exceeds the grid's footprint and errs pixel by pixel (a Kinect's),
         # a pipe's plane turns towards the rays: a curved model is judged by the noise of its distances
-        by_means = (refine.enabled and not noise.matched_window and noise_spans_the_grid(self.sensor, cloud))
+        by_means = refine.enabled and pixelwise_noise_spans_the_grid(self.sensor, cloud)
         labels, stats, blocks = label_pixels(cloud, tile_labels, fits, tile=settings.tile, sigma=sigma,
                                              k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS, with_blocks=True,
                                              creases_from=tile_means if by_rays else None,

@@ -25,7 +25,7 @@ from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from .ray_planes import ray_plane, ray_terms, robust_ray_plane
 from .refinement.recover import grown_box
 
-__all__ = ["noise_spans_the_grid", "recover_strips"]
+__all__ = ["grid_step", "noise_spans_the_grid", "pixelwise_noise_spans_the_grid", "recover_strips"]
 
 #: The share of a strip's pixels a model must explain (within its noise band) to take it,
 #: as a blob's plane must (:func:`rangeseg_o3d.refinement.recover._one_plane`).
@@ -350,6 +350,18 @@ def _on_a_found_surface(xyz: np.ndarray, sigma: np.ndarray, fits: dict, idx: np.
     return False
 
 
+def grid_step(sensor, cloud=None) -> float | None:
+    """The grid's coarser angular step (radians): the sensor's row and column spacings, else
+    measured on ``cloud`` (:func:`rangeseg_o3d.scales.measured_spacing`); None with neither."""
+    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
+        return float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
+    if cloud is None:
+        return None
+    from .scales import measured_spacing
+
+    return float(max(measured_spacing(cloud)))
+
+
 def noise_spans_the_grid(sensor, cloud=None) -> bool:
     """Whether ``sensor``'s range noise, growing with the range (``sigma_quadratic`` > 0),
     exceeds the footprint of its grid's coarser angular step ``d`` (radians) at every range:
@@ -358,17 +370,19 @@ def noise_spans_the_grid(sensor, cloud=None) -> bool:
     1.2-4 footprints from 0.5 to 5 m) a face a few pixels wide spreads farther along its rays
     than across them, so its least-squares plane turns towards the rays. A laser whose noise
     is stated growing with the range (a SICK at 0.5 deg, 3 mm + 1e-3 r^2) stays under its
-    footprint from 0.35 to 8.7 m. The step is the sensor's, else measured on ``cloud``
-    (:func:`rangeseg_o3d.scales.measured_spacing`); False with neither."""
+    footprint from 0.35 to 8.7 m. The step is :func:`grid_step`'s; False without one."""
     noise = sensor.noise
     if noise.sigma_quadratic <= 0.0:
         return False
-    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
-        step = float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
-    elif cloud is not None:
-        from .scales import measured_spacing
+    step = grid_step(sensor, cloud)
+    return step is not None and step * step < 4.0 * noise.sigma0 * noise.sigma_quadratic
 
-        step = float(max(measured_spacing(cloud)))
-    else:
-        return False
-    return step * step < 4.0 * noise.sigma0 * noise.sigma_quadratic
+
+def pixelwise_noise_spans_the_grid(sensor, cloud=None) -> bool:
+    """:func:`noise_spans_the_grid` on a camera whose returns err one by one: not a stereo
+    camera, whose noise errs together over its matching window (``noise.matched_window``),
+    nor a wrapped grid. The regime (a Kinect's) where a curved blob is fitted again on block
+    means (:mod:`rangeseg_o3d.refinement.curved_refused`) and a curved model is judged by the
+    noise of its distances (:func:`rangeseg_o3d.fullres.planes_for_unresolved`)."""
+    return (not sensor.noise.matched_window and not sensor.wrap_columns
+            and noise_spans_the_grid(sensor, cloud))

@@ -754,17 +754,10 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
 def _means_step(sensor, cloud) -> float:
     # the grid's angular step (radians) where a refused plane's block means are fitted for a
     # curved model (curved_for_refused): where the range noise exceeds the grid's footprint
-    # and its returns err one by one (a Kinect; not a stereo camera, whose noise errs together
-    # over its matching window, nor any laser: strips.noise_spans_the_grid); 0 elsewhere
-    from ..strips import noise_spans_the_grid
+    # and its returns err one by one (a Kinect; strips.pixelwise_noise_spans_the_grid); 0 elsewhere
+    from ..strips import grid_step, pixelwise_noise_spans_the_grid
 
-    if sensor.noise.matched_window or sensor.wrap_columns or not noise_spans_the_grid(sensor, cloud):
-        return 0.0
-    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
-        return float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
-    from ..scales import measured_spacing
-
-    return float(max(measured_spacing(cloud)))
+    return float(grid_step(sensor, cloud)) if pixelwise_noise_spans_the_grid(sensor, cloud) else 0.0
 
 
 def _lateral_step(sensor, cloud) -> float:

@@ -1,11 +1,12 @@
 """rangeseg_o3d.kernels.crease_cut (crease_planes._crease_cut in one compiled pass) against
-the numpy form it replaced (crease_planes._crease_cut_numpy): the same cut, the same values
+the numpy form it replaced (_crease_cut_numpy below): the same cut, the same values
 within their rounding (sums added point after point, Newton's smallest eigenvalues,
 against numpy's pairwise sums and LAPACK)."""
 
 import numpy as np
 import pytest
 
+import rangeseg_o3d.crease_planes as cp
 from rangeseg_o3d.fitting.primitives import Cylinder
 
 
@@ -40,7 +41,7 @@ def _true_cylinder(seed, n=700, noise=1e-3):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_crease_cut_compiled_agrees_with_numpy_at_a_box_corner(seed):
-    from rangeseg_o3d.crease_planes import _crease_cut, _crease_cut_numpy
+    from rangeseg_o3d.crease_planes import _crease_cut
 
     rng = np.random.default_rng(seed)
     points, cylinder = _box_corner(seed, n=int(rng.integers(200, 1500)), bend_deg=float(rng.uniform(60, 150)))
@@ -63,7 +64,7 @@ def test_crease_cut_compiled_agrees_with_numpy_at_a_box_corner(seed):
 
 @pytest.mark.parametrize("seed", range(3))
 def test_crease_cut_of_a_true_cylinder_is_not_by_the_factor(seed):
-    from rangeseg_o3d.crease_planes import _crease_cut, _crease_cut_numpy
+    from rangeseg_o3d.crease_planes import _crease_cut
 
     points, cylinder = _true_cylinder(seed)
     got, want = _crease_cut(points, cylinder, 20), _crease_cut_numpy(points, cylinder, 20)
@@ -75,10 +76,56 @@ def test_crease_cut_of_a_true_cylinder_is_not_by_the_factor(seed):
 
 
 def test_crease_cut_too_few_points_or_no_reference():
-    from rangeseg_o3d.crease_planes import _crease_cut, _crease_cut_numpy
+    from rangeseg_o3d.crease_planes import _crease_cut
 
     points, cylinder = _box_corner(0, n=100)
     assert _crease_cut(points, cylinder, 60) is None and _crease_cut_numpy(points, cylinder, 60) is None
     # points all on the axis: no offset from it, no reference direction
     on_axis = np.column_stack([np.full(50, -0.3), np.zeros(50), np.linspace(-1, 1, 50)])
     assert _crease_cut(on_axis, cylinder, 5) is None and _crease_cut_numpy(on_axis, cylinder, 5) is None
+
+
+def _crease_cut_numpy(points: np.ndarray, cylinder, min_side: int):
+    """crease_planes._crease_cut in numpy: the form its compiled pass replaced, kept here as its reference."""
+    n = len(points)
+    if n < 2 * min_side:
+        return None
+    # the offsets from the axis once: the angles and the cylinder's distances reuse them
+    radial = cp._radial(points, cylinder)
+    reference = radial.mean(axis=0)
+    if not np.linalg.norm(reference) > 0:
+        return None
+    reference /= np.linalg.norm(reference)
+    angles = cp._radial_angles(radial, cylinder, reference)
+    order = np.argsort(angles)
+    ordered = points[order] - points.mean(axis=0)
+    # every cut's two sides' scatter matrices from cumulative moments (one sort, no refits)
+    firsts = np.cumsum(ordered, axis=0)
+    seconds = np.cumsum(ordered[:, :, None] * ordered[:, None, :], axis=0)
+    # each side cp.CREASE_SIDE_SHARE of the pixels too: a strip along the axis is a line,
+    # which any plane through it fits
+    side = max(min_side, int(np.ceil(cp.CREASE_SIDE_SHARE * n)))
+    if n < 2 * side:
+        return None
+    sizes = np.unique(np.linspace(side, n - side, cp.CREASE_CUTS).astype(np.int64))
+    # both sides of every cut in one call (each scatter matrix's eigenvalues are its own)
+    both = _least_squares(np.concatenate([firsts[sizes - 1], firsts[-1] - firsts[sizes - 1]]),
+                          np.concatenate([seconds[sizes - 1], seconds[-1] - seconds[sizes - 1]]),
+                          np.concatenate([sizes, n - sizes]))
+    left, right = both[:sizes.size], both[sizes.size:]
+    best = int(np.argmin(left + right))
+    planes_squares = max(float(left[best] + right[best]), 0.0)
+    cylinder_squares = float(np.sum((np.linalg.norm(radial, axis=1) - cylinder.radius) ** 2))  # its distances
+    if not cylinder_squares > planes_squares:
+        return None
+    size = int(sizes[best])
+    return (0.5 * float(angles[order[size - 1]] + angles[order[size]]), reference, np.sqrt(planes_squares / n),
+            bool(cylinder_squares > cp.CREASE_RMS_FACTOR ** 2 * planes_squares))
+
+
+def _least_squares(firsts: np.ndarray, seconds: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    # the least-squares plane's sum of squared distances of each set of points, from their
+    # sums and sums of outer products: the smallest eigenvalue of their scatter matrix
+    counts = counts.astype(np.float64)
+    scatter = seconds - firsts[:, :, None] * firsts[:, None, :] / counts[:, None, None]
+    return np.linalg.eigvalsh(scatter)[:, 0]
