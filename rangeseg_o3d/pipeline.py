@@ -24,13 +24,13 @@ from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
-from .strips import pixelwise_noise_spans_the_grid, recover_strips
+from .strips import recover_strips
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
-from .scales import Scales, scales_for_cloud
+from .scales import Scales, pixelwise_noise_spans_the_grid, scales_for_cloud
 from .sensor import Sensor
 from .sensor_checks import check_plausible, noise_excess
 

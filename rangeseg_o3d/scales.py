@@ -64,7 +64,7 @@ import numpy as np
 from ._numeric import median
 
 __all__ = ["Scales", "derive_scales", "scales_for_cloud", "measured_spacing", "median_range",
-           "with_derived_refinement",
+           "with_derived_refinement", "grid_step", "noise_spans_the_grid", "pixelwise_noise_spans_the_grid",
            "GRAZING_TAN", "GRAZING_COSINE", "JUMP_SIGMAS", "MERGE_SIGMAS", "MIN_PIXELS", "MIN_CELLS", "TILE_NOISE_RATIO",
            "MIN_GRID_CELLS", "MAX_TILE", "WINDOW_STEPS", "RELIEF_STEPS"]
 
@@ -254,3 +254,39 @@ def scales_for_cloud(sensor, cloud, *, tile: int | None = None) -> Scales:
     shape = tuple(s * cloud.tile for s in cloud.shape)
     return derive_scales(sensor, typical_range=median_range(cloud), spacing_rad=spacing,
                          shape=shape, tile=tile)
+
+
+def grid_step(sensor, cloud=None) -> float | None:
+    """The grid's coarser angular step (radians): the sensor's row and column spacings, else
+    measured on ``cloud`` (:func:`measured_spacing`); None with neither."""
+    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
+        return float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
+    if cloud is None:
+        return None
+    return float(max(measured_spacing(cloud)))
+
+
+def noise_spans_the_grid(sensor, cloud=None) -> bool:
+    """Whether ``sensor``'s range noise, growing with the range (``sigma_quadratic`` > 0),
+    exceeds the footprint of its grid's coarser angular step ``d`` (radians) at every range:
+    ``sigma0 + sigma_quadratic r**2 > r d`` for all ``r``, i.e. ``d**2 < 4 sigma0
+    sigma_quadratic``. On such a camera (a Kinect: 0.11 deg, 1 mm + 1.425e-3 r^2, the noise
+    1.2-4 footprints from 0.5 to 5 m) a face a few pixels wide spreads farther along its rays
+    than across them, so its least-squares plane turns towards the rays. A laser whose noise
+    is stated growing with the range (a SICK at 0.5 deg, 3 mm + 1e-3 r^2) stays under its
+    footprint from 0.35 to 8.7 m. The step is :func:`grid_step`'s; False without one."""
+    noise = sensor.noise
+    if noise.sigma_quadratic <= 0.0:
+        return False
+    step = grid_step(sensor, cloud)
+    return step is not None and step * step < 4.0 * noise.sigma0 * noise.sigma_quadratic
+
+
+def pixelwise_noise_spans_the_grid(sensor, cloud=None) -> bool:
+    """:func:`noise_spans_the_grid` on a camera whose returns err one by one: not a stereo
+    camera, whose noise errs together over its matching window (``noise.matched_window``),
+    nor a wrapped grid. The regime (a Kinect's) where a curved blob is fitted again on block
+    means (:mod:`rangeseg_o3d.refinement.curved_refused`) and a curved model is judged by the
+    noise of its distances (:func:`rangeseg_o3d.fullres.planes_for_unresolved`)."""
+    return (not sensor.noise.matched_window and not sensor.wrap_columns
+            and noise_spans_the_grid(sensor, cloud))

@@ -25,7 +25,7 @@ from .kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
 from .ray_planes import ray_plane, ray_terms, robust_ray_plane
 from .refinement.recover import grown_box
 
-__all__ = ["grid_step", "noise_spans_the_grid", "pixelwise_noise_spans_the_grid", "recover_strips"]
+__all__ = ["recover_strips"]
 
 #: The share of a strip's pixels a model must explain (within its noise band) to take it,
 #: as a blob's plane must (:func:`rangeseg_o3d.refinement.recover._one_plane`).
@@ -56,7 +56,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     face seen near grazing whose depth the noise spans: it becomes a region when its plane
     fitted along the rays explains it (:meth:`_Strips.faces_along_rays`); so too, where the
     range noise grows with the range alone and spans more than a pixel's footprint at every
-    range (a Kinect, :func:`noise_spans_the_grid`), a strip the frame's edge cuts thin, lying
+    range (a Kinect, :func:`rangeseg_o3d.scales.noise_spans_the_grid`), a strip the frame's edge cuts thin, lying
     along it, unless a region's model explains it within the range noise
     (:func:`_on_a_found_surface`). A strip
     of which a touching region's model explains
@@ -68,7 +68,7 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     gains only the pixels within ``TRIM_SIGMAS`` of their distance noise.
     """
     from .fullres import leftover_blob_labels, recovered_region_floor, smallest_region, stats_with_moved
-    from .scales import with_derived_refinement
+    from .scales import noise_spans_the_grid, with_derived_refinement
 
     config = with_derived_refinement(config, sensor, cloud)
     min_size = smallest_region(config, sensor, cloud)
@@ -348,41 +348,3 @@ def _on_a_found_surface(xyz: np.ndarray, sigma: np.ndarray, fits: dict, idx: np.
         if float(np.mean(units * units)) <= bound:
             return True
     return False
-
-
-def grid_step(sensor, cloud=None) -> float | None:
-    """The grid's coarser angular step (radians): the sensor's row and column spacings, else
-    measured on ``cloud`` (:func:`rangeseg_o3d.scales.measured_spacing`); None with neither."""
-    if sensor.row_spacing_deg is not None and sensor.column_spacing_deg is not None:
-        return float(np.radians(max(sensor.row_spacing_deg, sensor.column_spacing_deg)))
-    if cloud is None:
-        return None
-    from .scales import measured_spacing
-
-    return float(max(measured_spacing(cloud)))
-
-
-def noise_spans_the_grid(sensor, cloud=None) -> bool:
-    """Whether ``sensor``'s range noise, growing with the range (``sigma_quadratic`` > 0),
-    exceeds the footprint of its grid's coarser angular step ``d`` (radians) at every range:
-    ``sigma0 + sigma_quadratic r**2 > r d`` for all ``r``, i.e. ``d**2 < 4 sigma0
-    sigma_quadratic``. On such a camera (a Kinect: 0.11 deg, 1 mm + 1.425e-3 r^2, the noise
-    1.2-4 footprints from 0.5 to 5 m) a face a few pixels wide spreads farther along its rays
-    than across them, so its least-squares plane turns towards the rays. A laser whose noise
-    is stated growing with the range (a SICK at 0.5 deg, 3 mm + 1e-3 r^2) stays under its
-    footprint from 0.35 to 8.7 m. The step is :func:`grid_step`'s; False without one."""
-    noise = sensor.noise
-    if noise.sigma_quadratic <= 0.0:
-        return False
-    step = grid_step(sensor, cloud)
-    return step is not None and step * step < 4.0 * noise.sigma0 * noise.sigma_quadratic
-
-
-def pixelwise_noise_spans_the_grid(sensor, cloud=None) -> bool:
-    """:func:`noise_spans_the_grid` on a camera whose returns err one by one: not a stereo
-    camera, whose noise errs together over its matching window (``noise.matched_window``),
-    nor a wrapped grid. The regime (a Kinect's) where a curved blob is fitted again on block
-    means (:mod:`rangeseg_o3d.refinement.curved_refused`) and a curved model is judged by the
-    noise of its distances (:func:`rangeseg_o3d.fullres.planes_for_unresolved`)."""
-    return (not sensor.noise.matched_window and not sensor.wrap_columns
-            and noise_spans_the_grid(sensor, cloud))

@@ -223,7 +223,7 @@ def test_noise_spans_the_grid_on_the_presets():
     # a Kinect's noise exceeds its 0.11-deg footprint at every range (0.11 deg = 1.92 mrad,
     # 1.92e-3^2 = 3.7e-6 < 4 x 1e-3 x 1.425e-3 = 5.7e-6); the SICK of the 3DTK scans (0.517 deg:
     # 8.1e-5 > 4 x 3e-3 x 1e-3 = 1.2e-5) and every laser of constant noise do not
-    from rangeseg_o3d.strips import noise_spans_the_grid
+    from rangeseg_o3d.scales import noise_spans_the_grid
 
     def sensor(preset):
         return rs.Pipeline(rs.load_config(preset)).sensor

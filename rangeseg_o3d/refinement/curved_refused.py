@@ -7,7 +7,7 @@ head-on keeps almost all its range noise in those distances: where its bend is w
 leaves over that noise, the fitter, asked to resolve bends over the sensor's independent
 returns, finds the cylinder or sphere, and that model is held to the same noise.
 
-Where the range noise exceeds the grid's footprint (a Kinect: :func:`rangeseg_o3d.strips.noise_spans_the_grid`)
+Where the range noise exceeds the grid's footprint (a Kinect: :func:`rangeseg_o3d.scales.noise_spans_the_grid`)
 a pipe or ball a few dozen pixels across spreads farther along its rays than across them: the
 least-squares plane of its pixels turns towards the rays and fits them closer than the true
 cylinder does, and the geometric curved fits start from that spread and fail. There the fitter

@@ -754,8 +754,8 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
 def _means_step(sensor, cloud) -> float:
     # the grid's angular step (radians) where a refused plane's block means are fitted for a
     # curved model (curved_for_refused): where the range noise exceeds the grid's footprint
-    # and its returns err one by one (a Kinect; strips.pixelwise_noise_spans_the_grid); 0 elsewhere
-    from ..strips import grid_step, pixelwise_noise_spans_the_grid
+    # and its returns err one by one (a Kinect; scales.pixelwise_noise_spans_the_grid); 0 elsewhere
+    from ..scales import grid_step, pixelwise_noise_spans_the_grid
 
     return float(grid_step(sensor, cloud)) if pixelwise_noise_spans_the_grid(sensor, cloud) else 0.0
 
