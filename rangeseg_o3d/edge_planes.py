@@ -1,0 +1,238 @@
+"""Plane regions the frame's edge cuts, settled against the curved surface they may be a
+strip of, on a camera whose range noise exceeds its grid's footprint (a Kinect's).
+
+A pipe the frame's edge cuts is seen as a band a few to a few dozen pixels wide along that
+edge. There the tile grid's partial, mixed tiles (640 = 106 x 6 + 4) see none of it, or
+only its middle, and what the full-resolution pass recovers of the rest (a blob, a strip
+along the edge) is a plane: across a band a few footprints wide, the Kinect's range noise
+(centimetres at 3-5 m, several pixel footprints) spreads the pixels farther along their
+rays than the band bends, so the fitter's F-test sees no bend and the plane, turned towards
+the rays, passes the recovery's test. The pipe is then split (its cylinder region and a
+plane strip at the edge) or, when no cylinder region was found, fitted as a plane: on the
+kinect study and fresh seeds every curved split and every false fitting cylinder -> plane
+touched the frame's edge (kinect8's classification).
+
+The sensor model settles both. A strip of a curved region's surface lies within the noise
+of its distances to that region's model: it joins the region. A strip alone whose plane
+leaves its pixels beyond the noise of their distances (the plane turned towards the rays)
+while a curved model fitted to them, or to their block means (each an independent sample
+with the range noise divided by the block's side), explains them within it, is that curved
+surface. A real plane at the frame's edge (a wall cut by the edge beside a pipe) lies off
+the pipe's model by more than its noise and within the noise of its own plane: it stays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["edge_planes_to_curved"]
+
+
+def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
+                          samples: float = 1.0, step: float = 0.0, min_size: int = 0, inlier_factor: float):
+    """Plane regions touching the frame's edge given to the curved surface the sensor's noise
+    says they are. Returns ``(labels, fits, stats)``, the inputs when nothing changed.
+
+    Each plane region with a pixel in the frame's first or last row or column, in turn:
+
+    - joins a cylinder or sphere region it touches (4-neighbours) whose model explains its
+      pixels within the noise of their distances to it (:func:`_within_distance_noise`:
+      range noise times the incidence cosine, chi-square bound over its pixels), the one of
+      least rms;
+    - else, with ``fitter`` and ``samples`` > 0 (the independent samples a pixel carries for
+      the fitter's bend test), when its own plane leaves its pixels beyond that noise, takes
+      the curved model the fitter gives on its pixels (``resolve_bends``) or, with ``step``
+      (the grid's angular step, radians; 0: not asked), on their block means
+      (:func:`rangeseg_o3d.refinement.curved_refused.block_means` over
+      :func:`rangeseg_o3d.refinement.curved_refused.mean_window`), when that model explains
+      the pixels within the noise of their distances.
+
+    Regions under ``min_size`` pixels are not refitted (a bend needs the samples).
+    ``sigma``: the range noise per pixel (the grid's shape).
+    """
+    from .fitting.plane import fit_plane
+    from .fullres import LabelBoxes, region_stats
+
+    labels = np.asarray(labels)
+    if labels.ndim != 2 or np.shape(sigma) != labels.shape:
+        raise ValueError(f"edge_planes_to_curved: expected labels and sigma of one (H, W) shape; "
+                         f"got {labels.shape} and {np.shape(sigma)}")
+    if fitter is not None and "noise_floor" not in getattr(fitter, "params", {}):
+        fitter = None  # (resolve_bends: a keyword of the primitives fitter alone)
+    h, w = labels.shape
+    n = int(labels.max(initial=0)) + 1
+    counts = stats.counts
+    curved = {k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n}
+    planes = [k for k, m in fits.items() if m and m.kind == "plane" and 0 < k < n
+              and k < counts.size and counts[k] > 0]
+    if not planes or (not curved and fitter is None):
+        return labels, fits, stats
+    boxes = LabelBoxes(labels)
+    # the planes that may be strips of a curved region's surface: those touching one, no
+    # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
+    beside = {}
+    for c in sorted(curved):
+        r0, r1, c0, c1 = boxes.bounds(c)
+        g0, g1, h0, h1 = max(r0 - 1, 0), min(r1 + 1, h), max(c0 - 1, 0), min(c1 + 1, w)
+        crop = labels[g0:g1, h0:h1]
+        for k in _touching(crop, crop == c) & set(planes):
+            if counts[k] <= counts[c]:
+                beside.setdefault(k, set()).add(c)
+    edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None else []
+    asked = sorted(set(beside) | set(edge))
+    if not asked:
+        return labels, fits, stats
+    xyz = cloud.xyz
+    out, fits_out, changed = None, None, []
+    for k in asked:
+        r0, r1, c0, c1 = boxes.bounds(k)
+        crop = (labels if out is None else out)[r0:r1, c0:c1]
+        mine = crop == k
+        points, noise = xyz[r0:r1, c0:c1][mine], np.asarray(sigma)[r0:r1, c0:c1][mine]
+        finite = np.isfinite(points).all(axis=1) & np.isfinite(noise)
+        points, noise = points[finite], noise[finite]
+        if len(points) < 6:
+            continue
+        current = fits if fits_out is None else fits_out
+        host, refit = _curved_host(cloud, labels if out is None else out, boxes, beside.get(k, ()), current,
+                                   points, noise, fitter, sigma)
+        if host is not None:
+            if out is None:
+                out = np.array(labels, copy=True)
+            out[r0:r1, c0:c1][mine] = host
+            fits_out = dict(fits) if fits_out is None else fits_out
+            del fits_out[k]
+            if refit is not None:
+                fits_out[host] = refit
+            changed.append(host)
+            continue
+        if k not in edge or not samples > 0 or len(points) < max(int(min_size), 6):
+            continue
+        plane = fit_plane(points)
+        if not plane or not _beyond_distance_noise(plane, points, noise):
+            continue  # (a plane within the noise of its distances is a plane)
+        model = _curved_fit(fitter, xyz, points, noise, samples, step, (r0, c0), mine, finite)
+        if model is None:
+            continue
+        fits_out = dict(fits) if fits_out is None else fits_out
+        fits_out[k] = model
+        changed.append(k)
+    if not changed:
+        return labels, fits, stats
+    labels_out = labels if out is None else out
+    stats = region_stats(xyz, labels_out, fits_out, sigma, inlier_factor, known=stats,
+                         stale=sorted(set(changed) | (set(fits) - set(fits_out))))
+    return labels_out, fits_out, stats
+
+
+def _touches_edge(bounds: tuple, h: int, w: int) -> bool:
+    # whether a (row0, row1, col0, col1) half-open box reaches the frame's first or last row or column
+    r0, r1, c0, c1 = bounds
+    return r1 > r0 and (r0 == 0 or r1 == h or c0 == 0 or c1 == w)
+
+
+def _rms_and_noise(model, points: np.ndarray, noise: np.ndarray) -> tuple[float, float]:
+    # the model's rms over the points and the rms of the noise of their distances to it
+    from .fitting.robust import distance_noise
+
+    band = distance_noise(model, points, noise)
+    return float(np.sqrt(np.mean(model.distances(points) ** 2))), float(np.sqrt(np.mean(band * band)))
+
+
+def _within_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool:
+    """Whether ``model``'s rms over ``points`` lies within the chi-square bound of the noise
+    of their distances to it (range noise ``noise`` times the incidence cosine)."""
+    from .fitting.robust import beyond_noise
+
+    rms, band = _rms_and_noise(model, points, noise)
+    return not beyond_noise(rms, band, len(points))
+
+
+def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool:
+    # (the plane's own rms: the least-squares plane's distances)
+    from .fitting.robust import beyond_noise
+
+    rms, band = _rms_and_noise(model, points, noise)
+    return beyond_noise(rms, band, len(points))
+
+
+def _touching(crop: np.ndarray, mine: np.ndarray) -> set:
+    # the labels of ``crop`` 4-neighbouring the pixels ``mine`` (but theirs)
+    near = np.zeros_like(mine)
+    near[1:] |= mine[:-1]
+    near[:-1] |= mine[1:]
+    near[:, 1:] |= mine[:, :-1]
+    near[:, :-1] |= mine[:, 1:]
+    return set(np.unique(crop[near & ~mine]).tolist()) - {0}
+
+
+#: Pixels of a curved region its refit with a strip samples (evenly, as planes_for_unresolved).
+HOST_SAMPLE = 1024
+
+
+def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np.ndarray, noise: np.ndarray,
+                 fitter, sigma: np.ndarray):
+    """``(host, refit)``: the curved region of ``hosts`` whose model explains ``points`` (a
+    plane region's pixels, range noise ``noise``) within the noise of their distances, the
+    least rms (``refit`` None); else, with ``fitter``, the one whose model refitted to an even
+    sample of its pixels and ``points`` explains both within that noise (``refit`` that
+    model: a tile model of a far pipe's means is off its pixels by more than a grazing strip's
+    distance noise); else ``(None, None)``."""
+    best, best_rms = None, np.inf
+    for c in sorted(hosts):
+        model = fits.get(c)
+        if not model or model.kind == "plane" or not _within_distance_noise(model, points, noise):
+            continue
+        rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
+        if rms < best_rms:
+            best, best_rms = c, rms
+    if best is not None or fitter is None:
+        return best, None
+    for c in sorted(hosts):
+        model = fits.get(c)
+        if not model or model.kind == "plane":
+            continue
+        box = boxes(c)
+        window = labels[box]
+        step = max(int(np.ceil(np.sqrt(window.size / HOST_SAMPLE))), 1)
+        pick = window[::step, ::step] == c
+        own, own_noise = cloud.xyz[box][::step, ::step][pick], np.asarray(sigma)[box][::step, ::step][pick]
+        finite = np.isfinite(own).all(axis=1)
+        own, own_noise = own[finite], own_noise[finite]
+        if len(own) < 6:
+            continue
+        refit = fitter.refit(np.concatenate([own, points]), model, curvature_gain=1.0)
+        if (not refit or refit.kind != model.kind or not _within_distance_noise(refit, points, noise)
+                or not _within_distance_noise(refit, own, own_noise)):
+            continue
+        rms = float(np.sqrt(np.mean(refit.distances(points) ** 2)))
+        if rms < best_rms:
+            best, best_rms, found = c, rms, refit
+    return (best, found) if best is not None else (None, None)
+
+
+def _curved_fit(fitter, xyz: np.ndarray, points: np.ndarray, noise: np.ndarray, samples: float, step: float,
+                origin: tuple, mine: np.ndarray, finite: np.ndarray):
+    """The cylinder or sphere the fitter gives on ``points`` (asked to resolve bends over
+    ``samples`` per point) or, with ``step`` > 0, on their block means, that explains them
+    within the noise of their distances; its rms the points'. None without one. ``xyz``: the
+    organized grid; ``mine`` (finite: ``finite``) the points' pixels in a crop at ``origin``."""
+    from .fitting.primitives import with_statistics
+    from .refinement.curved_refused import block_means, mean_window
+
+    model = fitter.fit(points, resolve_bends=float(samples))
+    if model and model.kind != "plane" and _within_distance_noise(model, points, noise):
+        return model
+    if not step > 0:
+        return None
+    # the pixels' spread along the rays misleads the fit: their means over disjoint blocks,
+    # each an independent sample (as curved_for_refused)
+    width = xyz.shape[1]
+    rows, cols = np.nonzero(mine)
+    idx = ((rows + origin[0]) * width + cols + origin[1])[finite]
+    window = mean_window(float(np.median(noise)), float(np.median(np.linalg.norm(points, axis=1))), step)
+    model = fitter.fit(block_means(xyz.reshape(-1, 3), width, idx, window), resolve_bends=float(samples))
+    if not model or model.kind == "plane" or not _within_distance_noise(model, points, noise):
+        return None
+    return with_statistics(model, rms=float(np.sqrt(np.mean(model.distances(points) ** 2))))
+
