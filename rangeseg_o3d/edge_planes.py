@@ -29,7 +29,8 @@ __all__ = ["edge_planes_to_curved"]
 
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
-                          samples: float = 1.0, step: float = 0.0, min_size: int = 0, inlier_factor: float):
+                          samples: float = 1.0, step: float = 0.0, min_size: int = 0, inlier_factor: float,
+                          tile_labels: np.ndarray | None = None, tile: int = 1):
     """Plane regions touching the frame's edge given to the curved surface the sensor's noise
     says they are. Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
@@ -46,6 +47,11 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
       (:func:`rangeseg_o3d.refinement.curved_refused.block_means` over
       :func:`rangeseg_o3d.refinement.curved_refused.mean_window`), when that model explains
       the pixels within the noise of their distances.
+
+    A join is kept only when the curved model stays curved over the union by the tests
+    :func:`rangeseg_o3d.fullres.planes_for_unresolved` applies later, on the same sample
+    (``tile_labels``, ``tile``: the tile grid, as there): else that step makes the union a
+    plane, a false fitting where the two apart were a split.
 
     Regions under ``min_size`` pixels are not refitted (a bend needs the samples).
     ``sigma``: the range noise per pixel (the grid's shape).
@@ -68,6 +74,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     if not planes or (not curved and fitter is None):
         return labels, fits, stats
     boxes = LabelBoxes(labels)
+    tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     # the planes that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
     beside = {}
@@ -100,6 +107,10 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
             if out is None:
                 out = np.array(labels, copy=True)
             out[r0:r1, c0:c1][mine] = host
+            model = refit if refit is not None else current[host]
+            if not _union_stays_curved(cloud, out, host, model, sigma, tile_boxes, tile):
+                out[r0:r1, c0:c1][mine] = k  # (a split is better than a false fitting)
+                continue
             fits_out = dict(fits) if fits_out is None else fits_out
             del fits_out[k]
             if refit is not None:
@@ -170,6 +181,58 @@ def _touching(crop: np.ndarray, mine: np.ndarray) -> set:
 HOST_SAMPLE = 1024
 
 
+def _host_sample(cloud, labels: np.ndarray, boxes, c: int, sigma: np.ndarray):
+    # an even sample of about HOST_SAMPLE of region c's pixels (its box from ``boxes``) and their range noise
+    box = boxes(c)
+    window = labels[box]
+    step = max(int(np.ceil(np.sqrt(window.size / HOST_SAMPLE))), 1)
+    pick = window[::step, ::step] == c
+    own, noise = cloud.xyz[box][::step, ::step][pick], np.asarray(sigma)[box][::step, ::step][pick]
+    finite = np.isfinite(own).all(axis=1) & np.isfinite(noise)
+    return own[finite], noise[finite]
+
+
+def stays_curved(model, points: np.ndarray, noise: np.ndarray) -> bool:
+    """Whether the curved ``model`` keeps its kind over ``points`` (range noise ``noise``) by
+    the tests :func:`rangeseg_o3d.fullres.planes_for_unresolved` applies later: its
+    curvature resolved against their plane (the F-test), or it alone of the two within the
+    noise of their distances. A strip joined to a curved region whose union then became a
+    plane would trade a split for a false fitting."""
+    from .fitting.plane import fit_plane
+    from .fitting.robust import curvature_resolved
+
+    if len(points) < 6:
+        return False
+    plane = fit_plane(points)
+    if not plane:
+        return True
+    squares = float(np.sum(model.distances(points) ** 2))
+    if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
+        return True
+    return _within_distance_noise(model, points, noise) and _beyond_distance_noise(plane, points, noise)
+
+
+def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.ndarray, tile_boxes, tile: int) -> bool:
+    """Whether ``model`` stays curved over region ``host`` of ``labels`` (a strip joined to
+    it) by :func:`rangeseg_o3d.fullres.planes_for_unresolved`'s tests on the same even sample
+    (its box: :func:`rangeseg_o3d.fullres.pixel_box`; the F-test against their plane, then
+    its distance-noise test on all the pixels): else that step makes the union a plane, a
+    false fitting where the strip and the region apart were a split."""
+    from .fitting.plane import fit_plane
+    from .fitting.robust import curvature_resolved
+    from .fullres import LabelBoxes, _only_curved_within_noise, pixel_box, region_sample
+
+    box = pixel_box(LabelBoxes(labels), host, tile_boxes, tile)
+    points = region_sample(cloud, labels, host, box)
+    plane = fit_plane(points) if len(points) >= 6 else None
+    if not plane:
+        return True  # (planes_for_unresolved leaves it)
+    squares = float(np.sum(model.distances(points) ** 2))
+    if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
+        return True
+    return _only_curved_within_noise(model, cloud.xyz, sigma, labels, host, box)
+
+
 def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np.ndarray, noise: np.ndarray,
                  fitter, sigma: np.ndarray):
     """``(host, refit)``: the curved region of ``hosts`` whose model explains ``points`` (a
@@ -177,11 +240,16 @@ def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np
     least rms (``refit`` None); else, with ``fitter``, the one whose model refitted to an even
     sample of its pixels and ``points`` explains both within that noise (``refit`` that
     model: a tile model of a far pipe's means is off its pixels by more than a grazing strip's
-    distance noise); else ``(None, None)``."""
-    best, best_rms = None, np.inf
+    distance noise); else ``(None, None)``. Either way the model must stay curved over the
+    union (:func:`stays_curved`)."""
+    best, best_rms, found = None, np.inf, None
+    samples = {}
     for c in sorted(hosts):
         model = fits.get(c)
         if not model or model.kind == "plane" or not _within_distance_noise(model, points, noise):
+            continue
+        own, own_noise = samples.setdefault(c, _host_sample(cloud, labels, boxes, c, sigma))
+        if not stays_curved(model, np.concatenate([own, points]), np.concatenate([own_noise, noise])):
             continue
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         if rms < best_rms:
@@ -192,18 +260,14 @@ def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np
         model = fits.get(c)
         if not model or model.kind == "plane":
             continue
-        box = boxes(c)
-        window = labels[box]
-        step = max(int(np.ceil(np.sqrt(window.size / HOST_SAMPLE))), 1)
-        pick = window[::step, ::step] == c
-        own, own_noise = cloud.xyz[box][::step, ::step][pick], np.asarray(sigma)[box][::step, ::step][pick]
-        finite = np.isfinite(own).all(axis=1)
-        own, own_noise = own[finite], own_noise[finite]
+        own, own_noise = samples.setdefault(c, _host_sample(cloud, labels, boxes, c, sigma))
         if len(own) < 6:
             continue
-        refit = fitter.refit(np.concatenate([own, points]), model, curvature_gain=1.0)
+        union, union_noise = np.concatenate([own, points]), np.concatenate([own_noise, noise])
+        refit = fitter.refit(union, model, curvature_gain=1.0)
         if (not refit or refit.kind != model.kind or not _within_distance_noise(refit, points, noise)
-                or not _within_distance_noise(refit, own, own_noise)):
+                or not _within_distance_noise(refit, own, own_noise)
+                or not stays_curved(refit, union, union_noise)):
             continue
         rms = float(np.sqrt(np.mean(refit.distances(points) ** 2)))
         if rms < best_rms:
