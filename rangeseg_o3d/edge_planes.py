@@ -1,24 +1,26 @@
-"""Plane regions the frame's edge cuts, settled against the curved surface they may be a
-strip of, on a camera whose range noise exceeds its grid's footprint (a Kinect's).
+"""Plane regions that are strips of a pipe the frame's edge cuts, settled by the range noise
+of a camera whose noise exceeds its grid's footprint (a Kinect's).
 
-A pipe the frame's edge cuts is seen as a band a few to a few dozen pixels wide along that
-edge. There the tile grid's partial, mixed tiles (640 = 106 x 6 + 4) see none of it, or
-only its middle, and what the full-resolution pass recovers of the rest (a blob, a strip
+A pipe the frame's edge cuts is seen as a band a few to a few dozen pixels wide. The tile
+grid's partial, mixed tiles there (640 = 106 x 6 + 4) see none of it, or only its middle,
+and what the full-resolution pass recovers of the rest (a blob, a strip along its flank or
 along the edge) is a plane: across a band a few footprints wide, the Kinect's range noise
 (centimetres at 3-5 m, several pixel footprints) spreads the pixels farther along their
-rays than the band bends, so the fitter's F-test sees no bend and the plane, turned towards
-the rays, passes the recovery's test. The pipe is then split (its cylinder region and a
-plane strip at the edge) or, when no cylinder region was found, fitted as a plane: on the
-kinect study and fresh seeds every curved split and every false fitting cylinder -> plane
-touched the frame's edge (kinect8's classification).
+rays than the band bends, and the recovery asks a blob's plane only to hold it within the
+range noise. The pipe is then split (its cylinder region and a plane strip beside it:
+kinect study seeds 3, 13, fresh 1024, 1028, 1035, the strip 157-730 px, on the pipe's
+flank or at the edge) or, when no cylinder region was found, fitted as a plane (seeds 29,
+1034): on the kinect study and fresh seeds every curved split and every false fitting
+cylinder -> plane touched the frame's edge (kinect8's classification).
 
 The sensor model settles both. A strip of a curved region's surface lies within the noise
-of its distances to that region's model: it joins the region. A strip alone whose plane
-leaves its pixels beyond the noise of their distances (the plane turned towards the rays)
-while a curved model fitted to them, or to their block means (each an independent sample
-with the range noise divided by the block's side), explains them within it, is that curved
-surface. A real plane at the frame's edge (a wall cut by the edge beside a pipe) lies off
-the pipe's model by more than its noise and within the noise of its own plane: it stays.
+of its distances to that region's model (or to that model refitted with it): it joins the
+region. A plane alone at the frame's edge whose pixels resolve a bend (the fitter's F-test
+over their independent returns) under a curved model within the noise of their distances
+is that curved surface. A real plane beside a pipe (a wall cut by the edge) lies off the
+pipe's model by more than its noise, and its pixels resolve no bend: it stays. Every change
+is held to :func:`rangeseg_o3d.fullres.planes_for_unresolved`'s later tests, so that none
+turns a split into a false fitting.
 """
 
 from __future__ import annotations
@@ -31,15 +33,18 @@ __all__ = ["edge_planes_to_curved"]
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
                           samples: float = 1.0, step: float = 0.0, min_size: int = 0, inlier_factor: float,
                           tile_labels: np.ndarray | None = None, tile: int = 1):
-    """Plane regions touching the frame's edge given to the curved surface the sensor's noise
-    says they are. Returns ``(labels, fits, stats)``, the inputs when nothing changed.
+    """Plane regions given to the curved surface the sensor's noise says they are strips of.
+    Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
-    Each plane region with a pixel in the frame's first or last row or column, in turn:
+    Each plane region, in turn:
 
-    - joins a cylinder or sphere region it touches (4-neighbours) whose model explains its
-      pixels within the noise of their distances to it (:func:`_within_distance_noise`:
-      range noise times the incidence cosine, chi-square bound over its pixels), the one of
-      least rms;
+    - when it touches (4-neighbours) a cylinder or sphere region of at least its size, joins
+      the one whose model explains its pixels within the noise of their distances to it
+      (:func:`_within_distance_noise`: range noise times the incidence cosine, chi-square
+      bound over its pixels), the one of least rms; else, with ``fitter``, the one whose model
+      refitted to an even sample of its own pixels and the strip's explains both within that
+      noise (that refit its model: a tile model of a far pipe's means lies off a grazing
+      flank strip by more than the strip's small distance noise);
     - else, when it touches the frame's edge, with ``fitter`` and ``samples`` > 0 (the
       independent samples a pixel carries for the fitter's bend test), takes the cylinder or
       sphere the fitter gives on its pixels asked to resolve bends (its F-test over those

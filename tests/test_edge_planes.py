@@ -76,3 +76,26 @@ def test_edge_planes_to_curved_rejects_mismatched_shapes():
     scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(0)
     with pytest.raises(ValueError, match="one \\(H, W\\) shape"):
         edge_planes_to_curved(scan.cloud, labels, fits, stats, sigma=sigma[:-1], inlier_factor=INLIER_SIGMAS)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_lone_plane_on_a_pipe_cut_by_the_edge_is_fitted_curved_and_the_wall_stays_a_plane(seed):
+    # The whole pipe (cut by the frame's right edge) one region under its plane, as the
+    # recovery leaves a blob the tile grid lost; the wall, also cut by the edges, under its
+    # plane. The pipe's pixels resolve its bend under a cylinder within the noise of their
+    # distances: it becomes that cylinder. The wall's resolve none: it stays its plane.
+    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(seed)
+    pipe = scan.truth_ids == 2
+    lone = np.where(pipe, 2, np.where(scan.truth_ids == 1, 1, 0)).astype(np.int32)
+    planes = {1: rs.fitting.fit_plane(scan.cloud.xyz[lone == 1]), 2: rs.fitting.fit_plane(scan.cloud.xyz[pipe])}
+    lone_stats = region_stats(scan.cloud.xyz, lone, planes, sigma, INLIER_SIGMAS)
+    out, models, out_stats = edge_planes_to_curved(scan.cloud, lone, planes, lone_stats, sigma=sigma,
+                                                   fitter=pipeline.fitter, samples=1.0, min_size=20,
+                                                   inlier_factor=INLIER_SIGMAS)
+    assert np.array_equal(out, lone)
+    assert models[2].kind == "cylinder" and abs(models[2].radius - 0.2) < 0.08
+    assert models[1] is planes[1]
+    assert out_stats.counts[2] == int(pipe.sum())
+    # without the fitter (no bend asked) the lone plane stays
+    same = edge_planes_to_curved(scan.cloud, lone, planes, lone_stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    assert same[1] is planes
