@@ -31,7 +31,7 @@ __all__ = ["edge_planes_to_curved"]
 
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
-                          samples: float = 1.0, step: float = 0.0, min_size: int = 0, inlier_factor: float,
+                          samples: float = 1.0, min_size: int = 0, inlier_factor: float,
                           tile_labels: np.ndarray | None = None, tile: int = 1):
     """Plane regions given to the curved surface the sensor's noise says they are strips of.
     Returns ``(labels, fits, stats)``, the inputs when nothing changed.
@@ -50,13 +50,12 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
       sphere the fitter gives on its pixels asked to resolve bends (its F-test over those
       samples) when that model explains them within the noise of their distances, and their
       plane leaves them more than that noise (an rms over the rms noise of their distances:
-      a plane within it is the surface, whatever a bend could take of the noise); where its
-      own plane leaves them beyond that noise (the plane turned towards the rays), with
-      ``step`` (the grid's angular step, radians; 0: not asked), on their block means too
-      (:func:`rangeseg_o3d.refinement.curved_refused.block_means` over
-      :func:`rangeseg_o3d.refinement.curved_refused.mean_window`). A pipe the top edge cut to
-      a band 14-30 px wide at 4-5 m (kinect seeds 29 and 1034) was fitted as a plane within
-      the range noise, which the recovery asks of a blob; its pixels resolve the bend.
+      a plane within it is the surface, whatever a bend could take of the noise). A pipe the
+      top edge cut to a band 14-30 px wide at 4-5 m (kinect seeds 29 and 1034) was fitted as
+      a plane within the range noise, which the recovery asks of a blob; its pixels resolve
+      the bend.
+
+    Every test runs on an even sample of about ``HOST_SAMPLE`` of a region's pixels.
 
     A join (a curved model) is kept only when the curved model stays curved over the union (the region) by the tests
     :func:`rangeseg_o3d.fullres.planes_for_unresolved` applies later, on the same sample
@@ -92,7 +91,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         r0, r1, c0, c1 = boxes.bounds(c)
         g0, g1, h0, h1 = max(r0 - 1, 0), min(r1 + 1, h), max(c0 - 1, 0), min(c1 + 1, w)
         crop = labels[g0:g1, h0:h1]
-        for k in _touching(crop, crop == c) & set(planes):
+        for k in _touching(crop, c) & set(planes):
             if counts[k] <= counts[c]:
                 beside.setdefault(k, set()).add(c)
     edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None else []
@@ -105,7 +104,12 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         r0, r1, c0, c1 = boxes.bounds(k)
         crop = (labels if out is None else out)[r0:r1, c0:c1]
         mine = crop == k
-        points, noise = xyz[r0:r1, c0:c1][mine], np.asarray(sigma)[r0:r1, c0:c1][mine]
+        # every test on an even sample of about HOST_SAMPLE of its pixels (a floor at the frame's
+        # edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
+        spaced = max(int(np.ceil(np.sqrt(mine.size / HOST_SAMPLE))), 1)
+        pick = mine[::spaced, ::spaced]
+        points = xyz[r0:r1:spaced, c0:c1:spaced][pick]
+        noise = np.asarray(sigma)[r0:r1:spaced, c0:c1:spaced][pick]
         finite = np.isfinite(points).all(axis=1) & np.isfinite(noise)
         points, noise = points[finite], noise[finite]
         if len(points) < 6:
@@ -127,7 +131,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
                 fits_out[host] = refit
             changed.append(host)
             continue
-        if k not in edge or not samples > 0 or len(points) < max(int(min_size), 6):
+        if k not in edge or not samples > 0 or counts[k] < max(int(min_size), 6):
             continue
         plane = fit_plane(points)
         if not plane:
@@ -138,10 +142,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
             # explain (a wall mixed with a crease's band fitted a cylinder 1.5 % closer, kinect
             # spent seed 739 scan 0); a pipe's plane, turned towards the rays, leaves more
             continue
-        # the block means only where the plane is refused: there the pixels' spread along the rays
-        # may hide a bend their means resolve; a plane within the noise is asked on its pixels alone
-        model = _curved_fit(fitter, xyz, points, noise, samples,
-                            step if _beyond_distance_noise(plane, points, noise) else 0.0, (r0, c0), mine, finite)
+        model = _curved_fit(fitter, points, noise, samples)
         if model is None:
             continue
         if out is None:
@@ -190,14 +191,16 @@ def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool
     return beyond_noise(rms, band, len(points))
 
 
-def _touching(crop: np.ndarray, mine: np.ndarray) -> set:
-    # the labels of ``crop`` 4-neighbouring the pixels ``mine`` (but theirs)
-    near = np.zeros_like(mine)
-    near[1:] |= mine[:-1]
-    near[:-1] |= mine[1:]
-    near[:, 1:] |= mine[:, :-1]
-    near[:, :-1] |= mine[:, 1:]
-    return set(np.unique(crop[near & ~mine]).tolist()) - {0}
+def _touching(crop: np.ndarray, label: int) -> set:
+    # the labels of ``crop`` 4-neighbouring its pixels of ``label`` (but it and 0), from the
+    # label pairs across the crop's rows and columns (no dilated mask: a pipe's crop can be
+    # most of the frame)
+    found = []
+    for a, b in ((crop[:, :-1], crop[:, 1:]), (crop[:-1], crop[1:])):
+        differ = a != b
+        found.append(b[differ & (a == label)])
+        found.append(a[differ & (b == label)])
+    return set(np.unique(np.concatenate(found)).tolist()) - {0}
 
 
 #: Pixels of a curved region its refit with a strip samples (evenly, as planes_for_unresolved).
@@ -298,28 +301,11 @@ def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np
     return (best, found) if best is not None else (None, None)
 
 
-def _curved_fit(fitter, xyz: np.ndarray, points: np.ndarray, noise: np.ndarray, samples: float, step: float,
-                origin: tuple, mine: np.ndarray, finite: np.ndarray):
+def _curved_fit(fitter, points: np.ndarray, noise: np.ndarray, samples: float):
     """The cylinder or sphere the fitter gives on ``points`` (asked to resolve bends over
-    ``samples`` per point) or, with ``step`` > 0, on their block means, that explains them
-    within the noise of their distances; its rms the points'. None without one. ``xyz``: the
-    organized grid; ``mine`` (finite: ``finite``) the points' pixels in a crop at ``origin``."""
-    from .fitting.primitives import with_statistics
-    from .refinement.curved_refused import block_means, mean_window
-
+    ``samples`` per point) that explains them within the noise of their distances (range
+    noise ``noise``); None without one."""
     model = fitter.fit(points, resolve_bends=float(samples))
     if model and model.kind != "plane" and _within_distance_noise(model, points, noise):
         return model
-    if not step > 0:
-        return None
-    # the pixels' spread along the rays misleads the fit: their means over disjoint blocks,
-    # each an independent sample (as curved_for_refused)
-    width = xyz.shape[1]
-    rows, cols = np.nonzero(mine)
-    idx = ((rows + origin[0]) * width + cols + origin[1])[finite]
-    window = mean_window(float(np.median(noise)), float(np.median(np.linalg.norm(points, axis=1))), step)
-    model = fitter.fit(block_means(xyz.reshape(-1, 3), width, idx, window), resolve_bends=float(samples))
-    if not model or model.kind == "plane" or not _within_distance_noise(model, points, noise):
-        return None
-    return with_statistics(model, rms=float(np.sqrt(np.mean(model.distances(points) ** 2))))
-
+    return None

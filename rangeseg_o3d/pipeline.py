@@ -26,7 +26,6 @@ from .ray_claims import claim_outliers_along_rays
 from .strips import noise_spans_the_grid, recover_strips
 from .edge_planes import edge_planes_to_curved
 from .refinement.curved_refused import full_resolution_samples
-from .refinement.recover import _means_step
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -333,7 +332,7 @@ class Pipeline:
                 # cylinder region join it, a lone one whose pixels resolve a bend is fitted curved
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
-                    samples=full_resolution_samples(self.sensor), step=_means_step(self.sensor, cloud),
+                    samples=full_resolution_samples(self.sensor),
                     min_size=recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
                                                     noise.correlation_px),
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile)
