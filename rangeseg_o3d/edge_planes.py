@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 __all__ = ["edge_planes_to_curved"]
 
 
@@ -87,12 +89,20 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     # the planes that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
     beside = {}
+    flat_labels = None
     for c in sorted(curved):
-        r0, r1, c0, c1 = boxes.bounds(c)
-        g0, g1, h0, h1 = max(r0 - 1, 0), min(r1 + 1, h), max(c0 - 1, 0), min(c1 + 1, w)
-        crop = labels[g0:g1, h0:h1]
-        for k in _touching(crop, c) & set(planes):
-            if counts[k] <= counts[c]:
+        a0, a1, b0, b1 = boxes.bounds(c)
+        for k in planes:
+            if counts[k] > counts[c]:
+                continue
+            p0, p1, q0, q1 = boxes.bounds(k)
+            # the boxes' overlap grown by a pixel: where a 4-neighbour pair of the two can lie
+            r0, r1, c0, c1 = max(a0, p0) - 1, min(a1, p1) + 1, max(b0, q0) - 1, min(b1, q1) + 1
+            if r1 - r0 < 1 or c1 - c0 < 1:
+                continue
+            if flat_labels is None:
+                flat_labels = np.ascontiguousarray(labels, dtype=np.int32)
+            if kernels.labels_touch(flat_labels, int(c), int(k), max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)):
                 beside.setdefault(k, set()).add(c)
     edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None else []
     asked = sorted(set(beside) | set(edge))
@@ -189,18 +199,6 @@ def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool
 
     rms, band = _rms_and_noise(model, points, noise)
     return beyond_noise(rms, band, len(points))
-
-
-def _touching(crop: np.ndarray, label: int) -> set:
-    # the labels of ``crop`` 4-neighbouring its pixels of ``label`` (but it and 0), from the
-    # label pairs across the crop's rows and columns (no dilated mask: a pipe's crop can be
-    # most of the frame)
-    found = []
-    for a, b in ((crop[:, :-1], crop[:, 1:]), (crop[:-1], crop[1:])):
-        differ = a != b
-        found.append(b[differ & (a == label)])
-        found.append(a[differ & (b == label)])
-    return set(np.unique(np.concatenate(found)).tolist()) - {0}
 
 
 #: Pixels of a curved region its refit with a strip samples (evenly, as planes_for_unresolved).
