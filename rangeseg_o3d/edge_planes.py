@@ -34,7 +34,7 @@ __all__ = ["edge_planes_to_curved"]
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
                           samples: float = 1.0, min_size: int = 0, inlier_factor: float,
-                          tile_labels: np.ndarray | None = None, tile: int = 1):
+                          tile_labels: np.ndarray | None = None, tile: int = 1, lone: bool = True):
     """Plane regions given to the curved surface the sensor's noise says they are strips of.
     Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
@@ -56,6 +56,9 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
       top edge cut to a band 14-30 px wide at 4-5 m (kinect seeds 29 and 1034) was fitted as
       a plane within the range noise, which the recovery asks of a blob; its pixels resolve
       the bend.
+
+    ``lone`` False: the first only (the pipeline's choice: the second turned a small wall
+    mixed with another face's pixels into a cylinder on kinect fresh seed 1014 scan 0).
 
     Every test runs on an even sample of about ``HOST_SAMPLE`` of a region's pixels.
 
@@ -104,7 +107,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
                 flat_labels = np.ascontiguousarray(labels, dtype=np.int32)
             if kernels.labels_touch(flat_labels, int(c), int(k), max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)):
                 beside.setdefault(k, set()).add(c)
-    edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None else []
+    edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None and lone else []
     asked = sorted(set(beside) | set(edge))
     if not asked:
         return labels, fits, stats
