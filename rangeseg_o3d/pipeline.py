@@ -329,7 +329,7 @@ class Pipeline:
             lap("settle_curved")
             if by_means:
                 # a pipe the frame's edge cuts: the plane strips recovered at the edge beside its
-                # cylinder region join it, a lone one whose pixels resolve a bend is fitted curved
+                # cylinder region join it when its model (or its refit with them) explains them
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                     samples=full_resolution_samples(self.sensor),
