@@ -34,7 +34,8 @@ __all__ = ["edge_planes_to_curved"]
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
                           samples: float = 1.0, min_size: int = 0, inlier_factor: float,
-                          tile_labels: np.ndarray | None = None, tile: int = 1, lone: bool = True):
+                          tile_labels: np.ndarray | None = None, tile: int = 1, lone: bool = True,
+                          near_sigmas: float | None = None):
     """Plane regions given to the curved surface the sensor's noise says they are strips of.
     Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
@@ -67,6 +68,11 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     (``tile_labels``, ``tile``: the tile grid, as there): else that step makes the union a
     plane, a false fitting where the two apart were a split.
 
+    ``near_sigmas``: a curved region is asked about a plane only when its model lies within
+    that many range-noise sigmas of the plane's pixels at the median, and refitted only when
+    its model explains its own pixels within the noise of their distances (cheap necessary
+    conditions: :func:`_curved_host`); None asks every one.
+
     Regions under ``min_size`` pixels are not refitted (a bend needs the samples).
     ``sigma``: the range noise per pixel (the grid's shape).
     """
@@ -91,28 +97,14 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     # the planes that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
-    beside = {}
-    flat_labels = None
-    for c in sorted(curved):
-        a0, a1, b0, b1 = boxes.bounds(c)
-        for k in planes:
-            if counts[k] > counts[c]:
-                continue
-            p0, p1, q0, q1 = boxes.bounds(k)
-            # the boxes' overlap grown by a pixel: where a 4-neighbour pair of the two can lie
-            r0, r1, c0, c1 = max(a0, p0) - 1, min(a1, p1) + 1, max(b0, q0) - 1, min(b1, q1) + 1
-            if r1 - r0 < 1 or c1 - c0 < 1:
-                continue
-            if flat_labels is None:
-                flat_labels = np.ascontiguousarray(labels, dtype=np.int32)
-            if kernels.labels_touch(flat_labels, int(c), int(k), max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)):
-                beside.setdefault(k, set()).add(c)
+    beside = _touching_pairs(labels, boxes, sorted(curved), planes, counts)
     edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None and lone else []
     asked = sorted(set(beside) | set(edge))
     if not asked:
         return labels, fits, stats
     xyz = cloud.xyz
     out, fits_out, changed = None, None, []
+    host_samples = {}  # (a curved region's sample serves every strip beside it until one joins it)
     for k in asked:
         r0, r1, c0, c1 = boxes.bounds(k)
         crop = (labels if out is None else out)[r0:r1, c0:c1]
@@ -129,7 +121,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
             continue
         current = fits if fits_out is None else fits_out
         host, refit = _curved_host(cloud, labels if out is None else out, boxes, beside.get(k, ()), current,
-                                   points, noise, fitter, sigma)
+                                   points, noise, fitter, sigma, host_samples, near_sigmas)
         if host is not None:
             if out is None:
                 out = np.array(labels, copy=True)
@@ -138,6 +130,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
             if not _union_stays_curved(cloud, out, host, model, sigma, tile_boxes, tile):
                 out[r0:r1, c0:c1][mine] = k  # (a split is better than a false fitting)
                 continue
+            host_samples.pop(host, None)  # (its pixels changed)
             fits_out = dict(fits) if fits_out is None else fits_out
             del fits_out[k]
             if refit is not None:
@@ -179,20 +172,25 @@ def _touches_edge(bounds: tuple, h: int, w: int) -> bool:
     return r1 > r0 and (r0 == 0 or r1 == h or c0 == 0 or c1 == w)
 
 
-def _rms_and_noise(model, points: np.ndarray, noise: np.ndarray) -> tuple[float, float]:
-    # the model's rms over the points and the rms of the noise of their distances to it
+def _rms_and_noise(model, points: np.ndarray, noise: np.ndarray, distances: np.ndarray | None = None
+                   ) -> tuple[float, float]:
+    # the model's rms over the points (their ``distances`` to it when known) and the rms of
+    # the noise of their distances to it
     from .fitting.robust import distance_noise
 
     band = distance_noise(model, points, noise)
-    return float(np.sqrt(np.mean(model.distances(points) ** 2))), float(np.sqrt(np.mean(band * band)))
+    distances = model.distances(points) if distances is None else distances
+    return float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(band * band)))
 
 
-def _within_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool:
-    """Whether ``model``'s rms over ``points`` lies within the chi-square bound of the noise
-    of their distances to it (range noise ``noise`` times the incidence cosine)."""
+def _within_distance_noise(model, points: np.ndarray, noise: np.ndarray, distances: np.ndarray | None = None
+                           ) -> bool:
+    """Whether ``model``'s rms over ``points`` (``distances``: theirs to it, when known) lies
+    within the chi-square bound of the noise of their distances to it (range noise ``noise``
+    times the incidence cosine)."""
     from .fitting.robust import beyond_noise
 
-    rms, band = _rms_and_noise(model, points, noise)
+    rms, band = _rms_and_noise(model, points, noise, distances)
     return not beyond_noise(rms, band, len(points))
 
 
@@ -261,45 +259,100 @@ def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.n
 
 
 def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np.ndarray, noise: np.ndarray,
-                 fitter, sigma: np.ndarray):
+                 fitter, sigma: np.ndarray, samples: dict | None = None, near_sigmas: float | None = None):
     """``(host, refit)``: the curved region of ``hosts`` whose model explains ``points`` (a
     plane region's pixels, range noise ``noise``) within the noise of their distances, the
     least rms (``refit`` None); else, with ``fitter``, the one whose model refitted to an even
     sample of its pixels and ``points`` explains both within that noise (``refit`` that
     model: a tile model of a far pipe's means is off its pixels by more than a grazing strip's
     distance noise); else ``(None, None)``. Either way the model must stay curved over the
-    union (:func:`stays_curved`)."""
+    union (:func:`stays_curved`).
+
+    Cheap necessary conditions first, so that a frame whose planes beside its curved regions
+    are walls and boxes refits nothing (the refit is the step's cost):
+
+    - with ``near_sigmas``, a host is asked only when its model as it stands lies within that
+      many range-noise sigmas of ``points`` at the median (the test merge's curved pairs make
+      before their refit; a model within the noise of the distances, which the range noise
+      bounds, lies within about two);
+    - a host is refitted only when its model explains its own sample within the noise of
+      their distances (a strip joins a pipe's model; a region its model leaves beyond the
+      noise is not that clean surface, and no refit from that model was kept on the kinect
+      study and fresh seeds). Computed once per host (``samples``: the hosts' samples and
+      that verdict already taken, filled here)."""
+    samples = {} if samples is None else samples
     best, best_rms, found = None, np.inf, None
-    samples = {}
-    for c in sorted(hosts):
-        model = fits.get(c)
-        if not model or model.kind == "plane" or not _within_distance_noise(model, points, noise):
-            continue
-        own, own_noise = samples.setdefault(c, _host_sample(cloud, labels, boxes, c, sigma))
-        if not stays_curved(model, np.concatenate([own, points]), np.concatenate([own_noise, noise])):
-            continue
-        rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
-        if rms < best_rms:
-            best, best_rms = c, rms
-    if best is not None or fitter is None:
-        return best, None
+    refittable = []
+    reach = None if near_sigmas is None else float(near_sigmas) * float(np.median(noise))
     for c in sorted(hosts):
         model = fits.get(c)
         if not model or model.kind == "plane":
             continue
-        own, own_noise = samples.setdefault(c, _host_sample(cloud, labels, boxes, c, sigma))
-        if len(own) < 6:
+        distances = model.distances(points)
+        if reach is not None and not np.median(np.abs(distances)) <= reach:
             continue
-        union, union_noise = np.concatenate([own, points]), np.concatenate([own_noise, noise])
+        if _within_distance_noise(model, points, noise, distances):
+            own, own_noise, _ = _sample_of(samples, c, cloud, labels, boxes, sigma, model)
+            if stays_curved(model, np.concatenate([own, points]), np.concatenate([own_noise, noise])):
+                rms = float(np.sqrt(np.mean(distances * distances)))
+                if rms < best_rms:
+                    best, best_rms = c, rms
+                continue
+        refittable.append((c, model))
+    if best is not None or fitter is None:
+        return best, None
+    for c, model in refittable:
+        own, own_noise, own_within = _sample_of(samples, c, cloud, labels, boxes, sigma, model)
+        if len(own) < 6 or not own_within:
+            continue
+        union = np.concatenate([own, points])
         refit = fitter.refit(union, model, curvature_gain=1.0)
         if (not refit or refit.kind != model.kind or not _within_distance_noise(refit, points, noise)
                 or not _within_distance_noise(refit, own, own_noise)
-                or not stays_curved(refit, union, union_noise)):
+                or not stays_curved(refit, union, np.concatenate([own_noise, noise]))):
             continue
         rms = float(np.sqrt(np.mean(refit.distances(points) ** 2)))
         if rms < best_rms:
             best, best_rms, found = c, rms, refit
     return (best, found) if best is not None else (None, None)
+
+
+def _sample_of(samples: dict, c: int, cloud, labels: np.ndarray, boxes, sigma: np.ndarray, model):
+    # region c's even sample (:func:`_host_sample`), its range noise and whether ``model``
+    # explains it within the noise of its distances: taken once per call of the step
+    if c not in samples:
+        own, own_noise = _host_sample(cloud, labels, boxes, c, sigma)
+        samples[c] = (own, own_noise, len(own) >= 6 and _within_distance_noise(model, own, own_noise))
+    return samples[c]
+
+
+def _touching_pairs(labels: np.ndarray, boxes, curved: list, planes: list, counts: np.ndarray) -> dict:
+    """{plane label: set of curved labels} for each plane region of ``planes`` that 4-touches a
+    curved region of ``curved`` holding at least its pixels (``counts``): boxes (``boxes``,
+    a :class:`rangeseg_o3d.fullres.LabelBoxes` of ``labels``) that overlap grown by a pixel
+    first, all pairs at once, then the compiled :func:`rangeseg_o3d.kernels.labels_touch` in
+    that overlap."""
+    h, w = labels.shape
+    if not curved or not planes:
+        return {}
+    cs, ps = np.asarray(curved, np.int64), np.asarray(planes, np.int64)
+    cb = np.array([boxes.bounds(int(c)) for c in cs], np.int64).reshape(-1, 4)
+    pb = np.array([boxes.bounds(int(k)) for k in ps], np.int64).reshape(-1, 4)
+    r0 = np.maximum(cb[:, None, 0], pb[None, :, 0]) - 1
+    r1 = np.minimum(cb[:, None, 1], pb[None, :, 1]) + 1
+    c0 = np.maximum(cb[:, None, 2], pb[None, :, 2]) - 1
+    c1 = np.minimum(cb[:, None, 3], pb[None, :, 3]) + 1
+    size = np.asarray(counts)
+    ok = (r1 - r0 >= 1) & (c1 - c0 >= 1) & (size[ps][None, :] <= size[cs][:, None])
+    beside = {}
+    if not ok.any():
+        return beside
+    flat = np.ascontiguousarray(labels, dtype=np.int32)
+    for i, j in zip(*np.nonzero(ok)):
+        if kernels.labels_touch(flat, int(cs[i]), int(ps[j]), max(int(r0[i, j]), 0), min(int(r1[i, j]), h),
+                                max(int(c0[i, j]), 0), min(int(c1[i, j]), w)):
+            beside.setdefault(int(ps[j]), set()).add(int(cs[i]))
+    return beside
 
 
 def _curved_fit(fitter, points: np.ndarray, noise: np.ndarray, samples: float):

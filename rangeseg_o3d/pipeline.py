@@ -336,7 +336,8 @@ class Pipeline:
                     samples=full_resolution_samples(self.sensor),
                     min_size=recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
                                                     noise.correlation_px),
-                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile, lone=False)
+                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile, lone=False,
+                    near_sigmas=refine.k_sigma)
                 lap("edge_planes")
         if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
