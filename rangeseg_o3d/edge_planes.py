@@ -86,14 +86,14 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     if fitter is not None and "noise_floor" not in getattr(fitter, "params", {}):
         fitter = None  # (resolve_bends: a keyword of the primitives fitter alone)
     h, w = labels.shape
-    n = int(labels.max(initial=0)) + 1
     counts = stats.counts
+    n = counts.size  # (region_stats counts every label; a pass over the grid for its largest costs 0.1 ms)
     curved = {k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n}
     planes = [k for k, m in fits.items() if m and m.kind == "plane" and 0 < k < n
               and k < counts.size and counts[k] > 0]
     if not planes or (not curved and fitter is None):
         return labels, fits, stats
-    boxes = LabelBoxes(labels)
+    boxes = LabelBoxes(labels, n)
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     # the planes that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
@@ -103,28 +103,42 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     if not asked:
         return labels, fits, stats
     xyz = cloud.xyz
-    out, fits_out, changed = None, None, []
-    host_samples = {}  # (a curved region's sample serves every strip beside it until one joins it)
+    # every test on an even sample of about HOST_SAMPLE of a plane's pixels (a floor at the
+    # frame's edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
+    strips = {}
     for k in asked:
         r0, r1, c0, c1 = boxes.bounds(k)
-        crop = (labels if out is None else out)[r0:r1, c0:c1]
-        mine = crop == k
-        # every test on an even sample of about HOST_SAMPLE of its pixels (a floor at the frame's
-        # edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
-        spaced = max(int(np.ceil(np.sqrt(mine.size / HOST_SAMPLE))), 1)
-        pick = mine[::spaced, ::spaced]
+        spaced = max(int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / HOST_SAMPLE))), 1)
+        pick = labels[r0:r1:spaced, c0:c1:spaced] == k
         points = xyz[r0:r1:spaced, c0:c1:spaced][pick]
         noise = np.asarray(sigma)[r0:r1:spaced, c0:c1:spaced][pick]
         finite = np.isfinite(points).all(axis=1) & np.isfinite(noise)
-        points, noise = points[finite], noise[finite]
-        if len(points) < 6:
+        if np.count_nonzero(finite) >= 6:
+            strips[k] = (points[finite], noise[finite])
+    # the pairs whose curved model lies within near_sigmas of the strip at the median, all in
+    # one compiled pass (against the models as they stand now: a region that took a strip
+    # since is asked again in numpy)
+    near = None if near_sigmas is None else _near_pairs(beside, strips, fits, float(near_sigmas))
+    out, fits_out, changed = None, None, []
+    host_samples = {}  # (a curved region's sample serves every strip beside it until one joins it)
+    for k in asked:
+        if k not in strips:
             continue
+        points, noise = strips[k]
+        r0, r1, c0, c1 = boxes.bounds(k)
+        hosts = beside.get(k, ())
         current = fits if fits_out is None else fits_out
-        host, refit = _curved_host(cloud, labels if out is None else out, boxes, beside.get(k, ()), current,
-                                   points, noise, fitter, sigma, host_samples, near_sigmas)
+        if near is not None:
+            hosts = [c for c in hosts if ((k, c) in near if current.get(c) is fits.get(c)
+                                          else _near(current.get(c), points, noise, float(near_sigmas)))]
+            if not hosts and k not in edge:
+                continue
+        host, refit = _curved_host(cloud, labels if out is None else out, boxes, hosts, current,
+                                   points, noise, fitter, sigma, host_samples)
         if host is not None:
             if out is None:
                 out = np.array(labels, copy=True)
+            mine = out[r0:r1, c0:c1] == k
             out[r0:r1, c0:c1][mine] = host
             model = refit if refit is not None else current[host]
             if not _union_stays_curved(cloud, out, host, model, sigma, tile_boxes, tile):
@@ -187,11 +201,31 @@ def _within_distance_noise(model, points: np.ndarray, noise: np.ndarray, distanc
                            ) -> bool:
     """Whether ``model``'s rms over ``points`` (``distances``: theirs to it, when known) lies
     within the chi-square bound of the noise of their distances to it (range noise ``noise``
-    times the incidence cosine)."""
+    times the incidence cosine).
+
+    Asked first against the largest noise a distance can have (:func:`_noise_ceiling`), which
+    needs no normals: an rms beyond that bound is beyond the distances' own (the bound grows
+    with the noise), and most of the pairs a frame asks are refused there."""
     from .fitting.robust import beyond_noise
 
+    distances = model.distances(points) if distances is None else distances
+    rms = float(np.sqrt(np.mean(distances * distances)))
+    if beyond_noise(rms, _noise_ceiling(model, noise), len(points)):
+        return False
     rms, band = _rms_and_noise(model, points, noise, distances)
     return not beyond_noise(rms, band, len(points))
+
+
+def _noise_ceiling(model, noise: np.ndarray) -> float:
+    """The rms of the largest noise of a distance to ``model`` range noise ``noise`` can give
+    (:func:`rangeseg_o3d.fitting.robust.distance_noise` at its incidence cosine 1 and its
+    curved share 1): ``sigma sqrt(1 + 3 sigma**2 / (4 r**2))`` on a cylinder or sphere of
+    radius ``r``, ``sigma`` else."""
+    square = noise * noise
+    radius = float(getattr(model, "radius", 0.0) or 0.0) if model.kind != "plane" else 0.0
+    if radius > 0:
+        square = square * (1.0 + 0.75 * square / (radius * radius))
+    return float(np.sqrt(np.mean(square)))
 
 
 def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool:
@@ -259,7 +293,7 @@ def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.n
 
 
 def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np.ndarray, noise: np.ndarray,
-                 fitter, sigma: np.ndarray, samples: dict | None = None, near_sigmas: float | None = None):
+                 fitter, sigma: np.ndarray, samples: dict | None = None):
     """``(host, refit)``: the curved region of ``hosts`` whose model explains ``points`` (a
     plane region's pixels, range noise ``noise``) within the noise of their distances, the
     least rms (``refit`` None); else, with ``fitter``, the one whose model refitted to an even
@@ -268,29 +302,20 @@ def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np
     distance noise); else ``(None, None)``. Either way the model must stay curved over the
     union (:func:`stays_curved`).
 
-    Cheap necessary conditions first, so that a frame whose planes beside its curved regions
-    are walls and boxes refits nothing (the refit is the step's cost):
-
-    - with ``near_sigmas``, a host is asked only when its model as it stands lies within that
-      many range-noise sigmas of ``points`` at the median (the test merge's curved pairs make
-      before their refit; a model within the noise of the distances, which the range noise
-      bounds, lies within about two);
-    - a host is refitted only when its model explains its own sample within the noise of
-      their distances (a strip joins a pipe's model; a region its model leaves beyond the
-      noise is not that clean surface, and no refit from that model was kept on the kinect
-      study and fresh seeds). Computed once per host (``samples``: the hosts' samples and
-      that verdict already taken, filled here)."""
+    A host is refitted only when its model explains its own sample within the noise of
+    their distances (a strip joins a pipe's model; a region its model leaves beyond the
+    noise is not that clean surface, and no refit from such a model was kept on the kinect
+    study and fresh seeds), a cheap necessary condition that spares a frame whose planes
+    beside its curved regions are walls and boxes the refit, the step's cost. Computed once
+    per host (``samples``: the hosts' samples and that verdict already taken, filled here)."""
     samples = {} if samples is None else samples
     best, best_rms, found = None, np.inf, None
     refittable = []
-    reach = None if near_sigmas is None else float(near_sigmas) * float(np.median(noise))
     for c in sorted(hosts):
         model = fits.get(c)
         if not model or model.kind == "plane":
             continue
         distances = model.distances(points)
-        if reach is not None and not np.median(np.abs(distances)) <= reach:
-            continue
         if _within_distance_noise(model, points, noise, distances):
             own, own_noise, _ = _sample_of(samples, c, cloud, labels, boxes, sigma, model)
             if stays_curved(model, np.concatenate([own, points]), np.concatenate([own_noise, noise])):
@@ -317,6 +342,45 @@ def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np
     return (best, found) if best is not None else (None, None)
 
 
+def _near(model, points: np.ndarray, noise: np.ndarray, near_sigmas: float) -> bool:
+    """Whether the median of ``points``' distances to ``model`` is within ``near_sigmas``
+    times the median of their range noise ``noise`` (merge's pretest before its refit of a
+    curved region with a piece: :func:`rangeseg_o3d.refinement.merge.merge_into_curved`)."""
+    if not model or model.kind == "plane" or len(points) == 0:
+        return False
+    return bool(np.median(np.abs(model.distances(points))) <= near_sigmas * np.median(noise))
+
+
+def _near_pairs(beside: dict, strips: dict, fits: dict, near_sigmas: float) -> set:
+    """The ``(plane, curved)`` pairs of ``beside`` ({plane: curved labels}) whose curved
+    model (``fits``) passes :func:`_near` over the plane's sample (``strips``: {plane:
+    (points, range noise)}), by one compiled pass over every pair
+    (:func:`rangeseg_o3d.kernels.pieces_near_models`, merge's), numpy where rounding could
+    decide."""
+    from .fitting.region_fitter import model_row
+    from .refinement.merge import _NEAR_RELATIVE, _NEAR_ROUNDING
+
+    pairs = [(k, c) for k in sorted(beside) if k in strips for c in sorted(beside[k])
+             if fits.get(c) and fits[c].kind != "plane"]
+    if not pairs:
+        return set()
+    order = sorted({k for k, _ in pairs})
+    offsets = np.zeros(len(order) + 1, np.int64)
+    np.cumsum([len(strips[k][0]) for k in order], out=offsets[1:])
+    at = {k: i for i, k in enumerate(order)}
+    xyz = np.ascontiguousarray(np.concatenate([strips[k][0] for k in order]), dtype=np.float64)
+    noise = np.ascontiguousarray(np.concatenate([strips[k][1] for k in order]), dtype=np.float64)
+    pixels = np.concatenate([np.arange(offsets[at[k]], offsets[at[k] + 1]) for k, _ in pairs]).astype(np.int64)
+    starts = np.zeros(len(pairs) + 1, np.int64)
+    np.cumsum([len(strips[k][0]) for k, _ in pairs], out=starts[1:])
+    rows = [model_row(fits[c]) for _, c in pairs]
+    verdict = kernels.pieces_near_models(xyz, noise, pixels, starts, np.array([kind for kind, _ in rows], np.int8),
+                                         np.array([row for _, row in rows]), near_sigmas, _NEAR_RELATIVE,
+                                         _NEAR_ROUNDING)
+    return {(k, c) for (k, c), v in zip(pairs, verdict.tolist())
+            if v == 1 or (v < 0 and _near(fits[c], *strips[k], near_sigmas))}
+
+
 def _sample_of(samples: dict, c: int, cloud, labels: np.ndarray, boxes, sigma: np.ndarray, model):
     # region c's even sample (:func:`_host_sample`), its range noise and whether ``model``
     # explains it within the noise of its distances: taken once per call of the step
@@ -336,8 +400,8 @@ def _touching_pairs(labels: np.ndarray, boxes, curved: list, planes: list, count
     if not curved or not planes:
         return {}
     cs, ps = np.asarray(curved, np.int64), np.asarray(planes, np.int64)
-    cb = np.array([boxes.bounds(int(c)) for c in cs], np.int64).reshape(-1, 4)
-    pb = np.array([boxes.bounds(int(k)) for k in ps], np.int64).reshape(-1, 4)
+    every = boxes.array()
+    cb, pb = every[cs], every[ps]
     r0 = np.maximum(cb[:, None, 0], pb[None, :, 0]) - 1
     r1 = np.minimum(cb[:, None, 1], pb[None, :, 1]) + 1
     c0 = np.maximum(cb[:, None, 2], pb[None, :, 2]) - 1
