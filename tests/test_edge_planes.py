@@ -99,3 +99,131 @@ def test_a_lone_plane_on_a_pipe_cut_by_the_edge_is_fitted_curved_and_the_wall_st
     # without the fitter (no bend asked) the lone plane stays
     same = edge_planes_to_curved(scan.cloud, lone, planes, lone_stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
     assert same[1] is planes
+
+
+class _CountingFitter:
+    """The pipeline's fitter, counting its refits (the step's cost)."""
+
+    def __init__(self, fitter):
+        self.fitter, self.params, self.refits, self.asked = fitter, fitter.params, 0, []
+
+    def refit(self, points, model, **kw):
+        self.refits += 1
+        self.asked.append(np.array(points))
+        return self.fitter.refit(points, model, **kw)
+
+    def fit(self, points, **kw):
+        return self.fitter.fit(points, **kw)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_near_pretest_spares_the_refit_of_the_wall_band_and_changes_nothing_else(seed):
+    # The wall's band beside the pipe (region 4) lies a metre off the pipe's cylinder: without
+    # the pretest the step refits the pipe with it (and refuses the union); with the
+    # pipeline's near_sigmas (k_sigma 3) it is never refitted. Both answers are the same.
+    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(seed)
+    answers = []
+    for near in (None, 3.0):
+        counting = _CountingFitter(pipeline.fitter)
+        out, models, _ = edge_planes_to_curved(scan.cloud, labels, fits, stats, sigma=sigma, fitter=counting,
+                                               samples=1.0, min_size=20, inlier_factor=INLIER_SIGMAS,
+                                               lone=False, near_sigmas=near)
+        band = {tuple(p) for p in scan.cloud.xyz[labels == 4]}
+        answers.append((out, models, sum(any(tuple(p) in band for p in asked) for asked in counting.asked)))
+    (out_all, models_all, refits_all), (out_near, models_near, refits_near) = answers
+    assert refits_all == 1 and refits_near == 0  # (the wall band's refits)
+    assert np.array_equal(out_all, out_near) and sorted(models_all) == sorted(models_near)
+    assert 3 not in models_near and models_near[4] is fits[4]
+
+
+def test_touching_pairs_and_the_near_pretest_on_the_pipe_before_a_wall():
+    from rangeseg_o3d.edge_planes import _near, _near_pairs, _touching_pairs, HOST_SAMPLE
+    from rangeseg_o3d.fullres import LabelBoxes
+
+    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(0)
+    boxes = LabelBoxes(labels, stats.counts.size)
+    # the strip (3) and the wall's band (4) touch the pipe (2); the wall (1) is larger than it
+    assert _touching_pairs(labels, boxes, [2], [1, 3, 4], stats.counts) == {3: {2}, 4: {2}}
+    # a curved region smaller than every plane has none
+    small = stats.counts.copy()
+    small[2] = 10
+    assert _touching_pairs(labels, boxes, [2], [1, 3, 4], small) == {}
+    strips = {k: (scan.cloud.xyz[labels == k], sigma[labels == k]) for k in (3, 4)}
+    assert len(strips[3][0]) <= HOST_SAMPLE
+    near = _near_pairs({3: {2}, 4: {2}}, strips, fits, 3.0)
+    assert near == {(3, 2)}
+    assert _near(fits[2], *strips[3], 3.0) and not _near(fits[2], *strips[4], 3.0)
+    assert not _near(fits[1], *strips[3], 3.0)  # (a plane is no host)
+
+
+def test_label_boxes_to_a_known_count_are_the_boxes_of_the_grid():
+    from rangeseg_o3d.fullres import LabelBoxes
+
+    labels = np.zeros((6, 8), np.int32)
+    labels[1:3, 2:5] = 1
+    labels[4, 0] = 2
+    labels[5, 7] = 3
+    every = LabelBoxes(labels).array()
+    counted = LabelBoxes(labels, 3).array()
+    assert every.shape == (4, 4) and counted.shape == (3, 4)
+    assert np.array_equal(counted, every[:3])
+    assert counted[1].tolist() == [1, 3, 2, 5] and counted[2].tolist() == [4, 5, 0, 1]
+    assert LabelBoxes(labels, 3).bounds(3) == (6, 0, 8, 0)  # (beyond the count: no pixels known)
+
+
+def test_the_noise_ceiling_bounds_the_distance_noise_and_the_within_test_is_unchanged():
+    from rangeseg_o3d.edge_planes import _noise_ceiling, _within_distance_noise
+    from rangeseg_o3d.fitting.primitives import Cylinder
+    from rangeseg_o3d.fitting.robust import beyond_noise, distance_noise
+
+    rng = np.random.default_rng(3)
+    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(0)
+    pipe, wall = fits[2], fits[1]
+    points = scan.cloud.xyz[labels == 2]
+    noise = sigma[labels == 2]
+    # the ceiling: sigma sqrt(1 + 3 sigma^2 / (4 r^2)) on a curved model, sigma on a plane
+    expected = np.sqrt(np.mean(noise ** 2 * (1 + 0.75 * noise ** 2 / pipe.radius ** 2)))
+    assert _noise_ceiling(pipe, noise) == pytest.approx(expected, rel=1e-12)
+    assert _noise_ceiling(wall, noise) == pytest.approx(np.sqrt(np.mean(noise ** 2)), rel=1e-12)
+    band = distance_noise(pipe, points, noise)
+    assert np.sqrt(np.mean(band ** 2)) <= _noise_ceiling(pipe, noise)
+    # the test with its first refusal answers as the plain test, on models near and far
+    for shift in (0.0, 0.005, 0.01, 0.02, 0.05, 0.2):
+        moved = Cylinder(axis=pipe.axis, point=np.asarray(pipe.point) + [shift, 0.0, 0.0], radius=pipe.radius,
+                         rms=pipe.rms, inliers=pipe.inliers)
+        pick = rng.choice(len(points), size=200, replace=False)
+        p, s = points[pick], noise[pick]
+        d = moved.distances(p)
+        plain = not beyond_noise(float(np.sqrt(np.mean(d * d))),
+                                 float(np.sqrt(np.mean(distance_noise(moved, p, s) ** 2))), len(p))
+        assert _within_distance_noise(moved, p, s) == plain
+        assert _within_distance_noise(moved, p, s, d) == plain
+
+
+def test_a_host_is_refitted_only_when_its_model_explains_its_own_pixels():
+    from rangeseg_o3d.edge_planes import _sample_of
+    from rangeseg_o3d.fitting.primitives import Cylinder
+    from rangeseg_o3d.fullres import LabelBoxes
+
+    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(0)
+    boxes = LabelBoxes(labels)
+    pipe = fits[2]
+    own, own_noise, within = _sample_of({}, 2, scan.cloud, labels, boxes, sigma, pipe)
+    rows, cols = boxes(2)
+    step = int(np.ceil(np.sqrt((rows.stop - rows.start) * (cols.stop - cols.start) / 1024)))
+    assert step == 2  # (an even sample of about 1024 of the box)
+    assert within and len(own) == int((labels[rows, cols][::step, ::step] == 2).sum()) and len(own_noise) == len(own)
+    off = Cylinder(axis=pipe.axis, point=np.asarray(pipe.point) + [0.1, 0.0, 0.0], radius=pipe.radius, rms=pipe.rms,
+                   inliers=pipe.inliers)
+    cache = {}
+    assert _sample_of(cache, 2, scan.cloud, labels, boxes, sigma, off)[2] is False
+    assert 2 in cache and _sample_of(cache, 2, scan.cloud, labels, boxes, sigma, pipe)[2] is False  # (kept)
+    # the strip beside it is then not refitted with it: nothing joins, no refit asked
+    counting = _CountingFitter(pipeline.fitter)
+    models = dict(fits)
+    models[2] = off
+    from rangeseg_o3d.edge_planes import _curved_host
+    strip = labels == 3
+    host, refit = _curved_host(scan.cloud, labels, boxes, {2}, models, scan.cloud.xyz[strip], sigma[strip],
+                               counting, sigma)
+    assert (host, refit) == (None, None) and counting.refits == 0
