@@ -103,34 +103,28 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     if not asked:
         return labels, fits, stats
     xyz = cloud.xyz
-    # every test on an even sample of about HOST_SAMPLE of a plane's pixels (a floor at the
-    # frame's edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
-    strips = {}
-    for k in asked:
-        r0, r1, c0, c1 = boxes.bounds(k)
-        spaced = max(int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / HOST_SAMPLE))), 1)
-        pick = labels[r0:r1:spaced, c0:c1:spaced] == k
-        points = xyz[r0:r1:spaced, c0:c1:spaced][pick]
-        noise = np.asarray(sigma)[r0:r1:spaced, c0:c1:spaced][pick]
-        finite = np.isfinite(points).all(axis=1) & np.isfinite(noise)
-        if np.count_nonzero(finite) >= 6:
-            strips[k] = (points[finite], noise[finite])
-    # the pairs whose curved model lies within near_sigmas of the strip at the median, all in
-    # one compiled pass (against the models as they stand now: a region that took a strip
-    # since is asked again in numpy)
-    near = None if near_sigmas is None else _near_pairs(beside, strips, fits, float(near_sigmas))
+    # the pairs whose curved model lies within near_sigmas of the plane at the median, all in
+    # one compiled pass on the grid (against the models as they stand now: a region that took
+    # a strip since is asked again in numpy); only the planes with such a neighbour are sampled
+    near = None if near_sigmas is None else _near_pairs(labels, xyz, sigma, boxes, beside, fits, float(near_sigmas))
     out, fits_out, changed = None, None, []
     host_samples = {}  # (a curved region's sample serves every strip beside it until one joins it)
     for k in asked:
-        if k not in strips:
-            continue
-        points, noise = strips[k]
         r0, r1, c0, c1 = boxes.bounds(k)
         hosts = beside.get(k, ())
         current = fits if fits_out is None else fits_out
         if near is not None:
-            hosts = [c for c in hosts if ((k, c) in near if current.get(c) is fits.get(c)
-                                          else _near(current.get(c), points, noise, float(near_sigmas)))]
+            hosts = [c for c in hosts if near.get((k, c), -1) != 0 or current.get(c) is not fits.get(c)]
+            if not hosts and k not in edge:
+                continue
+        # every test on an even sample of about HOST_SAMPLE of its pixels (a floor at the frame's
+        # edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
+        points, noise = _strip_sample(labels, xyz, sigma, boxes.bounds(k), k)
+        if len(points) < 6:
+            continue
+        if near is not None:
+            hosts = [c for c in hosts if (near.get((k, c)) == 1 and current.get(c) is fits.get(c))
+                     or _near(current.get(c), points, noise, float(near_sigmas))]
             if not hosts and k not in edge:
                 continue
         host, refit = _curved_host(cloud, labels if out is None else out, boxes, hosts, current,
@@ -351,34 +345,48 @@ def _near(model, points: np.ndarray, noise: np.ndarray, near_sigmas: float) -> b
     return bool(np.median(np.abs(model.distances(points))) <= near_sigmas * np.median(noise))
 
 
-def _near_pairs(beside: dict, strips: dict, fits: dict, near_sigmas: float) -> set:
-    """The ``(plane, curved)`` pairs of ``beside`` ({plane: curved labels}) whose curved
-    model (``fits``) passes :func:`_near` over the plane's sample (``strips``: {plane:
-    (points, range noise)}), by one compiled pass over every pair
-    (:func:`rangeseg_o3d.kernels.pieces_near_models`, merge's), numpy where rounding could
-    decide."""
+def _near_pairs(labels: np.ndarray, xyz: np.ndarray, sigma: np.ndarray, boxes, beside: dict, fits: dict,
+                near_sigmas: float) -> dict:
+    """{(plane, curved): 1 near, 0 not, -1 undecided} for the pairs of ``beside`` ({plane:
+    curved labels}) with a curved model in ``fits``: :func:`_near` on the plane's even
+    sample (:func:`_strip_sample`) by one compiled pass on the grid over every pair
+    (:func:`rangeseg_o3d.kernels.strips_near_models`, merge's verdicts), -1 where rounding
+    could decide (numpy's :func:`_near` then answers)."""
     from .fitting.region_fitter import model_row
     from .refinement.merge import _NEAR_RELATIVE, _NEAR_ROUNDING
 
-    pairs = [(k, c) for k in sorted(beside) if k in strips for c in sorted(beside[k])
-             if fits.get(c) and fits[c].kind != "plane"]
+    pairs = [(k, c) for k in sorted(beside) for c in sorted(beside[k]) if fits.get(c) and fits[c].kind != "plane"]
     if not pairs:
-        return set()
-    order = sorted({k for k, _ in pairs})
-    offsets = np.zeros(len(order) + 1, np.int64)
-    np.cumsum([len(strips[k][0]) for k in order], out=offsets[1:])
-    at = {k: i for i, k in enumerate(order)}
-    xyz = np.ascontiguousarray(np.concatenate([strips[k][0] for k in order]), dtype=np.float64)
-    noise = np.ascontiguousarray(np.concatenate([strips[k][1] for k in order]), dtype=np.float64)
-    pixels = np.concatenate([np.arange(offsets[at[k]], offsets[at[k] + 1]) for k, _ in pairs]).astype(np.int64)
-    starts = np.zeros(len(pairs) + 1, np.int64)
-    np.cumsum([len(strips[k][0]) for k, _ in pairs], out=starts[1:])
-    rows = [model_row(fits[c]) for _, c in pairs]
-    verdict = kernels.pieces_near_models(xyz, noise, pixels, starts, np.array([kind for kind, _ in rows], np.int8),
-                                         np.array([row for _, row in rows]), near_sigmas, _NEAR_RELATIVE,
-                                         _NEAR_ROUNDING)
-    return {(k, c) for (k, c), v in zip(pairs, verdict.tolist())
-            if v == 1 or (v < 0 and _near(fits[c], *strips[k], near_sigmas))}
+        return {}
+    every = boxes.array()
+    grid = np.array([every[k] for k, _ in pairs], np.int64).reshape(-1, 4)
+    steps = np.array([_sample_step(every[k]) for k, _ in pairs], np.int64)
+    rows = {c: model_row(fits[c]) for c in {c for _, c in pairs}}
+    verdict = kernels.strips_near_models(
+        np.ascontiguousarray(labels, dtype=np.int32), np.ascontiguousarray(xyz, dtype=np.float64),
+        np.ascontiguousarray(sigma, dtype=np.float64), np.array([k for k, _ in pairs], np.int32), grid, steps,
+        np.array([rows[c][0] for _, c in pairs], np.int8), np.array([rows[c][1] for _, c in pairs]),
+        near_sigmas, _NEAR_RELATIVE, _NEAR_ROUNDING)
+    return dict(zip(pairs, verdict.tolist()))
+
+
+def _sample_step(bounds) -> int:
+    # the grid step of a region's even sample of about HOST_SAMPLE pixels in its box (row0, row1, col0, col1)
+    r0, r1, c0, c1 = (int(v) for v in bounds)
+    return max(int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / HOST_SAMPLE))), 1)
+
+
+def _strip_sample(labels: np.ndarray, xyz: np.ndarray, sigma: np.ndarray, bounds, k: int):
+    """``(points, range noise)`` of region ``k``'s even sample of about ``HOST_SAMPLE``
+    pixels in its box ``bounds`` (row0, row1, col0, col1): every :func:`_sample_step`-th row
+    and column, the finite ones."""
+    r0, r1, c0, c1 = bounds
+    spaced = _sample_step(bounds)
+    pick = labels[r0:r1:spaced, c0:c1:spaced] == k
+    points = xyz[r0:r1:spaced, c0:c1:spaced][pick]
+    noise = np.asarray(sigma)[r0:r1:spaced, c0:c1:spaced][pick]
+    finite = np.isfinite(points).all(axis=1) & np.isfinite(noise)
+    return points[finite], noise[finite]
 
 
 def _sample_of(samples: dict, c: int, cloud, labels: np.ndarray, boxes, sigma: np.ndarray, model):

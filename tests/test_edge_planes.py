@@ -137,7 +137,7 @@ def test_the_near_pretest_spares_the_refit_of_the_wall_band_and_changes_nothing_
 
 
 def test_touching_pairs_and_the_near_pretest_on_the_pipe_before_a_wall():
-    from rangeseg_o3d.edge_planes import _near, _near_pairs, _touching_pairs, HOST_SAMPLE
+    from rangeseg_o3d.edge_planes import _near, _near_pairs, _strip_sample, _touching_pairs, HOST_SAMPLE
     from rangeseg_o3d.fullres import LabelBoxes
 
     scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(0)
@@ -148,12 +148,22 @@ def test_touching_pairs_and_the_near_pretest_on_the_pipe_before_a_wall():
     small = stats.counts.copy()
     small[2] = 10
     assert _touching_pairs(labels, boxes, [2], [1, 3, 4], small) == {}
-    strips = {k: (scan.cloud.xyz[labels == k], sigma[labels == k]) for k in (3, 4)}
-    assert len(strips[3][0]) <= HOST_SAMPLE
-    near = _near_pairs({3: {2}, 4: {2}}, strips, fits, 3.0)
-    assert near == {(3, 2)}
+    strips = {k: _strip_sample(labels, scan.cloud.xyz, sigma, boxes.bounds(k), k) for k in (3, 4)}
+    # the strips' boxes hold under HOST_SAMPLE pixels: their samples are all their pixels
+    assert [len(strips[k][0]) for k in (3, 4)] == [int((labels == k).sum()) for k in (3, 4)]
+    assert int((labels == 3).sum()) <= HOST_SAMPLE
+    near = _near_pairs(labels, scan.cloud.xyz, sigma, boxes, {3: {2}, 4: {2}, 1: {2}}, fits, 3.0)
+    assert near == {(3, 2): 1, (4, 2): 0, (1, 2): 0}
     assert _near(fits[2], *strips[3], 3.0) and not _near(fits[2], *strips[4], 3.0)
     assert not _near(fits[1], *strips[3], 3.0)  # (a plane is no host)
+    # the compiled verdicts are numpy's on the same samples, for models near and far
+    from rangeseg_o3d.fitting.primitives import Cylinder
+    for shift in (0.0, 0.01, 0.03, 0.1, 0.5):
+        moved = {2: Cylinder(axis=fits[2].axis, point=np.asarray(fits[2].point) + [shift, 0.0, 0.0],
+                             radius=fits[2].radius, rms=fits[2].rms, inliers=fits[2].inliers)}
+        verdicts = _near_pairs(labels, scan.cloud.xyz, sigma, boxes, {3: {2}, 4: {2}}, moved, 3.0)
+        for k in (3, 4):
+            assert verdicts[(k, 2)] == int(_near(moved[2], *strips[k], 3.0))
 
 
 def test_label_boxes_to_a_known_count_are_the_boxes_of_the_grid():
