@@ -237,3 +237,47 @@ def test_a_host_is_refitted_only_when_its_model_explains_its_own_pixels():
     host, refit = _curved_host(scan.cloud, labels, boxes, {2}, models, scan.cloud.xyz[strip], sigma[strip],
                                counting, sigma)
     assert (host, refit) == (None, None) and counting.refits == 0
+
+
+def test_near_verdict_and_the_grid_pass_answer_as_the_pieces_pass():
+    from rangeseg_o3d import kernels
+    from rangeseg_o3d.kernels.modelnoise import near_verdict
+
+    d, s = np.array([1.0, 2.0, 3.0]), np.ones(3)
+    assert near_verdict(d, s, 3.0, 1e-9, 0.0) == 1  # median 2 within 3 x 1
+    assert near_verdict(d, s, 1.0, 1e-9, 0.0) == 0  # over 1 x 1
+    assert near_verdict(d, s, 2.0, 1e-9, 0.0) == -1  # on the bound: rounding decides
+    assert near_verdict(np.array([1.0, np.nan, 3.0, np.nan]), np.ones(4), 3.0, 1e-9, 0.0) == -1
+    assert near_verdict(np.array([1.0, 2.0, 3.0, 10.0]), np.ones(4), 2.4, 1e-9, 0.0) == 0  # median 2.5 (numpy's)
+    assert near_verdict(np.array([1.0, 2.0, 3.0, 10.0]), np.ones(4), 2.5, 1e-9, 0.0) == -1
+    assert near_verdict(np.array([1.0, 2.0, 3.0, 10.0]), np.ones(4), 2.6, 1e-9, 0.0) == 1
+    # the grid pass over a label's even sample against the pieces pass over the same pixels
+    rng = np.random.default_rng(5)
+    h, w = 30, 40
+    xyz = np.stack([rng.normal(0, 0.1, (h, w)), rng.normal(0, 0.1, (h, w)), 3.0 + rng.normal(0, 0.02, (h, w))], axis=2)
+    xyz[4, 5] = np.nan
+    sigma = np.full((h, w), 0.01)
+    labels = np.zeros((h, w), np.int32)
+    labels[2:20, 3:30] = 7
+    labels[22:28, :] = 9
+    kinds = np.array([2, 2, 3], np.int8)  # sphere, sphere, cylinder (kinds.py)
+    params = np.zeros((3, 7))
+    params[0, :4] = [0.0, 0.0, 3.5, 0.5]  # through the points: near
+    params[1, :4] = [0.0, 0.0, 5.0, 0.5]  # far
+    params[2, :7] = [1.0, 0.0, 0.0, 0.0, 0.0, 3.5, 0.5]  # a cylinder along x through them
+    strip = np.array([7, 7, 9], np.int32)
+    boxes = np.array([[2, 20, 3, 30], [2, 20, 3, 30], [22, 28, 0, 40]], np.int64)
+    steps = np.array([2, 1, 3], np.int64)
+    grid = kernels.strips_near_models(labels, xyz, sigma, strip, boxes, steps, kinds, params, 3.0, 1e-9, 1e-12)
+    pixels, starts = [], [0]
+    flat = labels.ravel()
+    for j in range(3):
+        r0, r1, c0, c1 = boxes[j]
+        rows, cols = np.meshgrid(np.arange(r0, r1, steps[j]), np.arange(c0, c1, steps[j]), indexing="ij")
+        idx = (rows * w + cols).ravel()
+        idx = idx[(flat[idx] == strip[j]) & np.isfinite(xyz.reshape(-1, 3)[idx]).all(axis=1)]
+        pixels.append(idx)
+        starts.append(starts[-1] + idx.size)
+    pieces = kernels.pieces_near_models(xyz.reshape(-1, 3), sigma.ravel(), np.concatenate(pixels).astype(np.int64),
+                                        np.array(starts, np.int64), kinds, params, 3.0, 1e-9, 1e-12)
+    assert grid.tolist() == pieces.tolist() == [1, 0, 1]

@@ -9,7 +9,7 @@ import numpy as np
 
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .modelnoise import _absolute_distance, _median_of
+from .modelnoise import _absolute_distance, near_verdict
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("modelnoise.py", "kinds.py")
@@ -52,12 +52,5 @@ def strips_near_models(labels, xyz, sigma, strip, boxes, steps, kinds, params, k
         if n == 0:
             out[j] = -1
             continue
-        median_distance, bound = _median_of(distances[:n]), k_sigma * _median_of(noise[:n])
-        slack = relative * abs(bound) + absolute * (largest + terms)
-        if median_distance - bound > slack:
-            out[j] = 0
-        elif bound - median_distance > slack:
-            out[j] = 1
-        else:
-            out[j] = -1  # (a NaN too)
+        out[j] = near_verdict(distances[:n], noise[:n], k_sigma, relative, absolute * (largest + terms))
     return out
