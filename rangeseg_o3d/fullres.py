@@ -798,23 +798,33 @@ class LabelBoxes:
     (:func:`rangeseg_o3d.kernels.label_boxes`): a pass per label costs a full-frame
     comparison and its ``nonzero`` each."""
 
-    def __init__(self, labels: np.ndarray):
+    def __init__(self, labels: np.ndarray, n: int | None = None):
+        # ``n``: the labels' count when the caller knows it (boxes for labels below it only;
+        # else the labels' largest plus one, a pass over the grid)
         self.labels = labels
         self._boxes = None
+        self._n = n
 
     def __call__(self, k: int) -> tuple[slice, slice]:
         """Rows and columns holding every pixel of label ``k`` (which has pixels)."""
         row0, row1, col0, col1 = self.bounds(k)
         return slice(row0, row1), slice(col0, col1)
 
-    def bounds(self, k: int) -> tuple[int, int, int, int]:
-        """``(row0, row1, col0, col1)`` (half-open) of label ``k``; ``(h, 0, w, 0)`` when it
-        has no pixels."""
+    def array(self) -> np.ndarray:
+        """Every label's ``(row0, row1, col0, col1)`` (half-open), label ``k`` in row ``k``:
+        ``(h, 0, w, 0)`` for a label without pixels (and for label 0). Not to be written."""
         if self._boxes is None:
             from .kernels import label_boxes
 
             labels = np.ascontiguousarray(self.labels, dtype=np.int32)
-            self._boxes = label_boxes(labels, int(labels.max(initial=0)) + 1)
+            n = int(labels.max(initial=0)) + 1 if self._n is None else int(self._n)
+            self._boxes = label_boxes(labels, n)
+        return self._boxes
+
+    def bounds(self, k: int) -> tuple[int, int, int, int]:
+        """``(row0, row1, col0, col1)`` (half-open) of label ``k``; ``(h, 0, w, 0)`` when it
+        has no pixels."""
+        self.array()
         if not 0 < k < self._boxes.shape[0]:
             h, w = self.labels.shape
             return h, 0, w, 0

@@ -25,6 +25,8 @@ from .bent_planes import cylinders_for_bent_planes
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
+from .edge_planes import edge_planes_to_curved
+from .refinement.curved_refused import full_resolution_samples
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -326,6 +328,17 @@ class Pipeline:
                 cloud, labels, fits, stats, sigma=sigma, ranges=ranges, config=refine, sensor=self.sensor,
                 recovered_from=recovered_from, inlier_factor=INLIER_SIGMAS)
             lap("settle_curved")
+            if by_means:
+                # a pipe the frame's edge cuts: the plane strips recovered at the edge beside its
+                # cylinder region join it when its model (or its refit with them) explains them
+                labels, fits, stats = edge_planes_to_curved(
+                    cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
+                    samples=full_resolution_samples(self.sensor),
+                    min_size=recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
+                                                    noise.correlation_px),
+                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile, lone=False,
+                    near_sigmas=refine.k_sigma)
+                lap("edge_planes")
         if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
             # their pixels hold. Only where the range noise grows with the range (a depth camera's), so that

@@ -150,12 +150,19 @@ def pieces_near_models(xyz, sigma, pixels, starts, kinds, params, k_sigma, relat
             distances[t] = _absolute_distance(kinds[j], params[j], x, y, z)
             noise[t] = sigma[i]
             largest = max(largest, abs(x) + abs(y) + abs(z))
-        median_distance, bound = _median_of(distances), k_sigma * _median_of(noise)
-        slack = relative * abs(bound) + absolute * (largest + terms)
-        if median_distance - bound > slack:
-            out[j] = 0
-        elif bound - median_distance > slack:
-            out[j] = 1
-        else:
-            out[j] = -1  # (a NaN too)
+        out[j] = near_verdict(distances, noise, k_sigma, relative, absolute * (largest + terms))
     return out
+
+
+@njit(cache=True, nogil=True)
+def near_verdict(distances, noise, k_sigma, relative, absolute):
+    """1 when the median of ``distances`` (non-empty) is within ``k_sigma`` times the median
+    of ``noise``, 0 when over, -1 where the two lie within ``relative`` of that bound plus
+    ``absolute`` (the rounding the caller's terms allow), or either is NaN."""
+    median_distance, bound = _median_of(distances), k_sigma * _median_of(noise)
+    slack = relative * abs(bound) + absolute
+    if median_distance - bound > slack:
+        return 0
+    if bound - median_distance > slack:
+        return 1
+    return -1  # (a NaN too)
