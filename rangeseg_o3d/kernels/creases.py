@@ -185,6 +185,17 @@ def _on_b_side_along_rays(rx, ry, rz, dist, a, b, concave, noise, normals, offse
             and abs(dist - tb) <= max(noise, k_sigma * rms[b] / abs(ub)))
 
 
+# inline: the judgement crease_moves makes per pixel and step (and its test's reference)
+@njit(cache=True, nogil=True, inline="always")
+def _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos,
+                      along_rays):
+    """:func:`_on_b_side_along_rays` when ``along_rays``, else :func:`_on_b_side`."""
+    if along_rays:
+        return _on_b_side_along_rays(rx, ry, rz, dist, a, b, concave, noise, normals, offsets, rms, k_sigma,
+                                     least_cos)
+    return _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos)
+
+
 @njit(cache=True, nogil=True)
 def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach,
                  along_rays=False):
@@ -257,13 +268,8 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             # judged afresh at each meeting (a few products): a table of the label pairs
             # would take n^2 bytes, 2.5 GB at 50 000 labels
             crease = _crease_pair(a, b, normals, offsets, centroids, max_cos)
-            if along_rays:
-                side = crease != 0 and _on_b_side_along_rays(rx, ry, rz, dist, a, b, crease > 0, noise, normals,
-                                                             offsets, rms, k_sigma, least_cos)
-            else:
-                side = crease != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, crease > 0, noise, normals, offsets,
-                                                  rms, k_sigma, least_cos)
-            if side:
+            if crease != 0 and _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, crease > 0, noise, normals,
+                                                 offsets, rms, k_sigma, least_cos, along_rays):
                 out[r0, c0] = b
                 moved[count] = i
                 count += 1

@@ -4,7 +4,7 @@ as judging every step (the kernel's earlier form, kept here in plain Python)."""
 import numpy as np
 import pytest
 
-from rangeseg_o3d.kernels.creases import _crease_pair, _on_b_side, _on_b_side_along_rays, _plane_borders, crease_moves
+from rangeseg_o3d.kernels.creases import _crease_pair, _judged_on_b_side, _plane_borders, crease_moves
 
 
 def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach,
@@ -47,13 +47,8 @@ def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max
             if b == a or b <= 0 or b >= n or not is_plane[b]:
                 continue
             crease = _crease_pair(a, b, normals, offsets, centroids, max_cos)
-            if along_rays:
-                side = crease != 0 and _on_b_side_along_rays(rx, ry, rz, dist, a, b, crease > 0, noise, normals,
-                                                             offsets, rms, k_sigma, least_cos)
-            else:
-                side = crease != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, crease > 0, noise, normals, offsets,
-                                                  rms, k_sigma, least_cos)
-            if side:
+            if crease != 0 and _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, crease > 0, noise, normals,
+                                                 offsets, rms, k_sigma, least_cos, along_rays):
                 out[r0, c0] = b
                 moved.append(i)
                 break
