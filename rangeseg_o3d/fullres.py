@@ -513,7 +513,7 @@ _STEPS = np.array(sorted(((dr, dc) for dr in range(-CREASE_RINGS, CREASE_RINGS +
 
 
 def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, sigma: np.ndarray,
-                   k_sigma: float, min_angle_deg: float, inlier_factor: float):
+                   k_sigma: float, min_angle_deg: float, inlier_factor: float, along_rays: bool = False):
     """Pixels beside a crease between two planes go to the face their ray meets there.
 
     Where two faces meet at a crease both planes lie within the noise of the pixels
@@ -530,6 +530,13 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
     were; the models do not change (:func:`rangeseg_o3d.kernels.crease_moves`, one compiled
     pass). Returns ``(labels, stats)``, the statistics of the regions that changed updated
     with the pixels that moved; the inputs when no pixel moves.
+
+    ``along_rays`` (a stereo camera's noise): each plane explains the pixel when its ray meets
+    the plane within ``k_sigma`` range sigmas of its range (or ``k_sigma`` times the plane's rms
+    over the ray's incidence cosine), not when the plane passes within that distance of it: a
+    range error moves a return along its ray, and a plane seen near grazing passes within
+    ``k_sigma`` range sigmas of returns many sigmas off it along their rays (a far box face
+    seen at 80 degrees took 352 floor pixels 13 range sigmas off its plane along their rays).
     """
     from .fitting.primitives import Plane
     from .kernels import crease_moves
@@ -550,7 +557,7 @@ def settle_creases(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, *, 
                          f"got {noise.size} and {xyz.shape[0]}")
     out, moved = crease_moves(xyz, np.ascontiguousarray(labels, dtype=np.int32), is_plane, normals, offsets, rms,
                               noise, float(k_sigma), float(np.cos(np.radians(min_angle_deg))),
-                              float(np.sin(np.arctan(GRAZING_TAN))), _STEPS, CREASE_RINGS)
+                              float(np.sin(np.arctan(GRAZING_TAN))), _STEPS, CREASE_RINGS, bool(along_rays))
     if not moved.size:
         return labels, stats
     out = out.astype(labels.dtype, copy=False)

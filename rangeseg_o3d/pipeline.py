@@ -412,7 +412,8 @@ class Pipeline:
                                                              inlier_factor=INLIER_SIGMAS,
                                                              correlation_px=noise.correlation_px)
                 labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
-                                               min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)
+                                               min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS,
+                                               along_rays=True)
                 lap("settle")
                 # the same at a pipe's end cap: within the noise of both models the rim's pixels
                 # go to the surface their rays enter (a cap seen at 50-60 degrees kept 74-78 %)
@@ -615,6 +616,8 @@ def warm_up() -> float:
 
     crease_moves(points, np.zeros((2, 2), np.int32), np.ones(2, bool), np.zeros((2, 3)), np.zeros(2), np.zeros(2),
                  np.ones(4), 3.0, 0.9, 0.1, _STEPS, CREASE_RINGS)
+    crease_moves(points, np.zeros((2, 2), np.int32), np.ones(2, bool), np.zeros((2, 3)), np.zeros(2), np.zeros(2),
+                 np.ones(4), 3.0, 0.9, 0.1, _STEPS, CREASE_RINGS, True)
     # the trimmed fit: the fitter's compiled search and the generic one's inlier count
     from .fitting.robust import trimmed_fit
 

@@ -67,3 +67,76 @@ def test_the_stereo_pipeline_ends_with_the_join_and_the_settling_and_a_kinects_d
     timed = [[k for k in rs.Pipeline(c).run(cloud).timings if k.startswith("full.")] for c in (stereo, kinect)]
     assert timed[0][-3:] == ["full.settle", "full.caps", "full.bent_planes"] and "full.free_faces" in timed[0]
     assert not {"full.settle", "full.caps", "full.free_faces", "full.bent_planes"} & set(timed[1])
+
+
+def _floor_and_grazing_face(seed, *, f=640.0, rows=200, cols=200, cx=50.0, cy=20.0):
+    """A box side face standing on the floor, seen near grazing (the plane x = 0.9 m, z 4.5-6 m,
+    y 0.5-1.0 m; incidence about 80 degrees), and the floor y = 1.0 m around it (a concave
+    crease), ray-cast on a pinhole camera with the stereo row's range noise erring together over
+    3 x 3 pixels. Returns ``(cloud, sigma, truth, planes)``: truth 1 the floor, 2 the face, 0 no
+    return; planes the true ones (normals towards the camera)."""
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cx) / f, (v - cy) / f, np.ones((rows, cols))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(rays[..., 1] > 0, 1.0 / rays[..., 1], np.inf)
+        t_face = np.where(rays[..., 0] > 0, 0.9 / rays[..., 0], np.inf)
+    with np.errstate(invalid="ignore"):
+        hit = rays * t_face[..., None]
+    on_face = (hit[..., 2] >= 4.5) & (hit[..., 2] <= 6.0) & (hit[..., 1] >= 0.5) & (hit[..., 1] <= 1.0)
+    face_first = on_face & (t_face < t_floor)
+    ranges = np.where(face_first, t_face, t_floor)
+    truth = np.where(face_first, 2, np.where(np.isfinite(ranges) & (ranges < 12.0), 1, 0))
+    ranges = np.where(truth > 0, ranges, np.nan)
+    sigma = COEFF * np.nan_to_num(ranges, nan=1.0) ** 2
+    noisy = ranges + _unit_noise(np.random.default_rng(seed), ranges.shape, 3) * sigma
+    planes = {1: Plane(normal=np.array([0.0, -1.0, 0.0]), d=-1.0, rms=0.0, inliers=1),
+              2: Plane(normal=np.array([-1.0, 0.0, 0.0]), d=-0.9, rms=0.0, inliers=1)}
+    return rs.OrganizedCloud(rays * noisy[..., None]), sigma, truth, planes
+
+
+def _along_ray_sigmas(xyz, sigma, plane):
+    # how far the plane meets each point's ray from the point, in its range sigmas
+    ranges = np.linalg.norm(xyz, axis=-1)
+    meet = plane.d / ((xyz / ranges[..., None]) @ plane.normal)
+    return np.abs(ranges - meet) / sigma
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_along_the_rays_a_grazing_planes_crease_takes_no_pixel_beyond_the_range_noise(seed):
+    cloud, sigma, truth, planes = _floor_and_grazing_face(seed)
+    # the face's plane as fitted near grazing: 1.5 degrees off about the vertical, 3 cm nearer
+    turn = np.radians(1.5)
+    normal = np.array([-np.cos(turn), 0.0, np.sin(turn)])
+    fits = {1: planes[1], 2: Plane(normal=normal, d=float(normal @ np.array([0.87, 0.75, 5.25])), rms=0.0, inliers=1)}
+    xyz = cloud.xyz
+    labels = truth.astype(np.int32)
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    kwargs = dict(sigma=sigma, k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    by_distance, _ = settle_creases(cloud, labels, fits, stats, **kwargs)
+    along, along_stats = settle_creases(cloud, labels, fits, stats, **kwargs, along_rays=True)
+    off = _along_ray_sigmas(xyz, sigma, fits[2])
+    # the premise: by distances, the face's plane takes floor pixels its plane meets beyond 3
+    # range sigmas along their rays (within 3 sigmas of distance at about 80 degrees)
+    wrong = (by_distance == 2) & (truth == 1)
+    assert np.count_nonzero(wrong & (off > 3.0)) >= 20
+    # along the rays, every pixel that moves lies within 3 range sigmas of both planes there
+    moved = along != labels
+    assert np.all(off[moved] <= 3.0 + 1e-9)
+    assert np.all(_along_ray_sigmas(xyz, sigma, fits[1])[moved] <= 3.0 + 1e-9)
+    assert np.count_nonzero((along == 2) & (truth == 1)) < 0.5 * np.count_nonzero(wrong)
+    assert np.mean(along[truth > 0] == truth[truth > 0]) > np.mean(by_distance[truth > 0] == truth[truth > 0])
+    assert along_stats.counts[2] == np.count_nonzero(along == 2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_along_the_rays_the_side_faces_band_still_goes_back(seed):
+    # the convex corner above, judged along the rays: the band within the noise of both planes
+    cloud, sigma, truth, fits = _convex_corner(seed)
+    band = (truth == 2) & (np.arange(truth.shape[1])[None, :] < 42)
+    labels = np.where(band, 1, truth).astype(np.int32)
+    stats = region_stats(cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    out, _ = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=3.0, min_angle_deg=20.0,
+                            inlier_factor=INLIER_SIGMAS, along_rays=True)
+    assert np.mean(out[band] == 2) > 0.95
+    assert np.mean(out == truth) > 0.99

@@ -166,8 +166,39 @@ def _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms,
             and abs(x * normals[b, 0] + y * normals[b, 1] + z * normals[b, 2] - offsets[b]) <= max(noise, k_sigma * rms[b]))
 
 
+# inline: read per pixel and step by crease_moves, as _on_b_side is
+@njit(cache=True, nogil=True, inline="always")
+def _on_b_side_along_rays(rx, ry, rz, dist, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos):
+    """:func:`_on_b_side` with both planes judged along the ray: the ray meets ``b`` at the
+    crease (:func:`_ray_meets_b`) and meets each plane within ``noise`` (``k_sigma`` times the
+    pixel's range noise) of its range ``dist``, or within ``k_sigma`` times the plane's rms
+    over the ray's incidence cosine (the plane's spread along this ray). A range error moves
+    a return along its ray: a plane seen near grazing lies within a small distance of returns
+    many range sigmas off it along their rays (a floor's pixels beside a far box face seen at
+    80 degrees: 13 range sigmas, 2.2 in distance)."""
+    if not _ray_meets_b(rx, ry, rz, a, b, concave, normals, offsets, least_cos):
+        return False
+    ua = rx * normals[a, 0] + ry * normals[a, 1] + rz * normals[a, 2]
+    ub = rx * normals[b, 0] + ry * normals[b, 1] + rz * normals[b, 2]
+    ta, tb = offsets[a] / ua, offsets[b] / ub  # where each plane meets the ray
+    return (abs(dist - ta) <= max(noise, k_sigma * rms[a] / abs(ua))
+            and abs(dist - tb) <= max(noise, k_sigma * rms[b] / abs(ub)))
+
+
+# inline: the judgement crease_moves makes per pixel and step (and its test's reference)
+@njit(cache=True, nogil=True, inline="always")
+def _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos,
+                      along_rays):
+    """:func:`_on_b_side_along_rays` when ``along_rays``, else :func:`_on_b_side`."""
+    if along_rays:
+        return _on_b_side_along_rays(rx, ry, rz, dist, a, b, concave, noise, normals, offsets, rms, k_sigma,
+                                     least_cos)
+    return _on_b_side(rx, ry, rz, x, y, z, a, b, concave, noise, normals, offsets, rms, k_sigma, least_cos)
+
+
 @njit(cache=True, nogil=True)
-def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach):
+def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach,
+                 along_rays=False):
     """The labels after :func:`rangeseg_o3d.fullres.settle_creases`' moves, and the flat
     indices of the pixels that moved.
 
@@ -177,7 +208,9 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
     first. A pixel of a plane region within ``reach - 1`` 4-steps of a pixel on a plane
     border moves to the plane region of the first step whose pixel holds one it lies on
     the side of (:func:`_crease_pair`, :func:`_on_b_side`; the regions' centroids from
-    their pixels); decisions are taken on ``labels`` as they are.
+    their pixels); decisions are taken on ``labels`` as they are. ``along_rays``: both planes
+    are judged by their distances along the pixel's ray (:func:`_on_b_side_along_rays`), as a
+    stereo camera's range noise lies.
     """
     h, w = labels.shape
     n = is_plane.shape[0]
@@ -235,8 +268,8 @@ def crease_moves(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, m
             # judged afresh at each meeting (a few products): a table of the label pairs
             # would take n^2 bytes, 2.5 GB at 50 000 labels
             crease = _crease_pair(a, b, normals, offsets, centroids, max_cos)
-            if crease != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, crease > 0, noise, normals, offsets,
-                                          rms, k_sigma, least_cos):
+            if crease != 0 and _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, crease > 0, noise, normals,
+                                                 offsets, rms, k_sigma, least_cos, along_rays):
                 out[r0, c0] = b
                 moved[count] = i
                 count += 1

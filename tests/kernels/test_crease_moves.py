@@ -4,10 +4,11 @@ as judging every step (the kernel's earlier form, kept here in plain Python)."""
 import numpy as np
 import pytest
 
-from rangeseg_o3d.kernels.creases import _crease_pair, _on_b_side, _plane_borders, crease_moves
+from rangeseg_o3d.kernels.creases import _crease_pair, _judged_on_b_side, _plane_borders, crease_moves
 
 
-def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach):
+def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max_cos, least_cos, steps, reach,
+               along_rays=False):
     # the kernel before the refused regions were skipped: every step judged afresh
     h, w = labels.shape
     n = is_plane.shape[0]
@@ -46,8 +47,8 @@ def _reference(xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma, max
             if b == a or b <= 0 or b >= n or not is_plane[b]:
                 continue
             crease = _crease_pair(a, b, normals, offsets, centroids, max_cos)
-            if crease != 0 and _on_b_side(rx, ry, rz, x, y, z, a, b, crease > 0, noise, normals, offsets,
-                                          rms, k_sigma, least_cos):
+            if crease != 0 and _judged_on_b_side(rx, ry, rz, x, y, z, dist, a, b, crease > 0, noise, normals,
+                                                 offsets, rms, k_sigma, least_cos, along_rays):
                 out[r0, c0] = b
                 moved.append(i)
                 break
@@ -128,3 +129,30 @@ def test_plane_borders_sums_are_the_pixel_by_pixel_sums_bit_for_bit(seed):
     got = _plane_borders(xyz, labels, is_plane, sums)
     assert want.any() and np.array_equal(got, want)
     assert np.array_equal(sums, want_sums)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_crease_moves_along_the_rays_equals_judging_every_step(seed):
+    args = _random_case(seed)
+    want_labels, want_moved = _reference(*args, along_rays=True)
+    got_labels, got_moved = crease_moves(*args, True)
+    assert np.array_equal(got_labels, want_labels)
+    assert np.array_equal(got_moved, want_moved)
+
+
+def test_along_the_rays_a_move_is_within_the_noise_along_the_ray_of_both_planes():
+    # each pixel moved along the rays lies within k_sigma of its range noise (or k_sigma rms over
+    # the incidence cosine) of both planes where they meet its ray, and the cases move pixels
+    total = 0
+    for seed in range(12):
+        xyz, labels, is_plane, normals, offsets, rms, sigma, k_sigma = _random_case(seed)[:8]
+        out, moved = crease_moves(*_random_case(seed), True)
+        total += moved.size
+        flat = labels.ravel()
+        for i in moved:
+            ranges = np.linalg.norm(xyz[i])
+            ray = xyz[i] / ranges
+            for k in (flat[i], out.ravel()[i]):
+                meet = offsets[k] / (ray @ normals[k])
+                assert abs(ranges - meet) <= max(k_sigma * sigma[i], k_sigma * rms[k] / abs(ray @ normals[k])) + 1e-12
+    assert total >= 20, total
