@@ -34,7 +34,7 @@ import numpy as np
 
 from . import kernels  # the package: its names load on first use (no compiler at import)
 from .fitting.primitives import Cylinder, Plane
-from .fitting.region_fitter import region_indices
+from .fitting.region_fitter import region_samples
 from .fitting.robust import curvature_resolved
 from .fullres import region_stats
 from .kernels.linalg import CHI_SQUARE_SIGMAS
@@ -75,11 +75,12 @@ def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, s
         return fits, stats
     xyz, noise = cloud.xyz.reshape(-1, 3), sigma.reshape(-1)
     found = {}
-    for k, idx in region_indices(labels, only=planes).items():
-        samples = share * idx.size
+    # the test pixels alone (idx[:: max(1, idx.size // TEST_POINTS)] of each region's pixels),
+    # not every plane pixel's index
+    for k, (sample, count) in region_samples(labels, planes, TEST_POINTS).items():
+        samples = share * count
         if samples < MIN_SAMPLES:
             continue
-        sample = idx[:: max(1, idx.size // TEST_POINTS)]
         points, noises = xyz[sample], noise[sample]
         # nine in ten regions fail a gate before the cylinder's fit: the compiled screen (one
         # pass, ~0.05 ms) spares them numpy's form (~1 ms each, 8-12 ms a stereo scan)
