@@ -19,7 +19,7 @@ import numpy as np
 
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-__all__ = ["bend_screen"]
+__all__ = ["bend_screen", "curve_screen"]
 
 
 @njit(cache=True, nogil=True)
@@ -166,3 +166,91 @@ def bend_screen(points, noise, samples, max_radius, sigmas, margin):
     if drop + drop_error < np.sqrt(2.0 * n) * (bent - tol) / m:
         return True, flat, bent, width
     return False, flat, bent, width
+
+
+@njit(cache=True, nogil=True)
+def curve_screen(xyz, noise, kept, own, test_pixels, near_bound, correlation_px, extra, sigmas, margin):
+    """``(answer, plane_squares, curved_squares)`` of ``ray_claims._left_curved``'s question
+    on the region's kept pixels (flat indices ``kept`` into ``xyz`` (N, 3) and ``noise``;
+    its plane ``own``, ``a . p = 1``): whether a quadric along the rays (``extra`` parameters
+    beyond the plane's) explains the inverse ranges of an even sample (``test_pixels`` of them)
+    within ``near_bound`` range sigmas of that plane better than the plane by more than their
+    noise would (the F-test of ``sigmas`` deviations over their independent returns).
+    ``answer``: 1 curved, 0 not, -1 where numpy's form must answer (a sample pixel within
+    ``margin`` of the near bound, a near-singular design, an F-test within ``margin`` of the
+    squares of its bound). The squares are NaN where not reached."""
+    nan = np.nan
+    size = kept.shape[0]
+    step = max(1, size // test_pixels)
+    count = (size + step - 1) // step
+    near = np.zeros(count, np.bool_)
+    m_near = 0
+    for t in range(count):
+        i = kept[t * step]
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        off = np.sqrt(x * x + y * y + z * z) * abs(1.0 - (own[0] * x + own[1] * y + own[2] * z))
+        bound = near_bound * noise[i]
+        if np.isnan(off) or np.isnan(bound):
+            continue  # never near in numpy's form
+        if np.isfinite(off) and np.isfinite(bound) and abs(off - bound) <= margin * max(abs(bound), abs(off)):
+            return -1, nan, nan
+        if off <= bound:
+            near[t] = True
+            m_near += 1
+    pixels = size * m_near / max(count, 1)
+    # curved_along_rays on the near sample (under 2 test_pixels: its own subsample is all of them)
+    m = 0
+    for t in range(count):
+        if near[t]:
+            i = kept[t * step]
+            x, y, z, s = xyz[i, 0], xyz[i, 1], xyz[i, 2], noise[i]
+            if np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and np.isfinite(s) and s > 0:
+                m += 1
+            else:
+                near[t] = False
+    if m < 4 + extra:
+        return 0, nan, nan
+    rx, ry, root_w, inverse = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    rz = np.empty(m)
+    j = 0
+    for t in range(count):
+        if near[t]:
+            i = kept[t * step]
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            r = max(np.sqrt(x * x + y * y + z * z), 1e-12)
+            if not z / r > 0:
+                return 0, nan, nan  # rays at or beyond 90 degrees off the axis
+            sig = max(noise[i], 1e-12) / (r * r)
+            rx[j], ry[j], rz[j] = x / r, y / r, z / r
+            root_w[j], inverse[j] = 1.0 / sig, 1.0 / r
+            j += 1
+    u, v = rx / rz, ry / rz
+    u -= u.mean()
+    v -= v.mean()
+    scale = max(u.std(), v.std(), 1e-12)
+    u /= scale
+    v /= scale
+    design = np.empty((m, 6))
+    target = np.empty(m)
+    for t in range(m):
+        column = root_w[t] * rz[t]
+        design[t, 0], design[t, 1], design[t, 2] = column, column * u[t], column * v[t]
+        design[t, 3], design[t, 4], design[t, 5] = column * u[t] * u[t], column * u[t] * v[t], column * v[t] * v[t]
+        target[t] = root_w[t] * inverse[t]
+    plane, curved, conditioned = _householder_squares(design, target, 3)
+    if conditioned < 1e-8:
+        return -1, plane, curved
+    independent = min(float(m), pixels * m / max(m_near, 1) / float(correlation_px) ** 2)
+    share = independent / m
+    n = int(independent)
+    dof = n - 3 - extra
+    if dof <= 0:
+        return 1, plane, curved  # no degree of freedom left: resolved (nothing to test)
+    tol = margin * plane
+    drop, error = (plane - curved) * share, 2.0 * tol * share
+    factor = extra + sigmas * np.sqrt(2.0 * extra)
+    if drop + error < factor * (curved - tol) * share / dof:
+        return 0, plane, curved
+    if drop - error > factor * (curved + tol) * share / dof:
+        return 1, plane, curved
+    return -1, plane, curved

@@ -107,3 +107,66 @@ def test_points_without_a_return_are_left_out():
     few = np.full_like(points[:30], np.nan)
     few[:9] = points[:9]
     assert _screen(few, noise[:30], 100.0)[0] and _pipe_of(few, noise[:30], 100.0, 5.0) is None
+
+
+def _surface_grid(seed, kind, *, rows=60, cols=80, z=4.0, f=640.0):
+    # flat points of a grid of rays meeting a plane facing the camera ("flat"), a vertical pipe
+    # of radius 0.4 m filling the view ("pipe"), under stereo range noise; and the plane a . p = 1
+    # of the flat face through the view's centre
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) / f, (v - rows / 2) / f, np.ones((rows, cols))]).reshape(-1, 3)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    if kind == "flat":
+        t = z / rays[:, 2]
+    else:
+        a = rays[:, 0] ** 2 + rays[:, 2] ** 2
+        b = -2 * (z + 0.4) * rays[:, 2]
+        t = (-b - np.sqrt(np.maximum(b * b - 4 * a * ((z + 0.4) ** 2 - 0.16), 0))) / (2 * a)
+    noise = COEFF * t ** 2
+    xyz = rays * (t + rng.standard_normal(t.size) * noise)[:, None]
+    return np.ascontiguousarray(xyz), noise, np.array([0.0, 0.0, 1.0 / z])
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("kind", ["flat", "pipe"])
+@pytest.mark.parametrize("correlation_px", [1, 3])
+def test_curve_screen_answers_as_numpys_form_with_its_squares(seed, kind, correlation_px):
+    from rangeseg_o3d import ray_claims as rc
+
+    xyz, noise, own = _surface_grid(seed, kind)
+    kept = np.arange(0, xyz.shape[0], 1 + seed, dtype=np.int64)
+    answer, plane, curved = kernels.curve_screen(xyz, noise, kept, own, rc.CURVE_TEST_PIXELS, 2.0 * rc.TRIM_SIGMAS,
+                                                 correlation_px, rc.QUADRIC_EXTRA, CHI_SQUARE_SIGMAS,
+                                                 rc.SCREEN_MARGIN)
+    expected = rc._left_curved_numpy(xyz, noise, kept, own, correlation_px)
+    assert answer in (0, 1) and bool(answer) == expected
+    assert expected == (kind == "pipe")  # measured: the pipe's bend is resolved, the flat face's is not
+    assert rc._left_curved(xyz, noise, kept, own, correlation_px) == expected
+    # the squares, against numpy's normal equations on the near points (all of them here)
+    rays = xyz[kept] / np.linalg.norm(xyz[kept], axis=1)[:, None]
+    root = np.linalg.norm(xyz[kept], axis=1) ** 2 / noise[kept]
+    x, y = rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]
+    x, y = x - x.mean(), y - y.mean()
+    s = max(x.std(), y.std())
+    x, y = x / s, y / s
+    design = (root * rays[:, 2])[:, None] * np.column_stack([np.ones(x.size), x, y, x * x, x * y, y * y])
+    target = root / np.linalg.norm(xyz[kept], axis=1)
+    if kind == "flat":  # (the pipe's far flanks leave the flat plane's near band)
+        assert abs(plane - rc._least_squares_rest(design[:, :3], target)) <= 1e-10 * plane
+        assert abs(curved - rc._least_squares_rest(design, target)) <= 1e-10 * plane
+
+
+def test_curve_screen_leaves_a_pixel_at_the_near_bound_to_numpy():
+    from rangeseg_o3d import ray_claims as rc
+
+    xyz, noise, own = _surface_grid(0, "flat")
+    kept = np.arange(xyz.shape[0], dtype=np.int64)
+    p = xyz[kept[10]]
+    off = np.sqrt(p @ p) * abs(1.0 - p @ own)
+    noise = noise.copy()
+    noise[kept[10]] = off / (2.0 * rc.TRIM_SIGMAS)  # exactly at the bound
+    answer = kernels.curve_screen(xyz, noise, kept, own, rc.CURVE_TEST_PIXELS, 2.0 * rc.TRIM_SIGMAS, 1,
+                                  rc.QUADRIC_EXTRA, CHI_SQUARE_SIGMAS, rc.SCREEN_MARGIN)[0]
+    assert answer == -1
+    assert rc._left_curved(xyz, noise, kept, own, 1) == rc._left_curved_numpy(xyz, noise, kept, own, 1)
