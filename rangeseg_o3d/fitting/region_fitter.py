@@ -76,6 +76,19 @@ def _fill_row(model, row: np.ndarray) -> int:
     return NONE
 
 
+def _label_mask(flat: np.ndarray, only) -> np.ndarray:
+    # the mask of the positive labels of ``only``, as long as the largest of them that the
+    # flat labels may hold (the grid's largest label is read only when one of ``only`` is
+    # beyond the pixel count, which no compact numbering reaches)
+    wanted = [int(k) for k in only if k > 0]
+    top = max(wanted, default=0)
+    if top >= flat.size:
+        top = min(top, int(flat.max()))
+    members = np.zeros(top + 1, bool)
+    members[[k for k in wanted if k <= top]] = True
+    return members
+
+
 def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
     """Flat pixel indices (increasing) of every positive label: one counting sort of the grid.
 
@@ -87,16 +100,35 @@ def region_indices(labels: np.ndarray, only=None) -> dict[int, np.ndarray]:
         return {}
     if flat.dtype != np.int32:
         flat = flat.astype(np.int32)
-    n = int(flat.max()) + 1
     if only is not None:
-        members = np.zeros(n, bool)
-        members[[k for k in only if 0 < k < n]] = True
+        # the mask reaches the largest wanted label only: the kernel passes over larger labels,
+        # so no pass over the grid for its largest label (0.1-0.3 ms on a 1280 x 720 scan)
+        members = _label_mask(flat, only)
         order, starts = kernels.group_members(flat, members)
+        n = members.size
     else:
+        n = int(flat.max()) + 1
         order, starts = kernels.group_by_label(flat, n)
     present = (np.flatnonzero(np.diff(starts[1:]) > 0) + 1).tolist()
     bounds = starts.tolist()  # Python ints: slicing by numpy scalars costs more than the slice
     return {k: order[bounds[k]:bounds[k + 1]] for k in present}
+
+
+def region_samples(labels: np.ndarray, only, target: int) -> dict[int, tuple[np.ndarray, int]]:
+    """``{k: (sample, count)}`` for each label of ``only`` with pixels: its pixel ``count`` and
+    the even subsample ``region_indices(labels, only)[k][:: max(1, count // target)]``, from
+    one count pass and one sampling pass (:func:`rangeseg_o3d.kernels.even_samples`), without
+    listing every pixel (a 1280 x 720 scan's plane regions hold ~800k)."""
+    flat = np.ascontiguousarray(labels.ravel())
+    if flat.size == 0:
+        return {}
+    if flat.dtype != np.int32:
+        flat = flat.astype(np.int32)
+    members = _label_mask(flat, only)  # (no pass for the largest label)
+    n = members.size
+    order, starts, counts = kernels.even_samples(flat, members, int(target))
+    bounds, sizes = starts.tolist(), counts.tolist()
+    return {k: (order[bounds[k]:bounds[k + 1]], sizes[k]) for k in range(n) if sizes[k] > 0}
 
 
 def label_sizes(labels: np.ndarray, minlength: int = 0) -> np.ndarray:

@@ -30,7 +30,7 @@ import importlib
 _SOURCES = {
     "grid": ("adjacency_matrix", "count_either_side", "block_means", "claim_rings", "claim_rings_in_boxes", "settle_borders", "group_by_label", "group_members",
              "label_counts",
-             "relabel", "grow_rings", "grow_rings_in_boxes", "jump_mask", "largest_piece", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "box_members", "piece_ids",
+             "relabel", "grow_rings", "grow_rings_in_boxes", "jump_mask", "largest_piece", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "even_samples", "box_members", "piece_ids",
              "member_pixels_in_boxes", "differing_in_boxes", "free_pixels_in_boxes",
              "ranges_and_noise"),
     "labelwise": ("label_moments", "member_moments", "label_noise_sums", "member_centres", "planes_from_moment_rows", "plane_refit_rows", "quadric_sums", "quadric_shapes",
@@ -40,6 +40,7 @@ _SOURCES = {
              "pixel_ray_moments", "pairwise_sum",
              "box_ray_terms", "grid_line_order", "crease_cut_squares"),
     "claims": ("outlier_claims", "box_claims"),
+    "bends": ("bend_screen", "curve_screen"),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "label_sample", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),
     "raygroups": ("ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise", "plane_scores", "pixel_plane_scores"),

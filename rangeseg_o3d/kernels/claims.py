@@ -48,7 +48,9 @@ def outlier_claims(labels, xyz, noise, inverse_planes, is_plane, limit, rounds):
     seen = np.zeros(size, np.bool_)
     waiting = np.zeros(size, np.bool_)  # looked at, beyond its plane, not given
     far = np.empty(size)
-    queued = np.full(size, -1, np.int64)  # the round a pixel was last queued for
+    # the round a pixel was last queued for, read only for waiting pixels and set (-1) when one
+    # starts to wait: no pass over the frame to fill it (7 MB on a 1280 x 720 scan)
+    queued = np.empty(size, np.int64)
     active = np.empty(size, np.int64)
     count = 0
     for row in range(h):  # the start: plane pixels beside another plane region
@@ -65,7 +67,7 @@ def outlier_claims(labels, xyz, noise, inverse_planes, is_plane, limit, rounds):
             seen[i] = True
             d = _off_along_ray(xyz, noise, i, inverse_planes[own])
             if d > limit:
-                waiting[i], far[i] = True, d
+                waiting[i], far[i], queued[i] = True, d, -1
                 active[count] = i
                 count += 1
     best = np.empty(size, np.int32)
@@ -105,14 +107,15 @@ def outlier_claims(labels, xyz, noise, inverse_planes, is_plane, limit, rounds):
         for t in range(moved):  # the next round: the pixels beside those given
             for s in range(4):
                 j = _neighbour(given[t], s, h, w)
-                if j < 0 or queued[j] == round_ or not is_plane[out[j]]:
+                if j < 0 or not is_plane[out[j]]:
                     continue
                 if not seen[j]:
                     seen[j] = True
                     d = _off_along_ray(xyz, noise, j, inverse_planes[out[j]])
                     if d > limit:
-                        waiting[j], far[j] = True, d
-                if waiting[j]:
+                        waiting[j], far[j], queued[j] = True, d, -1
+                # (a pixel queued this round is waiting: the gives came before the queueing)
+                if waiting[j] and queued[j] != round_:
                     queued[j] = round_
                     active[count] = j
                     count += 1

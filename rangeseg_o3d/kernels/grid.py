@@ -70,6 +70,50 @@ def group_counted(labels, members, counts):
 
 
 @njit(cache=True, nogil=True)
+def even_samples(labels, members, target):
+    """Per label ``k`` with ``members[k]`` (``0 < k < len(members)``): every ``step``-th of
+    its flat indices in increasing order, ``step = max(1, count // target)`` of its pixel
+    ``count`` -- :func:`group_members`' ``order[starts[k]:starts[k + 1]][::step]`` -- from
+    a count pass and a pass that writes only the samples (no list of every pixel). Returns
+    ``(order, starts, counts)``: label ``k``'s samples ``order[starts[k]:starts[k + 1]]``,
+    its pixel count ``counts[k]`` (0 for the others)."""
+    keep = members.copy()
+    if keep.shape[0]:
+        keep[0] = False
+    n = keep.shape[0]
+    counts = _count_by_label(labels, keep)[1:]
+    steps = np.ones(n, np.int64)
+    sizes = np.zeros(n + 1, np.int64)
+    for k in range(n):
+        if keep[k] and counts[k] > 0:
+            steps[k] = max(1, counts[k] // max(target, 1))
+            sizes[k + 1] = (counts[k] + steps[k] - 1) // steps[k]
+    starts = np.cumsum(sizes)
+    fill = starts[:-1].copy()
+    # pixels of each label still to pass before its next sample (0: the next one is); a run
+    # of one label takes its samples at once (a sample every step pixels from the first due)
+    left = np.zeros(n, np.int64)
+    order = np.empty(starts[-1], np.int64)
+    size = labels.shape[0]
+    i = 0
+    while i < size:
+        k = labels[i]
+        end = i + 1
+        while end < size and labels[end] == k:
+            end += 1
+        if 0 <= k < n and keep[k]:
+            step, pos = steps[k], fill[k]
+            j = i + left[k]
+            while j < end:
+                order[pos] = j
+                pos += 1
+                j += step
+            fill[k], left[k] = pos, j - end
+        i = end
+    return order, starts, counts
+
+
+@njit(cache=True, nogil=True)
 def _count_by_label(labels, keep):
     # counts[k + 1]: pixels of label k (k < len(keep), keep[k]). Labels come in runs along
     # the rows: a run's count is kept in a register, where a store and reload per pixel

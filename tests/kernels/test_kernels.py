@@ -547,6 +547,52 @@ def test_member_counts_then_group_counted_of_fewer_labels_match_group_members(se
     assert order.size == np.count_nonzero(np.isin(labels, [5, 8]))
 
 
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("target", [1, 3, 7, 50, 10_000])
+def test_even_samples_are_every_step_th_of_group_members(seed, target):
+    # each member label's every max(1, count // target)-th flat index, in increasing order,
+    # and its count (0, negatives and labels beyond the mask left out); region_samples is
+    # region_indices' restriction sliced the same way
+    from rangeseg_o3d.fitting.region_fitter import region_indices, region_samples
+    from rangeseg_o3d.kernels import even_samples, group_members
+
+    labels, members = _runs_and_members(seed)
+    order, starts, counts = even_samples(labels, members, target)
+    full_order, full_starts = group_members(labels, members)
+    for k in range(9):
+        idx = full_order[full_starts[k]:full_starts[k + 1]]
+        assert counts[k] == (np.count_nonzero(labels == k) if k in (2, 5, 8) else 0)
+        np.testing.assert_array_equal(order[starts[k]:starts[k + 1]], idx[:: max(1, idx.size // target)])
+    grid = labels[:(labels.size // 20) * 20].reshape(-1, 20)
+    grid = np.where(grid < 0, 0, grid)
+    full = region_indices(grid, only={2, 3, 11, 40})
+    some = region_samples(grid, {2, 3, 11, 40}, target)
+    assert sorted(some) == sorted(full)
+    for k, (sample, count) in some.items():
+        assert count == full[k].size
+        np.testing.assert_array_equal(sample, full[k][:: max(1, count // target)])
+
+
+@pytest.mark.parametrize("only", [{2}, {5, 3}, {3, 10**9}, {11, -4, 0}, set(), {2**40}])
+def test_region_indices_and_samples_of_labels_below_or_beyond_the_grids_largest(only):
+    # the mask reaches the largest wanted label, not the grid's: larger labels on the grid are
+    # passed over, a wanted label beyond the pixel count is bounded by the grid's largest
+    from rangeseg_o3d.fitting.region_fitter import region_indices, region_samples
+
+    labels, _ = _runs_and_members(4)
+    grid = np.where(labels < 0, 0, labels)[:(labels.size // 20) * 20].reshape(-1, 20)
+    full = region_indices(grid)
+    expected = {k: full[k] for k in sorted(only) if k in full}
+    got = region_indices(grid, only=only)
+    assert list(got) == list(expected)
+    for k in expected:
+        np.testing.assert_array_equal(got[k], expected[k])
+    samples = region_samples(grid, only, 5)
+    assert list(samples) == list(expected)
+    for k, idx in expected.items():
+        np.testing.assert_array_equal(samples[k][0], idx[:: max(1, idx.size // 5)])
+
+
 def test_batched_planes_of_a_few_blobs_in_a_large_image_are_those_of_the_blobs_alone():
     # Mostly unlabelled images (refinement's leftovers) are summed over their labelled
     # pixels only: the answer must be the one for those pixels given on their own.
