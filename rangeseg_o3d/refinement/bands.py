@@ -25,7 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..fitting.primitives import Plane
-from ..fitting.region_fitter import region_indices
+from .._numeric import median
+from ..fitting.region_fitter import label_sizes, region_indices
 from ..fitting.robust import beyond_noise, distance_noise
 from .context import Context
 
@@ -131,13 +132,26 @@ def release_bands(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma: floa
     planes = [k for k, m in fits.items() if isinstance(m, Plane) and m.rms > 0]
     if not planes:
         return labels, fits
+    # (a plane the range noise explains has nothing a band could have bent; one within the
+    # noise at the scan's least sigma is within it at its own: most planes end here, before
+    # their pixels are grouped, ~10 us a scan instead of ~0.3 ms on the LMS200 suite's)
+    noise = ctx.sigma[ctx.sigma > 0]
+    if not noise.size:
+        return labels, fits
+    least = float(noise.min())
+    sizes = label_sizes(labels, minlength=max(planes) + 1)
+    planes = [k for k in planes if sizes[k] and beyond_noise(float(fits[k].rms), least, int(sizes[k]))]
+    if not planes:
+        return labels, fits
     width = labels.shape[1]
     bends = {"resolve_bends": float(resolve_bends)} if resolve_bends else {}
     out_labels, out_fits = None, None
-    for k, idx in region_indices(labels, only=planes).items():
-        plane = fits[k]
-        # (a plane the range noise explains has nothing a band could have bent)
-        if not beyond_noise(float(plane.rms), float(np.median(ctx.sigma[idx])), idx.size):
+    flat_labels = labels.ravel()
+    # (one comparison over the grid a region costs ~5 us; grouping every pixel ~0.3 ms)
+    regions = (region_indices(labels, only=planes) if len(planes) > 8
+               else {k: np.flatnonzero(flat_labels == k) for k in planes})
+    for k, idx in regions.items():
+        if not beyond_noise(float(fits[k].rms), median(ctx.sigma[idx]), idx.size):
             continue
         arms = line_arms(labels, idx, ctx.wrap_columns)
         if not arms.any() or arms.all():
