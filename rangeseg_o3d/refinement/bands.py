@@ -120,9 +120,11 @@ def release_bands(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma: floa
     line (above or below for a row's arm, beside it for a column's; the nearer in noise
     units where both are), its distance over the range noise along its ray, and beyond
     ``k_sigma`` of the curved model, goes to that region; the region's model becomes the
-    curved one. Released only where at least half the arm returns go: a band of the
-    region's own surface lies on the curved model, or on no neighbour's. Planes that took
-    returns are refitted from moments. ``resolve_bends``: the decision's keyword as in
+    curved one. Released only where at least half the arm returns go (a band of the
+    region's own surface lies on the curved model, or on no neighbour's) and where half the
+    rest's returns lie within one noise sigma of the curved model (a region holding a pipe
+    and a piece of the face behind it is no pipe bent by a band). Models that took returns
+    are refitted from moments (a curved neighbour keeps its model). ``resolve_bends``: the decision's keyword as in
     polish (independent samples per pixel; 0 for not asked)."""
     if k_sigma <= 0:
         raise ValueError(f"k_sigma must be positive; got {k_sigma}")
