@@ -29,16 +29,9 @@ from .._numeric import median
 from ..fitting.region_fitter import label_sizes, region_indices
 from ..fitting.robust import beyond_noise, distance_noise
 from .context import Context
+from .polish import BEND_LINES, RAY_COS_FLOOR, _lines_beside
 
 __all__ = ["line_arms", "release_bands"]
-
-#: Grid lines a region without its band must still span both ways (line by line) for its
-#: decision to tell a curvature across them (polish's BEND_LINES).
-BODY_LINES = 3
-
-#: The least incidence cosine a return's distance noise is taken at (a ray grazing a
-#: surface: there the first-order noise sigma x cosine is no bound; polish's RAY_COS_FLOOR).
-RAY_COS_FLOOR = 0.1
 
 
 def line_arms(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.ndarray:
@@ -57,43 +50,26 @@ def line_arms(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.nda
     idx = np.asarray(idx, np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= flat.size):
         raise ValueError(f"idx must be flat pixels of the {height}x{width} labels; got {idx.min()}..{idx.max()}")
-    own = flat[idx]
-    row, column = idx // width, idx % width
     # (the region's pixels only: a pass over the image costs ~1 ms, these a few us)
-    above = (row > 0) & (flat[np.maximum(idx - width, 0)] == own)
-    below = (row < height - 1) & (flat[np.minimum(idx + width, flat.size - 1)] == own)
-    if wrap_columns and width > 2:
-        left = flat[row * width + (column - 1) % width] == own
-        right = flat[row * width + (column + 1) % width] == own
-    else:
-        left = (column > 0) & (flat[np.maximum(idx - 1, 0)] == own)
-        right = (column < width - 1) & (flat[np.minimum(idx + 1, flat.size - 1)] == own)
+    above, below, left, right = (_across(labels, idx, wrap_columns) == flat[idx][:, None]).T
     return ~(above | below) | ~(left | right)
-
-
-def _lines_deep(idx: np.ndarray, width: int, rows: bool) -> float:
-    """The median count of the flat pixels ``idx`` on each grid column that holds any
-    (``rows``) or on each grid row: how many lines deep the pixels are, line by line."""
-    line = idx % width if rows else idx // width
-    _, counts = np.unique(line, return_counts=True)
-    return float(np.median(counts)) if counts.size else 0.0
 
 
 def _across(labels: np.ndarray, idx: np.ndarray, wrap_columns: bool) -> np.ndarray:
     """``(N, 4)`` the labels of the pixels above, below, left and right of the flat pixels
-    ``idx`` of ``labels`` (0 off the grid; across the seam of a 360-degree grid)."""
+    ``idx`` of ``labels`` (-1 off the grid; across the seam of a 360-degree grid)."""
     height, width = labels.shape
     flat = labels.ravel()
     row, column = idx // width, idx % width
     out = np.zeros((idx.size, 4), dtype=np.int64)
-    out[:, 0] = np.where(row > 0, flat[np.maximum(idx - width, 0)], 0)
-    out[:, 1] = np.where(row < height - 1, flat[np.minimum(idx + width, flat.size - 1)], 0)
+    out[:, 0] = np.where(row > 0, flat[np.maximum(idx - width, 0)], -1)
+    out[:, 1] = np.where(row < height - 1, flat[np.minimum(idx + width, flat.size - 1)], -1)
     if wrap_columns and width > 2:
         out[:, 2] = flat[row * width + (column - 1) % width]
         out[:, 3] = flat[row * width + (column + 1) % width]
     else:
-        out[:, 2] = np.where(column > 0, flat[np.maximum(idx - 1, 0)], 0)
-        out[:, 3] = np.where(column < width - 1, flat[np.minimum(idx + 1, flat.size - 1)], 0)
+        out[:, 2] = np.where(column > 0, flat[np.maximum(idx - 1, 0)], -1)
+        out[:, 3] = np.where(column < width - 1, flat[np.minimum(idx + 1, flat.size - 1)], -1)
     return out
 
 
@@ -115,8 +91,8 @@ def release_bands(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma: floa
     A plane region of ``labels`` whose plane (``fits``) is beyond the range noise
     (``ctx.sigma``, its median over the region: :func:`rangeseg_o3d.fitting.robust.beyond_noise`)
     and which holds line arms (:func:`line_arms`) is decided by the fitter without them,
-    when the rest still spans ``BODY_LINES`` grid lines both ways. Where that decision is a
-    curved model, each arm return within ``k_sigma`` of the model of a region across its
+    when the rest still spans polish's ``BEND_LINES`` grid lines both ways (line by line).
+    Where that decision is a curved model, each arm return within ``k_sigma`` of the model of a region across its
     line (above or below for a row's arm, beside it for a column's; the nearer in noise
     units where both are), its distance over the range noise along its ray, and beyond
     ``k_sigma`` of the curved model, goes to that region; the region's model becomes the
@@ -159,7 +135,7 @@ def release_bands(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma: floa
         if not arms.any() or arms.all():
             continue
         body = idx[~arms]
-        if min(_lines_deep(body, width, True), _lines_deep(body, width, False)) < BODY_LINES:
+        if min(_lines_beside(body, width, True), _lines_beside(body, width, False)) < BEND_LINES:
             continue
         band = idx[arms]
         across = _across(labels, band, ctx.wrap_columns)
