@@ -48,6 +48,7 @@ from ..result import Regions
 from ..scales import GRAZING_COSINE, with_derived_refinement
 from ..sensor import Sensor
 from .along_rays import settle_along_rays
+from .bands import release_bands
 from .context import Context
 from .dissolve import absorb_ripples, dissolve_small
 from .facets import planes_for_curved
@@ -253,6 +254,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # and the laser rows keep the range noise)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
     timer.lap("dissolve")
+    if single_returns(sensor, tile):  # a row of another face keeps a laser's pipe a plane
+        labels, fits = release_bands(ctx, labels, fits, k_sigma=config.k_sigma,
+                                     resolve_bends=bend_samples(sensor, tile))
     before_polish = fits
     fits = polish_models(ctx, labels, fits, resolve_bends=bend_samples(sensor, tile),
                          along_rays=single_returns(sensor, tile))
