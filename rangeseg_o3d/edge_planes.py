@@ -13,13 +13,12 @@ flank or at the edge) or, when no cylinder region was found, fitted as a plane (
 1034): on the kinect study and fresh seeds every curved split and every false fitting
 cylinder -> plane touched the frame's edge (kinect8's classification).
 
-The sensor model settles both. A strip of a curved region's surface lies within the noise
-of its distances to that region's model (or to that model refitted with it): it joins the
-region. A plane alone at the frame's edge whose pixels resolve a bend (the fitter's F-test
-over their independent returns) under a curved model within the noise of their distances
-is that curved surface. A real plane beside a pipe (a wall cut by the edge) lies off the
-pipe's model by more than its noise, and its pixels resolve no bend: it stays. Every change
-is held to :func:`rangeseg_o3d.fullres.planes_for_unresolved`'s later tests, so that none
+The sensor model settles the split. A strip of a curved region's surface lies within the
+noise of its distances to that region's model (or to that model refitted with it): it joins
+the region. A real plane beside a pipe (a wall cut by the edge) lies off the pipe's model by
+more than its noise: it stays. (A plane alone at the frame's edge fitted curved when its
+pixels resolve a bend was tried and left out: on kinect fresh seed 1014 it turned a small
+wall mixed with another face's pixels into a cylinder.) Every change is held to :func:`rangeseg_o3d.fullres.planes_for_unresolved`'s later tests, so that none
 turns a split into a false fitting.
 """
 
@@ -33,33 +32,18 @@ __all__ = ["edge_planes_to_curved"]
 
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
-                          samples: float = 1.0, min_size: int = 0, inlier_factor: float,
-                          tile_labels: np.ndarray | None = None, tile: int = 1, lone: bool = True,
+                          inlier_factor: float, tile_labels: np.ndarray | None = None, tile: int = 1,
                           near_sigmas: float | None = None):
     """Plane regions given to the curved surface the sensor's noise says they are strips of.
     Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
-    Each plane region, in turn:
-
-    - when it touches (4-neighbours) a cylinder or sphere region of at least its size, joins
-      the one whose model explains its pixels within the noise of their distances to it
+    Each plane region that touches (4-neighbours) a cylinder or sphere region of at least its
+    size joins the one whose model explains its pixels within the noise of their distances to it
       (:func:`_within_distance_noise`: range noise times the incidence cosine, chi-square
       bound over its pixels), the one of least rms; else, with ``fitter``, the one whose model
       refitted to an even sample of its own pixels and the strip's explains both within that
       noise (that refit its model: a tile model of a far pipe's means lies off a grazing
-      flank strip by more than the strip's small distance noise);
-    - else, when it touches the frame's edge, with ``fitter`` and ``samples`` > 0 (the
-      independent samples a pixel carries for the fitter's bend test), takes the cylinder or
-      sphere the fitter gives on its pixels asked to resolve bends (its F-test over those
-      samples) when that model explains them within the noise of their distances, and their
-      plane leaves them more than that noise (an rms over the rms noise of their distances:
-      a plane within it is the surface, whatever a bend could take of the noise). A pipe the
-      top edge cut to a band 14-30 px wide at 4-5 m (kinect seeds 29 and 1034) was fitted as
-      a plane within the range noise, which the recovery asks of a blob; its pixels resolve
-      the bend.
-
-    ``lone`` False: the first only (the pipeline's choice: the second turned a small wall
-    mixed with another face's pixels into a cylinder on kinect fresh seed 1014 scan 0).
+      flank strip by more than the strip's small distance noise).
 
     Every test runs on an even sample of about ``HOST_SAMPLE`` of a region's pixels.
 
@@ -73,10 +57,8 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     its model explains its own pixels within the noise of their distances (cheap necessary
     conditions: :func:`_curved_host`); None asks every one.
 
-    Regions under ``min_size`` pixels are not refitted (a bend needs the samples).
     ``sigma``: the range noise per pixel (the grid's shape).
     """
-    from .fitting.plane import fit_plane
     from .fullres import LabelBoxes, region_stats
 
     labels = np.asarray(labels)
@@ -84,22 +66,20 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         raise ValueError(f"edge_planes_to_curved: expected labels and sigma of one (H, W) shape; "
                          f"got {labels.shape} and {np.shape(sigma)}")
     if fitter is not None and "noise_floor" not in getattr(fitter, "params", {}):
-        fitter = None  # (resolve_bends: a keyword of the primitives fitter alone)
-    h, w = labels.shape
+        fitter = None  # (refit's curvature_gain: a keyword of the primitives fitter alone)
     counts = stats.counts
     n = counts.size  # (region_stats counts every label; a pass over the grid for its largest costs 0.1 ms)
     curved = {k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n}
     planes = [k for k, m in fits.items() if m and m.kind == "plane" and 0 < k < n
               and k < counts.size and counts[k] > 0]
-    if not planes or (not curved and fitter is None):
+    if not planes or not curved:
         return labels, fits, stats
     boxes = LabelBoxes(labels, n)
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
     # the planes that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
     beside = _touching_pairs(labels, boxes, sorted(curved), planes, counts)
-    edge = [k for k in planes if _touches_edge(boxes.bounds(k), h, w)] if fitter is not None and lone else []
-    asked = sorted(set(beside) | set(edge))
+    asked = sorted(beside)
     if not asked:
         return labels, fits, stats
     xyz = cloud.xyz
@@ -115,7 +95,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         current = fits if fits_out is None else fits_out
         if near is not None:
             hosts = [c for c in hosts if near.get((k, c), -1) != 0 or current.get(c) is not fits.get(c)]
-            if not hosts and k not in edge:
+            if not hosts:
                 continue
         # every test on an even sample of about HOST_SAMPLE of its pixels (a floor at the frame's
         # edge holds 10^5: taken whole, the real frames' edge planes cost tens of milliseconds)
@@ -125,7 +105,7 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         if near is not None:
             hosts = [c for c in hosts if (near.get((k, c)) == 1 and current.get(c) is fits.get(c))
                      or _near(current.get(c), points, noise, float(near_sigmas))]
-            if not hosts and k not in edge:
+            if not hosts:
                 continue
         host, refit = _curved_host(cloud, labels if out is None else out, boxes, hosts, current,
                                    points, noise, fitter, sigma, host_samples)
@@ -144,40 +124,12 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
             if refit is not None:
                 fits_out[host] = refit
             changed.append(host)
-            continue
-        if k not in edge or not samples > 0 or counts[k] < max(int(min_size), 6):
-            continue
-        plane = fit_plane(points)
-        if not plane:
-            continue
-        plane_rms, plane_band = _rms_and_noise(plane, points, noise)
-        if not plane_rms > plane_band:
-            # the plane leaves no more than the noise of the distances: nothing for a bend to
-            # explain (a wall mixed with a crease's band fitted a cylinder 1.5 % closer, kinect
-            # spent seed 739 scan 0); a pipe's plane, turned towards the rays, leaves more
-            continue
-        model = _curved_fit(fitter, points, noise, samples)
-        if model is None:
-            continue
-        if out is None:
-            out = np.array(labels, copy=True)
-        if not _union_stays_curved(cloud, out, k, model, sigma, tile_boxes, tile):
-            continue  # (planes_for_unresolved would make it a plane again)
-        fits_out = dict(fits) if fits_out is None else fits_out
-        fits_out[k] = model
-        changed.append(k)
     if not changed:
         return labels, fits, stats
     labels_out = labels if out is None else out
     stats = region_stats(xyz, labels_out, fits_out, sigma, inlier_factor, known=stats,
                          stale=sorted(set(changed) | (set(fits) - set(fits_out))))
     return labels_out, fits_out, stats
-
-
-def _touches_edge(bounds: tuple, h: int, w: int) -> bool:
-    # whether a (row0, row1, col0, col1) half-open box reaches the frame's first or last row or column
-    r0, r1, c0, c1 = bounds
-    return r1 > r0 and (r0 == 0 or r1 == h or c0 == 0 or c1 == w)
 
 
 def _rms_and_noise(model, points: np.ndarray, noise: np.ndarray, distances: np.ndarray | None = None
@@ -232,17 +184,6 @@ def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool
 
 #: Pixels of a curved region its refit with a strip samples (evenly, as planes_for_unresolved).
 HOST_SAMPLE = 1024
-
-
-def _host_sample(cloud, labels: np.ndarray, boxes, c: int, sigma: np.ndarray):
-    # an even sample of about HOST_SAMPLE of region c's pixels (its box from ``boxes``) and their range noise
-    box = boxes(c)
-    window = labels[box]
-    step = max(int(np.ceil(np.sqrt(window.size / HOST_SAMPLE))), 1)
-    pick = window[::step, ::step] == c
-    own, noise = cloud.xyz[box][::step, ::step][pick], np.asarray(sigma)[box][::step, ::step][pick]
-    finite = np.isfinite(own).all(axis=1) & np.isfinite(noise)
-    return own[finite], noise[finite]
 
 
 def stays_curved(model, points: np.ndarray, noise: np.ndarray) -> bool:
@@ -390,10 +331,10 @@ def _strip_sample(labels: np.ndarray, xyz: np.ndarray, sigma: np.ndarray, bounds
 
 
 def _sample_of(samples: dict, c: int, cloud, labels: np.ndarray, boxes, sigma: np.ndarray, model):
-    # region c's even sample (:func:`_host_sample`), its range noise and whether ``model``
+    # region c's even sample (:func:`_strip_sample`), its range noise and whether ``model``
     # explains it within the noise of its distances: taken once per call of the step
     if c not in samples:
-        own, own_noise = _host_sample(cloud, labels, boxes, c, sigma)
+        own, own_noise = _strip_sample(labels, cloud.xyz, sigma, boxes.bounds(c), c)
         samples[c] = (own, own_noise, len(own) >= 6 and _within_distance_noise(model, own, own_noise))
     return samples[c]
 
@@ -426,12 +367,3 @@ def _touching_pairs(labels: np.ndarray, boxes, curved: list, planes: list, count
             beside.setdefault(int(ps[j]), set()).add(int(cs[i]))
     return beside
 
-
-def _curved_fit(fitter, points: np.ndarray, noise: np.ndarray, samples: float):
-    """The cylinder or sphere the fitter gives on ``points`` (asked to resolve bends over
-    ``samples`` per point) that explains them within the noise of their distances (range
-    noise ``noise``); None without one."""
-    model = fitter.fit(points, resolve_bends=float(samples))
-    if model and model.kind != "plane" and _within_distance_noise(model, points, noise):
-        return model
-    return None

@@ -26,7 +26,6 @@ from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_f
 from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
 from .edge_planes import edge_planes_to_curved
-from .refinement.curved_refused import full_resolution_samples
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -333,10 +332,7 @@ class Pipeline:
                 # cylinder region join it when its model (or its refit with them) explains them
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
-                    samples=full_resolution_samples(self.sensor),
-                    min_size=recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
-                                                    noise.correlation_px),
-                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile, lone=False,
+                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
                     near_sigmas=refine.k_sigma)
                 lap("edge_planes")
         if refine.enabled and noise.matched_window:

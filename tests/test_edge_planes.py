@@ -50,7 +50,7 @@ def test_a_flank_strip_joins_its_pipe_and_the_wall_beside_it_stays_a_plane(seed)
     assert fits[3].kind == "plane" and fits[4].kind == "plane"
     assert (labels == 2)[:, -1].any()  # the pipe's region touches the frame's right edge
     out, models, out_stats = edge_planes_to_curved(scan.cloud, labels, fits, stats, sigma=sigma,
-                                                   fitter=pipeline.fitter, samples=1.0, min_size=20,
+                                                   fitter=pipeline.fitter,
                                                    inlier_factor=INLIER_SIGMAS)
     pipe = scan.truth_ids == 2
     assert 3 not in models and not (out == 3).any()
@@ -78,29 +78,6 @@ def test_edge_planes_to_curved_rejects_mismatched_shapes():
         edge_planes_to_curved(scan.cloud, labels, fits, stats, sigma=sigma[:-1], inlier_factor=INLIER_SIGMAS)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_a_lone_plane_on_a_pipe_cut_by_the_edge_is_fitted_curved_and_the_wall_stays_a_plane(seed):
-    # The whole pipe (cut by the frame's right edge) one region under its plane, as the
-    # recovery leaves a blob the tile grid lost; the wall, also cut by the edges, under its
-    # plane. The pipe's pixels resolve its bend under a cylinder within the noise of their
-    # distances: it becomes that cylinder. The wall's resolve none: it stays its plane.
-    scan, pipeline, labels, fits, stats, sigma = _pipe_before_a_wall(seed)
-    pipe = scan.truth_ids == 2
-    lone = np.where(pipe, 2, np.where(scan.truth_ids == 1, 1, 0)).astype(np.int32)
-    planes = {1: rs.fitting.fit_plane(scan.cloud.xyz[lone == 1]), 2: rs.fitting.fit_plane(scan.cloud.xyz[pipe])}
-    lone_stats = region_stats(scan.cloud.xyz, lone, planes, sigma, INLIER_SIGMAS)
-    out, models, out_stats = edge_planes_to_curved(scan.cloud, lone, planes, lone_stats, sigma=sigma,
-                                                   fitter=pipeline.fitter, samples=1.0, min_size=20,
-                                                   inlier_factor=INLIER_SIGMAS)
-    assert np.array_equal(out, lone)
-    assert models[2].kind == "cylinder" and abs(models[2].radius - 0.2) < 0.08
-    assert models[1] is planes[1]
-    assert out_stats.counts[2] == int(pipe.sum())
-    # without the fitter (no bend asked) the lone plane stays
-    same = edge_planes_to_curved(scan.cloud, lone, planes, lone_stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
-    assert same[1] is planes
-
-
 class _CountingFitter:
     """The pipeline's fitter, counting its refits (the step's cost)."""
 
@@ -126,8 +103,7 @@ def test_the_near_pretest_spares_the_refit_of_the_wall_band_and_changes_nothing_
     for near in (None, 3.0):
         counting = _CountingFitter(pipeline.fitter)
         out, models, _ = edge_planes_to_curved(scan.cloud, labels, fits, stats, sigma=sigma, fitter=counting,
-                                               samples=1.0, min_size=20, inlier_factor=INLIER_SIGMAS,
-                                               lone=False, near_sigmas=near)
+                                               inlier_factor=INLIER_SIGMAS, near_sigmas=near)
         band = {tuple(p) for p in scan.cloud.xyz[labels == 4]}
         answers.append((out, models, sum(any(tuple(p) in band for p in asked) for asked in counting.asked)))
     (out_all, models_all, refits_all), (out_near, models_near, refits_near) = answers
