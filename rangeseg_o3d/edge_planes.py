@@ -214,7 +214,7 @@ def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.n
     false fitting where the strip and the region apart were a split."""
     from .fitting.plane import fit_plane
     from .fitting.robust import curvature_resolved
-    from .fullres import LabelBoxes, _only_curved_within_noise, pixel_box, region_sample
+    from .fullres import LabelBoxes, only_curved_within_noise, pixel_box, region_sample
 
     box = pixel_box(LabelBoxes(labels), host, tile_boxes, tile)
     points = region_sample(cloud, labels, host, box)
@@ -224,7 +224,7 @@ def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.n
     squares = float(np.sum(model.distances(points) ** 2))
     if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
         return True
-    return _only_curved_within_noise(model, cloud.xyz, sigma, labels, host, box)
+    return only_curved_within_noise(model, cloud.xyz, sigma, labels, host, box)
 
 
 def _curved_host(cloud, labels: np.ndarray, boxes, hosts, fits: dict, points: np.ndarray, noise: np.ndarray,
@@ -294,7 +294,7 @@ def _near_pairs(labels: np.ndarray, xyz: np.ndarray, sigma: np.ndarray, boxes, b
     (:func:`rangeseg_o3d.kernels.strips_near_models`, merge's verdicts), -1 where rounding
     could decide (numpy's :func:`_near` then answers)."""
     from .fitting.region_fitter import model_row
-    from .refinement.merge import _NEAR_RELATIVE, _NEAR_ROUNDING
+    from .refinement.merge import NEAR_RELATIVE, NEAR_ROUNDING
 
     pairs = [(k, c) for k in sorted(beside) for c in sorted(beside[k]) if fits.get(c) and fits[c].kind != "plane"]
     if not pairs:
@@ -307,7 +307,7 @@ def _near_pairs(labels: np.ndarray, xyz: np.ndarray, sigma: np.ndarray, boxes, b
         np.ascontiguousarray(labels, dtype=np.int32), np.ascontiguousarray(xyz, dtype=np.float64),
         np.ascontiguousarray(sigma, dtype=np.float64), np.array([k for k, _ in pairs], np.int32), grid, steps,
         np.array([rows[c][0] for _, c in pairs], np.int8), np.array([rows[c][1] for _, c in pairs]),
-        near_sigmas, _NEAR_RELATIVE, _NEAR_ROUNDING)
+        near_sigmas, NEAR_RELATIVE, NEAR_ROUNDING)
     return dict(zip(pairs, verdict.tolist()))
 
 

@@ -439,7 +439,7 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         squares = float(np.sum(fits[k].distances(points) ** 2))
         if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
             continue
-        if by_distance_noise and _only_curved_within_noise(fits[k], cloud.xyz, sigma, labels, k, box):
+        if by_distance_noise and only_curved_within_noise(fits[k], cloud.xyz, sigma, labels, k, box):
             continue
         # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
         # independent samples, at most one (a step as wide as a stereo camera's window: one each)
@@ -865,11 +865,11 @@ def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -
     return kernels.label_sample(cloud.xyz, labels, int(k), row0, row1, col0, col1, step)
 
 
-def _only_curved_within_noise(curved, xyz: np.ndarray, sigma: np.ndarray, labels: np.ndarray, k: int,
-                              box: tuple[slice, slice]) -> bool:
-    # whether the curved model explains region k's pixels (in ``box``) within the noise of
-    # their distances to it and their plane does not: on all its pixels, as the chi-square
-    # bound of a few hundred sampled ones lets a plane along the rays pass
+def only_curved_within_noise(curved, xyz: np.ndarray, sigma: np.ndarray, labels: np.ndarray, k: int,
+                             box: tuple[slice, slice]) -> bool:
+    """Whether the ``curved`` model explains region ``k``'s pixels (in ``box``) within the
+    noise of their distances to it and their plane does not: on all its pixels, as the
+    chi-square bound of a few hundred sampled ones lets a plane along the rays pass."""
     from .fitting.plane import fit_plane
     from .fitting.robust import beyond_noise, distance_noise
 

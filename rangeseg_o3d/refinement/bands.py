@@ -29,7 +29,7 @@ from .._numeric import median
 from ..fitting.region_fitter import label_sizes, region_indices
 from ..fitting.robust import beyond_noise, distance_noise
 from .context import Context
-from .polish import BEND_LINES, RAY_COS_FLOOR, _lines_beside
+from .polish import BEND_LINES, RAY_COS_FLOOR, lines_beside
 
 __all__ = ["line_arms", "release_bands"]
 
@@ -135,7 +135,7 @@ def release_bands(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma: floa
         if not arms.any() or arms.all():
             continue
         body = idx[~arms]
-        if min(_lines_beside(body, width, True), _lines_beside(body, width, False)) < BEND_LINES:
+        if min(lines_beside(body, width, True), lines_beside(body, width, False)) < BEND_LINES:
             continue
         band = idx[arms]
         across = _across(labels, band, ctx.wrap_columns)

@@ -716,14 +716,14 @@ def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigm
         np.ascontiguousarray(ctx.xyz, dtype=np.float64), np.ascontiguousarray(ctx.sigma, dtype=np.float64),
         np.ascontiguousarray(np.concatenate(pieces), dtype=np.int64), starts,
         np.array([kind for kind, _ in rows], np.int8), np.array([row for _, row in rows]),
-        float(near_sigmas), _NEAR_RELATIVE, _NEAR_ROUNDING)
+        float(near_sigmas), NEAR_RELATIVE, NEAR_ROUNDING)
 
 
 #: Margins about the pretest's bound within which merge_into_curved asks numpy
 #: (:func:`_pieces_near`): many times the rounding of a distance's few operations on its
 #: terms, and the bound's own relative rounding.
-_NEAR_ROUNDING = 64 * np.finfo(np.float64).eps
-_NEAR_RELATIVE = 1e-9
+NEAR_ROUNDING = 64 * np.finfo(np.float64).eps
+NEAR_RELATIVE = 1e-9
 
 
 #: Relative margin about the noise a union's rms is at the bound of, outside which counting

@@ -267,7 +267,7 @@ def under_range_noise(sigma: float, n: int) -> float:
     return float(sigma * np.sqrt(low)) if low > 0.0 else 0.0
 
 
-#: The fewest grid lines across, line by line (:func:`_lines_beside`), on which returns show a
+#: The fewest grid lines across, line by line (:func:`lines_beside`), on which returns show a
 #: bend: two lines of returns along a column's axis are parallel, so two lines fit a plane
 #: whatever the surface's curvature (:func:`bent_at_border_lines`).
 BEND_LINES = 3
@@ -341,7 +341,7 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
     fitter's, once, on the region less the sides whose returns lie off the rest's plane beyond
     their range noise: one side, or two opposite ones. For a candidate (each side, each opposite
     pair; the flattest rest first) the rest must span at least ``BEND_LINES`` grid lines both
-    ways, line by line (:func:`_lines_beside`); its least-squares plane must be within the
+    ways, line by line (:func:`lines_beside`); its least-squares plane must be within the
     fitter's plane threshold and leave it no more than its range noise along its rays gives a
     plane (:func:`_ray_noise`, up to the noise floor's ``NOISE_CHI2_SIGMAS`` chi-square
     deviations); each dropped side's returns must lie off that plane by more than their range
@@ -396,7 +396,7 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
                                rms_per_range2=p["rms_per_range2"])
 
     def spans(rest):  # grid lines both ways, line by line
-        return min(_lines_beside(rest, width, True), _lines_beside(rest, width, False)) >= BEND_LINES
+        return min(lines_beside(rest, width, True), lines_beside(rest, width, False)) >= BEND_LINES
 
     def off(plane, points, idx, side):  # the side's returns off the plane beyond their range noise
         return side.sum() >= 3 and beyond_noise(float(np.sqrt(np.mean(plane.distances(points[side]) ** 2))),
@@ -461,7 +461,7 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
     return out
 
 
-def _lines_beside(idx: np.ndarray, width: int, rows: bool) -> float:
+def lines_beside(idx: np.ndarray, width: int, rows: bool) -> float:
     """The median count of the flat pixels ``idx`` (of a grid ``width`` wide) on each grid column
     that holds any (``rows``: how many rows deep the region is, across a side above or below
     it) or on each grid row (how many columns wide, across a side left or right of it): the

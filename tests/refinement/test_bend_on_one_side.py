@@ -112,19 +112,19 @@ def test_polish_keeps_the_plane_the_decision_would_bend_on_a_lasers_single_retur
 
 
 def test_lines_beside_counts_the_grid_lines_across_line_by_line():
-    from rangeseg_o3d.refinement.polish import _lines_beside
+    from rangeseg_o3d.refinement.polish import lines_beside
 
     labels = np.zeros((8, 10), np.int32)
     labels[1:7, 2:6] = 1  # a block 6 rows deep and 4 columns wide
     idx = np.flatnonzero(labels.ravel())
-    assert _lines_beside(idx, 10, rows=False) == 4.0  # columns across, on each row
-    assert _lines_beside(idx, 10, rows=True) == 6.0  # rows across, on each column
+    assert lines_beside(idx, 10, rows=False) == 4.0  # columns across, on each row
+    assert lines_beside(idx, 10, rows=True) == 6.0  # rows across, on each column
     band = np.zeros((8, 10), np.int32)
     for r in range(8):  # two pixels wide, drifting one column a row: 9 columns spanned
         band[r, r:r + 2] = 1
     idx = np.flatnonzero(band.ravel())
-    assert _lines_beside(idx, 10, rows=False) == 2.0
-    assert _lines_beside(idx[:0], 10, rows=False) == 0.0
+    assert lines_beside(idx, 10, rows=False) == 2.0
+    assert lines_beside(idx[:0], 10, rows=False) == 0.0
 
 
 def test_the_lines_between_the_sides_are_counted_line_by_line(monkeypatch):
