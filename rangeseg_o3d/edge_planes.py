@@ -174,14 +174,6 @@ def _noise_ceiling(model, noise: np.ndarray) -> float:
     return float(np.sqrt(np.mean(square)))
 
 
-def _beyond_distance_noise(model, points: np.ndarray, noise: np.ndarray) -> bool:
-    # (the plane's own rms: the least-squares plane's distances)
-    from .fitting.robust import beyond_noise
-
-    rms, band = _rms_and_noise(model, points, noise)
-    return beyond_noise(rms, band, len(points))
-
-
 #: Pixels of a curved region its refit with a strip samples (evenly, as planes_for_unresolved).
 HOST_SAMPLE = 1024
 
@@ -194,6 +186,7 @@ def stays_curved(model, points: np.ndarray, noise: np.ndarray) -> bool:
     plane would trade a split for a false fitting."""
     from .fitting.plane import fit_plane
     from .fitting.robust import curvature_resolved
+    from .fullres import curved_alone_within_noise
 
     if len(points) < 6:
         return False
@@ -203,7 +196,7 @@ def stays_curved(model, points: np.ndarray, noise: np.ndarray) -> bool:
     squares = float(np.sum(model.distances(points) ** 2))
     if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
         return True
-    return _within_distance_noise(model, points, noise) and _beyond_distance_noise(plane, points, noise)
+    return curved_alone_within_noise(model, points, noise, plane)
 
 
 def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.ndarray, tile_boxes, tile: int) -> bool:

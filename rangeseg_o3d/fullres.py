@@ -867,17 +867,24 @@ def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -
 
 def only_curved_within_noise(curved, xyz: np.ndarray, sigma: np.ndarray, labels: np.ndarray, k: int,
                              box: tuple[slice, slice]) -> bool:
-    """Whether the ``curved`` model explains region ``k``'s pixels (in ``box``) within the
-    noise of their distances to it and their plane does not: on all its pixels, as the
+    """:func:`curved_alone_within_noise` on all of region ``k``'s pixels (in ``box``), as the
     chi-square bound of a few hundred sampled ones lets a plane along the rays pass."""
-    from .fitting.plane import fit_plane
-    from .fitting.robust import beyond_noise, distance_noise
-
     mine = labels[box] == k
     points, noise = xyz[box][mine], np.asarray(sigma)[box][mine]
     finite = np.isfinite(points).all(axis=1)
-    points, noise = points[finite], noise[finite]
-    plane, n = fit_plane(points) if len(points) >= 6 else None, len(points)
+    return curved_alone_within_noise(curved, points[finite], noise[finite])
+
+
+def curved_alone_within_noise(curved, points: np.ndarray, noise: np.ndarray, plane=None) -> bool:
+    """Whether the ``curved`` model explains ``points`` (range noise ``noise``) within the
+    noise of their distances to it (range noise times the incidence cosine; chi-square bound)
+    and their least-squares ``plane`` (fitted here when not given) does not."""
+    from .fitting.plane import fit_plane
+    from .fitting.robust import beyond_noise, distance_noise
+
+    n = len(points)
+    if plane is None:
+        plane = fit_plane(points) if n >= 6 else None
     if not plane:
         return False
     curved_rms = float(np.sqrt(np.mean(curved.distances(points) ** 2)))
