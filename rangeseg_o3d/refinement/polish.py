@@ -422,12 +422,21 @@ def bent_at_border_lines(ctx: Context, labels: np.ndarray, curved: dict, samples
         # candidates 0-3 one side each, 4-5 two opposite ones (a pixel on both: the first)
         dropped = np.vstack([sides, sides[0] | sides[1], sides[2] | sides[3]])
         _, sizes, means, rms = _plane_rms_without_each_side(points - centroid, dropped)
+        hidden = None  # (a region whose plane is within the threshold: which returns its model's front hides)
         if k not in kept and rms[0] <= threshold(idx.size, centroid):
-            continue  # a curved region whose plane is within the threshold: _unbent's question, answered
+            # _unbent's question, answered for the region, unless one border line carries the bend:
+            # one side only, where the model is a shallow arc or hides the side's returns behind its front
+            if k not in one_side:
+                continue
+            hidden = behind_own_front(ctx, idx, points, model)
+            if not (shallow or hidden.any()):
+                continue
         for c in np.argsort(rms[1:]):  # the flattest rest first
             n, rest = int(sizes[c + 1]), ~dropped[c]
-            if n < minimum or not (shallow if c >= 4 else k in one_side) or not spans(idx[rest]):
+            if n < minimum or not (shallow and hidden is None if c >= 4 else k in one_side) or not spans(idx[rest]):
                 continue
+            if hidden is not None and not (shallow or 2 * np.count_nonzero(hidden & dropped[c]) > dropped[c].sum()):
+                continue  # a pipe's limb is on its near half: within the threshold, its bend is _unbent's
             tolerance = threshold(n, centroid + means[c + 1])
             if rms[c + 1] > tolerance:
                 continue
@@ -502,9 +511,25 @@ def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, mod
     beside = np.flatnonzero(near.ravel() & ~mine.ravel() & flat_valid)
     if beside.size == 0:
         return 0, 0
-    origins = ctx.ray_origins(beside)
-    start = np.zeros((beside.size, 3)) if origins is None else origins
-    seen = ctx.xyz[beside] - start
+    start, rays, ranges, front, hit = _front_meeting(ctx, beside, rows_at(ctx.xyz, beside), model)
+    if isinstance(model, Cylinder):
+        along = (start + front[:, None] * rays - model.point) @ model.axis
+        own = (ctx.xyz[idx] - model.point) @ model.axis
+        hit &= (along >= own.min()) & (along <= own.max())
+    margin = CHI_SQUARE_SIGMAS * ctx.sigma[beside]
+    through = hit & (ranges - front > margin)
+    claimed = hit & ~(front - ranges > margin)  # (a nearer surface in front of it tells nothing)
+    return int(np.count_nonzero(claimed)), int(np.count_nonzero(through))
+
+
+def _front_meeting(ctx: Context, idx: np.ndarray, points: np.ndarray, model) -> tuple:
+    """``(start, rays, ranges, front, hit)`` for the returns ``points`` of the flat pixels
+    ``idx``: where their rays start (:meth:`Context.ray_origins`, else the origin), their unit
+    rays and ranges from there, the range at which each ray first meets ``model`` (a cylinder,
+    unbounded along its axis, or a sphere) in front of its start, and whether it meets it there."""
+    origins = ctx.ray_origins(idx)
+    start = np.zeros((idx.size, 3)) if origins is None else origins
+    seen = points - start
     ranges = np.linalg.norm(seen, axis=1)
     rays = seen / np.maximum(ranges, 1e-12)[:, None]
     if isinstance(model, Cylinder):
@@ -517,20 +542,30 @@ def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, mod
         c = np.einsum("ij,ij->i", e, e) - model.radius ** 2
     else:
         rel = start - model.center
-        a = np.ones(beside.size)
+        a = np.ones(idx.size)
         b = np.einsum("ij,ij->i", rays, rel)
         c = np.einsum("ij,ij->i", rel, rel) - model.radius ** 2
     disc = b * b - a * c
     front = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
-    hit = (disc >= 0.0) & (front > 0.0)
-    if isinstance(model, Cylinder):
-        along = (start + front[:, None] * rays - model.point) @ model.axis
-        own = (ctx.xyz[idx] - model.point) @ model.axis
-        hit &= (along >= own.min()) & (along <= own.max())
-    margin = CHI_SQUARE_SIGMAS * ctx.sigma[beside]
-    through = hit & (ranges - front > margin)
-    claimed = hit & ~(front - ranges > margin)  # (a nearer surface in front of it tells nothing)
-    return int(np.count_nonzero(claimed)), int(np.count_nonzero(through))
+    return start, rays, ranges, front, (disc >= 0.0) & (front > 0.0)  # (a start inside: front < 0)
+
+
+def behind_own_front(ctx: Context, idx: np.ndarray, points: np.ndarray, model) -> np.ndarray:
+    """Per return of the flat pixels ``idx`` (``points`` their rows of ``ctx.xyz``), whether
+    its ray, from a start outside the cylinder or sphere ``model``, first meets the model more
+    than ``CHI_SQUARE_SIGMAS`` range sigmas (``ctx.sigma``) nearer than the return: the
+    model's own near half stands in front of it along the ray, so an opaque surface of that
+    shape returns the ray there and not at the return. A model that put such returns on its
+    far half took returns of something else (spinning_64x1024 seed 709 scan 2: a face's
+    cylinder whose top row, 6 returns of the face above, lies on its far half)."""
+    idx = np.asarray(idx, dtype=np.int64)
+    points = np.asarray(points, dtype=np.float64)
+    if points.shape != (idx.size, 3):
+        raise ValueError(f"points must be (len(idx), 3) = ({idx.size}, 3); got shape {points.shape}")
+    if not isinstance(model, (Cylinder, Sphere)):
+        raise ValueError(f"model must be a Cylinder or a Sphere; got {type(model).__name__}")
+    _, _, ranges, front, hit = _front_meeting(ctx, idx, points, model)
+    return hit & (ranges - front > CHI_SQUARE_SIGMAS * ctx.sigma[idx])
 
 
 def _curved_planes(ctx: Context, labels: np.ndarray, fits: dict, resolve_bends: float = 0.0, *,
