@@ -49,11 +49,21 @@ class NoiseModel:
     ``sigma0`` stands for what averaging does not remove (quantisation, calibration
     ripple); the range-dependent term shrinks like ``1/sqrt(n)`` for means of ``n``
     returns (see :meth:`sigma`).
+
+    ``step_quadratic`` (1/m, 0 for none) is the depth step ``step_quadratic r^2`` of a
+    structured-light camera that measures disparity in fixed sub-pixel steps (Kinect v1 /
+    PrimeSense: 1/8 px, ``1 / (8 f b)`` ~ 2.9e-3 /m, measured on the PCL and PEAC frames). A
+    fact of the sensor only: no step of the method reads it. Tile means of such a camera
+    scatter more than ``1/sqrt(n)`` says because its errors are correlated over several
+    pixels (the staircase among them); the fitter widens by the measured excess
+    (:func:`rangeseg_o3d.sensor_checks.noise_excess`). A floor of the steps' rms under the
+    segmenter's noise of tile means merged the real frames' surfaces across their creases.
     """
 
     sigma0: float = 0.005
     sigma_quadratic: float = 0.0
     correlation_px: int = 1
+    step_quadratic: float = 0.0
 
     def __post_init__(self):
         for name in ("sigma0", "sigma_quadratic"):
@@ -64,6 +74,11 @@ class NoiseModel:
             raise ValueError("sigma0 and sigma_quadratic cannot both be 0 (the noise model would be zero)")
         if not (isinstance(self.correlation_px, (int, np.integer)) and self.correlation_px >= 1):
             raise ValueError(f"correlation_px must be an integer >= 1; got {self.correlation_px!r}")
+        step = self.step_quadratic
+        # Not checked against sigma_quadratic: an override of the noise alone (a quieter
+        # model, ``--set sensor.sigma_quadratic=...``) must not need the steps restated.
+        if not (isinstance(step, (int, float)) and math.isfinite(step) and step >= 0):
+            raise ValueError(f"step_quadratic must be a finite number >= 0 (1/m); got {step!r}")
 
     def mean_scale(self, samples):
         """Factor on the range-dependent term for means of ``samples`` returns: one over the

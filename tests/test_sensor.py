@@ -27,7 +27,8 @@ def test_every_preset_has_a_sensor_section_resolved_into_one_sensor(preset):
     config = load_config(preset)
     sensor = Pipeline(config).sensor
     assert isinstance(sensor, Sensor)
-    assert sensor.noise == NoiseModel(raw["sensor"]["sigma0"], raw["sensor"]["sigma_quadratic"])
+    assert sensor.noise == NoiseModel(raw["sensor"]["sigma0"], raw["sensor"]["sigma_quadratic"],
+                                      step_quadratic=raw["sensor"].get("step_quadratic", 0.0))
     assert sensor.units == raw["sensor"]["units"]
     # the noise is nowhere else: not in the segmenter's, fitter's or refinement's sections
     for section in (config.segmenter.params, config.fitter.params, config.refine.model_dump()):
@@ -109,6 +110,27 @@ def test_sensor_validates_units_and_ranges():
         Sensor(min_range=5.0, max_range=1.0)
     with pytest.raises(ValueError, match="sensor.units"):
         load_config({"sensor": {"units": "furlong"}})
+
+
+def test_depth_steps_growing_with_the_range_are_a_sensor_fact_of_rgbd_vga_only():
+    # the Kinect's 1/8-px disparity steps, measured on the PCL / PEAC frames: 2.9e-3 z^2
+    assert NoiseModel().step_quadratic == 0.0
+    assert load_config("rgbd_vga").sensor.resolve().noise.step_quadratic == 0.0029
+    for preset in ("lms200", "abw", "sick_3dtk", "spinning_lidar", "tls_andreashaus"):
+        assert load_config(preset).sensor.resolve().noise.step_quadratic == 0.0
+    for bad in (-1e-3, float("nan"), float("inf"), "0.003"):
+        with pytest.raises(ValueError, match=f"step_quadratic must be a finite number >= 0 \\(1/m\\); got {bad!r}"):
+            NoiseModel(0.001, 0.001425, step_quadratic=bad)
+    with pytest.raises(ValueError, match="step_quadratic"):
+        load_config({"sensor": {"step_quadratic": -0.5}})
+    # an override of the noise alone does not need the steps restated
+    quiet = load_config("rgbd_vga", overrides={"sensor.sigma_quadratic": 0.0001425}).sensor.resolve().noise
+    assert (quiet.sigma_quadratic, quiet.step_quadratic) == (0.0001425, 0.0029)
+    # nothing reads it: the fitter's and segmenter's noise of tile means are those without steps
+    with_steps = NoiseModel(0.001, 0.001425, step_quadratic=0.0029)
+    plain = NoiseModel(0.001, 0.001425)
+    np.testing.assert_array_equal(with_steps.mean_scale([1, 36]), plain.mean_scale([1, 36]))
+    assert with_steps.of_means(36) == plain.of_means(36)
 
 
 def test_lateral_noise_is_a_sensor_fact_of_abw_only():

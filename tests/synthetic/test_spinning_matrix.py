@@ -160,6 +160,29 @@ def test_depth_camera_quantised_depths():
         simulate_depth_camera(_wall_scene(), depth_step=-1.0)
 
 
+def test_depth_camera_disparity_steps_grow_with_the_square_of_the_depth():
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+
+    kwargs = dict(width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, noise_sigma0=0.0)
+    q = 0.0029
+    plain = simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, seed=3, **kwargs).cloud.xyz[..., 2]
+    z = simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, step_quadratic=q, seed=3,
+                              **kwargs).cloud.xyz[..., 2]
+    # every depth is 1 / (q k) for a whole disparity k: 172 steps at 2 m (1 / (0.0029 * 2) = 172.4)
+    k = 1.0 / (q * z)
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+    assert 169 <= np.round(k).min() and np.round(k).max() <= 176  # the noise (5.7 mm) spans a few steps
+    values = np.unique(np.round(z, 9))
+    gaps = np.diff(values)
+    np.testing.assert_allclose(gaps / (q * (values[1:] * values[:-1])), 1.0, rtol=1e-6)  # 1/(qk) - 1/(q(k+1))
+    assert 0.0110 < gaps.min() and gaps.max() < 0.0126  # ~ q z^2 = 11.6 mm at 2 m
+    np.testing.assert_array_less(np.abs(z - plain), 0.5 * q * plain**2 * 1.02)  # rounding within half a step
+    assert np.array_equal(simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, step_quadratic=0.0,
+                                                seed=3, **kwargs).cloud.xyz[..., 2], plain)
+    with pytest.raises(ValueError, match="step_quadratic must be a finite number >= 0"):
+        simulate_depth_camera(_wall_scene(), step_quadratic=-1.0)
+
+
 def _x_extent(surface) -> tuple[float, float]:
     if hasattr(surface, "axis") and hasattr(surface, "length"):  # a pipe or column side
         ends = np.array([surface.base, surface.base + surface.axis * surface.length])[:, 0]
