@@ -202,7 +202,8 @@ SENSORS: tuple[SensorSpec, ...] = (
                *_spinning(64, 1024, 0.015), "64 x 1024, 45 deg vertical, 360 deg, 1.5 cm"),
     SensorSpec("spinning_128x2048", "spinning", "spinning_lidar", {"sigma0": 0.01, "sigma_quadratic": 0.0}, 3,
                *_spinning(128, 2048, 0.01), "128 x 2048, 45 deg vertical, 360 deg, 1 cm"),
-    SensorSpec("kinect_640x480", "depth", "rgbd_vga", {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE}, 6,
+    SensorSpec("kinect_640x480", "depth", "rgbd_vga",
+               {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE, "noise_correlation_px": 1, "step_quadratic": 0.0}, 6,
                *_camera(640, 480, 62.0), "Kinect, 62 deg horizontal, 1.425e-3 z^2"),
     # The real Kinect (kinectq, session 31): depth in 1/8-px disparity steps (2.9e-3 z^2) and
     # errors correlated over about 9 px. Measured on the PCL / PEAC / CAPE frames, residuals
