@@ -41,6 +41,9 @@ class SensorConfig(BaseModel):
     min_range, max_range : working ranges (m), for the unit plausibility check.
     depth_step : the depth quantisation step (m) of a sensor that reports depth in steps
         (8-bit structured light); 0 for none.
+    step_quadratic : the depth step ``step_quadratic r^2`` (1/m) of a camera that measures
+        disparity in fixed sub-pixel steps (Kinect v1: 1/8 px); 0 for none
+        (:class:`rangeseg_o3d.sensor.NoiseModel`).
     lateral_noise_px : rms offset across its ray, in grid steps, of the point a return
         measures (a camera's spot or blur wider than its pixel); 0 for none.
     """
@@ -58,6 +61,8 @@ class SensorConfig(BaseModel):
     min_range: float = Field(0.01, ge=0, description="shortest working range, m")
     max_range: float = Field(1000.0, gt=0, description="longest working range, m")
     depth_step: float = Field(0.0, ge=0, description="depth quantisation step, m (0: none)")
+    step_quadratic: float = Field(0.0, ge=0, description="depth step growing with the range, 1/m "
+                                  "(step = this * r^2; 0: none)")
     lateral_noise_px: float = Field(0.0, ge=0, le=16, description="rms offset across the ray of the point a "
                                     "return measures, grid steps (0: none)")
 
@@ -71,7 +76,7 @@ class SensorConfig(BaseModel):
 
     def resolve(self) -> Sensor:
         """The immutable :class:`Sensor` every stage receives."""
-        noise = NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px)
+        noise = NoiseModel(self.sigma0, self.sigma_quadratic, self.noise_correlation_px, self.step_quadratic)
         return Sensor(noise=noise, units=self.units, wrap_columns=self.wrap_columns,
                       row_spacing_deg=self.row_spacing_deg, column_spacing_deg=self.column_spacing_deg,
                       min_range=self.min_range, max_range=self.max_range, depth_step=self.depth_step,

@@ -524,7 +524,7 @@ def sensor_matrix(*, seed: int, quick: bool, only: list[str] | None, repeats: in
             continue
         count = spec.quick_scans if quick else spec.scans
         start = time.perf_counter()
-        scans = [spec.simulate(matrix_rng(seed, spec.name, k), quick) for k in range(count)]
+        scans = [spec.simulate(matrix_rng(seed, spec.draws, k), quick) for k in range(count)]
         if connected_truth:
             scans = [as_connected_patches(scan) for scan in scans]
         print(f"  {spec.name}: {count} scans of {'x'.join(map(str, scans[0].cloud.shape))} simulated "

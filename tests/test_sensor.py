@@ -27,7 +27,8 @@ def test_every_preset_has_a_sensor_section_resolved_into_one_sensor(preset):
     config = load_config(preset)
     sensor = Pipeline(config).sensor
     assert isinstance(sensor, Sensor)
-    assert sensor.noise == NoiseModel(raw["sensor"]["sigma0"], raw["sensor"]["sigma_quadratic"])
+    assert sensor.noise == NoiseModel(raw["sensor"]["sigma0"], raw["sensor"]["sigma_quadratic"],
+                                      step_quadratic=raw["sensor"].get("step_quadratic", 0.0))
     assert sensor.units == raw["sensor"]["units"]
     # the noise is nowhere else: not in the segmenter's, fitter's or refinement's sections
     for section in (config.segmenter.params, config.fitter.params, config.refine.model_dump()):
@@ -85,6 +86,39 @@ def test_only_a_stereo_cameras_noise_errs_over_a_matching_window():
     assert not Pipeline("lms200").sensor.noise.matched_window
 
 
+def test_a_kinects_correlated_errors_once_stated_are_counted_and_switch_on_the_grazing_steps():
+    # the real Kinect's correlation (9 px, kinect_real_640x480 states it) besides its steps
+    kinect = NoiseModel(0.001, 0.001425, 9, 0.0029)
+    # the statistics count it: a 6x6 tile holds fewer than one 9 x 9 block, so its mean errs
+    # as one return; a pixel carries 1/81 of an independent return, a 6-px tile 0.273
+    assert kinect.mean_scale(36) == 1.0
+    np.testing.assert_allclose(kinect.independent_share(1), 1.0 / 81)
+    np.testing.assert_allclose(kinect.independent_share(6), (254.0 / (6 * 81)) ** 2)
+    # the grazing-face steps need the correlation, not a matcher's continuous depth
+    assert kinect.matched_window
+    assert not NoiseModel(0.001, 0.001425, 1, 0.0029).matched_window
+    # rgbd_vga states the steps but not the correlation (its real frames: see the preset)
+    preset = Pipeline("rgbd_vga").sensor.noise
+    assert (preset.correlation_px, preset.step_quadratic, preset.matched_window) == (1, 0.0029, False)
+
+
+def test_independent_returns_of_a_mask_narrower_than_the_correlation():
+    # a 21 x 2 strip under a 9-px correlation: n^2 c^2 over the sum of its pairs' correlations
+    # (lags beyond the strip's own size pair nothing)
+    noise = NoiseModel(0.001, 0.001425, correlation_px=9)
+    mask = np.zeros((30, 10), dtype=bool)
+    mask[4:25, 3:5] = True
+    rows, cols = np.nonzero(mask)
+    dr = np.abs(rows[:, None] - rows[None, :])
+    dc = np.abs(cols[:, None] - cols[None, :])
+    pairs = (np.clip(9 - dr, 0, None) * np.clip(9 - dc, 0, None)).sum()
+    n = rows.size
+    np.testing.assert_allclose(noise.independent_returns(mask), n * n * 81 / pairs)
+    tight = np.ones((21, 2), dtype=bool)
+    np.testing.assert_allclose(noise.independent_returns(tight), n * n * 81 / pairs)
+    assert 2.0 < noise.independent_returns(tight) < 3.0  # 42 pixels: about 21 / 9 rows' worth
+
+
 def test_noise_excess_measures_how_much_more_points_scatter_than_the_model():
     from rangeseg_o3d.sensor_checks import noise_excess
 
@@ -109,6 +143,27 @@ def test_sensor_validates_units_and_ranges():
         Sensor(min_range=5.0, max_range=1.0)
     with pytest.raises(ValueError, match="sensor.units"):
         load_config({"sensor": {"units": "furlong"}})
+
+
+def test_depth_steps_growing_with_the_range_are_a_sensor_fact_of_rgbd_vga_only():
+    # the Kinect's 1/8-px disparity steps, measured on the PCL / PEAC frames: 2.9e-3 z^2
+    assert NoiseModel().step_quadratic == 0.0
+    assert load_config("rgbd_vga").sensor.resolve().noise.step_quadratic == 0.0029
+    for preset in ("lms200", "abw", "sick_3dtk", "spinning_lidar", "tls_andreashaus"):
+        assert load_config(preset).sensor.resolve().noise.step_quadratic == 0.0
+    for bad in (-1e-3, float("nan"), float("inf"), "0.003"):
+        with pytest.raises(ValueError, match=f"step_quadratic must be a finite number >= 0 \\(1/m\\); got {bad!r}"):
+            NoiseModel(0.001, 0.001425, step_quadratic=bad)
+    with pytest.raises(ValueError, match="step_quadratic"):
+        load_config({"sensor": {"step_quadratic": -0.5}})
+    # an override of the noise alone does not need the steps restated
+    quiet = load_config("rgbd_vga", overrides={"sensor.sigma_quadratic": 0.0001425}).sensor.resolve().noise
+    assert (quiet.sigma_quadratic, quiet.step_quadratic) == (0.0001425, 0.0029)
+    # nothing reads it: the fitter's and segmenter's noise of tile means are those without steps
+    with_steps = NoiseModel(0.001, 0.001425, step_quadratic=0.0029)
+    plain = NoiseModel(0.001, 0.001425)
+    np.testing.assert_array_equal(with_steps.mean_scale([1, 36]), plain.mean_scale([1, 36]))
+    assert with_steps.of_means(36) == plain.of_means(36)
 
 
 def test_lateral_noise_is_a_sensor_fact_of_abw_only():

@@ -10,7 +10,10 @@ Noise: Gaussian on depth with ``sigma(z) = noise_coeff * z^2`` (metres), default
 Options for other depth sensors: a constant term ``noise_sigma0`` (``sigma = sigma0 +
 noise_coeff z^2``), noise correlated over ``noise_correlation`` x ``noise_correlation``
 pixels (stereo matching averages its disparity over a window, so neighbouring depths err
-together) and depths quantised to ``depth_step`` metres (an 8-bit structured-light scanner).
+together), depths quantised to ``depth_step`` metres (an 8-bit structured-light scanner)
+and disparities in whole steps, so depths in steps of ``step_quadratic z^2`` (a Kinect v1
+measures disparity in 1/8 px: ``1 / (8 f b)`` ~ 2.9e-3 /m). The sensor matrix's Kinect
+draws no such steps (:mod:`rangeseg_o3d.synthetic.matrix`).
 """
 
 from __future__ import annotations
@@ -71,6 +74,7 @@ def simulate_depth_camera(
     noise_sigma0: float = 0.0,
     noise_correlation: int = 1,
     depth_step: float = 0.0,
+    step_quadratic: float = 0.0,
     seed=0,
 ) -> SyntheticScan:
     """Render a depth frame of ``scene`` (camera frame: z forward, x right, y down).
@@ -100,6 +104,8 @@ def simulate_depth_camera(
         raise ValueError(f"noise_correlation must be a positive integer; got {noise_correlation}")
     if not (np.isfinite(depth_step) and depth_step >= 0):
         raise ValueError(f"depth_step must be >= 0; got {depth_step}")
+    if not (np.isfinite(step_quadratic) and step_quadratic >= 0):
+        raise ValueError(f"step_quadratic must be a finite number >= 0 (1/m); got {step_quadratic}")
     if not (0 <= min_depth < max_depth):
         raise ValueError(f"need 0 <= min_depth < max_depth; got {min_depth}, {max_depth}")
     width, height = int(width), int(height)
@@ -118,6 +124,12 @@ def simulate_depth_camera(
         depth = depth + unit * noise_coeff * np.where(finite, depth, 0.0) ** 2 + unit * noise_sigma0
     if depth_step > 0:
         depth = np.round(depth / depth_step) * depth_step
+    if step_quadratic > 0:
+        # disparity measured in whole steps: 1 / (step_quadratic z) is the disparity in
+        # steps (8 f b / z for a 1/8-pixel Kinect), so depth steps by step_quadratic z^2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            steps = np.round(1.0 / (step_quadratic * depth))
+            depth = np.where(np.isfinite(depth) & (depth > 0), 1.0 / (step_quadratic * steps), depth)
     no_return = ~np.isfinite(depth) | (depth < min_depth) | (depth > max_depth) | (ids == 0)
     depth[no_return] = 0.0
     ids[no_return] = 0

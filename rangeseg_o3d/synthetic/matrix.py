@@ -17,7 +17,9 @@ Rows (``SENSORS``):
   ``nodding_1deg``);
 * ``spinning_32x1024`` (3 cm), ``spinning_64x1024`` (1.5 cm), ``spinning_128x2048``
   (1 cm): 360-degree lidars with a 45-degree vertical field inside rooms all around them;
-* ``kinect_640x480``: Kinect noise ``1.425e-3 z^2``; ``stereo_1280x720``: a stereo
+* ``kinect_640x480``: Kinect noise ``1.425e-3 z^2``, independent per pixel;
+  ``kinect_real_640x480``: the same scenes and camera, the noise correlated over 9 x 9 pixels
+  and the depth in 1/8-px disparity steps (``2.9e-3 z^2``) as on the real frames; ``stereo_1280x720``: a stereo
   camera (90 deg horizontal field, 5 cm baseline, 0.1 px disparity noise -> ``sigma_z =
   0.1 z^2 / (f B)``, correlated over 3 x 3 pixels);
 * ``tabletop_abw``: a structured-light tabletop of polyhedra (512 x 512, ABW's focal
@@ -61,6 +63,12 @@ class SensorSpec:
     description: str = ""
     quick_scans: int = 2
     region_growing: dict = field(default_factory=dict)  # overrides of the baseline's parameters
+    scenes_of: str = ""  # another row whose scenes (and noise seeds) this one draws; "" for its own
+
+    @property
+    def draws(self) -> str:
+        """The name :func:`matrix_rng` draws this row's scans under: ``scenes_of`` or its own."""
+        return self.scenes_of or self.name
 
     def sensor_facts(self, quick: bool = False) -> dict:
         """``{sigma0, sigma_quadratic[, noise_correlation_px], row_spacing_deg, column_spacing_deg}``
@@ -165,6 +173,12 @@ def _tabletop(rng, quick):
         depth_step=_ABW_STEP, min_depth=0.3, max_depth=2.0, seed=_noise_seed(rng))
 
 
+#: The real Kinect's depth step (1/m, ``q z^2``: 1/8-px disparity steps, 1 / (8 f b)) and the
+#: side (px) of the box over which its errors are correlated, as measured on the real frames
+#: (kinect_real_640x480).
+KINECT_STEP = 0.0029
+KINECT_CORRELATION_PX = 9
+
 _STEREO_HFOV = 90.0
 _STEREO_F = 640 / np.tan(np.deg2rad(_STEREO_HFOV) / 2)
 _STEREO_COEFF = 0.1 / (_STEREO_F * 0.05)  # sigma_z = sigma_d z^2 / (f B)
@@ -188,10 +202,24 @@ SENSORS: tuple[SensorSpec, ...] = (
                *_spinning(64, 1024, 0.015), "64 x 1024, 45 deg vertical, 360 deg, 1.5 cm"),
     SensorSpec("spinning_128x2048", "spinning", "spinning_lidar", {"sigma0": 0.01, "sigma_quadratic": 0.0}, 3,
                *_spinning(128, 2048, 0.01), "128 x 2048, 45 deg vertical, 360 deg, 1 cm"),
-    SensorSpec("kinect_640x480", "depth", "rgbd_vga", {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE}, 6,
+    SensorSpec("kinect_640x480", "depth", "rgbd_vga",
+               {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE, "noise_correlation_px": 1, "step_quadratic": 0.0}, 6,
                *_camera(640, 480, 62.0), "Kinect, 62 deg horizontal, 1.425e-3 z^2"),
+    # The real Kinect (kinectq, session 31): depth in 1/8-px disparity steps (2.9e-3 z^2) and
+    # errors correlated over about 9 px. Measured on the PCL / PEAC / CAPE frames, residuals
+    # about fitted planes: row correlation 0.74-0.91 / 0.52-0.79 / 0.28-0.66 at lags 1 / 3 /
+    # 6 px and a 6x6 tile mean keeping 0.68-0.84 of a pixel's rms (office1 at 3.8-5.2 m:
+    # 0.74-0.78 / 0.52-0.58 / 0.28-0.34, 0.68-0.70). Noise as box means over 9 px, then the
+    # steps: 0.72 / 0.51 / 0.26 and 0.69 at every range (5 px: 0.62 / 0.29 / 0.00, 0.53).
+    SensorSpec("kinect_real_640x480", "depth", "rgbd_vga",
+               {"sigma0": 0.001, "sigma_quadratic": KINECT_NOISE, "noise_correlation_px": KINECT_CORRELATION_PX,
+                "step_quadratic": KINECT_STEP}, 6,
+               *_camera(640, 480, 62.0, noise_correlation=KINECT_CORRELATION_PX, step_quadratic=KINECT_STEP),
+               f"Kinect as measured: 1.425e-3 z^2 correlated over {KINECT_CORRELATION_PX} px, "
+               "1/8-px disparity steps 2.9e-3 z^2", scenes_of="kinect_640x480"),
     SensorSpec("stereo_1280x720", "depth", "rgbd_vga",
-               {"sigma0": 0.001, "sigma_quadratic": float(_STEREO_COEFF), "noise_correlation_px": 3}, 4,
+               {"sigma0": 0.001, "sigma_quadratic": float(_STEREO_COEFF), "noise_correlation_px": 3,
+                "step_quadratic": 0.0}, 4,
                *_camera(1280, 720, _STEREO_HFOV, noise_coeff=float(_STEREO_COEFF), noise_correlation=3),
                f"stereo, 90 deg horizontal, {_STEREO_COEFF:.2e} z^2 correlated over 3 px"),
     SensorSpec("tabletop_abw", "tabletop", "abw", {"sigma0": 0.0005, "sigma_quadratic": 0.0}, 6,

@@ -160,6 +160,29 @@ def test_depth_camera_quantised_depths():
         simulate_depth_camera(_wall_scene(), depth_step=-1.0)
 
 
+def test_depth_camera_disparity_steps_grow_with_the_square_of_the_depth():
+    from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
+
+    kwargs = dict(width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, noise_sigma0=0.0)
+    q = 0.0029
+    plain = simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, seed=3, **kwargs).cloud.xyz[..., 2]
+    z = simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, step_quadratic=q, seed=3,
+                              **kwargs).cloud.xyz[..., 2]
+    # every depth is 1 / (q k) for a whole disparity k: 172 steps at 2 m (1 / (0.0029 * 2) = 172.4)
+    k = 1.0 / (q * z)
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+    assert 169 <= np.round(k).min() and np.round(k).max() <= 176  # the noise (5.7 mm) spans a few steps
+    values = np.unique(np.round(z, 9))
+    gaps = np.diff(values)
+    np.testing.assert_allclose(gaps / (q * (values[1:] * values[:-1])), 1.0, rtol=1e-6)  # 1/(qk) - 1/(q(k+1))
+    assert 0.0110 < gaps.min() and gaps.max() < 0.0126  # ~ q z^2 = 11.6 mm at 2 m
+    np.testing.assert_array_less(np.abs(z - plain), 0.5 * q * plain**2 * 1.02)  # rounding within half a step
+    assert np.array_equal(simulate_depth_camera(_wall_scene(), noise_coeff=0.001425, step_quadratic=0.0,
+                                                seed=3, **kwargs).cloud.xyz[..., 2], plain)
+    with pytest.raises(ValueError, match="step_quadratic must be a finite number >= 0"):
+        simulate_depth_camera(_wall_scene(), step_quadratic=-1.0)
+
+
 def _x_extent(surface) -> tuple[float, float]:
     if hasattr(surface, "axis") and hasattr(surface, "length"):  # a pipe or column side
         ends = np.array([surface.base, surface.base + surface.axis * surface.length])[:, 0]
@@ -184,3 +207,50 @@ def test_a_room_too_shallow_for_an_object_skips_it_and_keeps_the_others_inside()
             assert low > 1.3 - 1e-9 and high < far_wall - 0.3 + 1e-9
         placed.append(len({s.id for s in objects}))
     assert max(placed) > 0  # boxes, columns and balls still find room
+
+
+def test_kinect_real_row_draws_the_kinect_rows_scenes_with_the_real_cameras_noise():
+    # same scenes and camera as kinect_640x480; the sensor facts state the correlation
+    from rangeseg_o3d.synthetic.matrix import KINECT_CORRELATION_PX, KINECT_STEP
+    plain, real = get_sensor("kinect_640x480"), get_sensor("kinect_real_640x480")
+    assert (real.draws, plain.draws) == ("kinect_640x480", "kinect_640x480")
+    facts = real.sensor_facts()
+    assert (facts["noise_correlation_px"], facts["step_quadratic"]) == (9, 0.0029) == (KINECT_CORRELATION_PX, KINECT_STEP)
+    assert (plain.sensor_facts()["noise_correlation_px"], plain.sensor_facts()["step_quadratic"]) == (1, 0.0)
+    a = plain.simulate(matrix_rng(0, plain.draws, 0), True)
+    b = real.simulate(matrix_rng(0, real.draws, 0), True)
+    np.testing.assert_array_equal(a.truth_ids, b.truth_ids)
+    depth = b.cloud.xyz[..., 2]
+    ok = depth > 0
+    # every depth is a whole disparity step: 1 / (q z) is an integer
+    steps = 1.0 / (KINECT_STEP * depth[ok])
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+
+
+def test_kinect_real_noise_matches_the_real_frames_statistics():
+    # residuals of a plane at 1.6 and 4 m seen by the row's camera: neighbouring pixels err
+    # together as measured on the PCL / PEAC / CAPE frames (row correlation 0.74-0.91 at 1 px,
+    # 0.52-0.79 at 3 px, 0.28-0.66 at 6 px; office1 0.74 / 0.52 / 0.28), and a 6x6 tile mean
+    # keeps 0.68-0.84 of a pixel's rms (independent errors: 1/6); the pixel rms is the model's
+    # 1.425e-3 z^2 with the steps' (2.9e-3 z^2 / sqrt(12)) in quadrature
+    from rangeseg_o3d.synthetic.depth_camera import KINECT_NOISE, simulate_depth_camera
+    from rangeseg_o3d.synthetic.matrix import KINECT_CORRELATION_PX, KINECT_STEP
+    from rangeseg_o3d.synthetic.scene import patch
+    h, w = 240, 324
+    for z in (1.6, 4.0):
+        # a wall facing the camera at depth z, a little turned so that the steps dither
+        wall = Scene(patch((0.0, 0.0, z), (1.0, 0.0, 0.01), (0.0, 1.0, 0.0), 10.0, 10.0, first_id=1))
+        scan = simulate_depth_camera(wall, width=w, height=h, fx=266.0, fy=266.0, cx=(w - 1) / 2, cy=(h - 1) / 2,
+                                     noise_correlation=KINECT_CORRELATION_PX, step_quadratic=KINECT_STEP, seed=5)
+        depth = scan.cloud.xyz[..., 2]
+        assert (depth > 0).all()
+        cols = np.arange(w, dtype=float)
+        slope = np.polyfit(np.tile(cols, h), depth.ravel(), 1)
+        e = depth - np.polyval(slope, cols)[None, :]
+        e = e - e.mean()
+        acf = [float(np.mean(e[:, :-lag] * e[:, lag:]) / np.var(e)) for lag in (1, 3, 6)]
+        assert 0.68 < acf[0] < 0.78 and 0.45 < acf[1] < 0.58 and 0.2 < acf[2] < 0.32, acf
+        tiles = e.reshape(h // 6, 6, w // 6, 6).mean(axis=(1, 3))
+        assert 0.62 < tiles.std() / e.std() < 0.76, tiles.std() / e.std()
+        expected = np.hypot(KINECT_NOISE, KINECT_STEP / np.sqrt(12)) * z * z
+        assert abs(e.std() / expected - 1) < 0.12, e.std() / expected
