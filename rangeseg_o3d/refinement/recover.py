@@ -564,7 +564,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs = None if boxes is None or not len(boxes) else np.asarray(boxes, dtype=np.int64)
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
     if refused and fits_refused_along_rays(sensor):
-        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool)
+        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool,
+                                           max_cosine=along_rays_max_cosine(sensor))
     if refused and sensor.lateral_noise_px > 0:
         refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
     # (a curved model taking a refused plane's place is recovered as any: its rim, claims, merges)
@@ -705,6 +706,29 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 
+def _median_cosine(plane, points: np.ndarray) -> float:
+    # the median |cosine| between the points' rays (from the origin) and the plane's normal
+    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    return float(np.median(np.abs(points @ np.asarray(plane.normal, dtype=float)) / ranges))
+
+
+def along_rays_max_cosine(sensor) -> float | None:
+    """The largest median incidence cosine of a face :func:`planes_fitted_along_rays` may find
+    for :func:`recover_pixels` on ``sensor``: none on a stereo camera (``noise.matched_window``:
+    its far faces' noise spans their width at any incidence), else
+    :data:`rangeseg_o3d.scales.GRAZING_COSINE` (about 80.5 degrees from head-on).
+
+    Where the depths come in steps, the fit along the rays is for a face seen near grazing, the
+    band the jump edges cut (past that incidence every pixel step is a jump) whose
+    least-squares plane a few pixels of its neighbour turn to the rays; a piece seen nearer
+    head-on that its plane does not explain within the noise of its distances is no face of
+    its own (tabletop_abw seed 1001 scan 1: pieces of 35 and 26 px at 45 and 70 degrees, taken
+    along their rays, cut a 1700-px face in two)."""
+    from ..scales import GRAZING_COSINE
+
+    return None if sensor.noise.matched_window else GRAZING_COSINE
+
+
 def fits_refused_along_rays(sensor) -> bool:
     """Whether :func:`recover_pixels` fits the planes it refuses along their pixels' rays
     (:func:`planes_fitted_along_rays`) before it gives them up: where the sensor's range
@@ -722,7 +746,7 @@ def fits_refused_along_rays(sensor) -> bool:
 
 
 def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
-                             pool: np.ndarray) -> set:
+                             pool: np.ndarray, max_cosine: float | None = None) -> set:
     """The planes of ``refused`` (found in the blobs, their pixels among the flat ``pool``,
     increasing) that stay refused once each is fitted along its pixels' rays; the others
     take that plane in ``fits`` and ``new`` (both changed in place).
@@ -741,7 +765,8 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
     :func:`rangeseg_o3d.ray_planes.robust_ray_plane` (a blob may hold a few pixels of the
     surfaces beside it), and the face is the pixels it keeps within TRIM_SIGMAS of their
     range noise, at least ``ctx.min_size``; the others go free (``labels``, C-ordered, is
-    changed in place)."""
+    changed in place). ``max_cosine`` (optional): a face whose median incidence cosine exceeds
+    it stays refused (:func:`along_rays_max_cosine`)."""
     from ..ray_planes import ray_plane, ray_terms, robust_ray_plane
 
     if not (isinstance(labels, np.ndarray) and labels.ndim == 2 and labels.flags.c_contiguous):
@@ -760,7 +785,8 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
         a, keep, _ = found
         face = idx[keep]
         plane = ray_plane(a, rows_at(ctx.xyz, face))
-        if plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face):
+        if (plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face)
+                or (max_cosine is not None and _median_cosine(plane, rows_at(ctx.xyz, face)) > max_cosine)):
             kept.add(k)
             continue
         flat[idx[~keep]] = 0  # (a few pixels of the surfaces beside it, off its plane along their rays)

@@ -12,7 +12,8 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.config import load_config
-from rangeseg_o3d.refinement.recover import fits_refused_along_rays, planes_fitted_along_rays
+from rangeseg_o3d.refinement.recover import along_rays_max_cosine, fits_refused_along_rays, planes_fitted_along_rays
+from rangeseg_o3d.scales import GRAZING_COSINE
 from rangeseg_o3d.sensor import NoiseModel, Sensor
 
 #: a stereo camera's range noise per squared metre (the sensor matrix's stereo row)
@@ -149,6 +150,10 @@ def test_which_sensors_fit_refused_planes_along_the_rays():
     assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.005)))
     assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.001, sigma_quadratic=0.0014)))
     assert not fits_refused_along_rays(rs.Pipeline("rgbd_vga").sensor)
+    # depth steps: faces seen near grazing only (about 80.5 degrees on); stereo: any incidence
+    assert along_rays_max_cosine(Sensor(noise=NoiseModel(sigma0=ABW_SIGMA), depth_step=ABW_STEP)) == GRAZING_COSINE
+    assert 0.16 < GRAZING_COSINE < 0.17
+    assert along_rays_max_cosine(Sensor(noise=stereo)) is None
 
 
 def _grazing_face(seed, *, incidence_deg=88.0, rows=40, cols=4, foreign=3, z=0.9):
@@ -190,3 +195,21 @@ def test_a_grazing_face_holding_a_neighbours_pixels_is_found_along_its_rays(seed
     assert (labels[foreign] == 0).all()
     assert (labels[~foreign] == LABEL).all()
     assert not ctx.plane_along_rays(plane, np.flatnonzero(labels == LABEL))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_on_depth_steps_a_face_fitted_along_its_rays_must_be_seen_near_grazing(seed):
+    # the same 88-degree face (cosine 0.035): found under the grazing bound, refused under a tighter one
+    for bound, found in ((GRAZING_COSINE, True), (0.02, False)):
+        cloud, sigma, normal, foreign = _grazing_face(seed)
+        ctx = Context(cloud, rs.Pipeline(load_config("configs/abw.yaml")).fitter, sigma, 80)
+        labels = np.full(cloud.valid.shape, LABEL, np.int32)
+        first = _least_squares_plane(cloud.xyz.reshape(-1, 3))
+        fits = {LABEL: first}
+        kept = planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, np.arange(labels.size),
+                                        max_cosine=bound)
+        assert kept == (set() if found else {LABEL})
+        if found:
+            assert _degrees(fits[LABEL].normal, normal) < 1.0 and (labels[foreign] == 0).all()
+        else:
+            assert fits[LABEL] is first and (labels == LABEL).all()
