@@ -21,13 +21,14 @@ from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, la
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.grid import free_pixels, free_pixels_in_boxes
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
-from ..scales import GRAZING_TAN
+from ..scales import GRAZING_COSINE, GRAZING_TAN
 from .context import TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["claim_grazing_limbs", "differing_pixels", "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
+__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "fits_refused_along_rays",
+           "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
            "recover_leftovers", "recover_pixels"]
 
 
@@ -724,8 +725,6 @@ def along_rays_max_cosine(sensor) -> float | None:
     head-on that its plane does not explain within the noise of its distances is no face of
     its own (tabletop_abw seed 1001 scan 1: pieces of 35 and 26 px at 45 and 70 degrees, taken
     along their rays, cut a 1700-px face in two)."""
-    from ..scales import GRAZING_COSINE
-
     return None if sensor.noise.matched_window else GRAZING_COSINE
 
 
@@ -769,6 +768,8 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
     it stays refused (:func:`along_rays_max_cosine`)."""
     from ..ray_planes import ray_plane, ray_terms, robust_ray_plane
 
+    if max_cosine is not None and not 0.0 <= max_cosine <= 1.0:
+        raise ValueError(f"planes_fitted_along_rays: max_cosine must be None or a cosine in [0, 1], got {max_cosine!r}")
     if not (isinstance(labels, np.ndarray) and labels.ndim == 2 and labels.flags.c_contiguous):
         raise ValueError("planes_fitted_along_rays: labels must be a C-ordered (H, W) array (the pixels a face "
                          f"leaves go free in place), got {type(labels).__name__} of shape {np.shape(labels)}")

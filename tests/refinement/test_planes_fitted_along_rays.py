@@ -132,6 +132,8 @@ def test_labels_it_cannot_change_in_place_are_refused_with_a_value_error():
         planes_fitted_along_rays(ctx, np.asfortranarray(labels), fits, dict(fits), {LABEL}, pool)
     with pytest.raises(ValueError, match="C-ordered"):
         planes_fitted_along_rays(ctx, labels.ravel(), fits, dict(fits), {LABEL}, pool)
+    with pytest.raises(ValueError, match=r"max_cosine must be None or a cosine in \[0, 1\], got 1.5"):
+        planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, pool, max_cosine=1.5)
 
 
 #: the tabletop_abw row's range noise (m): 0.25 mm of noise and the depth steps
