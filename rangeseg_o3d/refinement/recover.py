@@ -21,13 +21,14 @@ from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, la
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.grid import free_pixels, free_pixels_in_boxes
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
-from ..scales import GRAZING_TAN
+from ..scales import GRAZING_COSINE, GRAZING_TAN
 from .context import TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
 
-__all__ = ["claim_grazing_limbs", "differing_pixels", "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
+__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "fits_refused_along_rays",
+           "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
            "recover_leftovers", "recover_pixels"]
 
 
@@ -504,8 +505,9 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs are fitted, their pixels on a plane region's surface join it
     (:func:`claim_on_distance_noise`; apart from it only with ``config.merge_disjoint``);
     after, a recovered plane beyond the noise of its pixels' distances
-    (:func:`_planes_along_rays`; unless, where the noise errs together over a matching window,
-    its plane fitted along its pixels' rays explains them: :func:`planes_fitted_along_rays`,
+    (:func:`_planes_along_rays`; unless, where the returns err along their rays as a group
+    (:func:`fits_refused_along_rays`), its plane fitted along its pixels' rays explains them:
+    :func:`planes_fitted_along_rays`,
     or, where the sensor states a lateral noise, it is one
     of several pieces of one face the jump edges cut: :func:`_join_grazing_pieces`) merges into no plane and, unless it rejoins a curved region,
     keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
@@ -562,8 +564,9 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # below looks only in their boxes grown by the rings it may add (same answers).
     blobs = None if boxes is None or not len(boxes) else np.asarray(boxes, dtype=np.int64)
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
-    if refused and sensor.noise.matched_window:
-        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool)
+    if refused and fits_refused_along_rays(sensor):
+        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool,
+                                           max_cosine=along_rays_max_cosine(sensor))
     if refused and sensor.lateral_noise_px > 0:
         refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
     # (a curved model taking a refused plane's place is recovered as any: its rim, claims, merges)
@@ -704,8 +707,45 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 
+def _median_cosine(plane, points: np.ndarray) -> float:
+    # the median |cosine| between the points' rays (from the origin) and the plane's normal
+    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    return float(np.median(np.abs(points @ np.asarray(plane.normal, dtype=float)) / ranges))
+
+
+def along_rays_max_cosine(sensor) -> float | None:
+    """The largest median incidence cosine of a face :func:`planes_fitted_along_rays` may find
+    for :func:`recover_pixels` on ``sensor``: none on a stereo camera (``noise.matched_window``:
+    its far faces' noise spans their width at any incidence), else
+    :data:`rangeseg_o3d.scales.GRAZING_COSINE` (about 80.5 degrees from head-on).
+
+    Where the depths come in steps, the fit along the rays is for a face seen near grazing, the
+    band the jump edges cut (past that incidence every pixel step is a jump) whose
+    least-squares plane a few pixels of its neighbour turn to the rays; a piece seen nearer
+    head-on that its plane does not explain within the noise of its distances is no face of
+    its own (tabletop_abw seed 1001 scan 1: pieces of 35 and 26 px at 45 and 70 degrees, taken
+    along their rays, cut a 1700-px face in two)."""
+    return None if sensor.noise.matched_window else GRAZING_COSINE
+
+
+def fits_refused_along_rays(sensor) -> bool:
+    """Whether :func:`recover_pixels` fits the planes it refuses along their pixels' rays
+    (:func:`planes_fitted_along_rays`) before it gives them up: where the sensor's range
+    noise errs together over a matching window (a stereo camera's, ``noise.matched_window``)
+    and where its depths come in steps (``depth_step`` > 0, ABW's 8-bit structured light).
+
+    A quantised depth moves each return along its own ray (ABW's conversion computes x and y
+    from the depth byte: x = (c - 255) z / |F|), so a blob's plane is the one its rays meet
+    within the range noise, which the robust fit along the rays finds while it leaves out
+    the few pixels of a neighbouring face the blob holds; the least-squares plane those
+    pixels pull towards the rays (a face seen at 88 degrees: 0.23 mm rms from 2 of 83 pixels,
+    against 0.005 mm of distance noise) is refused with the bands the test is for.
+    """
+    return bool(sensor.noise.matched_window or sensor.depth_step > 0)
+
+
 def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
-                             pool: np.ndarray) -> set:
+                             pool: np.ndarray, max_cosine: float | None = None) -> set:
     """The planes of ``refused`` (found in the blobs, their pixels among the flat ``pool``,
     increasing) that stay refused once each is fitted along its pixels' rays; the others
     take that plane in ``fits`` and ``new`` (both changed in place).
@@ -724,9 +764,12 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
     :func:`rangeseg_o3d.ray_planes.robust_ray_plane` (a blob may hold a few pixels of the
     surfaces beside it), and the face is the pixels it keeps within TRIM_SIGMAS of their
     range noise, at least ``ctx.min_size``; the others go free (``labels``, C-ordered, is
-    changed in place)."""
+    changed in place). ``max_cosine`` (optional): a face whose median incidence cosine exceeds
+    it stays refused (:func:`along_rays_max_cosine`)."""
     from ..ray_planes import ray_plane, ray_terms, robust_ray_plane
 
+    if max_cosine is not None and not 0.0 <= max_cosine <= 1.0:
+        raise ValueError(f"planes_fitted_along_rays: max_cosine must be None or a cosine in [0, 1], got {max_cosine!r}")
     if not (isinstance(labels, np.ndarray) and labels.ndim == 2 and labels.flags.c_contiguous):
         raise ValueError("planes_fitted_along_rays: labels must be a C-ordered (H, W) array (the pixels a face "
                          f"leaves go free in place), got {type(labels).__name__} of shape {np.shape(labels)}")
@@ -743,7 +786,8 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
         a, keep, _ = found
         face = idx[keep]
         plane = ray_plane(a, rows_at(ctx.xyz, face))
-        if plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face):
+        if (plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face)
+                or (max_cosine is not None and _median_cosine(plane, rows_at(ctx.xyz, face)) > max_cosine)):
             kept.add(k)
             continue
         flat[idx[~keep]] = 0  # (a few pixels of the surfaces beside it, off its plane along their rays)

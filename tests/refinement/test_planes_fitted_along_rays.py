@@ -1,6 +1,8 @@
 """recover.planes_fitted_along_rays: a blob's plane refused because the orthogonal least
 squares turned it towards the rays is fitted along the rays instead, on far faces under a
-stereo camera's range noise (COEFF r^2, erring together over a 3 x 3 matching window)."""
+stereo camera's range noise (COEFF r^2, erring together over a 3 x 3 matching window), and on
+a grazing face in ABW's 8-bit depth steps whose blob holds a few pixels of its neighbour
+(recover.fits_refused_along_rays: which sensors fit refused planes along the rays)."""
 
 import numpy as np
 import pytest
@@ -9,7 +11,10 @@ from scipy import ndimage
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.refinement.context import Context
-from rangeseg_o3d.refinement.recover import planes_fitted_along_rays
+from rangeseg_o3d.config import load_config
+from rangeseg_o3d.refinement.recover import along_rays_max_cosine, fits_refused_along_rays, planes_fitted_along_rays
+from rangeseg_o3d.scales import GRAZING_COSINE
+from rangeseg_o3d.sensor import NoiseModel, Sensor
 
 #: a stereo camera's range noise per squared metre (the sensor matrix's stereo row)
 COEFF = 0.1 / (640 * 0.05)
@@ -127,3 +132,86 @@ def test_labels_it_cannot_change_in_place_are_refused_with_a_value_error():
         planes_fitted_along_rays(ctx, np.asfortranarray(labels), fits, dict(fits), {LABEL}, pool)
     with pytest.raises(ValueError, match="C-ordered"):
         planes_fitted_along_rays(ctx, labels.ravel(), fits, dict(fits), {LABEL}, pool)
+    with pytest.raises(ValueError, match=r"max_cosine must be None or a cosine in \[0, 1\], got 1.5"):
+        planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, pool, max_cosine=1.5)
+
+
+#: the tabletop_abw row's range noise (m): 0.25 mm of noise and the depth steps
+ABW_SIGMA = 0.0005
+#: ABW's depth step (m) and |F| (pixels)
+ABW_STEP = 0.00126
+ABW_F = 1586.0
+
+
+def test_which_sensors_fit_refused_planes_along_the_rays():
+    assert fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=ABW_SIGMA), depth_step=ABW_STEP))
+    assert fits_refused_along_rays(rs.Pipeline(load_config("configs/abw.yaml")).sensor)
+    stereo = NoiseModel(sigma0=0.001, sigma_quadratic=0.003, correlation_px=3)
+    assert fits_refused_along_rays(Sensor(noise=stereo))
+    # a laser's single returns, a Kinect-type camera (noise growing with range, pixel by pixel)
+    assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.005)))
+    assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.001, sigma_quadratic=0.0014)))
+    assert not fits_refused_along_rays(rs.Pipeline("rgbd_vga").sensor)
+    # depth steps: faces seen near grazing only (about 80.5 degrees on); stereo: any incidence
+    assert along_rays_max_cosine(Sensor(noise=NoiseModel(sigma0=ABW_SIGMA), depth_step=ABW_STEP)) == GRAZING_COSINE
+    assert 0.16 < GRAZING_COSINE < 0.17
+    assert along_rays_max_cosine(Sensor(noise=stereo)) is None
+
+
+def _grazing_face(seed, *, incidence_deg=88.0, rows=40, cols=4, foreign=3, z=0.9):
+    """A face ``cols`` columns wide seen ``incidence_deg`` from head-on (its normal turned about
+    the vertical) at depth ``z``, ABW's pinhole, depths quantised in ABW_STEP steps along the
+    rays after 0.25 mm of noise (as the tabletop_abw row simulates); the first ``foreign`` pixels of the last column are a neighbour's, 1.5 mm off the
+    face (a block's top face beside the crease). Returns ``(cloud, sigma, normal, foreign_mask)``."""
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) / ABW_F, (v - rows / 2) / (ABW_F * 1.45), np.ones((rows, cols))])
+    turn = np.radians(incidence_deg)
+    normal = np.array([np.sin(turn), 0.0, np.cos(turn)])
+    depth = (normal[2] * z) / (rays @ normal)           # z along each ray (rays have z = 1)
+    depth = depth + np.random.default_rng(seed).normal(scale=0.25e-3, size=depth.shape)
+    depth = np.round(depth / ABW_STEP) * ABW_STEP       # the 8-bit depth byte: steps along the rays
+    xyz = rays * depth[..., None]
+    mask = np.zeros((rows, cols), bool)
+    mask[:foreign, -1] = True
+    xyz[mask] -= 0.0015 * normal                        # a neighbouring face's pixels, 1.5 mm off the face
+    ranges = np.linalg.norm(xyz, axis=2)
+    return rs.OrganizedCloud(xyz), np.full(ranges.shape, ABW_SIGMA), normal, mask
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_grazing_face_holding_a_neighbours_pixels_is_found_along_its_rays(seed):
+    cloud, sigma, normal, foreign = _grazing_face(seed)
+    ctx = Context(cloud, rs.Pipeline(load_config("configs/abw.yaml")).fitter, sigma, 80)
+    labels = np.full(cloud.valid.shape, LABEL, np.int32)
+    pool = np.arange(labels.size)
+    first = _least_squares_plane(cloud.xyz.reshape(-1, 3))
+    # the neighbour's 3 pixels pull the least-squares plane beyond the noise of its distances
+    assert ctx.plane_along_rays(first, pool)
+    fits = {LABEL: first}
+    new = dict(fits)
+    assert planes_fitted_along_rays(ctx, labels, fits, new, {LABEL}, pool) == set()
+    plane = fits[LABEL]
+    assert new[LABEL] is plane and plane.kind == "plane"
+    assert _degrees(plane.normal, normal) < 1.0
+    # the neighbour's pixels go free, the face keeps every one of its own
+    assert (labels[foreign] == 0).all()
+    assert (labels[~foreign] == LABEL).all()
+    assert not ctx.plane_along_rays(plane, np.flatnonzero(labels == LABEL))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_on_depth_steps_a_face_fitted_along_its_rays_must_be_seen_near_grazing(seed):
+    # the same 88-degree face (cosine 0.035): found under the grazing bound, refused under a tighter one
+    for bound, found in ((GRAZING_COSINE, True), (0.02, False)):
+        cloud, sigma, normal, foreign = _grazing_face(seed)
+        ctx = Context(cloud, rs.Pipeline(load_config("configs/abw.yaml")).fitter, sigma, 80)
+        labels = np.full(cloud.valid.shape, LABEL, np.int32)
+        first = _least_squares_plane(cloud.xyz.reshape(-1, 3))
+        fits = {LABEL: first}
+        kept = planes_fitted_along_rays(ctx, labels, fits, dict(fits), {LABEL}, np.arange(labels.size),
+                                        max_cosine=bound)
+        assert kept == (set() if found else {LABEL})
+        if found:
+            assert _degrees(fits[LABEL].normal, normal) < 1.0 and (labels[foreign] == 0).all()
+        else:
+            assert fits[LABEL] is first and (labels == LABEL).all()
