@@ -552,15 +552,16 @@ def print_matrix(rows: list[dict]) -> None:
           "mixed/no-return pixels don't care; abw: SegComp rules, every labelled region); "
           "over/under/missed/noise per scan; FF = false fittings; n_err = median plane normal "
           "error; ms = median of per-scan median totals; ratio = region growing ms / residual_edges ms ==")
-    head = (f"{'sensor':<19}{'preset':<17}{'scans':>5}{'GT':>5} | {'method':<6}{'%cor':>6}{'over':>6}"
+    width = max([19] + [len(row["sensor"]) + 1 for row in rows])  # (kinect_real_640x480: 19 characters)
+    head = (f"{'sensor':<{width}}{'preset':<17}{'scans':>5}{'GT':>5} | {'method':<6}{'%cor':>6}{'over':>6}"
             f"{'undr':>6}{'miss':>6}{'nois':>6}{'FF':>4}{'n_err°':>8}{'ms':>9}")
     print(head)
     for row in rows:
         preset = row["preset"]
         for i, method in enumerate(m for m in ("residual_edges", "region_growing") if m in row):
             m = row[method]
-            lead = (f"{row['sensor']:<19}{preset:<17}{m['scans']:>5}{m['n_truth']:>5}" if i == 0
-                    else f"{'':<19}{'':<17}{'':>5}{'':>5}")
+            lead = (f"{row['sensor']:<{width}}{preset:<17}{m['scans']:>5}{m['n_truth']:>5}" if i == 0
+                    else f"{'':<{width}}{'':<17}{'':>5}{'':>5}")
             p = m["per_scan"]
             tail = f"  x{row['speed_ratio']:.1f}" if i == 1 else ""
             print(f"{lead} | {'RE' if i == 0 else 'RG':<6}{_fmt(m['percent_correct'], '.1f'):>6}"
@@ -568,7 +569,7 @@ def print_matrix(rows: list[dict]) -> None:
                   f"{m['false_fittings']:>4}{_fmt(m['median_normal_error_deg'], '.3f'):>8}"
                   f"{_fmt(m['median_ms'], '.1f'):>9}{tail}")
             if m["by_size"]:
-                print(f"{'':<46} | {'':<6}correct by size (px): " + ", ".join(
+                print(f"{'':<{width + 27}} | {'':<6}correct by size (px): " + ", ".join(
                     f"{size}: {c}/{n}" for size, (c, n) in m["by_size"].items()))
     print("RE = residual_edges, RG = region_growing (same scans, same fitter and refinement)")
 
