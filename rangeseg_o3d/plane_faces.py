@@ -25,14 +25,14 @@ from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .kernels.modelnoise import plane_distances_noise, plane_noise_sums
-from .kernels.claims import box_claims
+from .kernels.claims import block_offsets, box_claims
 from .kernels.rays import crease_cut_squares
 from .fullres import region_stats
 from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane
 from .refinement.context import TRIM_SIGMAS, touching
 
-__all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "join_pieces_along_rays", "plane_beside",
+__all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "hidden_faces", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -57,6 +57,18 @@ PATTERN_BINS = 16
 #: cylinder's misfit is not the noise's: the F distribution's quantile of PATTERN_BINS and
 #: PATTERN_BINS degrees of freedom at the tail of CHI_SQUARE_SIGMAS normal deviations.
 PATTERN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(CHI_SQUARE_SIGMAS)))
+#: Blocks of BLOCK_SAMPLES x BLOCK_SAMPLES independent returns (matching windows) over which
+#: :func:`hidden_faces` averages a plane region's residuals along the rays ...
+BLOCK_SAMPLES = 4
+#: ... the least mean of a block, in noise units of its independent returns, that marks it ...
+BLOCK_SIGMAS = 3.0
+#: ... and the least connected blocks of one sign a hidden face is looked for under.
+FACE_BLOCKS = 4
+#: Directions of the crease line :func:`hidden_faces` tries again within one of CUT_DIRECTIONS'
+#: steps either side of the best (a face cut off by the frame's edge meets the wall on a
+#: line within a few degrees of the edge; steps of 5.6 degrees leave a 13-row strip's
+#: triangle on both sides of the line).
+FINE_DIRECTIONS = 23
 #: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
 CYLINDER_TEST_PIXELS = 4096
@@ -111,7 +123,8 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         if isinstance(fits[k], Cylinder) or _beyond_distance_noise(xyz[sample], noise[sample],
                                                                    min(sample.size, idx.size / window)):
             suspects[k] = idx
-    if not suspects:
+    hidden = window > 1.0 and any(isinstance(fits[k], Plane) for k in candidates)
+    if not suspects and not hidden:
         return labels, fits, stats
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns)
     out, fits, split = None, dict(fits), []
@@ -144,14 +157,150 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
             fits[label] = surface
             split.append(label)
             made.add(label)
+    if hidden:
+        # the plane regions no split touched: faces their pixels hide, which their mean
+        # residuals along the rays show (hidden_faces)
+        current = labels if out is None else out
+        found = hidden_faces(ctx, current, fits, [k for k in candidates if k not in made and isinstance(fits[k], Plane)],
+                             correlation_px=correlation_px, min_angle_deg=min_angle_deg)
+        for k, pieces in found.items():
+            for piece, surface in pieces:
+                if out is None:
+                    out = np.array(labels, dtype=np.int32, order="C")
+                flat = out.reshape(-1)
+                wall = _continued_plane(ctx, out, fits, piece, surface, walls, skip={k}, reach=True)
+                if wall:  # a face of a region near it the region had taken: back to it
+                    flat[piece] = wall
+                    walls.pop(wall, None)
+                    split.extend((k, wall))
+                    continue
+                flat[piece] = next_label
+                fits[next_label] = surface
+                split.extend((k, next_label))
+                made.add(next_label)
+                next_label += 1
+            walls.pop(k, None)
     if out is None:
         return labels, fits, stats
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=split)
     return out, fits, stats
 
 
+def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation_px: int,
+                 min_angle_deg: float = 0.0) -> dict:
+    """``{label: [(pixels, plane)]}``: the faces each plane region of ``candidates`` (labels
+    of ``labels`` with a :class:`Plane` in ``fits``) holds beside the face its plane is, on a
+    sensor whose range noise errs together over ``correlation_px`` x ``correlation_px`` pixels.
+
+    A far box's face seen near grazing beside the face seen head-on lies within 1-2 range
+    sigmas of the head-on face's plane along its rays pixel by pixel, and a few thousand of
+    its pixels are a percent of a wall's region: no gate on the whole region, and no
+    crease line with a tenth of the region on either side (:func:`faces_of_plane`), finds
+    it. Its mean offset along the rays does: 245 independent returns 1.16 sigmas off are
+    18 sigmas off together. So the residuals along the rays of each region's plane, one
+    pixel a matching window (an independent return), are averaged over blocks of
+    BLOCK_SAMPLES x BLOCK_SAMPLES of them; blocks at least BLOCK_SIGMAS off (in the noise
+    of their mean), FACE_BLOCKS or more of one sign at most a block apart, mark a piece. Over the region's
+    pixels in the piece's box grown by its own height and width, the crease line
+    (:func:`crease_line`, its best direction searched again over FINE_DIRECTIONS) must give two faces
+    (:func:`_faces_of_sides`, at least ``min_angle_deg`` apart, PLANES_COVER of the pixels)
+    that each fit their planes within the range noise over their independent returns
+    (:func:`_within_noise_along_rays`) and beat one plane by the F-test of
+    :func:`~rangeseg_o3d.fitting.robust.curvature_resolved` over those returns. The piece
+    of the marked side is the hidden face; boxes of one region are taken in turn, a later
+    one without the pixels an earlier face took, and a face within ``min_angle_deg`` of an
+    earlier one's plane joins it.
+    """
+    from scipy import ndimage
+
+    c = max(int(correlation_px), 1)
+    planes = [k for k in candidates if isinstance(fits.get(k), Plane)]
+    if not planes:
+        return {}
+    height, width = labels.shape
+    top = int(labels.max(initial=0)) + 1
+    planes = [k for k in planes if 0 < k < top]
+    normals, offsets = np.zeros((top, 3)), np.zeros(top)
+    for k in planes:
+        normals[k], offsets[k] = np.asarray(fits[k].normal, dtype=np.float64), float(fits[k].d)
+    # one pixel a matching window (the independent returns), in blocks, in one compiled pass
+    # (numpy's gathers and sums took 13 ms a scan)
+    b = BLOCK_SAMPLES
+    sums, counts = block_offsets(ctx.xyz, ctx.sigma, np.ascontiguousarray(labels), normals, offsets, c, b)
+    z = sums / np.sqrt(np.maximum(counts, 1))
+    full = counts >= b * b // 2
+    found = {}
+    for k in planes:
+        for sign in (1.0, -1.0):
+            marked = full[:, :, k] & (sign * z[:, :, k] >= BLOCK_SIGMAS)
+            if np.count_nonzero(marked) < FACE_BLOCKS:
+                continue
+            # blocks a block apart are one piece (a face's strip narrowing to a few rows,
+            # or the noise, leaves gaps; pieces of one face would over-segment it)
+            pieces, n = ndimage.label(ndimage.binary_dilation(marked, structure=np.ones((3, 3), dtype=bool)))
+            pieces[~marked] = 0
+            sizes = np.bincount(pieces.ravel(), minlength=n + 1)
+            for j in np.flatnonzero(sizes[1:] >= FACE_BLOCKS) + 1:
+                face = _hidden_face(ctx, labels, k, pieces == j, b * c, (height, width), correlation_px,
+                                    min_angle_deg, taken=found.get(k, []))
+                if face is not None:
+                    found[k] = _join_coplanar(ctx, found.get(k, []), face, min_angle_deg)
+    return found
+
+
+def _join_coplanar(ctx, faces: list, face: tuple, min_angle_deg: float) -> list:
+    """``faces`` with ``face`` ``(pixels, plane)`` added: joined to the first of them whose
+    plane is within ``min_angle_deg`` of its own (two pieces of one face, which the noise
+    marked apart), the union's plane fitted along the rays again."""
+    piece, plane = face
+    for i, (other, other_plane) in enumerate(faces):
+        if np.degrees(np.arccos(min(1.0, abs(float(np.asarray(plane.normal) @ np.asarray(other_plane.normal)))))) \
+                < min_angle_deg:
+            union = np.union1d(other, piece)
+            _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, union))
+            joined = ray_plane(a[0], ctx.xyz[union])
+            if joined:
+                return faces[:i] + [(union, joined)] + faces[i + 1:]
+    return faces + [face]
+
+
+def _hidden_face(ctx, labels: np.ndarray, k: int, blocks: np.ndarray, side: int, shape: tuple,
+                 correlation_px: int, min_angle_deg: float, taken=()):
+    """The face ``(pixels, plane)`` of region ``k`` under the marked ``blocks`` (a grid of
+    ``side`` x ``side`` pixel blocks) when the crease line over its window gives it
+    (:func:`hidden_faces`), None when not; the pixels of the faces in ``taken`` are left out."""
+    height, width = shape
+    rows, cols = np.nonzero(blocks)
+    r0, r1 = rows.min() * side, min((rows.max() + 1) * side, height)
+    c0, c1 = cols.min() * side, min((cols.max() + 1) * side, width)
+    h, w = r1 - r0, c1 - c0
+    r0, r1, c0, c1 = max(0, r0 - h), min(height, r1 + h), max(0, c0 - w), min(width, c1 + w)
+    rr, cc = np.nonzero(labels[r0:r1, c0:c1] == k)
+    idx = (rr + r0) * width + (cc + c0)
+    for piece, _ in taken:
+        idx = idx[~np.isin(idx, piece, assume_unique=True)]
+    if idx.size < 2 * ctx.min_size:
+        return None
+    chi2, sides = crease_line(ctx, idx, fine=FINE_DIRECTIONS)
+    surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
+    if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
+        return None
+    window = float(max(int(correlation_px), 1)) ** 2
+    if not all(_within_noise_along_rays(ctx, s, window) for s in sides):
+        return None
+    one, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
+    if not curvature_resolved(float(one[0]) / window, chi2 / window, max(int(idx.size / window), 1), 4):
+        return None
+    # the face: the piece with the larger share of its pixels under the marked blocks
+    def marked_share(piece):
+        pr, pc = np.divmod(piece, width)
+        return float(np.mean(blocks[np.minimum(pr // side, blocks.shape[0] - 1),
+                                    np.minimum(pc // side, blocks.shape[1] - 1)]))
+    return max(surfaces, key=lambda s: marked_share(s[0]))
+
+
 def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, surface, walls: dict, *,
-                     skip=()) -> int:
+                     skip=(), reach: bool = False) -> int:
     """The label of a plane region touching ``piece`` (flat pixels, increasing; a face
     :func:`faces_of_plane` found, its plane ``surface``) whose plane it continues, 0 when
     none does; ``walls`` caches the regions' ray-space sums
@@ -166,7 +315,9 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     per pixel over the two planes apart. A statistical test would not do: a strip of a
     wall along the rows of a stereo camera's correlated streaks is off the wall's plane by
     a significant fraction of its noise (seed 23 scan 3 of the sensor matrix: 0.04 per
-    pixel), where a face at an angle is off by hundreds."""
+    pixel), where a face at an angle is off by hundreds. With ``reach`` the regions offered are
+    those in the piece's box grown by its own height and width, touching it or not (a face a
+    pipe before it cuts in two: the piece beyond the pipe continues the face's region)."""
     rays, inverse, weight = ray_terms(ctx.xyz[piece], ctx.sigma[piece])
     a = surface.normal / surface.d
     inliers = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
@@ -175,7 +326,14 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     own = ray_moments(rays[inliers], inverse[inliers], weight[inliers])
     own_chi2 = float(ray_fits(own)[0][0])
     best, label = float(np.count_nonzero(inliers)), 0
-    for other in sorted(touching(labels, piece, 1) - {0} - set(skip)):
+    if reach:
+        rows, cols = np.divmod(piece, ctx.width)
+        h, w = int(rows.max() - rows.min()) + 1, int(cols.max() - cols.min()) + 1
+        box = labels[max(0, int(rows.min()) - h):int(rows.max()) + 1 + h, max(0, int(cols.min()) - w):int(cols.max()) + 1 + w]
+        offered = set(np.unique(box).tolist())
+    else:
+        offered = touching(labels, piece, 1)
+    for other in sorted(offered - {0} - set(skip)):
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
@@ -188,7 +346,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     return label
 
 
-def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
+def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0) -> tuple:
     """``(chi2, sides)``: of the straight lines on the sensor grid (CUT_DIRECTIONS directions
     x CUTS equal-count cuts, each side at least CUT_SHARE of the pixels and ``ctx.min_size``),
     the one that cuts the flat pixels ``idx`` (increasing) into the two faces whose planes
@@ -229,6 +387,14 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     if not np.isfinite(total).any():
         return (np.inf, [], None) if with_order else (np.inf, [])
     best = int(np.argmin(total))
+    if fine > 0:  # again, over ``fine`` directions within a step either side of the best
+        around = angles[best // sizes.size] + np.linspace(-1.0, 1.0, fine) * (np.pi / CUT_DIRECTIONS)
+        finer, fine_orders = crease_cut_squares(rows, cols, rays, inverse, weight, sizes, np.cos(around),
+                                                np.sin(around))
+        finer = finer.ravel()
+        if float(np.min(finer)) < float(total[best]):
+            total, orders, angles = finer, fine_orders, around
+            best = int(np.argmin(total))
     chi2 = float(total[best])
     direction, cut = divmod(best, sizes.size)
     order, size, angle = orders[direction], int(sizes[cut]), float(angles[direction])
