@@ -168,8 +168,9 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
                 if out is None:
                     out = np.array(labels, dtype=np.int32, order="C")
                 flat = out.reshape(-1)
-                wall = _continued_plane(ctx, out, fits, piece, surface, walls, skip={k}, reach=True)
-                if wall:  # a face of a region near it the region had taken: back to it
+                wall = (_continued_plane(ctx, out, fits, piece, surface, walls, skip={k})
+                        or _plane_explaining(ctx, out, fits, piece, window, skip={k}))
+                if wall:  # a face of another region the region had taken: back to it
                     flat[piece] = wall
                     walls.pop(wall, None)
                     split.extend((k, wall))
@@ -275,21 +276,46 @@ def _hidden_face(ctx, labels: np.ndarray, k: int, blocks: np.ndarray, side: int,
     c0, c1 = cols.min() * side, min((cols.max() + 1) * side, width)
     h, w = r1 - r0, c1 - c0
     r0, r1, c0, c1 = max(0, r0 - h), min(height, r1 + h), max(0, c0 - w), min(width, c1 + w)
-    rr, cc = np.nonzero(labels[r0:r1, c0:c1] == k)
-    idx = (rr + r0) * width + (cc + c0)
-    for piece, _ in taken:
-        idx = idx[~np.isin(idx, piece, assume_unique=True)]
+    c = max(int(correlation_px), 1)
+    window = float(c * c)
+
+    def pixels(step):  # the region's pixels in the window, every ``step``-th row and column
+        rr, cc = np.nonzero(labels[r0:r1:step, c0:c1:step] == k)
+        idx = (rr * step + r0) * width + (cc * step + c0)
+        for piece, _ in taken:
+            idx = idx[~np.isin(idx, piece, assume_unique=True)]
+        return idx
+
+    # first, on one pixel a matching window (independent returns), the marked blocks' pixels
+    # and the rest as the two sides: two planes that do not pass the F-test there, or meet
+    # within min_angle_deg, are one face with the noise's blotches (the line's search over
+    # every pixel cost ten times as much)
+    sample = pixels(c)
+    if sample.size * window < 2 * ctx.min_size:
+        return None
+    pr, pc = np.divmod(sample, width)
+    under = blocks[np.minimum(pr // side, blocks.shape[0] - 1), np.minimum(pc // side, blocks.shape[1] - 1)]
+    one = pixel_moments(ctx.xyz, ctx.sigma, sample)
+    marked = pixel_moments(ctx.xyz, ctx.sigma, sample[under])
+    (one_chi2,), _ = ray_fits(one)
+    (marked_chi2,), (marked_a,) = ray_fits(marked)
+    (rest_chi2,), (rest_a,) = ray_fits(tuple(x - y for x, y in zip(one, marked)))
+    cosine = abs(float(marked_a @ rest_a)) / max(float(np.linalg.norm(marked_a) * np.linalg.norm(rest_a)), 1e-300)
+    if (np.degrees(np.arccos(min(1.0, cosine))) < min_angle_deg
+            or not curvature_resolved(float(one_chi2), float(marked_chi2 + rest_chi2), sample.size, 4)):
+        return None
+    idx = pixels(1)
     if idx.size < 2 * ctx.min_size:
         return None
-    chi2, sides = crease_line(ctx, idx, fine=FINE_DIRECTIONS)
+    (one_chi2,), _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
+    # the line's search on the independent returns' share of the pixels, drawn through them all
+    chi2, sides = crease_line(ctx, idx, fine=FINE_DIRECTIONS, search_pixels=max(int(idx.size / window), 1))
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
         return None
-    window = float(max(int(correlation_px), 1)) ** 2
     if not all(_within_noise_along_rays(ctx, s, window) for s in sides):
         return None
-    one, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
-    if not curvature_resolved(float(one[0]) / window, chi2 / window, max(int(idx.size / window), 1), 4):
+    if not curvature_resolved(float(one_chi2) / window, chi2 / window, max(int(idx.size / window), 1), 4):
         return None
     # the face: the piece with the larger share of its pixels under the marked blocks
     def marked_share(piece):
@@ -299,8 +325,29 @@ def _hidden_face(ctx, labels: np.ndarray, k: int, blocks: np.ndarray, side: int,
     return max(surfaces, key=lambda s: marked_share(s[0]))
 
 
+def _plane_explaining(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, window: float, *, skip=()) -> int:
+    """The label of the plane region (of ``fits``, not in ``skip``, with pixels in ``labels``)
+    whose plane explains the flat pixels ``piece`` along their rays closest, within their range
+    noise (the mean square of their residuals in noise units within the chi-square bound of
+    their independent returns, ``window`` pixels each); 0 when none does. A face a pipe
+    before it cuts in two leaves the piece beyond the pipe under the wall beside it: its own
+    face's region touches it not, and a region of its own would over-segment the face."""
+    from .kernels.linalg import noise_rms_bound
+
+    rays, inverse, weight = ray_terms(ctx.xyz[piece], ctx.sigma[piece])
+    bound = noise_rms_bound.py_func(1.0, max(piece.size / window, 1.0), CHI_SQUARE_SIGMAS)
+    best, label = bound * bound, 0
+    for other, model in fits.items():
+        if other <= 0 or other in skip or not isinstance(model, Plane):
+            continue
+        mean_square = float(np.mean(weight * (inverse - rays @ (np.asarray(model.normal) / model.d)) ** 2))
+        if mean_square <= best and np.any(labels == other):
+            best, label = mean_square, other
+    return label
+
+
 def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, surface, walls: dict, *,
-                     skip=(), reach: bool = False) -> int:
+                     skip=()) -> int:
     """The label of a plane region touching ``piece`` (flat pixels, increasing; a face
     :func:`faces_of_plane` found, its plane ``surface``) whose plane it continues, 0 when
     none does; ``walls`` caches the regions' ray-space sums
@@ -315,9 +362,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     per pixel over the two planes apart. A statistical test would not do: a strip of a
     wall along the rows of a stereo camera's correlated streaks is off the wall's plane by
     a significant fraction of its noise (seed 23 scan 3 of the sensor matrix: 0.04 per
-    pixel), where a face at an angle is off by hundreds. With ``reach`` the regions offered are
-    those in the piece's box grown by its own height and width, touching it or not (a face a
-    pipe before it cuts in two: the piece beyond the pipe continues the face's region)."""
+    pixel), where a face at an angle is off by hundreds."""
     rays, inverse, weight = ray_terms(ctx.xyz[piece], ctx.sigma[piece])
     a = surface.normal / surface.d
     inliers = weight * (inverse - rays @ a) ** 2 <= TRIM_SIGMAS * TRIM_SIGMAS
@@ -326,14 +371,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     own = ray_moments(rays[inliers], inverse[inliers], weight[inliers])
     own_chi2 = float(ray_fits(own)[0][0])
     best, label = float(np.count_nonzero(inliers)), 0
-    if reach:
-        rows, cols = np.divmod(piece, ctx.width)
-        h, w = int(rows.max() - rows.min()) + 1, int(cols.max() - cols.min()) + 1
-        box = labels[max(0, int(rows.min()) - h):int(rows.max()) + 1 + h, max(0, int(cols.min()) - w):int(cols.max()) + 1 + w]
-        offered = set(np.unique(box).tolist())
-    else:
-        offered = touching(labels, piece, 1)
-    for other in sorted(offered - {0} - set(skip)):
+    for other in sorted(touching(labels, piece, 1) - {0} - set(skip)):
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
@@ -346,7 +384,8 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     return label
 
 
-def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0) -> tuple:
+def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0,
+                search_pixels: int = LINE_SEARCH_PIXELS) -> tuple:
     """``(chi2, sides)``: of the straight lines on the sensor grid (CUT_DIRECTIONS directions
     x CUTS equal-count cuts, each side at least CUT_SHARE of the pixels and ``ctx.min_size``),
     the one that cuts the flat pixels ``idx`` (increasing) into the two faces whose planes
@@ -359,14 +398,15 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0
     crease it puts is a third of a face off. ``with_order`` adds the positions in ``idx``
     ordered across the line (None with no line).
 
-    A region of more than LINE_SEARCH_PIXELS pixels is searched on an even subsample of
-    them; the line found is drawn through every pixel, and the chi-square is that of every
+    With ``fine``, the best direction is searched again over ``fine`` directions within one
+    of CUT_DIRECTIONS' steps either side. A region of more than ``search_pixels`` pixels is
+    searched on an even subsample of them; the line found is drawn through every pixel, and the chi-square is that of every
     pixel's two planes (a floor of 400 000 pixels took seconds searched pixel by pixel)."""
     n = idx.size
     side = max(ctx.min_size, int(np.ceil(CUT_SHARE * n)))
     if n < 2 * side:
         return (np.inf, [], None) if with_order else (np.inf, [])
-    step = -(-n // LINE_SEARCH_PIXELS)
+    step = -(-n // max(int(search_pixels), 1))
     search = idx[::step]
     rows, cols = np.divmod(search, ctx.width)
     rays, inverse, weight = ray_terms(ctx.xyz[search], ctx.sigma[search])
