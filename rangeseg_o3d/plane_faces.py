@@ -31,7 +31,7 @@ from .fullres import region_stats
 from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane
 from .refinement.context import TRIM_SIGMAS, touching
 
-__all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
+__all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
            "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "hidden_faces", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
@@ -64,6 +64,9 @@ BLOCK_SAMPLES = 4
 BLOCK_SIGMAS = 3.0
 #: ... and the least connected blocks of one sign a hidden face is looked for under.
 FACE_BLOCKS = 4
+#: The largest share of its region's pixels a hidden face may take (a larger one is no face
+#: the region hides: the region's plane is off its surface).
+HIDDEN_SHARE = 0.25
 #: Directions of the crease line :func:`hidden_faces` tries again within one of CUT_DIRECTIONS'
 #: steps either side of the best (a face cut off by the frame's edge meets the wall on a
 #: line within a few degrees of the edge; steps of 5.6 degrees leave a 13-row strip's
@@ -208,7 +211,7 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
     that each fit their planes within the range noise over their independent returns
     (:func:`_within_noise_along_rays`) and beat one plane by the F-test of
     :func:`~rangeseg_o3d.fitting.robust.curvature_resolved` over those returns. The piece
-    of the marked side is the hidden face; boxes of one region are taken in turn, a later
+    of the marked side is the hidden face, if it takes at most HIDDEN_SHARE of its region; boxes of one region are taken in turn, a later
     one without the pixels an earlier face took, and a face within ``min_angle_deg`` of an
     earlier one's plane joins it.
     """
@@ -244,7 +247,10 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
             for j in np.flatnonzero(sizes[1:] >= FACE_BLOCKS) + 1:
                 face = _hidden_face(ctx, labels, k, pieces == j, b * c, (height, width), correlation_px,
                                     min_angle_deg, taken=found.get(k, []))
-                if face is not None:
+                # a face hidden in a region is a small part of it: one of half of it or more means
+                # the region's plane is no wall's (a pipe, or a tile model off its surface), which
+                # the region's own split judges (a pure 7700-px region halved: fresh seed 1004 scan 3)
+                if face is not None and face[0].size <= HIDDEN_SHARE * np.count_nonzero(labels == k):
                     found[k] = _join_coplanar(ctx, found.get(k, []), face, min_angle_deg)
     return found
 
