@@ -176,3 +176,18 @@ def test_a_piece_another_regions_plane_explains_along_the_rays_goes_to_it_a_face
     assert _plane_explaining(ctx, labels, fits, strip, 9.0, skip={2}) == 0
     labels[labels == 2] = 0  # a plane with no pixels left is no region
     assert _plane_explaining(ctx, labels, fits, strip, 9.0) == 0
+
+
+def test_a_face_over_hidden_share_of_its_region_is_dropped(monkeypatch):
+    # the face is 2.1 % of the wall's region: kept under a share bound of 3 %, dropped under 1 %
+    # (HIDDEN_SHARE, a quarter: a larger "face" means the region's plane is off its surface)
+    import rangeseg_o3d.plane_faces as plane_faces
+
+    cloud, sigma, truth, _ = _wall_and_top_face(0)
+    labels, fits, _ = _one_region(cloud, sigma)
+    ctx = _context(cloud, sigma)
+    assert 0.01 < np.count_nonzero(truth == 2) / truth.size < 0.03
+    monkeypatch.setattr(plane_faces, "HIDDEN_SHARE", 0.03)
+    assert len(hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0).get(1, [])) == 1
+    monkeypatch.setattr(plane_faces, "HIDDEN_SHARE", 0.01)
+    assert hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0) == {}
