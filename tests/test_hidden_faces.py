@@ -135,8 +135,11 @@ def test_the_block_sums_are_numpys():
     normals = np.zeros((4, 3))
     normals[1], normals[3] = [0.0, 0.0, 1.0], [0.3, 0.0, 0.954]
     offsets = np.array([0.0, 5.0, 0.0, -4.0])  # label 3's plane lies behind the camera: no ray meets it
-    sums, counts = block_offsets(xyz, sigma, labels, normals, offsets, step, block)
-    want_s, want_c = np.zeros_like(sums), np.zeros_like(counts)
+    # slots: label 1 -> 0, label 3 -> 1, label 2 none (its pixels are skipped), label 0 the background
+    slots = np.array([-1, 0, -1, 1])
+    sums, counts = block_offsets(xyz, sigma, labels, slots, normals[[1, 3]], offsets[[1, 3]], step, block)
+    grid = (-(-(-(-rows // step)) // block), -(-(-(-cols // step)) // block))
+    want_s, want_c = np.zeros((4,) + grid), np.zeros((4,) + grid, dtype=np.int64)
     for r in range(0, rows, step):
         for c in range(0, cols, step):
             k, i = labels[r, c], r * cols + c
@@ -147,12 +150,16 @@ def test_the_block_sums_are_numpys():
                 continue
             rng_ = np.linalg.norm(xyz[i])
             off = np.clip((rng_ - offsets[k] * rng_ / along) / sigma[i], -10.0, 10.0)
-            want_s[r // step // block, c // step // block, k] += off
-            want_c[r // step // block, c // step // block, k] += 1
-    assert sums.shape == (-(-(-(-rows // step)) // block), -(-(-(-cols // step)) // block), 4)
-    np.testing.assert_allclose(sums, want_s, rtol=1e-12, atol=1e-12)
-    np.testing.assert_array_equal(counts, want_c)
-    assert counts[..., 1].sum() > 50 and counts[..., 3].sum() == 0 and counts[..., 2].sum() == 0
+            want_s[k, r // step // block, c // step // block] += off
+            want_c[k, r // step // block, c // step // block] += 1
+    assert sums.shape == counts.shape == (2,) + grid
+    np.testing.assert_allclose(sums, want_s[[1, 3]], rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(counts, want_c[[1, 3]])
+    assert counts[0].sum() > 50 and counts[1].sum() == 0
+    # label 2's pixels, given label 1's slot, are summed into it
+    both, both_counts = block_offsets(xyz, sigma, labels, np.array([-1, 0, 0, -1]), normals[[1]], offsets[[1]],
+                                      step, block)
+    assert both_counts[0].sum() > counts[0].sum()
     assert BLOCK_SAMPLES == 4
 
 
@@ -191,3 +198,51 @@ def test_a_face_over_hidden_share_of_its_region_is_dropped(monkeypatch):
     assert len(hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0).get(1, [])) == 1
     monkeypatch.setattr(plane_faces, "HIDDEN_SHARE", 0.01)
     assert hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0) == {}
+
+
+def test_the_share_bound_drops_a_piece_before_the_line_search(monkeypatch):
+    # marked blocks holding more of the region than HIDDEN_SHARE: no line is searched at all
+    import rangeseg_o3d.plane_faces as plane_faces
+
+    cloud, sigma, truth, _ = _wall_and_top_face(0)
+    labels, fits, _ = _one_region(cloud, sigma)
+    ctx = _context(cloud, sigma)
+    searched = []
+    crease_line = plane_faces.crease_line
+    monkeypatch.setattr(plane_faces, "crease_line", lambda *a, **k: searched.append(1) or crease_line(*a, **k))
+    assert len(hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0)[1]) == 1
+    assert len(searched) == 1
+    searched.clear()
+    monkeypatch.setattr(plane_faces, "HIDDEN_SHARE", 0.005)  # the marked blocks hold about 1 % of the wall
+    assert hidden_faces(ctx, labels, fits, [1], correlation_px=3, min_angle_deg=10.0) == {}
+    assert searched == []
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_strided_line_search_finds_the_line_of_the_search_over_every_direction(seed):
+    # SEARCH_STRIDE: every other direction, then the best one's neighbours (coarse and fine)
+    from rangeseg_o3d.plane_faces import FINE_DIRECTIONS, SEARCH_STRIDE, crease_line
+
+    cloud, sigma, truth, _ = _wall_and_top_face(seed)
+    ctx = _context(cloud, sigma)
+    idx = np.flatnonzero(np.arange(truth.size) < 60 * truth.shape[1])  # the top 60 rows: the face and wall
+    kw = dict(fine=FINE_DIRECTIONS, search_pixels=idx.size // 9)
+    chi2, sides = crease_line(ctx, idx, stride=1, **kw)
+    strided_chi2, strided = crease_line(ctx, idx, stride=SEARCH_STRIDE, **kw)
+    assert SEARCH_STRIDE == 2 and np.isfinite(chi2)
+    assert strided_chi2 == chi2
+    assert all(np.array_equal(a, b) for a, b in zip(sides, strided)) and len(strided) == 2
+    # the line is the crease: the smaller side mostly the face's pixels
+    small = min(strided, key=len)
+    assert np.mean(truth.ravel()[small] == 2) > 0.6
+
+
+def test_the_block_grids_dilation_is_scipys():
+    from scipy import ndimage
+
+    from rangeseg_o3d.plane_faces import _dilated
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        mask = rng.random((int(rng.integers(1, 20)), int(rng.integers(1, 20)))) < rng.uniform(0.0, 0.3)
+        np.testing.assert_array_equal(_dilated(mask), ndimage.binary_dilation(mask, structure=np.ones((3, 3), bool)))
