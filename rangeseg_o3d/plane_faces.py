@@ -225,8 +225,12 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
     if not planes:
         return {}
     height, width = labels.shape
-    top = int(labels.max(initial=0)) + 1
-    planes = [k for k in planes if 0 < k < top]
+    # labels past the largest candidate's have no slot (the frame's maximum need not be
+    # scanned: a candidate without pixels sums nothing and marks no block)
+    planes = [k for k in planes if 0 < k]
+    if not planes:
+        return {}
+    top = max(planes) + 1
     # the planes' slots: the sums kept for them only (a slot per label, hundreds of them, took
     # more than the pass to zero and to scan)
     slots = np.full(top, -1, dtype=np.int64)
