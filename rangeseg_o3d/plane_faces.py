@@ -72,8 +72,8 @@ HIDDEN_SHARE = 0.25
 #: line within a few degrees of the edge; steps of 5.6 degrees leave a 13-row strip's
 #: triangle on both sides of the line).
 FINE_DIRECTIONS = 23
-#: :func:`hidden_faces`' line searches try every SEARCH_STRIDE-th direction first, then those
-#: near the best (:func:`crease_line`'s ``stride``; the searches were most of its cost).
+#: :func:`hidden_faces`' line searches try every SEARCH_STRIDE-th of the CUT_DIRECTIONS first,
+#: then those near the best (:func:`crease_line`'s ``stride``; the searches were most of its cost).
 SEARCH_STRIDE = 2
 #: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
@@ -454,10 +454,11 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0
     searched on an even subsample of them; the line found is drawn through every pixel, and the chi-square is that of every
     pixel's two planes (a floor of 400 000 pixels took seconds searched pixel by pixel).
 
-    With ``stride`` > 1, each search (the CUT_DIRECTIONS, then the ``fine`` ones) tries every
-    ``stride``-th direction first and then those within ``stride`` of the best of them: the
-    chi-square falls smoothly towards the crease's direction, so the line found is the one
-    of the search over every direction unless two valleys lie within ``stride`` steps."""
+    With ``stride`` > 1, the search over the CUT_DIRECTIONS tries every ``stride``-th
+    direction first and then those within ``stride`` of the best of them: the chi-square
+    falls smoothly towards the crease's direction, so the line found is the one of the
+    search over every direction unless two valleys lie within ``stride`` steps. The
+    ``fine`` directions are all searched."""
     n = idx.size
     side = max(ctx.min_size, int(np.ceil(CUT_SHARE * n)))
     if n < 2 * side:
@@ -485,8 +486,11 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0
     best = int(np.argmin(total))
     if fine > 0:  # again, over ``fine`` directions within a step either side of the best
         around = angles[best // sizes.size] + np.linspace(-1.0, 1.0, fine) * (np.pi / CUT_DIRECTIONS)
+        # every fine direction: the chi-square over a step's fine directions is no smooth
+        # valley (a few pixels cross the line from one to the next; strided, study seed 11
+        # scan 2 took another line)
         finer, fine_orders = _direction_search(rows, cols, rays, inverse, weight, sizes, np.cos(around),
-                                               np.sin(around), stride, False)
+                                               np.sin(around), 1, False)
         finer = finer.ravel()
         if float(np.min(finer)) < float(total[best]):
             total, orders, angles = finer, fine_orders, around

@@ -220,7 +220,7 @@ def test_the_share_bound_drops_a_piece_before_the_line_search(monkeypatch):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_strided_line_search_finds_the_line_of_the_search_over_every_direction(seed):
-    # SEARCH_STRIDE: every other direction, then the best one's neighbours (coarse and fine)
+    # SEARCH_STRIDE: every other of the coarse directions, then the best one's neighbours
     from rangeseg_o3d.plane_faces import FINE_DIRECTIONS, SEARCH_STRIDE, crease_line
 
     cloud, sigma, truth, _ = _wall_and_top_face(seed)
