@@ -25,14 +25,14 @@ from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .kernels.modelnoise import plane_distances_noise, plane_noise_sums
-from .kernels.claims import box_claims
+from .kernels.claims import block_offsets, box_claims
 from .kernels.rays import crease_cut_squares
 from .fullres import region_stats
 from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_terms, robust_ray_plane
 from .refinement.context import TRIM_SIGMAS, touching
 
-__all__ = ["CLAIM_REACH", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "join_pieces_along_rays", "plane_beside",
+__all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "hidden_faces", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -57,6 +57,24 @@ PATTERN_BINS = 16
 #: cylinder's misfit is not the noise's: the F distribution's quantile of PATTERN_BINS and
 #: PATTERN_BINS degrees of freedom at the tail of CHI_SQUARE_SIGMAS normal deviations.
 PATTERN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(CHI_SQUARE_SIGMAS)))
+#: Blocks of BLOCK_SAMPLES x BLOCK_SAMPLES independent returns (matching windows) over which
+#: :func:`hidden_faces` averages a plane region's residuals along the rays ...
+BLOCK_SAMPLES = 4
+#: ... the least mean of a block, in noise units of its independent returns, that marks it ...
+BLOCK_SIGMAS = 3.0
+#: ... and the least connected blocks of one sign a hidden face is looked for under.
+FACE_BLOCKS = 4
+#: The largest share of its region's pixels a hidden face may take (a larger one is no face
+#: the region hides: the region's plane is off its surface).
+HIDDEN_SHARE = 0.25
+#: Directions of the crease line :func:`hidden_faces` tries again within one of CUT_DIRECTIONS'
+#: steps either side of the best (a face cut off by the frame's edge meets the wall on a
+#: line within a few degrees of the edge; steps of 5.6 degrees leave a 13-row strip's
+#: triangle on both sides of the line).
+FINE_DIRECTIONS = 23
+#: :func:`hidden_faces`' line searches try every SEARCH_STRIDE-th of the CUT_DIRECTIONS first,
+#: then those near the best (:func:`crease_line`'s ``stride``; the searches were most of its cost).
+SEARCH_STRIDE = 2
 #: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
 CYLINDER_TEST_PIXELS = 4096
@@ -111,7 +129,8 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         if isinstance(fits[k], Cylinder) or _beyond_distance_noise(xyz[sample], noise[sample],
                                                                    min(sample.size, idx.size / window)):
             suspects[k] = idx
-    if not suspects:
+    hidden = window > 1.0 and any(isinstance(fits[k], Plane) for k in candidates)
+    if not suspects and not hidden:
         return labels, fits, stats
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns)
     out, fits, split = None, dict(fits), []
@@ -144,10 +163,238 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
             fits[label] = surface
             split.append(label)
             made.add(label)
+    if hidden:
+        # the plane regions no split touched: faces their pixels hide, which their mean
+        # residuals along the rays show (hidden_faces)
+        current = labels if out is None else out
+        found = hidden_faces(ctx, current, fits, [k for k in candidates if k not in made and isinstance(fits[k], Plane)],
+                             correlation_px=correlation_px, min_angle_deg=min_angle_deg)
+        for k, pieces in found.items():
+            for piece, surface in pieces:
+                if out is None:
+                    out = np.array(labels, dtype=np.int32, order="C")
+                flat = out.reshape(-1)
+                wall = (_continued_plane(ctx, out, fits, piece, surface, walls, skip={k})
+                        or _plane_explaining(ctx, out, fits, piece, window, skip={k}))
+                if wall:  # a face of another region the region had taken: back to it
+                    flat[piece] = wall
+                    walls.pop(wall, None)
+                    split.extend((k, wall))
+                    continue
+                flat[piece] = next_label
+                fits[next_label] = surface
+                split.extend((k, next_label))
+                made.add(next_label)
+                next_label += 1
+            walls.pop(k, None)
     if out is None:
         return labels, fits, stats
     stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=split)
     return out, fits, stats
+
+
+def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation_px: int,
+                 min_angle_deg: float = 0.0) -> dict:
+    """``{label: [(pixels, plane)]}``: the faces each plane region of ``candidates`` (labels
+    of ``labels`` with a :class:`Plane` in ``fits``) holds beside the face its plane is, on a
+    sensor whose range noise errs together over ``correlation_px`` x ``correlation_px`` pixels.
+
+    A far box's face seen near grazing beside the face seen head-on lies within 1-2 range
+    sigmas of the head-on face's plane along its rays pixel by pixel, and a few thousand of
+    its pixels are a percent of a wall's region: no gate on the whole region, and no
+    crease line with a tenth of the region on either side (:func:`faces_of_plane`), finds
+    it. Its mean offset along the rays does: 245 independent returns 1.16 sigmas off are
+    18 sigmas off together. So the residuals along the rays of each region's plane, one
+    pixel a matching window (an independent return), are averaged over blocks of
+    BLOCK_SAMPLES x BLOCK_SAMPLES of them; blocks at least BLOCK_SIGMAS off (in the noise
+    of their mean), FACE_BLOCKS or more of one sign at most a block apart, mark a piece. Over the region's
+    pixels in the piece's box grown by its own height and width, the crease line
+    (:func:`crease_line`, its best direction searched again over FINE_DIRECTIONS) must give two faces
+    (:func:`_faces_of_sides`, at least ``min_angle_deg`` apart, PLANES_COVER of the pixels)
+    that each fit their planes within the range noise over their independent returns
+    (:func:`_within_noise_along_rays`) and beat one plane by the F-test of
+    :func:`~rangeseg_o3d.fitting.robust.curvature_resolved` over those returns. The piece
+    of the marked side is the hidden face, if it takes at most HIDDEN_SHARE of its region; boxes of one region are taken in turn, a later
+    one without the pixels an earlier face took, and a face within ``min_angle_deg`` of an
+    earlier one's plane joins it.
+    """
+    from scipy import ndimage
+
+    c = max(int(correlation_px), 1)
+    planes = [k for k in candidates if isinstance(fits.get(k), Plane)]
+    if not planes:
+        return {}
+    height, width = labels.shape
+    # labels past the largest candidate's have no slot (the frame's maximum need not be
+    # scanned: a candidate without pixels sums nothing and marks no block)
+    planes = [k for k in planes if 0 < k]
+    if not planes:
+        return {}
+    top = max(planes) + 1
+    # the planes' slots: the sums kept for them only (a slot per label, hundreds of them, took
+    # more than the pass to zero and to scan)
+    slots = np.full(top, -1, dtype=np.int64)
+    slots[planes] = np.arange(len(planes))
+    normals = np.array([np.asarray(fits[k].normal, dtype=np.float64) for k in planes]).reshape(-1, 3)
+    offsets = np.array([float(fits[k].d) for k in planes], dtype=np.float64)
+    # one pixel a matching window (the independent returns), in blocks, in one compiled pass
+    # (numpy's gathers and sums took 13 ms a scan)
+    b = BLOCK_SAMPLES
+    sums, counts = block_offsets(ctx.xyz, ctx.sigma, np.ascontiguousarray(labels), slots, normals, offsets, c, b)
+    z = sums / np.sqrt(np.maximum(counts, 1))
+    full = counts >= b * b // 2
+    found, region_sizes = {}, {}
+    for p, k in enumerate(planes):
+        for sign in (1.0, -1.0):
+            marked = full[p] & (sign * z[p] >= BLOCK_SIGMAS)
+            if np.count_nonzero(marked) < FACE_BLOCKS:
+                continue
+            # blocks a block apart are one piece (a face's strip narrowing to a few rows,
+            # or the noise, leaves gaps; pieces of one face would over-segment it)
+            pieces, n = ndimage.label(_dilated(marked))
+            pieces[~marked] = 0
+            sizes = np.bincount(pieces.ravel(), minlength=n + 1)
+            def region_size(k=k):  # counted once, and only for a piece past the pre-test
+                if k not in region_sizes:
+                    region_sizes[k] = int(np.count_nonzero(labels == k))
+                return region_sizes[k]
+
+            for j in np.flatnonzero(sizes[1:] >= FACE_BLOCKS) + 1:
+                face = _hidden_face(ctx, labels, k, pieces == j, b * c, (height, width), correlation_px,
+                                    min_angle_deg, taken=found.get(k, []), region_size=region_size)
+                # a face hidden in a region is a small part of it: one of half of it or more means
+                # the region's plane is no wall's (a pipe, or a tile model off its surface), which
+                # the region's own split judges (a pure 7700-px region halved: fresh seed 1004 scan 3)
+                if face is not None and face[0].size <= HIDDEN_SHARE * region_size():
+                    found[k] = _join_coplanar(ctx, found.get(k, []), face, min_angle_deg)
+    return found
+
+
+def _dilated(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (2-D, boolean) dilated by one cell in each of the 8 directions: scipy's
+    ``binary_dilation`` with a 3 x 3 structure, by slices (on a block grid of a few thousand
+    cells scipy's call costs ten times the work)."""
+    out = mask.copy()
+    height, width = mask.shape
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                out[max(dr, 0):height + min(dr, 0), max(dc, 0):width + min(dc, 0)] |= \
+                    mask[max(-dr, 0):height + min(-dr, 0), max(-dc, 0):width + min(-dc, 0)]
+    return out
+
+
+def _join_coplanar(ctx, faces: list, face: tuple, min_angle_deg: float) -> list:
+    """``faces`` with ``face`` ``(pixels, plane)`` added: joined to the first of them whose
+    plane is within ``min_angle_deg`` of its own (two pieces of one face, which the noise
+    marked apart), the union's plane fitted along the rays again."""
+    piece, plane = face
+    for i, (other, other_plane) in enumerate(faces):
+        if np.degrees(np.arccos(min(1.0, abs(float(np.asarray(plane.normal) @ np.asarray(other_plane.normal)))))) \
+                < min_angle_deg:
+            union = np.union1d(other, piece)
+            _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, union))
+            joined = ray_plane(a[0], ctx.xyz[union])
+            if joined:
+                return faces[:i] + [(union, joined)] + faces[i + 1:]
+    return faces + [face]
+
+
+def _hidden_face(ctx, labels: np.ndarray, k: int, blocks: np.ndarray, side: int, shape: tuple,
+                 correlation_px: int, min_angle_deg: float, taken=(), region_size=None):
+    """The face ``(pixels, plane)`` of region ``k`` under the marked ``blocks`` (a grid of
+    ``side`` x ``side`` pixel blocks) when the crease line over its window gives it
+    (:func:`hidden_faces`), None when not; the pixels of the faces in ``taken`` are left out.
+    With ``region_size`` (a function: the region's pixels), None too when the region's pixels under the
+    marked blocks (one a matching window, ``correlation_px`` x ``correlation_px`` each) are
+    more than HIDDEN_SHARE of them."""
+    height, width = shape
+    rows, cols = np.nonzero(blocks)
+    r0, r1 = rows.min() * side, min((rows.max() + 1) * side, height)
+    c0, c1 = cols.min() * side, min((cols.max() + 1) * side, width)
+    h, w = r1 - r0, c1 - c0
+    r0, r1, c0, c1 = max(0, r0 - h), min(height, r1 + h), max(0, c0 - w), min(width, c1 + w)
+    c = max(int(correlation_px), 1)
+    window = float(c * c)
+
+    def pixels(step):  # the region's pixels in the window, every ``step``-th row and column
+        rr, cc = np.nonzero(labels[r0:r1:step, c0:c1:step] == k)
+        idx = (rr * step + r0) * width + (cc * step + c0)
+        for piece, _ in taken:
+            idx = idx[~np.isin(idx, piece, assume_unique=True)]
+        return idx
+
+    # first, on one pixel a matching window (independent returns), the marked blocks' pixels
+    # and the rest as the two sides: two planes that do not pass the F-test there, or meet
+    # within min_angle_deg, are one face with the noise's blotches (the line's search over
+    # every pixel cost ten times as much)
+    sample = pixels(c)
+    if sample.size * window < 2 * ctx.min_size:
+        return None
+    pr, pc = np.divmod(sample, width)
+    under = blocks[np.minimum(pr // side, blocks.shape[0] - 1), np.minimum(pc // side, blocks.shape[1] - 1)]
+    one = pixel_moments(ctx.xyz, ctx.sigma, sample)
+    marked = pixel_moments(ctx.xyz, ctx.sigma, sample[under])
+    (one_chi2,), _ = ray_fits(one)
+    (marked_chi2,), (marked_a,) = ray_fits(marked)
+    (rest_chi2,), (rest_a,) = ray_fits(tuple(x - y for x, y in zip(one, marked)))
+    cosine = abs(float(marked_a @ rest_a)) / max(float(np.linalg.norm(marked_a) * np.linalg.norm(rest_a)), 1e-300)
+    if (np.degrees(np.arccos(min(1.0, cosine))) < min_angle_deg
+            or not curvature_resolved(float(one_chi2), float(marked_chi2 + rest_chi2), sample.size, 4)):
+        return None
+    # the face is the side with the larger share of its pixels under the marked blocks, and
+    # a face takes at most HIDDEN_SHARE of its region (hidden_faces): marked blocks holding
+    # more of the region than that are the region's plane off its surface, no face it hides
+    # (the line's search costs ten times this test)
+    if region_size is not None and np.count_nonzero(under) * window > HIDDEN_SHARE * region_size():
+        return None
+    idx = pixels(1)
+    if idx.size < 2 * ctx.min_size:
+        return None
+    (one_chi2,), _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
+    # the line's search on the independent returns' share of the pixels, drawn through them all
+    chi2, sides = crease_line(ctx, idx, fine=FINE_DIRECTIONS, search_pixels=max(int(idx.size / window), 1),
+                              stride=SEARCH_STRIDE)
+    # the cheap tests first (the F-test on the line's chi-square, then each side's noise),
+    # the faces' pieces and planes last: all must pass, and most lines fail one of the first
+    if len(sides) != 2:
+        return None
+    if not curvature_resolved(float(one_chi2) / window, chi2 / window, max(int(idx.size / window), 1), 4):
+        return None
+    # each side's sums once, for both tests
+    moments = [pixel_moments(ctx.xyz, ctx.sigma, side) for side in sides]
+    if not all(_within_noise_along_rays(ctx, side, window, m) for side, m in zip(sides, moments)):
+        return None
+    surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg, moments)
+    if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
+        return None
+    # the face: the piece with the larger share of its pixels under the marked blocks
+    def marked_share(piece):
+        pr, pc = np.divmod(piece, width)
+        return float(np.mean(blocks[np.minimum(pr // side, blocks.shape[0] - 1),
+                                    np.minimum(pc // side, blocks.shape[1] - 1)]))
+    return max(surfaces, key=lambda s: marked_share(s[0]))
+
+
+def _plane_explaining(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, window: float, *, skip=()) -> int:
+    """The label of the plane region (of ``fits``, not in ``skip``, with pixels in ``labels``)
+    whose plane explains the flat pixels ``piece`` along their rays closest, within their range
+    noise (the mean square of their residuals in noise units within the chi-square bound of
+    their independent returns, ``window`` pixels each); 0 when none does. A face a pipe
+    before it cuts in two leaves the piece beyond the pipe under the wall beside it: its own
+    face's region touches it not, and a region of its own would over-segment the face."""
+    from .kernels.linalg import noise_rms_bound
+
+    rays, inverse, weight = ray_terms(ctx.xyz[piece], ctx.sigma[piece])
+    bound = noise_rms_bound.py_func(1.0, max(piece.size / window, 1.0), CHI_SQUARE_SIGMAS)
+    best, label = bound * bound, 0
+    for other, model in fits.items():
+        if other <= 0 or other in skip or not isinstance(model, Plane):
+            continue
+        mean_square = float(np.mean(weight * (inverse - rays @ (np.asarray(model.normal) / model.d)) ** 2))
+        if mean_square <= best and np.any(labels == other):
+            best, label = mean_square, other
+    return label
 
 
 def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, surface, walls: dict, *,
@@ -188,7 +435,8 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     return label
 
 
-def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
+def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False, fine: int = 0,
+                search_pixels: int = LINE_SEARCH_PIXELS, stride: int = 1) -> tuple:
     """``(chi2, sides)``: of the straight lines on the sensor grid (CUT_DIRECTIONS directions
     x CUTS equal-count cuts, each side at least CUT_SHARE of the pixels and ``ctx.min_size``),
     the one that cuts the flat pixels ``idx`` (increasing) into the two faces whose planes
@@ -201,14 +449,21 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     crease it puts is a third of a face off. ``with_order`` adds the positions in ``idx``
     ordered across the line (None with no line).
 
-    A region of more than LINE_SEARCH_PIXELS pixels is searched on an even subsample of
-    them; the line found is drawn through every pixel, and the chi-square is that of every
-    pixel's two planes (a floor of 400 000 pixels took seconds searched pixel by pixel)."""
+    With ``fine``, the best direction is searched again over ``fine`` directions within one
+    of CUT_DIRECTIONS' steps either side. A region of more than ``search_pixels`` pixels is
+    searched on an even subsample of them; the line found is drawn through every pixel, and the chi-square is that of every
+    pixel's two planes (a floor of 400 000 pixels took seconds searched pixel by pixel).
+
+    With ``stride`` > 1, the search over the CUT_DIRECTIONS tries every ``stride``-th
+    direction first and then those within ``stride`` of the best of them: the chi-square
+    falls smoothly towards the crease's direction, so the line found is the one of the
+    search over every direction unless two valleys lie within ``stride`` steps. The
+    ``fine`` directions are all searched."""
     n = idx.size
     side = max(ctx.min_size, int(np.ceil(CUT_SHARE * n)))
     if n < 2 * side:
         return (np.inf, [], None) if with_order else (np.inf, [])
-    step = -(-n // LINE_SEARCH_PIXELS)
+    step = -(-n // max(int(search_pixels), 1))
     search = idx[::step]
     rows, cols = np.divmod(search, ctx.width)
     rays, inverse, weight = ray_terms(ctx.xyz[search], ctx.sigma[search])
@@ -222,13 +477,24 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
     # argsort's positions, in linear time), each cut's two sides' sums in one running pass
     # and their 3 x 3 systems solved in place (numpy's pairwise sums and LAPACK's solves
     # took three times as long; the chi-squares differ in the last bits)
-    total, orders = crease_cut_squares(rows, cols, rays, inverse, weight, sizes,
-                                       np.array([np.cos(angle) for angle in angles]),
-                                       np.array([np.sin(angle) for angle in angles]))
+    total, orders = _direction_search(rows, cols, rays, inverse, weight, sizes,
+                                      np.array([np.cos(angle) for angle in angles]),
+                                      np.array([np.sin(angle) for angle in angles]), stride, True)
     total = total.ravel()
     if not np.isfinite(total).any():
         return (np.inf, [], None) if with_order else (np.inf, [])
     best = int(np.argmin(total))
+    if fine > 0:  # again, over ``fine`` directions within a step either side of the best
+        around = angles[best // sizes.size] + np.linspace(-1.0, 1.0, fine) * (np.pi / CUT_DIRECTIONS)
+        # every fine direction: the chi-square over a step's fine directions is no smooth
+        # valley (a few pixels cross the line from one to the next; strided, study seed 11
+        # scan 2 took another line)
+        finer, fine_orders = _direction_search(rows, cols, rays, inverse, weight, sizes, np.cos(around),
+                                               np.sin(around), 1, False)
+        finer = finer.ravel()
+        if float(np.min(finer)) < float(total[best]):
+            total, orders, angles = finer, fine_orders, around
+            best = int(np.argmin(total))
     chi2 = float(total[best])
     direction, cut = divmod(best, sizes.size)
     order, size, angle = orders[direction], int(sizes[cut]), float(angles[direction])
@@ -236,6 +502,33 @@ def crease_line(ctx, idx: np.ndarray, *, with_order: bool = False) -> tuple:
         chi2, order, size = _line_through_every_pixel(ctx, idx, angle, search, order, size, side)
     sides = [np.sort(idx[order[:size]]), np.sort(idx[order[size:]])]
     return (chi2, sides, order) if with_order else (chi2, sides)
+
+
+def _direction_search(rows, cols, rays, inverse, weight, sizes, cosines: np.ndarray, sines: np.ndarray,
+                      stride: int, around: bool) -> tuple:
+    """``(total, orders)`` of :func:`~rangeseg_o3d.kernels.rays.crease_cut_squares` over the
+    directions ``(cosines, sines)``: with ``stride`` > 1 only every ``stride``-th direction and then
+    those within ``stride`` of the best of them (the others' rows: inf chi-squares, their
+    orders unset); ``around``: the directions close on themselves (the last one's neighbour
+    is the first, half a turn on)."""
+    count = cosines.size
+    if stride <= 1 or count <= 2 * stride:
+        return crease_cut_squares(rows, cols, rays, inverse, weight, sizes, cosines, sines)
+    total = np.full((count, sizes.size), np.inf)
+    orders = np.zeros((count, rows.size), dtype=np.int64)
+    first = np.arange(0, count, stride)
+    total[first], orders[first] = crease_cut_squares(rows, cols, rays, inverse, weight, sizes,
+                                                     cosines[first], sines[first])
+    if not np.isfinite(total).any():
+        return total, orders
+    best = int(np.argmin(total)) // sizes.size
+    near = best + np.arange(-stride + 1, stride)
+    near = np.unique(near % count if around else near[(near >= 0) & (near < count)])
+    near = near[~np.isin(near, first)]
+    if near.size:
+        total[near], orders[near] = crease_cut_squares(rows, cols, rays, inverse, weight, sizes,
+                                                       cosines[near], sines[near])
+    return total, orders
 
 
 def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.ndarray, order: np.ndarray,
@@ -249,8 +542,9 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
         return cols * np.cos(angle) + rows * np.sin(angle)
 
     ends = across(search[order[[size - 1, size]]])
-    full_order = np.argsort(across(idx), kind="stable")
-    ordered = across(idx[full_order])
+    position = across(idx)
+    full_order = np.argsort(position, kind="stable")
+    ordered = position[full_order]
     full_size = int(np.clip(np.searchsorted(ordered, 0.5 * (ends[0] + ends[1]), side="left"),
                             side, idx.size - side))
     chi2 = 0.0
@@ -260,7 +554,7 @@ def _line_through_every_pixel(ctx, idx: np.ndarray, angle: float, search: np.nda
     return chi2, full_order, full_size
 
 
-def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.0) -> list:
+def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.0, moments=None) -> list:
     """The largest connected piece of each of the two ``sides`` of the flat pixels ``idx``
     (at least ``ctx.min_size``), with its side's plane fitted along the rays
     (:func:`~rangeseg_o3d.ray_planes.ray_terms`), ``[(pixels, plane)]``; the other pieces are left free (bits of the
@@ -269,12 +563,13 @@ def _faces_of_sides(ctx, idx: np.ndarray, sides: list, min_angle_deg: float = 0.
     seen head-on is as near the other face's plane as the range noise leaves it (a
     pixel-by-pixel choice moved a fifth of such a face across).
     Empty when the two planes meet within ``min_angle_deg``: pieces of one surface (a
-    floor's systematic bend over 400 000 pixels passes any F-test), which the merge joins."""
+    floor's systematic bend over 400 000 pixels passes any F-test), which the merge joins.
+    ``moments``: the sides' :func:`~rangeseg_o3d.ray_planes.pixel_moments`, when made already."""
     if len(sides) != 2:
         return []
     normals, out = [], []
-    for side in sides:
-        _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, side))
+    for i, side in enumerate(sides):
+        _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, side) if moments is None else moments[i])
         normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
         piece = np.sort(ctx.largest_piece(side))
         plane = ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
@@ -293,13 +588,14 @@ def _off_model(distances: np.ndarray, noise: np.ndarray, independent: float) -> 
                         max(int(independent), 1))
 
 
-def _within_noise_along_rays(ctx, idx: np.ndarray, window: float) -> bool:
+def _within_noise_along_rays(ctx, idx: np.ndarray, window: float, moments=None) -> bool:
     """Whether the plane fitted along the rays to the flat pixels ``idx`` leaves them within
     their range noise: the mean square of their residuals in noise units within the chi-square
-    bound of their independent returns (``window`` pixels each)."""
+    bound of their independent returns (``window`` pixels each). ``moments``: their
+    :func:`~rangeseg_o3d.ray_planes.pixel_moments`, when made already."""
     from .kernels.linalg import noise_rms_bound
 
-    squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx))
+    squares, _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, idx) if moments is None else moments)
     bound = noise_rms_bound.py_func(1.0, max(idx.size / window, 1.0), CHI_SQUARE_SIGMAS)
     return float(squares[0]) / idx.size <= bound * bound
 

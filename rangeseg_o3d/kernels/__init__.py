@@ -39,7 +39,7 @@ _SOURCES = {
     "rays": ("plane_ray_sums", "trimmed_ray_plane", "band_bend", "settle_moves_along_rays", "ray_moment_sums",
              "pixel_ray_moments", "pairwise_sum",
              "box_ray_terms", "grid_line_order", "crease_cut_squares"),
-    "claims": ("outlier_claims", "box_claims"),
+    "claims": ("outlier_claims", "box_claims", "block_offsets"),
     "bends": ("bend_screen", "curve_screen"),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "label_sample", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),

@@ -9,7 +9,7 @@ from .jit import njit  # numba.njit, with this package's cache locator installed
 
 CACHE_DEPENDS = ("growth.py", "inline.py", "kinds.py")
 
-__all__ = ["outlier_claims", "box_claims"]
+__all__ = ["outlier_claims", "box_claims", "block_offsets"]
 
 
 @njit(cache=True, nogil=True)
@@ -160,3 +160,50 @@ def box_claims(xyz, sigma, valid, owner, k, a, others, trim):
                     continue
             out[row, col] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def block_offsets(xyz, sigma, labels, slots, normals, offsets, step, block):
+    """``(sums, counts)``, each ``(P, ceil(H / step / block), ceil(W / step / block))``: over
+    the pixels of every ``step``-th row and column of the ``(H, W)`` label image (one a
+    matching window: independent returns), in blocks of ``block`` x ``block`` of them, per
+    label ``k`` with a slot ``p = slots[k] >= 0`` (of ``P``) whose plane ``normals[p] . p =
+    offsets[p]`` is set (a zero normal: none), the sum of its pixels' ranges less the range
+    at which that plane meets their rays, in units of their range noise ``sigma`` (clipped
+    at 10: a few mixed pixels make no face), and how many pixels were summed. ``xyz`` is
+    ``(H * W, 3)``, ``sigma`` ``(H * W,)``; labels at or past ``slots``' length are skipped,
+    as are pixels whose ray does not meet the plane in front or whose return is not finite.
+    The sums are kept for the planes' slots only (one per label over the hundreds of labels
+    of a stereo scan took more to zero and scan than the pass itself)."""
+    height, width = labels.shape
+    top = slots.shape[0]
+    planes = normals.shape[0]
+    rows_s, cols_s = (height + step - 1) // step, (width + step - 1) // step
+    rows_b, cols_b = (rows_s + block - 1) // block, (cols_s + block - 1) // block
+    sums = np.zeros((planes, rows_b, cols_b))
+    counts = np.zeros((planes, rows_b, cols_b), np.int64)
+    for rs in range(rows_s):
+        r = rs * step
+        for cs in range(cols_s):
+            k = labels[r, cs * step]
+            if k <= 0 or k >= top:
+                continue
+            p = slots[k]
+            if p < 0 or p >= planes:
+                continue
+            nx, ny, nz = normals[p, 0], normals[p, 1], normals[p, 2]
+            if nx == 0.0 and ny == 0.0 and nz == 0.0:
+                continue
+            i = r * width + cs * step
+            x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            along = nx * x + ny * y + nz * z  # the range times the ray's cosine on the plane
+            s = sigma[i]
+            if not (along * offsets[p] > 0.0) or not (s > 0.0):
+                continue
+            rng = np.sqrt(x * x + y * y + z * z)
+            off = (rng - offsets[p] * rng / along) / s
+            if not (off == off):
+                continue
+            sums[p, rs // block, cs // block] += min(10.0, max(-10.0, off))
+            counts[p, rs // block, cs // block] += 1
+    return sums, counts
