@@ -221,15 +221,12 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
     from scipy import ndimage
 
     c = max(int(correlation_px), 1)
-    planes = [k for k in candidates if isinstance(fits.get(k), Plane)]
+    planes = [k for k in candidates if 0 < k and isinstance(fits.get(k), Plane)]
     if not planes:
         return {}
     height, width = labels.shape
     # labels past the largest candidate's have no slot (the frame's maximum need not be
     # scanned: a candidate without pixels sums nothing and marks no block)
-    planes = [k for k in planes if 0 < k]
-    if not planes:
-        return {}
     top = max(planes) + 1
     # the planes' slots: the sums kept for them only (a slot per label, hundreds of them, took
     # more than the pass to zero and to scan)
@@ -245,6 +242,11 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
     full = counts >= b * b // 2
     found, region_sizes = {}, {}
     for p, k in enumerate(planes):
+        def region_size(k=k):  # counted once, and only for a piece past the pre-test
+            if k not in region_sizes:
+                region_sizes[k] = int(np.count_nonzero(labels == k))
+            return region_sizes[k]
+
         for sign in (1.0, -1.0):
             marked = full[p] & (sign * z[p] >= BLOCK_SIGMAS)
             if np.count_nonzero(marked) < FACE_BLOCKS:
@@ -254,11 +256,6 @@ def hidden_faces(ctx, labels: np.ndarray, fits: dict, candidates, *, correlation
             pieces, n = ndimage.label(_dilated(marked))
             pieces[~marked] = 0
             sizes = np.bincount(pieces.ravel(), minlength=n + 1)
-            def region_size(k=k):  # counted once, and only for a piece past the pre-test
-                if k not in region_sizes:
-                    region_sizes[k] = int(np.count_nonzero(labels == k))
-                return region_sizes[k]
-
             for j in np.flatnonzero(sizes[1:] >= FACE_BLOCKS) + 1:
                 face = _hidden_face(ctx, labels, k, pieces == j, b * c, (height, width), correlation_px,
                                     min_angle_deg, taken=found.get(k, []), region_size=region_size)

@@ -707,10 +707,9 @@ def _planes_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, 
     return {k for k in planes if k in pixels and ctx.plane_along_rays(fits[k], pixels[k])}
 
 
-def _median_cosine(plane, points: np.ndarray) -> float:
-    # the median |cosine| between the points' rays (from the origin) and the plane's normal
-    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
-    return float(np.median(np.abs(points @ np.asarray(plane.normal, dtype=float)) / ranges))
+def _median_cosine(ctx: Context, plane, idx: np.ndarray) -> float:
+    # the median |cosine| between the flat pixels' viewing rays and the plane's normal
+    return float(np.median(np.abs(ctx.viewing_rays(idx) @ np.asarray(plane.normal, dtype=float))))
 
 
 def along_rays_max_cosine(sensor) -> float | None:
@@ -787,7 +786,7 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
         face = idx[keep]
         plane = ray_plane(a, rows_at(ctx.xyz, face))
         if (plane is None or face.size < ctx.min_size or ctx.plane_along_rays(plane, face)
-                or (max_cosine is not None and _median_cosine(plane, rows_at(ctx.xyz, face)) > max_cosine)):
+                or (max_cosine is not None and _median_cosine(ctx, plane, face) > max_cosine)):
             kept.add(k)
             continue
         flat[idx[~keep]] = 0  # (a few pixels of the surfaces beside it, off its plane along their rays)
