@@ -249,3 +249,28 @@ def test_start_pieces_leave_pools_too_small_or_too_large():
         assert ctx._start_pieces(pool, 0.01) == (None, None)
     finally:
         context_module._START_POOL_MAX = limit
+
+
+def test_a_column_beside_a_box_face_under_20mm_noise_is_found_at_half_the_band():
+    # noise_20mm seed 1010 scan 6: a column (radius 0.26 m, 2.7-3.2 m off) and the box face
+    # beside it leak into the floor's region; the split leaves them one pool no search
+    # explains. At the range noise each start's band (6 cm either side) holds a strip of
+    # the face and of the floor and the fitter refuses the column's cylinder (rms 0.030-
+    # 0.037 m against 0.02); at half the band the start's piece is the column and the fitter
+    # takes it. Before: the column's 630 returns were in no region.
+    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+
+    spec = get_sensor("noise_20mm")
+    scan = spec.simulate(matrix_rng(1010, spec.name, 6), False)
+    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
+    result = rs.Pipeline(rs.load_config(spec.preset, overrides=facts)).run(scan.cloud)
+    column = scan.truth_ids == 13
+    labels, counts = np.unique(result.labels[column], return_counts=True)
+    label = int(labels[counts.argmax()])
+    assert label > 0 and counts.max() > 0.9 * column.sum()
+    assert (column[result.labels == label]).mean() > 0.9
+    (feature,) = [f for f in result.features if f.label == label]
+    true = scan.truth[13]
+    assert feature.kind == "cylinder"
+    assert abs(feature.model.radius - true.radius) < 0.1 * true.radius
+    assert abs(feature.model.axis @ true.axis) > np.cos(np.radians(3.0))
