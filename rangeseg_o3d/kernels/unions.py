@@ -20,7 +20,7 @@ from .linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "labelwise.py", "linalg.py")
 
-__all__ = ["merge_plane_pairs", "plane_candidates"]
+__all__ = ["merge_plane_pairs", "plane_candidates", "plane_prediction_sd"]
 
 @njit(cache=True, nogil=True)
 def _find(root, k):
@@ -63,9 +63,10 @@ def _angle_deg(u, v):
 
 
 @njit(cache=True, nogil=True)
-def _within_step(row, noise_sum, own_rms, normal, d, step_sigmas, min_cosine):
+def _within_step(row, noise_sum, own_rms, big_row, big_rms, normal, d, step_sigmas, min_cosine):
     # merge._Unions.no_step for one part (moments ``row``, summed range noise ``noise_sum``,
-    # its model's rms ``own_rms``) against the plane ``normal . p = d``
+    # its model's rms ``own_rms``) against the larger part's plane ``normal . p = d``
+    # (moments ``big_row``, rms ``big_rms``)
     part = row[0]
     if part <= 0.0:
         return True
@@ -74,7 +75,45 @@ def _within_step(row, noise_sum, own_rms, normal, d, step_sigmas, min_cosine):
     norm = np.sqrt(cx * cx + cy * cy + cz * cz)
     cosine = abs(offset + d) / norm if norm > 0.0 else 1.0
     noise = max(noise_sum / part * max(cosine, min_cosine), own_rms)
-    return abs(offset) <= step_sigmas * noise
+    spread = plane_prediction_sd(big_row, big_rms, normal, cx, cy, cz)
+    return abs(offset) <= step_sigmas * np.sqrt(noise * noise + spread * spread)
+
+
+@njit(cache=True, nogil=True)
+def plane_prediction_sd(row, rms, normal, x, y, z):
+    """The standard deviation of a least-squares plane's offset at the point ``(x, y, z)``:
+    the plane of the points whose moments are ``row`` (see :func:`.labelwise.label_moments`),
+    ``normal`` its normal and ``rms`` its rms distance, ``rms sqrt(1/n + h)`` with ``h`` the
+    point's leverage across the plane (its offset from the centroid within the plane, in the
+    points' spread), at most ``rms``: a plane carried past the points it was fitted to tilts
+    with the noise, the more the farther."""
+    n = row[0]
+    if n < 3.0 or not rms > 0.0:
+        return 0.0
+    c = np.empty(3)
+    c[0], c[1], c[2] = row[1] / n, row[2] / n, row[3] / n
+    delta = np.empty(3)
+    delta[0], delta[1], delta[2] = x - c[0], y - c[1], z - c[2]
+    along = delta[0] * normal[0] + delta[1] * normal[1] + delta[2] * normal[2]
+    for a in range(3):
+        delta[a] -= along * normal[a]
+    scatter = np.empty((3, 3))
+    scatter[0, 0] = row[4] - n * c[0] * c[0]
+    scatter[0, 1] = scatter[1, 0] = row[5] - n * c[0] * c[1]
+    scatter[0, 2] = scatter[2, 0] = row[6] - n * c[0] * c[2]
+    scatter[1, 1] = row[7] - n * c[1] * c[1]
+    scatter[1, 2] = scatter[2, 1] = row[8] - n * c[1] * c[2]
+    scatter[2, 2] = row[9] - n * c[2] * c[2]
+    # the plane's own direction filled so the solve sees the in-plane spread alone
+    trace = scatter[0, 0] + scatter[1, 1] + scatter[2, 2]
+    if not trace > 0.0:
+        return rms
+    for a in range(3):
+        for b in range(3):
+            scatter[a, b] += trace * normal[a] * normal[b]
+        scatter[a, a] += 1e-12 * trace
+    leverage = delta @ np.linalg.solve(scatter, delta)
+    return min(rms * np.sqrt(1.0 / n + max(leverage, 0.0)), rms)
 
 
 @njit(cache=True, nogil=True)
@@ -104,8 +143,9 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
     summed when a union first needs it). The fitter's plane refit from moments takes
     ``plane_rms``, ``rms_per_range2``, ``min_points`` and ``noise_floor``. ``apart[i]``: the
     pair's regions do not touch, and its smaller part must lie on the larger's plane within
-    ``step_sigmas`` of its scatter (merge._Unions.no_step, ``min_cosine`` its floor of the
-    incidence cosine; ``step_sigmas <= 0``: no such test).
+    ``step_sigmas`` of its scatter and the larger plane's own spread there
+    (merge._Unions.no_step, ``min_cosine`` its floor of the incidence cosine;
+    ``step_sigmas <= 0``: no such test).
 
     Changes the arrays in place: a union's model goes to its root (``rb`` joins ``ra``,
     the pair's roots in its order). Returns a bool per label: its model is a union's.
@@ -164,8 +204,8 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
                 noise = _noise_by_root(labels, sigma, root, n)
                 have_noise = True
             big = rb if small == ra else ra
-            if not _within_step(moments[small], noise[small], rms[small], normal[big], d[big], step_sigmas,
-                                min_cosine):
+            if not _within_step(moments[small], noise[small], rms[small], moments[big], rms[big], normal[big], d[big],
+                                step_sigmas, min_cosine):
                 continue
         root[rb] = ra
         normal[ra] = union_normal
