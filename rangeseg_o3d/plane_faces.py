@@ -149,7 +149,10 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         made.add(k)
         kept = []
         for piece, surface in sorted(surfaces, key=lambda s: -s[0].size):
-            wall = _continued_plane(ctx, out, fits, piece, surface, walls, skip=made)
+            # the rest of a neighbour's plane, or of a plane beyond what stands before the
+            # piece (a far wall's strip a pipe cuts off from the wall's region), as below
+            wall = (_continued_plane(ctx, out, fits, piece, surface, walls, skip=made)
+                    or _plane_explaining(ctx, out, fits, piece, window, skip=made))
             if wall:  # the rest of a neighbour's plane the tile region had taken
                 flat[piece] = wall
                 split.append(wall)

@@ -88,7 +88,8 @@ def _one_plane(ctx: Context, idx: np.ndarray, plain, *, thin: bool = False):
 
 
 def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,
-                regions: dict | None = None, thin_from: int | None = None, face_band: bool = False):
+                regions: dict | None = None, thin_from: int | None = None, face_band: bool = False,
+                correlation_px: int = 1, min_angle_deg: float = 0.0):
     """Split each candidate blob into every surface it holds; free what none explains.
 
     ``candidates`` numbers the blobs (0 elsewhere, numbers above every label). A blob
@@ -105,6 +106,13 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     so it becomes one plane, kept when that plane explains it as :func:`_one_plane` asks and
     its piece has the fewest returns that tell a plane (``scales.MIN_PIXELS``), or is freed.
     ``face_band``: the split's (:meth:`Context.dominant_piece`).
+
+    On a sensor whose range noise errs together over ``correlation_px`` x ``correlation_px``
+    pixels (> 1), a blob one plane explains within its range noise may still be two faces:
+    a small far box's top and side lie within three sigmas of the plane bent over both, and
+    no pixel stands out, yet over the blob's independent returns the crease shows. Its plane
+    is then offered to :func:`rangeseg_o3d.plane_faces.faces_of_plane` (the faces at least
+    ``min_angle_deg`` apart), as the tile grid's plane regions are on such a sensor.
     """
     from .split import split_regions
 
@@ -135,6 +143,7 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         flat[idx] = 0
         flat[chosen] = k
         fits[k] = model
+    first_split = fresh_label(labels, fits)  # (the split's surfaces past the first take labels from here)
     labels, fits = split_regions(ctx, labels, {**fits, **dict.fromkeys(mixed)}, mixed,
                                  pixels={k: regions[k] for k in mixed}, own=True,  # (its copy above)
                                  face_band=face_band)
@@ -142,7 +151,36 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
         flat[regions[k]] = 0
+    if correlation_px > 1:
+        _faces_of_blob_planes(ctx, labels, fits, pool, [k for k in regions if thin_from is None or k < thin_from],
+                              first_split, correlation_px, min_angle_deg)
     return labels, fits
+
+
+def _faces_of_blob_planes(ctx: Context, labels: np.ndarray, fits: dict, pool: np.ndarray, blobs: list,
+                          first_split: int, correlation_px: int, min_angle_deg: float) -> None:
+    """Each plane :func:`split_blobs` found in the cored blobs ``blobs`` (their labels, and
+    the split's from ``first_split`` on; pixels among the flat ``pool``) that hides two faces
+    over correlated returns (:func:`rangeseg_o3d.plane_faces.faces_of_plane`, the faces at
+    least ``min_angle_deg`` apart) gives way to them, the largest keeping its label (in place)."""
+    from ..plane_faces import faces_of_plane  # (plane_faces imports the refinement's context)
+
+    flat = labels.reshape(-1)
+    owners = flat[pool]
+    found = set(blobs)
+    planes = [k for k in unique_ints(owners[owners > 0]).tolist()
+              if (k in found or k >= first_split) and fits.get(k) and fits[k].kind == "plane"]
+    for k in planes:
+        idx = pool[owners == k]  # (increasing, as the pool)
+        faces = sorted(faces_of_plane(ctx, fits[k], idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg),
+                       key=lambda face: -face[0].size)
+        if not faces:
+            continue
+        flat[idx] = 0
+        for i, (piece, surface) in enumerate(faces):
+            label = k if i == 0 else fresh_label(labels, fits)
+            flat[piece] = label
+            fits[label] = surface
 
 
 def _one_thin_plane(ctx: Context, flat: np.ndarray, fits: dict, k: int, idx: np.ndarray) -> None:
@@ -556,7 +594,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # the labels before and after the split, kept without a copy: split_blobs changes a copy of
     # its input, and what it returns is not changed after (the growth below starts a new array)
     before = labels
-    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from)
+    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from,
+                               correlation_px=sensor.noise.correlation_px, min_angle_deg=config.merge_angle_deg)
     found = labels
     new = {k: m for k, m in fits.items() if k >= first and m}
     tile_regions = [k for k in fits if k < first]  # (the regions the blobs' surfaces may merge into)
