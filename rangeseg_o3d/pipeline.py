@@ -19,7 +19,8 @@ from .free_faces import faces_from_free
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
                       label_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
-                      refit_planes_to_pixels, region_stats, settle_caps, settle_creases, smallest_region, stats_after_moves)
+                      refit_planes_to_pixels, region_stats, settle_caps, settle_creases, settle_plane_borders,
+                      smallest_region, stats_after_moves)
 from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
@@ -361,7 +362,9 @@ class Pipeline:
                                                      fitter=self.fitter, depth_step=self.sensor.depth_step)
             lap("creases")
             if refine.close_gaps:
-                labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels)
+                labels, fits, stats = _close_gaps(cloud, labels, fits, stats, sigma, ranges, refine, tile_labels,
+                                                  rings=refine.grow_iterations * settings.tile,
+                                                  wrap_columns=self.sensor.wrap_columns)
                 lap("close_gaps")
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
@@ -469,10 +472,14 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
 
 
 def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
-                sigma: np.ndarray, ranges: np.ndarray, refine, tile_labels: np.ndarray):
+                sigma: np.ndarray, ranges: np.ndarray, refine, tile_labels: np.ndarray, *, rings: int,
+                wrap_columns: bool = False):
     """Regions grow into the free pixels their models explain
     (:func:`rangeseg_o3d.fullres.grow_into_free`), then pieces of one plane that meet merge
-    (:func:`rangeseg_o3d.fullres.merge_touching_planes`), and the pixels beside a crease go to
+    (:func:`rangeseg_o3d.fullres.merge_touching_planes`), a plane's border pixels that a
+    touching plane explains clearly better go to it, up to ``rings`` pixels deep
+    (:func:`rangeseg_o3d.fullres.settle_plane_borders`; ``wrap_columns``: a 360-degree grid's
+    first and last columns are neighbours), and the pixels beside a crease go to
     the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`);
     ``(labels, fits, stats)``. A plane whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
     (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
@@ -504,6 +511,12 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                                                     max_angle_deg=refine.merge_angle_deg,
                                                     rms_factor=refine.merge_rms_factor,
                                                     inlier_factor=INLIER_SIGMAS, near=near)
+    # a plane's band that a neighbour's tile model took and the neighbour's own plane leaves
+    # beyond its noise: back to the plane that explains it, as deep as the tile grid settles
+    labels, stats = settle_plane_borders(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
+                                         k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
+                                         jump_min=refine.jump_min, iterations=rings,
+                                         inlier_factor=INLIER_SIGMAS, wrap_columns=wrap_columns)
     # the pixels beside a crease: the planes' rays decide where the noise cannot
     labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                    min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)

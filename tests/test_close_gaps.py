@@ -198,7 +198,7 @@ def test_close_gaps_merges_touching_pieces_that_have_no_tiles(offset, merges):
     ranges = np.linalg.norm(xyz, axis=2)
     tiles = np.zeros((labels.shape[0] // 2, labels.shape[1] // 2), np.int32)
     out, out_fits, out_stats = _close_gaps(rs.OrganizedCloud(xyz), labels.copy(), fits, stats, sigma, ranges,
-                                           refine, tiles)
+                                           refine, tiles, rings=refine.grow_iterations * 2)
     if merges:
         assert (out == 1).all() and set(out_fits) == {1}
         assert abs(out_fits[1].d - 2.0) < 1e-3 and abs(out_fits[1].normal[2]) > np.cos(np.radians(0.5))
@@ -379,3 +379,70 @@ def test_crease_settling_leaves_planes_turned_less_than_the_limit_and_far_pixels
     out, _ = settle_creases(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
                             k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
     assert (out[:, :7] == 2).all()
+
+
+def _band_held_by_the_frontal_plane(width=8, slope=1.2):
+    # _crease's two faces, A (label 1) holding the `width` columns of B right of the crease:
+    # the band a recovered face leaves with the neighbour whose tile model took it
+    xyz, truth, fits = _crease(slope)
+    first_b = int(np.argmax(truth[0] == 2))
+    labels = truth.copy()
+    labels[:, first_b:first_b + width] = 1
+    return xyz, truth, fits, labels, first_b
+
+
+def _settle_borders(xyz, labels, fits, sigma, iterations=16):
+    from rangeseg_o3d.fullres import settle_plane_borders
+
+    ranges = np.linalg.norm(xyz, axis=2)
+    return settle_plane_borders(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                                ranges=ranges, k_sigma=3.0, jump_ratio=0.05, jump_min=0.01, iterations=iterations,
+                                inlier_factor=INLIER_SIGMAS)
+
+
+def test_a_band_of_a_face_its_neighbour_holds_beyond_its_noise_goes_back_ring_by_ring():
+    from rangeseg_o3d.fullres import settle_creases
+
+    xyz, truth, fits, labels, first_b = _band_held_by_the_frontal_plane()
+    sigma = np.full(truth.shape, 0.0002)
+    # premise: the band's far columns lie beyond A's noise (1.2 mm a column off z = 2 m against
+    # 3 x max(0.2 mm, the planes' 1 mm rms)), so the crease rule, which moves only pixels both
+    # planes explain, leaves them
+    off_a = np.abs(xyz[..., 2] - 2.0)
+    assert off_a[0, first_b + 3] > 3.0 * 0.001
+    crease, _ = settle_creases(rs.OrganizedCloud(xyz), labels, fits, _stats(xyz, labels, fits, sigma), sigma=sigma,
+                               k_sigma=3.0, min_angle_deg=3.0, inlier_factor=INLIER_SIGMAS)
+    assert (crease[:, first_b + 3:first_b + 8] == 1).all()
+    out, stats = _settle_borders(xyz, labels, fits, sigma)
+    # every pixel of B that B's plane explains more than a sigma (here the 1 mm rms) nearer
+    # than A's is B's again, ring after ring from B's border; A keeps its own pixels
+    np.testing.assert_array_equal(out[truth == 1], 1)
+    back = (truth == 2) & (off_a > 0.001)
+    np.testing.assert_array_equal(out[(truth == 2) & ~back], 1)  # (0.6 mm off A: within the margin)
+    assert back[:, first_b:first_b + 8].sum() >= 7 * truth.shape[0]
+    assert (out[back] == 2).all()
+    fresh = _stats(xyz, out, fits, sigma)
+    np.testing.assert_array_equal(stats.counts[1:3], fresh.counts[1:3])
+    np.testing.assert_array_equal(stats.inliers[1:3], fresh.inliers[1:3])
+    np.testing.assert_allclose(stats.squares[1:3], fresh.squares[1:3], rtol=1e-9, atol=1e-24)
+    # one ring a pass: two passes give back the two columns beside B's border only
+    two, _ = _settle_borders(xyz, labels, fits, sigma, iterations=2)
+    np.testing.assert_array_equal(two[:, first_b + 6:first_b + 8], 2)
+    np.testing.assert_array_equal(two[:, first_b:first_b + 6], labels[:, first_b:first_b + 6])
+
+
+def test_plane_border_settling_leaves_pixels_within_both_noises_and_curved_regions_alone():
+    from rangeseg_o3d.fitting.primitives import Cylinder
+
+    xyz, truth, fits, labels, first_b = _band_held_by_the_frontal_plane(width=2)
+    # 10 mm of noise: both planes explain the two columns, neither by a sigma more
+    sigma = np.full(truth.shape, 0.01)
+    out, _ = _settle_borders(xyz, labels, fits, sigma)
+    assert out is labels  # (the input itself when no pixel moves)
+    # B a curved region: nothing moves between a plane and it
+    xyz, truth, fits, labels, first_b = _band_held_by_the_frontal_plane()
+    sigma = np.full(truth.shape, 0.0002)
+    curved = dict(fits)
+    curved[2] = Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 7.0]), 5.0, 0.001, 100)
+    out, _ = _settle_borders(xyz, labels, curved, sigma)
+    np.testing.assert_array_equal(out, labels)
