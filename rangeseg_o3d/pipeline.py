@@ -442,7 +442,7 @@ class Pipeline:
         stats = PixelStats(*(np.concatenate([[0], values[kept]]).astype(values.dtype)
                              for values in (stats.inliers, stats.squares, stats.counts)))
         features, unfitted = _features(regions, sizes, stats, sigma, xyz, pixel_rms=pixel_rms)
-        clock.timings["total"] = time.perf_counter() - clock.start
+        clock.timings["total"] = clock.elapsed()
         if not isinstance(stages, ExpandedStages):
             stages = dict(stages)
         return Result(labels=regions.labels, features=features, unfitted=unfitted,

@@ -10,6 +10,9 @@ at least 60 pixels.
 
 Run: python scripts/benchmark.py [--repeats 20] [--quick] [--no-real] [--no-refine] [--json OUT]
 
+``--cpu-stages`` (with any mode) times the stages in the process's CPU time: on a machine
+that other jobs share, wall time per stage is mostly their load.
+
 The sensor matrix (``--matrix``): every sensor of :mod:`rangeseg_o3d.synthetic.matrix`
 (nodding lasers at 1, 0.5, 0.25 deg; range noise 2-20 mm; spinning lidars 32 x 1024 to
 128 x 2048; Kinect 640 x 480; stereo 1280 x 720; an ABW-like tabletop), each on several
@@ -723,7 +726,16 @@ def main(argv=None) -> int:
     parser.add_argument("--surfaces", action="store_true",
                         help="matrix: also list, per scan, every surface not correctly detected and "
                              "where its pixels went (kept in --json too)")
+    parser.add_argument("--cpu-stages", action="store_true",
+                        help="time every stage (and 'total') in the process's CPU time instead of wall "
+                             "time: on a machine shared with other jobs a stage's wall time holds its waits "
+                             "for a core")
     args = parser.parse_args(argv)
+    if args.cpu_stages:
+        from rangeseg_o3d.timing import set_clock
+
+        set_clock(time.process_time)
+        print("stage times (and totals) in CPU time of this process (--cpu-stages)")
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1; got {args.repeats}")
     if args.export_frames is not None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
 
@@ -13,6 +11,7 @@ from ..registry import Plugin, params_model
 from ..segmentation.residual import MIN_VALID, residual_image
 from ..result import Segmentation
 from ..sensor import Sensor
+from ..timing import now
 
 __all__ = ["segment_residual_edges", "ResidualEdgesConfig", "PLUGIN"]
 
@@ -80,7 +79,7 @@ def segment_residual_edges(
             crease_angle_deg=crease_angle_deg))
     noise = sensor.noise
     timings = {}
-    t0 = time.perf_counter()
+    t0 = now()
     tile = cloud.tile
     xyz, ranges = cloud.xyz, cloud.range_image()
     noise_scale = 1.0 if cloud.samples is None else noise.mean_scale(cloud.samples)
@@ -89,7 +88,7 @@ def segment_residual_edges(
         xyz, window=window, min_valid=min_valid, ranges=ranges, sigma0=noise.sigma0,
         sigma_quadratic=noise.sigma_quadratic, with_normals=False, noise_scale=noise_scale,
     )
-    t1 = time.perf_counter()
+    t1 = now()
     timings["residual"] = t1 - t0
     # jump_ratio is per sensor pixel; neighbouring tile means are ``tile`` pixels apart.
     # On a laser's single returns (refinement.single_returns' test: no tile, a constant
@@ -100,7 +99,7 @@ def segment_residual_edges(
                        jump_min=jump_min, single_return_noise=single)
     closed = close_residual(residual, iterations=closing_iterations)
     edges = edge_mask(closed, threshold=threshold, valid=valid, jumps=jumps)
-    t2 = time.perf_counter()
+    t2 = now()
     timings["edges"] = t2 - t1
     stages = {"residual": residual, "closed": closed, "edges": edges, "jumps": jumps}
     if crease_angle_deg > 0:
@@ -108,12 +107,12 @@ def segment_residual_edges(
         creases, _ = crease_edges(xyz, ranges, sigma, min_angle_deg=crease_angle_deg)
         edges |= creases
         stages["creases"] = creases
-        t3 = time.perf_counter()
+        t3 = now()
         timings["creases"], t2 = t3 - t2, t3
     min_size = max(1, -(-min_region_size // (tile * tile)))
     # (compiled: the residual above ran the kernels already)
     labels = label_regions(edges, min_size=min_size, connectivity=connectivity, compiled=True)
-    timings["regions"] = time.perf_counter() - t2
+    timings["regions"] = now() - t2
     return Segmentation(labels=labels, stages=stages, timings=timings, jumps=jumps)
 
 
