@@ -7,8 +7,10 @@ crease. Its pixels do: over them that plane is beyond the noise of their distanc
 noise times the incidence cosine), and the narrow face's plane, which its few tile means
 could not give, is fitted to its pixels (:func:`split_plane_faces`, :func:`faces_of_plane`).
 A cylinder region bent over such a corner gives way to the two faces when the pattern of its
-misfit across the crease is many times theirs (:func:`faces_of_cylinder`), and a face that
-only continues the plane of a region beside it joins that region (:func:`_continued_plane`).
+misfit across the crease is many times theirs (:func:`faces_of_cylinder`; three or four
+faces when two planes leave a side's pixels off: :func:`_faces_of_leaves`), a region no model
+fitted is cut into the faces its crease lines separate (:func:`faces_of_unfitted`), and a face
+that only continues the plane of a region beside it joins that region (:func:`_continued_plane`).
 A face seen near grazing takes back the pixels beside it its rays meet nearer, in range
 noise, than their regions' planes (:func:`claim_along_rays`).
 """
@@ -20,7 +22,7 @@ from scipy.special import fdtri, ndtr
 
 from ._numeric import rows_at, unique_ints
 from .fitting.plane import fit_plane
-from .fitting.primitives import Cylinder, Plane
+from .fitting.primitives import Cylinder, FitFailure, Plane
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
@@ -32,7 +34,7 @@ from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_ter
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "hidden_faces", "join_pieces_along_rays", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -100,11 +102,13 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
                       min_size: int, inlier_factor: float, min_angle_deg: float, correlation_px: int = 1,
                       wrap_columns: bool = False):
     """Each plane region of at least two faces' pixels (``2 min_size``) whose own plane is
-    beyond the noise of its pixels' distances, and each cylinder region of as many pixels
-    whose misfit two planes explain (:func:`faces_of_cylinder`), is split into the planes of
-    the faces it holds (:func:`faces_of_plane`, at least ``min_angle_deg`` apart); a face that continues
-    the plane of a region it touches joins that region (:func:`_continued_plane`), of the
-    others the largest keeps the label. Returns ``(labels, fits, stats)``, the statistics of
+    beyond the noise of its pixels' distances, each cylinder region of as many pixels
+    whose misfit two or more planes explain (:func:`faces_of_cylinder`), and each region of as
+    many pixels no model fitted whose crease lines cut it into planes (:func:`faces_of_unfitted`),
+    is split into the planes of the faces it holds (:func:`faces_of_plane`, at least
+    ``min_angle_deg`` apart); a face that continues the plane of a region it touches (of a
+    region split into three faces or more: that the region touched) joins that region
+    (:func:`_continued_plane`), of the others the largest keeps the label. Returns ``(labels, fits, stats)``, the statistics of
     the regions changed measured again; the inputs when no region is split.
 
     The gate looks at an even subsample of ``FACE_TEST_PIXELS`` pixels, counted as at most
@@ -118,15 +122,20 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     counts = stats.counts
     candidates = [k for k, m in fits.items()
                   if isinstance(m, (Plane, Cylinder)) and 0 < k < counts.size and counts[k] >= 2 * min_size]
-    if not candidates:
+    # the regions no model fitted (their statistics count no pixel: their sizes come below)
+    unfitted = [k for k, m in fits.items() if isinstance(m, FitFailure) and k > 0]
+    if not candidates and not unfitted:
         return labels, fits, stats
     xyz, noise = cloud.xyz.reshape(-1, 3), sigma.ravel()
     window = float(max(int(correlation_px), 1)) ** 2
     suspects = {}
-    for k, idx in region_indices(labels, only=candidates).items():
+    for k, idx in region_indices(labels, only=candidates + unfitted).items():
+        if isinstance(fits[k], FitFailure) and idx.size < 2 * min_size:  # (its size is known only here)
+            continue
         sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
-        # a cylinder's own test starts on a subsample (faces_of_cylinder)
-        if isinstance(fits[k], Cylinder) or _beyond_distance_noise(xyz[sample], noise[sample],
+        # a cylinder's own test starts on a subsample (faces_of_cylinder); a region no model
+        # fitted is asked whole (faces_of_unfitted)
+        if isinstance(fits[k], (Cylinder, FitFailure)) or _beyond_distance_noise(xyz[sample], noise[sample],
                                                                    min(sample.size, idx.size / window)):
             suspects[k] = idx
     hidden = window > 1.0 and any(isinstance(fits[k], Plane) for k in candidates)
@@ -137,12 +146,16 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     next_label = fresh_label(labels, fits)
     walls, made = {}, set()  # the ray-space sums of the planes pieces were offered to; the faces found
     for k, idx in suspects.items():
-        faces = faces_of_cylinder if isinstance(fits[k], Cylinder) else faces_of_plane
+        faces = (faces_of_cylinder if isinstance(fits[k], Cylinder)
+                 else faces_of_unfitted if isinstance(fits[k], FitFailure) else faces_of_plane)
         surfaces = faces(ctx, fits[k], idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
         if not surfaces:
             continue
         if out is None:
             out = np.array(labels, dtype=np.int32, order="C")
+        # three faces or more: a face may continue a plane the region touched that none of
+        # its pieces does (a pipe before a box's face cuts the face in two: study seed 7 scan 3)
+        beside = touching(out, idx, 1) - {0, k} if len(surfaces) > 2 else set()
         flat = out.reshape(-1)
         flat[idx] = 0
         split.append(k)
@@ -151,7 +164,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         for piece, surface in sorted(surfaces, key=lambda s: -s[0].size):
             # the rest of a neighbour's plane, or of a plane beyond what stands before the
             # piece (a far wall's strip a pipe cuts off from the wall's region), as below
-            wall = (_continued_plane(ctx, out, fits, piece, surface, walls, skip=made)
+            wall = (_continued_plane(ctx, out, fits, piece, surface, walls, skip=made, beside=beside)
                     or _plane_explaining(ctx, out, fits, piece, window, skip=made))
             if wall:  # the rest of a neighbour's plane the tile region had taken
                 flat[piece] = wall
@@ -398,11 +411,12 @@ def _plane_explaining(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, wi
 
 
 def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, surface, walls: dict, *,
-                     skip=()) -> int:
+                     skip=(), beside=()) -> int:
     """The label of a plane region touching ``piece`` (flat pixels, increasing; a face
     :func:`faces_of_plane` found, its plane ``surface``) whose plane it continues, 0 when
     none does; ``walls`` caches the regions' ray-space sums
-    (:func:`~rangeseg_o3d.ray_planes.ray_moments`), the labels in ``skip`` are not offered.
+    (:func:`~rangeseg_o3d.ray_planes.ray_moments`), the labels in ``skip`` are not offered, those
+    in ``beside`` are offered too (the regions the piece's whole region touched).
 
     A tile region over a far wall's edge and what stands before it splits into the wall's
     strip and the rest; the strip, a piece of its own, would over-segment the wall. It
@@ -422,7 +436,7 @@ def _continued_plane(ctx, labels: np.ndarray, fits: dict, piece: np.ndarray, sur
     own = ray_moments(rays[inliers], inverse[inliers], weight[inliers])
     own_chi2 = float(ray_fits(own)[0][0])
     best, label = float(np.count_nonzero(inliers)), 0
-    for other in sorted(touching(labels, piece, 1) - {0} - set(skip)):
+    for other in sorted((touching(labels, piece, 1) | set(beside)) - {0} - set(skip)):
         if not isinstance(fits.get(other), Plane):
             continue
         if other not in walls:
@@ -659,6 +673,102 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     return surfaces
 
 
+def faces_of_unfitted(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
+    """The planes of the faces the region ``idx`` (flat pixels, increasing) that no model
+    fitted (``model`` a :class:`~rangeseg_o3d.fitting.primitives.FitFailure`) holds,
+    ``[(pixels, plane)]``; empty when it holds no faces a crease line separates.
+
+    A region whose plane along the rays fits it within its range noise over its independent
+    returns (:func:`_within_noise_along_rays`) is one face. A region a cylinder fits (on an
+    even subsample of CYLINDER_TEST_PIXELS pixels) is judged
+    as that cylinder's region (:func:`faces_of_cylinder`): a far pipe the fitter refused cut
+    into facets would fit them within the noise (four facets at 2.5 m, two at 4 m, in the
+    tests), and the misfit patterns keep it whole.
+
+    On a stereo camera two or three faces of a far box, or a box's face and the wall behind
+    it, can come out of the tile grid as one region no single model explains (study seed 29
+    scans 1 and 3 of the stereo row: 11 808 px over two faces, 3090 px over three), and the
+    region is left unlabelled. Its pixels are cut along their crease line (:func:`crease_line`)
+    when the two sides' planes along the rays beat one plane by the F-test over the region's
+    independent returns (``correlation_px`` squared pixels each), and each side beyond its
+    range noise is cut once more the same way (:func:`_cut_again`); each leaf's largest
+    connected piece keeps its plane along the rays, pieces continuing one another's plane
+    joined (:func:`_join_continued`). Taken when two or more pieces of ``ctx.min_size`` remain
+    and the leaves' planes hold PLANES_COVER of the region's pixels within TRIM_SIGMAS of
+    their range noise (:func:`_leaf_faces`)."""
+    from .fitting.cylinder import fit_cylinder
+
+    if not isinstance(model, FitFailure):
+        return []
+    window = float(max(int(correlation_px), 1)) ** 2
+    if _within_noise_along_rays(ctx, idx, window):
+        return []  # one face (a cylinder fitted over it would lose to two planes' patterns)
+    cylinder = fit_cylinder(ctx.xyz[idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]])
+    if isinstance(cylinder, Cylinder):
+        return faces_of_cylinder(ctx, cylinder, idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
+    sides = _cut_again(ctx, idx, window, min_angle_deg)
+    if len(sides) < 2:
+        return []
+    leaves = [leaf for side in sides for leaf in _cut_again(ctx, side, window, min_angle_deg)]
+    surfaces, near, _ = _leaf_faces(ctx, leaves)
+    if len(surfaces) < 2 or near < PLANES_COVER * idx.size:
+        return []
+    return surfaces
+
+
+def _leaf_faces(ctx, leaves: list) -> tuple:
+    """``(surfaces, near, squares)`` of the pixel sets ``leaves``: each one's plane fitted
+    along the rays with its largest connected piece, ``[(pixels, plane)]`` (pieces under
+    ``ctx.min_size`` left out; pieces continuing one another's plane joined:
+    :func:`_join_continued`), the count of the leaves' pixels within TRIM_SIGMAS of their
+    range noise of their leaf's plane along the rays, and those pixels' summed squares in
+    noise units."""
+    near, within, surfaces = 0, 0.0, []
+    for leaf in leaves:
+        rays, inverse, weight = ray_terms(ctx.xyz[leaf], ctx.sigma[leaf])
+        _, a = ray_fits(ray_moments(rays, inverse, weight))
+        z = (inverse - rays @ a[0]) ** 2 * weight
+        kept = z <= TRIM_SIGMAS * TRIM_SIGMAS
+        near += int(np.count_nonzero(kept))
+        within += float(np.sum(z[kept]))
+        piece = np.sort(ctx.largest_piece(leaf))
+        plane = ray_plane(a[0], ctx.xyz[piece]) if piece.size >= ctx.min_size else None
+        if plane:
+            surfaces.append((piece, plane))
+    return _join_continued(ctx, surfaces), near, within
+
+
+def _join_continued(ctx, surfaces: list) -> list:
+    """``surfaces`` (``[(pixels, plane)]``) with the pieces that continue one another's plane
+    joined, the closest pair first: the plane fitted along the rays to both raises their
+    chi-square by less than one per pixel of the smaller (:func:`_continued_plane`'s rule).
+    A crease line through the middle of three faces leaves the middle one's halves on its two
+    sides, each cut off again as a leaf of its own."""
+    moments = [pixel_moments(ctx.xyz, ctx.sigma, piece) for piece, _ in surfaces]
+    squares = [float(ray_fits(m)[0][0]) for m in moments]
+    while len(surfaces) > 1:
+        best, pair = 0.0, None
+        for i in range(len(surfaces)):
+            for j in range(i + 1, len(surfaces)):
+                union = tuple(x + y for x, y in zip(moments[i], moments[j]))
+                growth = float(ray_fits(union)[0][0]) - squares[i] - squares[j]
+                budget = min(surfaces[i][0].size, surfaces[j][0].size)
+                if growth < budget and (pair is None or growth / budget < best):
+                    best, pair = growth / budget, (i, j, union)
+        if pair is None:
+            break
+        i, j, union = pair
+        pixels = np.union1d(surfaces[i][0], surfaces[j][0])
+        _, a = ray_fits(union)
+        plane = ray_plane(a[0], ctx.xyz[pixels])
+        if not plane:
+            break
+        surfaces = [s for k, s in enumerate(surfaces) if k not in (i, j)] + [(pixels, plane)]
+        moments = [m for k, m in enumerate(moments) if k not in (i, j)] + [union]
+        squares = [q for k, q in enumerate(squares) if k not in (i, j)] + [float(ray_fits(union)[0][0])]
+    return surfaces
+
+
 def _cylinder_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Per point, its range minus the range at which its ray meets the cylinder ``model``
     (the nearer crossing; where the ray passes by, its closest approach to the axis's
@@ -706,15 +816,15 @@ def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
     return out[0], out[1], inliers, squares, sides
 
 
-def _two_planes_win(patterns) -> bool:
+def _two_planes_win(patterns, cover: float = PLANES_COVER) -> bool:
     # the cylinder's misfit pattern beyond the planes' by PATTERN_RATIO, the planes holding
-    # PLANES_COVER of the pixels within TRIM_SIGMAS (two faces, not the bits of several
-    # surfaces a region over a far clutter holds, which the later splits sort out) and at
-    # least the cylinder's share, closer on them
+    # ``cover`` (PLANES_COVER) of the pixels within TRIM_SIGMAS (two faces, not the bits of
+    # several surfaces a region over a far clutter holds, which the later splits sort out) and
+    # at least the cylinder's share, closer on them
     if patterns is None:
         return False
     curved, planes, inliers, squares, _ = patterns
-    return (curved > PATTERN_RATIO * planes and inliers[1] >= max(inliers[0], PLANES_COVER)
+    return (curved > PATTERN_RATIO * planes and inliers[1] >= max(inliers[0], cover)
             and squares[1] <= squares[0])
 
 
@@ -740,15 +850,76 @@ def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
     if not isinstance(model, Cylinder):
         return []
     sample = idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]
-    if not _two_planes_win(_misfit_patterns(ctx, model, sample, correlation_px)):
+    # the gate without the cover: a side of the line may hold two faces (_faces_of_leaves)
+    patterns = _misfit_patterns(ctx, model, sample, correlation_px)
+    if not _two_planes_win(patterns, cover=0.0):
         return []
-    patterns = _misfit_patterns(ctx, model, idx, correlation_px)
+    if sample.size < idx.size:
+        patterns = _misfit_patterns(ctx, model, idx, correlation_px)
     if not _two_planes_win(patterns):
+        if _two_planes_win(patterns, cover=0.0):
+            return _faces_of_leaves(ctx, idx, patterns, correlation_px, min_angle_deg)
         return []
     surfaces = _faces_of_sides(ctx, idx, patterns[-1], min_angle_deg)
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
         return []
     return surfaces
+
+
+def _faces_of_leaves(ctx, idx: np.ndarray, patterns: tuple, correlation_px: int, min_angle_deg: float) -> list:
+    """The planes of three or four faces the cylinder region ``idx`` holds, ``[(pixels,
+    plane)]``, when the two planes across its crease line (``patterns``: :func:`_misfit_patterns`)
+    beat the cylinder's misfit pattern but hold less than PLANES_COVER of its pixels within
+    TRIM_SIGMAS: a side of the line holds two faces. Each side beyond its range noise along
+    the rays over its independent returns (:func:`_within_noise_along_rays`) is cut again by
+    its own crease line when the two planes beat its one by the F-test over those returns and
+    meet at least ``min_angle_deg`` apart; each leaf's largest connected piece keeps its plane
+    along the rays (the other pieces are left free, as :func:`_faces_of_sides` leaves them),
+    and pieces that continue one another's plane are joined (:func:`_join_continued`).
+    Taken when three or more leaves are cut, two or more pieces of ``ctx.min_size`` remain,
+    and the leaves' planes hold PLANES_COVER of the region's pixels within TRIM_SIGMAS, at
+    least the cylinder's share, closer on them than the cylinder; empty otherwise. (The pieces need not take
+    PLANES_COVER of the region: a face cut by the region's border into bits under the size
+    floor, 181 of seed 7 scan 1's 1551 px, would refuse a split its planes explain.)
+
+    A far box's corner beside a pipe's end cap (a grazing face, a head-on face and the cap)
+    comes out of the tile grid as one cylinder region whose misfit pattern is a hundred
+    times the two planes' (study seed 7 scans 1 and 3 of the stereo row), yet the two
+    planes hold 75-90 % of it: one plane spans two faces."""
+    _, _, inliers, squares, sides = patterns
+    window = float(max(int(correlation_px), 1)) ** 2
+    leaves = []
+    for side in sides:
+        leaves.extend(_cut_again(ctx, side, window, min_angle_deg))
+    if len(leaves) < 3:
+        return []
+    surfaces, near, within = _leaf_faces(ctx, leaves)
+    share = near / idx.size
+    if len(surfaces) < 2 or share < max(PLANES_COVER, inliers[0]) or within / max(near, 1) > squares[0]:
+        return []
+    return surfaces
+
+
+def _cut_again(ctx, side: np.ndarray, window: float, min_angle_deg: float) -> list:
+    """``[side]``, or its two sides along its own crease line (:func:`crease_line`) when it
+    is beyond its range noise along the rays over its independent returns (``window`` pixels
+    each) and the two sides' planes beat its one by the F-test over those returns, at least
+    ``min_angle_deg`` apart (:func:`_faces_of_leaves`)."""
+    if _within_noise_along_rays(ctx, side, window):
+        return [side]
+    chi2, halves = crease_line(ctx, side)
+    if len(halves) != 2:
+        return [side]
+    (one,), _ = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, side))
+    if not curvature_resolved(float(one) / window, chi2 / window, max(int(side.size / window), 1), 4):
+        return [side]
+    normals = []
+    for half in halves:
+        _, a = ray_fits(pixel_moments(ctx.xyz, ctx.sigma, half))
+        normals.append(a[0] / max(float(np.linalg.norm(a[0])), 1e-300))
+    if np.degrees(np.arccos(min(1.0, abs(float(normals[0] @ normals[1]))))) < min_angle_deg:
+        return [side]
+    return list(halves)
 
 
 def claim_along_rays(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, min_size: int,

@@ -1,7 +1,7 @@
 """Plane and cylinder regions holding two faces of a far box, split at full resolution
 (rangeseg_o3d.plane_faces): the crease line, the planes fitted along the rays, the gate, a
 split piece joining the plane it continues, a cylinder against two planes by their misfit
-patterns."""
+patterns, a region of three faces cut twice, a region no model fitted cut into its faces."""
 
 import numpy as np
 import pytest
@@ -9,9 +9,9 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.plane import fit_plane
 from rangeseg_o3d.fitting.cylinder import fit_cylinder
-from rangeseg_o3d.fitting.primitives import Cylinder
-from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _misfit_patterns,
-                                      crease_line, faces_of_cylinder, faces_of_plane)
+from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure
+from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _faces_of_leaves,
+                                      _misfit_patterns, crease_line, faces_of_cylinder, faces_of_plane, faces_of_unfitted)
 from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.synthetic.depth_camera import _unit_noise
@@ -410,3 +410,80 @@ def test_the_split_gate_answers_as_its_numpy_form(seed):
             assert _beyond_distance_noise(points[part], noise[part], independent) == want
             answers.append(bool(want))
     assert answers[0] is True  # the two faces under one plane
+
+
+def _folded_faces(seed, *, rows=120, creases=(30, 60), cols=90, z=4.0, turns_deg=(10.0, 75.0, 10.0), f=640.0,
+                  correlation=3):
+    """Three vertical faces side by side, split at the ``creases`` columns, each turned
+    ``turns_deg`` about the vertical from head-on (the middle one near grazing), each meeting
+    the next on its crease column's ray, the first through the point ``z`` ahead; a stereo
+    camera's range noise ``COEFF r^2`` erring together over ``correlation`` pixels square.
+    Returns ``(xyz, sigma, truth, normals)``, truth 0 / 1 / 2 per pixel."""
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) / f, (v - rows / 2) / f, np.ones((rows, cols))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    normals = [np.array([np.sin(np.radians(t)), 0.0, -np.cos(np.radians(t))]) for t in turns_deg]
+    truth = np.searchsorted(np.asarray(creases), u, side="right")
+    ranges = np.empty((rows, cols))
+    point = np.array([0.0, 0.0, z])
+    for k, normal in enumerate(normals):
+        d = float(normal @ point)
+        ranges[truth == k] = (d / (rays @ normal))[truth == k]
+        if k < len(creases):  # the next face passes through this one's crease line
+            ray = np.array([(creases[k] - cols / 2) / f, 0.0, 1.0])
+            point = ray * d / float(ray @ normal)
+    sigma = COEFF * ranges ** 2
+    noisy = ranges + _unit_noise(np.random.default_rng(seed), ranges.shape, correlation) * sigma
+    return rays * noisy[..., None], sigma, truth, normals
+
+
+def _assert_the_three_faces(surfaces, truth, normals, share, degrees):
+    # a piece on each face, each at least ``share`` of one face, its plane within ``degrees`` of that face's
+    assert len(surfaces) == 3
+    faces = []
+    for piece, plane in surfaces:
+        counts = np.bincount(truth.ravel()[piece], minlength=3)
+        k = int(counts.argmax())
+        faces.append(k)
+        assert counts[k] >= share * piece.size
+        assert np.degrees(np.arccos(min(1.0, abs(float(plane.normal @ normals[k]))))) < degrees
+    assert sorted(faces) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_leaves_of_a_crease_line_through_the_middle_face_come_back_as_its_three_faces(seed):
+    # the first line cuts the grazing middle face in two; each side is cut again at its own
+    # crease, and the middle face's two halves, which continue one plane, are joined
+    xyz, sigma, truth, normals = _folded_faces(seed, z=2.5)
+    ctx = _context(xyz, sigma)
+    idx = np.arange(truth.size)
+    _, sides = crease_line(ctx, idx)
+    assert all(np.unique(truth.ravel()[side]).size >= 2 for side in sides)  # one side holds two faces
+    # two planes holding 87 % within TRIM_SIGMAS, the cylinder 60 % (as study seed 7 scan 3's region)
+    surfaces = _faces_of_leaves(ctx, idx, (0.0, 0.0, (0.6, 0.87), (9.0, 2.0), sides), 3, 3.0)
+    _assert_the_three_faces(surfaces, truth, normals, 0.95, 5.0)
+    # a cylinder closer to the pixels it keeps within TRIM_SIGMAS than the leaves' planes: no split
+    assert _faces_of_leaves(ctx, idx, (0.0, 0.0, (0.6, 0.87), (0.1, 2.0), sides), 3, 3.0) == []
+
+
+def test_a_region_no_model_fitted_over_three_faces_is_cut_into_them_and_one_face_is_not():
+    xyz, sigma, truth, normals = _folded_faces(2)
+    ctx = _context(xyz, sigma)
+    failure = FitFailure(kind="primitive", reason="no model explains it")
+    _assert_the_three_faces(faces_of_unfitted(ctx, failure, np.arange(truth.size), correlation_px=3,
+                                              min_angle_deg=3.0), truth, normals, 0.95, 5.0)
+    one = np.flatnonzero(truth.ravel() == 0)
+    assert faces_of_unfitted(ctx, failure, one, correlation_px=3, min_angle_deg=3.0) == []
+    # only a region no model fitted
+    assert faces_of_unfitted(ctx, fit_plane(xyz.reshape(-1, 3)), np.arange(truth.size), correlation_px=3) == []
+
+
+@pytest.mark.parametrize("z", [2.5, 4.0])
+def test_a_far_pipe_no_model_fitted_is_not_cut_into_facets(z):
+    # its facets fit within the noise (four at 2.5 m, two at 4 m); a cylinder fits it, and
+    # its misfit pattern against the planes' keeps it whole
+    for seed in range(3):
+        xyz, sigma, idx, _ = _pipe(seed, z=z)
+        ctx = _context(xyz, sigma)
+        assert faces_of_unfitted(ctx, FitFailure(kind="primitive", reason="refused"), idx, correlation_px=3,
+                                 min_angle_deg=3.0) == []
