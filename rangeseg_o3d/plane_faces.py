@@ -346,6 +346,9 @@ def _hidden_face(ctx, labels: np.ndarray, k: int, blocks: np.ndarray, side: int,
         return None
     pr, pc = np.divmod(sample, width)
     under = blocks[np.minimum(pr // side, blocks.shape[0] - 1), np.minimum(pc // side, blocks.shape[1] - 1)]
+    marked_count = int(np.count_nonzero(under))
+    if marked_count < 3 or sample.size - marked_count < 3:
+        return None  # a side of fewer than three samples has no plane (the marked blocks' pixels taken already)
     one = pixel_moments(ctx.xyz, ctx.sigma, sample)
     marked = pixel_moments(ctx.xyz, ctx.sigma, sample[under])
     (one_chi2,), _ = ray_fits(one)

@@ -246,3 +246,19 @@ def test_the_block_grids_dilation_is_scipys():
     for _ in range(50):
         mask = rng.random((int(rng.integers(1, 20)), int(rng.integers(1, 20)))) < rng.uniform(0.0, 0.3)
         np.testing.assert_array_equal(_dilated(mask), ndimage.binary_dilation(mask, structure=np.ones((3, 3), bool)))
+
+
+def test_marked_blocks_without_region_samples_give_no_face_not_an_error():
+    # a marked block whose pixels are no longer the region's (a face taken before, or the
+    # sample's stride missing them): the marked side has no sample and no plane; before, the
+    # side's singular normal equations raised numpy's LinAlgError out of Pipeline.run
+    from rangeseg_o3d.plane_faces import _hidden_face
+
+    cloud, sigma, _, _ = _wall_and_top_face(0)
+    labels, fits, _ = _one_region(cloud, sigma)
+    ctx = _context(cloud, sigma)
+    side = 12
+    blocks = np.zeros((-(-cloud.shape[0] // side), -(-cloud.shape[1] // side)), dtype=bool)
+    blocks[8, 16] = True
+    labels[8 * side:9 * side, 16 * side:17 * side] = 0
+    assert _hidden_face(ctx, labels, 1, blocks, side, cloud.shape, 3, 10.0) is None
