@@ -271,9 +271,7 @@ def export_frames(directory, items) -> Path:
     from rangeseg_o3d.geometry import PinholeGeometry
     from rangeseg_o3d.io.atomic import atomic_write
 
-    directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise ValueError(f"--export-frames expects a directory; {directory} is a file")
+    directory = _export_directory(directory)
     directory.mkdir(parents=True, exist_ok=True)
     lines = [EXPORT_MANIFEST_HEADER]
     for item in items:
@@ -294,10 +292,19 @@ def export_frames(directory, items) -> Path:
     return manifest
 
 
+def _export_directory(directory) -> Path:
+    # the export's target as a Path; ValueError when it exists and is not a directory
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ValueError(f"--export-frames expects a directory; {directory} is a file")
+    return directory
+
+
 def run_export(directory: Path) -> int:
     """``--export-frames``: the six real VGA frames present, for the C++ peers' drivers."""
     from rangeseg_o3d.io.datasets import real_clouds
 
+    _export_directory(directory)  # a bad target is an error whether or not the frames are here
     items = [item for item in real_clouds() if item.name in VGA_FRAMES]
     if not items:
         print("no real 640x480 frame found in ../shared/data: nothing exported")
