@@ -111,11 +111,9 @@ def test_abw_images_reach_a_floor():
 
 def _matrix_scan(name: str, k: int, seed: int = 0):
     """Scan ``k`` of matrix row ``name`` (full size) and the row's pipeline result on it."""
-    spec = get_sensor(name)
-    config = rs.load_config(spec.preset, overrides={f"sensor.{key}": value
-                                                     for key, value in spec.sensor_facts().items()})
-    scan = spec.simulate(matrix_rng(seed, spec.name, k), False)
-    return scan, rs.Pipeline(config).run(scan.cloud)
+    from matrix_helpers import matrix_result
+
+    return matrix_result(name, seed, k)
 
 
 @pytest.mark.parametrize("seed, k, side", [(0, 0, 24), (11, 0, 11)])

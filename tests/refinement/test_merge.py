@@ -867,16 +867,12 @@ def test_a_floor_in_two_patches_apart_joins_within_its_planes_uncertainty_there(
     # is tilted 0.65 deg; carried to the other patch it lies 30 mm off its centroid, over five
     # times that patch's scatter (4.6 mm), but within five of the scatter and the plane's own
     # uncertainty there (5.2 mm) together. Before: the two patches were two regions.
-    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+    from matrix_helpers import matrix_result, region_holding
 
-    spec = get_sensor("noise_20mm")
-    scan = spec.simulate(matrix_rng(1007, spec.name, 1), False)
-    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
-    result = rs.Pipeline(rs.load_config(spec.preset, overrides=facts)).run(scan.cloud)
+    scan, result = matrix_result("noise_20mm", 1007, 1)
     floor = scan.truth_ids == 1
-    labels, counts = np.unique(result.labels[floor], return_counts=True)
-    label = int(labels[counts.argmax()])
-    assert label > 0 and counts.max() > 0.9 * floor.sum()
+    label, held = region_holding(result.labels, floor)
+    assert label > 0 and held > 0.9 * floor.sum()
     assert floor[(result.labels == label) & (scan.truth_ids > 0)].mean() > 0.95  # (mixed returns: no truth)
     (feature,) = [f for f in result.features if f.label == label]
     assert feature.kind == "plane"

@@ -1,0 +1,22 @@
+"""Scans of the sensor matrix and the row's pipeline on them, for tests that trace a matrix case."""
+
+import numpy as np
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+
+
+def matrix_result(name: str, seed: int, k: int):
+    """Scan ``k`` of matrix row ``name`` drawn from ``seed`` (full size) and the row's pipeline
+    result on it (the row's preset given the row's sensor facts, as scripts/benchmark.py runs it)."""
+    spec = get_sensor(name)
+    config = rs.load_config(spec.preset, overrides={f"sensor.{key}": value
+                                                     for key, value in spec.sensor_facts(False).items()})
+    scan = spec.simulate(matrix_rng(seed, spec.name, k), False)
+    return scan, rs.Pipeline(config).run(scan.cloud)
+
+
+def region_holding(labels: np.ndarray, mask: np.ndarray) -> tuple[int, int]:
+    """``(label, pixels)``: the label holding most of ``mask``'s pixels (0: in no region) and how many."""
+    found, counts = np.unique(labels[mask], return_counts=True)
+    return int(found[counts.argmax()]), int(counts.max())
