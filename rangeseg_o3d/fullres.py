@@ -536,17 +536,16 @@ def settle_plane_borders(cloud, labels: np.ndarray, fits: dict, stats: PixelStat
     kinds = np.zeros_like(table[0])
     kinds[planes] = table[0][planes]  # neither moving nor taking: every other region
     settled = np.array(labels, dtype=np.int32, order="C", copy=True)
-    xyz = _flat_points(cloud)
+    xyz = np.ascontiguousarray(_flat_points(cloud), dtype=np.float64)
     noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
-    moved = kernels.settle_borders(np.ascontiguousarray(xyz, dtype=np.float64), settled, kinds, table[1], table[2],
+    moved = kernels.settle_borders(xyz, settled, kinds, table[1], table[2],
                                    noise, np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
                                    float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min), SETTLE_MARGIN,
                                    bool(wrap_columns))  # (the kernel's curved-to-plane margin: no curved region here)
     if not moved:
         return labels, stats
     changed = np.flatnonzero(settled.ravel() != np.asarray(labels).ravel())
-    return settled, stats_with_moved(stats, np.ascontiguousarray(xyz, dtype=np.float64), noise, labels, settled,
-                                     table, changed, inlier_factor)
+    return settled, stats_with_moved(stats, xyz, noise, labels, settled, table, changed, inlier_factor)
 
 
 #: Pixel rings from a crease within which :func:`settle_creases` decides by the rays.

@@ -51,7 +51,7 @@ _SOURCES = {
     "edgestrips": ("strips_near_models",),
     "limbs": ("claim_limbs",),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),
-    "unions": ("merge_plane_pairs", "plane_candidates", "plane_prediction_sd"),
+    "unions": ("merge_plane_pairs", "part_within_step", "plane_candidates", "plane_prediction_sd"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),
     "pieces": ("pool_pieces",),
     "window": ("window_moments", "window_normals", "smallest_eigenvalues", "window_residuals", "eigenvectors", "crease_mask",

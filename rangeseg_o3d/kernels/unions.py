@@ -20,7 +20,7 @@ from .linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py", "labelwise.py", "linalg.py")
 
-__all__ = ["merge_plane_pairs", "plane_candidates", "plane_prediction_sd"]
+__all__ = ["merge_plane_pairs", "part_within_step", "plane_candidates", "plane_prediction_sd"]
 
 @njit(cache=True, nogil=True)
 def _find(root, k):
@@ -63,10 +63,14 @@ def _angle_deg(u, v):
 
 
 @njit(cache=True, nogil=True)
-def _within_step(row, noise_sum, own_rms, big_row, big_rms, normal, d, step_sigmas, min_cosine):
-    # merge._Unions.no_step for one part (moments ``row``, summed range noise ``noise_sum``,
-    # its model's rms ``own_rms``) against the larger part's plane ``normal . p = d``
-    # (moments ``big_row``, rms ``big_rms``)
+def part_within_step(row, noise_sum, own_rms, big_row, big_rms, normal, d, step_sigmas, min_cosine):
+    """Whether a part (moments ``row``, see :func:`.labelwise.label_moments`; its summed
+    range noise ``noise_sum``; its model's rms ``own_rms``) lies on the larger part's plane
+    ``normal . p = d`` (moments ``big_row``, rms ``big_rms``) on the mean: its centroid's
+    offset within ``step_sigmas`` times its samples' scatter (``own_rms``, at least their
+    distance noise: the mean range noise times the incidence cosine at the centroid, floored
+    at ``min_cosine``) and the plane's uncertainty there (:func:`plane_prediction_sd`), in
+    quadrature. True for a part with no points."""
     part = row[0]
     if part <= 0.0:
         return True
@@ -204,7 +208,7 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
                 noise = _noise_by_root(labels, sigma, root, n)
                 have_noise = True
             big = rb if small == ra else ra
-            if not _within_step(moments[small], noise[small], rms[small], moments[big], rms[big], normal[big], d[big],
+            if not part_within_step(moments[small], noise[small], rms[small], moments[big], rms[big], normal[big], d[big],
                                 step_sigmas, min_cosine):
                 continue
         root[rb] = ra

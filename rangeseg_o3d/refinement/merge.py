@@ -529,7 +529,8 @@ class _Unions:
         (its model's rms, at least their distance noise: its summed range noise times the
         incidence cosine at its centroid, floored at ``GRAZING_COSINE``) and the larger plane's
         own uncertainty at that centroid (:func:`rangeseg_o3d.kernels.plane_prediction_sd`)
-        added in quadrature. True for other kinds
+        added in quadrature: :func:`rangeseg_o3d.kernels.part_within_step`, the test the
+        compiled pair loop makes. True for other kinds
         or without moments, or with ``STEP_SIGMAS <= 0``. merge_regions asks it of pieces apart
         (not adjacent).
 
@@ -552,14 +553,10 @@ class _Unions:
         if self.noise is None:  # each root's summed range noise (as plane_within_larger)
             self.noise = _noise_sums(self.ctx, self.lookup()[self.labels], len(self.moments))
         plane = self.fits[big]
-        centroid = self.moments[small, 1:4] / count
-        offset = float(centroid @ plane.normal) - float(plane.d)
-        cosine = abs(offset + float(plane.d)) / max(float(np.linalg.norm(centroid)), 1e-300)
-        noise = max(float(self.noise[small]) / count * max(cosine, GRAZING_COSINE), float(self.fits[small].rms))
-        spread = kernels.plane_prediction_sd(np.ascontiguousarray(self.moments[big], dtype=np.float64),
-                                             float(plane.rms), np.asarray(plane.normal, dtype=np.float64),
-                                             *map(float, centroid))
-        return abs(offset) <= STEP_SIGMAS * float(np.hypot(noise, spread))
+        return bool(kernels.part_within_step(
+            np.ascontiguousarray(self.moments[small], dtype=np.float64), float(self.noise[small]),
+            float(self.fits[small].rms), np.ascontiguousarray(self.moments[big], dtype=np.float64), float(plane.rms),
+            np.asarray(plane.normal, dtype=np.float64), float(plane.d), STEP_SIGMAS, GRAZING_COSINE))
 
     def join(self, ra: int, rb: int, union) -> None:
         """Merge root ``rb`` into root ``ra``, whose model becomes ``union``."""
