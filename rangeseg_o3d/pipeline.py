@@ -23,6 +23,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       smallest_region, stats_after_moves)
 from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
+from .occluded_planes import join_across_occluders
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
@@ -410,6 +411,11 @@ class Pipeline:
                 labels, fits, stats = join_pieces_along_rays(cloud, labels, fits, stats, sigma=sigma,
                                                              inlier_factor=INLIER_SIGMAS,
                                                              correlation_px=noise.correlation_px)
+                # pieces of one face a pipe or a box before it cuts apart, joined across it
+                # where their joint plane explains both along the rays (occluded_planes)
+                labels, fits, stats = join_across_occluders(cloud, labels, fits, stats, sigma=sigma,
+                                                            inlier_factor=INLIER_SIGMAS,
+                                                            correlation_px=noise.correlation_px)
                 labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                                min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS,
                                                along_rays=True)
