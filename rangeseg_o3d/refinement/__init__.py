@@ -33,7 +33,9 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 9. :mod:`.along_rays` (a laser's single returns only): border pixels go to the
    neighbouring plane that explains their range clearly better, in range sigmas along
    their rays (a plane seen near grazing took them within three range sigmas of its
-   distances).
+   distances); then a region whose larger touching regions explain its pixels within the
+   noise goes to them (:func:`.dissolve.dissolve_fragments`: a crease strip or a column's
+   flank that a model of its own fits at 20 mm of range noise).
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
 :mod:`.context` holds what the steps share (points, noise, fitter, size floor).
@@ -50,7 +52,7 @@ from ..sensor import Sensor
 from .along_rays import settle_along_rays
 from .bands import release_bands
 from .context import Context
-from .dissolve import absorb_ripples, dissolve_small
+from .dissolve import absorb_ripples, dissolve_fragments, dissolve_small
 from .facets import planes_for_curved
 from .grid_lines import release_grid_lines
 from .grow import grow_regions, settle_regions
@@ -269,5 +271,10 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
                                          jump_min=config.jump_min)
         # a column's limbs seen near grazing are range jumps growth never crossed
         labels = claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid, k_sigma=config.k_sigma)
+        # a piece of a surface that a model of its own fits within the noise (a crease strip,
+        # a column's flank) goes to the surface whose model explains it within the noise too
+        # (timed with the rays' steps)
+        labels, fits = dissolve_fragments(ctx, labels, fits, k_sigma=config.k_sigma,
+                                          wrap_columns=sensor.wrap_columns, jumps=jumps)
     timer.lap("rays")
     return Regions(labels, fits)

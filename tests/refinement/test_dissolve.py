@@ -5,8 +5,8 @@ import numpy as np
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
 from rangeseg_o3d.fitting.primitives import Cylinder, Sphere
-from rangeseg_o3d.refinement.dissolve import absorb_ripples, dissolve_small
-from refinement_helpers import plane_grid
+from rangeseg_o3d.refinement.dissolve import absorb_ripples, dissolve_fragments, dissolve_small
+from refinement_helpers import folded_strip, plane_grid
 
 
 def _plane_with_a_blob(blob_z=0.0):
@@ -213,3 +213,89 @@ def test_ripple_candidates_are_grouped_as_their_member_pixels():
         assert list(got) == list(expected) == [k for k in range(1, 12) if candidates[k] and sizes[k]]
         for k in expected:
             np.testing.assert_array_equal(got[k], expected[k])
+
+
+# -- fragments: a region whose pixels a larger touching region explains within the noise ---
+FRAGMENT_NOISE = 0.005  # (within the lms200 fitter's plane rms bound: the hosts' refits pass)
+
+
+def _wall_with_a_strip():
+    # a 20 x 60 wall (1) with noise along its normal and a strip three rows high and twenty
+    # columns long (2) on it, fitted by a plane of its own: tilted about the strip's long
+    # axis, it fits the strip's few rows better than the wall's plane does (it is their
+    # least-squares plane), yet the wall's explains them within the noise
+    xyz = plane_grid(20, 60, noise=FRAGMENT_NOISE, seed=11)
+    labels = np.ones((20, 60), np.int32)
+    labels[8:11, 20:40] = 2
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    return xyz, labels, fits
+
+
+def test_a_strip_the_wall_explains_within_the_noise_joins_it(context):
+    xyz, labels, fits = _wall_with_a_strip()
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((20, 60), FRAGMENT_NOISE))
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0)
+    assert (labels[8:11, 20:40] == 2).all() and 2 in fits  # the inputs are left alone
+    assert set(kept) == {1}
+    # the strip's pixels within three sigmas of the wall join it, the rest (if any) are freed
+    assert np.isin(out[8:11, 20:40], (0, 1)).all() and (out[8:11, 20:40] == 1).mean() >= 0.8
+    # the wall is refitted with them
+    assert kept[1].inliers == int((out == 1).sum()) > fits[1].inliers
+    np.testing.assert_allclose(kept[1].normal, fit_plane(xyz[out == 1]).normal, atol=1e-9)
+
+
+def test_a_face_at_a_crease_stays(context):
+    # the flat face (1, 30 columns) and 15 columns of a face rising at 45 degrees (2): only
+    # the face's few columns nearest the crease lie within three sigmas of the flat one
+    xyz, truth, _ = folded_strip(FRAGMENT_NOISE, seed=3)
+    labels = np.where(np.arange(90) < 30, 1, np.where(np.arange(90) < 45, 2, 0)).astype(np.int32)[None, :].repeat(60, 0)
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((60, 90), FRAGMENT_NOISE))
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0)
+    assert out is labels and kept is fits
+
+
+def test_a_strip_off_the_wall_by_more_than_the_noise_stays(context):
+    # the strip 1.6 sigmas in front of the wall: over 80 % of its pixels lie within three
+    # sigmas of the wall's plane, but their rms there is beyond what noise gives
+    xyz, labels, fits = _wall_with_a_strip()
+    xyz[8:11, 20:40, 2] -= 1.6 * FRAGMENT_NOISE
+    fits[2] = fit_plane(xyz[labels == 2])
+    assert (np.abs(fits[1].distances(xyz[8:11, 20:40].reshape(-1, 3))) <= 3 * FRAGMENT_NOISE).mean() >= 0.8
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((20, 60), FRAGMENT_NOISE))
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0)
+    assert out is labels and kept is fits
+
+
+def test_mixed_returns_on_a_jump_do_not_keep_a_fragment(context):
+    # the strip takes a row of mixed returns on a range jump (25 cm off the wall, which no
+    # host explains): without the jump mask 60 of 80 pixels are explained (75 %), with it
+    # every pixel off the jumps is; the mixed row is freed, the strip's rows join the wall
+    xyz, labels, fits = _wall_with_a_strip()
+    labels[11, 20:40] = 2
+    xyz[11, 20:40, 2] -= 0.25
+    fits[1] = fit_plane(xyz[labels == 1])
+    fits[2] = fit_plane(xyz[labels == 2])
+    jumps = np.zeros((20, 60), bool)
+    jumps[11, 20:40] = True
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((20, 60), FRAGMENT_NOISE))
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0)
+    assert out is labels and kept is fits
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0, jumps=jumps)
+    assert set(kept) == {1} and (out[11, 20:40] == 0).all()
+    assert (out[8:11, 20:40] == 1).mean() >= 0.8 and np.isin(out[8:11, 20:40], (0, 1)).all()
+
+
+def test_a_region_on_jumps_all_over_stays(context):
+    # a column two grid lines wide 1 m in front of the wall, on range jumps all over, whose
+    # two lowest rows the wall's plane happens to explain: more than every pixel off the
+    # jumps is explained, but not most of the region
+    xyz, labels, fits = _wall_with_a_strip()
+    labels[8:11, 20:40] = 1
+    labels[4:16, 30:32] = 2
+    xyz[4:14, 30:32, 2] -= 1.0
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2])}
+    jumps = labels == 2
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((20, 60), FRAGMENT_NOISE))
+    out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0, jumps=jumps)
+    assert out is labels and kept is fits
