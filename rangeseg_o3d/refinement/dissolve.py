@@ -22,7 +22,7 @@ from ..fitting.robust import beyond_noise, curvature_resolved
 from .context import Context, touching
 from .merge import MODEL_PARAMETERS, region_adjacency
 
-__all__ = ["absorb_ripples", "dissolve_fragments", "dissolve_small"]
+__all__ = ["FRAGMENT_SHARE", "absorb_ripples", "dissolve_fragments", "dissolve_small"]
 
 
 def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *, k_sigma: float):
@@ -92,7 +92,7 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
     Smallest first, a region with a model whose touching fitted regions (within two pixels,
     :func:`rangeseg_o3d.refinement.merge.region_adjacency`) are larger: each pixel goes to
     the host that explains it best, within ``k_sigma max(sigma, rms)``. Those explained
-    must be at least 80 % of the region's pixels, not counting the ones on a range jump
+    must be at least FRAGMENT_SHARE (80 %) of the region's pixels, not counting the ones on a range jump
     (``jumps``) that no host explains (mixed returns between a surface and the one behind
     it, which the region's own model took along its rays), and more than half of all of
     them (a column two grid lines wide lies on jumps all over); and the hosts' rms over them
@@ -139,7 +139,7 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
         # (a pixel on a range jump no host explains is a mixed return, not the region's own;
         # yet most of the region must be explained: a thin column is on jumps all over)
         counted = idx.size if jumps is None else int(np.count_nonzero(explained | ~jumps.ravel()[idx]))
-        if n < 0.8 * counted or 2 * n <= idx.size:
+        if n < FRAGMENT_SHARE * counted or 2 * n <= idx.size:
             continue
         # the hosts' distances on what they explain within the noise alone: the region's own
         # model is no judge (its pixels are the ones it took for fitting it better)
@@ -166,6 +166,11 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
 #: A region of more pixels is first looked at through every so many of its pixels (about
 #: this many): a face or a wall far from every host costs no pass over its pixels.
 _FRAGMENT_SAMPLE = 64
+
+#: The least share of a fragment's pixels (but those on a range jump no host explains) its
+#: hosts must explain for :func:`dissolve_fragments` to hand it to them: a piece of which
+#: more than a fifth stands off every host beyond the noise is kept as a surface of its own.
+FRAGMENT_SHARE = 0.8
 
 
 def _explained(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: np.ndarray, k_sigma: float):
