@@ -754,21 +754,21 @@ def _join_continued(ctx, surfaces: list) -> list:
         for i in range(len(surfaces)):
             for j in range(i + 1, len(surfaces)):
                 union = tuple(x + y for x, y in zip(moments[i], moments[j]))
-                growth = float(ray_fits(union)[0][0]) - squares[i] - squares[j]
+                fitted = ray_fits(union)
+                growth = float(fitted[0][0]) - squares[i] - squares[j]
                 budget = min(surfaces[i][0].size, surfaces[j][0].size)
                 if growth < budget and (pair is None or growth / budget < best):
-                    best, pair = growth / budget, (i, j, union)
+                    best, pair = growth / budget, (i, j, union, fitted)
         if pair is None:
             break
-        i, j, union = pair
+        i, j, union, (chi2, a) = pair
         pixels = np.union1d(surfaces[i][0], surfaces[j][0])
-        _, a = ray_fits(union)
         plane = ray_plane(a[0], ctx.xyz[pixels])
         if not plane:
             break
         surfaces = [s for k, s in enumerate(surfaces) if k not in (i, j)] + [(pixels, plane)]
         moments = [m for k, m in enumerate(moments) if k not in (i, j)] + [union]
-        squares = [q for k, q in enumerate(squares) if k not in (i, j)] + [float(ray_fits(union)[0][0])]
+        squares = [q for k, q in enumerate(squares) if k not in (i, j)] + [float(chi2[0])]
     return surfaces
 
 

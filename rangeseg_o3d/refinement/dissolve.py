@@ -52,14 +52,10 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
                  and regions[k].size > idx.size]
         if not hosts:
             continue
-        pts = rows_at(ctx.xyz, idx)
-        score = np.stack([
-            np.abs(fits[k].distances(pts)) / np.maximum(ctx.sigma[idx], fits[k].rms)
-            for k in hosts
-        ])
-        best = np.argmin(score, axis=0)
-        explained = score[best, np.arange(idx.size)] <= k_sigma
-        if explained.mean() < 0.8 or _stands_apart(pts, fits.get(small), [fits[k] for k in hosts], best):
+        explained, best, _ = _explained(ctx, idx, fits, hosts, np.array([fits[k].rms for k in hosts])[:, None],
+                                        k_sigma)
+        if explained.mean() < FRAGMENT_SHARE or _stands_apart(rows_at(ctx.xyz, idx), fits.get(small),
+                                                               [fits[k] for k in hosts], best):
             continue
         new_labels = np.where(explained, np.asarray(hosts)[best], 0)
         flat[idx] = new_labels
@@ -167,9 +163,10 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
 #: this many): a face or a wall far from every host costs no pass over its pixels.
 _FRAGMENT_SAMPLE = 64
 
-#: The least share of a fragment's pixels (but those on a range jump no host explains) its
-#: hosts must explain for :func:`dissolve_fragments` to hand it to them: a piece of which
-#: more than a fifth stands off every host beyond the noise is kept as a surface of its own.
+#: The least share of a region's pixels (for :func:`dissolve_fragments`, but those on a range
+#: jump no host explains) its larger neighbours must explain for :func:`dissolve_small` and
+#: :func:`dissolve_fragments` to hand it to them: a piece of which more than a fifth stands
+#: off every host beyond the noise is kept as a surface of its own.
 FRAGMENT_SHARE = 0.8
 
 
@@ -179,9 +176,10 @@ def _explained(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: 
     in ``hosts``) and the pixels' distances to that host."""
     pts = rows_at(ctx.xyz, idx)
     distance = np.abs(np.stack([fits[h].distances(pts) for h in hosts]))
-    best = np.argmin(distance / np.maximum(ctx.sigma[idx], scatter), axis=0)
-    at_best = distance[best, np.arange(idx.size)]
-    return at_best <= k_sigma * np.maximum(ctx.sigma[idx], scatter[best, 0]), best, at_best
+    score = distance / np.maximum(ctx.sigma[idx], scatter)
+    best = np.argmin(score, axis=0)
+    at = (best, np.arange(idx.size))
+    return score[at] <= k_sigma, best, distance[at]
 
 
 def _stands_apart(points: np.ndarray, own, hosts: list, best: np.ndarray) -> bool:
