@@ -411,11 +411,13 @@ class Pipeline:
                 labels, fits, stats = join_pieces_along_rays(cloud, labels, fits, stats, sigma=sigma,
                                                              inlier_factor=INLIER_SIGMAS,
                                                              correlation_px=noise.correlation_px)
+                lap("join_pieces")
                 # pieces of one face a pipe or a box before it cuts apart, joined across it
                 # where their joint plane explains both along the rays (occluded_planes)
                 labels, fits, stats = join_across_occluders(cloud, labels, fits, stats, sigma=sigma,
                                                             inlier_factor=INLIER_SIGMAS,
                                                             correlation_px=noise.correlation_px)
+                lap("occluders")
                 labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                                min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS,
                                                along_rays=True)
