@@ -17,10 +17,10 @@ from .._numeric import rows_at, unique_ints
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..fitting.primitives import Plane
-from ..fitting.region_fitter import label_sizes, region_indices
+from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import beyond_noise, curvature_resolved
 from .context import Context, touching
-from .merge import MODEL_PARAMETERS, region_adjacency
+from .merge import ADJACENCY_MATRIX_LABELS, MODEL_PARAMETERS, region_adjacency, region_adjacency_matrix
 
 __all__ = ["FRAGMENT_SHARE", "absorb_ripples", "dissolve_fragments", "dissolve_small"]
 
@@ -105,6 +105,11 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
     if len(fitted) < 2:
         return labels, fits
     sizes = label_sizes(labels, minlength=max(fitted) + 1).astype(np.int64)
+    # one compiled pass over every region refuses what the tests below certainly refuse while
+    # no region has changed (a laser scan's walls and box faces: all of them, most scans)
+    hopeful = _may_dissolve(ctx, labels, fits, fitted, sizes, k_sigma, jumps, wrap_columns)
+    if hopeful is not None and not hopeful.any():
+        return labels, fits
     neighbours: dict[int, set[int]] = {}
     for a, b in region_adjacency(labels, wrap_columns=wrap_columns):
         if fits.get(a) and fits.get(b):
@@ -117,6 +122,8 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
     regions = region_indices(labels, only=candidates)
     out, kept, changed = labels, fits, set()
     for small in sorted(candidates, key=lambda k: (sizes[k], k)):
+        if hopeful is not None and out is labels and not hopeful[small]:  # (its hosts are the pretest's until then)
+            continue
         idx = regions.get(small)
         own = kept.get(small)
         hosts = [h for h in sorted(neighbours[small]) if h in kept and sizes[h] > sizes[small]]
@@ -168,6 +175,33 @@ _FRAGMENT_SAMPLE = 64
 #: :func:`dissolve_fragments` to hand it to them: a piece of which more than a fifth stands
 #: off every host beyond the noise is kept as a surface of its own.
 FRAGMENT_SHARE = 0.8
+
+
+#: Relative slack of the compiled pretest (:func:`_may_dissolve`) over the rounding of
+#: numpy's distances: far above it, far below any noise.
+_FRAGMENT_SLACK = 1e-9
+
+
+def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, sizes: np.ndarray,
+                  k_sigma: float, jumps: np.ndarray | None, wrap_columns: bool) -> np.ndarray | None:
+    """Per label below the largest + 1: False where :func:`dissolve_fragments`' tests (its
+    sample's share, the half, FRAGMENT_SHARE) certainly keep the region from its larger fitted
+    neighbours while no region has changed, True where they may not; None when the labels
+    are too many for an adjacency matrix. One compiled pass over the grid
+    (:func:`rangeseg_o3d.kernels.fragments_may_pass`), its counts at least
+    :func:`_explained`'s."""
+    n = int(labels.max(initial=0)) + 1
+    if n > ADJACENCY_MATRIX_LABELS:
+        return None
+    adjacency = region_adjacency_matrix(labels, n, wrap_columns=wrap_columns)
+    has_model = np.zeros(sizes.size, np.bool_)
+    has_model[fitted] = True
+    kinds, params, rms = model_table(fits, sizes.size)
+    flat = np.ascontiguousarray(labels.ravel(), dtype=np.int32)
+    jumps = np.zeros(flat.size, np.bool_) if jumps is None else np.ascontiguousarray(jumps.ravel(), dtype=np.bool_)
+    return kernels.fragments_may_pass(flat, ctx.xyz, np.ascontiguousarray(ctx.sigma, dtype=np.float64), jumps,
+                                      adjacency, has_model, kinds, params, rms, sizes,
+                                      float(k_sigma), FRAGMENT_SHARE, _FRAGMENT_SAMPLE, _FRAGMENT_SLACK)
 
 
 def _explained(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: np.ndarray, k_sigma: float):
@@ -236,7 +270,7 @@ def absorb_ripples(xyz: np.ndarray, labels: np.ndarray, fits: dict, sigma: np.nd
     candidates = np.zeros(n, bool)
     largest = int(table.sizes.max())
     candidates[[k for k in curved if sizes[k] < largest]] = True
-    if not candidates.any():
+    if not candidates.any() or _no_ripple_host(xyz, labels, candidates, sizes, table, sigma, k_sigma):
         return labels, fits, set()
     out, kept, changed = labels, fits, set()
     regions = _candidate_pixels(xyz, labels, candidates, sizes, table, sigma, k_sigma, min_cosine)
@@ -267,6 +301,27 @@ class _PlaneTable:
         self.offsets = np.array([fits[k].d for k in planes])
         self.scatter = np.array([scatter.get(k, fits[k].rms) for k in planes])
         self.sizes = sizes[self.labels]
+
+
+#: Candidate pixels times planes up to which :func:`_no_ripple_host` reads every candidate's
+#: pixels (a laser scan's columns and balls: a few thousand pixels, a few planes); beyond,
+#: the candidates are looked at one by one (:func:`_candidate_pixels` samples the large ones).
+_RIPPLE_PRETEST_BUDGET = 1 << 16
+
+
+def _no_ripple_host(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k_sigma) -> bool:
+    """Whether no candidate patch can have a host: for each, no larger plane holds half of its
+    pixels within ``k_sigma`` of the largest spread (:func:`_ripple_spread` at cosine 1), in
+    one compiled pass over every candidate (:func:`rangeseg_o3d.kernels.ripples_may_pass`, with
+    :data:`_SCORE_SLACK`); False when their pixels times the planes are over the budget.
+    :func:`_ripple_host`'s median within ``k_sigma`` of a plane needs that half."""
+    if int(np.sum(sizes[:candidates.size][candidates])) * table.labels.size > _RIPPLE_PRETEST_BUDGET:
+        return False
+    return not kernels.ripples_may_pass(labels.ravel(), np.ascontiguousarray(xyz, dtype=np.float64),
+                                        np.ascontiguousarray(sigma, dtype=np.float64), candidates, table.normals,
+                                        np.ascontiguousarray(table.offsets, dtype=np.float64), table.scatter,
+                                        np.ascontiguousarray(table.sizes, dtype=np.int64), float(k_sigma),
+                                        _SCORE_SLACK).any()
 
 
 def _grouped(pixels: np.ndarray, labels: np.ndarray) -> dict:

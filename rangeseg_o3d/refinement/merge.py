@@ -22,7 +22,8 @@ from ..scales import GRAZING_COSINE
 from .context import Context
 from .grid_lines import lines_across
 
-__all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "similar_models"]
+__all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
+           "similar_models"]
 
 #: The smaller part of a union of planes, turned from it, lies on the union's plane within
 #: this many times the merge's rms limit (rms of its points): a piece of a rippled face a
@@ -58,14 +59,12 @@ def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool =
     With ``wrap_columns`` (a 360-degree grid) the first and last columns are neighbours too.
     """
     if wrap_columns and labels.shape[1] > 2 * reach:
-        # the seam's strip: the last ``reach`` columns, then the first ``reach``
-        seam = np.concatenate([labels[:, -reach:], labels[:, :reach]], axis=1)
-        return region_adjacency(labels, reach=reach) | region_adjacency(seam, reach=reach)
+        return region_adjacency(labels, reach=reach) | region_adjacency(_seam(labels, reach), reach=reach)
     n = int(labels.max(initial=0)) + 1
-    if n <= 4096:  # an n x n matrix stays small; beyond, collect pairs per shift
+    if n <= ADJACENCY_MATRIX_LABELS:  # an n x n matrix stays small; beyond, collect pairs per shift
         # the matrix is symmetric with an empty diagonal: its pairs a < b are np.triu's,
         # without building the triangle's n x n mask
-        a, b = np.nonzero(kernels.adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach))
+        a, b = np.nonzero(region_adjacency_matrix(labels, n, reach=reach))
         upper = a < b
         return set(zip(a[upper].tolist(), b[upper].tolist()))
     pairs = set()
@@ -80,6 +79,25 @@ def region_adjacency(labels: np.ndarray, *, reach: int = 2, wrap_columns: bool =
                 codes = unique_ints(np.minimum(a, b).astype(np.int64) << 32 | np.maximum(a, b))
                 pairs.update((int(c >> 32), int(c & 0xFFFFFFFF)) for c in codes)
     return pairs
+
+
+#: The most labels (the largest label + 1) whose adjacency is an (n, n) matrix.
+ADJACENCY_MATRIX_LABELS = 4096
+
+
+def region_adjacency_matrix(labels: np.ndarray, n: int, *, reach: int = 2, wrap_columns: bool = False) -> np.ndarray:
+    """(n, n) bool, symmetric: regions ``a != b`` (both > 0, below ``n``) whose pixels come
+    within ``reach`` pixels of each other, as :func:`region_adjacency`'s pairs (with
+    ``wrap_columns`` the first and last columns are neighbours too)."""
+    adjacency = kernels.adjacency_matrix(np.ascontiguousarray(labels, dtype=np.int32), n, reach)
+    if wrap_columns and labels.shape[1] > 2 * reach:
+        adjacency |= kernels.adjacency_matrix(np.ascontiguousarray(_seam(labels, reach), dtype=np.int32), n, reach)
+    return adjacency
+
+
+def _seam(labels: np.ndarray, reach: int) -> np.ndarray:
+    # a 360-degree grid's seam as a strip: the last ``reach`` columns, then the first ``reach``
+    return np.concatenate([labels[:, -reach:], labels[:, :reach]], axis=1)
 
 
 def _angle_deg(u: np.ndarray, v: np.ndarray) -> float:
