@@ -428,11 +428,14 @@ class Pipeline:
                                             inlier_factor=INLIER_SIGMAS)
                 lap("caps")
                 # a pipe the tile grid left a plane region: its plane in xyz turns to the rays and
-                # hides the bend, which its inverse ranges show (bent_planes)
+                # hides the bend, which its inverse ranges show (bent_planes); where the depth
+                # also comes in steps, the bend is judged over blocks of the correlation window
                 fits, stats = cylinders_for_bent_planes(cloud, labels, fits, stats, sigma=sigma,
                                                         share=noise.independent_share(1),
                                                         inlier_factor=INLIER_SIGMAS,
-                                                        max_radius=float(self.fitter.params["max_radius"]))
+                                                        max_radius=float(self.fitter.params["max_radius"]),
+                                                        window=noise.correlation_px,
+                                                        stepped=noise.step_quadratic > 0.0)
                 lap("bent_planes")
         return labels, fits, sigma, stats
 

@@ -52,8 +52,10 @@ class NoiseModel:
 
     ``step_quadratic`` (1/m, 0 for none) is the depth step ``step_quadratic r^2`` of a
     structured-light camera that measures disparity in fixed sub-pixel steps (Kinect v1 /
-    PrimeSense: 1/8 px, ``1 / (8 f b)`` ~ 2.9e-3 /m, measured on the PCL and PEAC frames). A
-    fact of the sensor only: no step of the method reads it. Tile means of such a camera
+    PrimeSense: 1/8 px, ``1 / (8 f b)`` ~ 2.9e-3 /m, measured on the PCL and PEAC frames). Read
+    only where the returns also err together over a window (:attr:`matched_window`): there
+    ``bent_planes`` judges a pipe's bend over blocks of that window, the steps voiding its
+    chi-square gates. Tile means of such a camera
     scatter more than ``1/sqrt(n)`` says because its errors are correlated over several
     pixels (the staircase among them); the fitter widens by the measured excess
     (:func:`rangeseg_o3d.sensor_checks.noise_excess`). A floor of the steps' rms under the
