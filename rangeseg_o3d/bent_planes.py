@@ -234,7 +234,7 @@ def _stepped_pipe_of(points, noise, n, max_radius, design, target, across_share,
     # along the rays, the bend over blocks of the matching window, the cylinder started from the
     # silhouette and from the bend, the region no wider than its diameter, the cylinder's squares
     # near those of the bend
-    plane, *_ = np.linalg.lstsq(design[:, :3], target, rcond=None)
+    plane = _solution(design[:, :3], target)
     residuals = target - design[:, :3] @ plane
     flat = float(residuals @ residuals)
     if flat > len(points) * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / n)):
@@ -245,7 +245,7 @@ def _stepped_pipe_of(points, noise, n, max_radius, design, target, across_share,
     ranges = np.linalg.norm(points, axis=1)
     # the bend's term in metres of range (its value a width off the middle, (lateral / width)^2
     # = 1): a circle of radius R recedes by about x^2 / (2 R) at x off its nearest point
-    coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
+    coefficients = _solution(design, target)
     bent = float(np.sum((design @ coefficients - target) ** 2))
     sagitta = -coefficients[3] * float(np.median(ranges)) ** 2
     radii = [0.5 * width]
