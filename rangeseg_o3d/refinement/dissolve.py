@@ -107,11 +107,17 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
     sizes = label_sizes(labels, minlength=max(fitted) + 1).astype(np.int64)
     # one compiled pass over every region refuses what the tests below certainly refuse while
     # no region has changed (a laser scan's walls and box faces: all of them, most scans)
-    hopeful = _may_dissolve(ctx, labels, fits, fitted, sizes, k_sigma, jumps, wrap_columns)
+    hopeful, adjacency = _may_dissolve(ctx, labels, fits, fitted, sizes, k_sigma, jumps, wrap_columns)
     if hopeful is not None and not hopeful.any():
         return labels, fits
+    if adjacency is None:
+        pairs = region_adjacency(labels, wrap_columns=wrap_columns)
+    else:  # the pretest's matrix: region_adjacency's pairs a < b
+        first, second = np.nonzero(adjacency)
+        upper = first < second
+        pairs = zip(first[upper].tolist(), second[upper].tolist())
     neighbours: dict[int, set[int]] = {}
-    for a, b in region_adjacency(labels, wrap_columns=wrap_columns):
+    for a, b in pairs:
         if fits.get(a) and fits.get(b):
             neighbours.setdefault(a, set()).add(b)
             neighbours.setdefault(b, set()).add(a)
@@ -183,25 +189,28 @@ _FRAGMENT_SLACK = 1e-9
 
 
 def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, sizes: np.ndarray,
-                  k_sigma: float, jumps: np.ndarray | None, wrap_columns: bool) -> np.ndarray | None:
-    """Per label below the largest + 1: False where :func:`dissolve_fragments`' tests (its
-    sample's share, the half, FRAGMENT_SHARE) certainly keep the region from its larger fitted
-    neighbours while no region has changed, True where they may not; None when the labels
-    are too many for an adjacency matrix. One compiled pass over the grid
+                  k_sigma: float, jumps: np.ndarray | None, wrap_columns: bool):
+    """``(hopeful, adjacency)``: per label below the largest + 1, False where
+    :func:`dissolve_fragments`' tests (its sample's share, the half, FRAGMENT_SHARE) certainly
+    keep the region from its larger fitted neighbours while no region has changed, True where
+    they may not; and the regions' adjacency matrix it used
+    (:func:`rangeseg_o3d.refinement.merge.region_adjacency_matrix`). ``(None, None)`` when the
+    labels are too many for an adjacency matrix. One compiled pass over the grid
     (:func:`rangeseg_o3d.kernels.fragments_may_pass`), its counts at least
     :func:`_explained`'s."""
     n = int(labels.max(initial=0)) + 1
     if n > ADJACENCY_MATRIX_LABELS:
-        return None
+        return None, None
     adjacency = region_adjacency_matrix(labels, n, wrap_columns=wrap_columns)
     has_model = np.zeros(sizes.size, np.bool_)
     has_model[fitted] = True
     kinds, params, rms = model_table(fits, sizes.size)
     flat = np.ascontiguousarray(labels.ravel(), dtype=np.int32)
     jumps = np.zeros(flat.size, np.bool_) if jumps is None else np.ascontiguousarray(jumps.ravel(), dtype=np.bool_)
-    return kernels.fragments_may_pass(flat, ctx.xyz, np.ascontiguousarray(ctx.sigma, dtype=np.float64), jumps,
-                                      adjacency, has_model, kinds, params, rms, sizes,
-                                      float(k_sigma), FRAGMENT_SHARE, _FRAGMENT_SAMPLE, _FRAGMENT_SLACK)
+    hopeful = kernels.fragments_may_pass(flat, ctx.xyz, np.ascontiguousarray(ctx.sigma, dtype=np.float64), jumps,
+                                         adjacency, has_model, kinds, params, rms, sizes,
+                                         float(k_sigma), FRAGMENT_SHARE, _FRAGMENT_SAMPLE, _FRAGMENT_SLACK)
+    return hopeful, adjacency
 
 
 def _explained(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: np.ndarray, k_sigma: float):

@@ -158,7 +158,7 @@ def test_dissolve_fragments_answers_as_without_the_pretest(seed, monkeypatch, fi
     ctx = Context(rs.OrganizedCloud(xyz.reshape(*labels.shape, 3)), fitter, sigma.reshape(labels.shape), 10)
     jumps = jumps.reshape(labels.shape)
     out, kept = dissolve.dissolve_fragments(ctx, labels, fits, k_sigma=K_SIGMA, jumps=jumps)
-    monkeypatch.setattr(dissolve, "_may_dissolve", lambda *args: None)
+    monkeypatch.setattr(dissolve, "_may_dissolve", lambda *args: (None, None))
     out_all, kept_all = dissolve.dissolve_fragments(ctx, labels, fits, k_sigma=K_SIGMA, jumps=jumps)
     np.testing.assert_array_equal(out, out_all)
     assert kept.keys() == kept_all.keys()
