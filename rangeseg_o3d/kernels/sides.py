@@ -13,14 +13,14 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _distance_noise
-from .kinds import CYLINDER
+from .kinds import CYLINDER, SPHERE
 from .linalg import curvature_resolved, noise_rms_bound
 from .window import eigenvectors, smallest_eigenvalues
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py", "linalg.py", "window.py")
 
-__all__ = ["crease_sides", "crease_cut"]
+__all__ = ["crease_sides", "crease_cut", "cap_band_most", "curved_may_split"]
 
 
 @njit(cache=True, nogil=True)
@@ -287,3 +287,209 @@ def crease_cut(points, axis, point, radius, side, cuts):
     size, squares = _best_cut(points, order, _cut_positions(n, side, cuts))
     angle = 0.5 * (angles[order[size - 1]] + angles[order[size]])
     return 0, angle, reference, max(squares, 0.0), cylinder_squares
+
+
+@njit(cache=True, nogil=True)
+def cap_band_most(xyz, sigma, idx, axis, point, sigmas, slack):
+    """The most pixels of a cylinder region (``idx``, flat pixels of ``xyz`` (N, 3) with range
+    noise ``sigma``; the cylinder's unit ``axis`` through ``point``) that one plane across the
+    axis, at any axial coordinate, holds within ``sigmas`` times each pixel's noise along the
+    axis: an upper bound on the band of ``refinement.facets._cap_split`` at whatever offset its
+    histogram picks.
+
+    A pixel's axial coordinate ``(x - point) . axis`` and its noise along the axis ``sigma
+    |ray . axis|`` (the ray from the origin, that noise at least 1e-12, as the cap split takes
+    them) make the closed interval of the offsets whose band holds it; the answer is the most
+    intervals one offset meets (a sweep over their sorted ends). Each interval is widened by
+    ``slack`` (relative, and times the points' coordinate scale) over what numpy's rounding of the
+    same terms could move: the bound is never under the band numpy counts. A pixel whose
+    coordinate or noise is NaN is in no band (numpy's comparison is false)."""
+    n = idx.size
+    low = np.empty(n)
+    high = np.empty(n)
+    m = 0
+    origin_scale = abs(point[0]) + abs(point[1]) + abs(point[2])
+    for j in range(n):
+        i = idx[j]
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        along = (x - point[0]) * axis[0] + (y - point[1]) * axis[1] + (z - point[2]) * axis[2]
+        norm = math.sqrt(x * x + y * y + z * z)
+        noise = sigma[i] * abs(x * axis[0] + y * axis[1] + z * axis[2]) / max(norm, 1e-12)
+        if noise != noise or along != along:
+            continue
+        reach = sigmas * max(noise, 1e-12) * (1.0 + slack) + slack * (abs(x) + abs(y) + abs(z) + origin_scale + 1.0)
+        low[m] = along - reach
+        high[m] = along + reach
+        m += 1
+    low = np.sort(low[:m])
+    high = np.sort(high[:m])
+    most, ended = 0, 0
+    for k in range(m):  # an offset at the k-th lowest start meets every interval begun and not ended before it
+        while high[ended] < low[k]:
+            ended += 1
+        most = max(most, k + 1 - ended)
+    return most
+
+
+@njit(cache=True, nogil=True)
+def _region_may_split(xyz, sigma, pixels, kind, prm, min_size, inlier_factor, sigmas, bins, cuts, cover, extra, slack):
+    # Whether planes_for_curved may split one sphere or cylinder region (``pixels``): see
+    # curved_may_split. Each distance is bounded by |d| +- slack times the coordinates' scale,
+    # the sums by (1 +- slack): far over the rounding by which these operations can differ
+    # from numpy's (its matrix products, pairwise sums and norms).
+    n = pixels.size
+    upper = np.empty(n)
+    values = np.empty(n)
+    squares_high, squares_low = 0.0, 0.0
+    scale = abs(prm[0]) + abs(prm[1]) + abs(prm[2]) + abs(prm[3]) + 1.0
+    if kind == CYLINDER:
+        scale += abs(prm[4]) + abs(prm[5]) + abs(prm[6])
+    for j in range(n):
+        i = pixels[j]
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        if not np.isfinite(sigma[i]):
+            return True  # (numpy's medians and bounds decide)
+        if kind == CYLINDER:
+            rx, ry, rz = x - prm[3], y - prm[4], z - prm[5]
+            t = rx * prm[0] + ry * prm[1] + rz * prm[2]
+            nx, ny, nz = rx - t * prm[0], ry - t * prm[1], rz - t * prm[2]
+            d = math.sqrt(nx * nx + ny * ny + nz * nz) - prm[6]
+        else:
+            cx, cy, cz = x - prm[0], y - prm[1], z - prm[2]
+            d = math.sqrt(cx * cx + cy * cy + cz * cz) - prm[3]
+        if not np.isfinite(d):
+            return True
+        error = slack * (abs(x) + abs(y) + abs(z) + scale)
+        high = abs(d) + error
+        low = max(abs(d) - error, 0.0)
+        upper[j] = high
+        squares_high += high * high
+        squares_low += low * low
+        values[j] = sigma[i]
+    rms_high = math.sqrt(squares_high / n) * (1.0 + slack)
+    rms_low = math.sqrt(squares_low / n) * (1.0 - slack)
+    # beyond the range noise at the region's median (fitting.robust.beyond_noise): the splits run
+    lowest, highest = values.min(), values.max()
+    if lowest == highest:  # (a laser's range noise, one value: no sort)
+        median = lowest
+    else:
+        values = np.sort(values)
+        half = n // 2
+        median = values[half] if n % 2 else (values[half - 1] + values[half]) / 2.0
+    if rms_high > noise_rms_bound(median, float(n), sigmas) * (1.0 - slack):
+        return True
+    # a region's worth of the model's outliers (facets._holds_another's first test)
+    outliers = 0
+    for j in range(n):
+        if upper[j] > inlier_factor * rms_low:
+            outliers += 1
+    if outliers >= min_size:
+        return True
+    if kind != CYLINDER:
+        return False  # (a sphere has no crease cut and no end cap)
+    # the crease cut's gate (crease_sides over every pixel, _misfits_across: the rms beyond the
+    # noise of the distances, then the chi-square of the mean distances in bins of angle, the
+    # bins and their noise by the same compiled steps, the distances bounded)
+    if n >= 2 * bins and n >= 2 * min_size and _may_misfit_across(xyz, sigma, pixels, prm, rms_high, upper, min_size,
+                                                                 bins, cuts, cover, extra, sigmas, slack):
+        return True
+    # an end cap's band of the size floor (facets._cap_split)
+    if n >= 2 * min_size:
+        return cap_band_most(xyz, sigma, pixels, prm[0:3], prm[3:6], sigmas, slack) >= min_size
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _may_misfit_across(xyz, sigma, pixels, prm, rms_high, upper, min_size, bins, cuts, cover, extra, sigmas, slack):
+    # Whether crease_sides may cut the cylinder ``prm``'s region (its gate, _misfits_across with
+    # every pixel its sample, and then _sides_cannot_explain), with
+    # the region's rms at most ``rms_high`` and each distance within +-``upper``: the distance
+    # noise, the angle order and the bins are its own steps on the same pixels; each bin's
+    # |mean distance| is bounded by the mean of those bounds about the mean of the distances
+    # here, which lie within ``upper - |d|`` of numpy's.
+    axis, point, radius = prm[0:3], prm[3:6], prm[6]
+    n = pixels.size
+    normals, variance = _normals_and_noise(xyz, sigma, pixels, axis, point, radius)
+    noise = 0.0
+    for j in range(n):
+        noise += variance[j]
+    if not np.isfinite(noise):
+        return True
+    if not rms_high > noise_rms_bound(math.sqrt(noise / n), float(n), sigmas) * (1.0 - slack):
+        return False
+    order = _angle_order(normals, axis)
+    counts, sums, errors, spread = np.zeros(bins), np.zeros(bins), np.zeros(bins), np.zeros(bins)
+    for j in range(n):
+        b = j * bins // n
+        i = pixels[order[j]]
+        x, y, z = xyz[i, 0] - point[0], xyz[i, 1] - point[1], xyz[i, 2] - point[2]
+        t = x * axis[0] + y * axis[1] + z * axis[2]
+        nx, ny, nz = x - t * axis[0], y - t * axis[1], z - t * axis[2]
+        d = math.sqrt(nx * nx + ny * ny + nz * nz) - radius
+        counts[b] += 1.0
+        sums[b] += d
+        errors[b] += upper[order[j]] - abs(d)
+        spread[b] += variance[order[j]]
+    chi_square = 0.0
+    for b in range(bins):
+        mean = (abs(sums[b]) + errors[b]) / counts[b]
+        chi_square += counts[b] * mean * mean / max(spread[b] / counts[b], 1e-24)
+    if not chi_square * (1.0 + slack) > (bins + sigmas * math.sqrt(2.0 * bins)) * (1.0 - slack):
+        return False
+    # crease_sides' last refusal: even the best cut's planes cannot explain the region, with
+    # the cylinder's squared distances at their bound (the refusal holds for any smaller sum)
+    points = np.empty((n, 3))
+    for j in range(n):
+        points[j] = xyz[pixels[j]]
+    cut, _ = _best_cut(points, order, _cut_positions(n, min_size, cuts))
+    return not _sides_cannot_explain(points, order, cut, upper * (1.0 + slack), cover, extra, sigmas)
+
+
+@njit(cache=True, nogil=True)
+def curved_may_split(labels, xyz, sigma, kinds, params, min_size, inlier_factor, sigmas, bins, cuts, cover, extra,
+                     slack):
+    """Per label (a boolean array as long as ``kinds``): whether ``refinement.facets.planes_for_curved``
+    may change the region of a sphere or cylinder; False only where every test that lets its
+    splits run surely refuses, so that the step leaves the region as it is.
+
+    ``labels`` are the flat labels, ``xyz`` (N, 3) and ``sigma`` (N,) the points and range noise,
+    ``kinds`` and ``params`` the model table (:mod:`.kinds`; labels of other kinds are not asked).
+    In one pass the pixels of the sphere and cylinder labels are grouped; then per region, with
+    the model's distances computed here and bounded either side by ``slack`` (relative, and
+    times the coordinates' scale) over numpy's rounding:
+
+    - its rms is within the chi-square bound (``sigmas``) of the median range noise (else
+      the split into planes runs);
+    - fewer than ``min_size`` distances can be beyond ``inlier_factor`` times its rms (else
+      the test for another surface inside it goes on);
+    - a cylinder of ``2 bins`` and ``2 min_size`` pixels: its rms is within the bound of the
+      noise of its distances, or the chi-square of its mean distances in ``bins`` bins of angle
+      about the axis is within its bound (``crease_sides``' gate, over every pixel), or the
+      planes of the best of ``cuts`` cuts by angle cannot explain a ``cover`` share of it with
+      ``extra`` parameters fewer (its last refusal);
+    - a cylinder of ``2 min_size`` pixels: no plane across its axis holds ``min_size`` of them
+      within their noise along it (:func:`cap_band_most`).
+
+    A non-finite range noise or distance in a region answers True (numpy decides)."""
+    count = kinds.size
+    counts = np.zeros(count, np.int64)
+    for i in range(labels.size):
+        k = labels[i]
+        if 0 < k < count and (kinds[k] == SPHERE or kinds[k] == CYLINDER):
+            counts[k] += 1
+    starts = np.zeros(count + 1, np.int64)
+    for k in range(count):
+        starts[k + 1] = starts[k] + counts[k]
+    order = np.empty(starts[count], np.int64)
+    fill = starts[:count].copy()
+    for i in range(labels.size):
+        k = labels[i]
+        if 0 < k < count and counts[k] > 0:
+            order[fill[k]] = i
+            fill[k] += 1
+    may = np.zeros(count, np.bool_)
+    for k in range(count):
+        if counts[k] > 0:
+            may[k] = _region_may_split(xyz, sigma, order[starts[k]:starts[k + 1]], kinds[k], params[k], min_size,
+                                       inlier_factor, sigmas, bins, cuts, cover, extra, slack)
+    return may
