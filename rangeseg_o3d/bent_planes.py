@@ -48,6 +48,8 @@ Only the model's kind changes: the labels stay, the statistics are measured agai
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import kernels  # the package: its names load on first use (no compiler at import)
@@ -106,21 +108,19 @@ def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, s
         if samples < MIN_SAMPLES:
             continue
         points, noises = xyz[sample], noise[sample]
-        # nine in ten regions fail a gate before the cylinder's fit: the compiled screen (one
-        # pass, ~0.05 ms) spares them numpy's form (~1 ms each, 8-12 ms a stereo scan)
-        refused, flat, _, _ = kernels.bend_screen(np.ascontiguousarray(points, dtype=np.float64), noises,
-                                                  float(samples), float(max_radius), CHI_SQUARE_SIGMAS,
-                                                  SCREEN_MARGIN)
+        compiled = np.ascontiguousarray(points, dtype=np.float64)
+        # nine in ten regions fail a gate before the cylinder's fit: a compiled screen (one pass)
+        # spares them numpy's form (~1 ms a region, 8-12 ms a stereo scan; where the depth comes
+        # in steps ~1.7 ms a region with its blocks, ~5 regions a kinect_real scan, 98 % refused)
         if stepped:
-            # of the screen's gates only the width's and the plane's along the rays hold: the
-            # bend's are the chi-square ones this camera's steps void
-            if refused and (not np.isfinite(flat) or flat * (1.0 - SCREEN_MARGIN) > np.count_nonzero(
-                    np.isfinite(points).all(axis=1) & np.isfinite(noises) & (noises > 0))
-                    * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / min(samples, float(len(points)))))):
+            if kernels.stepped_bend_screen(compiled, noises, np.asarray(sample, dtype=np.int64), labels.shape[1],
+                                           float(samples), float(max_radius), int(window), CHI_SQUARE_SIGMAS,
+                                           SCREEN_MARGIN):
                 continue
             pixels = np.column_stack(np.unravel_index(sample, labels.shape)).astype(np.float64)
             cylinder = _pipe_of(points, noises, samples, max_radius, pixels=pixels, window=window)
-        elif refused:
+        elif kernels.bend_screen(compiled, noises, float(samples), float(max_radius), CHI_SQUARE_SIGMAS,
+                                 SCREEN_MARGIN)[0]:
             continue
         else:
             cylinder = _pipe_of(points, noises, samples, max_radius)
@@ -166,8 +166,9 @@ def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: 
     design = np.column_stack([rays, (lateral / width) ** 2]) * scale[:, None]
     target = scale / ranges
     if stepped:
-        return _stepped_pipe_of(points, noise, n, max_radius, design, target, lateral / width, pixels,
-                                window, view, axis, across, centre, width)
+        region = _Region(points=points, noise=noise, independent=n, centre=centre, view=view, axis=axis,
+                         across=across, lateral=lateral, width=width)
+        return _stepped_pipe_of(region, design, target, pixels, window, max_radius)
     flat = _squares(design[:, :3], target)
     bent = _squares(design, target)
     if flat > len(points) * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / n)):
@@ -228,18 +229,35 @@ def _lifted_into_plane(direction: np.ndarray, view: np.ndarray, plane: np.ndarra
     return lifted / np.linalg.norm(lifted)
 
 
-def _stepped_pipe_of(points, noise, n, max_radius, design, target, across_share, pixels, window, view,
-                     axis, across, centre, width):
+class _Region(NamedTuple):
+    """A plane region's test pixels as _pipe_of measures them where the depth comes in steps."""
+
+    points: np.ndarray  #: (N, 3), finite, with a finite positive noise
+    noise: np.ndarray  #: (N,) their range noise
+    independent: float  #: the independent returns they stand for (at most N)
+    centre: np.ndarray  #: their mean
+    view: np.ndarray  #: the unit direction from the camera to the centre
+    axis: np.ndarray  #: the unit direction of their longest extent seen across the view
+    across: np.ndarray  #: the unit direction across that axis and the view
+    lateral: np.ndarray  #: (N,) each point's offset from the centre along ``across``
+    width: float  #: the 3rd-97th percentile extent of ``lateral``
+
+
+def _stepped_pipe_of(region: _Region, design: np.ndarray, target: np.ndarray, pixels: np.ndarray, window: int,
+                     max_radius: float):
     # _pipe_of's steps 1-2 where the depth comes in steps (the module's docstring): the plane
     # along the rays, the bend over blocks of the matching window, the cylinder started from the
     # silhouette and from the bend, the region no wider than its diameter, the cylinder's squares
-    # near those of the bend
+    # near those of the bend. ``design`` / ``target``: _pipe_of's least squares along the rays
+    # (the plane's three columns and the bend's); ``pixels``: each point's (row, column)
+    points, noise, n, width = region.points, region.noise, region.independent, region.width
+    view, axis, across, centre = region.view, region.axis, region.across, region.centre
     plane = _solution(design[:, :3], target)
     residuals = target - design[:, :3] @ plane
     flat = float(residuals @ residuals)
     if flat > len(points) * (1.0 + CHI_SQUARE_SIGMAS * np.sqrt(2.0 / n)):
         return None  # its plane does not explain it along the rays: another step's question
-    convex, t = _bend_over_blocks(residuals, across_share, pixels, window)
+    convex, t = _bend_over_blocks(residuals, region.lateral / width, pixels, window)
     if not (convex and t >= CHI_SQUARE_SIGMAS):
         return None
     ranges = np.linalg.norm(points, axis=1)
@@ -260,16 +278,17 @@ def _stepped_pipe_of(points, noise, n, max_radius, design, target, across_share,
               for radius in radii for shift in (0.0, -0.5 * width, 0.5 * width)]  # the axis behind the middle or a side
     nearness = [float(np.sum(_residuals_along_rays(c, points, noise) ** 2)) for c in starts]
     for index in np.argsort(nearness)[:REFIT_STARTS]:
-        cylinder = _explaining_bend(starts[index], points, noise, n, max_radius, flat, bent, view, centre)
+        cylinder = _explaining_bend(starts[index], region, max_radius, flat, bent)
         if cylinder is not None:
             return cylinder
     return None
 
 
-def _explaining_bend(start, points, noise, n, max_radius, flat, bent, view, centre):
+def _explaining_bend(start: Cylinder, region: _Region, max_radius: float, flat: float, bent: float):
     # ``start`` refitted along the rays (_stepped_pipe_of) where it is a pipe no wider than the
     # region and explains the bend (its squares within sqrt(2 n) independent returns' variance of
     # the plane with the bend, ``bent``, and under the plane's, ``flat``); None otherwise
+    points, noise, n, view, centre = region.points, region.noise, region.independent, region.view, region.centre
     cylinder = _refit_along_rays(start, points, noise)
     if cylinder is None or not 0.0 < cylinder.radius <= max_radius:
         return None

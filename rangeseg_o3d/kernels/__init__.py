@@ -40,7 +40,7 @@ _SOURCES = {
              "pixel_ray_moments", "pairwise_sum",
              "box_ray_terms", "grid_line_order", "crease_cut_squares"),
     "claims": ("outlier_claims", "box_claims", "block_offsets"),
-    "bends": ("bend_screen", "curve_screen"),
+    "bends": ("bend_screen", "curve_screen", "stepped_bend_screen"),
     "tiles": ("label_pixels", "off_model_tiles", "tile_groups", "tile_members", "free_blocks", "leftover_blobs", "grow_free", "label_boxes", "label_sample", "labels_touch"),
     "growth": ("grow_along_rays", "grow_face", "refit_terms", "ray_terms_of"),
     "raygroups": ("ray_groups_ruled_out", "robust_ray_sets", "free_pieces", "tilt_noise", "plane_scores", "pixel_plane_scores"),
