@@ -1,4 +1,4 @@
-"""Compiled ring claim of a cylinder's or sphere's limbs seen near grazing
+"""Compiled ring claim of a cylinder's or sphere's limbs (and a plane's far rows) seen near grazing
 (:func:`rangeseg_o3d.refinement.recover.claim_grazing_limbs`).
 
 The numpy form builds masks per curved region and ring and gathers each ring's points, rays,
@@ -17,7 +17,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .inline import _neighbour
-from .kinds import CYLINDER, SPHERE
+from .kinds import CYLINDER, PLANE, SPHERE
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("inline.py", "kinds.py")
@@ -41,6 +41,12 @@ def _limb_test(kind, prm, x, y, z, ux, uy, uz, bound_sigma, relative):
         dx, dy, dz = x - prm[0], y - prm[1], z - prm[2]
         nx, ny, nz = dx, dy, dz
         radius = prm[3]
+    elif kind == PLANE:
+        # (primitives.Plane.distances: points @ normal - d; the normal is the plane's own)
+        distance = abs(x * prm[0] + y * prm[1] + z * prm[2] - prm[3])
+        bound = bound_sigma * abs(prm[0] * ux + prm[1] * uy + prm[2] * uz)
+        slack = relative * (abs(x) + abs(y) + abs(z) + abs(prm[3]) + bound)
+        return distance <= bound, abs(distance - bound) <= slack
     else:
         return False, False
     norm = np.sqrt(nx * nx + ny * ny + nz * nz)

@@ -267,6 +267,14 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             # planes of its sides, which must resolve what it leaves (a crease, not a curve)
             splits.append((functools.partial(_two_planes_across_the_axis, ctx, model, idx, distances), None, True,
                            True))
+        elif noise is not None:
+            # beyond the range noise the trimmed split's band (k_sigma of that noise) may span a
+            # crease seen near grazing: its first plane takes both faces along it, and what it
+            # leaves no plane explains (a spinning lidar's box top four rows deep at 1.5 cm
+            # noise, bent with the face below it into one cylinder); the cut across the axis
+            # needs no band, its two planes held to the range noise and the F-test as above
+            splits.append((functools.partial(_two_faces_across_the_axis, ctx, model, idx, distances), noise, True,
+                           True))
         splits.append((functools.partial(_cap_split, ctx, model, idx, distances), _EACH_SURFACE, False, False))
         for split, split_noise, settle, resolve in splits:
             surfaces = split()
@@ -371,6 +379,19 @@ def _two_planes_across_the_axis(ctx: Context, model, idx: np.ndarray, distances:
     sides = [idx[first], idx[~first]]
     planes = [fit_plane(rows_at(ctx.xyz, side)) for side in sides]
     return list(zip(sides, planes)) if all(planes) else []
+
+
+def _two_faces_across_the_axis(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> list:
+    """:func:`_two_planes_across_the_axis` for a cylinder beyond the range noise: its two
+    sides, each of whose planes is within the range noise of its own pixels (two faces);
+    empty otherwise. A face and the mixed returns along its edge bent into one cylinder cut
+    in two leaves a side beyond the noise (nodding_1deg seed 23: a box face four columns wide
+    cut into 67 and 21 pixels, the second a third mixed returns)."""
+    sides = _two_planes_across_the_axis(ctx, model, idx, distances)
+    for side, plane in sides:
+        if beyond_noise(float(plane.rms), median(ctx.sigma[side]), side.size):
+            return []
+    return sides
 
 
 def _settling_out_of_reach(ctx: Context, idx: np.ndarray, surfaces: list, noise: float) -> bool:

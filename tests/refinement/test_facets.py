@@ -1,6 +1,7 @@
 """The facets step: a curved model that fits worse than the noise gives way to planes."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
@@ -224,3 +225,37 @@ def test_settling_of_one_surface_or_no_cover_is_never_out_of_reach(context):
     assert not _settling_out_of_reach(ctx, idx, facets[:1], SIGMA)
     # three of four facets take under PLANES_COVER of the region: _explains refuses them itself
     assert not _settling_out_of_reach(ctx, idx, facets[:3], SIGMA)
+
+
+def _box_top_and_face(seed=0, sigma=0.015):
+    """A box top (y = -0.3 m, 1.8-2.3 m ahead) three rows deep at 8-9 deg incidence above
+    four rows of its front face (z = 1.8 m), seen from the origin by a grid 0.7 x 0.35 deg
+    apart with ``sigma`` of range noise along the rays (a spinning lidar's view of a low box
+    at 2 m): ``(xyz, truth)``, truth 1 the top, 2 the face, 0 no return."""
+    az, el = np.meshgrid(np.radians(np.arange(-9.0, 9.0, 0.35)), np.radians(np.arange(-12.6, -7.0, 0.7)))
+    rays = np.dstack([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+    to_top = -0.3 / rays[..., 1]
+    on_top = to_top * rays[..., 2] >= 1.8
+    ranges = np.where(on_top, to_top, 1.8 / rays[..., 2])
+    rng = np.random.default_rng(seed)
+    xyz = rays * (ranges + rng.normal(0.0, sigma, ranges.shape))[..., None]
+    return xyz, np.where(on_top, 1, 2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_cylinder_beyond_the_range_noise_over_a_grazing_box_top_becomes_its_two_planes(context, seed):
+    # the trimmed split's first plane takes both faces within its 3-sigma band along the crease
+    # and what it leaves no plane explains: the cut across the cylinder's axis finds the two
+    sigma = 0.015
+    xyz, truth = _box_top_and_face(seed, sigma)
+    cloud = rs.OrganizedCloud(xyz)
+    cylinder = fit_cylinder(xyz.reshape(-1, 3))
+    assert cylinder and beyond_noise(cylinder.rms, sigma, truth.size)  # the premise
+    out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, sigma)),
+                                             np.ones(cloud.shape, np.int32), {1: cylinder})
+    normals = {1: np.array([0.0, 1.0, 0.0]), 2: np.array([0.0, 0.0, 1.0])}
+    for k, within_deg in ((1, 1.5), (2, 12.0)):  # (a cut at one angle: the sides share a few pixels)
+        best, share = best_overlap(out_labels, truth, k)
+        assert best > 0 and share >= 0.85 and (truth[out_labels == best] == k).mean() >= 0.8
+        model = out_fits[best]
+        assert model.kind == "plane" and abs(float(model.normal @ normals[k])) >= np.cos(np.radians(within_deg))
