@@ -233,7 +233,9 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     cap): there the surfaces of any kind are tried, held to the noise of their distances.
     A cylinder within the range noise that holds no other surface is tried against the two
     planes of its sides when it misfits across its axis (:func:`_two_planes_across_the_axis`),
-    which must also resolve what it leaves (an F-test). Failing all these, a cylinder and
+    which must also resolve what it leaves (an F-test); beyond the range noise, where the
+    searches find nothing, too, each side within the range noise of its own pixels
+    (:func:`_two_faces_across_the_axis`). Failing all these, a cylinder and
     the end cap its region holds (:func:`_cap_split`), held to the same rules. A compiled
     pretest (:func:`_may_split`) returns the inputs at once where no region can pass the
     tests that let a split run.
