@@ -7,7 +7,8 @@ it:
 
 - a plane's **boundary** is traced on the image grid (OpenCV's border following on the
   region's mask: outer borders and the borders of holes), each traced pixel's point is
-  projected onto the plane, and the rings are polygons in 3-D; the **area** is that of the
+  moved onto the plane along its ray (:func:`onto_plane_along_rays`), and the rings are
+  polygons in 3-D; the **area** is that of the
   polygons (outer rings minus holes) measured in the plane;
 - a cylinder's **axis segment** spans the axial positions of its pixels, its **angle span**
   is the arc they cover (the circle minus the largest angular gap);
@@ -35,6 +36,7 @@ __all__ = [
     "CylinderPatch",
     "SpherePatch",
     "plane_patch",
+    "onto_plane_along_rays",
     "cylinder_patch",
     "sphere_patch",
     "patch_from_dict",
@@ -202,6 +204,26 @@ def _shoelace(ring: np.ndarray) -> float:
     return 0.5 * (inner + float(x[-1] * y[0] - x[0] * y[-1]))
 
 
+def onto_plane_along_rays(points: np.ndarray, plane: Plane) -> np.ndarray:
+    """``points`` (N, 3, the sensor's frame) moved onto ``plane`` along their rays from the
+    sensor, where the ray meets the plane in front of it; orthogonally elsewhere.
+
+    A return errs along its ray, so where its ray meets the plane is where it saw the
+    surface; moved orthogonally, a return seen near grazing lands off its ray by its error
+    times the tangent of the incidence, and the traced border of a box top seen a few degrees
+    from grazing folds over itself (its polygon's area then is not the area its mesh
+    covers). The rays' central projection onto a plane keeps a ring's order, so a simple
+    ring on the grid stays a simple polygon."""
+    points = np.asarray(points, dtype=float)
+    facing = points @ plane.normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = plane.d / facing
+    lifted = points - np.outer(facing - plane.d, plane.normal)
+    along = np.isfinite(scale) & (scale > 0)
+    lifted[along] = points[along] * scale[along, None]
+    return lifted
+
+
 def plane_patch(source: PatchSource, label: int, plane: Plane) -> PlanePatch:
     """The :class:`PlanePatch` of region ``label`` of ``source`` for its ``plane``."""
     found = source.mask(label)
@@ -214,10 +236,9 @@ def plane_patch(source: PatchSource, label: int, plane: Plane) -> PlanePatch:
     xyz = source.xyz[box]
     rings_px = trace_rings(mask)
 
-    # Every ring's pixels lifted at once: their points projected onto the plane.
+    # Every ring's pixels lifted onto the plane at once.
     pixels = np.concatenate([ring for piece in rings_px for ring in piece])
-    lifted = xyz[pixels[:, 0], pixels[:, 1]]
-    lifted -= np.outer(lifted @ plane.normal - plane.d, plane.normal)
+    lifted = onto_plane_along_rays(xyz[pixels[:, 0], pixels[:, 1]], plane)
     flat2 = np.stack([lifted @ u, lifted @ v], axis=1)
     ends = np.cumsum([len(ring) for piece in rings_px for ring in piece])
     rings3, rings2 = np.split(lifted, ends[:-1]), np.split(flat2, ends[:-1])
