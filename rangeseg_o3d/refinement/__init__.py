@@ -216,7 +216,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
             labels, fits = grow_recovered_curves(ctx, labels, fits, before, **growth)
     timer.lap("recover")
     before = fits
-    labels, fits = planes_for_curved(ctx, labels, fits)
+    # (the cut of a cylinder beyond the noise into two faces: a laser's grazing box tops, where
+    # it was measured; on a camera's tile grid it turned a real frame's planes over, unverified)
+    labels, fits = planes_for_curved(ctx, labels, fits, faces_beyond_noise=single_returns(sensor, tile))
     # the surfaces split off a curved region (a pipe's end cap) take back the band growth gave it
     split_off = fits.keys() - before.keys()
     if split_off:

@@ -218,7 +218,7 @@ def _refit_to(ctx: Context, idx: np.ndarray, model):
     return min(tries, key=lambda m: m.rms) if tries else model
 
 
-def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
+def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict, *, faces_beyond_noise: bool = False):
     """Replace each curved model that fits worse than the noise by the planes (failing them,
     the surfaces of any kind) that explain its region (returns new ``(labels, fits)``).
 
@@ -233,8 +233,9 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
     cap): there the surfaces of any kind are tried, held to the noise of their distances.
     A cylinder within the range noise that holds no other surface is tried against the two
     planes of its sides when it misfits across its axis (:func:`_two_planes_across_the_axis`),
-    which must also resolve what it leaves (an F-test); beyond the range noise, where the
-    searches find nothing, too, each side within the range noise of its own pixels
+    which must also resolve what it leaves (an F-test); with ``faces_beyond_noise`` (a
+    laser's single returns, where it was measured) beyond the range noise too, where the
+    searches find nothing, each side within the range noise of its own pixels
     (:func:`_two_faces_across_the_axis`). Failing all these, a cylinder and
     the end cap its region holds (:func:`_cap_split`), held to the same rules. A compiled
     pretest (:func:`_may_split`) returns the inputs at once where no region can pass the
@@ -269,7 +270,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict):
             # planes of its sides, which must resolve what it leaves (a crease, not a curve)
             splits.append((functools.partial(_two_planes_across_the_axis, ctx, model, idx, distances), None, True,
                            True))
-        elif noise is not None:
+        elif noise is not None and faces_beyond_noise:
             # beyond the range noise the trimmed split's band (k_sigma of that noise) may span a
             # crease seen near grazing: its first plane takes both faces along it, and what it
             # leaves no plane explains (a spinning lidar's box top four rows deep at 1.5 cm

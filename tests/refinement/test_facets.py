@@ -251,8 +251,11 @@ def test_a_cylinder_beyond_the_range_noise_over_a_grazing_box_top_becomes_its_tw
     cloud = rs.OrganizedCloud(xyz)
     cylinder = fit_cylinder(xyz.reshape(-1, 3))
     assert cylinder and beyond_noise(cylinder.rms, sigma, truth.size)  # the premise
-    out_labels, out_fits = planes_for_curved(context(cloud, sigma=np.full(cloud.shape, sigma)),
-                                             np.ones(cloud.shape, np.int32), {1: cylinder})
+    ctx = context(cloud, sigma=np.full(cloud.shape, sigma))
+    kept_labels, kept_fits = planes_for_curved(ctx, np.ones(cloud.shape, np.int32), {1: cylinder})
+    assert kept_fits == {1: cylinder}  # not asked (a camera's tile grid): the cylinder stays
+    out_labels, out_fits = planes_for_curved(ctx, np.ones(cloud.shape, np.int32), {1: cylinder},
+                                             faces_beyond_noise=True)
     normals = {1: np.array([0.0, 1.0, 0.0]), 2: np.array([0.0, 0.0, 1.0])}
     for k, within_deg in ((1, 1.5), (2, 12.0)):  # (a cut at one angle: the sides share a few pixels)
         best, share = best_overlap(out_labels, truth, k)
