@@ -204,22 +204,30 @@ def _shoelace(ring: np.ndarray) -> float:
     return 0.5 * (inner + float(x[-1] * y[0] - x[0] * y[-1]))
 
 
+#: A border point within this many of its plane's rms of it moves onto the plane along its
+#: ray (:func:`onto_plane_along_rays`): an inlier of the fit, as the chi-square tests count it.
+ALONG_RAY_RMS = 4.0
+
+
 def onto_plane_along_rays(points: np.ndarray, plane: Plane) -> np.ndarray:
-    """``points`` (N, 3, the sensor's frame) moved onto ``plane`` along their rays from the
-    sensor, where the ray meets the plane in front of it; orthogonally elsewhere.
+    """``points`` (N, 3, the sensor's frame) moved onto ``plane``: along their rays from the
+    sensor where the point lies within ALONG_RAY_RMS of the plane's rms of it and its ray
+    meets the plane in front of the sensor; orthogonally elsewhere.
 
     A return errs along its ray, so where its ray meets the plane is where it saw the
     surface; moved orthogonally, a return seen near grazing lands off its ray by its error
     times the tangent of the incidence, and the traced border of a box top seen a few degrees
     from grazing folds over itself (its polygon's area then is not the area its mesh
     covers). The rays' central projection onto a plane keeps a ring's order, so a simple
-    ring on the grid stays a simple polygon."""
+    ring on the grid stays a simple polygon. A point farther off (a mixed return at the
+    border) would slide far along a grazing ray: it moves orthogonally, as before."""
     points = np.asarray(points, dtype=float)
     facing = points @ plane.normal
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = plane.d / facing
     lifted = points - np.outer(facing - plane.d, plane.normal)
-    along = np.isfinite(scale) & (scale > 0)
+    near = np.abs(facing - plane.d) <= ALONG_RAY_RMS * float(plane.rms)
+    along = np.isfinite(scale) & (scale > 0) & near
     lifted[along] = points[along] * scale[along, None]
     return lifted
 

@@ -267,7 +267,7 @@ def test_onto_plane_along_rays_keeps_each_point_on_its_ray():
     # a floor 1 m below the sensor seen 4-6 degrees from grazing, returns off it by 2 cm along
     # their rays: moved along the rays they land on the floor and on their rays; moved
     # orthogonally they would move ~20 cm across the floor
-    plane = Plane(normal=np.array([0.0, 1.0, 0.0]), d=-1.0, rms=0.0, inliers=0)
+    plane = Plane(normal=np.array([0.0, 1.0, 0.0]), d=-1.0, rms=0.002, inliers=0)
     elevation = np.radians(np.array([-4.0, -5.0, -6.0]))
     rays = np.stack([np.zeros(3), np.sin(elevation), np.cos(elevation)], axis=1)
     on_floor = -1.0 / rays[:, 1]
@@ -275,6 +275,10 @@ def test_onto_plane_along_rays_keeps_each_point_on_its_ray():
     lifted = onto_plane_along_rays(points, plane)
     np.testing.assert_allclose(lifted[:, 1], -1.0, atol=1e-12)
     np.testing.assert_allclose(lifted, rays * on_floor[:, None], atol=1e-9)
+    # a point farther off than ALONG_RAY_RMS of the plane's rms (a mixed return: 30 cm along a
+    # 5-degree ray would be 3.4 m) is moved orthogonally
+    far = rays[:1] * (on_floor[0] - 0.3)
+    np.testing.assert_allclose(onto_plane_along_rays(far, plane), far * [1.0, 0.0, 1.0] + [0.0, -1.0, 0.0])
     # a point whose ray does not meet the plane in front of the sensor is moved orthogonally
     above = np.array([[0.0, 0.5, 3.0]])
     np.testing.assert_allclose(onto_plane_along_rays(above, plane), [[0.0, -1.0, 3.0]])
