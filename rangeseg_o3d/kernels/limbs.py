@@ -1,9 +1,9 @@
 """Compiled ring claim of a cylinder's or sphere's limbs (and a plane's far rows) seen near grazing
 (:func:`rangeseg_o3d.refinement.recover.claim_grazing_limbs`).
 
-The numpy form builds masks per curved region and ring and gathers each ring's points, rays,
+The numpy form builds masks per claiming region and ring and gathers each ring's points, rays,
 normals and distances as arrays: a few dozen small-array calls per region, 0.2-0.4 ms an
-LMS200 scan. Here one pass per ring visits only the free pixels beside a curved region (the
+LMS200 scan. Here one pass per ring visits only the free pixels beside a claiming region (the
 first ring) or beside the pixels the last ring added, and tests each against its neighbours'
 models in the caller's order. It also reports whether any test lay within the rounding of its
 bound, where numpy, whose rounding differs, could answer the other way (the caller then asks
@@ -63,12 +63,12 @@ def _limb_test(kind, prm, x, y, z, ux, uy, uz, bound_sigma, relative):
 @njit(cache=True, nogil=True)
 def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigma, rings, relative):
     """``(labels, unsure)``: the ``(H, W)`` ``labels`` (a copy) with the free (0) ``valid``
-    pixels beside a curved region that its model explains within the noise of their
+    pixels beside a region that its model explains within the noise of their
     distances joined to it, ring by ring, at most ``rings`` rings.
 
-    ``order`` holds the curved regions' labels in the order they claim (a free pixel beside
+    ``order`` holds the claiming regions' labels in the order they claim (a free pixel beside
     two takes the first that explains it), ``kinds[t]`` / ``params[t]`` the model of
-    ``order[t]`` as a model-table row (SPHERE or CYLINDER). A pixel ``i`` (flat) joins region
+    ``order[t]`` as a model-table row (SPHERE, CYLINDER or PLANE). A pixel ``i`` (flat) joins region
     ``k`` when ``|distance| <= k_sigma * sigma[i] * |cos|``, the cosine between the model's
     unit normal at the point and the unit ray from ``origins[row]`` to the point (``xyz[i]``).
     A ring tests the free pixels 4-adjacent to a region as it stood when the ring began;
@@ -81,7 +81,7 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
     top = 0
     for t in range(order.shape[0]):
         top = max(top, order[t])
-    # rank of each curved label in ``order`` (-1 for any other label)
+    # rank of each claiming label in ``order`` (-1 for any other label)
     rank = np.full(top + 1, -1, np.int64)
     for t in range(order.shape[0] - 1, -1, -1):
         rank[order[t]] = t
@@ -91,7 +91,7 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
     took = np.empty(n, np.int64)  # the label each candidate takes (0 none)
     added = np.empty(n, np.int64)  # the pixels the last ring added
     n_added = 0
-    near = np.empty(4, np.int64)  # the ranks of the curved regions beside a candidate
+    near = np.empty(4, np.int64)  # the ranks of the claiming regions beside a candidate
     unsure = False
     for ring in range(1, rings + 1):
         n_cand = 0
@@ -123,7 +123,7 @@ def claim_limbs(labels, valid, xyz, sigma, origins, order, kinds, params, k_sigm
         for t in range(n_cand):
             i = cand[t]
             r = i // w
-            # the curved regions beside the pixel, by rank (at most four)
+            # the claiming regions beside the pixel, by rank (at most four)
             m = 0
             for step in range(4):
                 j = _neighbour(i, step, h, w)

@@ -1102,10 +1102,10 @@ def claim_grazing_limbs(ctx: Context, labels: np.ndarray, fits: dict, *, valid: 
 _LIMB_ROUNDING = 1e-12
 
 
-def _claim_grazing_limbs_numpy(ctx: Context, labels: np.ndarray, fits: dict, curved: list, *,
+def _claim_grazing_limbs_numpy(ctx: Context, labels: np.ndarray, fits: dict, claiming: list, *,
                                valid: np.ndarray, k_sigma: float, rings: int) -> np.ndarray:
     # claim_grazing_limbs in numpy (the compiled pass's meaning, and its answer where a test
-    # lies within rounding of its bound): per curved region and ring, masks within its
+    # lies within rounding of its bound): per claiming region and ring, masks within its
     # bounding box grown by the rings it may take
     labels = labels.copy()
     h, w = labels.shape
@@ -1113,7 +1113,7 @@ def _claim_grazing_limbs_numpy(ctx: Context, labels: np.ndarray, fits: dict, cur
     # beside the last): the masks of a whole grid per region and ring cost ~0.2 ms an LMS200 scan
     boxes = kernels.label_boxes(np.ascontiguousarray(labels, dtype=np.int32), int(labels.max(initial=0)) + 1)
     reach = int(rings) + 1
-    active = curved
+    active = claiming
     for _ in range(int(rings)):
         grew = []
         for k in active:
