@@ -65,9 +65,11 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
     """
     fits = dict(fits)
     pixels = _Pixels(labels)  # the labels do not change here: their pixels are grouped once
-    sizes = label_sizes(labels, minlength=max(fits, default=0) + 1)
     curved = [k for k, m in fits.items() if m and not isinstance(m, Plane)]
-    grown = [k for k in curved if sizes[k] > 1.2 * max(fits[k].inliers, 1)]
+    grown = []
+    if curved:  # (the labels' sizes: a pass over the grid, asked for the curved regions only)
+        sizes = label_sizes(labels, minlength=max(fits, default=0) + 1)
+        grown = [k for k in curved if sizes[k] > 1.2 * max(fits[k].inliers, 1)]
     for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, grown, from_moments=False,
                                              regions=pixels.every if grown else None).items():
         if refit and refit.kind == fits[k].kind:
@@ -107,7 +109,7 @@ def polish_models(ctx: Context, labels: np.ndarray, fits: dict, *, decide_planes
                 unbent[k] = fits[k] = plane
     fits.update(bent)
     if decide_planes and along_rays:
-        fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}))
+        fits.update(_planes_off_rays(ctx, labels, {k: m for k, m in fits.items() if k not in unbent}, pixels=pixels))
     return fits
 
 
@@ -126,6 +128,11 @@ class _Pixels:
         if self._every is None:
             self._every = region_indices(self.labels)
         return self._every
+
+    @property
+    def grouped(self) -> bool:
+        """Whether the pixels are grouped already (:attr:`every` costs nothing more)."""
+        return self._every is not None
 
     def of(self, keys) -> dict:
         """``region_indices(labels, only=keys)``: those of ``keys`` with pixels, by label."""
@@ -226,7 +233,12 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
     inside = None
     out = {}
     for k, idx in (pixels or _Pixels(labels)).of(curved).items():
-        noise = float(np.sqrt(np.mean(ctx.sigma[idx] ** 2)))
+        sigma = ctx.sigma[idx]
+        # (the rms noise is no less than the least noise, but for the rounding of its mean:
+        # within that noise less NOISE_SLACK the model is within its own, without the mean)
+        if sums is not None and _model_surely_within(sums, k, idx.size, float(sigma.min()) * (1.0 - NOISE_SLACK)):
+            continue
+        noise = float(np.sqrt(np.mean(sigma ** 2)))
         if sums is not None and _model_surely_within(sums, k, idx.size, noise):
             continue
         model, points = fits[k], rows_at(ctx.xyz, idx)
@@ -317,12 +329,26 @@ def _one_side_flat(ctx: Context, labels: np.ndarray, curved: list, minimum: int)
     wanted[list(curved)] = True
     counts, rms = kernels.side_rest_planes(ctx.xyz, np.ascontiguousarray(labels.ravel()),
                                            labels.shape[1], wanted, bool(ctx.wrap_columns))
-    valid = ctx.sigma[np.isfinite(ctx.sigma)]  # (no noise where no return)
-    if valid.size == 0:
+    largest = _largest_finite(ctx.sigma)  # (no noise where no return)
+    if largest is None:
         return set()
-    bound = noise_rms_bound.py_func(float(valid.max()), counts[curved] - 3.0, NOISE_CHI2_SIGMAS)
-    flat = (counts[curved] >= minimum) & (rms[curved] <= ONE_SIDE_MARGIN * bound)
-    return {int(k) for k in np.asarray(curved)[flat.any(axis=1)]}
+    counts, rms = counts[curved], rms[curved]
+    bound = noise_rms_bound.py_func(largest, counts - 3.0, NOISE_CHI2_SIGMAS)
+    flat = ((counts >= minimum) & (rms <= ONE_SIDE_MARGIN * bound)).any(axis=1).tolist()
+    return {int(k) for k, one in zip(curved, flat) if one}
+
+
+def _largest_finite(values: np.ndarray):
+    """The largest finite value of ``values`` (1-D float), None when there is none: their
+    maximum where it is finite (no NaN and no infinity is larger), without the mask of the
+    finite ones (a laser's noise has no NaN)."""
+    if values.size == 0:
+        return None
+    top = float(values.max())
+    if np.isfinite(top):
+        return top
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else None
 
 
 #: The widest arc around its axis (radians) a cylinder bounded by two jump edges may show and its
@@ -667,7 +693,15 @@ def _seen_near_grazing(ctx: Context, plane: Plane, idx: np.ndarray) -> bool:
     low = 1.0 - CHI_SQUARE_SIGMAS * np.sqrt(2.0 / max(n - 3.0, 1.0))  # the mean square's lower bound
     if low <= GRAZING_RMS_SHARE * GRAZING_RMS_SHARE:
         return False
-    return float(plane.rms) < GRAZING_RMS_SHARE * median(ctx.sigma[idx])
+    rms, sigma = float(plane.rms), ctx.sigma[idx]
+    # the median lies between the least and the largest noise (a laser's is one value): those
+    # answer without the partition where they agree (NaN in the noise fails both, as it fails
+    # the median's comparison)
+    if rms < GRAZING_RMS_SHARE * float(sigma.min()):
+        return True
+    if rms >= GRAZING_RMS_SHARE * float(sigma.max()):
+        return False
+    return rms < GRAZING_RMS_SHARE * median(sigma)
 
 
 class _CurvedSums(NamedTuple):
@@ -737,6 +771,11 @@ def _plane_surely_over(ctx: Context, sums: _CurvedSums, k: int, size: int) -> bo
     return bool(float(np.sqrt(sums.variance[row])) > (1.0 + SUMS_MARGIN) * tolerance)
 
 
+#: How far (relative) a bound taken from the least of a region's noises is lowered to stay
+#: under their rms, which the rounding of its mean moves by ~1e-13 relative at most.
+NOISE_SLACK = 1e-9
+
+
 def _model_surely_within(sums: _CurvedSums, k: int, size: int, noise: float) -> bool:
     """Whether region ``k``'s model leaves its ``size`` pixels an rms under the noise bound
     of :func:`rangeseg_o3d.fitting.robust.beyond_noise` by more than ``SUMS_MARGIN``, by the
@@ -772,7 +811,7 @@ def _ray_noise(points: np.ndarray, sigma: np.ndarray, model, rays: np.ndarray, e
     return float(np.sqrt(np.mean(distances * distances))), float(np.sqrt(np.mean(noise * noise))), chi
 
 
-def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
+def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict, *, pixels: _Pixels | None = None) -> dict:
     """The curved models of the plane regions of ``labels`` whose distances are beyond what
     the range noise along the rays (``ctx.sigma``) gives a plane, ``OFF_RAYS_SIGMAS`` up its
     chi-square and bulging towards the sensor about the plane of their points within that
@@ -794,7 +833,8 @@ def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
     but shows no such bulge, and is not searched (09d5a01 searched it, and cost the LMS200
     half again its time). Only
     planes within the range noise itself are asked: over it the fitter's decision has tried
-    the curved models against the plane already (its marginal plane)."""
+    the curved models against the plane already (its marginal plane). ``pixels`` (optional):
+    the labels' pixels, read where grouped already."""
     p = ctx.fitter.params
     if not {"plane_rms", "noise_floor", "curvature_gain"} <= set(p):  # another plugin
         return {}
@@ -808,8 +848,9 @@ def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict) -> dict:
     min_arc = np.radians(float(p.get("min_arc_deg", 30.0)))
     out = {}
     flat = labels.ravel()
-    for k in suspects:  # (a few: one comparison over the grid each, cheaper than grouping it all)
-        idx = np.flatnonzero(flat == k)
+    grouped = pixels.every if pixels is not None and pixels.grouped else None
+    for k in suspects:  # (a few: polish's grouping where made, else one comparison over the grid each)
+        idx = grouped[k] if grouped is not None else np.flatnonzero(flat == k)  # (the same, increasing)
         if not _bent_off_rays(ctx, idx):
             continue
         points, sigma, rays = rows_at(ctx.xyz, idx), ctx.sigma[idx], ctx.viewing_rays(idx)

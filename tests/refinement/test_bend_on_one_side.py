@@ -103,7 +103,7 @@ def test_polish_keeps_the_plane_the_decision_would_bend_on_a_lasers_single_retur
     assert cylinder.kind == "cylinder"
     # the decision bends it (as noise_20mm seed 1014 scan 1's face under 20 mm noise)
     monkeypatch.setattr(polish, "_curved_planes", lambda ctx, labels, fits, *a, **k: {1: cylinder})
-    monkeypatch.setattr(polish, "_planes_off_rays", lambda ctx, labels, fits: {})
+    monkeypatch.setattr(polish, "_planes_off_rays", lambda ctx, labels, fits, **_: {})
     kept = polish_models(ctx, labels, {1: plane}, resolve_bends=1.0, along_rays=True)[1]
     assert kept.kind == "plane" and kept is plane
     assert polish_models(ctx, labels, {1: plane}, resolve_bends=1.0)[1].kind == "cylinder"  # not a laser's

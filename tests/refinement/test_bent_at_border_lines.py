@@ -92,7 +92,7 @@ def test_polish_asks_it_once_for_curved_regions_and_bent_planes_alike(monkeypatc
 
     monkeypatch.setattr(polish, "bent_at_border_lines", spy)
     monkeypatch.setattr(polish, "_curved_planes", lambda ctx, labels, fits, *a, **k: {2: cylinder2})
-    monkeypatch.setattr(polish, "_planes_off_rays", lambda ctx, labels, fits: {})
+    monkeypatch.setattr(polish, "_planes_off_rays", lambda ctx, labels, fits, **_: {})
     out = polish_models(ctx, both, {1: fit_cylinder(points[1]), 2: plane2}, resolve_bends=1.0, along_rays=True)
     assert len(calls) == 1 and sorted(calls[0]) == [1, 2] and calls[0][2] is cylinder2
     assert out[1].kind == "plane" and out[2] is plane2  # the curved region its rest's plane; the bent plane kept

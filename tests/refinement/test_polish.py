@@ -656,3 +656,49 @@ def test_polish_pretests_take_both_answers_and_refuse_sums_that_miss_pixels():
                 assert not _model_surely_within(sums, k, size - 1, noise)
             assert not _plane_surely_over(ctx, sums, 99, 10) and not _model_surely_within(sums, 99, 10, noise)
     assert over == {True, False} and within == {True, False}
+
+
+# the screens of polish's sub-steps answer as the computations they spare
+
+
+def test_the_largest_finite_noise_is_that_of_the_finite_values_alone():
+    assert polish._largest_finite(np.array([0.01, 0.03, 0.02])) == 0.03
+    assert polish._largest_finite(np.array([0.01, np.nan, 0.02])) == 0.02
+    assert polish._largest_finite(np.array([0.01, np.inf, -np.inf, 0.02])) == 0.02
+    assert polish._largest_finite(np.array([np.nan, np.inf])) is None
+    assert polish._largest_finite(np.zeros(0)) is None
+
+
+@pytest.mark.parametrize("rms", [0.001, 0.0049, 0.005, 0.0051, 0.0074, 0.0076, 0.02])
+def test_a_plane_seen_near_grazing_is_told_by_the_median_noise_with_or_without_the_screen(rms):
+    from rangeseg_o3d._numeric import median
+
+    cloud, labels, _ = _floor_region(0)
+    idx = np.flatnonzero(labels.ravel())
+    plane = fit_plane(cloud.xyz.reshape(-1, 3)[idx])
+    rng = np.random.default_rng(5)
+    for sigma in (np.full(cloud.shape, 0.01), rng.uniform(0.01, 0.02, cloud.shape),
+                  np.where(rng.random(cloud.shape) < 0.01, np.nan, 0.01)):
+        ctx = Context(cloud, rs.Pipeline("lms200").fitter, sigma, 10)
+        planed = type(plane)(normal=plane.normal, d=plane.d, rms=rms, inliers=idx.size)
+        expected = rms < polish.GRAZING_RMS_SHARE * median(ctx.sigma[idx])  # (NaN in the noise: False)
+        assert polish._seen_near_grazing(ctx, planed, idx) == expected
+    # the constant noise answers by the screen alone: 0.005 is half of it, not under it
+    ctx = Context(cloud, rs.Pipeline("lms200").fitter, np.full(cloud.shape, 0.01), 10)
+    planed = type(plane)(normal=plane.normal, d=plane.d, rms=rms, inliers=idx.size)
+    assert polish._seen_near_grazing(ctx, planed, idx) == (rms < 0.005)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_planes_off_rays_read_the_grouped_pixels_as_the_grid_gives_them(seed):
+    cloud, labels, _ = _floor_region(seed)
+    ctx = _lms200_context(cloud)
+    idx = np.flatnonzero(labels.ravel())
+    fits = {1: fit_plane(ctx.xyz[idx])}
+    pixels = polish._Pixels(labels)
+    assert not pixels.grouped
+    alone = polish._planes_off_rays(ctx, labels, fits, pixels=pixels)  # (not grouped: read from the grid)
+    _ = pixels.every
+    assert pixels.grouped and np.array_equal(pixels.every[1], idx)
+    assert polish._planes_off_rays(ctx, labels, fits, pixels=pixels).keys() == alone.keys() == \
+        polish._planes_off_rays(ctx, labels, fits).keys()
