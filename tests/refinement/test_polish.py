@@ -6,6 +6,7 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane, fit_sphere
+from rangeseg_o3d.refinement import polish as polish_module
 from rangeseg_o3d.refinement.polish import polish_models
 from refinement_helpers import folded_strip
 
@@ -656,3 +657,24 @@ def test_polish_pretests_take_both_answers_and_refuse_sums_that_miss_pixels():
                 assert not _model_surely_within(sums, k, size - 1, noise)
             assert not _plane_surely_over(ctx, sums, 99, 10) and not _model_surely_within(sums, 99, 10, noise)
     assert over == {True, False} and within == {True, False}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_grown_cylinder_its_kind_no_longer_fits_is_decided_afresh(context, seed):
+    # a flat face and three columns of the 45-degree face beside it (5 mm noise, the lms200
+    # sensor's) hold a nearly flat cylinder fitted on every third row: the region grew from
+    # those 660 pixels to 1980, where the fitter refuses a cylinder and gives a plane
+    xyz, truth, normals = folded_strip(0.005, seed)
+    rows, columns = np.mgrid[0:60, 0:90]
+    labels = np.where(columns < 33, 1, 0).astype(np.int32)
+    ctx = context(rs.OrganizedCloud(xyz))
+    stale = fit_cylinder(xyz[(labels == 1) & (rows % 3 == 0)])
+    # the premises: a cylinder its own refit refuses on the grown region, which the F-test on
+    # its stale model's distances would keep curved
+    assert stale.kind == "cylinder" and stale.inliers == 660
+    assert not ctx.fitter.refit(xyz[labels == 1], stale)
+    assert polish_module._still_flat(ctx, labels, {1: stale}, [1]) == []
+    polished = polish_models(ctx, labels, {1: stale})
+    assert polished[1].kind == "plane" and polished[1].inliers >= 0.95 * (labels == 1).sum()
+    # the plane of the face, tilted toward the other face by its three columns at most
+    assert abs(float(polished[1].normal @ normals[1])) > np.cos(np.radians(3.0))
