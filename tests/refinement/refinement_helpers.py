@@ -30,3 +30,24 @@ def best_overlap(labels, truth, k):
     """The label covering most pixels of truth ``k``, and the share of ``k`` it covers."""
     ids, counts = np.unique(labels[truth == k], return_counts=True)
     return int(ids[np.argmax(counts)]), counts.max() / (truth == k).sum()
+
+
+def leftover_candidates_numpy(labels, valid, jumps, min_size, first):
+    """``recover.leftover_candidates`` in OpenCV and numpy, as it was before its compiled pass:
+    the 3x3 erosion (border replicated), the cores' 4-connected components, the dilation
+    within the leftover, the sizes and the renumbering from ``first``."""
+    import cv2
+
+    free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
+    cores = cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE)
+    if not cores.any():
+        return np.zeros(labels.shape, np.int32)
+    n, comp = cv2.connectedComponents(cores, connectivity=4, ltype=cv2.CV_32S)
+    grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
+    comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
+    keep = np.bincount(comp.ravel(), minlength=n) >= min_size
+    keep[0] = False
+    lut = np.zeros(n, np.int32)
+    lut[keep] = np.arange(first, first + keep.sum())
+    return lut[comp]

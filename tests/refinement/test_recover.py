@@ -9,7 +9,7 @@ from rangeseg_o3d.fitting.primitives import Plane
 from rangeseg_o3d.refinement.recover import (claim_occluded_strips, leftover_candidates, recover_leftovers,
                                              split_blobs)
 from rangeseg_o3d.synthetic.depth_camera import camera_pose_scene
-from refinement_helpers import best_overlap, folded_strip, plane_grid
+from refinement_helpers import best_overlap, folded_strip, leftover_candidates_numpy, plane_grid
 
 
 def test_leftover_candidates_cut_thin_bands_and_keep_blobs():
@@ -39,29 +39,18 @@ def test_leftover_candidates_keep_strips_along_the_grid_border():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_leftover_candidates_match_the_numpy_renumbering(seed):
-    # the compiled renumbering (kernels.relabel) against numpy's lut[comp] of the same
-    # steps, on random leftovers with jumps and invalid pixels, blobs of many sizes
-    import cv2
-
+    # the compiled pass (kernels.leftover_blobs) against the OpenCV and numpy steps it
+    # replaced, on random leftovers with jumps and invalid pixels, blobs of many sizes
     rng = np.random.default_rng(seed)
     labels = np.where(rng.random((40, 50)) < 0.45, 0, 1).astype(np.int32)
     labels[5:15, 5:20] = 0  # one blob sure to survive the erosion
     valid = rng.random(labels.shape) > 0.05
     jumps = rng.random(labels.shape) < 0.05
     for min_size, first in ((1, 2), (9, 7), (40, 3)):
-        free = (valid & (labels == 0) & ~jumps).astype(np.uint8)
-        kernel = np.ones((3, 3), np.uint8)
-        n, comp = cv2.connectedComponents(cv2.erode(free, kernel, borderType=cv2.BORDER_REPLICATE),
-                                          connectivity=4, ltype=cv2.CV_32S)
-        grown = cv2.dilate(comp.astype(np.float32), kernel).astype(np.int32)
-        comp = np.where(free.astype(bool), np.maximum(comp, grown), 0)
-        keep = np.bincount(comp.ravel(), minlength=n) >= min_size
-        keep[0] = False
-        lut = np.zeros(n, np.int32)
-        lut[keep] = np.arange(first, first + keep.sum())
+        expected = leftover_candidates_numpy(labels, valid, jumps, min_size, first)
         cand = leftover_candidates(labels, valid, jumps, min_size=min_size, first_label=first)
         assert cand.dtype == np.int32
-        np.testing.assert_array_equal(cand, lut[comp])
+        np.testing.assert_array_equal(cand, expected)
         assert cand.max() >= first  # (the blob at least)
 
 

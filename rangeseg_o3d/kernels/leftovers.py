@@ -1,0 +1,112 @@
+"""The recovery step's leftover strips, in one compiled call.
+
+:func:`rangeseg_o3d.refinement.recover.claim_thin_strips` offers the planes the leftover
+pixels no blob took, in 4-connected strips of at least the size floor. In numpy and OpenCV
+that was a mask of three grids, a connected-components pass over the whole grid, a count per
+component and a gather: some 0.1 ms of small-array calls on a 70 x 131 LMS200 scan, where
+:func:`strip_pool` lists the strips' pixels in one pass over the grid and works on the
+listed pixels only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from .jit import njit  # numba.njit, with this package's cache locator installed
+
+from .grid import piece_ids
+from .inline import _nearest_neighbour_model
+
+#: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
+CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py")
+
+__all__ = ["strip_pool", "free_near_planes_reach", "first_ring_grows"]
+
+
+@njit(cache=True, nogil=True)
+def strip_pool(labels, valid, candidates, min_size):
+    """The flat indices (increasing) of the valid pixels with no label and no candidate blob
+    (``labels == 0`` and ``candidates == 0``) whose 4-connected piece of such pixels holds at
+    least ``min_size`` of them (the grid's columns do not wrap).
+
+    The same pixels as ``np.flatnonzero(kept[strips])`` with ``n, strips =
+    cv2.connectedComponents(free, connectivity=4)``, ``kept = np.bincount(strips.ravel()) >=
+    min_size`` less the background, and ``free = valid & (labels == 0) & (candidates == 0)``.
+    ``labels``, ``valid`` and ``candidates`` are (H, W) arrays of one shape, C-contiguous (the
+    pass reads them as flat views).
+    """
+    h, w = labels.shape
+    flat_labels = labels.reshape(h * w)
+    flat_valid = valid.reshape(h * w)
+    flat_candidates = candidates.reshape(h * w)
+    listed = np.empty(h * w, np.int64)
+    n = 0
+    for i in range(h * w):
+        if flat_valid[i] and flat_labels[i] == 0 and flat_candidates[i] == 0:
+            listed[n] = i
+            n += 1
+    if n < min_size or n == 0:
+        return np.zeros(0, np.int64)
+    listed = listed[:n]
+    ids, sizes = piece_ids(listed, w)
+    kept = 0
+    for p in range(n):
+        if sizes[ids[p]] >= min_size:
+            listed[kept] = listed[p]
+            kept += 1
+    return listed[:kept].copy()
+
+
+@njit(cache=True, nogil=True)
+def free_near_planes_reach(labels, valid, xyz, sigma, normals, offsets, rms, k_sigma, count, slack):
+    """Whether at least ``count`` valid pixels with no label (``labels == 0``) may lie within
+    ``k_sigma * max(sigma, rms[j])`` of some plane ``j`` (rows of ``normals``, ``offsets``,
+    ``rms``; ``xyz`` and ``sigma`` flat, one row per pixel): the distance ``|p . n - d|``
+    compared with that bound widened by ``slack`` of itself and of the terms of the distance
+    (``|x nx| + |y ny| + |z nz| + |d|``), far above the rounding of any way of computing it
+    (numpy's matrix product sums the terms in its own order).
+
+    A necessary test for :func:`rangeseg_o3d.refinement.recover.claim_occluded_strips` to
+    find ``count`` such pixels: False only where fewer certainly lie within the bound. Stops
+    at the ``count``-th pixel.
+    """
+    h, w = labels.shape
+    flat_labels = labels.reshape(h * w)
+    flat_valid = valid.reshape(h * w)
+    p = normals.shape[0]
+    found = 0
+    if count <= 0:
+        return True
+    for i in range(h * w):
+        if not flat_valid[i] or flat_labels[i] != 0:
+            continue
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        for j in range(p):
+            tx, ty, tz = x * normals[j, 0], y * normals[j, 1], z * normals[j, 2]
+            bound = k_sigma * max(sigma[i], rms[j])
+            terms = abs(tx) + abs(ty) + abs(tz) + abs(offsets[j])
+            if abs(tx + ty + tz - offsets[j]) <= bound + slack * (bound + terms):
+                found += 1
+                break
+        if found >= count:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def first_ring_grows(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio, jump_min):
+    """Whether :func:`rangeseg_o3d.kernels.grow_rings` over the whole grid, with the same
+    arguments, adds a pixel in its first ring: some free pixel (``labels == 0``, a finite
+    point) that growth's own test (the same compiled function: the answer is its, to the bit)
+    gives to a 4-neighbouring region with a model. When none, growth adds no pixel at all
+    (it stops at the first ring that adds none). ``xyz`` (N, 3), ``sigma`` and ``ranges``
+    flat, ``labels`` C-contiguous (H, W); nothing is changed.
+    """
+    h, w = labels.shape
+    flat = labels.reshape(h * w)
+    for i in range(h * w):
+        if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
+            continue
+        if _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio,
+                                    jump_min)[0] > 0:
+            return True
+    return False
