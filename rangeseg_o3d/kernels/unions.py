@@ -159,14 +159,22 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
     noise = np.zeros(0)
     have_noise = False
     minimum = max(min_points, 3)
+    # each root's _part_rms, computed once per root and moments row (the same function of
+    # the same row: the same value as computing it at every use)
+    part_rms = np.zeros(n)
+    known = np.zeros(n, np.bool_)
     for i in range(first.shape[0]):
         ra, rb = _find(root, first[i]), _find(root, second[i])
         if ra == rb:
             continue
+        for k in (ra, rb):
+            if not known[k]:
+                part_rms[k] = _part_rms(moments, rms, k)
+                known[k] = True
         row = moments[ra] + moments[rb]
         union_rms, union_normal, union_d, centroid, ok = _plane_of(row)
         # the union's least-squares plane against the merge limit (no refit when over it)
-        if union_rms > rms_factor * max(_part_rms(moments, rms, ra), _part_rms(moments, rms, rb)):
+        if union_rms > rms_factor * max(part_rms[ra], part_rms[rb]):
             continue
         # the fitter's refit from the moments (refit_planes_from_moments)
         tolerance = plane_rms
@@ -178,7 +186,7 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
             # refused: the least-squares plane when within the larger part's rms and the
             # smaller part lies on it within its own noise (_Unions.plane_within_larger)
             larger, smaller = (ra, rb) if moments[ra, 0] >= moments[rb, 0] else (rb, ra)
-            if not ok or union_rms > _part_rms(moments, rms, larger):
+            if not ok or union_rms > part_rms[larger]:
                 continue
             if not have_noise:
                 noise = _noise_by_root(labels, sigma, root, n)
@@ -188,7 +196,7 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
             if _mean_square_distance(moments[smaller], union_normal, union_d) > bound * bound:
                 continue
         limit = rms_factor * max(rms[ra], rms[rb])
-        if not union_rms <= rms_factor * max(_part_rms(moments, rms, ra), _part_rms(moments, rms, rb)):
+        if not union_rms <= rms_factor * max(part_rms[ra], part_rms[rb]):
             continue
         small = ra if moments[ra, 0] <= moments[rb, 0] else rb
         # the smaller part, turned from the union, on its plane (_Unions.parts_on)
@@ -218,6 +226,7 @@ def merge_plane_pairs(first, second, held, apart, moments, normal, d, rms, count
         count[ra] = row[0]
         joined[ra] = True
         moments[ra] += moments[rb]
+        known[ra] = False  # its model and moments changed: its _part_rms is computed anew
         if have_noise:
             noise[ra] += noise[rb]
     return joined

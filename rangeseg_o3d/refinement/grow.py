@@ -147,13 +147,15 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
         return labels, fits
     moved_mask = settled != labels
     touched = np.bincount(np.concatenate([labels[moved_mask], settled[moved_mask]]), minlength=n)
-    sizes = label_sizes(settled, minlength=n)
     fits = dict(fits)
     # planes refit from moments (nothing to gather); a curved model only where its region
     # changed by more than 5 % (a few border pixels move nothing; LM refits cost)
-    planes = [k for k in np.flatnonzero(touched).tolist() if isinstance(fits.get(k), Plane)]
-    curved = [k for k in np.flatnonzero(touched > 0.05 * np.maximum(sizes, 1)).tolist()
-              if fits.get(k) and not isinstance(fits[k], Plane)]
+    changed = np.flatnonzero(touched).tolist()
+    planes = [k for k in changed if isinstance(fits.get(k), Plane)]
+    curved = [k for k in changed if fits.get(k) and not isinstance(fits[k], Plane)]
+    if curved:  # (the regions' sizes are counted only for a curved one to weigh)
+        sizes = label_sizes(settled, minlength=n)
+        curved = [k for k in curved if touched[k] > 0.05 * max(sizes[k], 1)]
     refits = ctx.fitter.refit_regions(ctx.xyz, settled, fits, planes, from_points=False)
     refits.update(ctx.fitter.refit_regions(ctx.xyz, settled, fits, curved, from_moments=False))
     for k, refit in refits.items():

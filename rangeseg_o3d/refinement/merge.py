@@ -222,7 +222,8 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
             if (a, b) in adjacency or (disjoint and similar_models(
                     models[a], models[b], max_angle_deg=max_angle_deg, tolerance=tolerance)):
                 out.append((a, b))
-    out.sort(key=lambda ab: (models[ab[0]].rms + models[ab[1]].rms, ab))
+    rms = {k: models[k].rms for k in keys}
+    out.sort(key=lambda ab: (rms[ab[0]] + rms[ab[1]], ab))
     return out
 
 
@@ -262,14 +263,14 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     if unions.plane_pairs_compiled(pairs):
         # pairs of planes join only planes and other pairs only their own kind: the planes'
         # loop runs apart, in their order (one compiled pass), the others' below
-        planar = [_both_planes(fits, pair) for pair in pairs]
+        planes = {k for k, m in fits.items() if isinstance(m, Plane)}
+        planar = [a in planes and b in planes for a, b in pairs]  # (_both_planes of each pair)
         unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg,
                             adjacency)
         pairs = [pair for pair, flat in zip(pairs, planar) if not flat]
         if not pairs:
             lut = unions.lookup()
-            mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-            return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+            return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
     unions.add(pairs)
     for a, b in pairs:
         ra, rb = unions.find(a), unions.find(b)
@@ -292,8 +293,7 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
                 and ((a, b) in adjacency or unions.no_step(ra, rb, union))):
             unions.join(ra, rb, union)
     lut = unions.lookup()
-    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
 
 
 def _both_planes(fits: dict, pair) -> bool:
@@ -313,6 +313,21 @@ def _noise_sums(ctx: Context, labels: np.ndarray, rows: int) -> np.ndarray:
 def _mean_noise(ctx: Context, labels: np.ndarray, moments: np.ndarray) -> np.ndarray:
     # each label's mean range noise (row = label, as the moments)
     return _noise_sums(ctx, labels, len(moments)) / np.maximum(moments[:, 0], 1.0)
+
+
+def _mapped_adjacency(adjacency, lut: np.ndarray) -> set[tuple[int, int]]:
+    """The pairs ``(a, b)`` of ``adjacency`` as ``(min, max)`` of ``(lut[a], lut[b])``, pairs
+    the lookup makes one label dropped: the regions merged regions touch."""
+    # Python ints from one list: indexing the array per label costs more than the pairs' work
+    table = lut.tolist()
+    out = set()
+    for a, b in adjacency:
+        first, second = table[a], table[b]
+        if first < second:
+            out.add((first, second))
+        elif second < first:
+            out.add((second, first))
+    return out
 
 
 def _relabelled(labels: np.ndarray, lut: np.ndarray) -> np.ndarray:
@@ -420,9 +435,13 @@ class _Unions:
         n = len(self.moments)
         keys = sorted({k for pair in pairs for k in pair})
         normal, d, rms, count = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
-        for k in keys:
-            model = self.fits[k]
-            normal[k], d[k], rms[k], count[k] = model.normal, model.d, model.rms, model.inliers
+        models = [self.fits[k] for k in keys]
+        # each table filled in one assignment from the models' values (per label and
+        # field a numpy item assignment costs more than the pair loop itself)
+        normal[keys] = [model.normal for model in models]
+        d[keys] = [model.d for model in models]
+        rms[keys] = [model.rms for model in models]
+        count[keys] = [model.inliers for model in models]
         root = np.arange(n, dtype=np.int64)
         first, second = np.array(pairs, dtype=np.int64).reshape(-1, 2).T.copy()
         flat = self.labels.ravel()
@@ -436,9 +455,10 @@ class _Unions:
             np.ascontiguousarray(self.ctx.sigma.ravel(), dtype=np.float64), float(self.rms_factor),
             float(max_angle_deg), PART_SIGMAS, float(params["plane_rms"]), float(params["rms_per_range2"]),
             int(params["min_points"]), float(params["noise_floor"]), STEP_SIGMAS, GRAZING_COSINE)
+        roots, joined = root.tolist(), joined.tolist()
         for k in keys:
-            if root[k] != k:
-                self.root[k] = int(root[k])
+            if roots[k] != k:
+                self.root[k] = roots[k]
                 self.fits.pop(k)
             elif joined[k]:
                 self.fits[k] = Plane(normal=normal[k], d=float(d[k]), rms=float(rms[k]), inliers=int(count[k]))
@@ -686,8 +706,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
         regions[big] = np.concatenate(parts)
         lut[small] = big
         merged = True
-    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    adjacency = {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    adjacency = _mapped_adjacency(adjacency, lut)
     # nothing merged: the labels as they came, as the early returns above give them (a
     # copy of the frame costs 0.2-0.5 ms on a 640 x 480 frame)
     return (_relabelled(labels, lut) if merged else labels), fits, adjacency
@@ -805,16 +824,13 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
     fewer parameters) and fit at the noise.
     """
     turned = float(np.cos(np.radians(max_angle_deg)))  # _angle_deg(u, v) > max_angle_deg, without arccos
-    pairs = [(a, b) for a, b in adjacency
-             if isinstance(fits.get(a), Plane) and isinstance(fits.get(b), Plane)
-             and abs(float(fits[a].normal @ fits[b].normal)) < turned]
+    pairs = _turned_plane_pairs(fits, adjacency, turned)
     if not pairs:
         return labels, fits, adjacency
     # the cheapest refusals first: the convex test needs the regions' centres alone (one
     # compiled pass), the pixels are grouped only for the pairs it keeps
     centres = _centres(ctx.xyz, labels, {k for pair in pairs for k in pair})
-    pairs = [(a, b) for a, b in pairs if a in centres and b in centres
-             and _convex(fits[a], fits[b], centres[a], centres[b])]
+    pairs = _convex_pairs(fits, centres, pairs)
     if not pairs:
         return labels, fits, adjacency
     regions = region_indices(labels, only={k for pair in pairs for k in pair})
@@ -855,8 +871,36 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         regions[a] = np.sort(np.concatenate(parts))
         squares.pop(a, None)
         lut[b] = a
-    mapped = ((int(lut[a]), int(lut[b])) for a, b in adjacency)
-    return _relabelled(labels, lut), fits, {(min(a, b), max(a, b)) for a, b in mapped if a != b}
+    return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
+
+
+#: Margin about the cosine limit within which :func:`_turned_plane_pairs` asks numpy's
+#: product: many times the rounding of a dot product of three terms.
+TURNED_MARGIN = 1e-9
+
+
+def _turned_plane_pairs(fits: dict, adjacency, turned: float) -> list[tuple[int, int]]:
+    """The pairs ``(a, b)`` of ``adjacency`` (in its order) whose models are both planes with
+    ``abs(float(normal_a @ normal_b)) < turned``: planes_into_curved's first filter.
+
+    Each product is summed in Python floats from the normals as lists (a numpy product of
+    two 3-vectors costs a microsecond, on every adjacent pair of a scan); only one within
+    ``TURNED_MARGIN`` of ``turned`` (scaled by the normals' lengths when over 1) or not
+    finite is asked of numpy, so the rounding of the sums decides nothing."""
+    normals = {k: m.normal.tolist() for k, m in fits.items() if isinstance(m, Plane)}
+    pairs = []
+    for a, b in adjacency:
+        u, v = normals.get(a), normals.get(b)
+        if u is None or v is None:
+            continue
+        dot = abs(u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
+        margin = TURNED_MARGIN * max(1.0, (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+                                     * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+        if dot < turned - margin:
+            pairs.append((a, b))
+        elif not dot >= turned + margin and abs(float(fits[a].normal @ fits[b].normal)) < turned:
+            pairs.append((a, b))  # (near the limit, or not finite: numpy's product decides)
+    return pairs
 
 
 def _centres(xyz: np.ndarray, labels: np.ndarray, wanted: set) -> dict:
@@ -883,6 +927,40 @@ def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre
     # region's centre lies beyond the other's plane, away from the sensor (a column or ball
     # seen from outside; a room's corners and a tunnel are concave)
     return _beyond_from_origin(first, second_centre) and _beyond_from_origin(second, first_centre)
+
+
+#: Relative margin (of the summed magnitudes of the terms) within which the sign of a side
+#: summed in Python floats is left to :func:`_beyond_from_origin`'s numpy form.
+CONVEX_MARGIN = 1e-9
+
+
+def _convex_pairs(fits: dict, centres: dict, pairs: list) -> list[tuple[int, int]]:
+    """The pairs ``(a, b)`` of ``pairs`` (planes, in their order) with both regions' centres
+    in ``centres`` that :func:`_convex` calls convex, each side summed in Python floats
+    (:func:`_surely_beyond`: numpy's products of 3-vectors cost more than the test)."""
+    floats = {}  # label: (its normal, d and centre as Python floats)
+    out = []
+    for a, b in pairs:
+        if a not in centres or b not in centres:
+            continue
+        for k in (a, b):
+            if k not in floats:
+                floats[k] = (fits[k].normal.tolist(), float(fits[k].d), centres[k].tolist())
+        if (_surely_beyond(floats[a][0], floats[a][1], floats[b][2], fits[a], centres[b])
+                and _surely_beyond(floats[b][0], floats[b][1], floats[a][2], fits[b], centres[a])):
+            out.append((a, b))
+    return out
+
+
+def _surely_beyond(normal: list, d: float, point: list, plane: Plane, point_array: np.ndarray) -> bool:
+    # _beyond_from_origin(plane, point_array) from the same values as Python floats: the
+    # side's sign is certain when the side is beyond the rounding of either sum (many times
+    # over); else, or not finite, or a plane through the origin, numpy's form decides
+    terms = (normal[0] * point[0], normal[1] * point[1], normal[2] * point[2])
+    side = terms[0] + terms[1] + terms[2] - d
+    if abs(side) > CONVEX_MARGIN * (abs(terms[0]) + abs(terms[1]) + abs(terms[2]) + abs(d)) and abs(d) > 1e-100:
+        return side * d > 0.0
+    return _beyond_from_origin(plane, point_array)
 
 
 def _beyond_from_origin(plane: Plane, point: np.ndarray) -> bool:
