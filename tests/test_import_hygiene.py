@@ -5,6 +5,7 @@ import sys
 import pytest
 
 
+@pytest.mark.slow
 def test_import_does_not_pull_heavy_or_device_modules():
     code = (
         "import sys, numpy as np, rangeseg_o3d as rs\n"

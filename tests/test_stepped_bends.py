@@ -47,6 +47,7 @@ def _asked(scan, surface, stepped):
     return _pipe_of(xyz, sigma, samples, 2.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(4))
 def test_a_partly_hidden_pillar_two_steps_deep_is_a_cylinder(seed):
     scan = _scan(seed)

@@ -15,6 +15,8 @@ distributed = pytest.importorskip("distributed")
 from rangeseg_o3d.batch import inputs, run_batch  # noqa: E402
 from rangeseg_o3d.cli import main  # noqa: E402
 
+pytestmark = pytest.mark.slow  # (files holding a slow test run first: tests/conftest.py)
+
 
 def _files(folder: Path) -> dict[str, bytes]:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.json"))}

@@ -108,6 +108,7 @@ def _args(**kw):
                               for k, v in kw.items()])
 
 
+@pytest.mark.slow
 def test_quick_comparison_runs_end_to_end(tmp_path, capsys):
     assert run(_args(quick=True, repeats=1, out_dir=tmp_path)) == 0
     out = capsys.readouterr().out

@@ -56,6 +56,7 @@ def _screen(points, noise, samples, max_radius=5.0):
                                float(max_radius), CHI_SQUARE_SIGMAS, SCREEN_MARGIN)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["pipe", "flat", "turned"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_sums_of_squares_and_width_agree_with_numpys_form(kind, seed):

@@ -2,8 +2,10 @@
 (merge._Unions.no_step adds it to a piece apart's scatter)."""
 
 import numpy as np
+import pytest
 
 
+@pytest.mark.slow
 def test_plane_prediction_sd_is_the_spread_of_refitted_planes_offsets():
     # A 20 x 20 patch (0.5 m square, 10 mm noise) fitted again and again: the offsets of its
     # least-squares planes at the centroid and 0.4 m beyond its edge scatter as the formula

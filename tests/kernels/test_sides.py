@@ -43,6 +43,7 @@ def _sides(points, sigma, cylinder, min_size=10, cover=0.9):
                         cylinder.point, float(cylinder.radius), min_size, BINS, SAMPLE, CUTS, CHI_SQUARE_SIGMAS, cover, 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rows", [50, 200])  # the gate on every pixel, and on a sample of 256
 def test_a_cylinder_over_a_grazing_wedge_is_cut_at_the_crease(rows):
     sigma = 0.01

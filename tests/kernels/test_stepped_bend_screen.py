@@ -70,6 +70,7 @@ def _screen(points, noise, sample, samples, columns=640):
                                        MAX_RADIUS, NOISE.correlation_px, CHI_SQUARE_SIGMAS, SCREEN_MARGIN)
 
 
+@pytest.mark.slow
 def test_refuses_only_what_numpys_form_refuses(monkeypatch):
     # numpy's form passes a region when it reaches the cylinder's starts (_explaining_bend)
     blocks, reached = [], []
@@ -97,6 +98,7 @@ def test_refuses_only_what_numpys_form_refuses(monkeypatch):
     assert handed_on - passed <= 6  # the screen hands on little numpy's form then refuses
 
 
+@pytest.mark.slow
 def test_the_step_gives_the_same_models_with_and_without_the_screen(monkeypatch):
     # every truth surface a plane region (the pillars' sides too), asked with and without the screen
     found = 0

@@ -15,6 +15,8 @@ from rangeseg_o3d.synthetic.lms200 import simulate_lms200
 from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
 from rangeseg_o3d.synthetic.suite import lms200_scenes
 
+pytestmark = pytest.mark.slow  # (files holding a slow test run first: tests/conftest.py)
+
 
 def _percent_correct(pairs) -> float:
     correct = total = 0

@@ -725,6 +725,7 @@ def _mosaic(seed: int):
     return ctx, labels, fits, adjacency, held
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("disjoint", [True, False])
 def test_the_compiled_loop_over_pairs_of_planes_is_the_python_loop(monkeypatch, seed, disjoint):
