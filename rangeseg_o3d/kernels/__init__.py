@@ -28,7 +28,7 @@ from __future__ import annotations
 import importlib
 
 _SOURCES = {
-    "grid": ("adjacency_matrix", "count_either_side", "block_means", "claim_rings", "claim_rings_in_boxes", "settle_borders", "group_by_label", "group_members",
+    "grid": ("adjacency_matrix", "count_either_side", "first_ring_grows", "block_means", "claim_rings", "claim_rings_in_boxes", "settle_borders", "group_by_label", "group_members",
              "label_counts",
              "relabel", "grow_rings", "grow_rings_in_boxes", "jump_mask", "largest_piece", "labels_near", "free_pixels", "member_pixels", "member_counts", "group_counted", "even_samples", "box_members", "piece_ids",
              "member_pixels_in_boxes", "differing_in_boxes", "free_pixels_in_boxes",

@@ -14,12 +14,11 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import piece_ids
-from .inline import _nearest_neighbour_model
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py")
 
-__all__ = ["strip_pool", "free_near_planes_reach", "first_ring_grows"]
+__all__ = ["strip_pool", "free_near_planes_reach"]
 
 
 @njit(cache=True, nogil=True)
@@ -88,25 +87,5 @@ def free_near_planes_reach(labels, valid, xyz, sigma, normals, offsets, rms, k_s
                 found += 1
                 break
         if found >= count:
-            return True
-    return False
-
-
-@njit(cache=True, nogil=True)
-def first_ring_grows(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio, jump_min):
-    """Whether :func:`rangeseg_o3d.kernels.grow_rings` over the whole grid, with the same
-    arguments, adds a pixel in its first ring: some free pixel (``labels == 0``, a finite
-    point) that growth's own test (the same compiled function: the answer is its, to the bit)
-    gives to a 4-neighbouring region with a model. When none, growth adds no pixel at all
-    (it stops at the first ring that adds none). ``xyz`` (N, 3), ``sigma`` and ``ranges``
-    flat, ``labels`` C-contiguous (H, W); nothing is changed.
-    """
-    h, w = labels.shape
-    flat = labels.reshape(h * w)
-    for i in range(h * w):
-        if flat[i] != 0 or not np.isfinite(xyz[i, 2]):
-            continue
-        if _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio,
-                                    jump_min)[0] > 0:
             return True
     return False

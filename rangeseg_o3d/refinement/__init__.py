@@ -55,7 +55,7 @@ from .context import Context
 from .dissolve import absorb_ripples, dissolve_fragments, dissolve_small
 from .facets import planes_for_curved
 from .grid_lines import release_grid_lines
-from .grow import grow_regions, settle_regions
+from .grow import grow_regions, grows_any, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
 from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
@@ -152,28 +152,12 @@ def grow_recovered_curves(ctx: Context, labels: np.ndarray, fits: dict, before, 
     region-growing preset's real 640 x 480 frames (tile 1, a camera) it grew a 41-px plane of
     pcl_office1 into a 3.3 cm cylinder of 306 px at 14 mm rms."""
     recovered = [k for k, m in fits.items() if m and m.kind != "plane" and k not in before]
-    if not recovered or not _recovered_may_grow(labels, fits, recovered, growth):
+    # (where none of them takes a free pixel, growth adds nothing and refits nothing: half
+    # of the LMS200 suite's scans recover a cylinder, none grew)
+    if not recovered or not grows_any(labels=labels, models={k: fits[k] for k in recovered}, **growth):
         return labels, fits
     # (the kernel stops at the first ring that adds no pixel; no region is farther across the grid)
     return grow_regions(ctx, labels, fits, iterations=int(max(labels.shape)), only=recovered, **growth)
-
-
-def _recovered_may_grow(labels: np.ndarray, fits: dict, recovered: list, growth: dict) -> bool:
-    # whether growth's first ring gives a free pixel to one of the ``recovered`` regions
-    # (kernels.leftovers.first_ring_grows: growth's own test, in one pass that stops at the
-    # first such pixel); when none, the growth below adds nothing and refits nothing, and its
-    # copies and tables cost ~0.1 ms an LMS200 scan (half of the suite's scans recover a
-    # cylinder, none grew)
-    from ..fitting.region_fitter import model_table
-    from ..kernels.leftovers import first_ring_grows
-
-    labels = np.ascontiguousarray(labels, dtype=np.int32)
-    kinds, params, rms = model_table({k: fits[k] for k in recovered}, int(labels.max(initial=0)) + 1)
-    return bool(first_ring_grows(np.ascontiguousarray(growth["xyz"].reshape(-1, 3), dtype=np.float64), labels,
-                                 kinds, params, rms,
-                                 np.ascontiguousarray(growth["sigma"], dtype=np.float64).ravel(),
-                                 np.ascontiguousarray(growth["ranges"], dtype=np.float64).ravel(),
-                                 float(growth["k_sigma"]), float(growth["jump_ratio"]), float(growth["jump_min"])))
 
 
 def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sensor: Sensor,

@@ -44,6 +44,12 @@ _GRAZING_NOISE = 0.5
 #: A point within this many sigmas of its distance noise lies on the plane (refinement.context
 #: and recover.py's trims of a plane's pixels).
 TRIM_SIGMAS = 3.0
+#: Relative widening of the refinement steps' compiled screens and float pretests (facets,
+#: recover, merge, polish, dissolve): each bound is widened by this much of itself (and of
+#: its terms' magnitudes) on the safe side, far above the rounding by which a few float64
+#: operations in another order differ from numpy's (~1e-15 relative), far below any noise,
+#: so a screen says "nothing to do" only where the step's own numpy test surely finds nothing.
+SCREEN_SLACK = 1e-9
 #: The most pixels :meth:`Context._start_pieces` searches (its starts see every one).
 _START_POOL_MAX = 4000
 #: Local starts per pool (as :func:`rangeseg_o3d.fitting.robust.trimmed_fit`'s).

@@ -19,7 +19,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import beyond_noise, curvature_resolved
-from .context import Context, touching
+from .context import SCREEN_SLACK, Context, touching
 from .merge import ADJACENCY_MATRIX_LABELS, MODEL_PARAMETERS, region_adjacency, region_adjacency_matrix
 
 __all__ = ["FRAGMENT_SHARE", "absorb_ripples", "dissolve_fragments", "dissolve_small"]
@@ -183,11 +183,6 @@ _FRAGMENT_SAMPLE = 64
 FRAGMENT_SHARE = 0.8
 
 
-#: Relative slack of the compiled pretest (:func:`_may_dissolve`) over the rounding of
-#: numpy's distances: far above it, far below any noise.
-_FRAGMENT_SLACK = 1e-9
-
-
 def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, sizes: np.ndarray,
                   k_sigma: float, jumps: np.ndarray | None, wrap_columns: bool):
     """``(hopeful, adjacency)``: per label below the largest + 1, False where
@@ -209,7 +204,7 @@ def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, si
     jumps = np.zeros(flat.size, np.bool_) if jumps is None else np.ascontiguousarray(jumps.ravel(), dtype=np.bool_)
     hopeful = kernels.fragments_may_pass(flat, ctx.xyz, np.ascontiguousarray(ctx.sigma, dtype=np.float64), jumps,
                                          adjacency, has_model, kinds, params, rms, sizes,
-                                         float(k_sigma), FRAGMENT_SHARE, _FRAGMENT_SAMPLE, _FRAGMENT_SLACK)
+                                         float(k_sigma), FRAGMENT_SHARE, _FRAGMENT_SAMPLE, SCREEN_SLACK)
     return hopeful, adjacency
 
 
@@ -322,7 +317,7 @@ def _no_ripple_host(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k
     """Whether no candidate patch can have a host: for each, no larger plane holds half of its
     pixels within ``k_sigma`` of the largest spread (:func:`_ripple_spread` at cosine 1), in
     one compiled pass over every candidate (:func:`rangeseg_o3d.kernels.ripples_may_pass`, with
-    :data:`_SCORE_SLACK`); False when their pixels times the planes are over the budget.
+    :data:`~rangeseg_o3d.refinement.context.SCREEN_SLACK`); False when their pixels times the planes are over the budget.
     :func:`_ripple_host`'s median within ``k_sigma`` of a plane needs that half."""
     if int(np.sum(sizes[:candidates.size][candidates])) * table.labels.size > _RIPPLE_PRETEST_BUDGET:
         return False
@@ -330,7 +325,7 @@ def _no_ripple_host(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k
                                         np.ascontiguousarray(sigma, dtype=np.float64), candidates, table.normals,
                                         np.ascontiguousarray(table.offsets, dtype=np.float64), table.scatter,
                                         np.ascontiguousarray(table.sizes, dtype=np.int64), float(k_sigma),
-                                        _SCORE_SLACK).any()
+                                        SCREEN_SLACK).any()
 
 
 def _grouped(pixels: np.ndarray, labels: np.ndarray) -> dict:
@@ -415,18 +410,13 @@ def median_may_pass(scores: np.ndarray, limit: float) -> np.ndarray:
     return (scores <= limit).sum(axis=0) >= (scores.shape[0] + 1) // 2
 
 
-#: Relative slack of the compiled median test (:func:`_may_pass_somewhere`) over the
-#: rounding of numpy's scores: far above it, far below any noise.
-_SCORE_SLACK = 1e-9
-
-
 def _may_pass_somewhere(xyz, idx, table: _PlaneTable, which, sigma, k_sigma) -> bool:
     """Whether the median of some plane's (``which``) column of :func:`_scores` of the pixels
     ``idx`` may be within ``k_sigma`` (:func:`median_may_pass`, in one compiled pass with a
     slack over the rounding: False only where numpy's answer is False too)."""
     return bool(kernels.planes_may_hold_half(xyz, sigma, np.ascontiguousarray(idx, dtype=np.int64),
                                              table.normals[which], table.offsets[which], table.scatter[which],
-                                             float(k_sigma), _SCORE_SLACK).any())
+                                             float(k_sigma), SCREEN_SLACK).any())
 
 
 def _ripple_host(xyz, labels, idx, table: _PlaneTable, sigma, k_sigma, min_cosine: float = 1.0):

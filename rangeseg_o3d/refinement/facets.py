@@ -36,7 +36,7 @@ from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import fresh_label, model_row, model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from ..kernels.linalg import noise_rms_bound
-from .context import Context, without
+from .context import SCREEN_SLACK, Context, without
 from .grid_lines import on_one_grid_line
 from .grow import SETTLE_MARGIN
 
@@ -298,11 +298,6 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict, *, faces_bey
             flat[piece] = label
             fits[label] = surface
     return labels, fits
-
-
-#: Relative widening of the compiled pretests' bounds (:func:`_may_split`, :func:`_no_cap_band`):
-#: far over the rounding by which their few operations can differ from numpy's, far under any noise.
-SCREEN_SLACK = 1e-9
 
 
 def _may_split(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> bool:

@@ -18,7 +18,27 @@ from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, model_table, pixel_rms
 from .context import Context
 
-__all__ = ["grow_into_edges", "grow_regions", "refit_grown", "settle_regions"]
+__all__ = ["grow_into_edges", "grow_regions", "grows_any", "refit_grown", "settle_regions"]
+
+
+def _growth_inputs(xyz, labels, models, sigma, ranges) -> tuple:
+    # the compiled growth's grids and model table: flat float64 points, noise and ranges
+    # around the caller's C-contiguous int32 ``labels``
+    kinds, params, rms = model_table(models, int(labels.max(initial=0)) + 1)
+    return (np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
+            np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
+            np.ascontiguousarray(ranges, dtype=np.float64).ravel())
+
+
+def grows_any(xyz: np.ndarray, labels: np.ndarray, models: dict, sigma: np.ndarray, ranges: np.ndarray, *,
+              k_sigma: float = 3.0, jump_ratio: float = 0.08, jump_min: float = 0.05) -> bool:
+    """Whether :func:`grow_into_edges` with these arguments adds any pixel: its first ring
+    does (:func:`rangeseg_o3d.kernels.first_ring_grows`, growth's own test in one
+    pass that stops at the first pixel taken), as growth stops at the first ring adding none.
+    Cheaper than the growth's copies and, after it, the callers' refits where nothing grows."""
+    labels = np.ascontiguousarray(labels, dtype=np.int32)
+    return bool(kernels.first_ring_grows(*_growth_inputs(xyz, labels, models, sigma, ranges),
+                                         float(k_sigma), float(jump_ratio), float(jump_min)))
 
 
 def grow_into_edges(
@@ -55,11 +75,7 @@ def grow_into_edges(
     New (H, W) int32 labels.
     """
     labels = np.array(labels, dtype=np.int32, order="C", copy=True)
-    n = int(labels.max(initial=0)) + 1
-    kinds, params, rms = model_table(models, n)
-    arguments = (np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), labels, kinds, params, rms,
-                 np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
-                 np.ascontiguousarray(ranges, dtype=np.float64).ravel(),
+    arguments = (*_growth_inputs(xyz, labels, models, sigma, ranges),
                  int(iterations), float(k_sigma), float(jump_ratio), float(jump_min))
     if box is not None and np.ndim(box) == 2:
         kernels.grow_rings_in_boxes(*arguments, np.ascontiguousarray(box, dtype=np.int64))

@@ -19,7 +19,7 @@ from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..scales import GRAZING_COSINE
-from .context import Context
+from .context import SCREEN_SLACK, Context
 from .grid_lines import lines_across
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
@@ -874,18 +874,13 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
     return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
 
 
-#: Margin about the cosine limit within which :func:`_turned_plane_pairs` asks numpy's
-#: product: many times the rounding of a dot product of three terms.
-TURNED_MARGIN = 1e-9
-
-
 def _turned_plane_pairs(fits: dict, adjacency, turned: float) -> list[tuple[int, int]]:
     """The pairs ``(a, b)`` of ``adjacency`` (in its order) whose models are both planes with
     ``abs(float(normal_a @ normal_b)) < turned``: planes_into_curved's first filter.
 
     Each product is summed in Python floats from the normals as lists (a numpy product of
     two 3-vectors costs a microsecond, on every adjacent pair of a scan); only one within
-    ``TURNED_MARGIN`` of ``turned`` (scaled by the normals' lengths when over 1) or not
+    ``SCREEN_SLACK`` of ``turned`` (scaled by the normals' lengths when over 1) or not
     finite is asked of numpy, so the rounding of the sums decides nothing."""
     normals = {k: m.normal.tolist() for k, m in fits.items() if isinstance(m, Plane)}
     pairs = []
@@ -894,7 +889,7 @@ def _turned_plane_pairs(fits: dict, adjacency, turned: float) -> list[tuple[int,
         if u is None or v is None:
             continue
         dot = abs(u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
-        margin = TURNED_MARGIN * max(1.0, (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        margin = SCREEN_SLACK * max(1.0, (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
                                      * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
         if dot < turned - margin:
             pairs.append((a, b))
@@ -929,11 +924,6 @@ def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre
     return _beyond_from_origin(first, second_centre) and _beyond_from_origin(second, first_centre)
 
 
-#: Relative margin (of the summed magnitudes of the terms) within which the sign of a side
-#: summed in Python floats is left to :func:`_beyond_from_origin`'s numpy form.
-CONVEX_MARGIN = 1e-9
-
-
 def _convex_pairs(fits: dict, centres: dict, pairs: list) -> list[tuple[int, int]]:
     """The pairs ``(a, b)`` of ``pairs`` (planes, in their order) with both regions' centres
     in ``centres`` that :func:`_convex` calls convex, each side summed in Python floats
@@ -958,7 +948,7 @@ def _surely_beyond(normal: list, d: float, point: list, plane: Plane, point_arra
     # over); else, or not finite, or a plane through the origin, numpy's form decides
     terms = (normal[0] * point[0], normal[1] * point[1], normal[2] * point[2])
     side = terms[0] + terms[1] + terms[2] - d
-    if abs(side) > CONVEX_MARGIN * (abs(terms[0]) + abs(terms[1]) + abs(terms[2]) + abs(d)) and abs(d) > 1e-100:
+    if abs(side) > SCREEN_SLACK * (abs(terms[0]) + abs(terms[1]) + abs(terms[2]) + abs(d)) and abs(d) > 1e-100:
         return side * d > 0.0
     return _beyond_from_origin(plane, point_array)
 

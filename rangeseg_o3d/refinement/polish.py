@@ -31,7 +31,7 @@ from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
-from .context import TRIM_SIGMAS, Context
+from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
 
 __all__ = ["polish_models"]
 
@@ -243,8 +243,8 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
     for k, idx in (pixels or _Pixels(labels)).of(curved).items():
         sigma = ctx.sigma[idx]
         # (the rms noise is no less than the least noise, but for the rounding of its mean:
-        # within that noise less NOISE_SLACK the model is within its own, without the mean)
-        if sums is not None and _model_surely_within(sums, k, idx.size, float(sigma.min()) * (1.0 - NOISE_SLACK)):
+        # within that noise less SCREEN_SLACK the model is within its own, without the mean)
+        if sums is not None and _model_surely_within(sums, k, idx.size, float(sigma.min()) * (1.0 - SCREEN_SLACK)):
             continue
         noise = float(np.sqrt(np.mean(sigma ** 2)))
         if sums is not None and _model_surely_within(sums, k, idx.size, noise):
@@ -777,11 +777,6 @@ def _plane_surely_over(ctx: Context, sums: _CurvedSums, k: int, size: int) -> bo
     tolerance = plane_threshold(size, sums.centroid[row], plane_rms=p["plane_rms"], noise_floor=p["noise_floor"],
                                 rms_per_range2=p["rms_per_range2"])
     return bool(float(np.sqrt(sums.variance[row])) > (1.0 + SUMS_MARGIN) * tolerance)
-
-
-#: How far (relative) a bound taken from the least of a region's noises is lowered to stay
-#: under their rms, which the rounding of its mean moves by ~1e-13 relative at most.
-NOISE_SLACK = 1e-9
 
 
 def _model_surely_within(sums: _CurvedSums, k: int, size: int, noise: float) -> bool:

@@ -22,7 +22,7 @@ from ..kernels.grid import free_pixels, free_pixels_in_boxes
 from ..kernels.leftovers import free_near_planes_reach, strip_pool
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_COSINE, GRAZING_TAN
-from .context import TRIM_SIGMAS, Context, touching
+from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .merge import merge_into_curved, merge_regions
@@ -228,7 +228,7 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
                                   ctx.xyz, ctx.sigma, np.ascontiguousarray(normals, dtype=np.float64),
                                   np.ascontiguousarray(offsets, dtype=np.float64),
                                   np.ascontiguousarray(rms, dtype=np.float64), float(k_sigma), int(ctx.min_size),
-                                  _SCREEN_SLACK):
+                                  SCREEN_SLACK):
         return labels, fits
     free = np.flatnonzero((valid & (labels == 0)).ravel())
     if free.size < ctx.min_size:
@@ -263,12 +263,6 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     grown = labels.copy()
     grown.ravel()[pixels[kept]] = owner[kept]
     return grown, refit_grown(ctx, labels, grown, fits)
-
-
-#: Relative widening of a compiled screen's bound (:func:`claim_occluded_strips`): far above
-#: the rounding of any order of a distance's terms (float64: 2.2e-16 each), so the screen
-#: answers "nothing to claim" only where numpy's own test finds nothing.
-_SCREEN_SLACK = 1e-9
 
 
 def claim_thin_strips(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *,

@@ -119,7 +119,7 @@ def test_the_pretest_answers_as_the_numpy_tests_on_random_scenes():
 def test_the_pretest_refuses_only_what_the_numpy_tests_refuse():
     # with the slack (the step's): a pixel within the widened bound counts, so a refusal is
     # numpy's refusal; here with a large slack too
-    for slack in (dissolve._FRAGMENT_SLACK, 0.3):
+    for slack in (dissolve.SCREEN_SLACK, 0.3):
         for seed in range(20):
             xyz, labels, fits, sigma, jumps = _scene(seed)
             expected = _numpy_verdicts(xyz, labels, fits, sigma, jumps)
@@ -217,7 +217,7 @@ def test_the_ripple_pretest_answers_as_the_numpy_median_test_on_random_scenes():
         for verdict in expected.values():
             answers[verdict] += 1
         # with the slack (the step's, and a large one) it refuses only what numpy refuses
-        for slack in (dissolve._SCORE_SLACK, 0.3):
+        for slack in (dissolve.SCREEN_SLACK, 0.3):
             wider = kernels.ripples_may_pass(labels.ravel(), xyz, sigma, candidates, normals, offsets, scatter,
                                              plane_sizes, K_SIGMA, slack)
             assert all(wider[k] for k, verdict in expected.items() if verdict)

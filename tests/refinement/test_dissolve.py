@@ -167,7 +167,8 @@ def test_compiled_median_test_refuses_only_what_the_numpy_one_refuses():
     # where numpy's is True (its slack is over the rounding), and the same answer away from
     # the bound
     from rangeseg_o3d.kernels import planes_may_hold_half
-    from rangeseg_o3d.refinement.dissolve import _SCORE_SLACK, median_may_pass
+    from rangeseg_o3d.refinement.context import SCREEN_SLACK
+    from rangeseg_o3d.refinement.dissolve import median_may_pass
 
     rng = np.random.default_rng(5)
     same = 0
@@ -186,11 +187,11 @@ def test_compiled_median_test_refuses_only_what_the_numpy_one_refuses():
         scatter = rng.uniform(0.0, 0.02, p)
         scores = np.abs(xyz[idx] @ normals.T - offsets) / np.maximum(sigma[idx][:, None], scatter[None, :])
         numpy_answer = median_may_pass(scores, 3.0)
-        compiled = planes_may_hold_half(xyz, sigma, idx, normals, offsets, scatter, 3.0, _SCORE_SLACK)
+        compiled = planes_may_hold_half(xyz, sigma, idx, normals, offsets, scatter, 3.0, SCREEN_SLACK)
         assert not np.any(numpy_answer & ~compiled)
         same += int(np.array_equal(numpy_answer, compiled))
     assert same == 200
-    empty = planes_may_hold_half(xyz, sigma, np.zeros(0, np.int64), normals, offsets, scatter, 3.0, _SCORE_SLACK)
+    empty = planes_may_hold_half(xyz, sigma, np.zeros(0, np.int64), normals, offsets, scatter, 3.0, SCREEN_SLACK)
     assert empty.all() and median_may_pass(np.zeros((0, p)), 3.0).all()
 
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane
-from rangeseg_o3d.refinement.merge import (CONVEX_MARGIN, TURNED_MARGIN, _convex, _convex_pairs, _mapped_adjacency,
+from rangeseg_o3d.refinement.context import SCREEN_SLACK
+from rangeseg_o3d.refinement.merge import (_convex, _convex_pairs, _mapped_adjacency,
                                           _turned_plane_pairs)
 
 MAX_ANGLE_DEG = 12.0
@@ -77,7 +78,7 @@ def test_turned_plane_pairs_near_the_limit_are_asked_of_numpy():
             if isinstance(fits.get(a), Plane) and isinstance(fits.get(b), Plane):
                 u, v = fits[a].normal.tolist(), fits[b].normal.tolist()
                 dot = abs(u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
-                if abs(dot - TURNED) <= TURNED_MARGIN:
+                if abs(dot - TURNED) <= SCREEN_SLACK:
                     near += 1
                     both_sides.add(bool(abs(float(fits[a].normal @ fits[b].normal)) < TURNED))
         assert _turned_plane_pairs(fits, adjacency, TURNED) == _numpy_turned_pairs(fits, adjacency, TURNED)
@@ -165,7 +166,7 @@ def test_convex_pairs_leave_a_side_within_the_rounding_to_numpy():
     on_plane = np.array([1.0, 5.0, 1.75])  # 0.6 + 1.4 = 2.0
     beyond = np.array([0.0, 2.0, 4.0])  # side 1.2 > 0, and beyond the other's plane
     side = float(normal @ on_plane - 2.0)
-    assert abs(side) <= CONVEX_MARGIN * 4.0
+    assert abs(side) <= SCREEN_SLACK * 4.0
     fits = {1: plane, 2: other}
     for centre in (on_plane, on_plane + 1e-15, on_plane - 1e-15):
         centres = {1: beyond, 2: centre}

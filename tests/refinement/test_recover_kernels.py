@@ -13,8 +13,8 @@ import rangeseg_o3d.refinement as refinement
 import rangeseg_o3d.refinement.recover as recover
 from rangeseg_o3d._numeric import rows_at
 from rangeseg_o3d.fitting.region_fitter import fresh_label, model_table
-from rangeseg_o3d.kernels import grow_rings
-from rangeseg_o3d.kernels.leftovers import first_ring_grows, free_near_planes_reach, strip_pool
+from rangeseg_o3d.kernels import first_ring_grows, grow_rings
+from rangeseg_o3d.kernels.leftovers import free_near_planes_reach, strip_pool
 from rangeseg_o3d.synthetic.suite import lms200_suite
 from refinement_helpers import leftover_candidates_numpy
 
@@ -177,7 +177,7 @@ def test_grow_recovered_curves_answers_as_without_its_screen(suite_calls, monkey
         growth = {k: kw[k] for k in ("xyz", "ranges", "sigma", "k_sigma", "jump_ratio", "jump_min")}
         runs.append((ctx, *recover.recover_leftovers(ctx, labels, fits, **kw), before, growth))
     screened = [refinement.grow_recovered_curves(ctx, lab, f, before, **growth) for ctx, lab, f, before, growth in runs]
-    monkeypatch.setattr(refinement, "_recovered_may_grow", lambda *args: True)
+    monkeypatch.setattr(refinement, "grows_any", lambda *args, **kwargs: True)
     curved = 0
     for (ctx, lab, f, before, growth), (got_labels, got_fits) in zip(runs, screened):
         want_labels, want_fits = refinement.grow_recovered_curves(ctx, lab, f, before, **growth)
