@@ -35,5 +35,6 @@ fi
 # once, rather than in the middle of the first scan.
 if ! ls rangeseg_o3d/kernels/__pycache__/*.nbi >/dev/null 2>&1; then
     echo "bootstrap: compiling the numba kernels (first time only: 2-3 minutes on an idle 2-core machine, longer under load)" >&2
-    .venv/bin/python -c 'from rangeseg_o3d.pipeline import warm_up; print(f"bootstrap: compiled in {warm_up():.0f} s")' >&2
+    # (two processes: the laser scan's kernels and the depth frame's compile side by side)
+    .venv/bin/python -c 'from rangeseg_o3d.pipeline import warm_up; print(f"bootstrap: compiled in {warm_up(processes=2):.0f} s")' >&2
 fi

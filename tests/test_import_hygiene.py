@@ -69,6 +69,20 @@ def test_plain_import_leaves_the_compiler_for_first_use():
     assert out.stdout.split() == ["False", "1.0", "True"]
 
 
+def test_warm_up_with_a_helper_process_runs_every_step_and_waits_for_it():
+    from rangeseg_o3d.pipeline import warm_up
+
+    assert warm_up(processes=2) > 0.0
+
+
+@pytest.mark.parametrize("processes", [0, -1, 1.5, "2", True])
+def test_warm_up_refuses_a_process_count_that_is_not_a_whole_number_from_1(processes):
+    from rangeseg_o3d.pipeline import warm_up
+
+    with pytest.raises(ValueError, match="processes must be a whole number >= 1"):
+        warm_up(processes=processes)
+
+
 def test_warm_up_compiles_the_kernels_the_presets_use():
     from rangeseg_o3d import kernels
     from rangeseg_o3d.fitting import _compiled, _decide
