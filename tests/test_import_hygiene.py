@@ -69,10 +69,20 @@ def test_plain_import_leaves_the_compiler_for_first_use():
     assert out.stdout.split() == ["False", "1.0", "True"]
 
 
-def test_warm_up_with_a_helper_process_runs_every_step_and_waits_for_it():
+def test_warm_up_with_a_helper_process_waits_for_it_and_the_helper_succeeds(monkeypatch):
     from rangeseg_o3d.pipeline import warm_up
 
+    started = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            started.append(self)
+
+    monkeypatch.setattr(subprocess, "Popen", Recorded)
     assert warm_up(processes=2) > 0.0
+    # one helper, ended (returncode set) by the time warm_up returns, and without an error
+    assert [helper.returncode for helper in started] == [0]
 
 
 @pytest.mark.parametrize("processes", [0, -1, 1.5, "2", True])

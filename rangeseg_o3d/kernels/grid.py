@@ -323,12 +323,12 @@ def grow_rings(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sig
 
 @njit(cache=True, nogil=True)
 def first_ring_grows(xyz, labels, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio, jump_min):
-    """Whether :func:`grow_rings` over the whole grid, with the same
-    arguments, adds a pixel in its first ring: some free pixel (``labels == 0``, a finite
-    point) that growth's own test (the same compiled function: the answer is its, to the bit)
-    gives to a 4-neighbouring region with a model. When none, growth adds no pixel at all
-    (it stops at the first ring that adds none). ``xyz`` (N, 3), ``sigma`` and ``ranges``
-    flat, ``labels`` C-contiguous (H, W); nothing is changed.
+    """Whether :func:`grow_rings` over the whole grid, with the same arguments, adds a pixel
+    in its first ring: some free pixel (``labels == 0``, a finite point) that growth's own
+    test (the same compiled function: the answer is its, to the bit) gives to a 4-neighbouring
+    region with a model. When none, growth adds no pixel at all (it stops at the first ring
+    that adds none). ``xyz`` (N, 3), ``sigma`` and ``ranges`` flat, ``labels`` C-contiguous
+    (H, W); nothing is changed.
     """
     h, w = labels.shape
     flat = labels.reshape(h * w)
