@@ -35,7 +35,7 @@ __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_th
            "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "resolved_refit", "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases", "settle_caps",
            "settle_plane_borders",
-           "recovered_region_floor"]
+           "recovered_region_floor", "free_untold_regions"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -201,6 +201,31 @@ def without_regions(labels: np.ndarray, fits: dict, drop: list) -> tuple[np.ndar
     keep = np.arange(max(int(labels.max(initial=0)), max(drop)) + 1, dtype=labels.dtype)
     keep[drop] = 0
     return keep[labels], {k: m for k, m in fits.items() if k not in drop}
+
+
+def free_untold_regions(tile_labels: np.ndarray, labels: np.ndarray, fits: dict,
+                        stats: PixelStats) -> tuple[np.ndarray, dict, PixelStats]:
+    """Tile regions of fewer tile means than tell a surface (``scales.MIN_PIXELS``) that no
+    model was fitted to: their pixels (``labels``, in the tile labels' numbering) become
+    unlabelled, left to the full-resolution steps, which recover them as a blob or grow a
+    neighbour that explains them into them.
+
+    Eight 6 x 6 tiles of a stereo frame's floor beside a box at the frame's edge pass the
+    tile grid's smallest region (``scales.MIN_CELLS``) but not the primitive fitter's ten
+    points; kept, they were a 288-px unfitted region inside the floor's pixels, and the floor
+    counted as over-segmented. Larger regions the fitter refused stay, reported unfitted with
+    its reason. Returns ``(labels, fits, stats)``, the statistics of the freed labels set to
+    none; the inputs themselves when none is freed.
+    """
+    tile_counts = np.bincount(tile_labels.ravel())
+    untold = [k for k in range(1, tile_counts.size) if 0 < tile_counts[k] < MIN_PIXELS and not fits.get(k)]
+    if not untold:
+        return labels, fits, stats
+    labels, fits = without_regions(labels, fits, untold)
+    arrays = [values.copy() for values in (stats.inliers, stats.squares, stats.counts)]
+    for values in arrays:
+        values[[k for k in untold if k < values.size]] = 0
+    return labels, fits, PixelStats(*arrays)
 
 
 def drop_small_regions(labels: np.ndarray, fits: dict, stats: PixelStats, *,

@@ -20,7 +20,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       label_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
                       refit_planes_to_pixels, region_stats, settle_caps, settle_creases, settle_plane_borders,
-                      smallest_region, stats_after_moves)
+                      smallest_region, stats_after_moves, free_untold_regions)
 from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
 from .occluded_planes import join_across_occluders
@@ -305,6 +305,9 @@ class Pipeline:
                                              creases_from=tile_means if by_rays else None,
                                              min_angle_deg=refine.merge_angle_deg)
         lap("label_pixels")
+        if refine.enabled:
+            # (a stereo frame's eight-tile regions, which the fitter refused for too few points)
+            labels, fits, stats = free_untold_regions(tile_labels, labels, fits, stats)
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:
             tile_fits = fits

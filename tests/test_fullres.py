@@ -659,6 +659,35 @@ def test_regions_under_the_smallest_region_lose_their_pixels():
     assert out is labels and kept is fits
 
 
+def test_only_unfitted_tile_regions_of_too_few_tile_means_lose_their_pixels():
+    # a 10 x 10 tile grid, 2 x 2 pixels a tile: region 1 (8 tiles) has no model and goes;
+    # region 2 (8 tiles) has a plane and stays; region 3 (24 tiles, over MIN_PIXELS) has no
+    # model (the fitter refused it) and stays, to be reported unfitted
+    from rangeseg_o3d.fitting.primitives import FitFailure
+    from rangeseg_o3d.fullres import PixelStats, free_untold_regions
+    from rangeseg_o3d.scales import MIN_PIXELS
+
+    tiles = np.zeros((10, 10), np.int32)
+    tiles[0, :8] = 1
+    tiles[1, :8] = 2
+    tiles[2:5, :8] = 3
+    assert np.bincount(tiles.ravel()).tolist()[1:] == [8, 8, 24] and 8 < MIN_PIXELS <= 24
+    labels = np.kron(tiles, np.ones((2, 2), np.int32))
+    fits = {1: FitFailure("primitive", "too few"), 2: Plane(np.array([0.0, 0.0, 1.0]), 1.0, rms=0.001, inliers=32),
+            3: FitFailure("primitive", "plane rms over")}
+    counts = np.bincount(labels.ravel(), minlength=4).astype(np.int64)
+    stats = PixelStats(inliers=counts.copy(), squares=np.ones(4), counts=counts.copy())
+    out, kept, out_stats = free_untold_regions(tiles, labels, fits, stats)
+    assert not (out == 1).any() and np.array_equal(out[labels != 1], labels[labels != 1])
+    assert sorted(kept) == [2, 3]
+    assert out_stats.counts.tolist() == [counts[0], 0, 32, 96] and out_stats.squares.tolist() == [1, 0, 1, 1]
+    assert stats.counts[1] == 32  # the caller's statistics are left as they were
+    # with a model for region 1 nothing is freed: the inputs come back
+    fits[1] = Plane(np.array([0.0, 0.0, 1.0]), 1.0, rms=0.001, inliers=32)
+    again = free_untold_regions(tiles, labels, fits, stats)
+    assert again[0] is labels and again[1] is fits and again[2] is stats
+
+
 def test_a_region_recovered_at_full_resolution_is_held_to_the_floor_it_was_recovered_under():
     # labels 1-4 are tile regions; 5 and 6 were found at full resolution (recovered_from=5),
     # their planes fitted to their pixels: 5 keeps its 3 pixels at the recovered floor of 3

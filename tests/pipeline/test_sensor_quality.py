@@ -184,6 +184,15 @@ def test_wall_strips_between_columns_of_a_nodding_scan_are_the_wall():
     assert ev.hoover.n_correct == ev.hoover.n_truth and ev.false_fittings == 0
 
 
+def test_a_tile_region_too_small_to_fit_leaves_its_pixels_to_the_full_resolution_steps():
+    # stereo_1280x720, seed 1025, scan 3: eight 6 x 6 tiles of the floor beside a box at the
+    # frame's edge, too few tile means for a fit, stayed a 288-px unfitted region inside the
+    # floor's pixels, and the floor (299694 px) counted as over-segmented.
+    scan, result = _matrix_scan("stereo_1280x720", 3, seed=1025)
+    assert not result.unfitted
+    _assert_one_plane_region(scan, result, 1, 0.95)
+
+
 @pytest.mark.parametrize("seed, k, face", [(7, 3, 14), (7, 1, 17)])
 def test_a_far_face_a_pipe_cuts_in_two_comes_back_as_one_region(seed, k, face):
     # stereo_1280x720: a pipe before a far box face cuts it in two on the grid (seed 7 scan 3:
