@@ -917,17 +917,13 @@ def _bent(ctx: Context, fits: dict, regions: dict, bent: dict, k: int) -> bool:
     return bent[k]
 
 
-def _convex(first: Plane, second: Plane, first_centre: np.ndarray, second_centre: np.ndarray) -> bool:
-    # whether two planes meet in a convex crease as seen from the sensor (the origin): each
-    # region's centre lies beyond the other's plane, away from the sensor (a column or ball
-    # seen from outside; a room's corners and a tunnel are concave)
-    return _beyond_from_origin(first, second_centre) and _beyond_from_origin(second, first_centre)
-
-
 def _convex_pairs(fits: dict, centres: dict, pairs: list) -> list[tuple[int, int]]:
     """The pairs ``(a, b)`` of ``pairs`` (planes, in their order) with both regions' centres
-    in ``centres`` that :func:`_convex` calls convex, each side summed in Python floats
-    (:func:`_surely_beyond`: numpy's products of 3-vectors cost more than the test)."""
+    in ``centres`` that meet in a convex crease as seen from the sensor (the origin): each
+    region's centre beyond the other's plane, away from the sensor (:func:`_beyond_from_origin`;
+    a column or ball seen from outside; a room's corners and a tunnel are concave). Each side
+    is summed in Python floats (:func:`_surely_beyond`: numpy's products of 3-vectors cost
+    more than the test)."""
     floats = {}  # label: (its normal, d and centre as Python floats)
     out = []
     for a, b in pairs:

@@ -6,7 +6,7 @@ import pytest
 
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane
 from rangeseg_o3d.refinement.context import SCREEN_SLACK
-from rangeseg_o3d.refinement.merge import (_convex, _convex_pairs, _mapped_adjacency,
+from rangeseg_o3d.refinement.merge import (_beyond_from_origin, _convex_pairs, _mapped_adjacency,
                                           _turned_plane_pairs)
 
 MAX_ANGLE_DEG = 12.0
@@ -121,6 +121,12 @@ def test_mapped_adjacency_of_the_identity_keeps_the_pairs_ordered():
     lut = np.arange(6, dtype=np.int32)
     assert _mapped_adjacency({(1, 2), (4, 3), (5, 5)}, lut) == {(1, 2), (3, 4)}
     assert _mapped_adjacency(set(), lut) == set()
+
+
+def _convex(first, second, first_centre, second_centre):
+    # the convexity test in numpy (planes_into_curved's before the Python-float sums): each
+    # region's centre beyond the other's plane, away from the origin
+    return _beyond_from_origin(first, second_centre) and _beyond_from_origin(second, first_centre)
 
 
 def _convex_scene(rng, labels=30):
