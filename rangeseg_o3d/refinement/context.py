@@ -56,6 +56,39 @@ SCREEN_SLACK = 1e-9
 #: then nodding_0.5deg seed 1034 scan 1, a column half sunk into a box face and the box's top
 #: and two sides leaking into one 5878-px region, stayed unfitted (four surfaces missed).
 _START_POOL_MAX = 16000
+
+
+def lattice_stride(size: int) -> int:
+    """The grid step of :meth:`Context._start_pieces`' starts on a pool of ``size`` pixels:
+    1 up to ``_START_POOL_MAX``, else the least step whose coarser grid (every step-th row
+    and column) holds about that many of them."""
+    return 1 if size <= _START_POOL_MAX else int(np.ceil(np.sqrt(size / _START_POOL_MAX)))
+
+
+class _Starts:
+    """The pixels of a pool the local starts run on: all of them (``stride`` 1), or those on
+    every ``stride``-th row and column, numbered on that coarser grid for their connectivity
+    (across a 360-degree grid's seam they are not joined: the growth on the pool's own grid
+    after them is)."""
+
+    def __init__(self, pool: np.ndarray, width: int, stride: int):
+        self.stride = stride
+        if stride == 1:
+            self.pool, self.rows_in_pool = pool, None
+            return
+        rows, cols = np.divmod(pool, width)
+        on = np.flatnonzero((rows % stride == 0) & (cols % stride == 0))
+        self.pool, self.rows_in_pool = pool[on], on
+        # the pool increases, and so do these (row-major on both grids)
+        self._coarse = (rows[on] // stride) * (-(-width // stride)) + cols[on] // stride
+        self._coarse_width = -(-width // stride)
+
+    def largest_piece(self, near: np.ndarray) -> np.ndarray:
+        """The pool's pixels (flat, on its own grid) of the largest 4-connected piece, on the
+        coarser grid, of the starts' pixels ``near`` (a mask over them)."""
+        coarse = np.ascontiguousarray(self._coarse[near], dtype=np.int64)
+        piece = kernels.largest_piece(coarse, self._coarse_width)
+        return self.pool[near][np.searchsorted(coarse, piece)]
 #: Local starts per pool (as :func:`rangeseg_o3d.fitting.robust.trimmed_fit`'s).
 _LOCAL_STARTS = 8
 # The noise bands (in the pool's sigmas) _start_pieces runs the local proposals at, in turn.
@@ -296,25 +329,36 @@ class Context:
         while the surface's own returns fit at the noise. Those returns lie apart from the
         proposal's connected piece on the grid. Here the starts run on all of the pool's
         pixels (the search's subsample of a large pool is no grid), at most
-        ``_START_POOL_MAX`` of them. (noise_10mm seed 1032 scan 2: two columns of 568 and
-        827 returns and a strip of floor, one region the segmenter could not fit, were
-        freed whole.)"""
-        if pool.size < 2 * self.min_size or pool.size > _START_POOL_MAX:
-            return None, None  # (no room for two surfaces; a pool that large is left as it was)
+        ``_START_POOL_MAX`` of them; a larger pool's starts run on a coarser grid of its pixels
+        (every ``stride``-th row and column, :func:`lattice_stride`), each proposal cut to its
+        largest piece on that grid, and only a surface grown on the pool's own grid and
+        refitted at the noise is an answer. (noise_10mm seed 1032 scan 2: two columns of 568
+        and 827 returns and a strip of floor, one region the segmenter could not fit, were
+        freed whole; nodding_0.25deg seed 1036 scan 0: a box's top and sides and the floor
+        beside it, 17196 px, were left in no region before the coarser grid.)"""
+        if pool.size < 2 * self.min_size:
+            return None, None  # (no room for two surfaces)
+        stride = lattice_stride(pool.size)
+        starts = _Starts(pool, self.width, stride)
+        if starts.pool.size < 2 * self.min_size:
+            return None, None
         points = np.ascontiguousarray(rows_at(self.xyz, pool), dtype=np.float64)
         for band in _START_BANDS:
-            found = self._start_piece(pool, points, sigma, band * sigma)
+            found = self._start_piece(pool, points, starts, sigma, band * sigma)
             if found[0] is not None:
                 return found
         return None, None
 
-    def _start_piece(self, pool: np.ndarray, points: np.ndarray, sigma: float, band: float):
+    def _start_piece(self, pool: np.ndarray, points: np.ndarray, starts: "_Starts", sigma: float, band: float):
         # _start_pieces with the local proposals' concentration run at the noise ``band``
         # (the fitter's answer still held to ``sigma``)
-        proposals = kernels.local_proposals(points, float(band), int(ROUNDS), local_seeds(pool.size, pool.size),
-                                            max(pool.size // _LOCAL_STARTS, 6))
+        on_grid = starts.stride == 1
+        start_points = points if on_grid else np.ascontiguousarray(points[starts.rows_in_pool])
+        size = starts.pool.size
+        proposals = kernels.local_proposals(start_points, float(band), int(ROUNDS), local_seeds(size, size),
+                                            max(size // _LOCAL_STARTS, 6))
         for near in distinct_masks(proposals):
-            piece = self.largest_piece(pool[near])
+            piece = self.largest_piece(pool[near]) if on_grid else starts.largest_piece(near)
             if piece.size < self.min_size:
                 continue
             model = self.fitter.fit(self.fitter.points(self.xyz, piece))
@@ -326,7 +370,8 @@ class Context:
                 refit = self.fitter.refit(self.fitter.points(self.xyz, grown), model)
                 if refit and not beyond_noise(refit.rms, sigma, grown.size):
                     return grown, refit
-            return piece, model
+            if on_grid:  # (a piece of the coarser grid is no region)
+                return piece, model
         return None, None
 
     def _face_in_noise(self, pool: np.ndarray, sigma: float):

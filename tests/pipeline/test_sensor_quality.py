@@ -183,6 +183,21 @@ def test_a_column_against_a_box_in_one_large_region_comes_back_as_four_surfaces(
     assert not result.unfitted
 
 
+def test_a_box_and_a_column_in_a_region_too_large_for_the_starts_come_back():
+    # nodding_0.25deg, seed 1036, scan 0: a column (truth 16, r 0.30 m), a box's two sides
+    # (15, 13) and the floor beside them, one pool of 17196 px no search explains; over
+    # _START_POOL_MAX the local starts were not run and 12 000 px were left in no region.
+    # On every other row and column they find each.
+    scan, result = _matrix_scan("nodding_0.25deg", 0, seed=1036)
+    ev = evaluate(scan, result)
+    assert {13, 15, 16} <= set(ev.hoover.correct)
+    kinds = {r.truth_id: r.kind for r in ev.regions}
+    assert (kinds[13], kinds[15], kinds[16]) == ("plane", "plane", "cylinder")
+    column = next(f for f in result.features if f.label == ev.hoover.correct[16])
+    assert abs(column.radius - scan.truth[16].radius) < 0.1 * scan.truth[16].radius
+    assert not result.unfitted
+
+
 def test_wall_strips_between_columns_of_a_nodding_scan_are_the_wall():
     # nodding_1deg, seed 0, scan 4: a wall 6 m away behind three columns. Before unlabelled
     # strips were claimed by the planes they lie on (refinement.recover.claim_occluded_strips),

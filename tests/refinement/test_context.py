@@ -235,20 +235,60 @@ def test_a_pool_of_two_columns_no_search_explains_is_searched_from_starts_cut_to
     assert model.rms < 0.01
 
 
-def test_start_pieces_leave_pools_too_small_or_too_large():
-    # under two size floors there is no room for two surfaces; over _START_POOL_MAX the
-    # starts (on every pixel) would cost too much: both are left as they were
+def test_start_pieces_leave_pools_too_small_and_search_large_ones_on_a_coarser_grid():
+    # under two size floors there is no room for two surfaces: left as it was. Over
+    # _START_POOL_MAX the starts run on every other row and column (their cost bounded), and
+    # the answer is still a surface grown on the pool's own grid: a column, whole
     from rangeseg_o3d.refinement import context as context_module
 
-    ctx, pool, truth, _ = _noise_10mm_columns_pool()
+    ctx, pool, truth, scan = _noise_10mm_columns_pool()
     assert ctx._start_pieces(pool[: 2 * ctx.min_size - 1], 0.01) == (None, None)
     assert ctx._start_pieces(pool, 0.01)[1] is not None
     limit = context_module._START_POOL_MAX
     try:
         context_module._START_POOL_MAX = pool.size - 1
-        assert ctx._start_pieces(pool, 0.01) == (None, None)
+        assert context_module.lattice_stride(pool.size) == 2
+        piece, model = ctx._start_pieces(pool, 0.01)
     finally:
         context_module._START_POOL_MAX = limit
+    assert model is not None and model.kind == "cylinder"
+    column = np.bincount(truth[piece]).argmax()
+    assert column in (7, 12)
+    assert (truth[piece] == column).mean() > 0.98 and piece.size > 0.95 * (truth[pool] == column).sum()
+    rows, cols = np.divmod(piece, ctx.width)
+    assert ((rows % 2 == 1) | (cols % 2 == 1)).any()  # grown on the pool's grid, not the coarse one's
+    assert abs(model.radius - scan.truth[int(column)].radius) < 0.1 * scan.truth[int(column)].radius
+
+
+def test_lattice_stride_keeps_the_starts_under_the_bound():
+    from rangeseg_o3d.refinement.context import _START_POOL_MAX, lattice_stride
+
+    assert lattice_stride(_START_POOL_MAX) == 1
+    assert lattice_stride(_START_POOL_MAX + 1) == 2
+    assert lattice_stride(4 * _START_POOL_MAX) == 2
+    assert lattice_stride(4 * _START_POOL_MAX + 1) == 3
+
+
+def test_starts_on_a_coarser_grid_join_only_pixels_that_touch_on_it():
+    # a 10 x 12 grid: a 6 x 6 block at the top left and a 4 x 4 block at the bottom right,
+    # one row and column apart. On every other row and column the first keeps 9 pixels
+    # (3 x 3), the second 4 (2 x 2); they stay apart, and the largest is the first block's
+    # pixels on the coarser grid, as flat indices of the pool's own grid
+    from rangeseg_o3d.refinement.context import _Starts
+
+    width = 12
+    grid = np.zeros((10, width), bool)
+    grid[0:6, 0:6] = True
+    grid[6:10, 8:12] = True
+    pool = np.flatnonzero(grid)
+    starts = _Starts(pool, width, 2)
+    assert starts.pool.size == 9 + 4
+    piece = starts.largest_piece(np.ones(starts.pool.size, bool))
+    expected = np.array([r * width + c for r in (0, 2, 4) for c in (0, 2, 4)])
+    np.testing.assert_array_equal(piece, expected)
+    # without the first block's pixels the second's are the largest piece
+    near = ~np.isin(starts.pool, expected)
+    np.testing.assert_array_equal(starts.largest_piece(near), [r * width + c for r in (6, 8) for c in (8, 10)])
 
 
 def test_a_column_beside_a_box_face_under_20mm_noise_is_found_at_half_the_band():
