@@ -56,6 +56,17 @@ SCREEN_SLACK = 1e-9
 #: then nodding_0.5deg seed 1034 scan 1, a column half sunk into a box face and the box's top
 #: and two sides leaking into one 5878-px region, stayed unfitted (four surfaces missed).
 _START_POOL_MAX = 16000
+#: Local starts per pool (as :func:`rangeseg_o3d.fitting.robust.trimmed_fit`'s).
+_LOCAL_STARTS = 8
+# The noise bands (in the pool's sigmas) _start_pieces runs the local proposals at, in turn.
+# At the range noise a column's proposal holds, within its three sigmas, a strip of the face
+# beside it along their corner and of the floor below (20 mm noise: 6 cm either side), which
+# lifts its cylinder over the noise; at half of it the strip is narrower than the column's
+# own spread and the fitter takes the column (noise_20mm seed 1010 scan 6: a column of 630
+# returns and the box face beside it left in no region).
+_START_BANDS = (1.0, 0.5)
+#: No pixels taken (:meth:`Context.pieces`).
+_NO_PIXELS = np.zeros(0, np.int64)
 
 
 def lattice_stride(size: int) -> int:
@@ -74,14 +85,15 @@ class _Starts:
     def __init__(self, pool: np.ndarray, width: int, stride: int):
         self.stride = stride
         if stride == 1:
-            self.pool, self.rows_in_pool = pool, None
+            self.pool, self.positions = pool, None
             return
         rows, cols = np.divmod(pool, width)
-        on = np.flatnonzero((rows % stride == 0) & (cols % stride == 0))
-        self.pool, self.rows_in_pool = pool[on], on
-        # the pool increases, and so do these (row-major on both grids)
-        self._coarse = (rows[on] // stride) * (-(-width // stride)) + cols[on] // stride
+        #: where the starts' pixels are in the pool
+        self.positions = np.flatnonzero((rows % stride == 0) & (cols % stride == 0))
+        self.pool = pool[self.positions]
         self._coarse_width = -(-width // stride)
+        # the pool increases, and so do these (row-major on both grids)
+        self._coarse = (rows[self.positions] // stride) * self._coarse_width + cols[self.positions] // stride
 
     def largest_piece(self, near: np.ndarray) -> np.ndarray:
         """The pool's pixels (flat, on its own grid) of the largest 4-connected piece, on the
@@ -89,17 +101,6 @@ class _Starts:
         coarse = np.ascontiguousarray(self._coarse[near], dtype=np.int64)
         piece = kernels.largest_piece(coarse, self._coarse_width)
         return self.pool[near][np.searchsorted(coarse, piece)]
-#: Local starts per pool (as :func:`rangeseg_o3d.fitting.robust.trimmed_fit`'s).
-_LOCAL_STARTS = 8
-# The noise bands (in the pool's sigmas) _start_pieces runs the local proposals at, in turn.
-# At the range noise a column's proposal holds, within its three sigmas, a strip of the face
-# beside it along their corner and of the floor below (20 mm noise: 6 cm either side), which
-# lifts its cylinder over the noise; at half of it the strip is narrower than the column's
-# own spread and the fitter takes the column (noise_20mm seed 1010 scan 6: a column of 630
-# returns and the box face beside it left in no region).
-_START_BANDS = (1.0, 0.5)
-#: No pixels taken (:meth:`Context.pieces`).
-_NO_PIXELS = np.zeros(0, np.int64)
 
 
 class Context:
@@ -353,7 +354,7 @@ class Context:
         # _start_pieces with the local proposals' concentration run at the noise ``band``
         # (the fitter's answer still held to ``sigma``)
         on_grid = starts.stride == 1
-        start_points = points if on_grid else np.ascontiguousarray(points[starts.rows_in_pool])
+        start_points = points if on_grid else np.ascontiguousarray(points[starts.positions])
         size = starts.pool.size
         proposals = kernels.local_proposals(start_points, float(band), int(ROUNDS), local_seeds(size, size),
                                             max(size // _LOCAL_STARTS, 6))
