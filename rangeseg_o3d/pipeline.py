@@ -598,8 +598,8 @@ def warm_up(processes: int = 1) -> float:
     processes : int
         With 2 or more, a second Python process compiles the depth-camera frame's kernels
         while this one compiles the laser scan's; numba's cache on disk is shared, so each
-        loads what the other saved first (on an idle 2-core machine 141 s instead of 174 s
-        wall). This process still runs every step itself: a failed helper costs time only.
+        loads what the other saved first (on an idle 2-core machine 134 s instead of 174 s
+        wall, docs/benchmarks.md). This process still runs every step itself: a failed helper costs time only.
     """
     import subprocess
     import sys

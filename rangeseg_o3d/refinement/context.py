@@ -51,8 +51,8 @@ TRIM_SIGMAS = 3.0
 #: so a screen says "nothing to do" only where the step's own numpy test surely finds nothing.
 SCREEN_SLACK = 1e-9
 #: The most pixels :meth:`Context._start_pieces` searches (its starts see every one): a bound
-#: on its cost, about 1.2 microseconds a pixel (7.3 ms on a pool of 5878, one core of a 2.1 GHz
-#: Xeon), so at most about 20 ms for a pool no other search explained. It was 4000 at first:
+#: on its cost (one core of a 2.1 GHz Xeon: 7.3 ms on a pool of 5878 px; on a coarser grid,
+#: 22 ms on a pool of 17196 px, :func:`lattice_stride`). It was 4000 at first:
 #: then nodding_0.5deg seed 1034 scan 1, a column half sunk into a box face and the box's top
 #: and two sides leaking into one 5878-px region, stayed unfitted (four surfaces missed).
 _START_POOL_MAX = 16000
@@ -344,17 +344,18 @@ class Context:
         if starts.pool.size < 2 * self.min_size:
             return None, None
         points = np.ascontiguousarray(rows_at(self.xyz, pool), dtype=np.float64)
+        start_points = points if stride == 1 else np.ascontiguousarray(points[starts.positions])
         for band in _START_BANDS:
-            found = self._start_piece(pool, points, starts, sigma, band * sigma)
+            found = self._start_piece(pool, points, starts, start_points, sigma, band * sigma)
             if found[0] is not None:
                 return found
         return None, None
 
-    def _start_piece(self, pool: np.ndarray, points: np.ndarray, starts: "_Starts", sigma: float, band: float):
+    def _start_piece(self, pool: np.ndarray, points: np.ndarray, starts: "_Starts", start_points: np.ndarray,
+                     sigma: float, band: float):
         # _start_pieces with the local proposals' concentration run at the noise ``band``
-        # (the fitter's answer still held to ``sigma``)
+        # (the fitter's answer still held to ``sigma``); ``start_points`` those of ``starts``
         on_grid = starts.stride == 1
-        start_points = points if on_grid else np.ascontiguousarray(points[starts.positions])
         size = starts.pool.size
         proposals = kernels.local_proposals(start_points, float(band), int(ROUNDS), local_seeds(size, size),
                                             max(size // _LOCAL_STARTS, 6))

@@ -317,7 +317,8 @@ def _no_ripple_host(xyz, labels, candidates, sizes, table: _PlaneTable, sigma, k
     """Whether no candidate patch can have a host: for each, no larger plane holds half of its
     pixels within ``k_sigma`` of the largest spread (:func:`_ripple_spread` at cosine 1), in
     one compiled pass over every candidate (:func:`rangeseg_o3d.kernels.ripples_may_pass`, with
-    :data:`~rangeseg_o3d.refinement.context.SCREEN_SLACK`); False when their pixels times the planes are over the budget.
+    :data:`~rangeseg_o3d.refinement.context.SCREEN_SLACK`); False when their pixels times the
+    planes are over the budget.
     :func:`_ripple_host`'s median within ``k_sigma`` of a plane needs that half."""
     if int(np.sum(sizes[:candidates.size][candidates])) * table.labels.size > _RIPPLE_PRETEST_BUDGET:
         return False

@@ -890,7 +890,7 @@ def _turned_plane_pairs(fits: dict, adjacency, turned: float) -> list[tuple[int,
             continue
         dot = abs(u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
         margin = SCREEN_SLACK * max(1.0, (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-                                     * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+                                    * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
         if dot < turned - margin:
             pairs.append((a, b))
         elif not dot >= turned + margin and abs(float(fits[a].normal @ fits[b].normal)) < turned:
