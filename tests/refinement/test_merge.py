@@ -67,6 +67,34 @@ def test_merge_candidates_need_adjacency_or_similar_parameters():
     assert (1, 3) in merge_candidates(models, max_angle_deg=3, tolerance=0.05, adjacency={(1, 3)})
 
 
+def _tilted(axis, deg):
+    # ``axis`` turned by ``deg`` degrees about x
+    t = np.radians(deg)
+    turn = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    return turn @ np.asarray(axis, float)
+
+
+def test_pieces_of_one_column_apart_are_candidates_by_the_longer_pieces_axis():
+    # kinect seed 1043 scan 4: a column (r 0.25 m) cut by a box before it into pieces of
+    # 7247 and 1505 px whose fitted axes are 2.6 degrees apart; one metre along the column
+    # the short piece's axis misses the long one's point by 6 cm, over the 2-3 cm reach
+    axis = np.array([0.0, 0.94, 0.35]) / np.linalg.norm([0.0, 0.94, 0.35])
+    long = Cylinder(axis=axis, point=np.array([-2.17, -0.63, 4.13]), radius=0.247, rms=0.02, inliers=7247)
+    short_axis = _tilted(axis, 2.6)
+    short_point = long.point - 1.04 * axis + 0.004 * np.cross(axis, [1.0, 0.0, 0.0])  # on the long axis
+    short = Cylinder(axis=short_axis, point=short_point, radius=0.234, rms=0.019, inliers=1505)
+    rel = long.point - short.point
+    assert np.linalg.norm(rel - (rel @ short.axis) * short.axis) > 0.04  # the short axis misses
+    for a, b in ((long, short), (short, long)):
+        assert similar_models(a, b, max_angle_deg=3, tolerance=0.02)
+    # a pipe beside it, parallel, 0.6 m over: no candidate whichever axis is weighed
+    beside = Cylinder(axis=axis, point=short_point + np.array([0.6, 0.0, 0.0]), radius=0.24, rms=0.02, inliers=1505)
+    assert not similar_models(long, beside, max_angle_deg=3, tolerance=0.02)
+    # two pieces fitted to as many points: both axes are weighed
+    twin = Cylinder(axis=short_axis, point=short_point, radius=0.234, rms=0.019, inliers=7247)
+    assert not similar_models(long, twin, max_angle_deg=3, tolerance=0.02)
+
+
 def _three_strips():
     # one plane seen as two strips (1, 2) and a plane at a crease beside them (3)
     xyz = plane_grid(20, 60, noise=0.002, seed=2)
