@@ -695,3 +695,47 @@ def test_grouped_pixels_are_those_of_a_membership_test_by_label():
         assert got.keys() == want.keys(), trial
         for k in want:
             np.testing.assert_array_equal(got[k], want[k])
+
+
+def _ball_before_a_wall(h=60, w=60, step=0.004):
+    # a ball (r 0.2 m, 3 m away) before a wall at 4 m, rays from the origin on a grid of
+    # ``step`` radians: the ball's pixels within 0.12 m of its axis are its region (1), those
+    # farther out (its limb) are free, the wall is region 2
+    from rangeseg_o3d.fitting.primitives import Sphere
+
+    a = (np.arange(h) - h / 2) * step
+    b = (np.arange(w) - w / 2) * step
+    rays = np.stack(np.broadcast_arrays(np.tan(b)[None, :], np.tan(a)[:, None], np.ones((h, w))), axis=-1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    centre, radius = np.array([0.0, 0.0, 3.0]), 0.2
+    along = rays @ centre
+    disc = along ** 2 - (centre @ centre - radius ** 2)
+    hit = disc > 0
+    t = np.where(hit, along - np.sqrt(np.where(hit, disc, 0.0)), 4.0 / rays[..., 2])
+    xyz = rays * t[..., None]
+    off_axis = np.linalg.norm(xyz[..., :2], axis=-1)
+    labels = np.where(hit, np.where(off_axis < 0.12, 1, 0), 2).astype(np.int32)
+    fits = {1: Sphere(center=centre, radius=radius, rms=0.002, inliers=int((labels == 1).sum())),
+            2: Plane(normal=np.array([0.0, 0.0, 1.0]), d=4.0, rms=0.002, inliers=int((labels == 2).sum()))}
+    return xyz, labels, fits, hit
+
+
+def test_a_balls_free_limb_joins_its_region_within_the_pool_only(context):
+    from rangeseg_o3d.refinement.recover import claim_curved_rims
+
+    xyz, labels, fits, hit = _ball_before_a_wall()
+    cloud = rs.OrganizedCloud(xyz)
+    limb = hit & (labels == 0)
+    assert limb.sum() > 300
+    # the pool: the limb's left half, and a strip of the wall beside the ball freed
+    wall_strip = (labels == 2) & (np.abs(np.arange(60) - 5)[None, :] <= 1)
+    labels[wall_strip] = 0
+    pool_mask = (limb & (np.arange(60) < 30)[None, :]) | wall_strip
+    pool = np.flatnonzero(pool_mask)
+    before = labels.copy()
+    out = claim_curved_rims(context(cloud), labels, fits, pool, ranges=np.linalg.norm(xyz, axis=-1), k_sigma=3.0)
+    assert out is labels
+    assert (out[limb & pool_mask] == 1).all()  # the limb in the pool joins the ball
+    assert (out[limb & ~pool_mask] == 0).all()  # outside the pool nothing moves
+    assert (out[wall_strip] == 0).all()  # a plane region does not grow here, nor the ball over the wall
+    assert (out[~pool_mask] == before[~pool_mask]).all()
