@@ -78,11 +78,11 @@ def lattice_stride(size: int) -> int:
 
 class _Starts:
     """The pixels of a pool the local starts run on: all of them (``stride`` 1), or those on
-    every ``stride``-th row and column, numbered on that coarser grid for their connectivity
-    (across a 360-degree grid's seam they are not joined: the growth on the pool's own grid
-    after them is)."""
+    every ``stride``-th row and column, numbered on that coarser grid for their connectivity;
+    with ``wrap_columns`` (a 360-degree grid) its first and last columns are neighbours, as
+    the pool's own grid's are."""
 
-    def __init__(self, pool: np.ndarray, width: int, stride: int):
+    def __init__(self, pool: np.ndarray, width: int, stride: int, wrap_columns: bool = False):
         self.stride = stride
         if stride == 1:
             self.pool, self.positions = pool, None
@@ -92,6 +92,7 @@ class _Starts:
         self.positions = np.flatnonzero((rows % stride == 0) & (cols % stride == 0))
         self.pool = pool[self.positions]
         self._coarse_width = -(-width // stride)
+        self._wrap = bool(wrap_columns) and self._coarse_width > 2
         # the pool increases, and so do these (row-major on both grids)
         self._coarse = (rows[self.positions] // stride) * self._coarse_width + cols[self.positions] // stride
 
@@ -99,6 +100,9 @@ class _Starts:
         """The pool's pixels (flat, on its own grid) of the largest 4-connected piece, on the
         coarser grid, of the starts' pixels ``near`` (a mask over them)."""
         coarse = np.ascontiguousarray(self._coarse[near], dtype=np.int64)
+        if self._wrap:  # (pieces meeting across the seam are one, as Context.piece_ids joins them)
+            ids, sizes = _join_across_seam(coarse, *kernels.piece_ids(coarse, self._coarse_width), self._coarse_width)
+            return self.pool[near][ids == np.argmax(sizes)] if sizes.size else self.pool[near]
         piece = kernels.largest_piece(coarse, self._coarse_width)
         return self.pool[near][np.searchsorted(coarse, piece)]
 
@@ -340,7 +344,7 @@ class Context:
         if pool.size < 2 * self.min_size:
             return None, None  # (no room for two surfaces)
         stride = lattice_stride(pool.size)
-        starts = _Starts(pool, self.width, stride)
+        starts = _Starts(pool, self.width, stride, self.wrap_columns)
         if starts.pool.size < 2 * self.min_size:
             return None, None
         points = np.ascontiguousarray(rows_at(self.xyz, pool), dtype=np.float64)

@@ -291,6 +291,26 @@ def test_starts_on_a_coarser_grid_join_only_pixels_that_touch_on_it():
     np.testing.assert_array_equal(starts.largest_piece(near), [r * width + c for r in (6, 8) for c in (8, 10)])
 
 
+def test_starts_on_a_coarser_grid_join_across_a_360_degree_seam():
+    # a band of a 360-degree grid 8 rows high crossing the seam: 6 columns at the right edge
+    # and 4 at the left. On every other row and column (the coarse grid 7 columns wide) the
+    # right part keeps columns 8, 10 and 12 (4 x 3), the left part columns 0 and 2 (4 x 2):
+    # one piece of 20 across the seam with wrap_columns; without, the right part's 12
+    from rangeseg_o3d.refinement.context import _Starts
+
+    width = 14
+    grid = np.zeros((8, width), bool)
+    grid[:, 8:14] = True
+    grid[:, 0:4] = True
+    pool = np.flatnonzero(grid)
+    wrapped = _Starts(pool, width, 2, wrap_columns=True)
+    every = np.ones(wrapped.pool.size, bool)
+    expected = np.array([r * width + c for r in (0, 2, 4, 6) for c in (0, 2, 8, 10, 12)])
+    np.testing.assert_array_equal(wrapped.largest_piece(every), expected)
+    apart = _Starts(pool, width, 2).largest_piece(every)
+    np.testing.assert_array_equal(apart, [r * width + c for r in (0, 2, 4, 6) for c in (8, 10, 12)])
+
+
 def test_a_column_beside_a_box_face_under_20mm_noise_is_found_at_half_the_band():
     # noise_20mm seed 1010 scan 6: a column (radius 0.26 m, 2.7-3.2 m off) and the box face
     # beside it leak into the floor's region; the split leaves them one pool no search
