@@ -336,7 +336,7 @@ def faces_along_rays(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, t
     a face a touching region (or another face) then explains along the rays joins it, and
     so does one a touching plane region explains by the merge rule (``rms_factor``, the
     config's merge_rms_factor; None: not asked; :func:`_merged_into`); with ``apart`` (the config's
-    merge_disjoint) by that rule any plane region the scan had joins it, touching or not."""
+    merge_disjoint), so does one a plane region it does not touch explains by that rule."""
     from .fitting.robust import CHI_SQUARE_SIGMAS
     from .kernels import grow_face, tile_groups, tile_members
     from .kernels.linalg import noise_rms_bound

@@ -353,7 +353,8 @@ def claim_curved_rims(ctx: Context, labels: np.ndarray, fits: dict, pool: np.nda
                       k_sigma: float, boxes=None, rings: int = RIM_RINGS) -> np.ndarray:
     """The free pixels of the flat ``pool`` that a curved region beside them explains join
     it, ring by ring from the region (up to ``rings``; :func:`grow_into_edges`' test, no
-    jump test: the model's distance decides); returns the labels (changed in place).
+    jump test: the model's distance decides); returns the labels, changed in place (they
+    must be C-contiguous: ValueError otherwise).
 
     A ball's or pipe's limb seen under a depth camera's noise: the tile means there mix
     the surface with what lies behind it, so its tile region stops short of the limb, and
@@ -364,6 +365,9 @@ def claim_curved_rims(ctx: Context, labels: np.ndarray, fits: dict, pool: np.nda
     :func:`claim_on_distance_noise` gives blob pixels to planes; this, to curved regions.
     ``boxes`` (optional, (K, 4)): boxes holding the pool, where alone the growth is sought.
     """
+    if not labels.flags.c_contiguous:
+        raise ValueError(f"claim_curved_rims: labels must be C-contiguous (changed in place), got strides "
+                         f"{labels.strides} for shape {labels.shape}")
     curved = {k: m for k, m in fits.items() if m and m.kind != "plane"}
     if not curved or not pool.size:
         return labels
@@ -744,8 +748,8 @@ def _curved_rims_then_split(ctx: Context, labels: np.ndarray, fits: dict, candid
                             *, ranges: np.ndarray, config, thin_from: int | None, correlation_px: int):
     """After :func:`split_blobs`: the blobs it found nothing in (every pixel left free) give
     the curved regions beside them the pixels those explain (:func:`claim_curved_rims`), and
-    what is left of each is split again. Returns ``(labels, fits)`` (``labels`` changed in
-    place). Only there: a pipe's model also explains, within the noise, the small face
+    what is left of each is split again. Returns ``(labels, fits)``: the claims change
+    ``labels`` in place, a second split returns new ones. Only there: a pipe's model also explains, within the noise, the small face
     beside it that a split finds on its own (kinect seed 0 scan 0: 402 of a 442-px face)."""
     if regions is None:
         regions = region_indices(candidates)

@@ -739,3 +739,13 @@ def test_a_balls_free_limb_joins_its_region_within_the_pool_only(context):
     assert (out[limb & ~pool_mask] == 0).all()  # outside the pool nothing moves
     assert (out[wall_strip] == 0).all()  # a plane region does not grow here, nor the ball over the wall
     assert (out[~pool_mask] == before[~pool_mask]).all()
+
+
+def test_claiming_a_limb_refuses_labels_it_cannot_change_in_place(context):
+    from rangeseg_o3d.refinement.recover import claim_curved_rims
+
+    xyz, labels, fits, _ = _ball_before_a_wall()
+    strided = np.asfortranarray(labels)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        claim_curved_rims(context(rs.OrganizedCloud(xyz)), strided, fits, np.flatnonzero(labels == 0),
+                          ranges=np.linalg.norm(xyz, axis=-1), k_sigma=3.0)
