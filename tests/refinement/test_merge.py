@@ -81,7 +81,7 @@ def test_pieces_of_one_column_apart_are_candidates_by_the_longer_pieces_axis():
     axis = np.array([0.0, 0.94, 0.35]) / np.linalg.norm([0.0, 0.94, 0.35])
     long = Cylinder(axis=axis, point=np.array([-2.17, -0.63, 4.13]), radius=0.247, rms=0.02, inliers=7247)
     short_axis = _tilted(axis, 2.6)
-    short_point = long.point - 1.04 * axis + 0.004 * np.cross(axis, [1.0, 0.0, 0.0])  # on the long axis
+    short_point = long.point - 1.04 * axis + 0.004 * np.cross(axis, [1.0, 0.0, 0.0])  # 4 mm off the long axis
     short = Cylinder(axis=short_axis, point=short_point, radius=0.234, rms=0.019, inliers=1505)
     rel = long.point - short.point
     assert np.linalg.norm(rel - (rel @ short.axis) * short.axis) > 0.04  # the short axis misses

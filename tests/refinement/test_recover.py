@@ -727,9 +727,12 @@ def test_a_balls_free_limb_joins_its_region_within_the_pool_only(context):
     cloud = rs.OrganizedCloud(xyz)
     limb = hit & (labels == 0)
     assert limb.sum() > 300
-    # the pool: the limb's left half, and a strip of the wall beside the ball freed
-    wall_strip = (labels == 2) & (np.abs(np.arange(60) - 5)[None, :] <= 1)
+    # the pool: the limb's left half, and the three columns of the wall left of the ball,
+    # freed, where they touch the limb (a metre behind it)
+    left_edge = int(np.flatnonzero(hit.any(axis=0))[0])
+    wall_strip = (labels == 2) & (np.abs(np.arange(60) - (left_edge - 2))[None, :] <= 1) & hit.any(axis=1)[:, None]
     labels[wall_strip] = 0
+    assert (wall_strip[:, left_edge - 1] & hit[:, left_edge]).any()  # the strip touches the limb
     pool_mask = (limb & (np.arange(60) < 30)[None, :]) | wall_strip
     pool = np.flatnonzero(pool_mask)
     before = labels.copy()
