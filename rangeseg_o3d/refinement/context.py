@@ -100,10 +100,7 @@ class _Starts:
         """The pool's pixels (flat, on its own grid) of the largest 4-connected piece, on the
         coarser grid, of the starts' pixels ``near`` (a mask over them)."""
         coarse = np.ascontiguousarray(self._coarse[near], dtype=np.int64)
-        if self._wrap:  # (pieces meeting across the seam are one, as Context.piece_ids joins them)
-            ids, sizes = _join_across_seam(coarse, *kernels.piece_ids(coarse, self._coarse_width), self._coarse_width)
-            return self.pool[near][ids == np.argmax(sizes)] if sizes.size else self.pool[near]
-        piece = kernels.largest_piece(coarse, self._coarse_width)
+        piece = _largest_piece(coarse, self._coarse_width, self._wrap)
         return self.pool[near][np.searchsorted(coarse, piece)]
 
 
@@ -164,11 +161,7 @@ class Context:
     def largest_piece(self, idx: np.ndarray) -> np.ndarray:
         """The largest 4-connected piece of the flat pixels ``idx`` (inliers can be
         scattered over the grid; on a 360-degree grid across the seam too)."""
-        idx = np.ascontiguousarray(idx, dtype=np.int64)
-        if not self.wrap_columns:
-            return kernels.largest_piece(idx, self.width)
-        ids, sizes = self.piece_ids(idx)
-        return idx[ids == np.argmax(sizes)] if sizes.size else idx.copy()
+        return _largest_piece(np.ascontiguousarray(idx, dtype=np.int64), self.width, self.wrap_columns)
 
     def pieces(self, idx: np.ndarray, taken: np.ndarray | None = None) -> list[np.ndarray]:
         """The 4-connected pieces of the flat pixels ``idx`` (increasing) with at least
@@ -490,6 +483,16 @@ def _row_origins(cloud):
             or not np.any(geometry.mount_offset)):
         return None
     return nodding_ray_origins(geometry)
+
+
+def _largest_piece(idx: np.ndarray, width: int, wrap_columns: bool) -> np.ndarray:
+    # the largest 4-connected piece of the flat pixels ``idx`` (int64, increasing) of a grid
+    # ``width`` columns wide, in increasing order; with ``wrap_columns`` the pieces meeting
+    # across the seam are one (Context.largest_piece on the pool's grid, _Starts on the coarser)
+    if not wrap_columns:
+        return kernels.largest_piece(idx, width)
+    ids, sizes = _join_across_seam(idx, *kernels.piece_ids(idx, width), width)
+    return idx[ids == np.argmax(sizes)] if sizes.size else idx.copy()
 
 
 def _join_across_seam(idx: np.ndarray, ids: np.ndarray, sizes: np.ndarray, width: int):

@@ -127,7 +127,7 @@ def similar_models(a, b, *, max_angle_deg: float, tolerance: float) -> bool:
         # where their pixels are, though the axis of a short or noisy piece is known only to
         # several degrees, which carried along the pipe to the other piece misses it (kinect
         # seed 1043 scan 4: a column at 4.4 m cut by a box before it, 7247 and 1505 px, axes
-        # 2.6 degrees apart: 6 cm off one metre away); pieces of one size: both axes
+        # 2.9 degrees apart: 6 cm off one metre away); pieces of one size: both axes
         rel = b.point - a.point
         axes = (a.axis,) if a.inliers > b.inliers else (b.axis,) if b.inliers > a.inliers else (a.axis, b.axis)
         return all(bool(np.linalg.norm(rel - (rel @ axis) * axis) <= reach) for axis in axes)

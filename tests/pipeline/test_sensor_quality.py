@@ -251,7 +251,7 @@ def test_a_pipe_receding_from_a_stereo_camera_is_a_cylinder():
 
 def test_a_column_and_a_wall_a_box_cuts_apart_come_back_as_one_region_each():
     # kinect_640x480, seed 1043, scan 4: a box before a column (truth 17, r 0.25 m, 4.4 m
-    # away) cuts it into pieces of 7247 and 1505 px whose cylinders' axes are 2.6 degrees
+    # away) cuts it into pieces of 7247 and 1505 px whose cylinders' axes are 2.9 degrees
     # apart: the merge's pre-test carried the short piece's axis a metre to the long one's
     # point and missed it by 6 cm, so no union was tried (over-segmented). And a 204-px strip
     # of the far wall (truth 4, 5.2 m) at the frame's left edge, cut from the wall's region by
