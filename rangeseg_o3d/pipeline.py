@@ -438,7 +438,8 @@ class Pipeline:
                                                         inlier_factor=INLIER_SIGMAS,
                                                         max_radius=float(self.fitter.params["max_radius"]),
                                                         window=noise.correlation_px,
-                                                        stepped=noise.step_quadratic > 0.0)
+                                                        stepped=noise.step_quadratic > 0.0,
+                                                        min_arc_deg=float(self.fitter.params["min_arc_deg"]))
                 lap("bent_planes")
         return labels, fits, sigma, stats
 

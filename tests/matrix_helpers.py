@@ -12,7 +12,7 @@ def matrix_result(name: str, seed: int, k: int):
     spec = get_sensor(name)
     config = rs.load_config(spec.preset, overrides={f"sensor.{key}": value
                                                      for key, value in spec.sensor_facts(False).items()})
-    scan = spec.simulate(matrix_rng(seed, spec.name, k), False)
+    scan = spec.simulate(matrix_rng(seed, spec.draws, k), False)
     return scan, rs.Pipeline(config).run(scan.cloud)
 
 

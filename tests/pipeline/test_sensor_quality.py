@@ -280,3 +280,15 @@ def test_a_balls_limb_left_in_a_blob_beside_another_ball_goes_back_to_it():
     assert (scan.truth_ids[ball] == 24).mean() > 0.95
     assert ball.sum() > 0.95 * (scan.truth_ids == 24).sum()
     assert {f.label: f.kind for f in result.features}[ev.hoover.correct[24]] == "sphere"
+
+
+@pytest.mark.parametrize("k, face", [(1, 19), (3, 15)])
+def test_a_face_under_correlated_noise_and_depth_steps_keeps_its_plane(k, face):
+    # kinect_real_640x480, seed 1046: faces 3.9 and 4.5 m away (8086 and 9691 px) whose
+    # correlated noise and 1/8-px depth steps bent_planes took for a bend, fitting cylinders of
+    # 3.2 and 2.9 m over 14.5 and 17.3 degrees of their arcs (false fittings): a cylinder the
+    # fitter would refuse for its arc, under its min_arc_deg of 30
+    scan, result = _matrix_scan("kinect_real_640x480", k, seed=1046)
+    assert scan.truth[face].kind == "plane"
+    region = next(r for r in evaluate(scan, result).regions if r.truth_id == face)
+    assert region.kind == "plane"
