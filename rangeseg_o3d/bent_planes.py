@@ -42,8 +42,8 @@ a pillar at 6.2 m, left a plane). Such pipes often stand against a
 wall or behind a box, showing part of their width (0.45-0.8 of the diameter): the cylinder
 is started from the bend's curvature as well as from the silhouette, and the region may be
 narrower than its diameter, never wider, though not so narrow that the cylinder spans less than
-the fitter's ``min_arc_deg`` about its axis (a floor's correlated noise and steps bent 3 m
-cylinders over 15 degrees of it). The cylinder must then explain the bend: its squares within
+the fitter's ``min_arc_deg`` about its axis (the correlated noise and steps of faces 4 m away
+bent cylinders of 3 m over 15 degrees of them). The cylinder must then explain the bend: its squares within
 the chi-square spread of those of the plane with the bend.
 
 Only the model's kind changes: the labels stay, the statistics are measured again.
@@ -91,7 +91,8 @@ def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, s
     ``sigma``: each pixel's range noise (the grid's shape); ``share``: the independent
     returns each pixel carries (``NoiseModel.independent_share(1)``, 1/9 over a 3-pixel
     matching window); ``max_radius``: the fitter's largest radius; ``min_arc_deg``: the least
-    arc the fitter's cylinders span (where the depth comes in steps, see below); ``window``: the side (px) of
+    arc the fitter's cylinders span (asked where the depth comes in steps, see the module's
+    docstring); ``window``: the side (px) of
     the box over which the returns err together (``NoiseModel.correlation_px``); ``stepped``:
     the depth comes in steps (``NoiseModel.step_quadratic > 0``), so the bend is judged over
     blocks of ``window`` pixels along the region (see the module's docstring)."""
@@ -292,8 +293,9 @@ def _stepped_pipe_of(region: _Region, design: np.ndarray, target: np.ndarray, pi
 def _explaining_bend(start: Cylinder, region: _Region, max_radius: float, flat: float, bent: float,
                      min_arc: float):
     # ``start`` refitted along the rays (_stepped_pipe_of) where it is a pipe no wider than the
-    # region, spanning ``min_arc`` (radians) or more about its axis, and explains the bend (its squares within sqrt(2 n) independent returns' variance of
-    # the plane with the bend, ``bent``, and under the plane's, ``flat``); None otherwise
+    # region, spanning ``min_arc`` (radians) or more about its axis, and explains the bend (its
+    # squares within sqrt(2 n) independent returns' variance of the plane with the bend, ``bent``,
+    # and under the plane's, ``flat``); None otherwise
     points, noise, n, view, centre = region.points, region.noise, region.independent, region.view, region.centre
     cylinder = _refit_along_rays(start, points, noise)
     if cylinder is None or not 0.0 < cylinder.radius <= max_radius:
@@ -309,9 +311,10 @@ def _explaining_bend(start: Cylinder, region: _Region, max_radius: float, flat: 
                        np.asarray(cylinder.point, dtype=np.float64)) < min_arc:
         # narrower allows a pipe partly hidden (a pillar behind a box: 0.6-0.7 of its width, an
         # arc of 70-90 degrees), but an arc under the fitter's own least is a face, as the fitter
-        # calls one (kinect_real_640x480 study seed 1046, scans 1 and 3: floors at 3.9 and 4.5 m
-        # under their correlated noise and depth steps bent 3.2 and 2.9 m cylinders over 14.5
-        # and 17.3 degrees; the pipes this step found on seeds 1044-1061 spanned 49-355)
+        # calls one (kinect_real_640x480 study seed 1046, scans 1 and 3: faces at 3.9 and 4.5 m
+        # facing the camera, whose correlated noise and depth steps bent 3.2 and 2.9 m cylinders
+        # over 14.5 and 17.3 degrees; the pipes this step found on seeds 1044-1061 spanned 49
+        # degrees and more, as arc_around_axis measures their noisy returns)
         return None
     unit = n / len(points)
     if not squares < flat or (squares - bent) * unit / (bent / len(points)) > np.sqrt(2.0 * n):
