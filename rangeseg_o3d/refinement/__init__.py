@@ -66,24 +66,28 @@ __all__ = ["refine_regions", "recover_pixels", "bend_samples", "single_returns"]
 
 
 
-def _merge_bent_by_polish(ctx: Context, labels: np.ndarray, fits: dict, before: dict, config,
-                          wrap_columns: bool):
-    """``(labels, fits)`` with the planes polish made curved merged with the regions of
-    their kind whose union one model explains (:func:`.merge.merge_regions`, ``only``
-    those).
+def _merge_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, before: dict, config,
+                            wrap_columns: bool):
+    """``(labels, fits)`` with the regions whose kind polish changed (a plane made curved, a
+    curved model made a plane) merged with the regions of their new kind whose union one
+    model explains (:func:`.merge.merge_regions`, ``only`` those).
 
-    On a stereo camera's tile grid polish's bend test (:func:`bend_samples`) makes a pipe's
-    planes cylinders only after the merge: a pipe the segmentation faceted into two planes
-    along its axis (its halves meeting at a crease the tile means show) ends as two
-    cylinders of one pipe, side by side, that nothing joins (seed 23 scan 0: 19 845 and
-    15 228 px of one 35 468-px pipe)."""
-    bent = {k for k, m in fits.items() if m and m.kind != "plane" and before.get(k) and before[k].kind == "plane"}
-    if not bent:
+    The merge ran on the kinds before polish, which decides some regions' kinds on their
+    final pixels only. On a stereo camera's tile grid polish's bend test (:func:`bend_samples`)
+    makes a pipe's planes cylinders: a pipe the segmentation faceted into two planes along its
+    axis (its halves meeting at a crease the tile means show) ends as two cylinders of one
+    pipe, side by side, that nothing joins (seed 23 scan 0: 19 845 and 15 228 px of one
+    35 468-px pipe). On a spinning lidar a few dozen returns of a far ceiling that an occluder
+    cuts off, recovered as a cylinder, become a plane in polish, apart from the ceiling's
+    region, after the merge that pairs pieces apart (spinning_64x1024 study seed 1045 scan 3:
+    33 px at 6.3 m beside 2008)."""
+    turned = {k for k, m in fits.items() if m and before.get(k) and before[k].kind != m.kind}
+    if not turned:
         return labels, fits
     adjacency = region_adjacency(labels, wrap_columns=wrap_columns)
     labels, fits, _ = merge_regions(ctx, labels, fits, adjacency, max_angle_deg=config.merge_angle_deg,
                                     tolerance=config.merge_tolerance, disjoint=config.merge_disjoint,
-                                    rms_factor=config.merge_rms_factor, only=bent)
+                                    rms_factor=config.merge_rms_factor, only=turned)
     return labels, fits
 
 
@@ -266,8 +270,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     before_polish = fits
     fits = polish_models(ctx, labels, fits, resolve_bends=bend_samples(sensor, tile),
                          along_rays=single_returns(sensor, tile))
-    if config.merge and sensor.noise.matched_window:
-        labels, fits = _merge_bent_by_polish(ctx, labels, fits, before_polish, config, sensor.wrap_columns)
+    if config.merge:
+        labels, fits = _merge_turned_by_polish(ctx, labels, fits, before_polish, config, sensor.wrap_columns)
     timer.lap("polish")
     if single_returns(sensor, tile):  # a laser's returns err along their rays only
         labels, fits = settle_along_rays(ctx, labels, fits, ranges=ranges, iterations=config.grow_iterations,

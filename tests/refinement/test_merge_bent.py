@@ -1,5 +1,6 @@
-"""refine_regions' merge after polish (stereo camera): the planes polish's bend test made
-curved join the pieces of their surface beside them (refinement._merge_bent_by_polish)."""
+"""refine_regions' merge after polish: the planes polish's bend test made curved (a stereo
+camera's) join the pieces of their surface beside them, and a curved piece polish made a plane
+joins the plane of its surface apart from it (refinement._merge_turned_by_polish)."""
 
 from types import SimpleNamespace
 
@@ -7,10 +8,11 @@ import numpy as np
 import pytest
 
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
-from rangeseg_o3d.refinement import _merge_bent_by_polish
+from rangeseg_o3d.fitting.primitives import Cylinder
+from rangeseg_o3d.refinement import _merge_turned_by_polish
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
-from rangeseg_o3d.synthetic.scene import Scene, cylinder
+from rangeseg_o3d.synthetic.scene import Scene, cylinder, patch
 
 NOISE = 0.005
 CONFIG = SimpleNamespace(merge_angle_deg=3.0, merge_tolerance=0.03, merge_disjoint=True, merge_rms_factor=1.3)
@@ -41,7 +43,7 @@ def _halves(pipeline, pipes, seed=0):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_pipes_two_halves_made_cylinders_by_polish_become_one(pipeline, seed):
     ctx, labels, planes, cylinders = _halves(pipeline, [(0.0, 0.2)], seed)
-    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
+    out, fits = _merge_turned_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
     kept = [k for k, m in fits.items() if m]
     assert len(kept) == 1 and fits[kept[0]].kind == "cylinder"
     assert abs(fits[kept[0]].radius - 0.2) < 0.02
@@ -53,7 +55,7 @@ def test_two_pipes_of_other_radii_stay_apart(pipeline):
     # the failure path: halves of two pipes (radii 0.2 and 0.1 m, 0.6 m apart) each join
     # their own pipe, never the other's
     ctx, labels, planes, cylinders = _halves(pipeline, [(-0.3, 0.2), (0.3, 0.1)])
-    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
+    out, fits = _merge_turned_by_polish(ctx, labels, cylinders, planes, CONFIG, False)
     first, second = np.unique(out[np.isin(labels, (1, 2))]), np.unique(out[np.isin(labels, (3, 4))])
     assert first.size == 1 and second.size == 1 and first[0] != second[0]
     assert abs(fits[int(first[0])].radius - 0.2) < 0.02 and abs(fits[int(second[0])].radius - 0.1) < 0.02
@@ -62,5 +64,47 @@ def test_two_pipes_of_other_radii_stay_apart(pipeline):
 def test_nothing_bent_leaves_the_regions_as_they_are(pipeline):
     # halves that were cylinders before polish already met the merge: nothing is done
     ctx, labels, _, cylinders = _halves(pipeline, [(0.0, 0.2)])
-    out, fits = _merge_bent_by_polish(ctx, labels, cylinders, dict(cylinders), CONFIG, False)
+    out, fits = _merge_turned_by_polish(ctx, labels, cylinders, dict(cylinders), CONFIG, False)
     assert out is labels and fits is cylinders
+
+
+def _wall_in_two(pipeline, gap_columns=12, seed=0):
+    """A wall 3 m before a camera, its pixels in two regions apart (a band of columns between
+    them in no region, as an occluder leaves it): ``(context, labels, planes)``."""
+    scene = Scene(patch((0.0, 0.0, 3.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), 1.0, 0.6, first_id=1))
+    scan = simulate_depth_camera(scene, width=160, height=120, fx=150.0, fy=150.0, cx=79.5, cy=59.5,
+                                 noise_coeff=0.0, noise_sigma0=NOISE, seed=seed)
+    labels = np.zeros(scan.truth_ids.shape, np.int32)
+    rows, cols = np.nonzero(scan.truth_ids == 1)
+    middle = int(np.median(cols))
+    labels[rows, cols] = np.where(cols < middle - gap_columns // 2, 1, np.where(cols >= middle + gap_columns // 2, 2, 0))
+    ctx = Context(scan.cloud, pipeline.fitter, np.full(labels.shape, NOISE), 10)
+    flat = labels.ravel()
+    return ctx, labels, {k: fit_plane(ctx.xyz[flat == k]) for k in (1, 2)}
+
+
+def _as_cylinder_before(plane):
+    # what polish saw: a curved model of the piece (its parameters do not matter to the merge after)
+    return Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.0, 0.0, 8.0]), radius=5.0,
+                    rms=plane.rms, inliers=plane.inliers)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_curved_piece_polish_made_a_plane_joins_its_plane_apart(pipeline, seed):
+    # a piece of a far ceiling an occluder cut off, recovered as a cylinder and made a plane in
+    # polish after the merge that pairs pieces apart (spinning_64x1024 seed 1045 scan 3)
+    ctx, labels, planes = _wall_in_two(pipeline, seed=seed)
+    before = {1: planes[1], 2: _as_cylinder_before(planes[2])}
+    out, fits = _merge_turned_by_polish(ctx, labels, planes, before, CONFIG, False)
+    kept = [k for k, m in fits.items() if m]
+    assert len(kept) == 1 and fits[kept[0]].kind == "plane"
+    assert set(np.unique(out[labels > 0]).tolist()) == set(kept)
+    assert ((out > 0) == (labels > 0)).all()
+
+
+def test_pieces_apart_stay_apart_without_merge_disjoint(pipeline):
+    ctx, labels, planes = _wall_in_two(pipeline)
+    before = {1: planes[1], 2: _as_cylinder_before(planes[2])}
+    config = SimpleNamespace(**{**vars(CONFIG), "merge_disjoint": False})
+    out, fits = _merge_turned_by_polish(ctx, labels, planes, before, config, False)
+    assert set(np.unique(out[labels > 0]).tolist()) == {1, 2} and fits.keys() == {1, 2}
