@@ -56,6 +56,7 @@ import numpy as np
 
 from . import kernels  # the package: its names load on first use (no compiler at import)
 from .fitting._compiled import arc_around_axis
+from .fitting.classify import MIN_ARC_DEG
 from .fitting.primitives import Cylinder, Plane
 from .fitting.region_fitter import region_samples
 from .fitting.robust import curvature_resolved
@@ -84,7 +85,7 @@ SCREEN_MARGIN = 1e-6
 
 def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray,
                               share: float, inlier_factor: float, max_radius: float,
-                              window: int = 1, stepped: bool = False, min_arc_deg: float = 30.0):
+                              window: int = 1, stepped: bool = False, min_arc_deg: float = MIN_ARC_DEG):
     """``(fits, stats)`` with the plane regions of ``labels`` that are pipes given cylinders
     (see the module's docstring); the inputs when none is.
 
@@ -140,7 +141,7 @@ def cylinders_for_bent_planes(cloud, labels: np.ndarray, fits: dict, stats, *, s
 
 
 def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: float,
-             pixels: np.ndarray | None = None, window: int = 1, min_arc_deg: float = 30.0):
+             pixels: np.ndarray | None = None, window: int = 1, min_arc_deg: float = MIN_ARC_DEG):
     # the cylinder of a plane region's pixels ``points`` (their range noise ``noise``; the region
     # holds ``samples`` independent returns), or None (see cylinders_for_bent_planes); with
     # ``pixels`` (their (row, column)) the depth comes in steps and the bend is judged over

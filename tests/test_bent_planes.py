@@ -108,3 +108,14 @@ def test_bad_inputs_are_value_errors():
     with pytest.raises(ValueError, match="sigma"):
         cylinders_for_bent_planes(cloud, truth, fits, stats, sigma=sigma[:-1], share=SHARE,
                                   inlier_factor=INLIER_SIGMAS, max_radius=5.0)
+
+
+def test_its_arc_default_is_the_fitters():
+    # the step judges a cylinder outside the fitter; called without the fitter's value it holds
+    # the cylinder to the same least arc as the fitter's default configuration does
+    import inspect
+
+    from rangeseg_o3d.fitting.classify import PrimitiveFitterConfig
+
+    default = inspect.signature(cylinders_for_bent_planes).parameters["min_arc_deg"].default
+    assert default == PrimitiveFitterConfig().min_arc_deg == 30.0

@@ -115,6 +115,12 @@ def _non_finite(pts: np.ndarray, kind: str) -> FitFailure:
     return input_failure(kind, len(pts), n_bad, 3)
 
 
+#: The least arc (degrees) a cylinder's cross-section or a sphere's cap must span: the
+#: fitter's ``min_arc_deg`` default, which the steps that judge a cylinder outside the fitter
+#: default to as well (the pipeline passes the fitter's own value).
+MIN_ARC_DEG = 30.0
+
+
 def fit_primitive(
     points,
     normals=None,
@@ -125,7 +131,7 @@ def fit_primitive(
     rms_per_range2: float = 0.0,
     min_points: int = 10,
     max_radius: float = 5.0,
-    min_arc_deg: float = 30.0,
+    min_arc_deg: float = MIN_ARC_DEG,
     curvature_gain: float = 1.5,
     noise_floor: float = 0.0,
     resolve_bends: float = 0.0,

@@ -27,6 +27,7 @@ from .._numeric import median, rows_at
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis
+from ..fitting.classify import MIN_ARC_DEG
 from ..fitting.primitives import Cylinder, Plane, Sphere
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
@@ -848,7 +849,7 @@ def _planes_off_rays(ctx: Context, labels: np.ndarray, fits: dict, *, pixels: _P
     # the arc is judged on the model fitted along the rays (below): least squares in plain
     # distances bends a pipe's limb seen at grazing incidence wider and flatter than it is
     open_arc = {**refused_plane, "min_arc_deg": ARC_SEARCH_DEG}
-    min_arc = np.radians(float(p.get("min_arc_deg", 30.0)))
+    min_arc = np.radians(float(p.get("min_arc_deg", MIN_ARC_DEG)))
     out = {}
     flat = labels.ravel()
     grouped = pixels.every if pixels is not None and pixels.grouped else None
@@ -920,7 +921,7 @@ def _bent_off_rays(ctx: Context, idx: np.ndarray) -> bool:
 
 
 #: The least arc (degrees) the fitter's cylinder may span to be refitted along the rays,
-#: whose arc is then held to the fitter's own min_arc_deg: half of the default 30 (a pipe's
+#: whose arc is then held to the fitter's own min_arc_deg: half of MIN_ARC_DEG (a pipe's
 #: limb, 25 degrees in plain distances, spans 33-39 along the rays; a wall's cylinder of
 #: 2.7 m spans a few, and its fit along the rays crept for a second).
 ARC_SEARCH_DEG = 15.0
