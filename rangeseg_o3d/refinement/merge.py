@@ -232,7 +232,7 @@ def merge_candidates(models: dict, *, max_angle_deg: float, tolerance: float,
 
 def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
                   max_angle_deg: float, tolerance: float, disjoint: bool, rms_factor: float,
-                  only: set | None = None, held: set | None = None):
+                  only: set | None = None, held: set | None = None, steps_between_touching: bool = False):
     """Merge same-kind regions whose union one model explains (union-find over candidates).
 
     A union is accepted when its model keeps the kind and its rms is at most
@@ -246,7 +246,9 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
     apart is a candidate as far as its own range noise allows (:func:`pieces_on_planes`'
     ``noise``, each label's mean); the recovery's merge of the pieces it found (``only``),
     which holds them to the noise of their distances itself, does not pay a pass over the
-    frame's noise for it.
+    frame's noise for it. With ``steps_between_touching``, pieces that touch are held to
+    :meth:`_Unions.no_step` too, as pieces apart are (see
+    :func:`rangeseg_o3d.refinement._merge_turned_by_polish`).
     """
     fits = dict(fits)
     good = {k: m for k, m in fits.items() if m}
@@ -269,7 +271,7 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         planes = {k for k, m in fits.items() if isinstance(m, Plane)}
         planar = [a in planes and b in planes for a, b in pairs]  # (_both_planes of each pair)
         unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg,
-                            adjacency)
+                            frozenset() if steps_between_touching else adjacency)
         pairs = [pair for pair, flat in zip(pairs, planar) if not flat]
         if not pairs:
             lut = unions.lookup()
@@ -293,7 +295,7 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
                 and union.rms <= rms_factor * max(unions.part_rms(ra), unions.part_rms(rb))
                 and unions.parts_on(ra, rb, union, limit, max_angle_deg)
                 and ((a, b) not in (held or ()) or unions.part_centred(ra, rb, union))
-                and ((a, b) in adjacency or unions.no_step(ra, rb, union))):
+                and (((a, b) in adjacency and not steps_between_touching) or unions.no_step(ra, rb, union))):
             unions.join(ra, rb, union)
     lut = unions.lookup()
     return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
