@@ -87,12 +87,12 @@ def _merge_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, before
     alone): its kind was in doubt until polish, and a small piece a few of its own sigmas
     off a large plane leaves the union's rms within the parts'. On the real 3DTK
     3dtk_scan001 (sick_3dtk preset) a 39-tile piece of a face in front of a wall (its plane
-    at full resolution 0.12 m before the wall's), recovered as a sphere and made a plane in polish, joined the wall's 3995 tiles (its
-    mean 47 mm, six of its own 7.6 mm rms, off the wall's plane; the union 10.9 mm rms
-    against the wall's 9.9 mm), and at full resolution 171 of its 188 px left the wall's
-    plane free. Held so everywhere, touching pieces cost the ABW images over-segmentation
-    (a big face's one-level terraces of its 1.3 mm depth steps kept apart: 90.6 -> 88.5 %
-    correct), so the merge before polish does not ask it."""
+    at full resolution 0.12 m before the wall's), recovered as a sphere and made a plane in
+    polish, joined the wall's 3995 tiles (its mean 47 mm, six of its own 7.6 mm rms, off the
+    wall's plane; the union 10.9 mm rms against the wall's 9.9 mm), and at full resolution
+    171 of its 188 px left the wall's plane free. Held so everywhere, touching pieces cost
+    the ABW images over-segmentation (a big face's one-level terraces of its 1.3 mm depth
+    steps kept apart: 90.6 -> 88.5 % correct), so the merge before polish does not ask it."""
     turned = {k for k, m in fits.items() if m and before.get(k) and before[k].kind != m.kind}
     if not turned:
         return labels, fits

@@ -41,7 +41,6 @@ def test_3dtk_corridor_gives_floor_ceiling_and_walls(scan):
     assert not any(f.kind != "plane" and f.n_pixels > 5000 for f in result.features)
 
 
-
 def test_3dtk_scan001_keeps_the_face_before_its_wall():
     # a face 0.12 m in front of the corridor's wall (y -0.85 m against the wall's -0.97), 188 px:
     # polish made its piece a plane, and the merge after polish joined it to the wall, which then
@@ -56,6 +55,7 @@ def test_3dtk_scan001_keeps_the_face_before_its_wall():
     offsets = {round(float(f.normal @ y * f.d), 2): f.n_pixels for f in _planes(result, y, 150)}
     assert any(-1.0 < h < -0.93 and n > 10000 for h, n in offsets.items()), offsets  # the wall
     assert any(-0.9 < h < -0.8 and n >= 150 for h, n in offsets.items()), offsets  # the face before it
+
 
 def test_cape_tunnel_gives_its_large_cylinder():
     from rangeseg_o3d.io.datasets import load_cape_depth
