@@ -265,13 +265,15 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
     if not pairs:
         return labels, fits, adjacency
+    # the pairs that need not show no step between them: those that touch, unless asked
+    step_exempt = frozenset() if steps_between_touching else adjacency
     if unions.plane_pairs_compiled(pairs):
         # pairs of planes join only planes and other pairs only their own kind: the planes'
         # loop runs apart, in their order (one compiled pass), the others' below
         planes = {k for k, m in fits.items() if isinstance(m, Plane)}
         planar = [a in planes and b in planes for a, b in pairs]  # (_both_planes of each pair)
         unions.merge_planes([pair for pair, flat in zip(pairs, planar) if flat], held or set(), max_angle_deg,
-                            frozenset() if steps_between_touching else adjacency)
+                            step_exempt)
         pairs = [pair for pair, flat in zip(pairs, planar) if not flat]
         if not pairs:
             lut = unions.lookup()
@@ -295,7 +297,7 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
                 and union.rms <= rms_factor * max(unions.part_rms(ra), unions.part_rms(rb))
                 and unions.parts_on(ra, rb, union, limit, max_angle_deg)
                 and ((a, b) not in (held or ()) or unions.part_centred(ra, rb, union))
-                and (((a, b) in adjacency and not steps_between_touching) or unions.no_step(ra, rb, union))):
+                and ((a, b) in step_exempt or unions.no_step(ra, rb, union))):
             unions.join(ra, rb, union)
     lut = unions.lookup()
     return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
@@ -430,13 +432,13 @@ class _Unions:
                 and any(_both_planes(self.fits, pair) for pair in pairs)
                 and max(max(pair) for pair in pairs) < len(self.moments))
 
-    def merge_planes(self, pairs, held, max_angle_deg: float, adjacency=frozenset()) -> None:
+    def merge_planes(self, pairs, held, max_angle_deg: float, step_exempt=frozenset()) -> None:
         """merge_regions' loop over ``pairs`` of planes (in order): the same tests as
         :meth:`model`, :meth:`plane_within_larger`, :meth:`parts_on` and
         :meth:`part_centred` on the same values, the parts joined as :meth:`join` does, in one
         compiled pass (:func:`rangeseg_o3d.kernels.merge_plane_pairs`). ``held``: the pairs
-        held as merge_regions' ``held``; the pairs not in ``adjacency`` are held to
-        :meth:`no_step`."""
+        held as merge_regions' ``held``; the pairs not in ``step_exempt`` (merge_regions': the
+        touching ones, unless it holds those to the step test too) are held to :meth:`no_step`."""
         n = len(self.moments)
         keys = sorted({k for pair in pairs for k in pair})
         normal, d, rms, count = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
@@ -455,7 +457,7 @@ class _Unions:
         params = self.ctx.fitter.params
         joined = kernels.merge_plane_pairs(
             first, second, np.array([pair in held for pair in pairs], dtype=np.bool_),
-            np.array([pair not in adjacency for pair in pairs], dtype=np.bool_), self.moments,
+            np.array([pair not in step_exempt for pair in pairs], dtype=np.bool_), self.moments,
             normal, d, rms, count, root, np.ascontiguousarray(flat),
             np.ascontiguousarray(self.ctx.sigma.ravel(), dtype=np.float64), float(self.rms_factor),
             float(max_angle_deg), PART_SIGMAS, float(params["plane_rms"]), float(params["rms_per_range2"]),
