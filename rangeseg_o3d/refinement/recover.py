@@ -21,7 +21,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from ..kernels.grid import free_pixels, free_pixels_in_boxes
 from ..kernels.leftovers import free_near_planes_reach, strip_pool
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
-from ..scales import GRAZING_COSINE, GRAZING_TAN
+from ..scales import GRAZING_COSINE, GRAZING_TAN, pixelwise_noise_spans_the_grid
 from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
@@ -585,11 +585,13 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     blobs are fitted, their pixels on a plane region's surface join it
     (:func:`claim_on_distance_noise`; apart from it only with ``config.merge_disjoint``);
     after, a recovered plane beyond the noise of its pixels' distances
-    (:func:`_planes_along_rays`; unless, where the returns err along their rays as a group
+    (:func:`_planes_along_rays`; unless the fitter's bend test calls its pixels a cylinder or
+    sphere within that noise: :func:`rangeseg_o3d.refinement.curved_refused.curved_for_refused`;
+    or, where the returns err along their rays beyond the blob's width
     (:func:`fits_refused_along_rays`), its plane fitted along its pixels' rays explains them:
-    :func:`planes_fitted_along_rays`,
-    or, where the sensor states a lateral noise, it is one
-    of several pieces of one face the jump edges cut: :func:`_join_grazing_pieces`) merges into no plane and, unless it rejoins a curved region,
+    :func:`planes_fitted_along_rays`; or, where the sensor states a lateral noise, it is one
+    of several pieces of one face the jump edges cut: :func:`_join_grazing_pieces`) merges
+    into no plane and, unless it rejoins a curved region,
     keeps only its piece within that noise (:func:`_within_distance_noise_or_back`); with
     ``config.merge_disjoint`` the free pixels are offered to the planes once more.
     ``boxes`` (optional): blob ``first + j``'s bounding box in row ``j`` (its pixels are then
@@ -648,17 +650,20 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # below looks only in their boxes grown by the rings it may add (same answers).
     blobs = None if boxes is None or not len(boxes) else np.asarray(boxes, dtype=np.int64)
     refused = _planes_along_rays(ctx, labels, fits, new, pool)
-    if refused and fits_refused_along_rays(sensor):
-        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool,
-                                           max_cosine=along_rays_max_cosine(sensor))
-    if refused and sensor.lateral_noise_px > 0:
-        refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
-    # (a curved model taking a refused plane's place is recovered as any: its rim, claims, merges)
+    # The bend test speaks first: where the noise spans a blob's width, a pipe's pixels fitted
+    # along their rays fit a plane within that noise as well (kinect seed 1079 scan 1: a
+    # cylinder of r 0.18 m at 4.1 m, 2535 px, taken as a plane). (A curved model taking a
+    # refused plane's place is recovered as any: its rim, claims, merges.)
     samples = full_resolution_samples(sensor)
     if refused and samples:
         labels, refused = curved_for_refused(ctx, labels, fits, new, refused, samples, config,
                                              pixels=_grouped(pool, labels.reshape(-1)[pool], refused),
                                              step=_means_step(sensor, cloud))
+    if refused and fits_refused_along_rays(sensor, cloud):
+        refused = planes_fitted_along_rays(ctx, labels, fits, new, refused, pool,
+                                           max_cosine=along_rays_max_cosine(sensor, cloud))
+    if refused and sensor.lateral_noise_px > 0:
+        refused = _join_grazing_pieces(ctx, labels, fits, new, refused, pool, _lateral_step(sensor, cloud))
     # each plane's rms on the pixels it was found on: what it takes from here on (rim,
     # claims, merges) raises its fit's rms, and must not raise the bar it is held to
     found_rms = {k: m.rms for k, m in new.items() if m and m.kind == "plane"}
@@ -831,10 +836,13 @@ def _median_cosine(ctx: Context, plane, idx: np.ndarray) -> float:
     return float(np.median(np.abs(ctx.viewing_rays(idx) @ np.asarray(plane.normal, dtype=float))))
 
 
-def along_rays_max_cosine(sensor) -> float | None:
+def along_rays_max_cosine(sensor, cloud=None) -> float | None:
     """The largest median incidence cosine of a face :func:`planes_fitted_along_rays` may find
-    for :func:`recover_pixels` on ``sensor``: none on a stereo camera (``noise.matched_window``:
-    its far faces' noise spans their width at any incidence), else
+    for :func:`recover_pixels` on ``sensor`` (and ``cloud``, whose grid step
+    :func:`rangeseg_o3d.scales.grid_step` measures where the sensor states none): none on a
+    stereo camera (``noise.matched_window``) nor where single returns err beyond the grid's
+    footprint (:func:`rangeseg_o3d.scales.pixelwise_noise_spans_the_grid`, a Kinect's): there
+    a narrow face's noise spans its width at any incidence; else
     :data:`rangeseg_o3d.scales.GRAZING_COSINE` (about 80.5 degrees from head-on).
 
     Where the depths come in steps, the fit along the rays is for a face seen near grazing, the
@@ -843,14 +851,25 @@ def along_rays_max_cosine(sensor) -> float | None:
     head-on that its plane does not explain within the noise of its distances is no face of
     its own (tabletop_abw seed 1001 scan 1: pieces of 35 and 26 px at 45 and 70 degrees, taken
     along their rays, cut a 1700-px face in two)."""
-    return None if sensor.noise.matched_window else GRAZING_COSINE
+    if sensor.noise.matched_window or pixelwise_noise_spans_the_grid(sensor, cloud):
+        return None
+    return GRAZING_COSINE
 
 
-def fits_refused_along_rays(sensor) -> bool:
+def fits_refused_along_rays(sensor, cloud=None) -> bool:
     """Whether :func:`recover_pixels` fits the planes it refuses along their pixels' rays
     (:func:`planes_fitted_along_rays`) before it gives them up: where the sensor's range
-    noise errs together over a matching window (a stereo camera's, ``noise.matched_window``)
-    and where its depths come in steps (``depth_step`` > 0, ABW's 8-bit structured light).
+    noise errs together over a matching window (a stereo camera's, ``noise.matched_window``),
+    where single returns err beyond the grid's footprint
+    (:func:`rangeseg_o3d.scales.pixelwise_noise_spans_the_grid`, a Kinect's; ``cloud`` gives
+    the grid step where the sensor states none), and where its depths come in steps
+    (``depth_step`` > 0, ABW's 8-bit structured light).
+
+    Under noise wider than the footprint a face a few pixels wide spreads farther along its
+    rays than across them, and its least-squares plane turns towards the rays: a box face
+    9 px wide seen 18 degrees from head-on at 3.5 m (kinect seed 1070 scan 1, 1028 px under
+    18 mm of noise) has its least-squares plane 54 degrees off its own, beyond the noise of
+    its distances, and was freed whole.
 
     A quantised depth moves each return along its own ray (ABW's conversion computes x and y
     from the depth byte: x = (c - 255) z / |F|), so a blob's plane is the one its rays meet
@@ -859,7 +878,8 @@ def fits_refused_along_rays(sensor) -> bool:
     pixels pull towards the rays (a face seen at 88 degrees: 0.23 mm rms from 2 of 83 pixels,
     against 0.005 mm of distance noise) is refused with the bands the test is for.
     """
-    return bool(sensor.noise.matched_window or sensor.depth_step > 0)
+    return bool(sensor.noise.matched_window or sensor.depth_step > 0
+                or pixelwise_noise_spans_the_grid(sensor, cloud))
 
 
 def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
@@ -869,13 +889,13 @@ def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: 
     take that plane in ``fits`` and ``new`` (both changed in place).
 
     The fitter's plane is the least squares of the orthogonal distances. Where a return errs
-    along its ray only (a stereo camera's disparity noise: ``sigma / range**2`` in inverse
-    range, the same for every pixel) and that error spans the blob's width (a face 20 pixels
-    wide at 4-5 m: 0.1 m across, a range sigma of 0.04-0.08 m), those distances spread
-    along the rays, and the least-squares plane turns towards them: a face seen head-on gets
-    a plane seen at grazing, beyond the noise of its distances, and is refused with the bands
-    that plane test is for. The likeliest plane under that noise is the weighted least
-    squares of the inverse ranges (:func:`rangeseg_o3d.ray_planes.ray_fits`); the same test
+    along its ray only (a stereo camera's or a Kinect's disparity noise: ``sigma / range**2``
+    in inverse range, the same for every pixel) and that error spans the blob's width (a face
+    20 pixels wide at 4-5 m under stereo: 0.1 m across, a range sigma of 0.04-0.08 m), those
+    distances spread along the rays, and the least-squares plane turns towards them: a face
+    seen head-on gets a plane seen at grazing, beyond the noise of its distances, and is
+    refused with the bands that plane test is for. The likeliest plane under that noise is
+    the weighted least squares of the inverse ranges (:func:`rangeseg_o3d.ray_planes.ray_fits`); the same test
     (:meth:`Context.plane_along_rays`: the noise of the distances, range noise times incidence
     cosine, chi-square bound) asked of that plane tells a face from a band, whose pixels no
     one plane meets within the range noise. The fit is

@@ -148,14 +148,27 @@ def test_which_sensors_fit_refused_planes_along_the_rays():
     assert fits_refused_along_rays(rs.Pipeline(load_config("configs/abw.yaml")).sensor)
     stereo = NoiseModel(sigma0=0.001, sigma_quadratic=0.003, correlation_px=3)
     assert fits_refused_along_rays(Sensor(noise=stereo))
-    # a laser's single returns, a Kinect-type camera (noise growing with range, pixel by pixel)
+    # a Kinect-type camera (noise growing with range, pixel by pixel) whose noise exceeds its
+    # grid's footprint: 1 mm + 1.4e-3 r^2 over 0.11-degree steps (under 0.136 degrees)
+    kinect = NoiseModel(sigma0=0.001, sigma_quadratic=0.0014)
+    assert fits_refused_along_rays(Sensor(noise=kinect, row_spacing_deg=0.11, column_spacing_deg=0.11))
+    assert fits_refused_along_rays(rs.Pipeline("rgbd_vga").sensor)
+    # ...its grid step measured on the cloud where the sensor states none
+    assert not fits_refused_along_rays(Sensor(noise=kinect))
+    cloud, _, _ = _faces(0, rows=20, cols=20, f=1.0 / np.radians(0.11))
+    assert fits_refused_along_rays(Sensor(noise=kinect), cloud)
+    # a laser's single returns, constant or under its footprint (a SICK at 0.5 degrees, 3 mm + 1e-3 r^2)
     assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.005)))
-    assert not fits_refused_along_rays(Sensor(noise=NoiseModel(sigma0=0.001, sigma_quadratic=0.0014)))
-    assert not fits_refused_along_rays(rs.Pipeline("rgbd_vga").sensor)
-    # depth steps: faces seen near grazing only (about 80.5 degrees on); stereo: any incidence
+    laser = NoiseModel(sigma0=0.003, sigma_quadratic=0.001)
+    assert not fits_refused_along_rays(Sensor(noise=laser, row_spacing_deg=0.5, column_spacing_deg=0.5))
+    # depth steps: faces seen near grazing only (about 80.5 degrees on); stereo and the
+    # Kinect-type camera: any incidence
     assert along_rays_max_cosine(Sensor(noise=NoiseModel(sigma0=ABW_SIGMA), depth_step=ABW_STEP)) == GRAZING_COSINE
     assert 0.16 < GRAZING_COSINE < 0.17
     assert along_rays_max_cosine(Sensor(noise=stereo)) is None
+    assert along_rays_max_cosine(Sensor(noise=kinect, row_spacing_deg=0.11, column_spacing_deg=0.11)) is None
+    assert along_rays_max_cosine(Sensor(noise=kinect)) == GRAZING_COSINE
+    assert along_rays_max_cosine(Sensor(noise=kinect), cloud) is None
 
 
 def _grazing_face(seed, *, incidence_deg=88.0, rows=40, cols=4, foreign=3, z=0.9):
