@@ -141,7 +141,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     hidden = window > 1.0 and any(isinstance(fits[k], Plane) for k in candidates)
     if not suspects and not hidden:
         return labels, fits, stats
-    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns, correlation_px=max(int(correlation_px), 1))
     out, fits, split = None, dict(fits), []
     next_label = fresh_label(labels, fits)
     walls, made = {}, set()  # the ray-space sums of the planes pieces were offered to; the faces found

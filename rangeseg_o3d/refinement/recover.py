@@ -613,7 +613,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     labels, not by a pass over the grid.
     """
     first = fresh_label(labels, fits)
-    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True,
+                  correlation_px=sensor.noise.correlation_px)
     regions = None
     if boxes is not None:
         from ..kernels import box_members

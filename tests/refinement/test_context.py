@@ -330,3 +330,47 @@ def test_a_column_beside_a_box_face_under_20mm_noise_is_found_at_half_the_band()
     assert feature.kind == "cylinder"
     assert abs(feature.model.radius - true.radius) < 0.1 * true.radius
     assert abs(feature.model.axis @ true.axis) > np.cos(np.radians(3.0))
+
+
+def _face_scattered_by(ratio, *, rows=40, cols=50, z=4.0, sigma=0.02, seed=0):
+    """A face seen head-on ``z`` m away on a pinhole grid (0.11-degree steps), each pixel
+    moved along its ray so that the plane's distances scatter ``ratio`` times the noise of
+    its distances (range noise ``sigma`` times the incidence cosine): ``(cloud, sigma grid,
+    plane)``."""
+    from rangeseg_o3d.fitting.primitives import Plane
+    from rangeseg_o3d.fitting.robust import distance_noise
+
+    step = np.radians(0.11)
+    v, u = np.mgrid[0:rows, 0:cols].astype(float)
+    rays = np.dstack([(u - cols / 2) * step, (v - rows / 2) * step, np.ones((rows, cols))])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    plane = Plane(normal=np.array([0.0, 0.0, 1.0]), d=z, rms=0.0, inliers=rows * cols)
+    ranges = z / rays[..., 2]
+    noise = np.full((rows, cols), sigma)
+    along = np.random.default_rng(seed).normal(size=(rows, cols))
+    points = rays * ranges[..., None]
+    target = ratio * np.sqrt(np.mean(distance_noise(plane, points.reshape(-1, 3), noise.ravel()) ** 2))
+    offsets = along * sigma
+    scale = target / np.sqrt(np.mean((offsets * rays[..., 2]) ** 2))  # the distances' rms, exactly
+    cloud = rs.OrganizedCloud(rays * (ranges + scale * offsets)[..., None])
+    return cloud, noise, plane
+
+
+def test_plane_along_rays_counts_the_chi_square_over_independent_returns():
+    # a face of 2000 px whose distances scatter 1.12 times their noise (a camera's returns
+    # that err together over 9 px and come in disparity steps: kinect_real seed 1069 scan 3)
+    # is beyond the bound over every pixel (1.06 times) but not over the ~25 independent returns
+    cloud, noise, plane = _face_scattered_by(1.12)
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    idx = np.arange(cloud.valid.size)
+    assert Context(cloud, fitter, noise, 100).plane_along_rays(plane, idx)
+    correlated = Context(cloud, fitter, noise, 100, correlation_px=9)
+    assert correlated.independent_returns(idx.size) == pytest.approx(2000 / 81)
+    assert not correlated.plane_along_rays(plane, idx)
+    # a band whose plane lies along its rays scatters far beyond that noise: still refused
+    cloud, noise, plane = _face_scattered_by(3.0)
+    assert Context(cloud, fitter, noise, 100, correlation_px=9).plane_along_rays(plane, idx)
+    # independent returns: at least one; the window must be a whole number of pixels
+    assert correlated.independent_returns(10) == 1.0
+    with pytest.raises(ValueError, match="correlation_px must be an integer >= 1; got 0"):
+        Context(cloud, fitter, noise, 100, correlation_px=0)
