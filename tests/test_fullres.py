@@ -570,6 +570,43 @@ def test_planes_for_unresolved_refits_a_column_whose_tile_cylinder_is_off():
         resolved_refit(fitter, points, fits[2], plane_rms, samples=0.0)
 
 
+def test_a_short_column_under_a_tile_sphere_takes_the_cylinder_its_pixels_give():
+    # a column seen over 0.2 m of its height (under its 0.6 m diameter: a piece the frame's
+    # edge cuts) whose tile model is a sphere through its axis: the sphere resolves a
+    # curvature there (it stays curved), but the fitter gives the pixels a cylinder that
+    # leaves fewer squared distances, which replaces it (kinect_real seed 1079 scan 1)
+    from rangeseg_o3d.fullres import other_curved_kind, region_sample
+
+    xyz, labels = _column_and_wall(np.random.default_rng(5))
+    xyz, labels = np.ascontiguousarray(xyz[20:40]), np.ascontiguousarray(labels[20:40])
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full(labels.shape, 0.004)
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    ball = Sphere(center=[1.0, -0.05, 2.3], radius=0.3, rms=0.004, inliers=0)
+    fits = {1: Plane(normal=np.array([0.0, 0.0, 1.0]), d=2.0, rms=0.004, inliers=0), 2: ball}
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    kept, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    assert kept[2] is ball  # premise: without the fitter the ball stays (its curvature is resolved)
+    out, out_stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
+                                           fitter=fitter)
+    column = out[2]
+    assert isinstance(column, Cylinder)
+    assert column.radius == pytest.approx(0.3, abs=0.01)
+    assert abs(abs(column.axis[1]) - 1.0) < 1e-2
+    assert column.inliers == (labels == 2).sum()
+    assert out_stats.squares[2] < 0.5 * stats.squares[2]  # measured again under the cylinder
+    assert out[1] is fits[1]  # a plane is no curved kind to change
+    # the decision is asked of curved models only, and only another curved kind that fits better replaces one
+    points = region_sample(cloud, labels, 2, (slice(None), slice(None)))
+    squares = float(np.sum(ball.distances(points) ** 2))
+    assert isinstance(other_curved_kind(fitter, points, ball, squares), Cylinder)
+    assert other_curved_kind(fitter, points, ball, 0.0) is None  # (a ball that fit better keeps its kind)
+    assert other_curved_kind(fitter, points, column, squares) is None  # the same kind
+    assert other_curved_kind(fitter, points, fits[1], squares) is None  # a plane
+    wall = region_sample(cloud, labels, 1, (slice(None), slice(None)))
+    assert other_curved_kind(fitter, wall, ball, np.inf) is None  # the fitter gives a plane: left to the curvature test
+
+
 def test_planes_for_creases_keeps_a_true_cylinder():
     rng = np.random.default_rng(6)
     xyz, labels = _column_and_wall(rng)

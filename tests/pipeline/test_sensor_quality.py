@@ -293,6 +293,20 @@ def test_faces_under_correlated_kinect_noise_are_not_freed_as_bands(face):
     assert region.normal_error_deg < 3.0
 
 
+def test_a_short_pipe_at_the_frames_edge_is_a_cylinder_not_a_ball():
+    # kinect_real_640x480, seed 1079 scan 1: a pipe (truth 22, r 0.12 m, 2 m away) seen over
+    # 0.21 m of its length at the frame's left edge. Its tile means made it a ball of r 0.15 m
+    # (6.6 mm rms on its pixels, where its cylinder leaves 4.4 mm): a false fitting
+    scan, result = _matrix_scan("kinect_real_640x480", 1, seed=1079)
+    truth = scan.truth[22]
+    assert truth.kind == "cylinder"
+    ev = evaluate(scan, result)
+    assert 22 in ev.hoover.correct
+    region = next(r for r in ev.regions if r.truth_id == 22)
+    assert region.kind == "cylinder"
+    assert region.radius_error < 0.1 * truth.radius
+
+
 def test_a_column_and_a_wall_a_box_cuts_apart_come_back_as_one_region_each():
     # kinect_640x480, seed 1043, scan 4: a box before a column (truth 17, r 0.25 m, 4.4 m
     # away) cuts it into pieces of 7247 and 1505 px whose cylinders' axes are 2.9 degrees
