@@ -32,7 +32,8 @@ from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refineme
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats", "stats_with_moved", "stats_after_moves",
-           "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "resolved_refit", "other_curved_kind", "grow_into_free",
+           "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "resolved_refit", "other_curved_kind",
+           "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases", "settle_caps",
            "settle_plane_borders",
            "recovered_region_floor", "free_untold_regions"]
@@ -493,10 +494,10 @@ def other_curved_kind(fitter, points: np.ndarray, model, squares: float):
     The kind was decided on tile means: a short piece of a pipe the frame's edge cuts (its
     visible length under its diameter) gives means that a sphere fits as well as its
     cylinder, while its pixels do not (kinect_real seed 1079 scan 1: a pipe of r 0.12 m at
-    2 m, 0.21 m of it seen on the frame's left edge, a sphere of r 0.15 m at 6.6 mm rms over the
-    region's sample where its cylinder leaves 4.4 mm; a false fitting). The fitter's own
-    decision on the pixels judges the kinds; a plane it gives is left to the curvature test
-    (:func:`planes_for_unresolved`)."""
+    2 m, 0.21 m of it seen at the frame's left edge, was a sphere of r 0.15 m at 6.6 mm rms
+    over the region's sample, where its cylinder leaves 4.4 mm; a false fitting). The
+    fitter's own decision on the pixels judges the kinds; a plane it gives is left to the
+    curvature test (:func:`planes_for_unresolved`)."""
     from .fitting.primitives import Plane
 
     if isinstance(model, Plane) or not model:
