@@ -924,7 +924,7 @@ def _bent_off_rays(ctx: Context, idx: np.ndarray) -> bool:
 #: whose arc is then held to the fitter's own min_arc_deg: half of MIN_ARC_DEG (a pipe's
 #: limb, 25 degrees in plain distances, spans 33-39 along the rays; a wall's cylinder of
 #: 2.7 m spans a few, and its fit along the rays crept for a second).
-ARC_SEARCH_DEG = 15.0
+ARC_SEARCH_DEG = MIN_ARC_DEG / 2.0
 
 
 def _front_ranges(points: np.ndarray, axis: np.ndarray, point: np.ndarray, radius: float,

@@ -852,9 +852,7 @@ def along_rays_max_cosine(sensor, cloud=None) -> float | None:
     head-on that its plane does not explain within the noise of its distances is no face of
     its own (tabletop_abw seed 1001 scan 1: pieces of 35 and 26 px at 45 and 70 degrees, taken
     along their rays, cut a 1700-px face in two)."""
-    if sensor.noise.matched_window or pixelwise_noise_spans_the_grid(sensor, cloud):
-        return None
-    return GRAZING_COSINE
+    return None if _noise_spans_narrow_faces(sensor, cloud) else GRAZING_COSINE
 
 
 def fits_refused_along_rays(sensor, cloud=None) -> bool:
@@ -879,8 +877,13 @@ def fits_refused_along_rays(sensor, cloud=None) -> bool:
     pixels pull towards the rays (a face seen at 88 degrees: 0.23 mm rms from 2 of 83 pixels,
     against 0.005 mm of distance noise) is refused with the bands the test is for.
     """
-    return bool(sensor.noise.matched_window or sensor.depth_step > 0
-                or pixelwise_noise_spans_the_grid(sensor, cloud))
+    return bool(sensor.depth_step > 0 or _noise_spans_narrow_faces(sensor, cloud))
+
+
+def _noise_spans_narrow_faces(sensor, cloud=None) -> bool:
+    # a stereo camera's (noise.matched_window) or single returns erring beyond the grid's
+    # footprint (a Kinect's): a face a few pixels wide spreads farther along its rays than across
+    return bool(sensor.noise.matched_window or pixelwise_noise_spans_the_grid(sensor, cloud))
 
 
 def planes_fitted_along_rays(ctx: Context, labels: np.ndarray, fits: dict, new: dict, refused: set,
