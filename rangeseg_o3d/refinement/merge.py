@@ -19,8 +19,9 @@ from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..scales import GRAZING_COSINE
-from .context import SCREEN_SLACK, Context
+from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
 from .grid_lines import lines_across
+from .sight import seen_past_plane
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
            "similar_models"]
@@ -263,6 +264,8 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
                              if disjoint and only is None and unions.moments is not None else None)
     if only is not None:
         pairs = [(a, b) for a, b in pairs if a in only or b in only]
+    if disjoint:
+        pairs = _in_sight(ctx, labels, fits, pairs, adjacency)
     if not pairs:
         return labels, fits, adjacency
     # the pairs that need not show no step between them: those that touch, unless asked
@@ -301,6 +304,28 @@ def merge_regions(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, 
             unions.join(ra, rb, union)
     lut = unions.lookup()
     return _relabelled(labels, lut), fits, _mapped_adjacency(adjacency, lut)
+
+
+def _in_sight(ctx: Context, labels: np.ndarray, fits: dict, pairs: list, adjacency) -> list:
+    """``pairs`` but those of two planes apart between which the camera sees past the
+    larger's plane (:func:`rangeseg_o3d.refinement.sight.seen_past_plane`, the smaller
+    region the piece, ``TRIM_SIGMAS``): two box tops of one height with the floor seen
+    between them, a face and a pipe far behind it on its plane's extension, are two
+    surfaces; a wall's pieces either side of a column in front of it stay a pair."""
+    apart = [(a, b) for a, b in pairs if (a, b) not in adjacency and isinstance(fits[a], Plane)
+             and isinstance(fits[b], Plane)]
+    if not apart:
+        return pairs
+    pixels = region_indices(labels, only={k for pair in apart for k in pair})
+    refused = set()
+    for a, b in apart:
+        if a not in pixels or b not in pixels:
+            continue
+        small, large = sorted((a, b), key=lambda k: (pixels[k].size, k))
+        if seen_past_plane(ctx.xyz, ctx.sigma, labels, pixels[small], large, fits[large], TRIM_SIGMAS,
+                           members=pixels[large], wrap_columns=ctx.wrap_columns):
+            refused.add((a, b))
+    return [pair for pair in pairs if pair not in refused] if refused else pairs
 
 
 def _both_planes(fits: dict, pair) -> bool:

@@ -25,6 +25,7 @@ from ..scales import GRAZING_COSINE, GRAZING_TAN, pixelwise_noise_spans_the_grid
 from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
+from .sight import seen_past_plane
 from .merge import merge_into_curved, merge_regions
 
 __all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "fits_refused_along_rays",
@@ -212,7 +213,11 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     there closer to grazing than the jump test allows (``scales.GRAZING_TAN``: a box top
     a few degrees from grazing is a range jump at every row) and the part lies on it
     within the noise of its distances (the range noise times the incidence cosine): then
-    it joins, whatever its size.
+    it joins, whatever its size. A part apart from its region joins only where the camera
+    does not see past the plane between them (:func:`rangeseg_o3d.refinement.sight.seen_past_plane`:
+    columns stand in front of the wall behind them; the floor and walls seen between a box
+    face and a pipe 5 m behind it lie behind that face's plane, which therefore ends before
+    the pipe).
     Planes only: a strip of a curved surface cannot be told from its extension this way.
     """
     planes = [k for k, m in fits.items() if m and m.kind == "plane"]
@@ -258,6 +263,16 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
     if touches.any():
         kept |= _grazing_on_plane(ctx, pixels, column[owner], (normals, offsets, rms), parts,
                                   touches)[parts]
+    if not kept.any():
+        return labels, fits
+    # a part apart from its region that the camera sees past the plane to reach is another
+    # surface the plane's extension crosses (sight.seen_past_plane)
+    for i in np.unique(parts[kept & ~touches[parts]]).tolist():
+        rows = np.flatnonzero(parts == i)
+        k = int(owner[rows[0]])
+        if seen_past_plane(ctx.xyz, ctx.sigma, labels, pixels[rows], k, fits[k], k_sigma,
+                           wrap_columns=ctx.wrap_columns):
+            kept[rows] = False
     if not kept.any():
         return labels, fits
     grown = labels.copy()
