@@ -418,7 +418,7 @@ class Context:
         """Whether ``model`` is a plane whose distances to the flat pixels ``idx`` are
         beyond the noise of those distances (the range noise times the incidence cosine,
         :func:`rangeseg_o3d.fitting.robust.distance_noise`; chi-square bound over the
-        independent returns: :meth:`independent_returns`).
+        independent returns: :meth:`compact_piece_returns`).
 
         A band a few rows thick of any surface lies within the range noise of the plane
         through the viewing rays of its middle row: seen along its rays, that plane's
@@ -434,11 +434,13 @@ class Context:
         points = rows_at(self.xyz, idx)
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
-        return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), self.independent_returns(idx.size))
+        return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), self.compact_piece_returns(idx.size))
 
-    def independent_returns(self, n: int) -> float:
-        """The independent returns among ``n`` pixels: ``n / correlation_px**2`` (a compact
-        piece's, as :func:`rangeseg_o3d.plane_faces.split_plane_faces` counts them), at least 1.
+    def compact_piece_returns(self, n: int) -> float:
+        """The independent returns among the ``n`` pixels of a compact piece: ``n /
+        correlation_px**2`` (as :func:`rangeseg_o3d.plane_faces.split_plane_faces` counts
+        them), at least 1; :meth:`rangeseg_o3d.sensor.NoiseModel.independent_returns` counts
+        them exactly for a given shape (a strip's are more), at a cost per call.
 
         A face under a camera whose returns err together over a window (kinect_real_640x480:
         9 px, and 1/8-px disparity steps) scatters its distances more than the noise of a
@@ -457,7 +459,7 @@ class Context:
             self._flat_xyz, self._flat_sigma, np.ascontiguousarray(idx, dtype=np.int64),
             np.ascontiguousarray(plane.normal, dtype=np.float64), float(plane.d))
         rms = float(np.sqrt(squares / n))
-        bound = noise_rms_bound.py_func(float(np.sqrt(noise_squares / n)), self.independent_returns(n),
+        bound = noise_rms_bound.py_func(float(np.sqrt(noise_squares / n)), self.compact_piece_returns(n),
                                         CHI_SQUARE_SIGMAS)
         # each distance is off numpy's by a few roundings of its terms (``scale``), each noise
         # by a few of ``sigma_max`` (the bound: under 2.3 noises); the sums by n roundings

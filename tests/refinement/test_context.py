@@ -365,12 +365,12 @@ def test_plane_along_rays_counts_the_chi_square_over_independent_returns():
     idx = np.arange(cloud.valid.size)
     assert Context(cloud, fitter, noise, 100).plane_along_rays(plane, idx)
     correlated = Context(cloud, fitter, noise, 100, correlation_px=9)
-    assert correlated.independent_returns(idx.size) == pytest.approx(2000 / 81)
+    assert correlated.compact_piece_returns(idx.size) == pytest.approx(2000 / 81)
     assert not correlated.plane_along_rays(plane, idx)
     # a band whose plane lies along its rays scatters far beyond that noise: still refused
     cloud, noise, plane = _face_scattered_by(3.0)
     assert Context(cloud, fitter, noise, 100, correlation_px=9).plane_along_rays(plane, idx)
     # independent returns: at least one; the window must be a whole number of pixels
-    assert correlated.independent_returns(10) == 1.0
+    assert correlated.compact_piece_returns(10) == 1.0
     with pytest.raises(ValueError, match="correlation_px must be an integer >= 1; got 0"):
         Context(cloud, fitter, noise, 100, correlation_px=0)
