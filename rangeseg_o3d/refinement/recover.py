@@ -267,8 +267,8 @@ def claim_occluded_strips(ctx: Context, labels: np.ndarray, fits: dict, *, valid
         return labels, fits
     # a part apart from its region that the camera sees past the plane to reach is another
     # surface the plane's extension crosses (sight.seen_past_plane)
-    for i in np.unique(parts[kept & ~touches[parts]]).tolist():
-        rows = np.flatnonzero(parts == i)
+    apart = np.flatnonzero(kept & ~touches[parts])  # (whole parts: kept is decided per part)
+    for rows in _grouped(apart, parts[apart], unique_ints(parts[apart]).tolist()).values():
         k = int(owner[rows[0]])
         if seen_past_plane(ctx.xyz, ctx.sigma, labels, pixels[rows], k, fits[k], k_sigma,
                            wrap_columns=ctx.wrap_columns):
@@ -881,7 +881,7 @@ def fits_refused_along_rays(sensor, cloud=None) -> bool:
 
     Under noise wider than the footprint a face a few pixels wide spreads farther along its
     rays than across them, and its least-squares plane turns towards the rays: a box face
-    9 px wide seen 18 degrees from head-on at 3.5 m (kinect seed 1070 scan 1, 1028 px under
+    9 px wide seen 18 degrees from head-on at 3.5 m (kinect seed 1070 scan 1, 1103 px under
     18 mm of noise) has its least-squares plane 54 degrees off its own, beyond the noise of
     its distances, and was freed whole.
 
