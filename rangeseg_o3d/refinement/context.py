@@ -108,7 +108,8 @@ class Context:
     """What every refinement step needs: points, noise, the fitter, the size floor."""
 
     def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int, *,
-                 wrap_columns: bool = False, grazing_search: bool = False, correlation_px: int = 1):
+                 wrap_columns: bool = False, grazing_search: bool = False, correlation_px: int = 1,
+                 band_faces_only: bool = False):
         if not (isinstance(correlation_px, (int, np.integer)) and correlation_px >= 1):
             raise ValueError(f"Context: correlation_px must be an integer >= 1; got {correlation_px!r}")
         self.xyz = cloud.xyz.reshape(-1, 3)
@@ -128,6 +129,14 @@ class Context:
         #: grid, whose means are left as independent): :meth:`plane_along_rays` counts its
         #: chi-square's degrees of freedom over the independent returns
         self.correlation_px = int(correlation_px)
+        #: the one-sigma face band (:meth:`dominant_search` with ``face_band``) asked for
+        #: faces only: its last resort, the local starts' pieces (a curved model or a plane),
+        #: is not tried, and after the band found a face of a pool's region a curved answer
+        #: must lie within the noise of its distances (``after_band``). The pixels of a frame
+        #: the tile grid lost: there the starts and the search after the band made curved
+        #: regions of pixels strewn along the rays (pcl_office1: a cylinder of r 0.37 m over
+        #: 1177 px from 3.5 to 5.6 m, 22.7 mm rms where its distances' noise is 1.8 mm)
+        self.band_faces_only = bool(band_faces_only)
         self._cloud = cloud
         self._row_origins = False  # not looked up yet (most steps never ask)
 
@@ -206,10 +215,13 @@ class Context:
         piece, model, _ = self.dominant_search(pool, face_band=face_band)
         return piece, model
 
-    def dominant_search(self, pool: np.ndarray, *, face_band: bool = False):
+    def dominant_search(self, pool: np.ndarray, *, face_band: bool = False, after_band: bool = False):
         """``(piece, model, by_face_band)``: :meth:`dominant_piece`'s answer and whether the
         one-sigma face band found it (the face then holds a strip of its neighbour along
         the corner: :func:`rangeseg_o3d.refinement.split.split_regions` gives it back).
+        ``after_band``: the band found a face of the region ``pool`` belongs to; with
+        :attr:`band_faces_only` a curved answer beyond the noise of its distances
+        (:meth:`curved_beyond_distance_noise`) then gives way to the band's face, or to none.
 
         When the trimmed fit's answer is no surface (nothing, or a model beyond the noise
         whose inliers are not one connected piece: the plane tangent to two columns
@@ -248,6 +260,8 @@ class Context:
             piece, model = self._face_in_noise(pool, sigma)
             if piece is not None:
                 return piece, model, True
+            if self.band_faces_only:
+                return None, None, False
             return (*self._start_pieces(pool, sigma), False)
         if piece.size < self.min_size:
             return None, None, False
@@ -256,6 +270,10 @@ class Context:
             if not refit and model.kind != "plane":
                 return (*self._face_plane(pool, sigma), False)
             model = refit
+        if (model and after_band and self.band_faces_only and model.kind != "plane"
+                and self.curved_beyond_distance_noise(model, piece)):
+            piece, model = self._face_in_noise(pool, sigma)
+            return (piece, model, True) if piece is not None else (None, None, False)
         return (piece, model, False) if model else (None, None, False)
 
     def seen_along_rays(self, model, piece: np.ndarray) -> bool:
@@ -431,6 +449,21 @@ class Context:
         beyond = self._plane_beyond_noise(model, idx)
         if beyond is not None:
             return beyond
+        points = rows_at(self.xyz, idx)
+        noise = distance_noise(model, points, self.sigma[idx])
+        rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
+        return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), self.compact_piece_returns(idx.size))
+
+    def curved_beyond_distance_noise(self, model, idx: np.ndarray) -> bool:
+        """Whether the cylinder or sphere ``model``'s distances to the flat pixels ``idx`` are
+        beyond their noise (range noise moved along each pixel's ray,
+        :func:`rangeseg_o3d.fitting.robust.distance_noise`; chi-square bound over the
+        independent returns: :meth:`compact_piece_returns`), as :meth:`plane_along_rays` asks
+        of a plane. Pixels strewn along their rays over metres lie within a cylinder's range
+        noise when its axis runs along those rays, but its surface then takes their range
+        noise at grazing incidence: almost none of it is left in its distances."""
+        if not model or model.kind == "plane" or idx.size < 3:
+            return False
         points = rows_at(self.xyz, idx)
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))

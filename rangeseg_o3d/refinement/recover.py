@@ -594,7 +594,8 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     faces of a region that leaked through creases the tile grid could not see when the
     split left them over. Those leftovers, cut into compact blobs (``candidates``,
     numbered above every label: :func:`rangeseg_o3d.fullres.leftover_blob_labels`), are each
-    split into every surface they hold (:func:`split_blobs`). At grazing angles every
+    split into every surface they hold (:func:`split_blobs`; a piece neither trimmed search
+    explains gets the one-sigma face band, for faces only: :attr:`Context.band_faces_only`). At grazing angles every
     pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
     rim their regions take back are limited by it: the model distance decides. Before the
     blobs are fitted, their pixels on a plane region's surface join it
@@ -629,7 +630,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     """
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True,
-                  correlation_px=sensor.noise.correlation_px)
+                  correlation_px=sensor.noise.correlation_px, band_faces_only=True)
     regions = None
     if boxes is not None:
         from ..kernels import box_members
@@ -654,7 +655,7 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     # the labels before and after the split, kept without a copy: split_blobs changes a copy of
     # its input, and what it returns is not changed after (the growth below starts a new array)
     before = labels
-    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from,
+    labels, fits = split_blobs(ctx, labels, fits, candidates, regions=regions, thin_from=thin_from, face_band=True,
                                correlation_px=sensor.noise.correlation_px, min_angle_deg=config.merge_angle_deg)
     labels, fits = _curved_rims_then_split(ctx, labels, fits, candidates, regions, ranges=ranges, config=config,
                                            thin_from=thin_from, correlation_px=sensor.noise.correlation_px,

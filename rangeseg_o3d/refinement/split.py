@@ -61,7 +61,7 @@ def split_regions(ctx: Context, labels: np.ndarray, fits: dict, failed: list[int
         while pools and attempts < _MAX_SPLIT_ATTEMPTS:
             attempts += 1
             pool = pools.pop()  # the largest piece (pools are kept sorted by size)
-            piece, model, by_face_band = ctx.dominant_search(pool, face_band=face_band)
+            piece, model, by_face_band = ctx.dominant_search(pool, face_band=face_band, after_band=by_band)
             if piece is None:
                 continue
             by_band = by_band or by_face_band
