@@ -133,9 +133,10 @@ class Context:
         #: faces only: its last resort, the local starts' pieces (a curved model or a plane),
         #: is not tried, and after the band found a face of a pool's region a curved answer
         #: must lie within the noise of its distances (``after_band``). The pixels of a frame
-        #: the tile grid lost: there the starts and the search after the band made curved
-        #: regions of pixels strewn along the rays (pcl_office1: a cylinder of r 0.37 m over
-        #: 1177 px from 3.5 to 5.6 m, 22.7 mm rms where its distances' noise is 1.8 mm)
+        #: the tile grid lost: there the search after the band made a curved region of pixels
+        #: strewn along the rays (pcl_office1: a cylinder of r 0.37 m found on 1085 px from 3.5
+        #: to 5.6 m, 22.7 mm rms where the noise of its distances is 1.8 mm; 1177 px in the end),
+        #: and the starts new cylinders on the 3DTK scans (116-278 px, r 0.47-0.69 m; no truth)
         self.band_faces_only = bool(band_faces_only)
         self._cloud = cloud
         self._row_origins = False  # not looked up yet (most steps never ask)
@@ -449,10 +450,7 @@ class Context:
         beyond = self._plane_beyond_noise(model, idx)
         if beyond is not None:
             return beyond
-        points = rows_at(self.xyz, idx)
-        noise = distance_noise(model, points, self.sigma[idx])
-        rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
-        return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), self.compact_piece_returns(idx.size))
+        return self._beyond_distance_noise(model, idx)
 
     def curved_beyond_distance_noise(self, model, idx: np.ndarray) -> bool:
         """Whether the cylinder or sphere ``model``'s distances to the flat pixels ``idx`` are
@@ -464,6 +462,11 @@ class Context:
         noise at grazing incidence: almost none of it is left in its distances."""
         if not model or model.kind == "plane" or idx.size < 3:
             return False
+        return self._beyond_distance_noise(model, idx)
+
+    def _beyond_distance_noise(self, model, idx: np.ndarray) -> bool:
+        # the rms of ``model``'s distances to the flat pixels ``idx`` beyond the rms of their
+        # noise (robust.distance_noise), by the chi-square bound over their independent returns
         points = rows_at(self.xyz, idx)
         noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
