@@ -866,6 +866,8 @@ def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
     """
     if not isinstance(model, (Cylinder, Sphere)):
         return []
+    if isinstance(model, Sphere) and _within_noise_along_rays(ctx, idx, float(max(int(correlation_px), 1)) ** 2):
+        return []  # one face: two planes across any line beat the sphere's misfit on it too
     sample = idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]
     # the gate without the cover: a side of the line may hold two faces (_faces_of_leaves)
     patterns = _misfit_patterns(ctx, model, sample, correlation_px)
