@@ -47,7 +47,7 @@ def test_a_cylinder_along_its_pixels_rays_over_scattered_pixels_is_beyond_its_di
     # incidence keeps almost none of that noise in its distances
     rng = np.random.default_rng(3)
     axis = _unit([0.08, 0.05, 1.0])
-    points, model, normal = _cylinder_grid(axis, 3.5 * axis + [0.0, 0.0, 0.0], 0.37, (0.0, 2.1), np.pi, (40, 30))
+    points, model, normal = _cylinder_grid(axis, 3.5 * axis, 0.37, (0.0, 2.1), np.pi, (40, 30))
     sigma = 0.02
     strewn = points + rng.normal(0.0, sigma, points.shape[:2])[..., None] * normal
     ctx, idx = cylinder_context(strewn, sigma)
@@ -62,9 +62,10 @@ def test_a_cylinder_whose_pixels_err_along_their_rays_is_within_its_distance_noi
     # incidence leaves of the noise, and the test passes both
     rng = np.random.default_rng(4)
     sigma = 0.02
-    for axis, centre in (([1.0, 0.0, 0.0], [-0.5, 0.0, 4.0]), ([0.08, 0.05, 1.0], 3.5 * _unit([0.08, 0.05, 1.0]))):
-        points, model, _ = _cylinder_grid(axis, centre, 0.37, (0.0, 1.0 if axis[0] == 1.0 else 2.1),
-                                          np.pi / 2, (40, 30))
+    side_on = ([1.0, 0.0, 0.0], [-0.5, 0.0, 4.0], (0.0, 1.0))
+    along = ([0.08, 0.05, 1.0], 3.5 * _unit([0.08, 0.05, 1.0]), (0.0, 2.1))
+    for axis, centre, lengths in (side_on, along):
+        points, model, _ = _cylinder_grid(axis, centre, 0.37, lengths, np.pi / 2, (40, 30))
         rays = points / np.linalg.norm(points, axis=2, keepdims=True)
         noisy = points + rng.normal(0.0, sigma, points.shape[:2])[..., None] * rays
         ctx, idx = cylinder_context(noisy, sigma)
