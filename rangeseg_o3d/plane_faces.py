@@ -7,7 +7,7 @@ crease. Its pixels do: over them that plane is beyond the noise of their distanc
 noise times the incidence cosine), and the narrow face's plane, which its few tile means
 could not give, is fitted to its pixels (:func:`split_plane_faces`, :func:`faces_of_plane`).
 A cylinder or sphere region bent over such a corner gives way to the two faces when the pattern of its
-misfit across the crease is many times theirs (:func:`faces_of_cylinder`; three or four
+misfit across the crease is many times theirs (:func:`faces_of_curved`; three or four
 faces when two planes leave a side's pixels off: :func:`_faces_of_leaves`), a region no model
 fitted is cut into the faces its crease lines separate (:func:`faces_of_unfitted`), and a face
 that only continues the plane of a region beside it joins that region (:func:`_continued_plane`).
@@ -34,7 +34,7 @@ from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_ter
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_cylinder", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -52,7 +52,7 @@ CUT_SHARE = 0.1
 LINE_SEARCH_PIXELS = 16384
 #: Share of a region's pixels the faces found must keep (the rest: bits under the size floor).
 PLANES_COVER = 0.9
-#: Equal-count bins across the crease line in which :func:`faces_of_cylinder` compares the
+#: Equal-count bins across the crease line in which :func:`faces_of_curved` compares the
 #: misfit patterns of a cylinder and of two planes ...
 PATTERN_BINS = 16
 #: ... and the ratio of the two patterns (their chi-squares over the bins) beyond which the
@@ -77,7 +77,7 @@ FINE_DIRECTIONS = 23
 #: :func:`hidden_faces`' line searches try every SEARCH_STRIDE-th of the CUT_DIRECTIONS first,
 #: then those near the best (:func:`crease_line`'s ``stride``; the searches were most of its cost).
 SEARCH_STRIDE = 2
-#: Pixels of a cylinder region (an even subsample) on which :func:`faces_of_cylinder` first
+#: Pixels of a cylinder or sphere region (an even subsample) on which :func:`faces_of_curved` first
 #: looks for the two planes (the cheap gate before the search over every pixel).
 CYLINDER_TEST_PIXELS = 4096
 #: Pixels beyond a grazing plane region's box that :func:`claim_along_rays` looks at, at
@@ -103,7 +103,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
                       wrap_columns: bool = False):
     """Each plane region of at least two faces' pixels (``2 min_size``) whose own plane is
     beyond the noise of its pixels' distances, each cylinder region of as many pixels
-    whose misfit two or more planes explain (:func:`faces_of_cylinder`), and each region of as
+    whose misfit two or more planes explain (:func:`faces_of_curved`), and each region of as
     many pixels no model fitted whose crease lines cut it into planes (:func:`faces_of_unfitted`),
     is split into the planes of the faces it holds (:func:`faces_of_plane`, at least
     ``min_angle_deg`` apart); a face that continues the plane of a region it touches (of a
@@ -133,7 +133,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         if isinstance(fits[k], FitFailure) and idx.size < 2 * min_size:  # (its size is known only here)
             continue
         sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
-        # a curved region's own test starts on a subsample (faces_of_cylinder); a region no
+        # a curved region's own test starts on a subsample (faces_of_curved); a region no
         # model fitted is asked whole (faces_of_unfitted)
         if isinstance(fits[k], (Cylinder, Sphere, FitFailure)) or _beyond_distance_noise(xyz[sample], noise[sample],
                                                                    min(sample.size, idx.size / window)):
@@ -146,7 +146,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     next_label = fresh_label(labels, fits)
     walls, made = {}, set()  # the ray-space sums of the planes pieces were offered to; the faces found
     for k, idx in suspects.items():
-        faces = (faces_of_cylinder if isinstance(fits[k], (Cylinder, Sphere))
+        faces = (faces_of_curved if isinstance(fits[k], (Cylinder, Sphere))
                  else faces_of_unfitted if isinstance(fits[k], FitFailure) else faces_of_plane)
         surfaces = faces(ctx, fits[k], idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
         if not surfaces:
@@ -684,7 +684,7 @@ def faces_of_unfitted(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
     A region whose plane along the rays fits it within its range noise over its independent
     returns (:func:`_within_noise_along_rays`) is one face. A region a cylinder fits (on an
     even subsample of CYLINDER_TEST_PIXELS pixels) is judged
-    as that cylinder's region (:func:`faces_of_cylinder`): a far pipe the fitter refused cut
+    as that cylinder's region (:func:`faces_of_curved`): a far pipe the fitter refused cut
     into facets would fit them within the noise (four facets at 2.5 m, two at 4 m, in the
     tests), and the misfit patterns keep it whole.
 
@@ -708,7 +708,7 @@ def faces_of_unfitted(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, m
         return []  # one face (a cylinder fitted over it would lose to two planes' patterns)
     cylinder = fit_cylinder(ctx.xyz[idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]])
     if isinstance(cylinder, Cylinder):
-        return faces_of_cylinder(ctx, cylinder, idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
+        return faces_of_curved(ctx, cylinder, idx, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
     sides = _cut_again(ctx, idx, window, min_angle_deg)
     if len(sides) < 2:
         return []
@@ -842,7 +842,7 @@ def _two_planes_win(patterns, cover: float = PLANES_COVER) -> bool:
             and squares[1] <= squares[0])
 
 
-def faces_of_cylinder(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
+def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
     """The planes of two faces of a box the cylinder region ``idx`` (flat pixels, increasing)
     of ``model`` holds, ``[(pixels, plane)]``; empty when it is a cylinder. A sphere region
     is asked the same (its residuals along the rays: :func:`_sphere_residuals`): at 5-6 m the

@@ -12,7 +12,7 @@ from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure, Sphere
 from rangeseg_o3d.fitting.sphere import fit_sphere
 from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _faces_of_leaves,
-                                      _misfit_patterns, _sphere_residuals, crease_line, faces_of_cylinder, faces_of_plane, faces_of_unfitted)
+                                      _misfit_patterns, _sphere_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
 from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.synthetic.depth_camera import _unit_noise
@@ -240,7 +240,7 @@ def test_a_cylinder_or_sphere_over_a_far_box_corner_gives_way_to_its_two_faces(f
     ctx = _context(xyz, sigma)
     curved, planes, inliers, _, _ = _misfit_patterns(ctx, model, np.arange(truth.size), 1)
     assert curved > PATTERN_RATIO * planes and inliers[1] > PLANES_COVER
-    surfaces = faces_of_cylinder(ctx, model, np.arange(truth.size))
+    surfaces = faces_of_curved(ctx, model, np.arange(truth.size))
     assert len(surfaces) == 2
     for piece, plane in surfaces:
         k = int(np.bincount(truth.ravel()[piece], minlength=2).argmax())
@@ -256,8 +256,8 @@ def test_a_far_pipe_keeps_its_cylinder_right_or_fitted_a_little_off():
     fitted = fit_cylinder(xyz.reshape(-1, 3)[idx])
     assert isinstance(fitted, Cylinder)
     for cylinder in (model, fitted):
-        assert faces_of_cylinder(ctx, cylinder, idx) == []
-    assert faces_of_cylinder(ctx, fit_plane(xyz.reshape(-1, 3)[idx]), idx) == []  # a plane is no cylinder
+        assert faces_of_curved(ctx, cylinder, idx) == []
+    assert faces_of_curved(ctx, fit_plane(xyz.reshape(-1, 3)[idx]), idx) == []  # a plane is no cylinder
 
 
 def _ball(seed, *, rows=120, cols=120, z=4.0, radius=0.3, f=640.0):
@@ -323,7 +323,7 @@ def test_a_sphere_over_one_far_face_leaves_it_whole(crease):
     centre = points.mean(axis=0) - 2.0 * normal * np.sign(normal @ points.mean(axis=0))  # on the camera's side
     sphere = Sphere(center=centre, radius=float(np.median(np.linalg.norm(points - centre, axis=1))), rms=0.0,
                     inliers=0)
-    assert faces_of_cylinder(_context(xyz, sigma), sphere, np.arange(truth.size)) == []
+    assert faces_of_curved(_context(xyz, sigma), sphere, np.arange(truth.size)) == []
 
 
 @pytest.mark.parametrize("seed", [3, 4])
@@ -333,7 +333,7 @@ def test_a_far_ball_keeps_its_sphere(seed):
     fitted = fit_sphere(xyz.reshape(-1, 3)[idx])
     assert isinstance(fitted, Sphere)
     for sphere in (model, fitted):
-        assert faces_of_cylinder(ctx, sphere, idx) == []
+        assert faces_of_curved(ctx, sphere, idx) == []
 
 
 def _corner_regions(labels_from, turn_deg=5.0):

@@ -80,11 +80,21 @@ def test_curved_beyond_distance_noise_asks_nothing_of_a_plane(cylinder_context):
     assert not ctx.curved_beyond_distance_noise(None, idx)
 
 
-def test_context_keeps_the_band_faces_only_flag(pipeline):
-    cloud = rs.OrganizedCloud(np.dstack([*np.mgrid[0:10, 0:12].astype(float), np.full((10, 12), 3.0)]))
-    sigma = np.full(cloud.shape, 0.01)
-    assert not Context(cloud, pipeline.fitter, sigma, 10).band_faces_only
-    assert Context(cloud, pipeline.fitter, sigma, 10, band_faces_only=True).band_faces_only
+def test_the_band_for_faces_only_tries_no_start_pieces(pipeline, monkeypatch):
+    # returns scattered 2-6 m along their rays: no search explains them, so the band's last
+    # resort, the local starts' pieces, is asked, but not where the band is for faces only
+    rows, cols = np.mgrid[0:20, 0:30].astype(float)
+    rays = np.dstack([(cols - 15) / 100, (rows - 10) / 100, np.ones((20, 30))])
+    ranges = np.random.default_rng(7).uniform(2.0, 6.0, (20, 30))
+    cloud = rs.OrganizedCloud(rays / np.linalg.norm(rays, axis=2, keepdims=True) * ranges[..., None])
+    pool = np.arange(600)
+    asked = []
+    monkeypatch.setattr(Context, "_start_pieces", lambda self, pool, sigma: asked.append(pool.size) or (None, None))
+    for faces_only, starts in ((False, [600]), (True, [])):
+        asked.clear()
+        ctx = Context(cloud, pipeline.fitter, np.full(cloud.shape, 0.005), 100, band_faces_only=faces_only)
+        assert ctx.dominant_search(pool, face_band=True) == (None, None, False)
+        assert asked == starts
 
 
 # kinect_real_640x480 seed 1102 scan 0: a box 3.9-4.1 m away (its top and two sides, 1267,
@@ -96,11 +106,11 @@ BOX_FACES = (10, 12, 14)
 
 def test_a_box_the_tile_grid_lost_comes_back_as_its_three_faces():
     scan, result = matrix_result("kinect_real_640x480", 1102, 0)
+    kinds = {f.label: f.kind for f in result.features}
     for face in BOX_FACES:
         mask = scan.truth_ids == face
         label, count = region_holding(result.labels, mask)
         assert label != 0, f"face {face} is in no region"
         region = result.labels == label
         assert count >= 0.8 * mask.sum() and count >= 0.8 * region.sum(), (face, count, mask.sum(), region.sum())
-        kinds = {f.label: f.kind for f in result.features}
         assert kinds.get(label) == "plane"
