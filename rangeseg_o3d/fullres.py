@@ -33,7 +33,7 @@ from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refineme
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
            "region_stats", "stats_with_moved", "stats_after_moves",
            "leftover_blob_labels", "with_pixel_rms", "planes_for_unresolved", "resolved_refit", "other_curved_kind",
-           "plane_under_border_bend", "grow_into_free",
+           "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases", "settle_caps",
            "settle_plane_borders",
            "recovered_region_floor", "free_untold_regions"]
@@ -446,9 +446,7 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     so its own residuals resolve nothing, while the pipe's pixels resolve the cylinder
     refitted to them; that one replaces it, and only a region whose refit resolves no
     curvature either becomes its plane. A region whose curvature its pixels resolve takes
-    the plane of its inner pixels where the bend rests on its border's pixels alone and each
-    pixel is a sample of its own (``samples`` 1; :func:`plane_under_border_bend`), else the
-    other curved kind where the fitter's decision on the sample gives it
+    the other curved kind where the fitter's decision on the sample gives it
     (:func:`other_curved_kind`).
     """
     from .fitting.plane import fit_plane
@@ -468,22 +466,7 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         if not plane:
             continue
         squares = float(np.sum(fits[k].distances(points) ** 2))
-        # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
-        # independent samples, at most one (a step as wide as a stereo camera's window: one each)
-        share = min(1.0, samples * sample_step(labels[box].size) ** 2)
         if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
-            # (a mixed return is one pixel wide where each pixel errs alone; where the pixels
-            # err together over a matching window (stereo, kinect_real) the band is the window's
-            # width, and the pixels inside hold too few independent samples to judge a bend:
-            # stereo seed 1110 scan 0, a 0.22 m pipe at 3 m under a 0.39 m tile cylinder, 12295
-            # px, was made a plane; inner pixels two steps in kept kinect_real seed 1115 scan 5's
-            # box face a cylinder)
-            inner = (None if fitter is None or samples < 1.0
-                     else plane_under_border_bend(cloud, labels, k, box, fits[k], fitter, share))
-            if inner is not None:
-                fits[k] = replace(inner, inliers=int(stats.counts[k]))
-                replaced.append(k)
-                continue
             other = None if fitter is None else other_curved_kind(fitter, points, fits[k], squares)
             if other is not None:
                 fits[k] = replace(other, inliers=int(stats.counts[k]))
@@ -491,45 +474,16 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
             continue
         if by_distance_noise and only_curved_within_noise(fits[k], cloud.xyz, sigma, labels, k, box):
             continue
-        refit = None if fitter is None else resolved_refit(fitter, points, fits[k], plane.rms, share)
+        # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
+        # independent samples, at most one (a step as wide as a stereo camera's window: one each)
+        spacing = sample_step(labels[box].size) ** 2
+        refit = None if fitter is None else resolved_refit(fitter, points, fits[k], plane.rms,
+                                                           min(1.0, samples * spacing))
         fits[k] = replace(refit if refit is not None else plane, inliers=int(stats.counts[k]))
         replaced.append(k)
     if replaced:
         stats = region_stats(cloud.xyz, labels, fits, sigma, inlier_factor, known=stats, stale=replaced)
     return fits, stats
-
-
-def plane_under_border_bend(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice], model, fitter,
-                            samples: float = 1.0):
-    """The plane of region ``k``'s inner pixels (those whose four neighbours are in it, on
-    the even grid of :func:`region_sample`) when the curved ``model`` resolves no curvature
-    over that plane there (:func:`rangeseg_o3d.fitting.robust.curvature_resolved`) and
-    neither does its kind refitted to them (:func:`resolved_refit`, ``samples`` as there);
-    else None.
-
-    Pixels where a jump edge crosses a depth camera's footprint lie between the two surfaces
-    along their rays, and a few of them, or of the neighbour's pixels, along a face's sides
-    put its least-squares plane off by more than a cylinder that bends away to them: over
-    the region's pixels that cylinder resolves a curvature the face has nowhere inside
-    (kinect seed 1124 scan 2: a box face at 6.3 m, 2001 px with 334 of its neighbours', a
-    0.74 m cylinder 30.4 mm off the sample where their plane is 33.0; its pixels one step in
-    from the border hold 38 of them, and there the plane is 30.2 mm, the cylinder 30.8). A
-    pipe or ball keeps its bend over its inner pixels, or a refit of its kind there does
-    (kinect seed 1115 scan 2: a ball's region of 333 px under a 0.28 m tile sphere that
-    resolves nothing inside; its refit does)."""
-    from .fitting.plane import fit_plane
-    from .fitting.robust import curvature_resolved
-
-    points = region_sample(cloud, labels, k, box, inner=True)
-    plane = fit_plane(points) if len(points) >= 6 else None
-    if not plane:
-        return None
-    squares = float(np.sum(model.distances(points) ** 2))
-    if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
-        return None
-    if resolved_refit(fitter, points, model, plane.rms, samples) is not None:
-        return None
-    return plane
 
 
 def other_curved_kind(fitter, points: np.ndarray, model, squares: float):
@@ -998,16 +952,15 @@ def sample_step(size: int) -> int:
     return max(int(np.ceil(np.sqrt(size / UNRESOLVED_TEST_PIXELS))), 1)
 
 
-def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice], *, inner: bool = False) -> np.ndarray:
+def region_sample(cloud, labels: np.ndarray, k: int, box: tuple[slice, slice]) -> np.ndarray:
     """The valid points of label ``k`` in ``box`` on an even grid of about
-    ``UNRESOLVED_TEST_PIXELS`` pixels (every :func:`sample_step`-th row and column); with
-    ``inner``, of those only the pixels whose four neighbours carry ``k`` too."""
+    ``UNRESOLVED_TEST_PIXELS`` pixels (every :func:`sample_step`-th row and column)."""
     h, w = labels.shape
     (row0, row1, _), (col0, col1, _) = box[0].indices(h), box[1].indices(w)  # numpy's clipping
     step = sample_step(max(row1 - row0, 0) * max(col1 - col0, 0))
     # one compiled pass (the same points in the same order as numpy's slices, mask and
     # finite test, which cost ~30 microseconds a region in small-array calls)
-    return kernels.label_sample(cloud.xyz, labels, int(k), row0, row1, col0, col1, step, inner)
+    return kernels.label_sample(cloud.xyz, labels, int(k), row0, row1, col0, col1, step)
 
 
 def only_curved_within_noise(curved, xyz: np.ndarray, sigma: np.ndarray, labels: np.ndarray, k: int,

@@ -607,54 +607,6 @@ def test_a_short_column_under_a_tile_sphere_takes_the_cylinder_its_pixels_give()
     assert other_curved_kind(fitter, wall, ball, np.inf) is None  # the fitter gives a plane: left to the curvature test
 
 
-def _face_with_mixed_sides(rng, sigma=0.004, behind=0.08):
-    """The column and wall of :func:`_column_and_wall`, the wall's region cut to columns
-    2-36 and its first and last of those returns ``behind`` to 1.5 ``behind`` metres farther
-    along z (mixed returns where a jump edge crosses the footprint)."""
-    xyz, labels = _column_and_wall(rng, sigma)
-    labels[:, :2] = 0
-    labels[:, 37:40] = 0
-    xyz[:, [2, 36], 2] += behind * (1.0 + 0.5 * rng.random((xyz.shape[0], 2)))
-    return xyz, labels
-
-
-def test_a_face_bent_by_its_border_pixels_becomes_the_plane_of_its_inner_pixels():
-    # kinect seed 1124 scan 2: a cylinder that bends away to the mixed returns along a
-    # face's sides resolves a curvature over all its pixels, none over those inside
-    from rangeseg_o3d.fitting.robust import curvature_resolved
-    from rangeseg_o3d.fullres import plane_under_border_bend, region_sample
-
-    xyz, labels = _face_with_mixed_sides(np.random.default_rng(7))
-    cloud = rs.OrganizedCloud(xyz)
-    sigma = np.full(labels.shape, 0.004)
-    fitter = rs.Pipeline("rgbd_vga").fitter
-    bent = rs.fit_cylinder(xyz[labels == 1])
-    assert isinstance(bent, Cylinder)
-    column = Cylinder(axis=[0, 1, 0], point=[1.0, 0.0, 2.3], radius=0.3, rms=0.004, inliers=0)
-    fits = {1: bent, 2: column}
-    box = LabelBoxes(labels)(1)  # (the box planes_for_unresolved samples without a tile grid)
-    points = region_sample(cloud, labels, 1, box)  # premise: over every pixel the bend is resolved
-    assert curvature_resolved(len(points) * rs.fit_plane(points).rms ** 2,
-                              float(np.sum(bent.distances(points) ** 2)), len(points))
-    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
-    kept, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
-    assert kept[1] is bent  # without the fitter nothing is refitted, and the bend stays
-    out, out_stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
-                                           fitter=fitter)
-    face = out[1]
-    assert isinstance(face, Plane)
-    assert abs(abs(face.normal[2]) - 1.0) < 1e-3 and abs(face.d - 2.0) < 0.002
-    assert face.inliers == (labels == 1).sum()
-    # measured again: the face's pixels inside lie within the noise of its plane, not of the bend
-    assert out_stats.inliers[1] > stats.inliers[1] and out_stats.inliers[1] >= 0.9 * (labels[:, 3:36] == 1).sum()
-    assert out[2] is column  # the column bends inside as well
-    # pixels that err together over a matching window (each 1/9 of a sample) are not asked
-    stereo, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS,
-                                      fitter=fitter, samples=1 / 9)
-    assert not isinstance(stereo[1], Plane)
-    assert plane_under_border_bend(cloud, labels, 2, LabelBoxes(labels)(2), column, fitter) is None
-
-
 def test_planes_for_creases_keeps_a_true_cylinder():
     rng = np.random.default_rng(6)
     xyz, labels = _column_and_wall(rng)
@@ -934,26 +886,6 @@ def test_region_sample_is_numpys_slices_mask_and_finite_test(seed, dtype):
             np.testing.assert_array_equal(got, expected)
     # a big box is sampled on a grid (step > 1), and the sample is not empty
     assert sample_step(h * w) > 1 and region_sample(cloud, labels, 1, boxes[0]).shape[0] > 0
-    # inner: of those only the pixels whose four neighbours carry the label (off the grid counts for it)
-    padded = np.pad(labels, 1, mode="edge")
-    for k in range(6):
-        inside = labels == k
-        for shifted in (padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]):
-            inside &= shifted == k
-        only_inner = np.where(inside, labels, -1).astype(np.int32)
-        for box in boxes:
-            got = region_sample(cloud, labels, k, box, inner=True)
-            np.testing.assert_array_equal(got, numpy_form(cloud.xyz, only_inner, k, box))
-    # a 4 x 5 block: its 2 x 3 middle is inner, and its side on the grid's edge does not count against it
-    block = np.zeros((6, 7), np.int32)
-    block[1:5, 1:6] = 1
-    grid = rs.OrganizedCloud(np.dstack([*np.mgrid[0:6, 0:7], np.zeros((6, 7))]).astype(float))
-    whole = (slice(None), slice(None))
-    np.testing.assert_array_equal(region_sample(grid, block, 1, whole, inner=True)[:, :2],
-                                  [[r, c] for r in (2, 3) for c in (2, 3, 4)])
-    edge = block[1:5].copy()  # the block's top and bottom rows on the grid's edges: they are inner
-    inner = region_sample(rs.OrganizedCloud(np.ascontiguousarray(grid.xyz[1:5])), edge, 1, whole, inner=True)
-    np.testing.assert_array_equal(inner[:, :2], [[r, c] for r in (1, 2, 3, 4) for c in (2, 3, 4)])
 
 
 def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims(generated_frame):

@@ -786,24 +786,19 @@ def label_boxes(labels, n):
 
 
 @njit(cache=True, nogil=True)
-def label_sample(xyz, labels, k, row0, row1, col0, col1, step, inner=False):
+def label_sample(xyz, labels, k, row0, row1, col0, col1, step):
     """The points ``xyz[r, c]`` (all three coordinates finite) of the pixels of label ``k``
     at rows ``row0, row0 + step, ... < row1`` and columns ``col0, col0 + step, ... < col1``,
     in raster order: ``xyz[box][::step, ::step][labels[box][::step, ::step] == k]`` without
     its non-finite rows, as one (m, 3) array of ``xyz``'s dtype (numpy's slicing, mask and
-    finite test cost ~30 microseconds a region in small-array calls). With ``inner``, only
-    the pixels whose four neighbours on the grid carry ``k`` too (a neighbour off the grid
-    does not count against a pixel: the frame's edge is no edge of the surface)."""
-    h, w = labels.shape
+    finite test cost ~30 microseconds a region in small-array calls)."""
     rows = len(range(row0, row1, step))
     cols = len(range(col0, col1, step))
     out = np.empty((rows * cols, 3), xyz.dtype)  # room for every grid pixel: one pass
     m = 0
     for r in range(row0, row1, step):
         for c in range(col0, col1, step):
-            if labels[r, c] == k and not (inner and (
-                    (r > 0 and labels[r - 1, c] != k) or (r + 1 < h and labels[r + 1, c] != k)
-                    or (c > 0 and labels[r, c - 1] != k) or (c + 1 < w and labels[r, c + 1] != k))):
+            if labels[r, c] == k:
                 x, y, z = xyz[r, c, 0], xyz[r, c, 1], xyz[r, c, 2]
                 if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
                     out[m, 0], out[m, 1], out[m, 2] = x, y, z
