@@ -22,7 +22,7 @@ from scipy.special import fdtri, ndtr
 
 from ._numeric import rows_at, unique_ints
 from .fitting.plane import fit_plane
-from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+from .fitting.primitives import Cylinder, FitFailure, Plane, Sphere, front_along_rays
 from .fitting.region_fitter import fresh_label, region_indices
 from .fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .kernels.linalg import CHI_SQUARE_SIGMAS
@@ -102,7 +102,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
                       min_size: int, inlier_factor: float, min_angle_deg: float, correlation_px: int = 1,
                       wrap_columns: bool = False):
     """Each plane region of at least two faces' pixels (``2 min_size``) whose own plane is
-    beyond the noise of its pixels' distances, each cylinder region of as many pixels
+    beyond the noise of its pixels' distances, each cylinder or sphere region of as many pixels
     whose misfit two or more planes explain (:func:`faces_of_curved`), and each region of as
     many pixels no model fitted whose crease lines cut it into planes (:func:`faces_of_unfitted`),
     is split into the planes of the faces it holds (:func:`faces_of_plane`, at least
@@ -772,32 +772,14 @@ def _join_continued(ctx, surfaces: list) -> list:
     return surfaces
 
 
-def _cylinder_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Per point, its range minus the range at which its ray meets the cylinder ``model``
-    (the nearer crossing; where the ray passes by, its closest approach to the axis's
-    surface), in units of the range noise ``sigma``: the cylinder's residuals along the
-    rays, in the units of the planes' (:func:`~rangeseg_o3d.ray_planes.ray_terms`)."""
-    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
-    rays = points / ranges[:, None]
-    across = rays - np.outer(rays @ model.axis, model.axis)
-    offset = model.point - (model.point @ model.axis) * model.axis
-    a = np.maximum(np.einsum("ij,ij->i", across, across), 1e-12)
-    b = -2.0 * (across @ offset)
-    c = float(offset @ offset) - model.radius ** 2
-    disc = b * b - 4.0 * a * c
-    hit = np.where(disc >= 0.0, (-b - np.sqrt(np.maximum(disc, 0.0))) / (2.0 * a), -b / (2.0 * a))
-    return (ranges - hit) / np.maximum(sigma, 1e-12)
-
-
-def _sphere_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Per point, its range minus the range at which its ray meets the sphere ``model`` (the
-    nearer crossing; where the ray passes by, its closest approach to the centre), in units
-    of the range noise ``sigma``: :func:`_cylinder_residuals` for a sphere."""
-    ranges = np.maximum(np.linalg.norm(points, axis=1), 1e-12)
-    along = (points / ranges[:, None]) @ model.center  # the centre's projection on each ray
-    disc = along * along - float(model.center @ model.center) + model.radius ** 2
-    hit = along - np.sqrt(np.maximum(disc, 0.0))
-    return (ranges - hit) / np.maximum(sigma, 1e-12)
+def _curved_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per point, its range minus the range at which its ray meets the cylinder or sphere
+    ``model`` (the nearer crossing; where the ray passes by, its closest approach:
+    :func:`~rangeseg_o3d.fitting.primitives.front_along_rays`), in units of the range noise
+    ``sigma``: the model's residuals along the rays, in the units of the planes'
+    (:func:`~rangeseg_o3d.ray_planes.ray_terms`)."""
+    _, ranges, front, _ = front_along_rays(model, points)
+    return (ranges - front) / np.maximum(sigma, 1e-12)
 
 
 def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
@@ -818,7 +800,7 @@ def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
     for part in (order[:size], order[size:]):
         _, a = ray_fits(ray_moments(rays[part], inverse[part], weight[part]))
         planes[part] = (inverse[part] - rays[part] @ a[0]) * np.sqrt(weight[part])
-    curved = (_sphere_residuals if isinstance(model, Sphere) else _cylinder_residuals)(model, points, noise)
+    curved = _curved_residuals(model, points, noise)
     share = 1.0 / float(max(int(correlation_px), 1)) ** 2
     out = []
     for z in (curved, planes):
@@ -844,8 +826,8 @@ def _two_planes_win(patterns, cover: float = PLANES_COVER) -> bool:
 
 def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
     """The planes of two faces of a box the cylinder region ``idx`` (flat pixels, increasing)
-    of ``model`` holds, ``[(pixels, plane)]``; empty when it is a cylinder. A sphere region
-    is asked the same (its residuals along the rays: :func:`_sphere_residuals`): at 5-6 m the
+    of ``model`` holds, ``[(pixels, plane)]``; empty when it is the curved surface. A sphere region
+    is asked the same (its residuals along the rays: :func:`_curved_residuals`): at 5-6 m the
     tile means of a box's three faces fit a sphere within their noise (kinect_real_640x480
     seed 1105 scan 0: 4873 px, r 0.45 m; stereo_1280x720 seed 1104 scan 2: 2667 px, r 0.33 m).
     A sphere region that one plane along the rays explains within its range noise

@@ -12,7 +12,7 @@ from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure, Sphere
 from rangeseg_o3d.fitting.sphere import fit_sphere
 from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _faces_of_leaves,
-                                      _misfit_patterns, _sphere_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
+                                      _misfit_patterns, _curved_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
 from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.synthetic.depth_camera import _unit_noise
@@ -287,7 +287,7 @@ def test_sphere_residuals_are_range_errors_along_the_rays_in_noise_units():
     assert near[0] == pytest.approx(np.linalg.norm(centre) - radius)
     sigma = np.array([0.02, 0.05, 0.01])
     moved = np.array([0.03, -0.1, 0.0])
-    got = _sphere_residuals(sphere, rays * (near + moved)[:, None], sigma)
+    got = _curved_residuals(sphere, rays * (near + moved)[:, None], sigma)
     # on the two rays that meet it: the move along the ray over the noise; the third ray
     # passes by, and is measured from its closest approach to the centre
     assert got[:2] == pytest.approx(moved[:2] / sigma[:2], rel=1e-9)

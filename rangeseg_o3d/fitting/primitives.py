@@ -7,7 +7,7 @@ from typing import ClassVar, Union
 
 import numpy as np
 
-__all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model", "with_statistics"]
+__all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model", "front_along_rays", "with_statistics"]
 
 
 def _vec(value, name: str) -> np.ndarray:
@@ -150,3 +150,34 @@ def with_statistics(model, **changes):
         copy.__dict__.update(changes)
         return copy
     return replace(model, **changes)
+
+
+def front_along_rays(model, points: np.ndarray, starts: np.ndarray | None = None) -> tuple:
+    """``(rays, ranges, front, hit)`` of the returns ``points`` (N, 3) against the cylinder
+    (unbounded along its axis) or sphere ``model``: their unit rays and ranges from where the
+    rays start (``starts``, (N, 3); the origin when None), the range at which each ray first
+    meets the model (the nearer crossing; where the ray passes it by, the range of its closest
+    approach), and whether it meets it in front of its start."""
+    if not isinstance(model, (Cylinder, Sphere)):
+        raise ValueError(f"model must be a Cylinder or a Sphere; got {type(model).__name__}")
+    points = np.asarray(points, dtype=np.float64)
+    start = np.zeros_like(points) if starts is None else np.asarray(starts, dtype=np.float64)
+    seen = points - start
+    ranges = np.linalg.norm(seen, axis=1)
+    rays = seen / np.maximum(ranges, 1e-12)[:, None]
+    if isinstance(model, Cylinder):
+        axis = model.axis
+        d = rays - np.outer(rays @ axis, axis)
+        rel = start - model.point
+        e = rel - np.outer(rel @ axis, axis)
+        a = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
+        b = np.einsum("ij,ij->i", d, e)
+        c = np.einsum("ij,ij->i", e, e) - model.radius ** 2
+    else:
+        rel = start - model.center
+        a = np.ones(len(points))
+        b = np.einsum("ij,ij->i", rays, rel)
+        c = np.einsum("ij,ij->i", rel, rel) - model.radius ** 2
+    disc = b * b - a * c
+    front = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
+    return rays, ranges, front, (disc >= 0.0) & (front > 0.0)  # (a start inside: front < 0)

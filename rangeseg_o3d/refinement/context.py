@@ -271,8 +271,7 @@ class Context:
             if not refit and model.kind != "plane":
                 return (*self._face_plane(pool, sigma), False)
             model = refit
-        if (model and after_band and self.band_faces_only and model.kind != "plane"
-                and self.curved_beyond_distance_noise(model, piece)):
+        if after_band and self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
             piece, model = self._face_in_noise(pool, sigma)
             return (piece, model, True) if piece is not None else (None, None, False)
         return (piece, model, False) if model else (None, None, False)

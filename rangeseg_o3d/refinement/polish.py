@@ -28,7 +28,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from ..kernels.linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis
 from ..fitting.classify import MIN_ARC_DEG
-from ..fitting.primitives import Cylinder, Plane, Sphere
+from ..fitting.primitives import Cylinder, Plane, Sphere, front_along_rays
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
@@ -567,30 +567,11 @@ def _seen_through(ctx: Context, labels: np.ndarray, k: int, idx: np.ndarray, mod
 
 def _front_meeting(ctx: Context, idx: np.ndarray, points: np.ndarray, model) -> tuple:
     """``(start, rays, ranges, front, hit)`` for the returns ``points`` of the flat pixels
-    ``idx``: where their rays start (:meth:`Context.ray_origins`, else the origin), their unit
-    rays and ranges from there, the range at which each ray first meets ``model`` (a cylinder,
-    unbounded along its axis, or a sphere) in front of its start, and whether it meets it there."""
+    ``idx``: where their rays start (:meth:`Context.ray_origins`, else the origin), and
+    :func:`rangeseg_o3d.fitting.primitives.front_along_rays` from there."""
     origins = ctx.ray_origins(idx)
     start = np.zeros((idx.size, 3)) if origins is None else origins
-    seen = points - start
-    ranges = np.linalg.norm(seen, axis=1)
-    rays = seen / np.maximum(ranges, 1e-12)[:, None]
-    if isinstance(model, Cylinder):
-        axis = model.axis
-        d = rays - np.outer(rays @ axis, axis)
-        rel = start - model.point
-        e = rel - np.outer(rel @ axis, axis)
-        a = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
-        b = np.einsum("ij,ij->i", d, e)
-        c = np.einsum("ij,ij->i", e, e) - model.radius ** 2
-    else:
-        rel = start - model.center
-        a = np.ones(idx.size)
-        b = np.einsum("ij,ij->i", rays, rel)
-        c = np.einsum("ij,ij->i", rel, rel) - model.radius ** 2
-    disc = b * b - a * c
-    front = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
-    return start, rays, ranges, front, (disc >= 0.0) & (front > 0.0)  # (a start inside: front < 0)
+    return (start, *front_along_rays(model, points, start))
 
 
 def behind_own_front(ctx: Context, idx: np.ndarray, points: np.ndarray, model) -> np.ndarray:
