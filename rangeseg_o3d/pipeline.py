@@ -23,6 +23,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
                       smallest_region, stats_after_moves, free_untold_regions)
 from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
+from .curved_pairs import curved_from_plane_pairs
 from .occluded_planes import join_across_occluders
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
@@ -441,6 +442,13 @@ class Pipeline:
                                                         stepped=noise.step_quadratic > 0.0,
                                                         min_arc_deg=float(self.fitter.params["min_arc_deg"]))
                 lap("bent_planes")
+                # a pipe or ball left as two plane strips, each flat within the noise: the
+                # model of both, where it leaves no crease's pattern between them (curved_pairs)
+                labels, fits, stats = curved_from_plane_pairs(
+                    cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
+                    min_size=smallest_region(refine, self.sensor, cloud), inlier_factor=INLIER_SIGMAS,
+                    correlation_px=noise.correlation_px, wrap_columns=self.sensor.wrap_columns)
+                lap("curved_pairs")
         return labels, fits, sigma, stats
 
     @staticmethod

@@ -65,10 +65,11 @@ def test_the_stereo_pipeline_ends_with_the_join_and_the_settling_and_a_kinects_d
         "sigma0": 0.001, "sigma_quadratic": COEFF, "noise_correlation_px": 3}})
     kinect = rs.load_config({"name": "rgbd_vga", "tile": 6, "sensor": {"sigma0": 0.001, "sigma_quadratic": COEFF}})
     timed = [[k for k in rs.Pipeline(c).run(cloud).timings if k.startswith("full.")] for c in (stereo, kinect)]
-    assert timed[0][-5:] == ["full.join_pieces", "full.occluders", "full.settle", "full.caps", "full.bent_planes"]
+    assert timed[0][-6:] == ["full.join_pieces", "full.occluders", "full.settle", "full.caps", "full.bent_planes",
+                             "full.curved_pairs"]
     assert "full.free_faces" in timed[0]
     stereo_only = {"full.join_pieces", "full.occluders", "full.settle", "full.caps", "full.free_faces",
-                   "full.bent_planes"}
+                   "full.bent_planes", "full.curved_pairs"}
     assert not stereo_only & set(timed[1])
 
 

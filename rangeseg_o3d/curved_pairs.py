@@ -1,0 +1,119 @@
+"""Pairs of plane regions that are one pipe or ball, joined under its cylinder or sphere.
+
+A depth camera whose noise errs together over a matching window sees a pipe 0.13-0.25 m
+in radius at 3-5 m as two strips whose planes each explain their pixels within the noise:
+the tile grid gave one strip a plane region and the pixels its model left were recovered
+as a second plane beside it (kinect_real_640x480 study seeds 1117 scan 0, 1120 scan 5,
+1125 scan 4; a ball 0.43 m across at 4.9 m, seed 1114 scan 0; a stereo camera's pipe at
+2.8 m, seed 1102 scan 1). Each strip alone is flat within the noise, so no step that asks
+one region sees the bend; the two together do.
+
+The fitter's model of the union (its own order: a plane, else a cylinder, else a sphere)
+decides the kind. When it is curved, the misfit pattern across the union's best crease line
+(:func:`~rangeseg_o3d.plane_faces.crease_line`, the chi-square over
+:data:`~rangeseg_o3d.plane_faces.PATTERN_BINS` equal-count bins of the mean residuals
+along the rays, counted over the independent returns) tells a bend from a crease: over two
+faces of a box the curved model misses the crease and the far edges along whole bands
+(patterns of 60 to 10^6 on the study pairs of different surfaces, in chi-square units
+of 16 bins), over one pipe it leaves the noise's pattern (1.2-24). A small box far away
+hides its crease in the noise as well (two faces 0.3 m wide at 5.5 m: patterns 6.6-20), but
+its two planes leave a pattern ten times smaller still (9.4-10.1 times), where a pipe's two
+strips leave one as large as the curved model's or larger (the curved model's 0.13-3.1 times
+theirs on the study pipes and balls; 7.5 and more on the study pairs of different surfaces).
+
+The pair joins when the curved model's pattern lies within the chi-square bound of the bins
+at :data:`~rangeseg_o3d.kernels.linalg.CHI_SQUARE_SIGMAS` (:data:`PATTERN_BOUND`), within
+:data:`JOIN_RATIO` times the two planes' (the F-test of the two patterns, as
+:func:`~rangeseg_o3d.plane_faces.faces_of_curved` asks the other way, at three deviations),
+and it holds :data:`~rangeseg_o3d.plane_faces.PLANES_COVER` of the union's pixels within
+:data:`~rangeseg_o3d.refinement.context.TRIM_SIGMAS` noise sigmas.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import fdtri, ndtr
+
+from .fitting.primitives import Cylinder, Plane, Sphere
+from .fitting.region_fitter import region_indices
+from .fullres import region_stats
+from .kernels.linalg import CHI_SQUARE_SIGMAS
+from .plane_faces import PATTERN_BINS, PLANES_COVER, _misfit_patterns
+from .refinement.context import touching
+
+__all__ = ["JOIN_RATIO", "PATTERN_BOUND", "curved_from_plane_pairs"]
+
+#: The largest misfit pattern (chi-square over PATTERN_BINS bins, in units of the
+#: independent returns) the noise alone leaves, CHI_SQUARE_SIGMAS deviations up its law.
+PATTERN_BOUND = PATTERN_BINS * (1.0 + CHI_SQUARE_SIGMAS * float(np.sqrt(2.0 / PATTERN_BINS)))
+#: The most the curved model's misfit pattern may exceed the two planes' across the same
+#: line: the F distribution's quantile of PATTERN_BINS and PATTERN_BINS degrees of freedom
+#: at the tail of three normal deviations (4.94).
+JOIN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(3.0)))
+
+
+def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter,
+                            min_size: int, inlier_factor: float, correlation_px: int = 1,
+                            wrap_columns: bool = False):
+    """Touching plane regions of ``min_size`` pixels or more each whose union the fitter
+    gives a cylinder or sphere that leaves no misfit pattern across its best crease line
+    (see the module's docstring) become one region of that model, under the larger one's
+    label; each region joins at most one other, the pairs of least pattern first. Returns
+    ``(labels, fits, stats)``, the regions changed measured again; the inputs when none joins.
+
+    ``sigma``: each pixel's range noise (the grid's shape); ``correlation_px``: the side
+    (px) of the box over which the returns err together (``NoiseModel.correlation_px``)."""
+    from .refinement.context import Context
+
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if sigma.shape != labels.shape:
+        raise ValueError(f"sigma: expected shape {labels.shape}, got {sigma.shape}")
+    counts = stats.counts
+    planes = [k for k, m in fits.items()
+              if isinstance(m, Plane) and 0 < k < counts.size and counts[k] >= min_size]
+    if len(planes) < 2:
+        return labels, fits, stats
+    members = region_indices(labels, only=planes)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns,
+                  correlation_px=max(int(correlation_px), 1))
+    found = []
+    for a in planes:
+        for b in sorted(touching(labels, members[a], 1) & set(planes)):
+            if b <= a:
+                continue
+            union = np.union1d(members[a], members[b])
+            pattern, model = _one_curved_surface(ctx, union, correlation_px)
+            if model is not None:
+                found.append((pattern, a, b, model))
+    if not found:
+        return labels, fits, stats
+    out = np.array(labels, dtype=np.int32, order="C")
+    flat = out.reshape(-1)
+    fits, used = dict(fits), set()
+    for _, a, b, model in sorted(found, key=lambda item: item[0]):
+        if a in used or b in used:
+            continue
+        keep, gone = (a, b) if members[a].size >= members[b].size else (b, a)
+        flat[members[gone]] = keep
+        fits[keep] = model
+        fits.pop(gone)
+        used |= {a, b}
+    stats = region_stats(cloud.xyz, out, fits, sigma, inlier_factor, known=stats, stale=used)
+    return out, fits, stats
+
+
+def _one_curved_surface(ctx, union: np.ndarray, correlation_px: int):
+    """``(pattern, model)``: the fitter's cylinder or sphere of the flat pixels ``union``
+    (increasing) and its misfit pattern across their best crease line, when that pattern is
+    the noise's, within JOIN_RATIO times the two planes' across the line, and the model holds
+    PLANES_COVER of them within TRIM_SIGMAS; ``(inf, None)`` otherwise."""
+    model = ctx.fitter.fit(ctx.xyz[union])
+    if not isinstance(model, (Cylinder, Sphere)):
+        return np.inf, None
+    patterns = _misfit_patterns(ctx, model, union, correlation_px)
+    if patterns is None:
+        return np.inf, None
+    curved, planes, inliers, _, _ = patterns
+    if curved > PATTERN_BOUND or curved > JOIN_RATIO * planes or inliers[0] < PLANES_COVER:
+        return np.inf, None
+    return curved, model

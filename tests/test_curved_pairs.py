@@ -1,0 +1,130 @@
+"""curved_pairs: a pipe 0.3 m across at 4.5 m that a Kinect-type camera (noise 1.425e-3 z^2
+correlated over 9 px, depth in 1/8-px disparity steps) leaves as two plane strips is joined
+under its cylinder; a box's two faces 0.3 m wide at 5.5 m, two plane regions as well, whose
+union the fitter also gives a cylinder within the noise's pattern, stay apart (their planes'
+pattern is ten times smaller still), and so does the wall behind them."""
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.curved_pairs import JOIN_RATIO, PATTERN_BOUND, curved_from_plane_pairs
+from rangeseg_o3d.fitting.primitives import Cylinder, Plane
+from rangeseg_o3d.fullres import region_stats
+from rangeseg_o3d.plane_faces import _within_noise_along_rays
+from rangeseg_o3d.ray_planes import pixel_moments, ray_fits, ray_plane
+from rangeseg_o3d.refinement.context import Context
+from rangeseg_o3d.result import INLIER_SIGMAS
+from rangeseg_o3d.sensor import NoiseModel
+from rangeseg_o3d.synthetic.depth_camera import KINECT_NOISE, camera_pose_scene, simulate_depth_camera
+from rangeseg_o3d.synthetic.matrix import KINECT_CORRELATION_PX, KINECT_STEP
+from rangeseg_o3d.synthetic.scene import Scene, box, cylinder, patch
+
+WALL, PIPE, BOX = 1, 2, 10  # truth ids; the box's faces are BOX + 1 .. BOX + 4 (its sides)
+RADIUS = 0.15
+PIPE_AT, BOX_AT, BOX_SIDE = 4.5, 5.5, 0.3
+NOISE = NoiseModel(sigma0=0.001, sigma_quadratic=KINECT_NOISE, correlation_px=KINECT_CORRELATION_PX,
+                   step_quadratic=KINECT_STEP)
+F = 320 / np.tan(np.deg2rad(31.0))  # the matrix's Kinect: 62 degrees across 640 columns
+MIN_SIZE = 288
+
+
+def _scan(seed):
+    # world: x ahead, y left, z up; a wall 6 m ahead, a pipe (no caps) 4 m ahead on the left,
+    # a box turned by 40 degrees 4 m ahead on the right, two of its sides towards the camera
+    ex, ey, ez = np.eye(3)
+    parts = (patch((6.0, 0.0, 1.0), ey, ez, 3.5, 2.0, first_id=WALL)
+             + cylinder((PIPE_AT + RADIUS, 0.7, 0.6), (0, 0, 1), RADIUS, 0.8, caps=False, first_id=PIPE)
+             + box((BOX_AT, -0.7, 1.0), (BOX_SIDE, BOX_SIDE, 0.5), yaw=np.deg2rad(40.0), first_id=BOX))
+    scene = camera_pose_scene(Scene(parts), position=(0.0, 0.0, 1.0))
+    return simulate_depth_camera(scene, fx=F, fy=F, cx=319.5, cy=239.5, noise_coeff=KINECT_NOISE,
+                                 noise_sigma0=0.001, noise_correlation=KINECT_CORRELATION_PX,
+                                 step_quadratic=KINECT_STEP, seed=seed)
+
+
+def _regions(scan):
+    """Plane regions as the tile grid and the recovery leave them: the wall, the pipe's left
+    and right halves (split at its middle column), and each box face seen, ``(labels, fits,
+    stats, sigma)``."""
+    truth = scan.truth_ids
+    cols = np.arange(truth.shape[1])[None, :].repeat(truth.shape[0], 0)
+    pipe = truth == PIPE
+    middle = np.median(cols[pipe])
+    labels = np.zeros(truth.shape, np.int32)
+    labels[truth == WALL] = 1
+    labels[pipe & (cols < middle)] = 2
+    labels[pipe & (cols >= middle)] = 3
+    faces = [t for t in range(BOX, BOX + 6) if np.count_nonzero(truth == t) >= MIN_SIZE]
+    for k, t in enumerate(faces, start=4):
+        labels[truth == t] = k
+    xyz = scan.cloud.xyz.reshape(-1, 3)
+    sigma = NOISE.sigma(np.linalg.norm(scan.cloud.xyz, axis=2))
+    fits = {}
+    for k in range(1, int(labels.max()) + 1):
+        idx = np.flatnonzero(labels.ravel() == k)
+        _, a = ray_fits(pixel_moments(xyz, sigma.ravel(), idx))
+        fits[k] = ray_plane(a[0], xyz[idx])
+    stats = region_stats(scan.cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    return labels, fits, stats, sigma, len(faces)
+
+
+def _join(scan):
+    labels, fits, stats, sigma, faces = _regions(scan)
+    out = curved_from_plane_pairs(scan.cloud, labels, fits, stats, sigma=sigma, fitter=rs.Pipeline("rgbd_vga").fitter,
+                                  min_size=MIN_SIZE, inlier_factor=INLIER_SIGMAS,
+                                  correlation_px=KINECT_CORRELATION_PX)
+    return (labels, fits, faces), out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(3))
+def test_a_pipe_left_as_two_plane_strips_becomes_one_cylinder_and_a_boxs_faces_stay_apart(seed):
+    scan = _scan(seed)
+    (labels, fits, faces), (out, out_fits, out_stats) = _join(scan)
+    assert faces == 2  # two sides of the box face the camera
+    # each half of the pipe is flat within the noise of its own independent returns: no step
+    # that asks one region sees the bend
+    ctx = Context(scan.cloud, rs.Pipeline("rgbd_vga").fitter, NOISE.sigma(np.linalg.norm(scan.cloud.xyz, axis=2)),
+                  MIN_SIZE, correlation_px=KINECT_CORRELATION_PX)
+    for k in (2, 3):
+        assert _within_noise_along_rays(ctx, np.flatnonzero(labels.ravel() == k), KINECT_CORRELATION_PX ** 2)
+    pipe = scan.truth_ids == PIPE
+    joined = np.unique(out[pipe])
+    assert joined.size == 1 and joined[0] in (2, 3)
+    model = out_fits[int(joined[0])]
+    assert isinstance(model, Cylinder)
+    assert abs(model.radius - RADIUS) < 0.35 * RADIUS
+    assert abs(abs(model.axis[1]) - 1.0) < 0.03  # the camera's y is down: the pipe's axis
+    assert len(out_fits) == len(fits) - 1
+    assert out_stats.counts[int(joined[0])] == np.count_nonzero(pipe)
+    # the box's two faces and the wall keep their planes and their pixels
+    for k in [1] + list(range(4, 4 + faces)):
+        assert isinstance(out_fits[k], Plane)
+        assert np.array_equal(out == k, labels == k)
+
+
+def test_no_pair_of_plane_regions_returns_the_inputs():
+    scan = _scan(0)
+    labels, fits, stats, sigma, _ = _regions(scan)
+    only_wall = np.where(labels == 1, 1, 0).astype(np.int32)
+    kept = {1: fits[1]}
+    wall_stats = region_stats(scan.cloud.xyz, only_wall, kept, sigma, INLIER_SIGMAS)
+    out = curved_from_plane_pairs(scan.cloud, only_wall, kept, wall_stats, sigma=sigma,
+                                  fitter=rs.Pipeline("rgbd_vga").fitter, min_size=MIN_SIZE,
+                                  inlier_factor=INLIER_SIGMAS, correlation_px=KINECT_CORRELATION_PX)
+    assert out[0] is only_wall and out[1] is kept and out[2] is wall_stats
+
+
+def test_a_noise_image_of_another_shape_is_refused():
+    scan = _scan(0)
+    labels, fits, stats, sigma, _ = _regions(scan)
+    with pytest.raises(ValueError, match="sigma: expected shape"):
+        curved_from_plane_pairs(scan.cloud, labels, fits, stats, sigma=sigma[:-1], fitter=rs.Pipeline("rgbd_vga").fitter,
+                                min_size=MIN_SIZE, inlier_factor=INLIER_SIGMAS)
+
+
+def test_the_bounds_are_the_chi_square_and_f_quantiles_of_the_bins():
+    # 16 bins, 4 deviations of sqrt(2 * 16) up: 16 + 4 * sqrt(32)
+    assert PATTERN_BOUND == pytest.approx(16 + 4 * np.sqrt(32))
+    # F(16, 16) at the upper tail of three normal deviations (0.00135)
+    assert JOIN_RATIO == pytest.approx(4.94, abs=0.01)
