@@ -38,7 +38,7 @@ from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import region_indices
 from .fullres import region_stats
 from .kernels.linalg import CHI_SQUARE_SIGMAS
-from .plane_faces import PATTERN_BINS, PLANES_COVER, _misfit_patterns
+from .plane_faces import PATTERN_BINS, PLANES_COVER, misfit_patterns
 from .refinement.context import touching
 
 __all__ = ["JOIN_RATIO", "PATTERN_BOUND", "curved_from_plane_pairs"]
@@ -113,7 +113,7 @@ def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px:
     if not isinstance(model, (Cylinder, Sphere)):
         return np.inf, None
     union = np.sort(np.concatenate((one, other)))
-    patterns = _misfit_patterns(ctx, model, union, correlation_px)
+    patterns = misfit_patterns(ctx, model, union, correlation_px)
     if patterns is None:
         return np.inf, None
     curved, planes, inliers, _, _ = patterns

@@ -34,7 +34,7 @@ from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_ter
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "misfit_patterns", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -782,8 +782,10 @@ def _curved_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarra
     return (ranges - front) / np.maximum(sigma, 1e-12)
 
 
-def _misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
-    """``(curved, planes, inliers, squares, sides)`` of the cylinder or sphere region ``idx``:
+def misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:
+    """``(curved, planes, inliers, squares, sides)`` of the flat pixels ``idx`` (increasing) under
+    the cylinder or sphere ``model`` (a curved region's, or the model of two plane regions:
+    :mod:`rangeseg_o3d.curved_pairs`):
     the chi-squares over PATTERN_BINS equal-count bins across the best crease line
     (:func:`crease_line`) of the mean residuals along the rays of the curved ``model`` and
     of the two sides' planes (each bin's mean in units of its noise over its independent
@@ -858,11 +860,11 @@ def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min
         return []  # one face (above)
     sample = idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]
     # the gate without the cover: a side of the line may hold two faces (_faces_of_leaves)
-    patterns = _misfit_patterns(ctx, model, sample, correlation_px)
+    patterns = misfit_patterns(ctx, model, sample, correlation_px)
     if not _two_planes_win(patterns, cover=0.0):
         return []
     if sample.size < idx.size:
-        patterns = _misfit_patterns(ctx, model, idx, correlation_px)
+        patterns = misfit_patterns(ctx, model, idx, correlation_px)
     if not _two_planes_win(patterns):
         if _two_planes_win(patterns, cover=0.0):
             return _faces_of_leaves(ctx, idx, patterns, correlation_px, min_angle_deg)
@@ -875,7 +877,7 @@ def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min
 
 def _faces_of_leaves(ctx, idx: np.ndarray, patterns: tuple, correlation_px: int, min_angle_deg: float) -> list:
     """The planes of three or four faces the cylinder region ``idx`` holds, ``[(pixels,
-    plane)]``, when the two planes across its crease line (``patterns``: :func:`_misfit_patterns`)
+    plane)]``, when the two planes across its crease line (``patterns``: :func:`misfit_patterns`)
     beat the cylinder's misfit pattern but hold less than PLANES_COVER of its pixels within
     TRIM_SIGMAS: a side of the line holds two faces. Each side beyond its range noise along
     the rays over its independent returns (:func:`_within_noise_along_rays`) is cut again by

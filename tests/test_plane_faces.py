@@ -12,7 +12,7 @@ from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure, Sphere
 from rangeseg_o3d.fitting.sphere import fit_sphere
 from rangeseg_o3d.plane_faces import (LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane, _faces_of_leaves,
-                                      _misfit_patterns, _curved_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
+                                      misfit_patterns, _curved_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
 from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.synthetic.depth_camera import _unit_noise
@@ -238,7 +238,7 @@ def test_a_cylinder_or_sphere_over_a_far_box_corner_gives_way_to_its_two_faces(f
     model = fit(xyz.reshape(-1, 3))
     assert isinstance(model, kind)  # the tile grid's view: one curved model over both faces
     ctx = _context(xyz, sigma)
-    curved, planes, inliers, _, _ = _misfit_patterns(ctx, model, np.arange(truth.size), 1)
+    curved, planes, inliers, _, _ = misfit_patterns(ctx, model, np.arange(truth.size), 1)
     assert curved > PATTERN_RATIO * planes and inliers[1] > PLANES_COVER
     surfaces = faces_of_curved(ctx, model, np.arange(truth.size))
     assert len(surfaces) == 2
