@@ -832,12 +832,9 @@ def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min
     is asked the same (its residuals along the rays: :func:`_curved_residuals`): at 5-6 m the
     tile means of a box's three faces fit a sphere within their noise (kinect_real_640x480
     seed 1105 scan 0: 4873 px, r 0.45 m; stereo_1280x720 seed 1104 scan 2: 2667 px, r 0.33 m).
-    A cylinder or sphere region that one plane along the rays explains within its range noise
+    A sphere region that one plane along the rays explains within its range noise
     (:func:`_within_noise_along_rays`) is one face, and left whole: two planes across any line
-    beat a curved model's misfit pattern on a single face as well (kinect_real seed 1106 scan 1:
-    a face of 1465 px under a sphere; seed 1120 scan 2: a wall of 4682 px at 4.4 m under a
-    0.47 m tile cylinder cut into two planes 3.3 degrees apart; seed 1104 scan 4: a pipe of
-    2895 px at 3.4 m cut into two planes).
+    beat a sphere's misfit pattern on a single face as well (kinect_real seed 1106 scan 1).
 
     Far away, a box's corner and a pipe are alike to a stereo camera's tile means (a
     cylinder bends over the crease within the range noise), and a right pipe may fit its
@@ -856,7 +853,7 @@ def faces_of_curved(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min
     """
     if not isinstance(model, (Cylinder, Sphere)):
         return []
-    if _within_noise_along_rays(ctx, idx, float(max(int(correlation_px), 1)) ** 2):
+    if isinstance(model, Sphere) and _within_noise_along_rays(ctx, idx, float(max(int(correlation_px), 1)) ** 2):
         return []  # one face (above)
     sample = idx[:: max(1, idx.size // CYLINDER_TEST_PIXELS)]
     # the gate without the cover: a side of the line may hold two faces (_faces_of_leaves)
