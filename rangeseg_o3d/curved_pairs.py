@@ -1,7 +1,7 @@
 """Pairs of plane regions that are one pipe or ball, joined under its cylinder or sphere.
 
 A depth camera whose noise errs together over a matching window sees a pipe 0.13-0.25 m
-in radius at 3-5 m as two strips whose planes each explain their pixels within the noise:
+in radius at 2.4-5.4 m as two strips whose planes each explain their pixels within the noise:
 the tile grid gave one strip a plane region and the pixels its model left were recovered
 as a second plane beside it (kinect_real_640x480 study seeds 1117 scan 0, 1120 scan 5,
 1125 scan 4; a ball 0.43 m across at 4.9 m, seed 1114 scan 0; a stereo camera's pipe at
