@@ -1,10 +1,10 @@
 """Pairs of plane regions that are one pipe or ball, joined under its cylinder or sphere.
 
-A depth camera whose noise errs together over a matching window sees a pipe 0.13-0.25 m
+A depth camera whose noise errs together over a matching window sees a pipe 0.13-0.26 m
 in radius at 2.4-5.4 m as two strips whose planes each explain their pixels within the noise:
 the tile grid gave one strip a plane region and the pixels its model left were recovered
 as a second plane beside it (kinect_real_640x480 study seeds 1117 scan 0, 1120 scan 5,
-1125 scan 4; a ball 0.43 m across at 4.9 m, seed 1114 scan 0; a stereo camera's pipe at
+1125 scan 4; a ball of 0.43 m radius at 4.9 m, seed 1114 scan 0; a stereo camera's pipe at
 2.8 m, seed 1102 scan 1). Each strip alone is flat within the noise, so no step that asks
 one region sees the bend; the two together do.
 
@@ -39,7 +39,7 @@ from .fitting.region_fitter import region_indices
 from .fullres import region_stats
 from .kernels.linalg import CHI_SQUARE_SIGMAS
 from .plane_faces import PATTERN_BINS, PLANES_COVER, misfit_patterns
-from .refinement.context import touching
+from .refinement.context import Context, touching
 
 __all__ = ["JOIN_RATIO", "PATTERN_BOUND", "curved_from_plane_pairs"]
 
@@ -63,8 +63,6 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
 
     ``sigma``: each pixel's range noise (the grid's shape); ``correlation_px``: the side
     (px) of the box over which the returns err together (``NoiseModel.correlation_px``)."""
-    from .refinement.context import Context
-
     sigma = np.asarray(sigma, dtype=np.float64)
     if sigma.shape != labels.shape:
         raise ValueError(f"sigma: expected shape {labels.shape}, got {sigma.shape}")
@@ -76,9 +74,9 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
     members = region_indices(labels, only=planes)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns,
                   correlation_px=max(int(correlation_px), 1))
-    found = []
+    found, asked = [], set(planes)
     for a in planes:
-        for b in sorted(touching(labels, members[a], 1) & set(planes)):
+        for b in sorted(touching(labels, members[a], 1) & asked):
             if b <= a:
                 continue
             pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px)

@@ -445,9 +445,9 @@ class Pipeline:
                 # a pipe or ball left as two plane strips, each flat within the noise: the
                 # model of both, where it leaves no crease's pattern between them (curved_pairs)
                 labels, fits, stats = curved_from_plane_pairs(
-                    cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
-                    min_size=smallest_region(refine, self.sensor, cloud), inlier_factor=INLIER_SIGMAS,
-                    correlation_px=noise.correlation_px, wrap_columns=self.sensor.wrap_columns)
+                    cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter, min_size=min_size,
+                    inlier_factor=INLIER_SIGMAS, correlation_px=noise.correlation_px,
+                    wrap_columns=self.sensor.wrap_columns)
                 lap("curved_pairs")
         return labels, fits, sigma, stats
 
