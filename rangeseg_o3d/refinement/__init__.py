@@ -19,7 +19,9 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
 5. :mod:`.merge`: regions of one kind whose union one model explains as well as the parts
    are merged (the paper's "merging of patches that belong to the same surface"); two
    planes on the halves of a column seen through a noisy sensor become its cylinder; then a
-   strip of a sphere or cylinder that another kind took goes back to it.
+   strip of a sphere or cylinder that another kind took goes back to it; on a laser's grid,
+   :mod:`.trimmed_pieces`: a piece beside a curved region that also holds the mixed returns
+   of its limb gives it the part its model explains, and the returns are freed.
 6. ``settle`` (:func:`.grow.settle_regions`): border pixels go to the neighbouring region
    whose surface explains them clearly better (the band one surface took from another
    while growing first).
@@ -58,6 +60,7 @@ from .grid_lines import release_grid_lines
 from .grow import grow_regions, grows_any, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
+from .trimmed_pieces import join_trimmed_pieces
 from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
 from .split import split_regions
 from ..timing import StepTimer
@@ -264,6 +267,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
                 rms_factor=config.merge_rms_factor, only=joined)
         labels, fits, adjacency = merge_into_curved(ctx, labels, fits, adjacency,
                                                     rms_factor=config.merge_rms_factor)
+        if single_returns(sensor, tile):  # (a laser's mixed returns at a column's limb)
+            labels, fits, adjacency = join_trimmed_pieces(ctx, labels, fits, adjacency,
+                                                          rms_factor=config.merge_rms_factor)
     timer.lap("merge")
     labels, fits = settle_regions(ctx, labels, fits, iterations=config.grow_iterations,
                                   wrap_columns=sensor.wrap_columns, **growth)

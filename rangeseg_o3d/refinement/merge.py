@@ -24,7 +24,7 @@ from .grid_lines import lines_across
 from .sight import seen_past_plane
 
 __all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
-           "similar_models"]
+           "similar_models", "beyond_median_noise"]
 
 #: The smaller part of a union of planes, turned from it, lies on the union's plane within
 #: this many times the merge's rms limit (rms of its points): a piece of a rippled face a
@@ -729,7 +729,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             continue
         if union.rms > limit:
             continue
-        if _beyond_median_noise(union.rms, ctx.sigma.reshape(-1), parts):
+        if beyond_median_noise(union.rms, ctx.sigma.reshape(-1), parts):
             continue
         if _own_model_resolves(ctx, regions[small], fits[small], union):
             continue
@@ -801,11 +801,11 @@ NEAR_RELATIVE = 1e-9
 
 
 #: Relative margin about the noise a union's rms is at the bound of, outside which counting
-#: the pixels on either side tells where the median noise lies (:func:`_beyond_median_noise`).
+#: the pixels on either side tells where the median noise lies (:func:`beyond_median_noise`).
 _MEDIAN_MARGIN = 1e-6
 
 
-def _beyond_median_noise(rms: float, sigma_flat: np.ndarray, parts) -> bool:
+def beyond_median_noise(rms: float, sigma_flat: np.ndarray, parts) -> bool:
     """``beyond_noise(rms, median(sigma_flat[union]), n)`` of the union of the pixel arrays
     ``parts`` (``n`` pixels), the same answer without the median where counting can tell.
 
@@ -895,7 +895,7 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         if not union or isinstance(union, Plane):
             continue
         union_squares = sum(float(np.sum(union.distances(rows_at(ctx.xyz, part)) ** 2)) for part in parts)
-        if union_squares >= planes or _beyond_median_noise(float(np.sqrt(union_squares / n)),
+        if union_squares >= planes or beyond_median_noise(float(np.sqrt(union_squares / n)),
                                                            ctx.sigma.reshape(-1), parts):
             continue
         fits[a] = union

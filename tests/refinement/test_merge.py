@@ -378,7 +378,7 @@ def test_beyond_median_noise_is_the_median_test_of_the_union():
     from rangeseg_o3d._numeric import median
     from rangeseg_o3d.fitting.robust import beyond_noise
     from rangeseg_o3d.kernels.linalg import CHI_SQUARE_SIGMAS, noise_rms_bound
-    from rangeseg_o3d.refinement.merge import _beyond_median_noise
+    from rangeseg_o3d.refinement.merge import beyond_median_noise
 
     rng = np.random.default_rng(4)
     answers = set()
@@ -391,7 +391,7 @@ def test_beyond_median_noise_is_the_median_test_of_the_union():
         at_bound = median(sigma[union]) * noise_rms_bound.py_func(1.0, float(union.size), CHI_SQUARE_SIGMAS)
         rms = at_bound * (1.0 + rng.choice([0.0, 1e-12, -1e-12, 0.2, -0.2]))
         want = beyond_noise(rms, median(sigma[union]), union.size)
-        assert _beyond_median_noise(rms, sigma, parts) == want
+        assert beyond_median_noise(rms, sigma, parts) == want
         answers.add(want)
     assert answers == {True, False}
 
