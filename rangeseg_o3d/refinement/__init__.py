@@ -37,7 +37,9 @@ ones and is timed under ``refine.<step>`` in ``Result.timings``:
    their rays (a plane seen near grazing took them within three range sigmas of its
    distances); then a region whose larger touching regions explain its pixels within the
    noise goes to them (:func:`.dissolve.dissolve_fragments`: a crease strip or a column's
-   flank that a model of its own fits at 20 mm of range noise).
+   flank that a model of its own fits at 20 mm of range noise). On a spinning lidar,
+   :mod:`.grazing_rings` first recovers the faces seen so near grazing that every step
+   between its rings is a range jump (a low box's top), from the ring arcs no region took.
 
 :func:`recover_pixels` is step 3 again at full resolution, after a run on tile means.
 :mod:`.context` holds what the steps share (points, noise, fitter, size floor).
@@ -56,6 +58,7 @@ from .bands import release_bands
 from .context import Context
 from .dissolve import absorb_ripples, dissolve_fragments, dissolve_small
 from .facets import planes_for_curved
+from .grazing_rings import recover_grazing_rings
 from .grid_lines import release_grid_lines
 from .grow import grow_regions, grows_any, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
@@ -296,6 +299,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits = settle_along_rays(ctx, labels, fits, ranges=ranges, iterations=config.grow_iterations,
                                          k_sigma=config.k_sigma, jump_ratio=growth["jump_ratio"],
                                          jump_min=config.jump_min)
+        if sensor.wrap_columns:  # a spinning lidar's rings (a nodding laser's rows are fans through it)
+            labels, fits = recover_grazing_rings(ctx, labels, fits, ranges=ranges, jump_ratio=growth["jump_ratio"],
+                                                 jump_min=config.jump_min)
         # a column's limbs seen near grazing are range jumps growth never crossed
         labels = claim_grazing_limbs(ctx, labels, fits, valid=cloud.valid, k_sigma=config.k_sigma)
         # a piece of a surface that a model of its own fits within the noise (a crease strip,
