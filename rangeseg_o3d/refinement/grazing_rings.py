@@ -5,10 +5,11 @@ A box top a few decimetres high seen from a metre or more above it by a spinning
 meets its rays 86-89 degrees from head-on: each ring crossing it is one arc of returns, the
 next ring's arc lies tens of centimetres farther, and every return of the face is marked a
 range jump. Growth never crosses a jump, the leftover blobs leave jump pixels out and need
-a 3x3 core, and no region touches the face to claim it (:func:`rangeseg_o3d.refinement.
-recover.claim_grazing_limbs` takes the far row of a face it found). Region growing finds
-such faces; the residual edges left 10 of the 18 surfaces they missed on 36 study scans of
-128 x 2048 in no region (faces of 66-215 returns on one to three rings).
+a 3x3 core, and no region touches the face to claim it
+(:func:`rangeseg_o3d.refinement.recover.claim_grazing_limbs` takes the far row of a face
+it found). Region growing finds such faces; of the 18 surfaces the residual edges missed on
+36 study scans of 128 x 2048, 9 lay mostly in no region (faces of 66-215 returns on one to
+three rings).
 
 The free returns are grouped by their arcs: runs along a ring whose range steps are no
 jumps, joined to the runs of the next ring they touch (8-neighbours, across the seam of the

@@ -1,14 +1,15 @@
-"""A piece of a curved surface that holds returns of no surface: the curved region takes the
-part of it its model explains, the piece keeps the rest.
+"""A piece of a curved surface that also holds returns of no surface: the curved region takes
+the part of the piece its model explains, and the rest, a rim along the limb, is freed.
 
-A laser's beam at a column's limb falls partly on the column and partly on what lies
-behind it, and returns a range between the two: on neither surface. The recovery fits a
-strip of the limb together with those returns, its own cylinder bent to hold them within
-the noise, and the union with the column's region leaves them beyond the parts' rms, so
-neither merge joins the two (:func:`rangeseg_o3d.refinement.merge.merge_regions` for two
-cylinders, :func:`rangeseg_o3d.refinement.merge.merge_into_curved` for a plane strip). At
-2 mm of range noise six columns of r 0.14-0.28 m at 4-5.7 m of the study scans were split
-so, 9-19 of a strip's 31-99 returns on no surface.
+A laser's beam at a column's limb spreads over centimetres of range (the surface turns
+away within its footprint, or part of it falls on what lies behind): the return lies off
+every surface by more than the noise. The recovery fits a strip of the limb together with
+such returns, its own model bent to hold them within the noise, and the union with the
+column's region leaves them beyond the parts' rms, so neither merge joins the two
+(:func:`rangeseg_o3d.refinement.merge.merge_regions` for two cylinders,
+:func:`rangeseg_o3d.refinement.merge.merge_into_curved` for a plane strip). At 2 mm of range
+noise seven columns of r 0.19-0.28 m at 5.0-5.9 m of the study scans were split so, up to
+45 of a piece's 31-99 returns on no surface.
 
 The union is trimmed instead: the curved model, refitted with the piece's returns that lie
 within :data:`INLIER_SIGMAS` range sigmas of it (twice: the refit moves the model towards
@@ -18,8 +19,9 @@ the rest of the piece, when each of its pixels touches the joined ones (a rim al
 limb), is freed; a piece with more (a face beyond a crease, whose column at the crease
 lies on both surfaces) stays whole. The fitter would fit the rim a plane: one or two
 columns of returns along a limb lie on one within the noise, whatever they are (two strips
-of 20 and 45 such returns at 2 mm rms). Returns of a surface beside the piece go back to it
-when the regions settle after the merge; the mixed returns stay in no region.
+of 20 and 45 such returns at 2 mm rms). A freed return that a region beside it explains
+within the noise of its distances is claimed later
+(:func:`rangeseg_o3d.refinement.recover.claim_grazing_limbs`); the others stay in no region.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
     docstring for the tests). Returns new ``(labels, fits, adjacency)``; ``labels`` itself
     when no piece was joined."""
     pairs, regions = _pairs(labels, fits, adjacency, ctx.min_size)
-    fits, flat, changed = dict(fits), None, set()
+    fits, flat, changed = dict(fits), None, set()  # (changed: the pairs' labels joined this pass)
     for _, big, small in pairs:
         if big in changed or small in changed:
             continue  # (their pixels or models moved this pass)
@@ -68,7 +70,7 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
         del fits[small]
         adjacency = {pair for pair in adjacency if small not in pair}
         changed.update((big, small))
-    if flat is None:
+    if not changed:
         return labels, fits, adjacency
     return flat.reshape(labels.shape), fits, adjacency
 
