@@ -63,9 +63,9 @@ from .grid_lines import release_grid_lines
 from .grow import grow_regions, grows_any, settle_regions
 from .merge import merge_into_curved, merge_regions, planes_into_curved, region_adjacency
 from .polish import polish_models
-from .trimmed_pieces import join_trimmed_pieces
 from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
 from .split import split_regions
+from .trimmed_pieces import join_trimmed_pieces
 from ..timing import StepTimer
 
 __all__ = ["refine_regions", "recover_pixels", "bend_samples", "single_returns"]

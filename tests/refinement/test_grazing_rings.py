@@ -9,12 +9,13 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.config import load_config
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.refinement.grazing_rings import recover_grazing_rings, ring_arc_groups
+from rangeseg_o3d.scales import GRAZING_TAN, JUMP_SIGMAS
 
 ROW_STEP = np.radians(45.0 / 128)  # a 128 x 2048 spinning lidar's grid
 COL_STEP = np.radians(360.0 / 2048)
 HEIGHT = 0.21  # the box top lies this far below the sensor
 NOISE = 0.01
-JUMPS = dict(jump_ratio=ROW_STEP * 6.0, jump_min=3 * NOISE)  # scales' jump test for this grid
+JUMPS = dict(jump_ratio=ROW_STEP / GRAZING_TAN, jump_min=JUMP_SIGMAS * NOISE)  # scales' jump test for this grid
 
 
 def _rays(rows: int, cols: int, top_deg: float, first_col: int = 0) -> np.ndarray:
@@ -48,7 +49,8 @@ def test_a_box_top_beyond_grazing_is_recovered_as_its_plane(seed):
     cloud, ranges, mask, ctx = _scan(seed)
     # the premise: every step between the face's rings is a range jump
     steps = np.abs(np.diff(ranges, axis=0))[2:4, 10:100]
-    assert (steps > JUMPS["jump_ratio"] * np.fmin(ranges[2:4, 10:100], ranges[3:5, 10:100])).all()
+    nearer = np.fmin(ranges[2:4, 10:100], ranges[3:5, 10:100])
+    assert (steps > np.maximum(JUMPS["jump_min"], JUMPS["jump_ratio"] * nearer)).all()
     labels = np.zeros(ranges.shape, np.int32)
     out, fits = recover_grazing_rings(ctx, labels, {}, ranges=ranges, **JUMPS)
     assert set(fits) == {1} and fits[1].kind == "plane"
@@ -58,8 +60,8 @@ def test_a_box_top_beyond_grazing_is_recovered_as_its_plane(seed):
     assert (labels == 0).all()  # the input left alone
 
 
-def test_a_wall_seen_head_on_is_not_this_steps(seed=0):
-    cloud, ranges, mask, ctx = _scan(seed, face="wall")
+def test_a_wall_seen_head_on_is_not_this_steps():
+    cloud, ranges, mask, ctx = _scan(0, face="wall")
     labels = np.zeros(ranges.shape, np.int32)
     out, fits = recover_grazing_rings(ctx, labels, {}, ranges=ranges, **JUMPS)
     assert out is labels and fits == {}
