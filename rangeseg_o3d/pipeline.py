@@ -333,13 +333,15 @@ class Pipeline:
                 cloud, labels, fits, stats, sigma=sigma, ranges=ranges, config=refine, sensor=self.sensor,
                 recovered_from=recovered_from, inlier_factor=INLIER_SIGMAS)
             lap("settle_curved")
-            if by_means:
+            if by_means or noise.matched_window:
                 # a pipe the frame's edge cuts: the plane strips recovered at the edge beside its
-                # cylinder region join it when its model (or its refit with them) explains them
+                # cylinder region join it when its model (or its refit with them) explains them;
+                # so do the pieces of a ball or pipe recovered as curved regions of their own,
+                # and on a stereo camera the strips along a pipe's limb
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
-                    near_sigmas=refine.k_sigma)
+                    near_sigmas=refine.k_sigma, curved_pieces=True)
                 lap("edge_planes")
         if refine.enabled and noise.matched_window:
             # plane and cylinder regions whose tile means hid a crease (far boxes): the faces
