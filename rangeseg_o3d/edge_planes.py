@@ -26,8 +26,10 @@ A curved surface's piece recovered as a curved region of its own is settled the 
 missed whole, are split into surfaces one after the other, and the rest of the ball after its
 sphere comes out as a cylinder (kinect_640x480 study seed 1154 scan 0: a ball of 1826 px as a
 sphere of 1461 and a cylinder of 364); it joins the sphere when the sphere's model explains it
-as it explains a strip. On a stereo camera the pieces are planes along a pipe's limb (stereo
-study seed 1102 scan 1: 242 px beside a cylinder of 22578).
+as it explains a strip. Where the noise errs together over a matching window (a stereo
+camera's) the step runs too: a pipe's flank the frame's edge cuts leaves plane strips there as
+well (stereo study seed 1102 scan 1: 242 px at 60 degrees from head-on, beside a cylinder
+region of 22578 px).
 """
 
 from __future__ import annotations

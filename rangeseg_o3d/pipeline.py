@@ -337,7 +337,7 @@ class Pipeline:
                 # a pipe the frame's edge cuts: the plane strips recovered at the edge beside its
                 # cylinder region join it when its model (or its refit with them) explains them;
                 # so do the pieces of a ball or pipe recovered as curved regions of their own,
-                # and on a stereo camera the strips along a pipe's limb
+                # on a stereo camera too
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
