@@ -84,19 +84,15 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
     counts = stats.counts
     n = counts.size  # (region_stats counts every label; a pass over the grid for its largest costs 0.1 ms)
     curved = {k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n}
-    planes = [k for k, m in fits.items() if m and (m.kind == "plane" or curved_pieces) and 0 < k < n
+    pieces = [k for k, m in fits.items() if m and (m.kind == "plane" or curved_pieces) and 0 < k < n
               and k < counts.size and counts[k] > 0]
-    if not planes or not curved:
+    if not pieces or not curved:
         return labels, fits, stats
     boxes = LabelBoxes(labels, n)
     tile_boxes = None if tile_labels is None else LabelBoxes(tile_labels)
-    # the planes that may be strips of a curved region's surface: those touching one, no
+    # the pieces that may be strips of a curved region's surface: those touching one, no
     # larger than it (a wall beside a pipe is tested too when smaller; its noise decides)
-    beside = _touching_pairs(labels, boxes, sorted(curved), planes, counts)
-    for k in list(beside):  # (a curved piece is no host of its own)
-        beside[k].discard(k)
-        if not beside[k]:
-            del beside[k]
+    beside = _touching_pairs(labels, boxes, sorted(curved), pieces, counts)
     asked = sorted(beside)
     if not asked:
         return labels, fits, stats
@@ -355,16 +351,16 @@ def _sample_of(samples: dict, c: int, cloud, labels: np.ndarray, boxes, sigma: n
     return samples[c]
 
 
-def _touching_pairs(labels: np.ndarray, boxes, curved: list, planes: list, counts: np.ndarray) -> dict:
-    """{plane label: set of curved labels} for each plane region of ``planes`` that 4-touches a
-    curved region of ``curved`` holding at least its pixels (``counts``): boxes (``boxes``,
+def _touching_pairs(labels: np.ndarray, boxes, curved: list, pieces: list, counts: np.ndarray) -> dict:
+    """{piece label: set of curved labels} for each region of ``pieces`` that 4-touches another
+    region, a curved one of ``curved``, holding at least its pixels (``counts``): boxes (``boxes``,
     a :class:`rangeseg_o3d.fullres.LabelBoxes` of ``labels``) that overlap grown by a pixel
     first, all pairs at once, then the compiled :func:`rangeseg_o3d.kernels.labels_touch` in
     that overlap."""
     h, w = labels.shape
-    if not curved or not planes:
+    if not curved or not pieces:
         return {}
-    cs, ps = np.asarray(curved, np.int64), np.asarray(planes, np.int64)
+    cs, ps = np.asarray(curved, np.int64), np.asarray(pieces, np.int64)
     every = boxes.array()
     cb, pb = every[cs], every[ps]
     r0 = np.maximum(cb[:, None, 0], pb[None, :, 0]) - 1
@@ -372,7 +368,7 @@ def _touching_pairs(labels: np.ndarray, boxes, curved: list, planes: list, count
     c0 = np.maximum(cb[:, None, 2], pb[None, :, 2]) - 1
     c1 = np.minimum(cb[:, None, 3], pb[None, :, 3]) + 1
     size = np.asarray(counts)
-    ok = (r1 - r0 >= 1) & (c1 - c0 >= 1) & (size[ps][None, :] <= size[cs][:, None])
+    ok = (r1 - r0 >= 1) & (c1 - c0 >= 1) & (size[ps][None, :] <= size[cs][:, None]) & (cs[:, None] != ps[None, :])
     beside = {}
     if not ok.any():
         return beside

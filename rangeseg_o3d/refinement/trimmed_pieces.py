@@ -12,7 +12,7 @@ noise seven columns of r 0.19-0.28 m at 5.0-5.9 m of the study scans were split 
 45 of a piece's 31-99 returns on no surface.
 
 The union is trimmed instead: the curved model, refitted with the piece's returns that lie
-within :data:`INLIER_SIGMAS` range sigmas of it (twice: the refit moves the model towards
+within ``TRIM_SIGMAS`` range sigmas of it (twice: the refit moves the model towards
 them), must keep its kind, its rms within ``rms_factor`` of the curved part's and within
 the noise; the returns it explains, at least the size floor, join the curved region, and
 the rest of the piece, when each of its pixels touches the joined ones (a rim along the
@@ -31,13 +31,11 @@ import numpy as np
 from .._numeric import rows_at
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
-from .context import Context
+from .context import TRIM_SIGMAS, Context, without
 from .merge import beyond_median_noise
 
-__all__ = ["join_trimmed_pieces", "INLIER_SIGMAS"]
+__all__ = ["join_trimmed_pieces"]
 
-#: A return the union's surface explains lies within this many range sigmas of it.
-INLIER_SIGMAS = 3.0
 #: Refits of the union (each with the returns of the piece the last model explains).
 REFITS = 2
 
@@ -58,7 +56,7 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
         if joined is None:
             continue
         union, inside = joined
-        rest = np.setdiff1d(regions[small], inside, assume_unique=True)
+        rest = without(regions[small], inside)
         if flat is None:
             flat = labels.ravel().copy()
         flat[inside] = big
@@ -99,9 +97,9 @@ def _trimmed_union(ctx: Context, curved, region: np.ndarray, piece: np.ndarray, 
     it explains, when the union passes the module's tests; else None."""
     model, inside = curved, None
     points = rows_at(ctx.xyz, piece)
-    noise = INLIER_SIGMAS * ctx.sigma[piece]
+    band = TRIM_SIGMAS * ctx.sigma[piece]
     for _ in range(REFITS):
-        inside = piece[np.abs(model.distances(points)) <= noise]
+        inside = piece[np.abs(model.distances(points)) <= band]
         if inside.size < ctx.min_size:
             return None
         model = ctx.fitter.refit(ctx.fitter.points_of(ctx.xyz, (region, inside)), curved)

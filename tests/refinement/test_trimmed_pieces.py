@@ -6,7 +6,8 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
-from rangeseg_o3d.refinement.trimmed_pieces import INLIER_SIGMAS, join_trimmed_pieces
+from rangeseg_o3d.refinement.context import TRIM_SIGMAS
+from rangeseg_o3d.refinement.trimmed_pieces import join_trimmed_pieces
 
 RADIUS, AXIS_Z = 0.3, 3.0
 
@@ -68,14 +69,16 @@ def test_a_face_beyond_a_crease_stays_whole_though_its_crease_column_lies_on_the
     assert fits[1].kind == "cylinder" and fits[2].rms < 2 * noise
     ctx = context(rs.OrganizedCloud(xyz), min_size=10, sigma=np.full(labels.shape, noise))
     # the premise: the face's returns within three sigmas of the column are more than the size floor
-    near = np.abs(fits[1].distances(xyz[labels == 2])) <= INLIER_SIGMAS * noise
+    near = np.abs(fits[1].distances(xyz[labels == 2])) <= TRIM_SIGMAS * noise
     assert near.sum() >= 10 and near.sum() < (labels == 2).sum() / 2
     out, out_fits, adjacency = join_trimmed_pieces(ctx, labels, fits, {(1, 2)}, rms_factor=1.3)
     assert (out == labels).all() and out_fits == fits and adjacency == {(1, 2)}
 
 
 def test_planes_alone_are_not_asked(context):
-    xyz = _column(45, 0.002, 0)
+    # two plane regions of one flat wall: asked, the larger's plane would take the other whole
+    v, u = np.mgrid[0:40, 0:45].astype(float)
+    xyz = np.dstack([u * 0.01, v * 0.02, 3.0 + np.random.default_rng(0).normal(0.0, 0.002, u.shape)])
     labels = np.where(np.arange(45)[None, :] >= 30, 2, 1).repeat(40, axis=0).astype(np.int32)
     fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2)}
     ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(labels.shape, 0.002))
