@@ -839,13 +839,18 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     face at a grazing angle) meet only once every pixel is labelled and the regions have
     grown (:func:`grow_into_free`, whose ``touch`` says which labels it made 4-neighbours;
     ``near``, same shape, optional: pairs whose pixels may be, looked for in their box). A
-    touching pair of planes whose normals agree within ``max_angle_deg`` merges when the
+    touching pair of planes whose normals agree within ``max_angle_deg`` (the models', or
+    the planes of their pixels: a tile model the tiles along a crease turned, tabletop_abw
+    seed 1166 scan 3: 8 degrees against 1.5), or whose smaller piece's pixels lie on the
+    larger's plane of pixels within ``rms_factor`` times the pieces' rms (a strip of 67 px
+    whose own normal is 10 degrees off, seed 1163 scan 2), merges when the
     least-squares plane of both pieces' pixels (an even sample of about
     ``UNRESOLVED_TEST_PIXELS`` in the pieces' box) has an rms at most ``rms_factor`` times
     the larger of the pieces' own planes' on the same sample: the tile merge's rule, on
     pixels. A region merges at most once per call. Returns ``(labels, fits, stats)``;
     ``labels`` is changed in place.
     """
+    from .fitting.batch_planes import planes_from_moments, region_moments
     from .fitting.plane import fit_plane
     from .fitting.primitives import Plane
     from .kernels import label_boxes, labels_touch
@@ -855,9 +860,17 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     if len(planes) < 2:
         return labels, fits, stats
     normals = np.array([fits[k].normal for k in planes])
-    close = np.abs(normals @ normals.T) >= np.cos(np.radians(max_angle_deg)) - 1e-12
-    maybe = touch if near is None else touch | near
-    close &= maybe[np.ix_(planes, planes)]
+    cosine = np.cos(np.radians(max_angle_deg)) - 1e-12
+    close = np.abs(normals @ normals.T) >= cosine
+    maybe = (touch if near is None else touch | near)[np.ix_(planes, planes)]
+    # a tile model turned off its face by the tiles along a crease (a face a few tiles wide)
+    # is not what its pixels say: their own planes are asked too, and a piece too small for
+    # its normal to tell lies on the larger piece's plane within the pieces' rms
+    moments = region_moments(_flat_points(cloud), labels.ravel(), touch.shape[0])
+    own = planes_from_moments(moments)
+    own_normals = own.normal[planes] * own.ok[planes, None]
+    close = (close | (np.abs(own_normals @ own_normals.T) >= cosine)) & maybe
+    close |= maybe & _smaller_on_larger(moments[planes], own, planes, rms_factor)
     first, second = np.nonzero(np.triu(close, 1))
     if not first.size:
         return labels, fits, stats
@@ -896,6 +909,19 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         inside = region_stats(cloud.xyz[box], labels[box], {a: fits[a]}, sigma[box], inlier_factor)
         stats.inliers[a], stats.squares[a], stats.counts[a] = inside.inliers[a], inside.squares[a], inside.counts[a]
     return labels, fits, stats
+
+
+def _smaller_on_larger(moments: np.ndarray, own, planes: list, rms_factor: float) -> np.ndarray:
+    """(K, K) bool, symmetric: the pixels of the smaller of two planes (``moments`` their
+    rows, ``own`` the label-wise planes of the frame, ``planes`` the labels) lie on the
+    larger's own plane within ``rms_factor`` times the larger of the two planes' rms."""
+    from .refinement.merge import pieces_on_planes
+
+    index = np.asarray(planes)
+    ok = own.ok[index]
+    normals = own.normal[index] * ok[:, None]
+    return pieces_on_planes(normals, own.d[index], np.where(ok, own.rms[index], 0.0), moments, rms_factor) \
+        & ok[:, None] & ok[None, :]
 
 
 class LabelBoxes:

@@ -171,6 +171,67 @@ def test_touching_pieces_of_one_plane_merge_and_parallel_planes_do_not():
             assert set(out_fits) == {1, 2}
 
 
+def _turned_about_y(degrees, through_z):
+    # the plane through (0, 0, through_z) whose normal is z turned by ``degrees`` about y
+    a = np.radians(degrees)
+    return Plane([np.sin(a), 0.0, np.cos(a)], through_z * np.cos(a), NOISE, 1)
+
+
+def _merged(xyz, labels, fits, sigma):
+    stats = _stats(xyz, labels, fits, sigma)
+    touch = np.zeros((3, 3), bool)
+    touch[1, 2] = touch[2, 1] = True
+    out, out_fits, _ = merge_touching_planes(rs.OrganizedCloud(xyz), labels.copy(), fits, stats, touch,
+                                             sigma=sigma, max_angle_deg=3.0, rms_factor=1.3,
+                                             inlier_factor=INLIER_SIGMAS)
+    return out, out_fits
+
+
+@pytest.mark.parametrize("offset, merges", [(0.0, True), (0.01, False)])
+def test_a_piece_whose_tile_model_is_turned_is_judged_by_its_pixels(offset, merges):
+    # region 2's model is 8 degrees off the wall (a tile model the tiles along a crease
+    # turned): the pixels' own planes agree, so the pair is asked, and the union decides
+    # (one wall: merged; a 1 cm step: the union is beyond the parts, kept apart)
+    xyz, labels, fits, sigma = _two_pieces(offset)
+    fits[2] = _turned_about_y(8.0, 2.0 + offset)
+    out, out_fits = _merged(xyz, labels, fits, sigma)
+    if merges:
+        assert (out == 1).all() and set(out_fits) == {1}
+        assert abs(out_fits[1].d - 2.0) < 1e-3 and abs(out_fits[1].normal[2]) > np.cos(np.radians(0.5))
+    else:
+        np.testing.assert_array_equal(out, labels)
+        assert set(out_fits) == {1, 2}
+
+
+def test_a_strip_too_narrow_for_its_normal_merges_when_it_lies_on_the_wall():
+    # region 2 is a strip two columns wide (60 px, 1.4 mm noise) of the wall whose own
+    # least-squares plane the noise turns beyond the merge's 3 degrees (3.8), under a tile
+    # model turned as well: its pixels lie on region 1's plane within the pieces' rms, and it joins
+    xyz, labels, fits, sigma = _two_pieces(0.0)
+    labels[:, 32:] = 0
+    xyz[:, 30:32, 2] += np.random.default_rng(9).normal(0.0, NOISE, (xyz.shape[0], 2))
+    fits[2] = _turned_about_y(8.0, 2.0)
+    from rangeseg_o3d.fitting.plane import fit_plane
+
+    strip = fit_plane(xyz[labels == 2])
+    assert np.degrees(np.arccos(abs(strip.normal[2]))) > 3.0  # (the case the test is about)
+    out, out_fits = _merged(xyz, labels, fits, sigma)
+    assert (out[:, :32] == 1).all() and set(out_fits) == {1}
+
+
+def test_a_narrow_face_turned_from_the_wall_stays_apart():
+    # region 2 is a strip three columns wide of a face turned 30 degrees from the wall at
+    # their crease (column 30): its pixels lie up to 1.2 cm off the wall's plane
+    xyz, labels, fits, sigma = _two_pieces(0.0)
+    u = np.arange(xyz.shape[1])
+    xyz[..., 2] += np.where(u >= 30, (u - 30) * 0.01 * np.tan(np.radians(30.0)), 0.0)
+    labels[:, 33:] = 0
+    fits[2] = _turned_about_y(-30.0, 2.0)
+    out, out_fits = _merged(xyz, labels, fits, sigma)
+    np.testing.assert_array_equal(out, labels)
+    assert set(out_fits) == {1, 2}
+
+
 def test_pieces_that_do_not_touch_stay_apart():
     # the same single plane, but the pieces are 5 columns apart and no growth joined them
     xyz, labels, fits, sigma = _two_pieces(0.0)
