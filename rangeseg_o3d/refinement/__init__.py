@@ -209,7 +209,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     min_size = max(-(-int(config.min_region_size) // (tile * tile)), 10)
     growth = dict(xyz=cloud.xyz, ranges=ranges, sigma=sigma, k_sigma=config.k_sigma,
                   jump_ratio=config.jump_ratio * tile, jump_min=config.jump_min)
-    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, band_faces_only=tile > 1)
+    ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns)
     labels, fits = regions.labels, regions.models
 
     failed = [k for k, m in fits.items() if not m]
@@ -220,17 +220,14 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         # laser's single return seen near grazing spreads across the face (noise_20mm seed 0,
         # nodding_0.25deg seed 71 lost faces to the hold).
         held = 0.5 * sensor.depth_step if tile > 1 else None
-        # A pool neither trimmed search explains is searched once more with a one-sigma face
-        # band (Context.dominant_piece's face_band), as the recovery's blobs are: at 20 mm
-        # noise a region the segmenter could not fit holds two to five box faces of a few
-        # hundred returns, a few noise sigmas wide each, whose best three-point plane by the
-        # three-sigma band is a diagonal one the fitter refuses (noise_20mm seed 89 scan 5:
-        # four faces left unfitted). On tile means too (kinect_real_640x480 seed 1168 scan 5:
-        # three faces 3-4 m away in a region of 102 tiles stayed unfitted), there for faces
-        # only (Context.band_faces_only: no local starts' pieces, and a curved answer after the
-        # band within the noise of its distances): with the starts as well, two real 3DTK
-        # scans changed, gaining plane regions of 65-141 mm rms; for faces only, one (to 71 mm).
-        labels, fits = split_regions(ctx, labels, fits, failed, held=held, face_band=True)
+        # At sensor resolution a pool neither trimmed search explains is searched once more
+        # with a one-sigma face band (Context.dominant_piece's face_band), as the recovery's
+        # blobs are: at 20 mm noise a region the segmenter could not fit holds two to five box
+        # faces of a few hundred returns, a few noise sigmas wide each, whose best three-point
+        # plane by the three-sigma band is a diagonal one the fitter refuses (noise_20mm seed
+        # 89 scan 5: four faces left unfitted). On tile means a face's mean is exact but for
+        # its noise along the ray (held above).
+        labels, fits = split_regions(ctx, labels, fits, failed, held=held, face_band=tile == 1)
     timer.lap("split")
     labels, fits = grow_regions(ctx, labels, fits, iterations=config.grow_iterations, **growth)
     timer.lap("grow")

@@ -132,8 +132,8 @@ class Context:
         #: the one-sigma face band (:meth:`dominant_search` with ``face_band``) asked for
         #: faces only: its last resort, the local starts' pieces (a curved model or a plane),
         #: is not tried, and after the band found a face of a pool's region a curved answer
-        #: must lie within the noise of its distances (``after_band``). Asked on the pixels of a
-        #: frame the tile grid lost and on a tile grid's unfitted regions: there the search after the band made a curved region of pixels
+        #: must lie within the noise of its distances (``after_band``). The pixels of a frame
+        #: the tile grid lost: there the search after the band made a curved region of pixels
         #: strewn along the rays (pcl_office1: a cylinder of r 0.37 m found on 1085 px from 3.5
         #: to 5.6 m, 22.7 mm rms where the noise of its distances is 1.8 mm; 1177 px in the end),
         #: and the starts new cylinders on the 3DTK scans (116-278 px, r 0.47-0.69 m; no truth)
