@@ -307,7 +307,7 @@ class Pipeline:
                                              min_angle_deg=refine.merge_angle_deg)
         lap("label_pixels")
         if refine.enabled:
-            # (a stereo frame's eight-tile regions, which the fitter refused for too few points)
+            # (tile regions no model was fitted to: their pixels go to the recovery below)
             labels, fits, stats = free_untold_regions(tile_labels, labels, fits, stats)
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
         if refine.enabled and refine.recover_leftovers:

@@ -696,10 +696,10 @@ def test_regions_under_the_smallest_region_lose_their_pixels():
     assert out is labels and kept is fits
 
 
-def test_only_unfitted_tile_regions_of_too_few_tile_means_lose_their_pixels():
-    # a 10 x 10 tile grid, 2 x 2 pixels a tile: region 1 (8 tiles) has no model and goes;
-    # region 2 (8 tiles) has a plane and stays; region 3 (24 tiles, over MIN_PIXELS) has no
-    # model (the fitter refused it) and stays, to be reported unfitted
+def test_unfitted_tile_regions_lose_their_pixels_to_the_recovery():
+    # a 10 x 10 tile grid, 2 x 2 pixels a tile: region 1 (8 tiles, under MIN_PIXELS) has no
+    # model and goes; region 2 (8 tiles) has a plane and stays; region 3 (24 tiles, over
+    # MIN_PIXELS) has no model (the fitter refused it, the split found nothing) and goes too
     from rangeseg_o3d.fitting.primitives import FitFailure
     from rangeseg_o3d.fullres import PixelStats, free_untold_regions
     from rangeseg_o3d.scales import MIN_PIXELS
@@ -715,12 +715,13 @@ def test_only_unfitted_tile_regions_of_too_few_tile_means_lose_their_pixels():
     counts = np.bincount(labels.ravel(), minlength=4).astype(np.int64)
     stats = PixelStats(inliers=counts.copy(), squares=np.ones(4), counts=counts.copy())
     out, kept, out_stats = free_untold_regions(tiles, labels, fits, stats)
-    assert not (out == 1).any() and np.array_equal(out[labels != 1], labels[labels != 1])
-    assert sorted(kept) == [2, 3]
-    assert out_stats.counts.tolist() == [counts[0], 0, 32, 96] and out_stats.squares.tolist() == [1, 0, 1, 1]
-    assert stats.counts[1] == 32  # the caller's statistics are left as they were
-    # with a model for region 1 nothing is freed: the inputs come back
-    fits[1] = Plane(np.array([0.0, 0.0, 1.0]), 1.0, rms=0.001, inliers=32)
+    assert not np.isin(out, [1, 3]).any() and np.array_equal(out[labels == 2], labels[labels == 2])
+    assert (out[labels != 2] == 0).all()
+    assert sorted(kept) == [2]
+    assert out_stats.counts.tolist() == [counts[0], 0, 32, 0] and out_stats.squares.tolist() == [1, 0, 1, 0]
+    assert stats.counts[1] == 32 and stats.counts[3] == 96  # the caller's statistics are left as they were
+    # with a model for every region nothing is freed: the inputs come back
+    fits[1] = fits[3] = Plane(np.array([0.0, 0.0, 1.0]), 1.0, rms=0.001, inliers=32)
     again = free_untold_regions(tiles, labels, fits, stats)
     assert again[0] is labels and again[1] is fits and again[2] is stats
 
