@@ -843,11 +843,11 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     grown (:func:`grow_into_free`, whose ``touch`` says which labels it made 4-neighbours;
     ``near``, same shape, optional: pairs whose pixels may be, looked for in their box). A
     touching pair of planes whose normals agree within ``max_angle_deg`` (the models', or
-    the planes of their pixels: a tile model the tiles along a crease turned, tabletop_abw
-    seed 1166 scan 3: 8 degrees against 1.5), or whose smaller piece's pixels lie on the
-    larger's plane of pixels within ``rms_factor`` times the pieces' rms (a strip of 67 px
-    whose own normal is 10 degrees off, seed 1163 scan 2), merges when the
-    least-squares plane of both pieces' pixels (an even sample of about
+    the planes of their pixels: tile models the tiles along a crease turned, tabletop_abw
+    seed 1166 scan 3: 4.7 degrees apart where the pixels' planes are 1.5), or whose
+    smaller piece's pixels lie on the larger's plane of pixels within ``rms_factor`` times
+    the pieces' rms (a strip of 67 px whose own normal is 10 degrees off, seed 1163 scan
+    2), merges when the least-squares plane of both pieces' pixels (an even sample of about
     ``UNRESOLVED_TEST_PIXELS`` in the pieces' box) has an rms at most ``rms_factor`` times
     the larger of the pieces' own planes' on the same sample: the tile merge's rule, on
     pixels. A region merges at most once per call. Returns ``(labels, fits, stats)``;
