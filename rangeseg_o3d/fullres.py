@@ -872,8 +872,8 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     moments = region_moments(_flat_points(cloud), labels.ravel(), touch.shape[0])
     own = planes_from_moments(moments)
     own_normals = own.normal[planes] * own.ok[planes, None]
-    close = (close | (np.abs(own_normals @ own_normals.T) >= cosine)) & maybe
-    close |= maybe & _smaller_on_larger(moments[planes], own, planes, rms_factor)
+    close = maybe & (close | (np.abs(own_normals @ own_normals.T) >= cosine)
+                     | _smaller_on_larger(moments[planes], own, planes, rms_factor))
     first, second = np.nonzero(np.triu(close, 1))
     if not first.size:
         return labels, fits, stats
