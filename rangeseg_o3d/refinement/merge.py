@@ -23,7 +23,7 @@ from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
 from .grid_lines import lines_across
 from .sight import seen_past_plane
 
-__all__ = ["merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
+__all__ = ["curved_pairs_apart", "merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
            "similar_models", "beyond_median_noise"]
 
 #: The smaller part of a union of planes, turned from it, lies on the union's plane within
@@ -669,7 +669,8 @@ def _own_model_resolves(ctx: Context, piece: np.ndarray, own, union) -> bool:
 
 
 def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
-                      rms_factor: float, only: set | None = None, near_sigmas: float | None = None):
+                      rms_factor: float, only: set | None = None, near_sigmas: float | None = None,
+                      apart: set = frozenset(), apart_sigmas: float | None = None):
     """Pieces of a curved surface taken by another kind go back to it: returns
     ``(labels, fits, adjacency)``, the labels a new array when a piece went back (else
     ``labels`` itself).
@@ -687,9 +688,12 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     without the refit. With ``only``, just pairs involving those labels (the others were
     tried before). With ``near_sigmas``, a piece is refitted with the
     curved region only when the curved model as it stands lies within that many noise sigmas
-    of the piece's pixels at the median (a refit is the step's cost).
+    of the piece's pixels at the median (a refit is the step's cost). ``apart``: pairs that
+    do not touch, tried too (not added to the adjacency returned), each only when the curved
+    model lies within ``apart_sigmas`` noise sigmas of the piece at the median (that pretest
+    whether or not ``near_sigmas`` is given).
     """
-    mixed = [(a, b) for a, b in adjacency
+    mixed = [(a, b) for a, b in (adjacency if not apart else [*adjacency, *sorted(apart)])
              if fits.get(a) and fits.get(b) and fits[a].kind != fits[b].kind
              and (only is None or a in only or b in only)]
     if not mixed:  # no curved region touches another kind: no pass over the grid
@@ -702,18 +706,19 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
     pairs.sort()
     # the pretest of every pair in one compiled pass, against the models as they stand now
     # (a pair whose curved region took a piece since is tested again below)
-    near = _pieces_near(ctx, fits, regions, pairs, near_sigmas) if near_sigmas is not None else None
+    sigmas = _pretest_sigmas(pairs, near_sigmas, apart, apart_sigmas)
+    near = _pieces_near(ctx, fits, regions, pairs, sigmas) if sigmas is not None else None
     as_tested = dict(fits)
     merged = False
     for turn, (_, big, small) in enumerate(pairs):
         if lut[big] != big or lut[small] != small:
             continue  # one of them was merged already
-        if near_sigmas is not None:
+        if sigmas is not None and np.isfinite(sigmas[turn]):
             piece = regions[small]
             verdict = int(near[turn]) if fits[big] is as_tested[big] else -1
             if verdict < 0:  # (numpy's rounding decides: the compiled pass could not tell)
                 verdict = int(not median(np.abs(fits[big].distances(rows_at(ctx.xyz, piece))))
-                              > near_sigmas * median(ctx.sigma[piece]))
+                              > sigmas[turn] * median(ctx.sigma[piece]))
             if not verdict:
                 continue
         parts = (regions[big], regions[small])  # the union's pixels, not concatenated unless it is taken
@@ -777,20 +782,46 @@ def _curved_pairs(labels: np.ndarray, fits: dict, mixed: list):
     return {k: order[bounds[k]:bounds[k + 1]] for k in np.flatnonzero(wanted).tolist()}, pairs, n
 
 
-def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas: float) -> np.ndarray:
+def curved_pairs_apart(fits: dict, adjacency: set, among=None) -> set:
+    """Pairs ``(min, max)`` of a cylinder or sphere of ``fits`` and a region of another kind
+    (one of ``among`` when given) that are not in ``adjacency``: the pairs
+    :func:`merge_into_curved` may try as ``apart`` (with ``merge_disjoint``)."""
+    curved = [k for k, m in fits.items() if m and m.kind in ("cylinder", "sphere")]
+    others = fits if among is None else among
+    return {(min(k, c), max(k, c)) for k in others if fits.get(k) for c in curved
+            if c != k and fits[c].kind != fits[k].kind} - set(adjacency)
+
+
+def _pretest_sigmas(pairs: list, near_sigmas: float | None, apart: set, apart_sigmas: float | None):
+    """Per ``(size, big, small)`` of ``pairs``, the noise sigmas of :func:`merge_into_curved`'s
+    pretest (inf: none), or None when no pair has one."""
+    if near_sigmas is None and not (apart and apart_sigmas is not None):
+        return None
+    adjacent = np.inf if near_sigmas is None else float(near_sigmas)
+    far = adjacent if apart_sigmas is None else float(apart_sigmas)
+    return np.array([far if (min(big, small), max(big, small)) in apart else adjacent for _, big, small in pairs])
+
+
+def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas) -> np.ndarray:
     """Per ``(size, big, small)`` of ``pairs``: 1 when the median distance of the pixels of
     ``small`` (``regions``: flat pixels per label) to the model of ``big`` is within
-    ``near_sigmas`` times their median range noise, 0 when over, -1 where rounding could
-    decide (:func:`rangeseg_o3d.kernels.pieces_near_models`: the numpy form is then asked)."""
-    rows = [model_row(fits[big]) for _, big, _ in pairs]
-    pieces = [regions[small] for _, _, small in pairs]
-    starts = np.zeros(len(pieces) + 1, np.int64)
-    np.cumsum([piece.size for piece in pieces], out=starts[1:])
-    return kernels.pieces_near_models(
-        np.ascontiguousarray(ctx.xyz, dtype=np.float64), np.ascontiguousarray(ctx.sigma, dtype=np.float64),
-        np.ascontiguousarray(np.concatenate(pieces), dtype=np.int64), starts,
-        np.array([kind for kind, _ in rows], np.int8), np.array([row for _, row in rows]),
-        float(near_sigmas), NEAR_RELATIVE, NEAR_ROUNDING)
+    ``near_sigmas`` (one value, or one per pair; inf: 1) times their median range noise, 0
+    when over, -1 where rounding could decide (:func:`rangeseg_o3d.kernels.pieces_near_models`:
+    the numpy form is then asked)."""
+    sigmas = np.broadcast_to(np.asarray(near_sigmas, dtype=float), (len(pairs),))
+    out = np.ones(len(pairs), np.int8)
+    for value in np.unique(sigmas[np.isfinite(sigmas)]).tolist():  # (one compiled pass per bound)
+        turns = np.flatnonzero(sigmas == value).tolist()
+        rows = [model_row(fits[pairs[t][1]]) for t in turns]
+        pieces = [regions[pairs[t][2]] for t in turns]
+        starts = np.zeros(len(pieces) + 1, np.int64)
+        np.cumsum([piece.size for piece in pieces], out=starts[1:])
+        out[turns] = kernels.pieces_near_models(
+            np.ascontiguousarray(ctx.xyz, dtype=np.float64), np.ascontiguousarray(ctx.sigma, dtype=np.float64),
+            np.ascontiguousarray(np.concatenate(pieces), dtype=np.int64), starts,
+            np.array([kind for kind, _ in rows], np.int8), np.array([row for _, row in rows]),
+            float(value), NEAR_RELATIVE, NEAR_ROUNDING)
+    return out
 
 
 #: Margins about the pretest's bound within which merge_into_curved asks numpy

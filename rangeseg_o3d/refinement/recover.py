@@ -26,7 +26,7 @@ from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .sight import seen_past_plane
-from .merge import merge_into_curved, merge_regions
+from .merge import curved_pairs_apart, merge_into_curved, merge_regions
 
 __all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "fits_refused_along_rays",
            "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
@@ -731,7 +731,12 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
             near = set(near) | {(min(k, j), max(k, j)) for k, idx in kept_apart.items()
                                 for j in touching(labels, idx, reach=2) if j != k}
             if config.merge_disjoint:
-                near |= _curved_apart(fits, new)
+                # a piece of a pipe or ball seen apart from the rest of it (a box in front of the
+                # column between them) is a strip the tile grid left, which a plane fits within
+                # the noise at full resolution, as the turning side of a column is: offered to the
+                # curved regions apart too (merge_into_curved refits only a piece the curved
+                # model as it stands explains within its noise sigmas at the median)
+                near |= curved_pairs_apart(fits, (), among=new)
             # The side of a column or pipe turning away from the camera: the tile means
             # there straddle the turn, so the tile grid left it, and at full resolution
             # its strip fits a plane within the noise. It rejoins the curved region when
@@ -800,21 +805,6 @@ def _curved_rims_then_split(ctx: Context, labels: np.ndarray, fits: dict, candid
         again.reshape(-1)[idx] = k
     return split_blobs(ctx, labels, fits, again, regions=rest, correlation_px=correlation_px,
                        min_angle_deg=config.merge_angle_deg)
-
-
-def _curved_apart(fits: dict, new: dict) -> set:
-    """Pairs ``(min, max)`` of each recovered surface of ``new`` still in ``fits`` and every
-    curved region of another kind in ``fits``, touching or not.
-
-    A piece of a pipe or ball seen apart from the rest of it (a box in front of the column
-    between them) is a strip the tile grid left, which a plane fits within the noise at
-    full resolution, as the turning side of a column is; with ``merge_disjoint`` it is
-    offered to the curved regions apart too, as :func:`merge_regions` offers same-kind
-    regions apart. :func:`rangeseg_o3d.refinement.merge.merge_into_curved` refits only a
-    piece the curved model as it stands explains within its noise sigmas at the median."""
-    curved = [k for k, m in fits.items() if m and m.kind in ("cylinder", "sphere")]
-    return {(min(k, c), max(k, c)) for k in new if fits.get(k) for c in curved
-            if c != k and fits[c].kind != fits[k].kind}
 
 
 def _released_from(regions: dict, released: np.ndarray | None) -> set:

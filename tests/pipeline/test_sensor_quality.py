@@ -402,3 +402,17 @@ def test_a_pipe_settles_off_its_end_cap_until_its_refit_stops_moving_the_border(
     pipe = result.labels == ev.hoover.correct[11]
     assert {f.label: f.kind for f in result.features}[ev.hoover.correct[11]] == "cylinder"
     assert (scan.truth_ids[pipe] == 13).sum() < 0.1 * (scan.truth_ids == 13).sum()
+
+
+def test_a_column_a_pipe_crosses_keeps_its_piece_above_the_pipe():
+    # noise_20mm, study seed 1182, scan 3: a column (truth 18, r 0.16 m, 4 columns wide at
+    # 4.5 m) crossed in front by a pipe: 114 px below it a cylinder, 33 px above it a plane of
+    # its own (over-segmented). The merge of a piece into a curved region asked only regions
+    # that touch; with merge_disjoint the curved regions apart are asked too
+    scan, result = _matrix_scan("noise_20mm", 3, seed=1182)
+    assert scan.truth[18].kind == "cylinder"
+    ev = evaluate(scan, result)
+    assert 18 in ev.hoover.correct
+    column = result.labels == ev.hoover.correct[18]
+    assert column.sum() > 0.95 * (scan.truth_ids == 18).sum()
+    assert {f.label: f.kind for f in result.features}[ev.hoover.correct[18]] == "cylinder"

@@ -615,12 +615,49 @@ def test_curved_pieces_apart_are_candidates_when_their_visible_surfaces_agree():
 
 def test_a_strip_of_a_cylinder_apart_from_it_is_offered_to_it_and_goes_back(context):
     # A strip of the arc seen apart from the rest (six columns between them hidden, as by a
-    # box in front of a column), fitted as a plane: recover's _curved_apart pairs it with
-    # the curved regions whether they touch or not, and merge_into_curved takes it back.
+    # box in front of a column), fitted as a plane: curved_pairs_apart pairs it with the
+    # curved regions it does not touch, and merge_into_curved takes it back.
     from rangeseg_o3d.fitting import fit_cylinder
-    from rangeseg_o3d.refinement.merge import merge_into_curved
-    from rangeseg_o3d.refinement.recover import _curved_apart
+    from rangeseg_o3d.refinement.merge import curved_pairs_apart, merge_into_curved
 
+    xyz, labels, fits = _arc_and_strip_apart(fit_cylinder)
+    # every curved region with each region of another kind (of ``among``), no plane-plane pair
+    assert curved_pairs_apart(fits, (), among={2: fits[2]}) == {(1, 2)}
+    assert curved_pairs_apart(fits, (), among={1: fits[1]}) == set()
+    assert curved_pairs_apart(fits, ()) == {(1, 2), (1, 3)}
+    assert curved_pairs_apart(fits, {(1, 2)}) == {(1, 3)}  # (touching pairs are the adjacency's)
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], 0.001))
+    out, out_fits, _ = merge_into_curved(ctx, labels, fits, curved_pairs_apart(fits, (), among={2: fits[2]}),
+                                         rms_factor=1.3, near_sigmas=3.0)
+    assert (out[:, 37:] == 1).all() and (out[:, 31:37] == 0).all() and set(out_fits) == {1, 3}
+    assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
+
+
+def test_pairs_apart_are_tried_behind_their_own_pretest_and_stay_out_of_the_adjacency(context):
+    # merge_into_curved's ``apart``: the strip apart goes back to the arc's cylinder when the
+    # cylinder lies within apart_sigmas of it at the median; the adjacency returned holds
+    # only the pairs given as touching (none here), not the pairs apart
+    from rangeseg_o3d.fitting import fit_cylinder
+    from rangeseg_o3d.refinement.merge import curved_pairs_apart, merge_into_curved
+
+    xyz, labels, fits = _arc_and_strip_apart(fit_cylinder)
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], 0.001))
+    apart = curved_pairs_apart(fits, set(), among={2: fits[2]})
+    out, out_fits, adjacency = merge_into_curved(ctx, labels, fits, set(), rms_factor=1.3,
+                                                 apart=apart, apart_sigmas=3.0)
+    assert (out[:, 37:] == 1).all() and set(out_fits) == {1, 3} and adjacency == set()
+    # the strip's pixels lie on the cylinder within 1 mm of noise: a bound of a thousandth of
+    # a sigma refuses it, and nothing changes
+    same, same_fits, _ = merge_into_curved(ctx, labels, fits, set(), rms_factor=1.3, apart=apart,
+                                           apart_sigmas=1e-3)
+    assert same is labels and same_fits == fits
+    # without the pairs apart, nothing touches a curved region: nothing is tried
+    assert merge_into_curved(ctx, labels, fits, set(), rms_factor=1.3)[0] is labels
+
+
+def _arc_and_strip_apart(fit_cylinder):
+    # the arc's first 31 columns (label 1, a cylinder), six hidden, its last 8 (label 2, a
+    # plane), and a plane far away (label 3, no pixel)
     xyz, _ = _arc()
     xyz = xyz[:, :45].copy()
     labels = np.ones(xyz.shape[:2], np.int32)
@@ -629,14 +666,7 @@ def test_a_strip_of_a_cylinder_apart_from_it_is_offered_to_it_and_goes_back(cont
     fits = {1: fit_cylinder(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2]),
             3: Plane(normal=[0, 0, 1], d=9.0, rms=0.001, inliers=10)}
     assert fits[1].kind == "cylinder" and fits[2].kind == "plane"
-    # the new piece with every curved region of another kind; no plane-plane pair
-    assert _curved_apart(fits, {2: fits[2]}) == {(1, 2)}
-    assert _curved_apart(fits, {1: fits[1]}) == set()
-    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(xyz.shape[:2], 0.001))
-    out, out_fits, _ = merge_into_curved(ctx, labels, fits, _curved_apart(fits, {2: fits[2]}), rms_factor=1.3,
-                                         near_sigmas=3.0)
-    assert (out[:, 37:] == 1).all() and (out[:, 31:37] == 0).all() and set(out_fits) == {1, 3}
-    assert out_fits[1].kind == "cylinder" and abs(out_fits[1].radius - 0.3) < 0.003
+    return xyz, labels, fits
 
 
 def _wall_with_mixed_returns_and_piece(offset: float, seed: int, mixed: float = 0.06):
