@@ -46,6 +46,8 @@ class SensorConfig(BaseModel):
         (:class:`rangeseg_o3d.sensor.NoiseModel`).
     lateral_noise_px : rms offset across its ray, in grid steps, of the point a return
         measures (a camera's spot or blur wider than its pixel); 0 for none.
+    beam_width_deg : a laser beam's full width (deg), whose returns straddling an occlusion
+        are mixed between the two surfaces; 0 for none stated.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
@@ -65,6 +67,8 @@ class SensorConfig(BaseModel):
                                   "(step = this * r^2; 0: none)")
     lateral_noise_px: float = Field(0.0, ge=0, le=16, description="rms offset across the ray of the point a "
                                     "return measures, grid steps (0: none)")
+    beam_width_deg: float = Field(0.0, ge=0, le=180, description="a laser beam's full width, deg: its returns "
+                                  "straddling an occlusion are mixed (0: none stated)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -80,7 +84,7 @@ class SensorConfig(BaseModel):
         return Sensor(noise=noise, units=self.units, wrap_columns=self.wrap_columns,
                       row_spacing_deg=self.row_spacing_deg, column_spacing_deg=self.column_spacing_deg,
                       min_range=self.min_range, max_range=self.max_range, depth_step=self.depth_step,
-                      lateral_noise_px=self.lateral_noise_px)
+                      lateral_noise_px=self.lateral_noise_px, beam_width_deg=self.beam_width_deg)
 
 
 class StageConfig(BaseModel):

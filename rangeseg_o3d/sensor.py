@@ -194,6 +194,10 @@ class Sensor:
         ray it reports; seen head-on this is invisible, seen at grazing incidence it moves the
         point off its surface by about this times the range times the grid step, where the
         range noise moves it by almost nothing (:func:`lateral_distance_noise`).
+    beam_width_deg : a laser beam's full width (deg; 0 for none stated). A beam that wide
+        straddles an occlusion (a column's limb before the wall behind it) and returns a
+        range between the two surfaces, on neither: a mixed return
+        (:mod:`rangeseg_o3d.refinement.mixed_returns`). With 0 no return is taken for one.
     """
 
     noise: NoiseModel = NoiseModel()
@@ -205,6 +209,7 @@ class Sensor:
     max_range: float = 1000.0
     depth_step: float = 0.0
     lateral_noise_px: float = 0.0
+    beam_width_deg: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.noise, NoiseModel):
@@ -224,6 +229,9 @@ class Sensor:
         if not (isinstance(self.lateral_noise_px, (int, float)) and math.isfinite(self.lateral_noise_px)
                 and self.lateral_noise_px >= 0):
             raise ValueError(f"lateral_noise_px must be a finite number >= 0; got {self.lateral_noise_px!r}")
+        if not (isinstance(self.beam_width_deg, (int, float)) and math.isfinite(self.beam_width_deg)
+                and 0 <= self.beam_width_deg <= 180):
+            raise ValueError(f"beam_width_deg must be a number of degrees in [0, 180]; got {self.beam_width_deg!r}")
 
     @property
     def scale(self) -> float:

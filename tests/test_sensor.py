@@ -177,6 +177,20 @@ def test_lateral_noise_is_a_sensor_fact_of_abw_only():
         load_config({"sensor": {"lateral_noise_px": -0.5}})
 
 
+def test_beam_width_is_a_sensor_fact_of_the_lms200_only():
+    # 0 (no return taken for mixed) unless a preset states it: the LMS200's 0.75-degree beam
+    assert Sensor().beam_width_deg == 0.0
+    assert load_config("lms200").sensor.resolve().beam_width_deg == 0.75
+    for preset in ("spinning_lidar", "sick_3dtk", "rgbd_vga", "abw"):
+        assert load_config(preset).sensor.resolve().beam_width_deg == 0.0
+    with pytest.raises(ValueError, match="beam_width_deg"):
+        Sensor(beam_width_deg=-0.1)
+    with pytest.raises(ValueError, match="beam_width_deg"):
+        Sensor(beam_width_deg=float("nan"))
+    with pytest.raises(ValueError, match="beam_width_deg"):
+        load_config({"sensor": {"beam_width_deg": 200.0}})
+
+
 def test_the_segmenter_normalises_by_the_sensors_noise(lms_cloud):
     # constant noise: the residual scales as 1/sigma0^2
     base = Pipeline("lms200").run(lms_cloud).stages["residual"]

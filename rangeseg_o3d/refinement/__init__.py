@@ -62,6 +62,7 @@ from .grazing_rings import recover_grazing_rings
 from .grid_lines import release_grid_lines
 from .grow import grow_regions, grows_any, settle_regions
 from .merge import curved_pairs_apart, merge_into_curved, merge_regions, planes_into_curved, region_adjacency
+from .mixed_returns import release_mixed_returns
 from .polish import polish_models
 from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
 from .split import split_regions
@@ -315,5 +316,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         # (timed with the rays' steps)
         labels, fits = dissolve_fragments(ctx, labels, fits, k_sigma=config.k_sigma,
                                           wrap_columns=sensor.wrap_columns, jumps=jumps)
+        if sensor.beam_width_deg > 0:  # a line of returns the beam mixed between two surfaces
+            labels, fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=config.k_sigma,
+                                                 wrap_columns=sensor.wrap_columns)
     timer.lap("rays")
     return Regions(labels, fits)

@@ -22,7 +22,7 @@ from ..fitting.robust import beyond_noise, curvature_resolved
 from .context import SCREEN_SLACK, Context, touching
 from .merge import ADJACENCY_MATRIX_LABELS, MODEL_PARAMETERS, region_adjacency, region_adjacency_matrix
 
-__all__ = ["FRAGMENT_SHARE", "absorb_ripples", "dissolve_fragments", "dissolve_small"]
+__all__ = ["FRAGMENT_SHARE", "absorb_ripples", "dissolve_fragments", "dissolve_small", "explained_by_hosts"]
 
 
 def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *, k_sigma: float):
@@ -52,7 +52,7 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
                  and regions[k].size > idx.size]
         if not hosts:
             continue
-        explained, best, _ = _explained(ctx, idx, fits, hosts, np.array([fits[k].rms for k in hosts])[:, None],
+        explained, best, _ = explained_by_hosts(ctx, idx, fits, hosts, np.array([fits[k].rms for k in hosts])[:, None],
                                         k_sigma)
         if explained.mean() < FRAGMENT_SHARE or _stands_apart(rows_at(ctx.xyz, idx), fits.get(small),
                                                                [fits[k] for k in hosts], best):
@@ -140,10 +140,10 @@ def dissolve_fragments(ctx: Context, labels: np.ndarray, fits: dict, *, k_sigma:
             # most of a fragment's pixels are explained: a region whose every so many pixels
             # mostly are not (below the half by three binomial sigmas) is skipped unread
             sample = idx[:: idx.size // _FRAGMENT_SAMPLE]
-            share = np.count_nonzero(_explained(ctx, sample, kept, hosts, scatter, k_sigma)[0]) / sample.size
+            share = np.count_nonzero(explained_by_hosts(ctx, sample, kept, hosts, scatter, k_sigma)[0]) / sample.size
             if share < 0.5 - 1.5 / np.sqrt(sample.size):
                 continue
-        explained, best, distance = _explained(ctx, idx, kept, hosts, scatter, k_sigma)
+        explained, best, distance = explained_by_hosts(ctx, idx, kept, hosts, scatter, k_sigma)
         n = int(explained.sum())
         # (a pixel on a range jump no host explains is a mixed return, not the region's own;
         # yet most of the region must be explained: a thin column is on jumps all over)
@@ -192,7 +192,7 @@ def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, si
     (:func:`rangeseg_o3d.refinement.merge.region_adjacency_matrix`). ``(None, None)`` when the
     labels are too many for an adjacency matrix. One compiled pass over the grid
     (:func:`rangeseg_o3d.kernels.fragments_may_pass`), its counts at least
-    :func:`_explained`'s."""
+    :func:`explained_by_hosts`'s."""
     n = int(labels.max(initial=0)) + 1
     if n > ADJACENCY_MATRIX_LABELS:
         return None, None
@@ -208,7 +208,7 @@ def _may_dissolve(ctx: Context, labels: np.ndarray, fits: dict, fitted: list, si
     return hopeful, adjacency
 
 
-def _explained(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: np.ndarray, k_sigma: float):
+def explained_by_hosts(ctx: Context, idx: np.ndarray, fits: dict, hosts: list, scatter: np.ndarray, k_sigma: float):
     """For the flat pixels ``idx``: whether a host explains each within ``k_sigma max(sigma,
     rms)`` (``scatter``: the hosts' rms, a column), the host explaining it best (its index
     in ``hosts``) and the pixels' distances to that host."""

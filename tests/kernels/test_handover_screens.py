@@ -79,11 +79,11 @@ def _numpy_verdicts(xyz, labels, fits, sigma, jumps):
         scatter = np.array([fits[h].rms for h in hosts])[:, None]
         if idx.size > dissolve._FRAGMENT_SAMPLE:
             sample = idx[:: idx.size // dissolve._FRAGMENT_SAMPLE]
-            share = np.count_nonzero(dissolve._explained(ctx, sample, fits, hosts, scatter, K_SIGMA)[0]) / sample.size
+            share = np.count_nonzero(dissolve.explained_by_hosts(ctx, sample, fits, hosts, scatter, K_SIGMA)[0]) / sample.size
             if share < 0.5 - 1.5 / np.sqrt(sample.size):
                 verdicts[k] = False
                 continue
-        explained = dissolve._explained(ctx, idx, fits, hosts, scatter, K_SIGMA)[0]
+        explained = dissolve.explained_by_hosts(ctx, idx, fits, hosts, scatter, K_SIGMA)[0]
         n = int(explained.sum())
         counted = int(np.count_nonzero(explained | ~jumps[idx]))
         verdicts[k] = not (n < dissolve.FRAGMENT_SHARE * counted or 2 * n <= idx.size)

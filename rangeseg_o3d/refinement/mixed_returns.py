@@ -1,0 +1,121 @@
+"""A laser's mixed returns: one return between two surfaces, its region released.
+
+A laser's beam has a footprint: where it straddles an occlusion (the limb of a column, the
+edge of a box before a wall), the return is a range between the two surfaces, on neither.
+Along a limb such returns form a line one pixel wide with a few of the surface's own
+pixels beside it, which the recovery of thin strips takes for a plane and the settling
+then feeds with the limb's pixels its plane explains better than the column's cylinder:
+a region no surface stands for, and the surface it holds pixels of counts as split
+(noise_2mm study seed 1187 scan 5: a column's 335 px and a 35-px plane of 27 mixed returns
+beside its limb holding 8 of its pixels). Only a laser's single returns straddle so: a
+camera's tile mean at an occlusion is a depth between the surfaces as well, but so is any
+tile's on a slope (the segmenter's jump test tells them apart instead).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..fitting.region_fitter import label_sizes
+from .context import Context, touching
+from .dissolve import explained_by_hosts
+
+__all__ = ["mixed_returns", "release_mixed_returns"]
+
+#: A step is beyond the noise when it exceeds this many noise sigmas of the difference of
+#: two returns (each erring by the range noise: sqrt 2 of it).
+STEP_SIGMAS = 3.0
+#: A neighbour's own step away from the return is "flat" when under this share of the
+#: return's step to it: a surface stepping steadily (a face near grazing) continues its
+#: steps, a surface the beam straddled onto does not.
+CONTINUED = 0.5
+
+
+def mixed_returns(ranges: np.ndarray, idx: np.ndarray, sigma: np.ndarray, *,
+                  wrap_columns: bool = False) -> np.ndarray:
+    """Whether each of the flat pixels ``idx`` of the (H, W) ``ranges`` (NaN: no return) is a
+    mixed return: along its row or its column, its range lies between its two neighbours'
+    by more than ``STEP_SIGMAS`` noise sigmas of a difference on each side (``sigma``: the
+    (H, W) range noise), and neither neighbour continues its step (its own step onward is
+    under ``CONTINUED`` of the step to the return; one with no return beyond it, or at the
+    grid's edge, tells nothing and the return is not taken for mixed). With
+    ``wrap_columns`` the first and last columns are neighbours.
+    """
+    ranges = np.asarray(ranges, dtype=np.float64)
+    if ranges.ndim != 2 or np.shape(sigma) != ranges.shape:
+        raise ValueError(f"mixed_returns: expected (H, W) ranges and sigma of one shape; got {ranges.shape} "
+                         f"and {np.shape(sigma)}")
+    h, w = ranges.shape
+    flat = ranges.ravel()
+    idx = np.asarray(idx, dtype=np.int64)
+    rows, cols = np.divmod(idx, w)
+    own = flat[idx]
+    floor = STEP_SIGMAS * np.sqrt(2.0) * np.asarray(sigma, dtype=np.float64).ravel()[idx]
+
+    def along(axis: int, offset: int) -> np.ndarray:
+        # the ranges ``offset`` pixels along ``axis`` (0: the column, 1: the row), NaN off the grid
+        if axis == 0:
+            at, inside = rows + offset, (rows + offset >= 0) & (rows + offset < h)
+            where = at * w + cols
+        else:
+            at = cols + offset
+            at = at % w if wrap_columns else at
+            inside = (at >= 0) & (at < w)
+            where = rows * w + at
+        return np.where(inside, flat[np.where(inside, where, 0)], np.nan)
+
+    mixed = np.zeros(idx.size, dtype=bool)
+    for axis in (0, 1):
+        before, after = along(axis, -1), along(axis, 1)
+        into, out = own - before, after - own
+        between = (into * out > 0) & (np.abs(into) > floor) & (np.abs(out) > floor)
+        # (a comparison with NaN is False: a neighbour with no return beyond it, or off the
+        # grid, may be stepping on: no mixed return is told there)
+        still_before = np.abs(before - along(axis, -2)) < CONTINUED * np.abs(into)
+        still_after = np.abs(along(axis, 2) - after) < CONTINUED * np.abs(out)
+        mixed |= between & still_before & still_after
+    return mixed
+
+
+def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: np.ndarray,
+                          k_sigma: float, wrap_columns: bool = False) -> tuple[np.ndarray, dict]:
+    """``(labels, fits)`` without the regions at least half of whose pixels are mixed
+    returns (:func:`mixed_returns`): each of their other pixels goes to the touching fitted
+    region (within two pixels) whose model explains it best within ``k_sigma max(sigma,
+    rms)``, or is freed; the mixed returns are freed. The regions that took pixels are
+    refitted, keeping their kind. A region of mixed returns lies along a limb or an edge: at
+    most twice the grid's longer side, the regions looked at. Returns the inputs when
+    nothing changed."""
+    sizes = label_sizes(labels)
+    cap = 2 * max(labels.shape)
+    small = [k for k, m in fits.items() if m and 0 < k < sizes.size and 0 < sizes[k] <= cap]
+    if not small:
+        return labels, fits
+    # one test over the pixels of every region looked at, counted per region
+    flat = labels.reshape(-1)
+    looked_at = np.zeros(sizes.size, dtype=bool)
+    looked_at[small] = True
+    pixels = np.flatnonzero(looked_at[flat])
+    mixed = mixed_returns(ranges, pixels, ctx.sigma.reshape(labels.shape), wrap_columns=wrap_columns)
+    counts = np.bincount(flat[pixels[mixed]], minlength=sizes.size)
+    released = [k for k in small if 2 * counts[k] >= sizes[k]]
+    if not released:
+        return labels, fits
+    out, kept, took = labels.copy(), dict(fits), set()
+    owner = flat[pixels]
+    for k in sorted(released, key=lambda k: (sizes[k], k)):
+        idx, own_mixed = pixels[owner == k], mixed[owner == k]
+        out.reshape(-1)[idx] = 0
+        del kept[k]
+        rest = idx[~own_mixed]
+        hosts = sorted(h for h in touching(out, idx, reach=2) if h != k and kept.get(h))
+        if rest.size and hosts:
+            scatter = np.array([kept[h].rms for h in hosts])[:, None]
+            explained, best, _ = explained_by_hosts(ctx, rest, kept, hosts, scatter, k_sigma)
+            to = np.asarray(hosts)[best[explained]]
+            out.reshape(-1)[rest[explained]] = to
+            took.update(np.unique(to).tolist())
+    for h, refit in ctx.fitter.refit_regions(ctx.xyz, out, kept, sorted(took & kept.keys())).items():
+        if refit and refit.kind == kept[h].kind:
+            kept[h] = refit
+    return out, kept

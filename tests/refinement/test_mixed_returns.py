@@ -1,0 +1,90 @@
+"""A laser's mixed returns (refinement.mixed_returns): the test per pixel and the release of
+the regions they make."""
+
+import numpy as np
+import pytest
+
+import rangeseg_o3d as rs
+from rangeseg_o3d.fitting import fit_plane
+from rangeseg_o3d.refinement.mixed_returns import mixed_returns, release_mixed_returns
+
+NOISE = 0.002
+
+
+def _scene(rows: int = 20, cols: int = 20, step: float = 0.01):
+    """Rays of a grid ``step`` radians apart meeting a plane at z = 3 m (columns 0-9), one
+    return mixed between it and the wall behind (column 10, at z = 3.6 m along its ray) and
+    a wall at z = 5 m (columns 11 on): ``(xyz, ranges)``."""
+    r, c = np.mgrid[0:rows, 0:cols].astype(float)
+    depth = np.where(c < 10, 3.0, np.where(c == 10, 3.6, 5.0))
+    xyz = np.stack([(c - cols / 2) * step * depth, (r - rows / 2) * step * depth, depth], axis=-1)
+    return xyz, np.linalg.norm(xyz, axis=2)
+
+
+def test_a_return_between_two_flat_surfaces_is_mixed_and_their_own_are_not():
+    _, ranges = _scene()
+    sigma = np.full(ranges.shape, NOISE)
+    every = np.arange(ranges.size)
+    mixed = mixed_returns(ranges, every, sigma).reshape(ranges.shape)
+    assert mixed[:, 10].all() and not mixed[:, :10].any() and not mixed[:, 11:].any()
+    # no return beside it on one side: nothing to lie between
+    ranges[5, 11] = np.nan
+    assert not mixed_returns(ranges, np.array([5 * 20 + 10]), sigma)[0]
+    # within three noise sigmas of a difference of one neighbour: on that surface
+    near = ranges.copy()
+    near[:, 10] = near[:, 9] + 2.0 * np.sqrt(2.0) * NOISE
+    assert not mixed_returns(near, every, sigma).reshape(near.shape)[:, 10].any()
+
+
+def test_a_face_stepping_steadily_is_no_mixed_return():
+    # a face seen near grazing: 10 cm more range at every column, the steps continue
+    ranges = np.tile(3.0 + 0.1 * np.arange(20.0), (6, 1))
+    flagged = mixed_returns(ranges, np.arange(ranges.size), np.full(ranges.shape, NOISE))
+    assert not flagged.any()
+
+
+def test_the_seam_of_a_360_degree_grid_has_neighbours_across_it():
+    _, ranges = _scene()
+    ranges = np.roll(ranges, -10, axis=1)  # the mixed column is now column 0
+    sigma = np.full(ranges.shape, NOISE)
+    first = np.arange(20) * 20
+    assert mixed_returns(ranges, first, sigma, wrap_columns=True).all()
+    assert not mixed_returns(ranges, first, sigma).any()
+
+
+def test_bad_shapes_are_refused():
+    with pytest.raises(ValueError, match="one shape"):
+        mixed_returns(np.zeros((4, 5)), np.arange(3), np.zeros((5, 4)))
+
+
+def test_a_region_of_mixed_returns_is_released_and_its_surface_pixels_go_home(context):
+    # the mixed column and four pixels of the near plane beside it made one region (label 3,
+    # a plane): the near plane's pixels go back to it, the mixed returns go free
+    xyz, ranges = _scene()
+    labels = np.where(np.arange(20) < 10, 1, 2)[None, :].repeat(20, axis=0).astype(np.int32)
+    labels[:, 10] = 3
+    labels[:4, 9] = 3
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(ranges.shape, NOISE))
+    out, out_fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=3.0)
+    assert set(out_fits) == {1, 2} and (labels[:, 10] == 3).all()  # (the input is left alone)
+    assert (out[:, 10] == 0).all() and (out[:, :10] == 1).all() and (out[:, 11:] == 2).all()
+    assert abs(out_fits[1].d - fits[1].d) < 1e-9 and out_fits[1].inliers == 200
+
+
+def test_a_region_mostly_of_its_own_surface_keeps_its_mixed_border(context):
+    # a strip of the near plane three columns wide holding the mixed column (10 of 30
+    # pixels, under the size the step looks at: twice the grid's longer side): not released
+    xyz, ranges = _scene(rows=10, cols=30)
+    labels = np.where(np.arange(30) < 8, 1, np.where(np.arange(30) <= 10, 3, 2))[None, :].repeat(10, axis=0)
+    labels = labels.astype(np.int32)
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(ranges.shape, NOISE))
+    assert mixed_returns(ranges, np.flatnonzero(labels == 3), ctx.sigma.reshape(ranges.shape)).sum() == 10
+    out, out_fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=3.0)
+    assert out is labels and out_fits is fits
+    # one column fewer of the plane: half of the region is mixed, and it is released
+    labels[:, 8] = 1
+    fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
+    out, out_fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=3.0)
+    assert set(out_fits) == {1, 2} and (out[:, :10] == 1).all() and (out[:, 10] == 0).all()
