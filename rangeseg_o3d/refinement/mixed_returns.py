@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fitting.region_fitter import label_sizes
+from .. import kernels  # the package: its names load on first use
+from ..fitting.region_fitter import label_sizes, region_indices
 from .context import Context, touching
 from .dissolve import explained_by_hosts
 
@@ -91,20 +92,21 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     small = [k for k, m in fits.items() if m and 0 < k < sizes.size and 0 < sizes[k] <= cap]
     if not small:
         return labels, fits
-    # one test over the pixels of every region looked at, counted per region
-    flat = labels.reshape(-1)
+    # one compiled pass counts them per region (the numpy test below, over the regions released)
     looked_at = np.zeros(sizes.size, dtype=bool)
     looked_at[small] = True
-    pixels = np.flatnonzero(looked_at[flat])
-    mixed = mixed_returns(ranges, pixels, ctx.sigma.reshape(labels.shape), wrap_columns=wrap_columns)
-    counts = np.bincount(flat[pixels[mixed]], minlength=sizes.size)
+    sigma = np.ascontiguousarray(ctx.sigma, dtype=np.float64).reshape(labels.shape)
+    counts = kernels.mixed_counts(np.ascontiguousarray(labels, dtype=np.int32),
+                                  np.ascontiguousarray(ranges, dtype=np.float64), sigma, looked_at,
+                                  STEP_SIGMAS, CONTINUED, bool(wrap_columns))
     released = [k for k in small if 2 * counts[k] >= sizes[k]]
     if not released:
         return labels, fits
+    regions = region_indices(labels, only=released)
     out, kept, took = labels.copy(), dict(fits), set()
-    owner = flat[pixels]
     for k in sorted(released, key=lambda k: (sizes[k], k)):
-        idx, own_mixed = pixels[owner == k], mixed[owner == k]
+        idx = regions[k]
+        own_mixed = mixed_returns(ranges, idx, sigma, wrap_columns=wrap_columns)
         out.reshape(-1)[idx] = 0
         del kept[k]
         rest = idx[~own_mixed]

@@ -88,3 +88,27 @@ def test_a_region_mostly_of_its_own_surface_keeps_its_mixed_border(context):
     fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
     out, out_fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=3.0)
     assert set(out_fits) == {1, 2} and (out[:, :10] == 1).all() and (out[:, 10] == 0).all()
+
+
+@pytest.mark.parametrize("wrap_columns", [False, True])
+def test_the_compiled_count_is_the_numpy_test_counted_per_region(wrap_columns):
+    # a simulated LMS200 scan (its columns' limbs hold mixed returns), cut into blocks of
+    # 7 x 9 pixels as regions, each looked at but the first few
+    from rangeseg_o3d import kernels
+    from rangeseg_o3d.synthetic.suite import lms200_suite
+
+    scan = lms200_suite(seed=0)[0][1]
+    ranges = np.where(scan.cloud.valid, scan.cloud.range_image(), np.nan)
+    sigma = np.full(ranges.shape, 0.005)
+    rows, cols = np.indices(ranges.shape)
+    labels = (1 + rows // 7 * 100 + cols // 9).astype(np.int32)
+    labels[~scan.cloud.valid] = 0
+    looked_at = np.ones(int(labels.max()) + 1, dtype=bool)
+    looked_at[:5] = False
+    counts = kernels.mixed_counts(labels, ranges, sigma, looked_at, 3.0, 0.5, wrap_columns)
+    every = np.flatnonzero(labels.ravel() > 0)
+    mixed = mixed_returns(ranges, every, sigma, wrap_columns=wrap_columns)
+    expected = np.bincount(labels.ravel()[every][mixed], minlength=looked_at.size)
+    expected[~looked_at] = 0
+    assert expected.sum() > 20  # (the scan's limbs)
+    np.testing.assert_array_equal(counts, expected)
