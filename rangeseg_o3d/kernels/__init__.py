@@ -13,7 +13,7 @@ Models are passed as a table indexed by label (see :func:`rangeseg_o3d.fitting.r
 Modules: ``labelwise`` (label-wise sums, planes, quadric test, distances to models),
 ``grid`` (grouping by label, jump edges, adjacency, growth, tile means), ``tiles`` (full-resolution
 labels from the tile grid with their distance statistics, leftover blobs),
-``trimmed`` (the trimmed fit's proposals), ``rays`` (label-wise sums along the viewing rays; numpy's sums of planes fitted along them, bit for bit), ``claims`` (pixels passed between plane regions along the rays), ``growth`` (the ring growth of faces fitted along the rays, and the sums of their refits), ``raygroups`` (the screen of the tile groups those faces are fitted to, the free pieces stereo faces grow from), ``sides`` (a cylinder region as the two sides of a crease, the bound on its end cap's band, and the facets step's pretest), ``borders`` (every curved region less one side's returns), ``creases`` (the plane pixels settled by the rays at a crease), ``modelnoise`` (models' distances to pixels against the pixels' noise), ``edgestrips`` (the edge-plane step's pretest on the grid), ``handovers`` (the dissolve step's pretests on the grid), ``limbs`` (the ring claim of curved regions' limbs seen near grazing), ``mixed`` (a laser's mixed returns counted per region), ``strips`` (the leftover strips' statistics), ``unions`` (the merge's loop over its pairs of planes), ``pieces`` (the pieces a split searches next), ``window`` (the residual image: every pixel's
+``trimmed`` (the trimmed fit's proposals), ``rays`` (label-wise sums along the viewing rays; numpy's sums of planes fitted along them, bit for bit), ``claims`` (pixels passed between plane regions along the rays), ``growth`` (the ring growth of faces fitted along the rays, and the sums of their refits), ``raygroups`` (the screen of the tile groups those faces are fitted to, the free pieces stereo faces grow from), ``sides`` (a cylinder region as the two sides of a crease, the bound on its end cap's band, and the facets step's pretest), ``borders`` (every curved region less one side's returns), ``creases`` (the plane pixels settled by the rays at a crease), ``modelnoise`` (models' distances to pixels against the pixels' noise), ``edgestrips`` (the edge-plane step's pretest on the grid), ``handovers`` (the dissolve step's pretests on the grid), ``limbs`` (the ring claim of curved regions' limbs seen near grazing), ``mixed`` (a laser's mixed returns, per pixel and counted per region), ``strips`` (the leftover strips' statistics), ``unions`` (the merge's loop over its pairs of planes), ``pieces`` (the pieces a split searches next), ``window`` (the residual image: every pixel's
 window plane), ``project`` (points from ranges or depth, used by the cloud constructors), ``inline`` (inline helpers: model distances, grid neighbours), ``linalg``
 (small solves and plane helpers, also used by the fits) and ``kinds`` (the table of model
 kinds, plain Python). The package imports nothing from the rest of ``rangeseg_o3d``.
@@ -51,7 +51,7 @@ _SOURCES = {
     "edgestrips": ("strips_near_models",),
     "handovers": ("fragments_may_pass", "ripples_may_pass"),
     "limbs": ("claim_limbs",),
-    "mixed": ("mixed_counts",),
+    "mixed": ("mixed_at", "mixed_counts"),
     "strips": ("strip_fit_stats", "strip_touching", "grow_faces"),
     "unions": ("merge_plane_pairs", "part_within_step", "plane_candidates", "plane_prediction_sd"),
     "trimmed": ("trimmed_proposals", "local_proposals", "pool_inliers"),

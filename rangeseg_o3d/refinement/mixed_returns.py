@@ -42,40 +42,16 @@ def mixed_returns(ranges: np.ndarray, idx: np.ndarray, sigma: np.ndarray, *,
     grid's edge, tells nothing and the return is not taken for mixed). With
     ``wrap_columns`` the first and last columns are neighbours.
     """
-    ranges = np.asarray(ranges, dtype=np.float64)
+    ranges = np.ascontiguousarray(ranges, dtype=np.float64)
     if ranges.ndim != 2 or np.shape(sigma) != ranges.shape:
         raise ValueError(f"mixed_returns: expected (H, W) ranges and sigma of one shape; got {ranges.shape} "
                          f"and {np.shape(sigma)}")
-    h, w = ranges.shape
-    flat = ranges.ravel()
-    idx = np.asarray(idx, dtype=np.int64)
-    rows, cols = np.divmod(idx, w)
-    own = flat[idx]
-    floor = STEP_SIGMAS * np.sqrt(2.0) * np.asarray(sigma, dtype=np.float64).ravel()[idx]
-
-    def along(axis: int, offset: int) -> np.ndarray:
-        # the ranges ``offset`` pixels along ``axis`` (0: the column, 1: the row), NaN off the grid
-        if axis == 0:
-            at, inside = rows + offset, (rows + offset >= 0) & (rows + offset < h)
-            where = at * w + cols
-        else:
-            at = cols + offset
-            at = at % w if wrap_columns else at
-            inside = (at >= 0) & (at < w)
-            where = rows * w + at
-        return np.where(inside, flat[np.where(inside, where, 0)], np.nan)
-
-    mixed = np.zeros(idx.size, dtype=bool)
-    for axis in (0, 1):
-        before, after = along(axis, -1), along(axis, 1)
-        into, out = own - before, after - own
-        between = (into * out > 0) & (np.abs(into) > floor) & (np.abs(out) > floor)
-        # (a comparison with NaN is False: a neighbour with no return beyond it, or off the
-        # grid, may be stepping on: no mixed return is told there)
-        still_before = np.abs(before - along(axis, -2)) < CONTINUED * np.abs(into)
-        still_after = np.abs(along(axis, 2) - after) < CONTINUED * np.abs(out)
-        mixed |= between & still_before & still_after
-    return mixed
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    if idx.size and not (0 <= int(idx.min()) and int(idx.max()) < ranges.size):
+        raise ValueError(f"mixed_returns: expected flat pixel indices in [0, {ranges.size}); got "
+                         f"{int(idx.min())}..{int(idx.max())}")
+    return kernels.mixed_at(ranges, np.ascontiguousarray(sigma, dtype=np.float64), idx, STEP_SIGMAS, CONTINUED,
+                            bool(wrap_columns))
 
 
 def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: np.ndarray,
@@ -92,7 +68,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     small = [k for k, m in fits.items() if m and 0 < k < sizes.size and 0 < sizes[k] <= cap]
     if not small:
         return labels, fits
-    # one compiled pass counts them per region (the numpy test below, over the regions released)
+    # one compiled pass counts them per region (the per-pixel test then runs on the regions released)
     looked_at = np.zeros(sizes.size, dtype=bool)
     looked_at[small] = True
     sigma = np.ascontiguousarray(ctx.sigma, dtype=np.float64).reshape(labels.shape)

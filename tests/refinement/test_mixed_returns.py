@@ -52,9 +52,11 @@ def test_the_seam_of_a_360_degree_grid_has_neighbours_across_it():
     assert not mixed_returns(ranges, first, sigma).any()
 
 
-def test_bad_shapes_are_refused():
+def test_bad_shapes_and_pixels_are_refused():
     with pytest.raises(ValueError, match="one shape"):
         mixed_returns(np.zeros((4, 5)), np.arange(3), np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="flat pixel indices"):
+        mixed_returns(np.zeros((4, 5)), np.array([3, 20]), np.zeros((4, 5)))
 
 
 def test_a_region_of_mixed_returns_is_released_and_its_surface_pixels_go_home(context):
@@ -91,7 +93,7 @@ def test_a_region_mostly_of_its_own_surface_keeps_its_mixed_border(context):
 
 
 @pytest.mark.parametrize("wrap_columns", [False, True])
-def test_the_compiled_count_is_the_numpy_test_counted_per_region(wrap_columns):
+def test_the_count_per_region_is_the_per_pixel_test_counted(wrap_columns):
     # a simulated LMS200 scan (its columns' limbs hold mixed returns), cut into blocks of
     # 7 x 9 pixels as regions, each looked at but the first few
     from rangeseg_o3d import kernels
