@@ -547,6 +547,50 @@ def _claimant(flat, xyz, i, h, w, n, kinds, params, rms, sigma, challengers, k_s
             best, best_score = k, score
     return best
 
+
+@njit(cache=True, nogil=True, inline="always")
+def _grid_neighbour(i, r, c, step, h, w, wrap):
+    # flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i at (r, c); with
+    # ``wrap`` (a 360-degree grid) across the seam of a full turn; -1 off the grid. (No
+    # division: the first pass asks it four times of every pixel of a frame.)
+    if step == 0:
+        return i - w if r > 0 else -1
+    if step == 1:
+        return i + w if r < h - 1 else -1
+    if step == 2:
+        return i - 1 if c > 0 else (i + w - 1 if wrap else -1)
+    return i + 1 if c < w - 1 else (i - w + 1 if wrap else -1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _settled_label(xyz, flat, i, r, c, h, w, n, kinds, params, rms, sigma, ranges, k_sigma, margin, jump_ratio,
+                   jump_min, plane_margin, wrap):
+    # the region settle_borders moves pixel i at (r, c) to (0: it stays), by the labels ``flat``
+    # as they are (a pixel inside its region stays: no neighbour of another region)
+    own = flat[i]
+    if own <= 0 or own >= n or kinds[own] == 0:
+        return 0
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    own_score = -1.0  # (measured at the first neighbour that may take the pixel)
+    best, best_score = 0, k_sigma
+    for step in range(4):
+        j = _grid_neighbour(i, r, c, step, h, w, wrap)
+        if j < 0:
+            continue
+        k = flat[j]
+        if k == own or k <= 0 or k >= n or kinds[k] == 0:
+            continue
+        if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
+            continue
+        if own_score < 0.0:
+            own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
+        score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
+        need = plane_margin if (kinds[own] != PLANE and kinds[k] == PLANE) else margin
+        if score < best_score and score < own_score - need:
+            best, best_score = k, score
+    return best
+
+
 @njit(cache=True, nogil=True)
 def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma, margin,
                    jump_ratio, jump_min, plane_margin, wrap):
@@ -557,53 +601,73 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
     ``k_sigma`` and more than ``margin`` nearer than its own region's, both in units of
     ``max(sigma, rms)`` (``plane_margin`` instead when its own model is curved and the
     neighbour's a plane); the best such neighbour wins. With ``wrap`` (a 360-degree grid)
-    the first and last columns are neighbours. Decisions are taken on the labels
-    as they were at the iteration's start; the models do not change, so a pixel never
-    moves back. Returns the number of pixels moved.
+    the first and last columns are neighbours. Decisions are taken on the labels as they
+    were at the iteration's start; the models do not change, so a pixel never moves back.
+    Returns the number of pixels moved.
+
+    A pixel's decision depends on its own label and its neighbours' only: after the first
+    pass over the grid, each iteration asks again only the pixels that moved and their
+    neighbours (the same answers as a pass over the grid per iteration, which cost a
+    640 x 480 frame 0.5 ms each, 48 of them when a band settles that deep).
     """
     h, w = labels.shape
     n = kinds.shape[0]
-    moved = 0
-    new = labels.copy()
-    for _ in range(iterations):
-        changed = 0
+    flat = labels.reshape(-1)
+    size = h * w
+    movers = np.empty(size, np.int64)
+    targets = np.empty(size, np.int32)
+    changed = 0
+    if iterations > 0:
         for r in range(h):
             for c in range(w):
-                own = labels[r, c]
-                if own <= 0 or own >= n or kinds[own] == 0:
-                    continue
-                up = labels[r - 1, c] if r > 0 else own
-                down = labels[r + 1, c] if r < h - 1 else own
-                left = labels[r, c - 1] if c > 0 else (labels[r, w - 1] if wrap else own)
-                right = labels[r, c + 1] if c < w - 1 else (labels[r, 0] if wrap else own)
-                if up == own and down == own and left == own and right == own:
-                    continue
                 i = r * w + c
-                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-                own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])
-                best, best_score = 0, k_sigma
-                for step in range(4):
-                    j = _neighbour(i, step, h, w)
-                    if j < 0 and wrap and step >= 2:  # across the seam of a full turn
-                        j = i + w - 1 if step == 2 else i - w + 1
-                    if j < 0:
-                        continue
-                    k = labels[j // w, j % w]
-                    if k == own or k <= 0 or k >= n or kinds[k] == 0:
-                        continue
-                    if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
-                        continue
-                    score = _distance(kinds[k], params[k], x, y, z) / max(sigma[i], rms[k])
-                    need = plane_margin if (kinds[own] != PLANE and kinds[k] == PLANE) else margin
-                    if score < best_score and score < own_score - need:
-                        best, best_score = k, score
+                own = flat[i]
+                # (most pixels lie inside their region: asked in place, not by the decision's
+                # call; a loop over _grid_neighbour's steps here made a frame's pass ten times slower)
+                if (own <= 0 or (r == 0 or flat[i - w] == own) and (r == h - 1 or flat[i + w] == own)
+                        and (flat[i - 1] == own if c > 0 else (not wrap or flat[i + w - 1] == own))
+                        and (flat[i + 1] == own if c < w - 1 else (not wrap or flat[i - w + 1] == own))):
+                    continue
+                best = _settled_label(xyz, flat, i, r, c, h, w, n, kinds, params, rms, sigma, ranges, k_sigma,
+                                      margin, jump_ratio, jump_min, plane_margin, wrap)
                 if best > 0:
-                    new[r, c] = best
+                    movers[changed] = i
+                    targets[changed] = best
+                    changed += 1
+    asked = np.empty(size, np.int64)
+    stamp = np.zeros(size, np.int32)
+    count = 0
+    moved = 0
+    for iteration in range(iterations):
+        if iteration > 0:
+            changed = 0
+            for q in range(count):
+                i = asked[q]
+                r = i // w
+                best = _settled_label(xyz, flat, i, r, i - r * w, h, w, n, kinds, params, rms, sigma, ranges,
+                                      k_sigma, margin, jump_ratio, jump_min, plane_margin, wrap)
+                if best > 0:
+                    movers[changed] = i
+                    targets[changed] = best
                     changed += 1
         if changed == 0:
             break
-        labels[:, :] = new
+        for q in range(changed):
+            flat[movers[q]] = targets[q]
         moved += changed
+        # the next iteration asks the pixels whose own or neighbours' labels changed
+        mark = iteration + 1
+        count = 0
+        for q in range(changed):
+            i = movers[q]
+            r = i // w
+            c = i - r * w
+            for step in range(5):
+                j = i if step == 4 else _grid_neighbour(i, r, c, step, h, w, wrap)
+                if j >= 0 and stamp[j] != mark:
+                    stamp[j] = mark
+                    asked[count] = j
+                    count += 1
     return moved
 
 @njit(cache=True, nogil=True)

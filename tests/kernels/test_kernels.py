@@ -770,6 +770,76 @@ def test_settle_borders_crosses_the_seam_of_a_full_turn_only_when_asked():
     assert _settle_row(row, [2, 2, 1, 1], wrap=True) == [2, 2, 1, 2]
 
 
+def _settle_by_passes(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k_sigma, margin, jump_ratio,
+                      jump_min, plane_margin, wrap):
+    # settle_borders' rule as its docstring states it, one pass over the whole grid per
+    # iteration, in numpy; returns (labels, moved)
+    h, w = labels.shape
+    labels = labels.copy()
+    points = xyz.reshape(h, w, 3)
+    sig, rng = sigma.reshape(h, w), ranges.reshape(h, w)
+
+    def distance(k, p):  # (planes only here: normal . x = d)
+        return abs(float(np.dot(params[k][:3], p)) - params[k][3])
+
+    moved = 0
+    for _ in range(iterations):
+        new = labels.copy()
+        for r in range(h):
+            for c in range(w):
+                own = labels[r, c]
+                if own <= 0 or kinds[own] == 0:
+                    continue
+                steps = [(r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)]
+                if wrap:
+                    steps[2], steps[3] = (r, (c - 1) % w), (r, (c + 1) % w)
+                steps = [(a, b) for a, b in steps if 0 <= a < h and 0 <= b < w]
+                own_score = distance(own, points[r, c]) / max(sig[r, c], rms[own])
+                best, best_score = 0, k_sigma
+                for a, b in steps:
+                    k = labels[a, b]
+                    if k == own or k <= 0 or kinds[k] == 0:
+                        continue
+                    if abs(rng[r, c] - rng[a, b]) > max(jump_min, jump_ratio * min(rng[r, c], rng[a, b])):
+                        continue
+                    score = distance(k, points[r, c]) / max(sig[r, c], rms[k])
+                    if score < best_score and score < own_score - margin:
+                        best, best_score = k, score
+                if best:
+                    new[r, c] = best
+        changed = int(np.count_nonzero(new != labels))
+        if not changed:
+            break
+        labels, moved = new, moved + changed
+    return labels, moved
+
+
+@pytest.mark.parametrize("seed, wrap", [(0, False), (1, True), (2, False)])
+def test_settle_borders_asks_again_only_where_labels_changed_with_the_same_answers(seed, wrap):
+    # the kernel asks, after its first pass, only the pixels that moved and their neighbours:
+    # the same labels and count as a pass over the grid per iteration (planes tilted against
+    # each other, noisy points, range jumps and unlabelled pixels among them)
+    from rangeseg_o3d.kernels import settle_borders
+
+    rng = np.random.default_rng(seed)
+    h, w, n = 24, 31, 6
+    labels = np.repeat(np.repeat(rng.integers(0, n, (6, 8)), 4, axis=0), 4, axis=1)[:h, :w].astype(np.int32)
+    models = {k: Plane(normal=(v := rng.normal(size=3)) / np.linalg.norm(v), d=float(rng.normal()), rms=0.0, inliers=0)
+              for k in range(1, n)}
+    kinds, params, rms = model_table(models, n)
+    rms = rng.uniform(0.0, 0.3, n)
+    xyz = rng.normal(0.0, 1.0, (h * w, 3))
+    sigma = rng.uniform(0.2, 0.6, h * w)
+    ranges = np.linalg.norm(xyz, axis=1) + rng.uniform(0.0, 0.5, h * w)
+    for iterations in (1, 3, 20):
+        expected, expected_moved = _settle_by_passes(xyz, labels, kinds, params, rms, sigma, ranges, iterations,
+                                                     3.0, 0.5, 0.3, 0.2, 0.5, wrap)
+        out = labels.copy()
+        moved = settle_borders(xyz, out, kinds, params, rms, sigma, ranges, iterations, 3.0, 0.5, 0.3, 0.2, 0.5, wrap)
+        assert moved == expected_moved and np.array_equal(out, expected)
+    assert expected_moved > 20  # (the case moves pixels over several iterations)
+
+
 def _runs_of_labels(rng, n_pixels=3000, n_labels=6):
     # label runs of random lengths (as along image rows), zeros and NaN points among them
     labels = np.repeat(rng.integers(0, n_labels, 200), rng.integers(1, 40, 200))[:n_pixels].astype(np.int32)
