@@ -563,6 +563,12 @@ def _grid_neighbour(i, r, c, step, h, w, wrap):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _same_or_free(k, own):
+    # whether a neighbour labelled k takes no pixel of region ``own`` (its own, or unlabelled)
+    return k == own or k <= 0
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _settled_label(xyz, flat, i, r, c, h, w, n, kinds, params, rms, sigma, ranges, k_sigma, margin, jump_ratio,
                    jump_min, plane_margin, wrap):
     # the region settle_borders moves pixel i at (r, c) to (0: it stays), by the labels ``flat``
@@ -622,11 +628,14 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
             for c in range(w):
                 i = r * w + c
                 own = flat[i]
-                # (most pixels lie inside their region: asked in place, not by the decision's
-                # call; a loop over _grid_neighbour's steps here made a frame's pass ten times slower)
-                if (own <= 0 or (r == 0 or flat[i - w] == own) and (r == h - 1 or flat[i + w] == own)
-                        and (flat[i - 1] == own if c > 0 else (not wrap or flat[i + w - 1] == own))
-                        and (flat[i + 1] == own if c < w - 1 else (not wrap or flat[i - w + 1] == own))):
+                # (most pixels have no neighbour of another region, but for unlabelled ones:
+                # asked in place, not by the decision's call; a loop over _grid_neighbour's steps
+                # here made a frame's pass ten times slower)
+                if (own <= 0 or (r == 0 or _same_or_free(flat[i - w], own))
+                        and (r == h - 1 or _same_or_free(flat[i + w], own))
+                        and (_same_or_free(flat[i - 1], own) if c > 0 else (not wrap or _same_or_free(flat[i + w - 1], own)))
+                        and (_same_or_free(flat[i + 1], own) if c < w - 1
+                             else (not wrap or _same_or_free(flat[i - w + 1], own)))):
                     continue
                 best = _settled_label(xyz, flat, i, r, c, h, w, n, kinds, params, rms, sigma, ranges, k_sigma,
                                       margin, jump_ratio, jump_min, plane_margin, wrap)
@@ -634,6 +643,8 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
                     movers[changed] = i
                     targets[changed] = best
                     changed += 1
+    if changed == 0:  # (most calls: nothing to ask again, nothing more to allocate)
+        return 0
     asked = np.empty(size, np.int64)
     stamp = np.zeros(size, np.int32)
     count = 0
