@@ -59,10 +59,9 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
         rest = without(regions[small], inside)
         if flat is None:
             flat = labels.ravel().copy()
+        if not _all_beside(flat, labels.shape, rest, big, ctx.wrap_columns, joining=inside):
+            continue  # (a face at a crease: its column there lies on both)
         flat[inside] = big
-        if not _all_beside(flat, labels.shape, rest, big, ctx.wrap_columns):
-            flat[inside] = small  # (a face at a crease: its column there lies on both)
-            continue
         fits[big] = union
         flat[rest] = 0
         del fits[small]
@@ -112,12 +111,14 @@ def _trimmed_union(ctx: Context, curved, region: np.ndarray, piece: np.ndarray, 
     return model, inside
 
 
-def _all_beside(flat: np.ndarray, shape: tuple[int, int], pixels: np.ndarray, label: int, wrap: bool) -> bool:
+def _all_beside(flat: np.ndarray, shape: tuple[int, int], pixels: np.ndarray, label: int, wrap: bool,
+                joining: np.ndarray | None = None) -> bool:
     """Whether each of ``pixels`` (flat indices) has one of its eight neighbours labelled
     ``label`` in ``flat`` (the label image, raveled; ``wrap``: the first and last columns are
-    neighbours)."""
+    neighbours), the pixels ``joining`` (flat indices, increasing) counted as ``label``'s."""
     if pixels.size == 0:
         return True
+    joining = np.zeros(0, np.int64) if joining is None else joining
     rows, cols = np.divmod(pixels, shape[1])
     beside = np.zeros(pixels.size, bool)
     for dr in (-1, 0, 1):
@@ -130,5 +131,14 @@ def _all_beside(flat: np.ndarray, shape: tuple[int, int], pixels: np.ndarray, la
                 c = c % shape[1]
             else:
                 inside &= (c >= 0) & (c < shape[1])
-            beside[inside] |= flat[r[inside] * shape[1] + c[inside]] == label
+            neighbours = r[inside] * shape[1] + c[inside]
+            beside[inside] |= (flat[neighbours] == label) | _members(neighbours, joining)
     return bool(beside.all())
+
+
+def _members(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    # whether each of ``values`` is in ``sorted_set`` (increasing)
+    if sorted_set.size == 0:
+        return np.zeros(values.shape, bool)
+    at = np.minimum(np.searchsorted(sorted_set, values), sorted_set.size - 1)
+    return sorted_set[at] == values
