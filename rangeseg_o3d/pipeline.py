@@ -405,13 +405,13 @@ class Pipeline:
             if by_rays:
                 # as close_gaps does on the abw preset (a stereo camera's creases go by their rays
                 # below): regions grow into the free pixels beside them that their models explain
-                # (a face recovered from the blobs reaches no farther than its rim and claims), then a
-                # plane's border pixels that a touching plane explains clearly better go to it, as
+                # (a face recovered from the blobs reaches no farther than its rim and claims), then
+                # a plane's border pixels that a touching plane explains clearly better go to it, as
                 # deep as the tile grid settles: a face whose band along its crease the neighbour's
-                # tile model took within the noise at labelling takes it back (seed 1190 scan 3: a
-                # box top at 3.5 m recovered from the blobs kept 575 of its 722 px, 141 in the
-                # plane beside it; 621 now). Seed 1181 scan 5: a box top at 4.7-5.2 m seen at 82
-                # degrees, 272 of its 405 px in its region, 319 after the settling, 328 with the growth
+                # tile model took within the noise at labelling takes it back. Kinect study seed 1190
+                # scan 3: a box top at 3.5 m recovered from the blobs kept 575 of its 722 px, 141 in
+                # the plane beside it; 621 after the settling. Seed 1181 scan 5: a box top at 5 m seen
+                # at 82 degrees, 272 of its 405 px; 319 after the settling, 328 with the growth
                 if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
                     labels = np.array(labels, dtype=np.int32, order="C")
                 labels, stats, _ = grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,

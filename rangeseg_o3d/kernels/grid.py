@@ -633,7 +633,8 @@ def settle_borders(xyz, labels, kinds, params, rms, sigma, ranges, iterations, k
                 # here made a frame's pass ten times slower)
                 if (own <= 0 or (r == 0 or _same_or_free(flat[i - w], own))
                         and (r == h - 1 or _same_or_free(flat[i + w], own))
-                        and (_same_or_free(flat[i - 1], own) if c > 0 else (not wrap or _same_or_free(flat[i + w - 1], own)))
+                        and (_same_or_free(flat[i - 1], own) if c > 0
+                             else (not wrap or _same_or_free(flat[i + w - 1], own)))
                         and (_same_or_free(flat[i + 1], own) if c < w - 1
                              else (not wrap or _same_or_free(flat[i - w + 1], own)))):
                     continue

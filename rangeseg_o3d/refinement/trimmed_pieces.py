@@ -115,7 +115,7 @@ def _all_beside(flat: np.ndarray, shape: tuple[int, int], pixels: np.ndarray, la
                 joining: np.ndarray | None = None) -> bool:
     """Whether each of ``pixels`` (flat indices) has one of its eight neighbours labelled
     ``label`` in ``flat`` (the label image, raveled; ``wrap``: the first and last columns are
-    neighbours), the pixels ``joining`` (flat indices, increasing) counted as ``label``'s."""
+    neighbours), the pixels ``joining`` (flat indices) counted as ``label``'s."""
     if pixels.size == 0:
         return True
     joining = np.zeros(0, np.int64) if joining is None else joining
@@ -132,13 +132,5 @@ def _all_beside(flat: np.ndarray, shape: tuple[int, int], pixels: np.ndarray, la
             else:
                 inside &= (c >= 0) & (c < shape[1])
             neighbours = r[inside] * shape[1] + c[inside]
-            beside[inside] |= (flat[neighbours] == label) | _members(neighbours, joining)
+            beside[inside] |= (flat[neighbours] == label) | np.isin(neighbours, joining)
     return bool(beside.all())
-
-
-def _members(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
-    # whether each of ``values`` is in ``sorted_set`` (increasing)
-    if sorted_set.size == 0:
-        return np.zeros(values.shape, bool)
-    at = np.minimum(np.searchsorted(sorted_set, values), sorted_set.size - 1)
-    return sorted_set[at] == values
