@@ -53,7 +53,7 @@ def dissolve_small(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set,
         if not hosts:
             continue
         explained, best, _ = explained_by_hosts(ctx, idx, fits, hosts, np.array([fits[k].rms for k in hosts])[:, None],
-                                        k_sigma)
+                                                k_sigma)
         if explained.mean() < FRAGMENT_SHARE or _stands_apart(rows_at(ctx.xyz, idx), fits.get(small),
                                                                [fits[k] for k in hosts], best):
             continue

@@ -160,12 +160,14 @@ def settle_regions(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndar
     settled = np.array(labels, dtype=np.int32, order="C", copy=True)
     n = int(settled.max(initial=0)) + 1
     fits = dict(fits)
+    # (the kernel's flat float64 inputs once, not per round)
+    points = np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64)
+    noise = np.ascontiguousarray(sigma, dtype=np.float64).ravel()
+    flat_ranges = np.ascontiguousarray(ranges, dtype=np.float64).ravel()
     for _ in range(SETTLE_ROUNDS):
         before = settled.copy()
         kinds, params, rms = model_table({k: m for k, m in fits.items() if m}, n)
-        moved = kernels.settle_borders(np.ascontiguousarray(xyz.reshape(-1, 3), dtype=np.float64), settled, kinds,
-                                       params, rms, np.ascontiguousarray(sigma, dtype=np.float64).ravel(),
-                                       np.ascontiguousarray(ranges, dtype=np.float64).ravel(), int(iterations),
+        moved = kernels.settle_borders(points, settled, kinds, params, rms, noise, flat_ranges, int(iterations),
                                        float(k_sigma), SETTLE_MARGIN, float(jump_ratio), float(jump_min),
                                        PLANE_MARGIN, bool(wrap_columns))
         if not moved:

@@ -23,8 +23,8 @@ from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
 from .grid_lines import lines_across
 from .sight import seen_past_plane
 
-__all__ = ["curved_pairs_apart", "merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency", "region_adjacency_matrix",
-           "similar_models", "beyond_median_noise"]
+__all__ = ["curved_pairs_apart", "merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency",
+           "region_adjacency_matrix", "similar_models", "beyond_median_noise"]
 
 #: The smaller part of a union of planes, turned from it, lies on the union's plane within
 #: this many times the merge's rms limit (rms of its points): a piece of a rippled face a

@@ -79,7 +79,8 @@ def _numpy_verdicts(xyz, labels, fits, sigma, jumps):
         scatter = np.array([fits[h].rms for h in hosts])[:, None]
         if idx.size > dissolve._FRAGMENT_SAMPLE:
             sample = idx[:: idx.size // dissolve._FRAGMENT_SAMPLE]
-            share = np.count_nonzero(dissolve.explained_by_hosts(ctx, sample, fits, hosts, scatter, K_SIGMA)[0]) / sample.size
+            explained = dissolve.explained_by_hosts(ctx, sample, fits, hosts, scatter, K_SIGMA)[0]
+            share = np.count_nonzero(explained) / sample.size
             if share < 0.5 - 1.5 / np.sqrt(sample.size):
                 verdicts[k] = False
                 continue
