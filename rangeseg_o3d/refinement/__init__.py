@@ -62,7 +62,7 @@ from .grazing_rings import recover_grazing_rings
 from .grid_lines import release_grid_lines
 from .grow import grow_regions, grows_any, settle_regions
 from .merge import curved_pairs_apart, merge_into_curved, merge_regions, planes_into_curved, region_adjacency
-from .mixed_returns import release_mixed_returns
+from .mixed_returns import planes_under_mixed_returns, release_mixed_returns
 from .polish import polish_models
 from .recover import claim_grazing_limbs, recover_leftovers, recover_pixels
 from .split import split_regions
@@ -319,5 +319,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         if sensor.beam_width_deg > 0:  # a line of returns the beam mixed between two surfaces
             labels, fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=config.k_sigma,
                                                  wrap_columns=sensor.wrap_columns)
+            labels, fits = planes_under_mixed_returns(ctx, labels, fits, ranges=ranges,
+                                                      wrap_columns=sensor.wrap_columns)
     timer.lap("rays")
     return Regions(labels, fits)

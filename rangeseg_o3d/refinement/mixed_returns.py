@@ -17,11 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels  # the package: its names load on first use
+from ..fitting.primitives import Plane
+from ..fitting.robust import curvature_resolved
 from ..fitting.region_fitter import label_sizes, region_indices
 from .context import Context, touching
 from .dissolve import explained_by_hosts
 
-__all__ = ["mixed_returns", "release_mixed_returns"]
+__all__ = ["mixed_returns", "planes_under_mixed_returns", "release_mixed_returns"]
 
 #: A step is beyond the noise when it exceeds this many noise sigmas of the difference of
 #: two returns (each erring by the range noise: sqrt 2 of it).
@@ -30,6 +32,11 @@ STEP_SIGMAS = 3.0
 #: return's step to it: a surface stepping steadily (a face near grazing) continues its
 #: steps, a surface the beam straddled onto does not.
 CONTINUED = 0.5
+#: The fewest returns across (along a row and along a column, the median of each) a curved
+#: region's other returns must span for :func:`planes_under_mixed_returns` to ask whether a
+#: plane explains them: two returns across lie on a line whatever the surface (a column 4
+#: returns wide whose two limbs pass the mixed test: nodding_1deg study seed 1211 scan 3).
+BEND_SAMPLES = 3
 
 
 def mixed_returns(ranges: np.ndarray, idx: np.ndarray, sigma: np.ndarray, *,
@@ -68,13 +75,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     small = [k for k, m in fits.items() if m and 0 < k < sizes.size and 0 < sizes[k] <= cap]
     if not small:
         return labels, fits
-    # one compiled pass counts them per region (the per-pixel test then runs on the regions released)
-    looked_at = np.zeros(sizes.size, dtype=bool)
-    looked_at[small] = True
-    sigma = np.ascontiguousarray(ctx.sigma, dtype=np.float64).reshape(labels.shape)
-    counts = kernels.mixed_counts(np.ascontiguousarray(labels, dtype=np.int32),
-                                  np.ascontiguousarray(ranges, dtype=np.float64), sigma, looked_at,
-                                  STEP_SIGMAS, CONTINUED, bool(wrap_columns))
+    sigma, counts = _counts(ctx, labels, ranges, small, sizes.size, wrap_columns)
     released = [k for k in small if 2 * counts[k] >= sizes[k]]
     if not released:
         return labels, fits
@@ -97,3 +98,77 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
         if refit and refit.kind == kept[h].kind:
             kept[h] = refit
     return out, kept
+
+
+def _counts(ctx: Context, labels: np.ndarray, ranges: np.ndarray, looked_at: list, n: int,
+            wrap_columns: bool) -> tuple[np.ndarray, np.ndarray]:
+    # the (H, W) noise and, in one compiled pass, the mixed returns of each region of
+    # ``looked_at`` (the per-pixel test then runs on the regions a step changes)
+    asked = np.zeros(n, dtype=bool)
+    asked[looked_at] = True
+    sigma = np.ascontiguousarray(ctx.sigma, dtype=np.float64).reshape(labels.shape)
+    counts = kernels.mixed_counts(np.ascontiguousarray(labels, dtype=np.int32),
+                                  np.ascontiguousarray(ranges, dtype=np.float64), sigma, asked,
+                                  STEP_SIGMAS, CONTINUED, bool(wrap_columns))
+    return sigma, counts
+
+
+def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, ranges: np.ndarray,
+                               wrap_columns: bool = False) -> tuple[np.ndarray, dict]:
+    """``(labels, fits)`` where each small cylinder or sphere region holding mixed returns
+    (:func:`mixed_returns`) that the fitter gives a plane once they are left out becomes
+    that plane over its other pixels, its mixed returns freed. A narrow box face a few
+    returns wide beside an occlusion keeps the returns its edges mixed with the wall behind,
+    and they, not the face, bend its fit: noise_20mm study seeds 1212 and 1214 (faces of 72
+    and 74 px at 4.5 and 3.9 m, five returns wide, with 13 and 4 mixed returns: a sphere of
+    1.5 m, a cylinder of 0.32 m; without them a plane within the noise).
+
+    A curved surface keeps its bend without its limbs' returns: the region stays curved when
+    its model refitted to the other returns lowers the plane's squares by more than the noise
+    would (:func:`rangeseg_o3d.fitting.robust.curvature_resolved`; a pipe of 0.13 m at 5 m whose
+    limbs' returns pass the mixed test, noise_20mm seed 1209 scan 5), and when those returns
+    span fewer than :data:`BEND_SAMPLES` across. Regions of at most twice the grid's longer
+    side are looked at, as :func:`release_mixed_returns` does. Returns the inputs when nothing
+    changed."""
+    sizes = label_sizes(labels)
+    cap = 2 * max(labels.shape)
+    curved = [k for k, m in fits.items()
+              if m and m.kind in ("cylinder", "sphere") and 0 < k < sizes.size and 0 < sizes[k] <= cap]
+    if not curved:
+        return labels, fits
+    sigma, counts = _counts(ctx, labels, ranges, curved, sizes.size, wrap_columns)
+    holding = [k for k in curved if counts[k] > 0 and sizes[k] - counts[k] >= ctx.min_size]
+    if not holding:
+        return labels, fits
+    out, kept = None, dict(fits)
+    for k, idx in region_indices(labels, only=holding).items():
+        own_mixed = mixed_returns(ranges, idx, sigma, wrap_columns=wrap_columns)
+        rest = idx[~own_mixed]
+        if _thickness(rest, labels.shape[1]) < BEND_SAMPLES:
+            continue
+        points = ctx.fitter.points(ctx.xyz, rest)
+        model = ctx.fitter.fit(points)
+        if isinstance(model, Plane) and not _bend_kept(ctx, points, fits[k], model):
+            out = labels.copy() if out is None else out
+            out.reshape(-1)[idx[own_mixed]] = 0
+            kept[k] = model
+    return (labels, fits) if out is None else (out, kept)
+
+
+def _bend_kept(ctx: Context, points: np.ndarray, curved, plane: Plane) -> bool:
+    # a pipe's own bend outlives its limbs: its model refitted to the other returns still
+    # lowers the plane's squares by more than the noise would (the F-test of its parameters)
+    refit = ctx.fitter.refit(points, curved, curvature_gain=1.0)
+    if not refit or refit.kind != curved.kind:
+        return False
+    n = len(points)
+    extra = 2 if curved.kind == "cylinder" else 1
+    return curvature_resolved(n * plane.rms ** 2, n * refit.rms ** 2, n, extra)
+
+
+def _thickness(idx: np.ndarray, width: int) -> float:
+    # the smaller of the median counts of pixels per row and per column
+    rows, cols = np.divmod(idx, width)
+    per_row = np.bincount(rows)
+    per_col = np.bincount(cols)
+    return float(min(np.median(per_row[per_row > 0]), np.median(per_col[per_col > 0])))

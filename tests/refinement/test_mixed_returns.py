@@ -6,7 +6,8 @@ import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_plane
-from rangeseg_o3d.refinement.mixed_returns import mixed_returns, release_mixed_returns
+from rangeseg_o3d.fitting.primitives import Cylinder
+from rangeseg_o3d.refinement.mixed_returns import mixed_returns, planes_under_mixed_returns, release_mixed_returns
 
 NOISE = 0.002
 
@@ -90,6 +91,53 @@ def test_a_region_mostly_of_its_own_surface_keeps_its_mixed_border(context):
     fits = {k: fit_plane(xyz[labels == k]) for k in (1, 2, 3)}
     out, out_fits = release_mixed_returns(ctx, labels, fits, ranges=ranges, k_sigma=3.0)
     assert set(out_fits) == {1, 2} and (out[:, :10] == 1).all() and (out[:, 10] == 0).all()
+
+
+def _narrow_face(rows: int = 8, cols: int = 30, step: float = 0.01):
+    """A face at z = 3 m five columns wide (12-16) before a wall at z = 5 m, the columns
+    beside it (11, 17) mixed returns at z = 3.6 m: ``(xyz, ranges, labels)``, the face and
+    its mixed returns region 3, the wall 1 and 2 (left, right)."""
+    r, c = np.mgrid[0:rows, 0:cols].astype(float)
+    depth = np.where((c >= 12) & (c <= 16), 3.0, np.where((c == 11) | (c == 17), 3.6, 5.0))
+    xyz = np.stack([(c - cols / 2) * step * depth, (r - rows / 2) * step * depth, depth], axis=-1)
+    labels = np.where(c < 11, 1, np.where(c > 17, 2, 3)).astype(np.int32)
+    return xyz, np.linalg.norm(xyz, axis=2), labels
+
+
+def test_a_narrow_face_bent_by_its_mixed_returns_becomes_its_plane(context):
+    # the face and the returns its edges mixed with the wall made a cylinder region (a bend the
+    # mixed returns carry): without them the fitter gives the face's plane, the refitted
+    # cylinder lowers nothing, and the region becomes that plane, its mixed returns freed
+    xyz, ranges, labels = _narrow_face()
+    bent = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.0, 0.0, 3.4]), radius=0.5,
+                    rms=0.02, inliers=56)
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2]), 3: bent}
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(ranges.shape, NOISE))
+    out, out_fits = planes_under_mixed_returns(ctx, labels, fits, ranges=ranges)
+    assert out_fits[3].kind == "plane" and fits[3] is bent and (labels[:, 11] == 3).all()
+    assert abs(abs(out_fits[3].normal[2]) - 1.0) < 1e-9 and abs(abs(out_fits[3].d) - 3.0) < 1e-9
+    assert (out[:, [11, 17]] == 0).all() and (out[:, 12:17] == 3).all()
+    np.testing.assert_array_equal(out[:, :11], labels[:, :11])
+    assert out_fits[1] is fits[1] and out_fits[2] is fits[2]
+
+
+def test_curved_regions_without_mixed_returns_or_too_large_are_left_alone(context):
+    xyz, ranges, labels = _narrow_face()
+    bent = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.0, 0.0, 3.4]), radius=0.5,
+                    rms=0.02, inliers=40)
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(ranges.shape, NOISE))
+    # the face alone: no mixed return to leave out
+    face = labels.copy()
+    face[:, [11, 17]] = 0
+    fits = {1: fit_plane(xyz[face == 1]), 2: fit_plane(xyz[face == 2]), 3: bent}
+    out, out_fits = planes_under_mixed_returns(ctx, face, fits, ranges=ranges)
+    assert out is face and out_fits is fits
+    # over twice the grid's longer side (60 px): not looked at
+    tall_xyz, tall_ranges, tall = _narrow_face(rows=12)
+    fits = {1: fit_plane(tall_xyz[tall == 1]), 2: fit_plane(tall_xyz[tall == 2]), 3: bent}
+    ctx = context(rs.OrganizedCloud(tall_xyz), sigma=np.full(tall_ranges.shape, NOISE))
+    out, out_fits = planes_under_mixed_returns(ctx, tall, fits, ranges=tall_ranges)
+    assert out is tall and out_fits is fits
 
 
 @pytest.mark.parametrize("wrap_columns", [False, True])
