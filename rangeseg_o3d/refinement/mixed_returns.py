@@ -18,8 +18,8 @@ import numpy as np
 
 from .. import kernels  # the package: its names load on first use
 from ..fitting.primitives import Plane
-from ..fitting.robust import curvature_resolved
 from ..fitting.region_fitter import label_sizes, region_indices
+from ..fullres import resolved_refit
 from .context import Context, touching
 from .dissolve import explained_by_hosts
 
@@ -125,7 +125,7 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
 
     A curved surface keeps its bend without its limbs' returns: the region stays curved when
     its model refitted to the other returns lowers the plane's squares by more than the noise
-    would (:func:`rangeseg_o3d.fitting.robust.curvature_resolved`; a pipe of 0.13 m at 5 m whose
+    would (:func:`rangeseg_o3d.fullres.resolved_refit`, an F-test; a pipe of 0.13 m at 5 m whose
     limbs' returns pass the mixed test, noise_20mm seed 1209 scan 5), and when those returns
     span fewer than :data:`BEND_SAMPLES` across. Regions of at most twice the grid's longer
     side are looked at, as :func:`release_mixed_returns` does. Returns the inputs when nothing
@@ -148,22 +148,13 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
             continue
         points = ctx.fitter.points(ctx.xyz, rest)
         model = ctx.fitter.fit(points)
-        if isinstance(model, Plane) and not _bend_kept(ctx, points, fits[k], model):
+        # (a pipe's own bend outlives its limbs: its model refitted to the other returns still
+        # lowers the plane's squares by more than the noise would)
+        if isinstance(model, Plane) and resolved_refit(ctx.fitter, points, fits[k], model.rms) is None:
             out = labels.copy() if out is None else out
             out.reshape(-1)[idx[own_mixed]] = 0
             kept[k] = model
     return (labels, fits) if out is None else (out, kept)
-
-
-def _bend_kept(ctx: Context, points: np.ndarray, curved, plane: Plane) -> bool:
-    # a pipe's own bend outlives its limbs: its model refitted to the other returns still
-    # lowers the plane's squares by more than the noise would (the F-test of its parameters)
-    refit = ctx.fitter.refit(points, curved, curvature_gain=1.0)
-    if not refit or refit.kind != curved.kind:
-        return False
-    n = len(points)
-    extra = 2 if curved.kind == "cylinder" else 1
-    return curvature_resolved(n * plane.rms ** 2, n * refit.rms ** 2, n, extra)
 
 
 def _thickness(idx: np.ndarray, width: int) -> float:
