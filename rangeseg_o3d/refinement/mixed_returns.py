@@ -75,7 +75,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     small = [k for k, m in fits.items() if m and 0 < k < sizes.size and 0 < sizes[k] <= cap]
     if not small:
         return labels, fits
-    sigma, counts = _counts(ctx, labels, ranges, small, sizes.size, wrap_columns)
+    sigma, counts = _mixed_counts(ctx, labels, ranges, small, sizes.size, wrap_columns)
     released = [k for k in small if 2 * counts[k] >= sizes[k]]
     if not released:
         return labels, fits
@@ -100,7 +100,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     return out, kept
 
 
-def _counts(ctx: Context, labels: np.ndarray, ranges: np.ndarray, looked_at: list, n: int,
+def _mixed_counts(ctx: Context, labels: np.ndarray, ranges: np.ndarray, looked_at: list, n: int,
             wrap_columns: bool) -> tuple[np.ndarray, np.ndarray]:
     # the (H, W) noise and, in one compiled pass, the mixed returns of each region of
     # ``looked_at`` (the per-pixel test then runs on the regions a step changes)
@@ -125,8 +125,8 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
 
     A curved surface keeps its bend without its limbs' returns: the region stays curved when
     its model refitted to the other returns lowers the plane's squares by more than the noise
-    would (:func:`rangeseg_o3d.fullres.resolved_refit`, an F-test; a pipe of 0.13 m at 5 m whose
-    limbs' returns pass the mixed test, noise_20mm seed 1209 scan 5), and when those returns
+    would (:func:`rangeseg_o3d.fullres.resolved_refit`, an F-test; a pipe of 0.15 m at 3.1 m whose
+    limbs' returns pass the mixed test, noise_20mm seed 1210 scan 5), and when those returns
     span fewer than :data:`BEND_SAMPLES` across. Regions of at most twice the grid's longer
     side are looked at, as :func:`release_mixed_returns` does. Returns the inputs when nothing
     changed."""
@@ -136,7 +136,7 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
               if m and m.kind in ("cylinder", "sphere") and 0 < k < sizes.size and 0 < sizes[k] <= cap]
     if not curved:
         return labels, fits
-    sigma, counts = _counts(ctx, labels, ranges, curved, sizes.size, wrap_columns)
+    sigma, counts = _mixed_counts(ctx, labels, ranges, curved, sizes.size, wrap_columns)
     holding = [k for k in curved if counts[k] > 0 and sizes[k] - counts[k] >= ctx.min_size]
     if not holding:
         return labels, fits

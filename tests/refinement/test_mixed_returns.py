@@ -140,6 +140,25 @@ def test_curved_regions_without_mixed_returns_or_too_large_are_left_alone(contex
     assert out is tall and out_fits is fits
 
 
+def test_a_face_two_returns_wide_between_its_mixed_returns_is_not_asked(context):
+    # columns 12-13 a face, 11 and 14 mixed: the two returns across left lie on a line whatever
+    # the surface, and the region keeps its model (BEND_SAMPLES)
+    xyz, ranges, labels = _narrow_face()
+    depth = xyz[..., 2].copy()
+    c = np.arange(30)[None, :].repeat(8, axis=0)
+    depth = np.where((c >= 12) & (c <= 13), 3.0, np.where((c == 11) | (c == 14), 3.6, 5.0))
+    xyz = xyz / xyz[..., 2:3] * depth[..., None]
+    ranges = np.linalg.norm(xyz, axis=2)
+    labels = np.where(c < 11, 1, np.where(c > 14, 2, 3)).astype(np.int32)
+    bent = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.0, 0.0, 3.4]), radius=0.5,
+                    rms=0.02, inliers=32)
+    fits = {1: fit_plane(xyz[labels == 1]), 2: fit_plane(xyz[labels == 2]), 3: bent}
+    ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(ranges.shape, NOISE))
+    assert mixed_returns(ranges, np.flatnonzero(labels == 3), ctx.sigma.reshape(ranges.shape)).sum() == 16
+    out, out_fits = planes_under_mixed_returns(ctx, labels, fits, ranges=ranges)
+    assert out is labels and out_fits is fits
+
+
 @pytest.mark.parametrize("wrap_columns", [False, True])
 def test_the_count_per_region_is_the_per_pixel_test_counted(wrap_columns):
     # a simulated LMS200 scan (its columns' limbs hold mixed returns), cut into blocks of
