@@ -101,7 +101,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
 
 
 def _mixed_counts(ctx: Context, labels: np.ndarray, ranges: np.ndarray, looked_at: list, n: int,
-            wrap_columns: bool) -> tuple[np.ndarray, np.ndarray]:
+                  wrap_columns: bool) -> tuple[np.ndarray, np.ndarray]:
     # the (H, W) noise and, in one compiled pass, the mixed returns of each region of
     # ``looked_at`` (the per-pixel test then runs on the regions a step changes)
     asked = np.zeros(n, dtype=bool)
