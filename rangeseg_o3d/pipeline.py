@@ -412,17 +412,10 @@ class Pipeline:
                 # scan 3: a box top at 3.5 m recovered from the blobs kept 575 of its 722 px, 141 in
                 # the plane beside it; 621 after the settling. Seed 1181 scan 5: a box top at 5 m seen
                 # at 82 degrees, 272 of its 405 px; 319 after the settling, 328 with the growth
-                if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
-                    labels = np.array(labels, dtype=np.int32, order="C")
-                labels, stats, _ = grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
-                                                  k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
-                                                  jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)
-                labels, stats = settle_plane_borders(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
-                                                     k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
-                                                     jump_min=refine.jump_min,
-                                                     iterations=refine.grow_iterations * settings.tile,
-                                                     inlier_factor=INLIER_SIGMAS,
-                                                     wrap_columns=self.sensor.wrap_columns)
+                labels, stats, _ = _grow_free(cloud, labels, fits, stats, sigma, ranges, refine)
+                labels, stats = _settle_planes(cloud, labels, fits, stats, sigma, ranges, refine,
+                                               rings=refine.grow_iterations * settings.tile,
+                                               wrap_columns=self.sensor.wrap_columns)
                 lap("settle_planes")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's faces seen near grazing that kept no
@@ -539,13 +532,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     at full resolution have no tiles)."""
     from .kernels import adjacency_matrix
 
-    if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
-        labels = np.array(labels, dtype=np.int32, order="C")
     fits, stats = refit_planes_to_pixels(cloud, labels, fits, stats, sigma=sigma,
                                          rms_factor=refine.merge_rms_factor, inlier_factor=INLIER_SIGMAS)
-    labels, stats, touch = grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
-                                          k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
-                                          jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)
+    labels, stats, touch = _grow_free(cloud, labels, fits, stats, sigma, ranges, refine)
     if refine.merge:
         near = adjacency_matrix(np.ascontiguousarray(tile_labels, dtype=np.int32), touch.shape[0], 3)
         # regions found at full resolution (recovered from the blobs) have no tiles, and two
@@ -560,14 +549,32 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
                                                     inlier_factor=INLIER_SIGMAS, near=near)
     # a plane's band that a neighbour's tile model took and the neighbour's own plane leaves
     # beyond its noise: back to the plane that explains it, as deep as the tile grid settles
-    labels, stats = settle_plane_borders(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
-                                         k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
-                                         jump_min=refine.jump_min, iterations=rings,
-                                         inlier_factor=INLIER_SIGMAS, wrap_columns=wrap_columns)
+    labels, stats = _settle_planes(cloud, labels, fits, stats, sigma, ranges, refine, rings=rings,
+                                   wrap_columns=wrap_columns)
     # the pixels beside a crease: the planes' rays decide where the noise cannot
     labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                    min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)
     return labels, fits, stats
+
+
+def _grow_free(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats, sigma: np.ndarray,
+               ranges: np.ndarray, refine):
+    """:func:`rangeseg_o3d.fullres.grow_into_free` by the refinement's noise and jump test, on
+    ``labels`` as a writeable C-ordered int32 image (a copy when they are not one):
+    ``(labels, stats, touch)``."""
+    if not (labels.dtype == np.int32 and labels.flags.c_contiguous and labels.flags.writeable):
+        labels = np.array(labels, dtype=np.int32, order="C")
+    return grow_into_free(cloud, labels, fits, stats, sigma=sigma, ranges=ranges, k_sigma=refine.k_sigma,
+                          jump_ratio=refine.jump_ratio, jump_min=refine.jump_min, inlier_factor=INLIER_SIGMAS)
+
+
+def _settle_planes(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats, sigma: np.ndarray,
+                   ranges: np.ndarray, refine, *, rings: int, wrap_columns: bool):
+    """:func:`rangeseg_o3d.fullres.settle_plane_borders` by the refinement's noise and jump
+    test, up to ``rings`` pixels deep: ``(labels, stats)``."""
+    return settle_plane_borders(cloud, labels, fits, stats, sigma=sigma, ranges=ranges, k_sigma=refine.k_sigma,
+                                jump_ratio=refine.jump_ratio, jump_min=refine.jump_min, iterations=rings,
+                                inlier_factor=INLIER_SIGMAS, wrap_columns=wrap_columns)
 
 
 def _read_only(array: np.ndarray, dtype) -> np.ndarray:

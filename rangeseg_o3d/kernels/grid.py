@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance, _nearest_neighbour_model, _neighbour
+from .inline import _distance, _grid_neighbour, _nearest_neighbour_model, _neighbour
 from .kinds import PLANE
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
@@ -546,20 +546,6 @@ def _claimant(flat, xyz, i, h, w, n, kinds, params, rms, sigma, challengers, k_s
         if score < best_score:
             best, best_score = k, score
     return best
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _grid_neighbour(i, r, c, step, h, w, wrap):
-    # flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i at (r, c); with
-    # ``wrap`` (a 360-degree grid) across the seam of a full turn; -1 off the grid. (No
-    # division: the first pass asks it four times of every pixel of a frame.)
-    if step == 0:
-        return i - w if r > 0 else -1
-    if step == 1:
-        return i + w if r < h - 1 else -1
-    if step == 2:
-        return i - 1 if c > 0 else (i + w - 1 if wrap else -1)
-    return i + 1 if c < w - 1 else (i - w + 1 if wrap else -1)
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -120,14 +120,21 @@ def _distance_noise(kind, prm, x, y, z, sigma):
 @njit(cache=True, nogil=True, inline="always")
 def _neighbour(i, step, h, w):
     # Flat index of the 4-neighbour ``step`` (up, down, left, right) of pixel i; -1 off the grid.
-    r, c = i // w, i % w
+    return _grid_neighbour(i, i // w, i % w, step, h, w, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _grid_neighbour(i, r, c, step, h, w, wrap):
+    # :func:`_neighbour` of pixel i at (r, c), given them (no division: settle_borders' first
+    # pass asks it of every pixel of a frame); with ``wrap`` (a 360-degree grid) across the
+    # seam of a full turn
     if step == 0:
         return i - w if r > 0 else -1
     if step == 1:
         return i + w if r < h - 1 else -1
     if step == 2:
-        return i - 1 if c > 0 else -1
-    return i + 1 if c < w - 1 else -1
+        return i - 1 if c > 0 else (i + w - 1 if wrap else -1)
+    return i + 1 if c < w - 1 else (i - w + 1 if wrap else -1)
 
 
 @njit(cache=True, nogil=True, inline="always")
