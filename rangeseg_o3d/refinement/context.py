@@ -109,9 +109,11 @@ class Context:
 
     def __init__(self, cloud, fitter: RegionFitter, sigma: np.ndarray, min_size: int, *,
                  wrap_columns: bool = False, grazing_search: bool = False, correlation_px: int = 1,
-                 band_faces_only: bool = False):
+                 band_faces_only: bool = False, face_floor: int | None = None):
         if not (isinstance(correlation_px, (int, np.integer)) and correlation_px >= 1):
             raise ValueError(f"Context: correlation_px must be an integer >= 1; got {correlation_px!r}")
+        if face_floor is not None and not (isinstance(face_floor, (int, np.integer)) and face_floor >= 1):
+            raise ValueError(f"Context: face_floor must be an integer >= 1 or None; got {face_floor!r}")
         self.xyz = cloud.xyz.reshape(-1, 3)
         self.sigma = sigma.ravel()
         self.width = cloud.shape[1]
@@ -138,6 +140,9 @@ class Context:
         #: to 5.6 m, 22.7 mm rms where the noise of its distances is 1.8 mm; 1177 px in the end),
         #: and the starts new cylinders on the 3DTK scans (116-278 px, r 0.47-0.69 m; no truth)
         self.band_faces_only = bool(band_faces_only)
+        #: the fewest pixels of a face found at the noise of its distances in place of a curved
+        #: answer beyond that noise (:meth:`_face_at_distance_noise`); ``min_size`` when not given
+        self.face_floor = min_size if face_floor is None else int(face_floor)
         self._cloud = cloud
         self._row_origins = False  # not looked up yet (most steps never ask)
 
@@ -274,6 +279,10 @@ class Context:
         if after_band and self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
             piece, model = self._face_in_noise(pool, sigma)
             return (piece, model, True) if piece is not None else (None, None, False)
+        if self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
+            face = self._face_at_distance_noise(pool, model, piece)
+            if face is not None:
+                return (*face, False)
         return (piece, model, False) if model else (None, None, False)
 
     def seen_along_rays(self, model, piece: np.ndarray) -> bool:
@@ -429,16 +438,42 @@ class Context:
             return None, None
         return piece, model
 
-    def within_distance_noise(self, pool: np.ndarray, model):
+    def _face_at_distance_noise(self, pool: np.ndarray, curved, piece: np.ndarray):
+        # ``(face, plane)``: the dominant plane of ``pool`` found with a band at the noise of
+        # the distances of the cylinder or sphere ``curved`` to its ``piece`` (the median of
+        # range noise x incidence cosine), cut to its largest piece within the noise of its
+        # own distances and refitted (within_distance_noise), down to ``face_floor`` pixels;
+        # or None. A far box's top and side seen near grazing, a few pixels across each, lie
+        # within the range noise of a sphere or cylinder bent over their edge (kinect study
+        # seed 1228 scan 5: a sphere of r 0.29 m on 323 + 296 px at 4.1 m, 30 mm rms where
+        # the range noise is 25 mm), but each face's plane fits it at 3-4 mm, the noise of its
+        # distances; a band of range noise holds both faces whole, one of that noise one face
+        from ..fitting.classify import trimmed_plane
+
+        noise = distance_noise(curved, rows_at(self.xyz, piece), self.sigma[piece])
+        band = float(np.median(noise))
+        plane, inliers = trimmed_plane(self.xyz, pool, sigma=band, min_points=self.face_floor)
+        if plane is None:
+            return None
+        face = self.largest_piece(pool[inliers])
+        if face.size < self.face_floor:
+            return None
+        face, plane = self.within_distance_noise(face, plane, floor=self.face_floor)
+        if face is None or not plane or plane.kind != "plane":
+            return None
+        return face, plane
+
+    def within_distance_noise(self, pool: np.ndarray, model, floor: int | None = None):
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
         # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
-        # floor and its refit plane explains it within that noise; else (None, None)
+        # floor (``floor``, else min_size) and its refit plane explains it within that noise;
+        # else (None, None)
         near = self._near_plane(pool, model) if model.kind == "plane" else None
         if near is None:  # (the test as numpy words it; the compiled pass could not tell)
             points = rows_at(self.xyz, pool)
             near = np.abs(model.distances(points)) <= TRIM_SIGMAS * distance_noise(model, points, self.sigma[pool])
         piece = self.largest_piece(pool[near])
-        if piece.size < self.min_size:
+        if piece.size < (self.min_size if floor is None else floor):
             return None, None
         model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
         if not model or self.plane_along_rays(model, piece):

@@ -628,9 +628,12 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     claim's free pixels are then found from them and the boxes where this call changed
     labels, not by a pass over the grid.
     """
+    from ..fullres import recovered_region_floor
+
     first = fresh_label(labels, fits)
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=sensor.wrap_columns, grazing_search=True,
-                  correlation_px=sensor.noise.correlation_px, band_faces_only=True)
+                  correlation_px=sensor.noise.correlation_px, band_faces_only=True,
+                  face_floor=recovered_region_floor(config, min_size, sensor.noise.correlation_px))
     regions = None
     if boxes is not None:
         from ..kernels import box_members

@@ -374,3 +374,53 @@ def test_plane_along_rays_counts_the_chi_square_over_independent_returns():
     assert correlated.compact_piece_returns(10) == 1.0
     with pytest.raises(ValueError, match="correlation_px must be an integer >= 1; got 0"):
         Context(cloud, fitter, noise, 100, correlation_px=0)
+
+
+def _far_box_corner(*, far_end=4.2, sigma=0.025, seed=0):
+    # a box (x 0.3-0.7 m, below y = 0.6 m, z 4.0-``far_end`` m; y points down) seen by a
+    # 575-px pinhole from its upper left: its top and left side lie 80-85 deg from head-on,
+    # six rows and three columns deep, with ``sigma`` of range noise along the rays
+    v, u = np.mgrid[0:140, 0:140]
+    rays = np.dstack([(u + 20) / 575.0, (v + 60) / 575.0, np.ones(u.shape)])
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        to_top, to_side = 0.6 / rays[..., 1], 0.3 / rays[..., 0]
+    top_hit, side_hit = rays * to_top[..., None], rays * to_side[..., None]
+    depth_ok = lambda hit: (hit[..., 2] >= 4.0) & (hit[..., 2] <= far_end)  # noqa: E731
+    top = depth_ok(top_hit) & (top_hit[..., 0] >= 0.3) & (top_hit[..., 0] <= 0.7)
+    side = depth_ok(side_hit) & (side_hit[..., 1] >= 0.6) & (side_hit[..., 1] <= 1.2) & ~top
+    ranges = np.where(top, to_top, np.where(side, to_side, np.nan))
+    ranges = ranges + np.random.default_rng(seed).normal(0.0, sigma, ranges.shape)
+    return rs.OrganizedCloud(rays * ranges[..., None]), np.full(ranges.shape, sigma), top, side
+
+
+def test_a_curved_answer_beyond_its_distance_noise_gives_way_to_a_face_at_that_noise():
+    # the recovery's search (band_faces_only) of a far box's top (227 px) and side (170 px):
+    # the trimmed search bends a cylinder over both within the 25 mm of range noise, but its
+    # distances lie far beyond their own noise (range noise x incidence cosine, 2-4 mm); a
+    # band at that noise holds one face, whose plane is the answer
+    cloud, noise, top, side = _far_box_corner()
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    pool = np.flatnonzero((top | side).ravel())
+    plain = Context(cloud, fitter, noise, 100)
+    piece, model, _ = plain.dominant_search(pool, face_band=True)
+    assert model.kind == "cylinder" and top.ravel()[piece].sum() > 200 and side.ravel()[piece].sum() > 150
+    assert plain.curved_beyond_distance_noise(model, piece)
+    recovery = Context(cloud, fitter, noise, 100, band_faces_only=True, face_floor=20)
+    piece, model, by_band = recovery.dominant_search(pool, face_band=True)
+    assert model.kind == "plane" and not by_band
+    assert top.ravel()[piece].sum() > 0.95 * top.sum() and side.ravel()[piece].sum() < 0.05 * side.sum()
+    assert abs(model.normal[1]) > 0.995 and model.rms < 0.005  # the top's plane (within 6 deg), at its noise
+
+
+def test_the_face_floor_holds_the_face_at_distance_noise():
+    # a floor above the top's 227 pixels takes no face, and the curved answer stands
+    cloud, noise, top, side = _far_box_corner()
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    pool = np.flatnonzero((top | side).ravel())
+    ctx = Context(cloud, fitter, noise, 100, band_faces_only=True, face_floor=300)
+    _, model, _ = ctx.dominant_search(pool, face_band=True)
+    assert model.kind == "cylinder"
+    assert Context(cloud, fitter, noise, 100).face_floor == 100  # min_size when not given
+    with pytest.raises(ValueError, match="face_floor must be an integer >= 1 or None; got 0"):
+        Context(cloud, fitter, noise, 100, face_floor=0)
