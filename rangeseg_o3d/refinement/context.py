@@ -279,10 +279,13 @@ class Context:
         if after_band and self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
             piece, model = self._face_in_noise(pool, sigma)
             return (piece, model, True) if piece is not None else (None, None, False)
-        if self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
-            face = self._face_at_distance_noise(pool, model, piece)
-            if face is not None:
-                return (*face, False)
+        if self.band_faces_only and model and model.kind != "plane" and piece.size >= 3:
+            # (the noise once, for the test and for the band of the face search)
+            noise = distance_noise(model, rows_at(self.xyz, piece), self.sigma[piece])
+            if self._beyond_distance_noise(model, piece, noise):
+                face = self._face_at_distance_noise(pool, float(np.median(noise)))
+                if face is not None:
+                    return (*face, False)
         return (piece, model, False) if model else (None, None, False)
 
     def seen_along_rays(self, model, piece: np.ndarray) -> bool:
@@ -438,20 +441,18 @@ class Context:
             return None, None
         return piece, model
 
-    def _face_at_distance_noise(self, pool: np.ndarray, curved, piece: np.ndarray):
-        # ``(face, plane)``: the dominant plane of ``pool`` found with a band at the noise of
-        # the distances of the cylinder or sphere ``curved`` to its ``piece`` (the median of
-        # range noise x incidence cosine), cut to its largest piece within the noise of its
-        # own distances and refitted (within_distance_noise), down to ``face_floor`` pixels;
-        # or None. A far box's top and side seen near grazing, a few pixels across each, lie
+    def _face_at_distance_noise(self, pool: np.ndarray, band: float):
+        # ``(face, plane)``: the dominant plane of ``pool`` found with a band of ``band`` (the
+        # median noise of a cylinder's or sphere's distances to its piece of the pool, range
+        # noise x incidence cosine), cut to its largest piece within the noise of its own
+        # distances and refitted (within_distance_noise), down to ``face_floor`` pixels; or
+        # None. A far box's top and side seen near grazing, a few pixels across each, lie
         # within the range noise of a sphere or cylinder bent over their edge (kinect study
         # seed 1228 scan 5: a sphere of r 0.29 m on 323 + 296 px at 4.1 m, 30 mm rms where
         # the range noise is 25 mm), but each face's plane fits it at 3-4 mm, the noise of its
         # distances; a band of range noise holds both faces whole, one of that noise one face
         from ..fitting.classify import trimmed_plane
 
-        noise = distance_noise(curved, rows_at(self.xyz, piece), self.sigma[piece])
-        band = float(np.median(noise))
         plane, inliers = trimmed_plane(self.xyz, pool, sigma=band, min_points=self.face_floor)
         if plane is None:
             return None
@@ -511,11 +512,13 @@ class Context:
             return False
         return self._beyond_distance_noise(model, idx)
 
-    def _beyond_distance_noise(self, model, idx: np.ndarray) -> bool:
+    def _beyond_distance_noise(self, model, idx: np.ndarray, noise: np.ndarray | None = None) -> bool:
         # the rms of ``model``'s distances to the flat pixels ``idx`` beyond the rms of their
-        # noise (robust.distance_noise), by the chi-square bound over their independent returns
+        # noise (robust.distance_noise; ``noise`` when the caller has it), by the chi-square
+        # bound over their independent returns
         points = rows_at(self.xyz, idx)
-        noise = distance_noise(model, points, self.sigma[idx])
+        if noise is None:
+            noise = distance_noise(model, points, self.sigma[idx])
         rms = float(np.sqrt(np.mean(model.distances(points) ** 2)))
         return beyond_noise(rms, float(np.sqrt(np.mean(noise * noise))), self.compact_piece_returns(idx.size))
 
