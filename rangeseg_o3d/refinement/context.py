@@ -44,6 +44,9 @@ _GRAZING_NOISE = 0.5
 #: A point within this many sigmas of its distance noise lies on the plane (refinement.context
 #: and recover.py's trims of a plane's pixels).
 TRIM_SIGMAS = 3.0
+#: The least share of a curved answer's pixels the face found at the noise of its distances
+#: must hold to replace it (:meth:`Context.dominant_search`): one of three faces at a corner.
+FACE_SHARE = 1.0 / 3.0
 #: Relative widening of the refinement steps' compiled screens and float pretests (facets,
 #: recover, merge, polish, dissolve): each bound is widened by this much of itself (and of
 #: its terms' magnitudes) on the safe side, far above the rounding by which a few float64
@@ -227,7 +230,10 @@ class Context:
         the corner: :func:`rangeseg_o3d.refinement.split.split_regions` gives it back).
         ``after_band``: the band found a face of the region ``pool`` belongs to; with
         :attr:`band_faces_only` a curved answer beyond the noise of its distances
-        (:meth:`curved_beyond_distance_noise`) then gives way to the band's face, or to none.
+        (:meth:`curved_beyond_distance_noise`) then gives way to the band's face, or to none;
+        otherwise, with :attr:`band_faces_only`, such an answer gives way to the face a
+        search at that noise finds (:meth:`_face_at_distance_noise`) when the face holds at
+        least :data:`FACE_SHARE` of it, and stands when not.
 
         When the trimmed fit's answer is no surface (nothing, or a model beyond the noise
         whose inliers are not one connected piece: the plane tangent to two columns
@@ -284,7 +290,11 @@ class Context:
             noise = distance_noise(model, rows_at(self.xyz, piece), self.sigma[piece])
             if self._beyond_distance_noise(model, piece, noise):
                 face = self._face_at_distance_noise(pool, float(np.median(noise)))
-                if face is not None:
+                # the curved answer's pixels mostly faces (a corner of two or three): a face of
+                # less is a sliver beside a surface the model may well be (pcl_frame_laptop: a
+                # cylinder of r 0.18 m on 795 px gave way to a plane of 85, and the rest to
+                # another plane: 726 px fewer in the cylinder, 4 ms more to the frame)
+                if face is not None and face[0].size >= FACE_SHARE * piece.size:
                     return (*face, False)
         return (piece, model, False) if model else (None, None, False)
 

@@ -424,3 +424,26 @@ def test_the_face_floor_holds_the_face_at_distance_noise():
     assert Context(cloud, fitter, noise, 100).face_floor == 100  # min_size when not given
     with pytest.raises(ValueError, match="face_floor must be an integer >= 1 or None; got 0"):
         Context(cloud, fitter, noise, 100, face_floor=0)
+
+
+def test_a_face_under_a_third_of_the_curved_answer_does_not_replace_it(monkeypatch):
+    # a face holding less than FACE_SHARE of the curved answer's pixels is a sliver beside a
+    # surface the model may be: the curved answer stands (the search's other steps as they are)
+    from rangeseg_o3d.refinement import context as context_module
+
+    cloud, noise, top, side = _far_box_corner()
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    pool = np.flatnonzero((top | side).ravel())
+    curved, cylinder, _ = Context(cloud, fitter, noise, 100).dominant_search(pool, face_band=True)
+    assert cylinder.kind == "cylinder"
+    ctx = Context(cloud, fitter, noise, 100, band_faces_only=True, face_floor=20)
+    found, plane = ctx._face_at_distance_noise(pool, 0.003)
+    assert plane.kind == "plane" and found.size > context_module.FACE_SHARE * curved.size
+    sliver = found[: int(np.ceil(context_module.FACE_SHARE * curved.size)) - 1]
+    monkeypatch.setattr(ctx, "_face_at_distance_noise", lambda pool, band: (sliver, plane))
+    piece, model, _ = ctx.dominant_search(pool, face_band=True)
+    assert model.kind == "cylinder" and np.array_equal(piece, curved)
+    at_share = found[: int(np.ceil(context_module.FACE_SHARE * curved.size))]
+    monkeypatch.setattr(ctx, "_face_at_distance_noise", lambda pool, band: (at_share, plane))
+    piece, model, _ = ctx.dominant_search(pool, face_band=True)
+    assert model.kind == "plane" and piece.size == at_share.size
