@@ -595,7 +595,10 @@ def recover_pixels(cloud, labels, fits, *, fitter, config, sensor, ranges: np.nd
     split left them over. Those leftovers, cut into compact blobs (``candidates``,
     numbered above every label: :func:`rangeseg_o3d.fullres.leftover_blob_labels`), are each
     split into every surface they hold (:func:`split_blobs`; a piece neither trimmed search
-    explains gets the one-sigma face band, for faces only: :attr:`Context.band_faces_only`).
+    explains gets the one-sigma face band, for faces only: :attr:`Context.band_faces_only`;
+    a cylinder or sphere found beyond the noise of its distances gives way to the face a
+    search at that noise finds, down to the recovered-region floor:
+    :meth:`Context.dominant_search`).
     At grazing angles every pixel step is a depth jump by the range test, so neither the blobs nor the 2-pixel
     rim their regions take back are limited by it: the model distance decides. Before the
     blobs are fitted, their pixels on a plane region's surface join it
