@@ -379,7 +379,8 @@ def test_plane_along_rays_counts_the_chi_square_over_independent_returns():
 def _far_box_corner(*, far_end=4.2, sigma=0.025, seed=0):
     # a box (x 0.3-0.7 m, below y = 0.6 m, z 4.0-``far_end`` m; y points down) seen by a
     # 575-px pinhole from its upper left: its top and left side lie 80-85 deg from head-on,
-    # six rows and three columns deep, with ``sigma`` of range noise along the rays
+    # four rows and two columns deep (at ``far_end`` 4.2 m), with ``sigma`` of range noise
+    # along the rays
     v, u = np.mgrid[0:140, 0:140]
     rays = np.dstack([(u + 20) / 575.0, (v + 60) / 575.0, np.ones(u.shape)])
     rays /= np.linalg.norm(rays, axis=2, keepdims=True)
