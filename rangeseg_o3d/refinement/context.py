@@ -289,13 +289,13 @@ class Context:
             # (the noise once, for the test and for the band of the face search)
             noise = distance_noise(model, rows_at(self.xyz, piece), self.sigma[piece])
             if self._beyond_distance_noise(model, piece, noise):
-                face = self._face_at_distance_noise(pool, float(np.median(noise)))
+                face, plane = self._face_at_distance_noise(pool, float(np.median(noise)))
                 # the curved answer's pixels mostly faces (a corner of two or three): a face of
                 # less is a sliver beside a surface the model may well be (pcl_frame_laptop: a
                 # cylinder of r 0.18 m on 795 px gave way to a plane of 85, and the rest to
                 # another plane: 726 px fewer in the cylinder, 4 ms more to the frame)
-                if face is not None and face[0].size >= FACE_SHARE * piece.size:
-                    return (*face, False)
+                if face is not None and face.size >= FACE_SHARE * piece.size:
+                    return face, plane, False
         return (piece, model, False) if model else (None, None, False)
 
     def seen_along_rays(self, model, piece: np.ndarray) -> bool:
@@ -434,45 +434,40 @@ class Context:
         return None, None
 
     def _face_in_noise(self, pool: np.ndarray, sigma: float):
-        # The dominant plane of ``pool`` found with a one-sigma band (a planes-only trimmed
-        # search at sigma / 3), cut to its largest piece within its distance noise and
-        # refitted (within_distance_noise), or (None, None). Two narrow faces meeting at a
-        # corner, a few noise sigmas wide each: the best three-point plane by the search's
-        # three-sigma band is the diagonal one through the corner, which takes most of both
-        # and which the fitter refuses; a band of one sigma holds most of one face and only
-        # a strip of the other along the corner.
+        # The dominant plane of ``pool`` found with a one-sigma band (:meth:`_face_at_band` at
+        # sigma / 3), or (None, None). Two narrow faces meeting at a corner, a few noise sigmas
+        # wide each: the best three-point plane by the search's three-sigma band is the diagonal
+        # one through the corner, which takes most of both and which the fitter refuses; a band
+        # of one sigma holds most of one face and only a strip of the other along the corner.
+        return self._face_at_band(pool, sigma / 3.0, self.min_size)
+
+    def _face_at_distance_noise(self, pool: np.ndarray, band: float):
+        # ``(face, plane)`` of :meth:`_face_at_band` with ``band`` the median noise of a
+        # cylinder's or sphere's distances to its piece of the pool (range noise x incidence
+        # cosine), down to ``face_floor`` pixels; or (None, None). A far box's top and side
+        # seen near grazing, a few pixels across each, lie within the range noise of a sphere
+        # or cylinder bent over their edge (kinect study seed 1228 scan 5: a sphere of r 0.29 m
+        # on 323 + 296 px at 4.1 m, 30 mm rms where the range noise is 25 mm), but each face's
+        # plane fits it at 3-4 mm, the noise of its distances; a band of range noise holds both
+        # faces whole, one of that noise one face
+        return self._face_at_band(pool, band, self.face_floor, from_inliers=True)
+
+    def _face_at_band(self, pool: np.ndarray, band: float, floor: int, *, from_inliers: bool = False):
+        # ``(face, plane)``: the dominant plane of ``pool`` by a planes-only trimmed search of
+        # noise ``band``, cut to its largest piece within the noise of its distances (of the
+        # pool, or with ``from_inliers`` of the largest piece of the search's inliers) and
+        # refitted (within_distance_noise), at least ``floor`` pixels; or (None, None)
         from ..fitting.classify import trimmed_plane
 
-        plane, _ = trimmed_plane(self.xyz, pool, sigma=sigma / 3.0, min_points=self.min_size)
+        plane, inliers = trimmed_plane(self.xyz, pool, sigma=band, min_points=floor)
         if plane is None:
             return None, None
-        piece, model = self.within_distance_noise(pool, plane)
+        if from_inliers:
+            pool = self.largest_piece(pool[inliers])
+        piece, model = self.within_distance_noise(pool, plane, floor=floor)
         if piece is None or not model or model.kind != "plane":
             return None, None
         return piece, model
-
-    def _face_at_distance_noise(self, pool: np.ndarray, band: float):
-        # ``(face, plane)``: the dominant plane of ``pool`` found with a band of ``band`` (the
-        # median noise of a cylinder's or sphere's distances to its piece of the pool, range
-        # noise x incidence cosine), cut to its largest piece within the noise of its own
-        # distances and refitted (within_distance_noise), down to ``face_floor`` pixels; or
-        # None. A far box's top and side seen near grazing, a few pixels across each, lie
-        # within the range noise of a sphere or cylinder bent over their edge (kinect study
-        # seed 1228 scan 5: a sphere of r 0.29 m on 323 + 296 px at 4.1 m, 30 mm rms where
-        # the range noise is 25 mm), but each face's plane fits it at 3-4 mm, the noise of its
-        # distances; a band of range noise holds both faces whole, one of that noise one face
-        from ..fitting.classify import trimmed_plane
-
-        plane, inliers = trimmed_plane(self.xyz, pool, sigma=band, min_points=self.face_floor)
-        if plane is None:
-            return None
-        face = self.largest_piece(pool[inliers])
-        if face.size < self.face_floor:
-            return None
-        face, plane = self.within_distance_noise(face, plane, floor=self.face_floor)
-        if face is None or not plane or plane.kind != "plane":
-            return None
-        return face, plane
 
     def within_distance_noise(self, pool: np.ndarray, model, floor: int | None = None):
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
