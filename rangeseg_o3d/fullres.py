@@ -36,7 +36,7 @@ __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_th
            "grow_into_free",
            "merge_touching_planes", "refit_planes_to_pixels", "drop_unresolvable_curves", "settle_creases", "settle_caps",
            "settle_plane_borders",
-           "recovered_region_floor", "free_untold_regions"]
+           "recovered_region_floor", "free_untold_regions", "recover_freed_pixels"]
 
 
 def expand(image: np.ndarray, tile: int, shape: tuple[int, int]) -> np.ndarray:
@@ -335,6 +335,34 @@ def recover_thin_surfaces(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     stats = stats_after_moves(cloud.xyz, sigma, before, after, fits, stats, moved, refitted,
                               inlier_factor=inlier_factor, first_new=first)
     return labels, fits, stats
+
+
+def recover_freed_pixels(cloud, labels: np.ndarray, fits: dict, stats: PixelStats, freed: np.ndarray, *,
+                         fitter, config, sensor, ranges: np.ndarray, sigma: np.ndarray, inlier_factor: float):
+    """The surfaces the pixels a step just freed hold, recovered as :func:`recover_thin_surfaces`
+    recovers the leftover blobs, but from the blobs of those pixels only.
+
+    A step that gives a region's pixels to a neighbour whose plane explains them frees the
+    rest; when that region held more than the neighbour's piece (a stereo camera's cylinder
+    over a far wall and the front and side of a box before it: the wall's pixels went back to
+    the wall and the box's 6255 were left in no region), those pixels are surfaces the
+    recovery never saw, as they were labelled when it ran. ``freed``: their flat indices
+    (unlabelled in ``labels``). Returns ``(labels, fits, stats)``; the inputs when they make no
+    blob of the smallest region's size.
+    """
+    config = with_derived_refinement(config, sensor, cloud)
+    min_size = smallest_region(config, sensor, cloud)
+    if freed.size < min_size:
+        return labels, fits, stats
+    mask = np.zeros(labels.size, bool)
+    mask[freed] = True
+    mask &= np.asarray(cloud.valid).reshape(-1)
+    found = leftover_blob_labels(labels, mask.reshape(labels.shape), min_size=min_size,
+                                 first_label=fresh_label(labels, fits))
+    if found is None:
+        return labels, fits, stats
+    return recover_thin_surfaces(cloud, labels, fits, stats, fitter=fitter, config=config, sensor=sensor,
+                                 ranges=ranges, sigma=sigma, inlier_factor=inlier_factor, blobs=found)
 
 
 def _moved_pixels(before: np.ndarray, after: np.ndarray, where=None, claimed_at=None) -> np.ndarray:

@@ -17,7 +17,7 @@ from .fitting.primitives import Cylinder, Plane, Sphere, with_statistics
 from .fitting.region_fitter import RegionFitter
 from .free_faces import faces_from_free
 from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unresolvable_curves, grow_into_free,
-                      label_pixels, merge_touching_planes, planes_for_unresolved,
+                      label_pixels, recover_freed_pixels, merge_touching_planes, planes_for_unresolved,
                       recover_thin_surfaces, recovered_region_floor, settle_curved_into_planes,
                       refit_planes_to_pixels, region_stats, settle_caps, settle_creases, settle_plane_borders,
                       smallest_region, stats_after_moves, free_untold_regions)
@@ -359,7 +359,14 @@ class Pipeline:
                 wrap_columns=self.sensor.wrap_columns)
             lap("plane_faces")
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
+            before = labels
             labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            if refine.recover_leftovers and labels is not before:
+                # what a ripple's host did not explain is surfaces of its own, not nothing
+                labels, fits, stats = recover_freed_pixels(
+                    cloud, labels, fits, stats, np.flatnonzero((labels == 0).ravel() & (before > 0).ravel()),
+                    fitter=self.fitter, config=refine, sensor=self.sensor, ranges=ranges, sigma=sigma,
+                    inlier_factor=INLIER_SIGMAS)
             lap("ripples")
             # a cylinder bent over a crease gives way to its two faces before the regions grow
             labels, fits, stats = planes_for_creases(cloud, labels, fits, stats, sigma=sigma,

@@ -1023,3 +1023,69 @@ def test_settle_curved_into_planes_gives_a_recovered_plane_its_pixels_from_the_c
                                            config=pipe.config.refine, sensor=pipe.sensor,
                                            recovered_from=3, inlier_factor=2.0)
     assert same is labels
+
+
+def _curved_region_over_wall_and_board(board_rows=slice(10, 41)):
+    """A wall 2 m away (48 x 60 pixels, 1 cm apart, 2 mm noise) with a board 0.3 m before
+    it in columns 30-44 of ``board_rows``; label 1 the wall's plane, label 2 a cylinder region
+    over columns 10-44 of those rows (the wall's piece the larger): ``(cloud, labels, fits,
+    stats, sigma, board)``."""
+    from rangeseg_o3d.fitting import fit_plane
+    from rangeseg_o3d.fitting.primitives import Cylinder
+
+    rng = np.random.default_rng(5)
+    xyz = _wall(48, 60)
+    board = np.zeros((48, 60), bool)
+    board[board_rows, 30:45] = True
+    xyz[board, 2] = 1.7
+    xyz[..., 2] += rng.normal(0.0, 0.002, board.shape)
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.ones((48, 60), np.int32)
+    labels[board_rows, 10:45] = 2
+    fits = {1: fit_plane(xyz[labels == 1]),
+            2: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.1, 0.0, 2.3]), 0.5, 0.05, int((labels == 2).sum()))}
+    sigma = np.full(board.shape, 0.002)
+    return cloud, labels, fits, region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS), sigma, board
+
+
+def test_what_a_ripples_host_leaves_is_recovered_as_its_surfaces():
+    # A curved region over a piece of a wall and a board before it (a stereo camera's far
+    # box and the wall behind it under one cylinder): its wall pixels go to the wall, whose
+    # plane explains them as a ripple's; the board's are freed, and come back as its plane
+    from rangeseg_o3d.fullres import recover_freed_pixels
+    from rangeseg_o3d.pipeline import _absorb_pixel_ripples
+
+    cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board()
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
+    pipe = rs.Pipeline(cfg)
+    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    # the premise (a wall pixel in the noise's tail beyond three sigmas is freed too)
+    assert 2 not in kept and (out[~board] == 1).mean() > 0.99 and (out[board] == 0).all()
+    freed = np.flatnonzero(((out == 0) & (labels > 0)).ravel())
+    got, models, _ = recover_freed_pixels(cloud, out, kept, after, freed, fitter=pipe.fitter, config=cfg.refine,
+                                          sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma,
+                                          inlier_factor=INLIER_SIGMAS)
+    found, counts = np.unique(got[board], return_counts=True)
+    assert found.size == 1 and found[0] > 1 and counts[0] > 0.99 * board.sum()  # (the tail again)
+    assert (got[~board] == 1).mean() > 0.99 and not (got[~board] == found[0]).any()
+    model = models[int(found[0])]
+    assert model.kind == "plane"
+    assert abs(abs(model.normal[2]) - 1.0) < 1e-3
+    assert abs(abs(model.d) - 1.7) < 3 * 0.002
+
+
+def test_freed_pixels_under_the_smallest_region_are_left_free():
+    # the same board 6 rows high (90 px, under the 300-px floor): nothing to recover, the
+    # inputs come back
+    from rangeseg_o3d.fullres import recover_freed_pixels
+    from rangeseg_o3d.pipeline import _absorb_pixel_ripples
+
+    cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board(slice(10, 16))
+    cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
+    pipe = rs.Pipeline(cfg)
+    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    assert 2 not in kept and (out[board] == 0).all()
+    freed = np.flatnonzero(((out == 0) & (labels > 0)).ravel())
+    got = recover_freed_pixels(cloud, out, kept, after, freed, fitter=pipe.fitter, config=cfg.refine,
+                               sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    assert got[0] is out and got[1] is kept and got[2] is after
