@@ -62,10 +62,12 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     of which a touching region's model explains
     ``EXPLAINED_SHARE`` of the pixels within ``k_sigma`` of that noise (at least the model's
     rms), with an rms distance within its chi-square bound, joins the region that explains
-    it best. Otherwise a strip the fitter's batch settles as a plane explaining that share
-    within ``3 max(sigma, rms)`` becomes a region; it takes back its rim and claims the
-    rings its model explains better than their regions' (in its box), and keeps of those
-    gains only the pixels within ``TRIM_SIGMAS`` of their distance noise.
+    it best; with ``config.merge_disjoint`` (pieces of one surface apart are one region), so
+    does a strip no touching region takes, of the plane regions anywhere. Otherwise a strip
+    the fitter's batch settles as a plane explaining that share within ``3 max(sigma, rms)``
+    becomes a region; it takes back its rim and claims the rings its model explains better
+    than their regions' (in its box), and keeps of those gains only the pixels within
+    ``TRIM_SIGMAS`` of their distance noise.
     """
     from .fullres import leftover_blob_labels, recovered_region_floor, smallest_region, stats_with_moved
     from .scales import noise_spans_the_grid, with_derived_refinement
@@ -106,7 +108,8 @@ def recover_strips(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, conf
     if not (open_.any() or along.any()):
         return labels, fits, stats
     table = model_table(fits, first)  # (the regions' models: the strips change none of them)
-    joins, merges = strips.joins(labels, table, open_, stats, config.merge_rms_factor if config.merge else None)
+    joins, merges = strips.joins(labels, table, open_, stats, config.merge_rms_factor if config.merge else None,
+                                 apart=config.merge_disjoint)
     faces = strips.faces(fitter, open_ & (joins == 0) & (merges == 0), floor)
     along_faces = strips.faces_along_rays(along, floor, 1.0 / noise_model.correlation_px ** 2, labels.shape[1])
     if along_faces and not noise_model.matched_window:  # (a band of a surface found: no face)
@@ -180,31 +183,47 @@ class _Strips:
         terrace = rms < NO_NOISE_SHARE * noise_rms
         return ok & ~terrace & ~(rms > noise_rms_bound.py_func(noise_rms, dof, CHI_SQUARE_SIGMAS))
 
-    def joins(self, labels: np.ndarray, table: tuple, open_: np.ndarray, stats, rms_factor: float | None):
+    def joins(self, labels: np.ndarray, table: tuple, open_: np.ndarray, stats, rms_factor: float | None,
+              apart: bool = False):
         """``(explained, merged)``, per strip a region (0: none) of those it touches
         (``table``: their models, :func:`rangeseg_o3d.fitting.region_fitter.model_table`):
         the one whose model explains it best, when one does (see :func:`recover_strips`);
         else, with ``rms_factor`` (merging on), the plane region a union with which the
-        merge would take (:meth:`_union_rms`), the lowest union rms first."""
-        kinds, params, rms = table
+        merge would take (:meth:`_union_rms`), the lowest union rms first. With ``apart``
+        (pieces of one surface apart are one region), a strip no touching region takes joins
+        the plane region anywhere whose model explains it best, when one does."""
+        from .kernels.kinds import PLANE
+
+        kinds = table[0]
         strip, label = kernels.strip_touching(np.ascontiguousarray(labels, dtype=np.int32).ravel(),
                                               labels.shape[0], labels.shape[1], self.pixels, self.starts, kinds)
         keep = open_[strip]
         strip, label = strip[keep], label[keep]
         explained, merged = np.zeros(self.sizes.size, np.int64), np.zeros(self.sizes.size, np.int64)
-        if not strip.size:
-            return explained, merged
+        if strip.size:
+            counts, pair_rms = self._explained(strip, label, table, explained)
+            if rms_factor is not None:
+                union, limit = self._union_rms(strip, label, counts, pair_rms, stats, rms_factor)
+                _best(merged, strip, label, (kinds[label] == PLANE) & (union <= limit) & (explained[strip] == 0),
+                      union / np.maximum(limit, 1e-12))
+        if apart:
+            # (a far wall's strip between two pipes at the frame's top edge, beside none of its pixels)
+            alone = np.flatnonzero(open_ & (explained == 0) & (merged == 0))
+            planes = np.flatnonzero(kinds == PLANE)
+            planes = planes[planes > 0]
+            if alone.size and planes.size:
+                self._explained(np.repeat(alone, planes.size), np.tile(planes, alone.size), table, explained)
+        return explained, merged
+
+    def _explained(self, strip: np.ndarray, label: np.ndarray, table: tuple, explained: np.ndarray):
+        # of the (strip, region) pairs, per strip the region whose model explains it best, when
+        # one does (written into ``explained``); returns the pairs' pixel counts and rms
+        kinds, params, rms = table
         counts, pair_rms, noise_rms, within = self._stats(strip, kinds[label], params[label], rms[label])
         fine = ((counts > 0) & (within >= EXPLAINED_SHARE * self.sizes[strip])
                 & ~(pair_rms > noise_rms_bound.py_func(noise_rms, counts.astype(float), CHI_SQUARE_SIGMAS)))
         _best(explained, strip, label, fine, pair_rms / np.maximum(noise_rms, 1e-12))
-        if rms_factor is not None:
-            from .kernels.kinds import PLANE
-
-            union, limit = self._union_rms(strip, label, counts, pair_rms, stats, rms_factor)
-            _best(merged, strip, label, (kinds[label] == PLANE) & (union <= limit) & (explained[strip] == 0),
-                  union / np.maximum(limit, 1e-12))
-        return explained, merged
+        return counts, pair_rms
 
     def _union_rms(self, strip, label, counts, pair_rms, stats, rms_factor: float):
         # per (strip, plane region) pair: the rms of the union under the region's plane (a

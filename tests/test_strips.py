@@ -2,6 +2,7 @@
 region it touches that explains it, becomes a plane of its own, or stays free."""
 
 import numpy as np
+import pytest
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting.primitives import Plane
@@ -86,6 +87,30 @@ def test_a_strip_on_the_wall_joins_it():
     out, out_fits, out_stats = recover_strips(cloud, labels, fits, stats, **common)
     assert (out == 1).all() and set(out_fits) == {1}
     assert out_stats.counts[1] == 48 * 60
+
+
+@pytest.mark.parametrize("apart", [True, False])
+def test_a_strip_of_the_wall_beside_none_of_its_pixels_joins_it_where_pieces_apart_are_one_region(apart):
+    # two columns of the wall's surface left free between two boards 0.5 m before it (one
+    # plane region, label 2), so beside none of the wall's pixels: with merge_disjoint (pieces
+    # of one surface apart are one region) the wall's plane explains them and they join it;
+    # without, they become a plane of their own at the wall's distance
+    strip = _columns(30, 32)
+    boards = _columns(24, 30) | _columns(32, 38)
+    cloud, _, fits, stats, common = _wall_labelled_with_boards([(strip, 2.0), (boards, 1.5)])
+    labels = np.where(boards, 2, 1).astype(np.int32)
+    labels[strip] = 0
+    fits = {1: fits[1], 2: Plane([0, 0, 1], 1.5, 0.0, 1)}
+    stats = region_stats(cloud.xyz, labels, fits, common["sigma"], INLIER_SIGMAS)
+    common["config"] = common["config"].model_copy(update={"merge_disjoint": apart})
+    out, out_fits, _ = recover_strips(cloud, labels, fits, stats, **common)
+    assert (out[~strip] == labels[~strip]).all()
+    (found,) = np.unique(out[strip])
+    if apart:
+        assert found == 1 and set(out_fits) == {1, 2}
+    else:
+        assert found > 2 and out_fits[int(found)].kind == "plane"
+        assert abs(abs(out_fits[int(found)].d) - 2.0) < 3 * NOISE
 
 
 def test_the_strip_step_returns_its_inputs_when_no_strip_is_left_over():
