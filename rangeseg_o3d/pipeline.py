@@ -380,11 +380,18 @@ class Pipeline:
                                                   rings=refine.grow_iterations * settings.tile,
                                                   wrap_columns=self.sensor.wrap_columns)
                 lap("close_gaps")
+            settled = fits
             fits, stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
                                                 inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels,
                                                 tile=settings.tile, by_distance_noise=by_means,
                                                 fitter=self.fitter, samples=noise.independent_share(1))
             lap("unresolved")
+            if (by_means or noise.matched_window) and _kind_changed(settled, fits):
+                labels, fits, stats = edge_planes_to_curved(
+                    cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
+                    inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
+                    near_sigmas=refine.k_sigma, curved_pieces=True)
+                lap("edge_planes_again")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
                 # them their rays meet nearer, in range noise, than their own regions' planes,
@@ -494,6 +501,12 @@ class Pipeline:
             stages = dict(stages)
         return Result(labels=regions.labels, features=features, unfitted=unfitted,
                       timings=clock.timings, stages=stages)
+
+
+def _kind_changed(before: dict, after: dict) -> bool:
+    """Whether a cylinder region of ``before`` is a sphere in ``after``, or a sphere a cylinder."""
+    return any(model and before.get(k) and before[k].kind != model.kind and model.kind != "plane"
+               and before[k].kind != "plane" for k, model in after.items())
 
 
 def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
