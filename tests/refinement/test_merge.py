@@ -936,3 +936,32 @@ def test_a_floor_in_two_patches_apart_joins_within_its_planes_uncertainty_there(
     (feature,) = [f for f in result.features if f.label == label]
     assert feature.kind == "plane"
     assert abs(feature.model.normal @ scan.truth[1].normal) > np.cos(np.radians(1.0))
+
+
+def test_a_curved_union_must_hold_its_smaller_part_within_that_parts_own_rms_or_noise():
+    # two pieces of one pipe (r 0.3 m, 3 m away, 2 mm noise): the larger 60 degrees of arc,
+    # the smaller 30. The pipe's own cylinder holds the smaller piece at its noise; a cylinder
+    # 5 cm wider about the same axis (the larger piece's misfit carried over) leaves it 25 of
+    # its sigmas off, which the union's rms over both would not tell
+    from rangeseg_o3d.refinement.context import Context
+    from rangeseg_o3d.refinement.merge import _Unions
+
+    noise = 0.002
+    rng = np.random.default_rng(3)
+    v, u = np.mgrid[0:30, 0:45].astype(float)
+    angle = np.radians(-60.0 + 2.0 * u)  # -60 .. 28 degrees about the axis
+    radius = 0.3 + rng.normal(0.0, noise, u.shape)
+    xyz = np.dstack([radius * np.sin(angle), (v - 14.5) * 0.01, 3.0 - radius * np.cos(angle)])
+    cloud = rs.OrganizedCloud(xyz)
+    labels = np.where(u < 30, 1, 2).astype(np.int32)
+    axis, centre = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 3.0])
+    own = Cylinder(axis, centre, 0.3, noise, int(labels.size))
+    fits = {1: own, 2: Cylinder(axis, centre, 0.3, noise, int((labels == 2).sum()))}
+    pipe = rs.Pipeline(rs.load_config("lms200", overrides={"sensor.sigma0": noise}))
+    unions = _Unions(Context(cloud, pipe.fitter, np.full(cloud.shape, noise), 10), labels, fits, 1.3)
+    unions.paired.update({1, 2})
+    assert unions.curved_parts_on(1, 2, own)
+    wider = Cylinder(axis, centre, 0.35, 0.02, int(labels.size))
+    assert not unions.curved_parts_on(1, 2, wider)
+    # planes are left to the plane tests
+    assert unions.curved_parts_on(1, 2, Plane(np.array([0.0, 0.0, 1.0]), 3.0, noise, int(labels.size)))
