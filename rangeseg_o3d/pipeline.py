@@ -387,6 +387,8 @@ class Pipeline:
                                                 fitter=self.fitter, samples=noise.independent_share(1))
             lap("unresolved")
             if (by_means or noise.matched_window) and _kind_changed(settled, fits):
+                # a region given the other curved kind: the curved pieces beside it that the join
+                # above refused for their kind are offered to it again
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,

@@ -584,7 +584,7 @@ class _Unions:
         noise at the median (True for planes).
 
         The union's rms alone cannot refuse a small part: a wall 6.4-7.7 m away under a Kinect's
-        7 cm of noise, bent into a cylinder of r 4.6 m, took a pipe 0.12 m across at 2.9 m
+        7 cm of noise, bent into a cylinder of r 4.6 m, took a pipe of r 0.12 m at 2.9 m
         beside it (kinect_real_640x480 study seed 1260 scan 0): the union's rms stayed within
         the wall's, while the pipe's pixels lay 64 mm rms off it, five of their range sigmas."""
         if isinstance(union, Plane) or isinstance(self.fits[ra], Plane) or isinstance(self.fits[rb], Plane):

@@ -502,7 +502,7 @@ def test_a_far_box_a_ripples_host_leaves_is_recovered_as_its_faces():
 def test_a_strip_of_a_large_plane_beside_none_of_its_pixels_joins_it(seed, k, surface):
     # kinect_640x480, study seeds: a far wall's strip between two pipes at the frame's top
     # edge (seed 1258 scan 3, 103 px of truth 2, 10231 px) and a floor's strip at 5.4-6.3 m
-    # (seed 1263 scan 2, 180 px of truth 1) were regions of their own, 7-8 mm rms, 4-5 cm off
+    # (seed 1263 scan 2, 180 px of truth 1) were regions of their own, 7-8 mm rms, 8 and 4.6 cm off
     # the wall's and floor's planes, within the noise of their distances to them: the large
     # plane counted as over-segmented. They join it
     scan, result = _matrix_scan("kinect_640x480", k, seed=seed)
@@ -528,7 +528,7 @@ def test_a_balls_piece_joins_its_region_once_that_region_is_a_sphere_too():
 
 def test_a_pipe_before_a_far_wall_is_not_merged_into_the_walls_bent_model():
     # kinect_real_640x480, study seed 1260, scan 0: a side wall 6.4-7.7 m away (truth 6, 5590
-    # px) that polish bent into a cylinder of r 4.6 m took the pipe 0.12 m across at 2.9 m
+    # px) that polish bent into a cylinder of r 4.6 m took the pipe of r 0.12 m at 2.9 m
     # before it (truth 17, 2636 px) in the merge after polish: the union's rms was within the
     # wall's, the pipe's pixels 64 mm rms off it (12.7 mm of range noise). Both were under-
     # segmented; now each is its own region
