@@ -386,13 +386,14 @@ class Pipeline:
                                                 tile=settings.tile, by_distance_noise=by_means,
                                                 fitter=self.fitter, samples=noise.independent_share(1))
             lap("unresolved")
-            if (by_means or noise.matched_window) and _kind_changed(settled, fits):
+            turned = _kind_changed(settled, fits) if by_means or noise.matched_window else set()
+            if turned:
                 # a region given the other curved kind: the curved pieces beside it that the join
                 # above refused for their kind are offered to it again
                 labels, fits, stats = edge_planes_to_curved(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
-                    near_sigmas=refine.k_sigma, curved_pieces=True)
+                    near_sigmas=refine.k_sigma, curved_pieces=True, hosts=turned)
                 lap("edge_planes_again")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
@@ -505,10 +506,11 @@ class Pipeline:
                       timings=clock.timings, stages=stages)
 
 
-def _kind_changed(before: dict, after: dict) -> bool:
-    """Whether a cylinder region of ``before`` is a sphere in ``after``, or a sphere a cylinder."""
-    return any(model and before.get(k) and before[k].kind != model.kind and model.kind != "plane"
-               and before[k].kind != "plane" for k, model in after.items())
+def _kind_changed(before: dict, after: dict) -> set:
+    """The cylinder regions of ``before`` that are spheres in ``after``, and the spheres that are
+    cylinders."""
+    return {k for k, model in after.items() if model and before.get(k) and before[k].kind != model.kind
+            and model.kind != "plane" and before[k].kind != "plane"}
 
 
 def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,

@@ -551,15 +551,15 @@ def test_a_box_top_seen_near_grazing_grows_into_its_free_pixels_and_takes_back_i
     assert (scan.truth_ids[top] == 10).sum() > 0.8 * (scan.truth_ids == 10).sum()
 
 
-def test_kind_changed_tells_a_cylinder_turned_sphere_only():
+def test_kind_changed_names_the_cylinders_turned_spheres_and_the_spheres_turned_cylinders():
     from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
     from rangeseg_o3d.pipeline import _kind_changed
 
     cylinder = Cylinder(np.array([0.0, 1.0, 0.0]), np.zeros(3), 0.2, 0.01, 100)
     sphere = Sphere(np.zeros(3), 0.2, 0.01, 100)
     plane = Plane(np.array([0.0, 0.0, 1.0]), 2.0, 0.01, 100)
-    assert _kind_changed({1: cylinder, 2: plane}, {1: sphere, 2: plane})
-    assert _kind_changed({1: sphere}, {1: cylinder})
-    assert not _kind_changed({1: cylinder, 2: plane}, {1: cylinder, 2: plane})
-    assert not _kind_changed({1: cylinder}, {1: plane})  # (a curved model given up for its plane)
-    assert not _kind_changed({1: cylinder}, {2: sphere})  # (a new region)
+    assert _kind_changed({1: cylinder, 2: plane, 3: sphere}, {1: sphere, 2: plane, 3: sphere}) == {1}
+    assert _kind_changed({1: sphere}, {1: cylinder}) == {1}
+    assert _kind_changed({1: cylinder, 2: plane}, {1: cylinder, 2: plane}) == set()
+    assert _kind_changed({1: cylinder}, {1: plane}) == set()  # (a curved model given up for its plane)
+    assert _kind_changed({1: cylinder}, {2: sphere}) == set()  # (a new region)
