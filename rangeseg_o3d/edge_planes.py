@@ -43,7 +43,8 @@ __all__ = ["edge_planes_to_curved"]
 
 def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter=None,
                           inlier_factor: float, tile_labels: np.ndarray | None = None, tile: int = 1,
-                          near_sigmas: float | None = None, curved_pieces: bool = False, hosts=None):
+                          near_sigmas: float | None = None, curved_pieces: bool = False,
+                          hosts: set | None = None):
     """Plane regions given to the curved surface the sensor's noise says they are strips of.
     Returns ``(labels, fits, stats)``, the inputs when nothing changed.
 
@@ -84,7 +85,8 @@ def edge_planes_to_curved(cloud, labels: np.ndarray, fits: dict, stats, *, sigma
         fitter = None  # (refit's curvature_gain: a keyword of the primitives fitter alone)
     counts = stats.counts
     n = counts.size  # (region_stats counts every label; a pass over the grid for its largest costs 0.1 ms)
-    curved = {k for k, m in fits.items() if m and m.kind != "plane" and 0 < k < n and (hosts is None or k in hosts)}
+    curved = {k for k, m in fits.items()
+              if m and m.kind != "plane" and 0 < k < n and (hosts is None or k in hosts)}
     pieces = [k for k, m in fits.items() if m and (m.kind == "plane" or curved_pieces) and 0 < k < n
               and k < counts.size and counts[k] > 0]
     if not pieces or not curved:

@@ -359,14 +359,12 @@ class Pipeline:
                 wrap_columns=self.sensor.wrap_columns)
             lap("plane_faces")
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
-            before = labels
-            labels, fits, stats = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
-            if refine.recover_leftovers and labels is not before:
+            labels, fits, stats, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma)
+            if refine.recover_leftovers and freed.size:
                 # what a ripple's host did not explain is surfaces of its own, not nothing
                 labels, fits, stats = recover_freed_pixels(
-                    cloud, labels, fits, stats, np.flatnonzero((labels == 0).ravel() & (before > 0).ravel()),
-                    fitter=self.fitter, config=refine, sensor=self.sensor, ranges=ranges, sigma=sigma,
-                    inlier_factor=INLIER_SIGMAS)
+                    cloud, labels, fits, stats, freed, fitter=self.fitter, config=refine, sensor=self.sensor,
+                    ranges=ranges, sigma=sigma, inlier_factor=INLIER_SIGMAS)
             lap("ripples")
             # a cylinder bent over a crease gives way to its two faces before the regions grow
             labels, fits, stats = planes_for_creases(cloud, labels, fits, stats, sigma=sigma,
@@ -518,7 +516,8 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
     """:func:`rangeseg_o3d.refinement.dissolve.absorb_ripples` at full resolution, each
     plane's scatter the rms of its pixels about it, the range noise scaled by the incidence
     cosine (at least ``scales.GRAZING_COSINE``; a depth camera's pixel moves along its ray);
-    ``(labels, fits, stats)`` after it."""
+    ``(labels, fits, stats, freed)`` after it, ``freed`` the flat indices (increasing) of the
+    pixels it left in no region."""
     from .refinement.dissolve import absorb_ripples
     from .scales import GRAZING_COSINE
 
@@ -532,7 +531,8 @@ def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict,
         moved = np.flatnonzero(labels.ravel() != before.ravel())
         stats = stats_after_moves(cloud.xyz, sigma, before, labels, fits, stats, moved, set(),
                                   inlier_factor=INLIER_SIGMAS)
-    return labels, fits, stats
+        return labels, fits, stats, moved[labels.ravel()[moved] == 0]
+    return labels, fits, stats, np.zeros(0, np.int64)
 
 
 def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,

@@ -970,7 +970,7 @@ def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
             2: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.02, 0.0, 2.9]), 0.1, 0.0005, 64)}
     sigma = np.full(u.shape, 0.0005)
     stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
-    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
     assert 2 not in kept and (out[16:24, 34:42] == 1).any() and (labels[16:24, 34:42] == 2).all()  # the premise
     full = region_stats(xyz, out, kept, sigma, INLIER_SIGMAS)
     np.testing.assert_array_equal(after.counts, full.counts)
@@ -1058,10 +1058,10 @@ def test_what_a_ripples_host_leaves_is_recovered_as_its_surfaces():
     cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board()
     cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
     pipe = rs.Pipeline(cfg)
-    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
     # the premise (a wall pixel in the noise's tail beyond three sigmas is freed too)
     assert 2 not in kept and (out[~board] == 1).mean() > 0.99 and (out[board] == 0).all()
-    freed = np.flatnonzero(((out == 0) & (labels > 0)).ravel())
+    assert np.array_equal(freed, np.flatnonzero(((out == 0) & (labels > 0)).ravel()))
     got, models, _ = recover_freed_pixels(cloud, out, kept, after, freed, fitter=pipe.fitter, config=cfg.refine,
                                           sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma,
                                           inlier_factor=INLIER_SIGMAS)
@@ -1083,9 +1083,8 @@ def test_freed_pixels_under_the_smallest_region_are_left_free():
     cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board(slice(10, 16))
     cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
     pipe = rs.Pipeline(cfg)
-    out, kept, after = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
     assert 2 not in kept and (out[board] == 0).all()
-    freed = np.flatnonzero(((out == 0) & (labels > 0)).ravel())
     got = recover_freed_pixels(cloud, out, kept, after, freed, fitter=pipe.fitter, config=cfg.refine,
                                sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma, inlier_factor=INLIER_SIGMAS)
     assert got[0] is out and got[1] is kept and got[2] is after

@@ -597,7 +597,7 @@ class _Unions:
             return True
         points = self.ctx.fitter.points(self.ctx.xyz, idx)
         rms = float(np.sqrt(np.mean(union.distances(points) ** 2)))
-        noise = float(np.median(self.ctx.sigma.reshape(-1)[idx]))
+        noise = float(np.median(self.ctx.sigma[idx]))  # (the context's noise is flat)
         return rms <= self.rms_factor * max(self.part_rms(small), noise)
 
     def part_centred(self, ra: int, rb: int, union) -> bool:
