@@ -5,7 +5,8 @@ pixels no blob took, in 4-connected strips of at least the size floor. In numpy 
 that was a mask of three grids, a connected-components pass over the whole grid, a count per
 component and a gather: some 0.1 ms of small-array calls on a 70 x 131 LMS200 scan, where
 :func:`strip_pool` lists the strips' pixels in one pass over the grid and works on the
-listed pixels only.
+listed pixels only. :func:`pieces_apart` lists the free pieces joined where no range jump
+parts neighbours, for :func:`rangeseg_o3d.refinement.recover.strips_apart_as_blobs`.
 """
 
 from __future__ import annotations
@@ -14,11 +15,12 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import piece_ids
+from .inline import _grid_neighbour
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py")
 
-__all__ = ["strip_pool", "free_near_planes_reach"]
+__all__ = ["strip_pool", "free_near_planes_reach", "pieces_apart"]
 
 
 @njit(cache=True, nogil=True)
@@ -89,3 +91,66 @@ def free_near_planes_reach(labels, valid, xyz, sigma, normals, offsets, rms, k_s
         if found >= count:
             return True
     return False
+
+
+@njit(cache=True, nogil=True)
+def pieces_apart(labels, valid, taken, ranges, jump_ratio, jump_min, min_size, wrap):
+    """The pieces of the free pixels (valid, ``labels == 0``, ``taken == 0``), 4-connected
+    where two neighbours' ranges differ by no jump (``<= max(jump_min, jump_ratio * r)``, r
+    the nearer), of at least ``min_size`` pixels: ``(pixels, starts, contact, jumped)``, the
+    flat pixels of piece ``s`` (increasing) ``pixels[starts[s]:starts[s + 1]]``, and how many
+    of its links to labelled pixels are no jump and a jump. With ``wrap`` (a 360-degree grid)
+    the first and last columns are neighbours.
+
+    A piece is grown by its links, not by the pixels a jump test marks: the border return of
+    a column standing before a wall is a jump pixel, yet on the column's surface."""
+    h, w = labels.shape
+    size = h * w
+    flat = labels.reshape(size)
+    ok = valid.reshape(size)
+    taken_flat = taken.reshape(size)
+    rng = ranges.reshape(size)
+    seen = np.zeros(size, np.bool_)
+    stack = np.empty(size, np.int64)
+    members = np.empty(size, np.int64)
+    out = np.empty(size, np.int64)
+    starts = [0]
+    contacts = []
+    jumps = []
+    n_out = 0
+    for seed in range(size):
+        if seen[seed] or not ok[seed] or flat[seed] != 0 or taken_flat[seed] != 0:
+            continue
+        seen[seed] = True
+        top, count, contact, jumped = 1, 0, 0, 0
+        stack[0] = seed
+        while top > 0:
+            top -= 1
+            i = stack[top]
+            members[count] = i
+            count += 1
+            r = i // w
+            for step in range(4):
+                j = _grid_neighbour(i, r, i - r * w, step, h, w, wrap)
+                if j < 0 or not ok[j]:
+                    continue
+                a, b = rng[i], rng[j]
+                no_jump = not (abs(a - b) > max(jump_min, jump_ratio * min(a, b)))
+                if flat[j] > 0:
+                    if no_jump:
+                        contact += 1
+                    else:
+                        jumped += 1
+                elif not seen[j] and taken_flat[j] == 0 and flat[j] == 0 and no_jump:
+                    seen[j] = True
+                    stack[top] = j
+                    top += 1
+        if count >= min_size:
+            piece = np.sort(members[:count])
+            out[n_out:n_out + count] = piece
+            n_out += count
+            starts.append(n_out)
+            contacts.append(contact)
+            jumps.append(jumped)
+    return (out[:n_out].copy(), np.array(starts, np.int64), np.array(contacts, np.int64),
+            np.array(jumps, np.int64))

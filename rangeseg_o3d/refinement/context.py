@@ -17,7 +17,7 @@ from ..fitting.robust import (CHI_SQUARE_SIGMAS, ROUNDS, beyond_noise, distance_
                                trimmed_fit)
 from ..kernels.linalg import noise_rms_bound
 
-__all__ = ["Context", "touching", "without"]
+__all__ = ["Context", "returns_across", "touching", "without"]
 
 
 def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
@@ -26,6 +26,15 @@ def without(pool: np.ndarray, piece: np.ndarray) -> np.ndarray:
     keep = np.ones(pool.size, bool)
     keep[np.searchsorted(pool, piece)] = False
     return pool[keep]
+
+
+def returns_across(idx: np.ndarray, width: int) -> float:
+    """How many returns across the flat pixels ``idx`` of a grid ``width`` columns wide
+    span: the smaller of the median counts of their pixels per row and per column (a line
+    along a limb: 1)."""
+    rows, cols = np.divmod(np.asarray(idx, dtype=np.int64), int(width))
+    per_row, per_col = np.bincount(rows), np.bincount(cols)
+    return float(min(np.median(per_row[per_row > 0]), np.median(per_col[per_col > 0])))
 
 
 def touching(labels: np.ndarray, idx: np.ndarray, reach: int) -> set[int]:

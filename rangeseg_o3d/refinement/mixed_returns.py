@@ -20,7 +20,7 @@ from .. import kernels  # the package: its names load on first use
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import label_sizes, region_indices
 from ..fullres import resolved_refit
-from .context import Context, touching
+from .context import Context, returns_across, touching
 from .dissolve import explained_by_hosts
 
 __all__ = ["mixed_returns", "planes_under_mixed_returns", "release_mixed_returns"]
@@ -89,7 +89,7 @@ def release_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, range
     if not mostly_mixed:
         return labels, fits
     regions = region_indices(labels, only=mostly_mixed)
-    released = [k for k in mostly_mixed if _thickness(regions[k], labels.shape[1]) < OWN_ACROSS]
+    released = [k for k in mostly_mixed if returns_across(regions[k], labels.shape[1]) < OWN_ACROSS]
     if not released:
         return labels, fits
     out, kept, took = labels.copy(), dict(fits), set()
@@ -156,7 +156,7 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
     for k, idx in region_indices(labels, only=holding).items():
         own_mixed = mixed_returns(ranges, idx, sigma, wrap_columns=wrap_columns)
         rest = idx[~own_mixed]
-        if _thickness(rest, labels.shape[1]) < BEND_SAMPLES:
+        if returns_across(rest, labels.shape[1]) < BEND_SAMPLES:
             continue
         points = ctx.fitter.points(ctx.xyz, rest)
         model = ctx.fitter.fit(points)
@@ -168,10 +168,3 @@ def planes_under_mixed_returns(ctx: Context, labels: np.ndarray, fits: dict, *, 
             kept[k] = model
     return (labels, fits) if out is None else (out, kept)
 
-
-def _thickness(idx: np.ndarray, width: int) -> float:
-    # the smaller of the median counts of pixels per row and per column
-    rows, cols = np.divmod(idx, width)
-    per_row = np.bincount(rows)
-    per_col = np.bincount(cols)
-    return float(min(np.median(per_row[per_row > 0]), np.median(per_col[per_col > 0])))

@@ -19,10 +19,10 @@ from ..fitting.plane import fit_plane
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, distance_noise, lateral_distance_noise
 from .. import kernels  # the package: its names load on first use (no compiler at import)
 from ..kernels.grid import free_pixels, free_pixels_in_boxes
-from ..kernels.leftovers import free_near_planes_reach, strip_pool
+from ..kernels.leftovers import free_near_planes_reach, pieces_apart, strip_pool
 from ..kernels.labelwise import claim_parts, rows_with_any, voted_columns, within_plane_noise
 from ..scales import GRAZING_COSINE, GRAZING_TAN, pixelwise_noise_spans_the_grid
-from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, touching
+from .context import SCREEN_SLACK, TRIM_SIGMAS, Context, returns_across, touching
 from .grow import grow_into_edges, grow_regions, refit_grown
 from .curved_refused import curved_for_refused, full_resolution_samples
 from .sight import seen_past_plane
@@ -492,7 +492,8 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     connected patch), a strip would join whichever region's plane passes through it,
     however far (a face of another block in line with it). ``thin_strips`` (asked at sensor
     resolution): first, the leftover strips too thin for a blob join a plane region they
-    touch and lie on (:func:`claim_thin_strips`); and a blob piece neither trimmed search
+    touch and lie on (:func:`claim_thin_strips`), and those that range jumps set apart from
+    the regions around them are blobs too (:func:`strips_apart_as_blobs`); and a blob piece neither trimmed search
     explains is searched once more for a face (``face_band`` of :meth:`Context.dominant_piece`:
     after growth, which gave the corner's pixels to the faces around the blob).
     """
@@ -500,6 +501,9 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
     if thin_strips:
         labels = claim_thin_strips(ctx, labels, fits, candidates, valid=valid, k_sigma=k_sigma)
+        labels, candidates = strips_apart_as_blobs(ctx, labels, fits, candidates, first=first, valid=valid,
+                                                   ranges=ranges, jump_ratio=jump_ratio, jump_min=jump_min,
+                                                   k_sigma=k_sigma, apart=claim_strips)
     # A blob may hold several faces: a box far away whose faces are narrower than the
     # closed edge band around them (the closing fills gaps of up to four pixels) is one
     # blob of two or three faces, and explaining it by its dominant surface alone would
@@ -512,6 +516,51 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     if not claim_strips:
         return labels, fits
     return claim_occluded_strips(ctx, labels, fits, valid=valid, k_sigma=k_sigma)
+
+
+def strips_apart_as_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.ndarray, *, first: int,
+                          valid: np.ndarray, ranges: np.ndarray, jump_ratio: float, jump_min: float,
+                          k_sigma: float, apart: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``(labels, candidates)`` with the leftover strips that range jumps set apart from the
+    regions around them added to ``candidates`` as blobs (numbered on from ``first`` and the
+    blobs there), once the planes took the pixels on their surfaces.
+
+    A far column seen between nearer ones is a strip two to four returns wide: every window
+    of the residual straddles it and its border returns are jump pixels, so it is no region,
+    too thin for a blob's 3x3 core, and touches no region it lies on
+    (:func:`claim_thin_strips`): it was left in no region (nodding_0.5deg study seeds 1266
+    and 1268, columns of r 0.22-0.24 m at 3.6-5.3 m, 238 and 467 px). Here the free
+    pixels (valid, unlabelled, in no blob) are joined where neighbours differ by no range
+    jump (:func:`rangeseg_o3d.kernels.leftovers.pieces_apart`: the border returns with the
+    strip), and a piece of at least the size floor becomes a blob when most of its links to
+    labelled pixels are jumps (a band along a crease or a rim touches its regions without
+    one) and it spans at least two returns across (a line of mixed returns along a limb
+    spans one). Its pixels within the noise of a plane region's surface join that region
+    first (:func:`claim_on_distance_noise`; ``apart``: also a region it does not touch, as
+    ``config.merge_disjoint`` allows): a wall's strip seen between two columns is the wall's.
+    """
+    pixels, starts, contact, jumped = pieces_apart(
+        np.ascontiguousarray(labels, dtype=np.int32), np.ascontiguousarray(valid, dtype=np.bool_),
+        np.ascontiguousarray(candidates, dtype=np.int32), np.ascontiguousarray(ranges, dtype=np.float64),
+        float(jump_ratio), float(jump_min), int(ctx.min_size), bool(ctx.wrap_columns))
+    bounds = starts.tolist()
+    strips = [pixels[bounds[s]:bounds[s + 1]] for s in range(contact.size) if jumped[s] > contact[s]]
+    strips = [idx for idx in strips if returns_across(idx, ctx.width) >= 2]
+    if not strips:
+        return labels, candidates
+    labels = np.array(labels, dtype=np.int32, order="C")
+    claim_on_distance_noise(ctx, labels, fits, np.sort(np.concatenate(strips)), k_sigma=k_sigma, apart=apart)
+    flat = labels.reshape(-1)
+    out, label = None, max(int(candidates.max(initial=0)), first - 1) + 1
+    for idx in strips:
+        idx = idx[flat[idx] == 0]
+        if idx.size < ctx.min_size or returns_across(idx, ctx.width) < 2:
+            continue
+        if out is None:
+            out = np.array(candidates, dtype=np.int32, order="C")
+        out.reshape(-1)[idx] = label
+        label += 1
+    return labels, (candidates if out is None else out)
 
 
 def _members_in_box(labels: np.ndarray, members: np.ndarray, box) -> np.ndarray:
