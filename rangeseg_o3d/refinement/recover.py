@@ -493,9 +493,10 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     however far (a face of another block in line with it). ``thin_strips`` (asked at sensor
     resolution): first, the leftover strips too thin for a blob join a plane region they
     touch and lie on (:func:`claim_thin_strips`), and those that range jumps set apart from
-    the regions around them are blobs too (:func:`strips_apart_as_blobs`); and a blob piece neither trimmed search
-    explains is searched once more for a face (``face_band`` of :meth:`Context.dominant_piece`:
-    after growth, which gave the corner's pixels to the faces around the blob).
+    the regions around them are blobs too (:func:`strips_apart_as_blobs`); and a blob piece
+    neither trimmed search explains is searched once more for a face (``face_band`` of
+    :meth:`Context.dominant_piece`: after growth, which gave the corner's pixels to the faces
+    around the blob).
     """
     first = fresh_label(labels, fits)
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
