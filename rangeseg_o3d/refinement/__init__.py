@@ -237,7 +237,9 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         labels, fits = recover_leftovers(ctx, labels, fits, valid=cloud.valid,
                                          jumps=jumps if jumps is not None else np.zeros(cloud.shape, bool),
                                          claim_strips=config.merge_disjoint,  # a strip is a piece apart
-                                         thin_strips=tile == 1, **growth)  # (tile grid: see fullres)
+                                         thin_strips=tile == 1, **growth,  # (tile grid: see fullres)
+                                         # (a laser's column strips, where it was measured)
+                                         strips_apart=single_returns(sensor, tile))
         if single_returns(sensor, tile):  # (a laser's grid, where it was measured; see its docstring)
             labels, fits = grow_recovered_curves(ctx, labels, fits, before, **growth)
     timer.lap("recover")

@@ -478,7 +478,7 @@ def _touches_explaining(labels: np.ndarray, pixels: np.ndarray, within: np.ndarr
 def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.ndarray,
                       valid: np.ndarray, jumps: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
                       k_sigma: float, jump_ratio: float, jump_min: float, claim_strips: bool = True,
-                      thin_strips: bool = False):
+                      thin_strips: bool = False, strips_apart: bool = False):
     """Turn the compact leftover blobs into one region per surface they hold (:func:`split_blobs`);
     returns new ``(labels, fits)``.
 
@@ -492,8 +492,9 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     connected patch), a strip would join whichever region's plane passes through it,
     however far (a face of another block in line with it). ``thin_strips`` (asked at sensor
     resolution): first, the leftover strips too thin for a blob join a plane region they
-    touch and lie on (:func:`claim_thin_strips`), and those that range jumps set apart from
-    the regions around them are blobs too (:func:`strips_apart_as_blobs`); and a blob piece
+    touch and lie on (:func:`claim_thin_strips`), and with ``strips_apart`` (a laser's single
+    returns) those that range jumps set apart from the regions around them are blobs too
+    (:func:`strips_apart_as_blobs`); and a blob piece
     neither trimmed search explains is searched once more for a face (``face_band`` of
     :meth:`Context.dominant_piece`: after growth, which gave the corner's pixels to the faces
     around the blob).
@@ -502,6 +503,7 @@ def recover_leftovers(ctx: Context, labels: np.ndarray, fits: dict, *, xyz: np.n
     candidates = leftover_candidates(labels, valid, jumps, min_size=ctx.min_size, first_label=first)
     if thin_strips:
         labels = claim_thin_strips(ctx, labels, fits, candidates, valid=valid, k_sigma=k_sigma)
+    if thin_strips and strips_apart:
         labels, candidates = strips_apart_as_blobs(ctx, labels, fits, candidates, first=first, valid=valid,
                                                    ranges=ranges, jump_ratio=jump_ratio, jump_min=jump_min,
                                                    k_sigma=k_sigma, apart=claim_strips)
