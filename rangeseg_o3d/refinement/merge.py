@@ -387,6 +387,7 @@ class _Unions:
         self.regions = None  # flat pixels per label, gathered when a union needs its points
         self.paired: set = set()  # the labels of the candidate pairs (add)
         self.current_rms: dict = {}  # plane roots: the rms of their current pixels' plane (part_rms)
+        self.points: dict = {}  # curved roots: their current pixels' points (part_rms, curved_parts_on)
         self.noise = None  # each label's summed range noise, when a union needs it (plane_within_larger)
 
     def find(self, k: int) -> int:
@@ -506,16 +507,21 @@ class _Unions:
         model = self.fits[k]
         if not isinstance(model, Plane):
             if k not in self.current_rms:
-                if self.regions is None:
-                    self.regions = region_indices(self.labels, only=self.paired)
-                points = self.ctx.fitter.points(self.ctx.xyz, self.regions[k])
-                self.current_rms[k] = float(np.sqrt(np.mean(model.distances(points) ** 2)))
+                self.current_rms[k] = float(np.sqrt(np.mean(model.distances(self._points(k)) ** 2)))
             return max(float(model.rms), self.current_rms[k])
         if self.moments is None or k >= len(self.moments):
             return float(model.rms)
         if k not in self.current_rms:
             self.current_rms[k] = float(plane_rms_from_moments(self.moments[k:k + 1])[0])
         return max(float(model.rms), self.current_rms[k])
+
+    def _points(self, k: int) -> np.ndarray:
+        # the fitter's points of label k's pixels, gathered once
+        if k not in self.points:
+            if self.regions is None:
+                self.regions = region_indices(self.labels, only=self.paired)
+            self.points[k] = self.ctx.fitter.points(self.ctx.xyz, self.regions[k])
+        return self.points[k]
 
     def model(self, ra: int, rb: int):
         """The union's model: the cached one, else a refit of the union's points."""
@@ -595,8 +601,7 @@ class _Unions:
         idx = self.regions[small]
         if not idx.size:
             return True
-        points = self.ctx.fitter.points(self.ctx.xyz, idx)
-        rms = float(np.sqrt(np.mean(union.distances(points) ** 2)))
+        rms = float(np.sqrt(np.mean(union.distances(self._points(small)) ** 2)))
         noise = float(np.median(self.ctx.sigma[idx]))  # (the context's noise is flat)
         return rms <= self.rms_factor * max(self.part_rms(small), noise)
 
@@ -656,6 +661,8 @@ class _Unions:
         self.root[rb] = ra
         self.fits[ra] = union
         self.current_rms.pop(ra, None)
+        self.points.pop(ra, None)
+        self.points.pop(rb, None)
         self.fits.pop(rb)
         for key in [key for key in self.cache if ra in key or rb in key]:
             del self.cache[key]

@@ -556,9 +556,11 @@ def strips_apart_as_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidat
     flat = labels.reshape(-1)
     out, label = None, max(int(candidates.max(initial=0)), first - 1) + 1
     for idx in strips:
-        idx = idx[flat[idx] == 0]
-        if idx.size < ctx.min_size or returns_across(idx, ctx.width) < 2:
+        free = idx[flat[idx] == 0]
+        # (what the planes took may leave a line: span counted again only then)
+        if free.size < ctx.min_size or (free.size < idx.size and returns_across(free, ctx.width) < 2):
             continue
+        idx = free
         if out is None:
             out = np.array(candidates, dtype=np.int32, order="C")
         out.reshape(-1)[idx] = label
