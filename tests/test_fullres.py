@@ -25,10 +25,13 @@ def _wall(h, w, z=2.0):
 
 def _per_pixel_labels(xyz, tile_labels, tile, kinds, params, rms, sigma, k_sigma):
     """The rule, pixel by pixel: of the models of the tile's region and the 8 around it
-    within k_sigma of it in units of max(sigma, rms), the nearest in units of
-    max(sigma x incidence cosine, rms); own region first (wins ties), then the neighbours
-    in row order (a later one must be strictly nearer, and within the bound strictly)."""
+    within k_sigma of it in units of max(sigma, rms), the nearest in units of sigma x
+    incidence cosine (floored at the model's rms for a curved model, and for every model
+    once a curved one explains the pixel); own region first (wins ties), then the
+    neighbours in row order (a later one must be strictly nearer, and within the bound
+    strictly)."""
     from rangeseg_o3d.kernels.inline import _distance, _incidence
+    from rangeseg_o3d.kernels.kinds import PLANE
 
     distance, incidence = _distance.py_func, _incidence.py_func
     h, w = xyz.shape[:2]
@@ -44,25 +47,28 @@ def _per_pixel_labels(xyz, tile_labels, tile, kinds, params, rms, sigma, k_sigma
             if own > 0 and kinds[own] == 0:
                 out[r, c] = own
                 continue
-            best, best_score = 0, np.inf
+            explaining = []  # (label, distance), own first
             if own > 0:
                 d = distance(kinds[own], params[own], x, y, z)
                 if d / max(sigma[r, c], rms[own]) <= k_sigma:
-                    best, best_score = own, d / max(sigma[r, c] * incidence(kinds[own], params[own], x, y, z),
-                                                    rms[own])
+                    explaining.append((own, d))
             for rr in range(tr - 1, tr + 2):
                 for cc in range(tc - 1, tc + 2):
                     if not (0 <= rr < th and 0 <= cc < tw) or (rr, cc) == (tr, tc):
                         continue
                     k = tile_labels[rr, cc]
-                    if k <= 0 or kinds[k] == 0:
+                    if k <= 0 or kinds[k] == 0 or k in [e[0] for e in explaining]:
                         continue
                     d = distance(kinds[k], params[k], x, y, z)
-                    if not d / max(sigma[r, c], rms[k]) < k_sigma:
-                        continue
-                    score = d / max(sigma[r, c] * incidence(kinds[k], params[k], x, y, z), rms[k])
-                    if score < best_score:
-                        best, best_score = k, score
+                    if d / max(sigma[r, c], rms[k]) < k_sigma:
+                        explaining.append((k, d))
+            curved = any(kinds[k] != PLANE for k, _ in explaining)
+            best, best_score = 0, np.inf
+            for k, d in explaining:
+                floor = rms[k] if curved or kinds[k] != PLANE else 0.0
+                score = d / max(sigma[r, c] * incidence(kinds[k], params[k], x, y, z), floor, 1e-300)
+                if score < best_score:
+                    best, best_score = k, score
             out[r, c] = best
     return out
 
@@ -806,28 +812,55 @@ def test_a_thin_strip_off_the_wall_is_recovered_as_its_plane_without_close_gaps(
     assert abs(abs(model.d) - 1.7) < 3 * 0.002
 
 
-def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_sigmas_off():
+def _wall_beside_edge_on_plane(edge_on_rms):
     # A wall facing the camera 2 m away, its pixels 8 mm behind its plane (range noise 1 cm),
-    # in tiles of its region (columns 0-29) and of a plane x = 0 seen edge-on (30-59). Near
-    # x = 0 the edge-on plane is nearer in metres (under 8 mm), but the noise along the rays
-    # moves no point across it: its distance noise is the range noise times an incidence
-    # cosine of a few thousandths, so it takes none of the wall's pixels.
+    # in tiles of its region (columns 0-29) and of a plane x = 0 seen edge-on (30-59), whose
+    # tile model has the rms given; labelled in tiles of 6 with k_sigma 3.
     v, u = np.mgrid[0:24, 0:60].astype(float)
     xyz = np.dstack([(u - 29.5) * 0.01, (v - 11.5) * 0.01, np.full((24, 60), 2.008)])
     tile_labels = np.zeros((4, 10), np.int32)
     tile_labels[:, :5] = 1
     tile_labels[:, 5:] = 2
-    fits = {1: Plane([0, 0, 1], 2.0, 0.001, 1), 2: Plane([1, 0, 0], 0.0, 0.001, 1)}
+    fits = {1: Plane([0, 0, 1], 2.0, 0.001, 1), 2: Plane([1, 0, 0], 0.0, edge_on_rms, 1)}
     sigma = np.full((24, 60), 0.01)
-    labels, _ = label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6, sigma=sigma, k_sigma=3.0,
-                             inlier_factor=2.0)
+
+    def labelled():
+        return label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6, sigma=sigma, k_sigma=3.0,
+                            inlier_factor=2.0)[0]
+
+    return xyz, labelled, (tile_labels, fits, sigma)
+
+
+def test_a_pixel_both_models_explain_goes_to_the_one_it_is_fewer_of_its_noise_sigmas_off():
+    # Near x = 0 the edge-on plane is nearer in metres (under 8 mm), but the noise along the
+    # rays moves no point across it: its distance noise is the range noise times an incidence
+    # cosine of a few thousandths, so it takes none of the wall's pixels.
+    xyz, labelled, _ = _wall_beside_edge_on_plane(0.001)
+    labels = labelled()
     near = np.abs(xyz[..., 0]) < 0.008  # columns 29 and 30: nearer the edge-on plane in metres
     assert near[:, 24:36].any() and (labels[:, 24:36] == 1).all()
     # the failure path: the edge-on plane keeps what lies on it within its own noise
     xyz[:, 30, 0] = 0.0
-    labels, _ = label_pixels(rs.OrganizedCloud(xyz), tile_labels, fits, tile=6, sigma=sigma, k_sigma=3.0,
-                             inlier_factor=2.0)
+    labels = labelled()
     assert (labels[:, 30] == 2).all() and (labels[:, 24:30] == 1).all()
+
+
+def test_among_planes_a_model_rms_over_its_pixels_noise_does_not_draw_the_face_beside_it():
+    # As above, but the edge-on plane's tile model fits its tiles with an rms of 5 cm (tiles
+    # along its edge averaged it with the wall: stereo study seed 1292 scan 3, a box top seen
+    # 85 deg from head-on, rms 76 mm against pixels 2 mm off it). As a floor of the score that
+    # rms made the edge-on plane nearer than the wall for every wall pixel within 4 cm of it;
+    # among planes only the noise of the distances counts, so the wall keeps them.
+    xyz, labelled, (tile_labels, fits, sigma) = _wall_beside_edge_on_plane(0.05)
+    labels = labelled()
+    within_floor = (np.abs(xyz[..., 0]) < 0.04) & (xyz[..., 0] < 0)  # the wall's tiles, near the edge-on plane
+    assert within_floor.sum() == 4 * 24 and (labels[within_floor] == 1).all()
+    assert (labels[:, :30] == 1).all()
+    kinds, params, rms = model_table(fits, 3)
+    np.testing.assert_array_equal(labels, _per_pixel_labels(xyz, tile_labels, 6, kinds, params, rms, sigma, 3.0))
+    # the failure path: what lies on the edge-on plane is still its own
+    xyz[:, 31, 0] = 0.0
+    assert (labelled()[:, 31] == 2).all()
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -98,6 +98,9 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
     first, owners = _block_sums_layout(table, count)
     taken_in = np.zeros(owners.size, np.int64)
     sums = np.zeros((owners.size, _BLOCK_SUMS))
+    # per candidate of the pixel at hand: whether it explains it, its signed distance, the
+    # noise of that distance
+    explains, near_signed, near_noise = np.zeros(9, np.bool_), np.zeros(9), np.zeros(9)
     # Row by row (the statistics sum in raster order), tile by tile along the row: a pixel
     # of a tile inside a region tests one model.
     for r in range(height):
@@ -154,27 +157,47 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                 if not np.isfinite(z):
                     continue
                 noise = sigma[i]
-                best, best_j, best_score, best_dist, best_signed = 0, 0, np.inf, 0.0, 0.0
                 planes = 0  # bit j: candidate j is a plane that explains the pixel
+                curved = False  # a curved candidate explains it
                 for j in range(m):
                     k = table[tr, tc, j]
                     signed = _signed_distance(kinds[k], params[k], x, y, z)  # kept for the block sums
                     dist = abs(signed)  # _distance's value
                     # explained within k_sigma (the own region at the bound too)...
                     limit = k_sigma * max(noise, rms[k])
-                    if not (dist < limit or (j == 0 and own_first and dist <= limit)):
+                    ok = dist < limit
+                    if not ok and j == 0 and own_first and dist <= limit:
+                        ok = True
+                    explains[j] = ok
+                    if not ok:
                         continue
+                    near_signed[j] = signed
+                    near_noise[j] = noise * _incidence(kinds[k], params[k], x, y, z)
                     if kinds[k] == PLANE:
                         planes |= 1 << j
+                    else:
+                        curved = True
+                best, best_j, best_score, best_dist, best_signed = 0, 0, np.inf, 0.0, 0.0
+                for j in range(m):
+                    if not explains[j]:
+                        continue
+                    k = table[tr, tc, j]
+                    dist = abs(near_signed[j])
                     # ...and of those, the one it is fewest noise sigmas off, each in the noise
                     # of its own distances (range noise x incidence cosine: a pipe's end cap
                     # faces the sensor, the pipe's flanks graze it; a box face seen edge-on
                     # takes no pixel of the face beside it that the noise along the rays
-                    # could not have moved onto it)
-                    score = dist / max(noise * _incidence(kinds[k], params[k], x, y, z), rms[k])
+                    # could not have moved onto it). Among planes alone that noise is the
+                    # whole of it: a grazing face's region whose tiles took a neighbour's means
+                    # has an rms far over its pixels' noise, and as a floor it let the face
+                    # take the band of the face beside it (stereo study seed 1292 scan 3). A
+                    # curved model's rms is its misfit to its tiles, and beside a curved
+                    # candidate every model keeps that floor.
+                    floor = rms[k] if curved or kinds[k] != PLANE else 0.0
+                    score = dist / max(near_noise[j], floor, 1e-300)
                     # neighbours must beat what is found so far
                     if score < best_score or (j == 0 and own_first and score <= best_score):
-                        best, best_j, best_score, best_dist, best_signed = k, j, score, dist, signed
+                        best, best_j, best_score, best_dist, best_signed = k, j, score, dist, near_signed[j]
                 if by_rays and best != 0 and kinds[best] == PLANE and planes != 1 << best_j:
                     j = _face_by_ray(table, pairs, tr, tc, m, best_j, planes, x, y, z, normals, offsets, least_cos)
                     if j != best_j:
