@@ -152,14 +152,14 @@ def _width_answer(lateral, max_radius, margin):
 
 
 @njit(cache=True, nogil=True)
-def _flat_answer(flat, m, n, sigmas, margin):
-    # the gate of the plane along the rays (its squares ``flat`` over ``m`` points within
+def _within_noise_answer(squares, m, n, sigmas, margin):
+    # the gate of a model along the rays (its squares ``squares`` over ``m`` points within
     # ``sigmas`` sqrt(2 / n) of their count), answered as _width_answer's
-    tol = margin * flat
+    tol = margin * squares
     bound = m * (1.0 + sigmas * np.sqrt(2.0 / n))
-    if flat - tol > bound:
-        return 1  # its plane does not explain it along the rays
-    if flat + tol >= bound:
+    if squares - tol > bound:
+        return 1  # the model does not explain it along the rays
+    if squares + tol >= bound:
         return 0
     return -1
 
@@ -211,7 +211,7 @@ def bend_screen(points, noise, samples, max_radius, sigmas, margin):
     flat, bent, conditioned = _householder_squares(design, target, 3)
     if conditioned < 1e-8:
         return False, flat, bent, width  # near singular: numpy's lstsq cuts small singular values
-    answer = _flat_answer(flat, m, n, sigmas, margin)
+    answer = _within_noise_answer(bent, m, n, sigmas, margin)  # the plane with its bend
     if answer >= 0:
         return answer == 1, flat, bent, width
     tol = margin * flat
@@ -403,7 +403,7 @@ def stepped_bend_screen(points, noise, sample, columns, samples, max_radius, win
     residuals, flat, conditioned = _plane_residuals(design[:, :3], target)
     if conditioned < 1e-8:
         return False
-    answer = _flat_answer(flat, m, n, sigmas, margin)
+    answer = _within_noise_answer(flat, m, n, sigmas, margin)
     if answer >= 0:
         return answer == 1
     # the errors of the inputs of the block test against numpy's: the axis turns by at most the
