@@ -650,28 +650,6 @@ def _within_noise_along_rays(ctx, idx: np.ndarray, window: float, moments=None) 
     return float(squares[0]) / idx.size <= bound * bound
 
 
-def _one_face_along_rays(ctx, idx: np.ndarray, window: float) -> bool:
-    """Whether the flat pixels ``idx`` are one face along the rays with at most a few pixels of
-    other surfaces: within their range noise (:func:`_within_noise_along_rays`), or the plane
-    along the rays refitted to those within TRIM_SIGMAS of it (twice) keeps PLANES_COVER of
-    them and leaves those within the noise."""
-    if _within_noise_along_rays(ctx, idx, window):
-        return True
-    from .kernels.linalg import noise_rms_bound
-
-    rays, inverse, weight = ray_terms(ctx.xyz[idx], ctx.sigma[idx])
-    keep = np.ones(idx.size, dtype=bool)
-    for _ in range(3):
-        _, a = ray_fits(ray_moments(rays[keep], inverse[keep], weight[keep]))
-        squares = (inverse - rays @ a[0]) ** 2 * weight
-        keep = squares <= TRIM_SIGMAS * TRIM_SIGMAS
-        if np.count_nonzero(keep) < PLANES_COVER * idx.size:
-            return False
-    kept = int(np.count_nonzero(keep))
-    bound = noise_rms_bound.py_func(1.0, max(kept / window, 1.0), CHI_SQUARE_SIGMAS)
-    return float(np.mean(squares[keep])) <= bound * bound
-
-
 def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_angle_deg: float = 0.0) -> list:
     """The planes of the faces the plane region ``idx`` (flat pixels, increasing) of
     ``model`` holds, ``[(pixels, plane)]``; empty when it holds one face.
@@ -695,12 +673,9 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     do not hide. So there, a region with no such piece is split all the same when its model is
     beyond the noise of its distances over its independent returns (a ninth of its pixels over
     a 3-pixel window) and each side of the crease line fits its plane along the rays within
-    the range noise, over its own independent returns, once the few pixels of other surfaces
-    it may hold are trimmed (:func:`_one_face_along_rays`): two faces, not one face with a
-    few pixels of other surfaces, whose line cuts off a piece of the face with them (that
-    piece keeps more of them than the trim leaves; stereo study seed 1294 scan 1: a box's
-    side holding 59 px of the wall and floor beside it had kept its top, 590 px, in its
-    region).
+    the range noise, over its own independent returns (:func:`_within_noise_along_rays`): two
+    faces, not one face with a few pixels of other surfaces, whose line cuts off a piece of
+    the face with them.
     """
     from .refinement.facets import _holds_another
 
@@ -722,7 +697,7 @@ def faces_of_plane(ctx, model, idx: np.ndarray, *, correlation_px: int = 1, min_
     surfaces = _faces_of_sides(ctx, idx, sides, min_angle_deg)
     if len(surfaces) < 2 or sum(piece.size for piece, _ in surfaces) < PLANES_COVER * idx.size:
         return []
-    if not held and not all(_one_face_along_rays(ctx, side, window) for side in sides):
+    if not held and not all(_within_noise_along_rays(ctx, side, window) for side in sides):
         return []
     # one plane along the rays against the two, in independent returns: the chi-squares and
     # counts over the matching window's pixels (the F-test of curvature_resolved, a second

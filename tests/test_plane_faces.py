@@ -182,25 +182,6 @@ def test_a_far_face_with_a_corner_of_another_surface_is_not_cut_where_the_sides_
     assert np.count_nonzero(truth.ravel()[corner_piece] == 0) > 0.5 * corner_piece.size
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_face_with_a_few_pixels_of_another_surface_is_one_face_along_the_rays(seed):
-    # a face at 5.8 m with a 10 x 10 pixel corner 1 m behind it (0.7 % of its pixels, ten
-    # sigmas off): beyond the range noise over all its pixels, one face once they are trimmed;
-    # a corner of 75 x 40 pixels (20 %) is not a few pixels, and two faces are not one
-    from rangeseg_o3d.plane_faces import _one_face_along_rays, _within_noise_along_rays
-
-    xyz, sigma, truth = _face_with_a_step(seed, step=1.0, patch=(10, 10))
-    ctx = _context(xyz, sigma, min_size=288)
-    idx = np.arange(truth.size)
-    assert not _within_noise_along_rays(ctx, idx, 9.0)
-    assert _one_face_along_rays(ctx, idx, 9.0)
-    xyz, sigma, truth = _face_with_a_step(seed, step=1.0, patch=(75, 40))
-    assert not _one_face_along_rays(_context(xyz, sigma, min_size=288), idx, 9.0)
-    xyz, sigma, truth, _ = _folded_faces(seed, z=2.5)
-    both = np.flatnonzero(truth.ravel() <= 1)
-    assert not _one_face_along_rays(_context(xyz, sigma), both, 9.0)
-
-
 def _ray_fitted(xyz, sigma, idx):
     points = xyz.reshape(-1, 3)[idx]
     _, a = ray_fits(ray_moments(*ray_terms(points, sigma.ravel()[idx])))
