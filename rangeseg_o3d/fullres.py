@@ -97,8 +97,9 @@ def label_pixels(cloud, tile_labels: np.ndarray, fits: dict, *, tile: int, sigma
                  creases_from=None, min_angle_deg: float = 0.0):
     """Label every pixel of ``cloud`` by the models of its tile's region and the 8 around it.
 
-    A pixel joins the nearest model in units of ``max(sigma, rms)`` if within ``k_sigma``
-    (see :func:`rangeseg_o3d.kernels.label_pixels`). Returns the ``(H, W)`` int32 labels
+    A pixel joins, of the models within ``k_sigma`` of it in units of ``max(sigma, rms)``, the
+    one it is fewest sigmas of its distance's noise off (see
+    :func:`rangeseg_o3d.kernels.label_pixels`). Returns the ``(H, W)`` int32 labels
     (in the tile labels' numbering) and the :class:`PixelStats` of those labels; with
     ``with_blocks`` also the sums per tile and label the same pass gathered, for
     :func:`rangeseg_o3d.off_model.recover_off_model`.

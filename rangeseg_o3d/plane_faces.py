@@ -139,7 +139,8 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     whose misfit two or more planes explain (:func:`faces_of_curved`), and each region of as
     many pixels no model fitted whose crease lines cut it into planes (:func:`faces_of_unfitted`),
     is split into the planes of the faces it holds (:func:`faces_of_plane`, at least
-    ``min_angle_deg`` apart); a face that continues the plane of a region it touches (of a
+    ``min_angle_deg`` apart; a curved region's pieces that hold two faces are split again,
+    :func:`_faces_of_faces`); a face that continues the plane of a region it touches (of a
     region split into three faces or more: that the region touched) joins that region
     (:func:`_continued_plane`), of the others the largest keeps the label. Returns ``(labels, fits, stats)``, the statistics of
     the regions changed measured again; the inputs when no region is split.

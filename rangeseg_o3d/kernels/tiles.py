@@ -68,9 +68,11 @@ def label_pixels(xyz, height, width, tile_labels, tile, kinds, params, rms, sigm
                  inlier_factor, tile_xyz, max_cos, least_cos):
     """Full-resolution labels from labels of ``tile x tile`` means and the regions' models.
 
-    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it,
-    the one whose model is nearest in units of ``max(sigma, rms)``, if within ``k_sigma``
-    (its own tile's region wins ties, then the first neighbour in row order). Pixels of a
+    Each valid pixel joins, among the regions of its own tile and the 8 tiles around it
+    whose models are within ``k_sigma`` of it in units of ``max(sigma, rms)``, the one it is
+    fewest sigmas of its distance's noise off (``sigma`` times the incidence cosine, floored
+    at a curved model's ``rms``, and at every model's once a curved one explains the pixel);
+    its own tile's region wins ties, then the first neighbour in row order. Pixels of a
     tile whose region has no model (``kinds == 0``) keep that region. ``xyz`` and
     ``sigma`` are flat (H*W).
 
