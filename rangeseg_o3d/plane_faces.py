@@ -119,10 +119,12 @@ def _faces_of_faces(ctx, surfaces: list, window: float, correlation_px: int, min
     seed 1293 scan 3: a cylinder region of 6044 px over a box's front, side and top cut into
     5150 px, 508 of them the top's 553, and 838)."""
     out, todo = [], list(surfaces)
+    # a piece under two faces' floor of pixels, or of FACE_RETURNS, is not searched (no split could stand)
+    floor = 2 * max(ctx.min_size, FACE_RETURNS * window)
     while todo:
         piece, plane = todo.pop()
         faces = []
-        if piece.size >= 2 * ctx.min_size and _plane_beyond_noise(ctx.xyz, ctx.sigma, piece, window):
+        if piece.size >= floor and _plane_beyond_noise(ctx.xyz, ctx.sigma, piece, window):
             faces = faces_of_plane(ctx, plane, piece, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
         if faces and min(face.size for face, _ in faces) >= FACE_RETURNS * window:
             todo.extend(faces)
