@@ -102,7 +102,7 @@ def _beyond_distance_noise(points: np.ndarray, sigma: np.ndarray, independent: f
     return beyond_noise(plane.rms, float(np.sqrt(noise_squares / points.shape[0])), max(int(independent), 1))
 
 
-def _plane_beyond_noise(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, window: float) -> bool:
+def _own_plane_beyond_noise(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray, window: float) -> bool:
     # split_plane_faces' gate: the least-squares plane of an even subsample of the pixels
     # ``idx`` beyond the noise of their distances, over at most their independent returns
     sample = idx[:: max(1, idx.size // FACE_TEST_PIXELS)]
@@ -124,7 +124,7 @@ def _faces_of_faces(ctx, surfaces: list, window: float, correlation_px: int, min
     while todo:
         piece, plane = todo.pop()
         faces = []
-        if piece.size >= floor and _plane_beyond_noise(ctx.xyz, ctx.sigma, piece, window):
+        if piece.size >= floor and _own_plane_beyond_noise(ctx.xyz, ctx.sigma, piece, window):
             faces = faces_of_plane(ctx, plane, piece, correlation_px=correlation_px, min_angle_deg=min_angle_deg)
         if faces and min(face.size for face, _ in faces) >= FACE_RETURNS * window:
             todo.extend(faces)
@@ -170,7 +170,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
             continue
         # a curved region's own test starts on a subsample (faces_of_curved); a region no
         # model fitted is asked whole (faces_of_unfitted)
-        if isinstance(fits[k], (Cylinder, Sphere, FitFailure)) or _plane_beyond_noise(xyz, noise, idx, window):
+        if isinstance(fits[k], (Cylinder, Sphere, FitFailure)) or _own_plane_beyond_noise(xyz, noise, idx, window):
             suspects[k] = idx
     hidden = window > 1.0 and any(isinstance(fits[k], Plane) for k in candidates)
     if not suspects and not hidden:
