@@ -29,6 +29,7 @@ from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_f
 from .ray_claims import claim_outliers_along_rays
 from .strips import recover_strips
 from .edge_planes import edge_planes_to_curved
+from .end_caps import split_end_caps
 from .memory import keep_freed_memory, large_frame
 from .refinement import refine_regions
 from .timing import StepTimer
@@ -393,6 +394,16 @@ class Pipeline:
                     inlier_factor=INLIER_SIGMAS, tile_labels=tile_labels, tile=settings.tile,
                     near_sigmas=refine.k_sigma, curved_pieces=True, hosts=turned)
                 lap("edge_planes_again")
+            if by_means or noise.matched_window:
+                # a far pipe's end cap within the range noise of its cylinder, on too few tile
+                # means for the tile grid's cap split: split off where it closes the pipe
+                # (a cap is a region found at full resolution: held to the recovered regions' floor)
+                cap_floor = recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
+                                                   noise.correlation_px)
+                labels, fits, stats = split_end_caps(cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
+                                                     min_size=cap_floor, inlier_factor=INLIER_SIGMAS,
+                                                     wrap_columns=self.sensor.wrap_columns)
+                lap("end_caps")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's grazing faces take the pixels beside
                 # them their rays meet nearer, in range noise, than their own regions' planes,

@@ -294,7 +294,7 @@ def cap_band_most(xyz, sigma, idx, axis, point, sigmas, slack):
     """The most pixels of a cylinder region (``idx``, flat pixels of ``xyz`` (N, 3) with range
     noise ``sigma``; the cylinder's unit ``axis`` through ``point``) that one plane across the
     axis, at any axial coordinate, holds within ``sigmas`` times each pixel's noise along the
-    axis: an upper bound on the band of ``refinement.facets._cap_split`` at whatever offset its
+    axis: an upper bound on the band of ``refinement.facets.cap_split`` at whatever offset its
     histogram picks.
 
     A pixel's axial coordinate ``(x - point) . axis`` and its noise along the axis ``sigma
@@ -393,7 +393,7 @@ def _region_may_split(xyz, sigma, pixels, kind, prm, min_size, inlier_factor, si
     if n >= 2 * bins and n >= 2 * min_size and _may_misfit_across(xyz, sigma, pixels, prm, rms_high, upper, min_size,
                                                                  bins, cuts, cover, extra, sigmas, slack):
         return True
-    # an end cap's band of the size floor (facets._cap_split)
+    # an end cap's band of the size floor (facets.cap_split)
     if n >= 2 * min_size:
         return cap_band_most(xyz, sigma, pixels, prm[0:3], prm[3:6], sigmas, slack) >= min_size
     return False

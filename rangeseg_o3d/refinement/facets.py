@@ -18,7 +18,7 @@ its axis (a wall and a corner of what stands before it, seen obliquely) faces th
 least-squares planes of its sides (:func:`_two_planes_across_the_axis`). Last, a
 cylinder's region is looked at for an end cap the distances cannot
 show (on a noisy or far sensor the whole cap lies within the noise of the cylinder): a
-disc across the axis, whose pixels share one axial coordinate (:func:`_cap_split`).
+disc across the axis, whose pixels share one axial coordinate (:func:`cap_split`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from .context import SCREEN_SLACK, Context, without
 from .grid_lines import on_one_grid_line
 from .grow import SETTLE_MARGIN
 
-__all__ = ["planes_for_curved"]
+__all__ = ["planes_for_curved", "cap_split"]
 
 #: Share of the region's pixels the planes must take (the crease band between them is left).
 PLANES_COVER = 0.9
@@ -237,7 +237,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict, *, faces_bey
     laser's single returns, where it was measured) beyond the range noise too, where the
     searches find nothing, each side within the range noise of its own pixels
     (:func:`_two_faces_across_the_axis`). Failing all these, a cylinder and
-    the end cap its region holds (:func:`_cap_split`), held to the same rules. A compiled
+    the end cap its region holds (:func:`cap_split`), held to the same rules. A compiled
     pretest (:func:`_may_split`) returns the inputs at once where no region can pass the
     tests that let a split run.
     """
@@ -278,7 +278,7 @@ def planes_for_curved(ctx: Context, labels: np.ndarray, fits: dict, *, faces_bey
             # needs no band, its two planes held to the range noise and the F-test as above
             splits.append((functools.partial(_two_faces_across_the_axis, ctx, model, idx, distances), noise, True,
                            True))
-        splits.append((functools.partial(_cap_split, ctx, model, idx, distances), _EACH_SURFACE, False, False))
+        splits.append((functools.partial(cap_split, ctx, model, idx, distances), _EACH_SURFACE, False, False))
         for split, split_noise, settle, resolve in splits:
             surfaces = split()
             if not _covers(surfaces, idx) or (resolve and len(surfaces) < 2):
@@ -508,7 +508,8 @@ def _mean_squared_sigmas(model, points: np.ndarray, sigma: np.ndarray) -> float:
     return float(np.mean((model.distances(points) / noise) ** 2))
 
 
-def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> list:
+def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None, *, accept=None,
+              at_end: bool = False) -> list:
     """A cylinder's region split into the cylinder and its end cap (``[(pixels, model)]``,
     empty when it holds no cap).
 
@@ -526,10 +527,17 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     :func:`rangeseg_o3d.fitting.robust.curvature_resolved`, the plane's three parameters
     against the cylinder's none on those pixels) and it lies on more than one row and column
     of the grid (:func:`_off_one_grid_line`); the cylinder is refitted to the rest.
+    ``distances``: the cylinder's distances to the region's pixels (None: computed here when
+    needed). ``accept`` (optional): ``accept(rest, piece, model, plane)`` of the first piece
+    found and its plane, with the region's own ``model``, must be true for the split to go on
+    (a test of the caller's, asked before the refit and the second cut, the split's costliest
+    steps). With ``at_end`` only a cap at one end of the region is looked for: the fullest
+    bin's band must have none of the region's pixels beyond it on both sides
+    (:func:`_pixels_beyond_both_sides`), asked in place of the band's size screen.
     """
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []
-    if _no_cap_band(ctx, model, idx):
+    if not at_end and _no_cap_band(ctx, model, idx):
         return []
     points = rows_at(ctx.xyz, idx)
     along = (points - model.point) @ model.axis
@@ -543,6 +551,10 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     fullest = int(np.argmax(counts))
     offset = median(along[bins == fullest])
     off_plane = np.abs(along - offset)
+    if at_end and _pixels_beyond_both_sides(along, noise, offset, off_plane):
+        return []
+    if distances is None:
+        distances = model.distances(points)
     sigma = ctx.sigma[idx]
     piece = _likelier_on_plane(ctx, idx, off_plane, noise, distances, model, points, sigma)
     if piece is None:
@@ -555,6 +567,8 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     cylinder_squares = float(np.sum(distances[on_piece] ** 2))
     # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
     if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):
+        return []
+    if accept is not None and not accept(without(idx, piece), piece, model, plane):
         return []
     cylinder = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, piece)), model)
     if not cylinder or cylinder.kind != model.kind:
@@ -575,10 +589,27 @@ def _cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray) -> l
     return split
 
 
+def _pixels_beyond_both_sides(along: np.ndarray, noise: np.ndarray, offset: float, off_plane: np.ndarray) -> bool:
+    """Whether pixels of a cylinder region (axial coordinates ``along``, their noise along the
+    axis ``noise``) lie beyond the plane across the axis at ``offset`` on both sides, each by
+    more than CHI_SQUARE_SIGMAS of its noise past the farthest reach of that plane's band
+    (the pixels within CHI_SQUARE_SIGMAS of their noise of it, ``off_plane`` their
+    distances): then no piece of the band is a cap that closes the pipe at either end
+    (:func:`rangeseg_o3d.end_caps.closes_the_pipe`: its plane sits at its pixels' median
+    axial coordinate, within the band). True also when the band is empty."""
+    noise = np.maximum(noise, 1e-12)
+    band = off_plane <= CHI_SQUARE_SIGMAS * noise
+    if not band.any():
+        return True
+    reach = CHI_SQUARE_SIGMAS * float(noise[band].max())
+    margin = CHI_SQUARE_SIGMAS * noise
+    return bool(np.any(along - margin > offset + reach) and np.any(along + margin < offset - reach))
+
+
 def _no_cap_band(ctx: Context, model, idx: np.ndarray) -> bool:
     """Whether no plane across the cylinder ``model``'s axis, at any axial coordinate, holds
     ``ctx.min_size`` of the region's pixels ``idx`` within CHI_SQUARE_SIGMAS of their noise
-    along the axis, so that :func:`_cap_split`'s first band (at the offset its histogram
+    along the axis, so that :func:`cap_split`'s first band (at the offset its histogram
     picks, whichever) is under the size floor and the split finds no cap.
 
     One compiled call (:func:`rangeseg_o3d.kernels.cap_band_most`, each pixel's band widened

@@ -6,7 +6,7 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_cylinder
 from rangeseg_o3d.refinement.context import Context
-from rangeseg_o3d.refinement.facets import _cap_split, planes_for_curved
+from rangeseg_o3d.refinement.facets import cap_split, planes_for_curved
 from rangeseg_o3d.synthetic.depth_camera import simulate_depth_camera
 from rangeseg_o3d.synthetic.scene import Scene, cylinder
 from refinement_helpers import best_overlap
@@ -37,7 +37,7 @@ def test_the_end_cap_split_finds_the_cap_and_refits_the_pipe(seed):
     assert (truth == CAP).sum() > 0.3 * labels.sum()
     assert model.kind == "cylinder" and model.radius < 0.13
     idx = np.flatnonzero(labels.ravel())
-    surfaces = _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
+    surfaces = cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
     assert [m.kind for _, m in surfaces] == ["cylinder", "plane"]
     (rest, pipe), (piece, cap) = surfaces
     flat = truth.ravel()
@@ -66,7 +66,7 @@ def test_the_end_cap_split_leaves_a_pipe_without_a_cap_alone():
     ctx, labels, model, truth = _pipe_in_one_region(0, caps=False)
     idx = np.flatnonzero(labels.ravel())
     assert model.kind == "cylinder" and abs(model.radius - 0.15) < 0.01
-    assert _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx])) == []
+    assert cap_split(ctx, model, idx, model.distances(ctx.xyz[idx])) == []
 
 
 def _shifted_cylinder(model, dr: float):
@@ -84,7 +84,7 @@ def test_the_cap_split_holds_each_surface_to_the_noise_of_its_own_distances():
     ctx, labels, model, truth = _pipe_in_one_region(0)
     idx = np.flatnonzero(labels.ravel())
     distances = model.distances(ctx.xyz[idx])
-    (rest, pipe), (piece, cap) = _cap_split(ctx, model, idx, distances)
+    (rest, pipe), (piece, cap) = cap_split(ctx, model, idx, distances)
 
     def explains(surfaces, noise):
         return _explains(ctx, idx, distances, surfaces, noise, "cylinder", model=model)
@@ -139,7 +139,7 @@ def test_a_row_of_returns_across_the_axis_is_no_end_cap():
 
     ctx, labels, model, truth = _pipe_in_one_region(0)
     idx = np.flatnonzero(labels.ravel())
-    (_, _), (piece, cap) = _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
+    (_, _), (piece, cap) = cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
     assert _off_one_grid_line(ctx, piece)
 
 
@@ -173,11 +173,11 @@ def test_a_nodding_lasers_level_scan_row_across_a_column_is_no_end_cap(seed, mon
     column = np.flatnonzero(truth.ravel() == 1)
     model = fit_cylinder(ctx.xyz[column])
     assert model.kind == "cylinder" and abs(model.radius - 0.12) < 0.005 and abs(model.axis[2]) > 0.999
-    assert facets._cap_split(ctx, model, column, model.distances(ctx.xyz[column])) == []
+    assert facets.cap_split(ctx, model, column, model.distances(ctx.xyz[column])) == []
 
     pipe = np.flatnonzero(truth.ravel() >= 4)
     bent = fit_cylinder(ctx.xyz[pipe])
-    (rest, refit), (piece, cap) = facets._cap_split(ctx, bent, pipe, bent.distances(ctx.xyz[pipe]))
+    (rest, refit), (piece, cap) = facets.cap_split(ctx, bent, pipe, bent.distances(ctx.xyz[pipe]))
     assert refit.kind == "cylinder" and cap.kind == "plane"
     flat = truth.ravel()
     assert (flat[piece] == 6).mean() > 0.95 and piece.size > 0.9 * (flat == 6).sum()
@@ -186,7 +186,7 @@ def test_a_nodding_lasers_level_scan_row_across_a_column_is_no_end_cap(seed, mon
     # the premise: without the check that a cap lies off one grid line, the level row is
     # cut off as the column's end cap
     monkeypatch.setattr(facets, "_off_one_grid_line", lambda ctx, piece: True)
-    (_, _), (row, disc) = facets._cap_split(ctx, model, column, model.distances(ctx.xyz[column]))
+    (_, _), (row, disc) = facets.cap_split(ctx, model, column, model.distances(ctx.xyz[column]))
     assert np.all(row // width == 40) and row.size > 20 and disc.rms < 1e-6
 
 
@@ -209,9 +209,9 @@ def test_the_cap_split_asks_its_second_cap_piece_to_lie_off_one_grid_line_too(se
         asked.append(piece)
         return len(asked) == 1 and off_line(ctx, piece)
 
-    (_, _), (second, _) = facets._cap_split(ctx, bent, pipe, distances)
+    (_, _), (second, _) = facets.cap_split(ctx, bent, pipe, distances)
     monkeypatch.setattr(facets, "_off_one_grid_line", first_only)
-    (_, _), (kept, _) = facets._cap_split(ctx, bent, pipe, distances)
+    (_, _), (kept, _) = facets.cap_split(ctx, bent, pipe, distances)
     assert len(asked) == 2 and np.array_equal(asked[1], second)
     assert np.array_equal(kept, asked[0]) and not np.array_equal(kept, second)
 
@@ -231,7 +231,7 @@ def test_an_end_cap_seen_near_grazing_is_split_off(seed):
     model = fit_cylinder(scan.cloud.xyz[labels == 1])
     ctx = Context(scan.cloud, rs.Pipeline("spinning_lidar").fitter, np.full(scan.cloud.shape, NOISE), 10)
     idx = np.flatnonzero(labels.ravel())
-    surfaces = _cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
+    surfaces = cap_split(ctx, model, idx, model.distances(ctx.xyz[idx]))
     assert [m.kind for _, m in surfaces] == ["cylinder", "plane"]
     (_, _), (piece, cap) = surfaces
     near_cap = 2  # cylinder(): the cap at the start of the axis, the one facing the camera here

@@ -144,7 +144,7 @@ def test_a_region_the_pretest_refuses_is_refused_by_each_numpy_test(slack):
 
 
 def _cap_band_at_its_offset(ctx, model, idx, points) -> int:
-    # the band _cap_split's first _likelier_on_plane counts, at the offset its histogram picks
+    # the band cap_split's first _likelier_on_plane counts, at the offset its histogram picks
     along = (points - model.point) @ model.axis
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
     noise = ctx.sigma[idx] * np.abs(rays @ model.axis)
