@@ -69,8 +69,7 @@ def test_a_cap_under_the_size_floor_stays_with_the_pipe():
 
 
 def _pipe_points(seed: int = 0):
-    # pixels of a capless pipe along z (radius RADIUS, z 3-4 m), seen from the origin, and a
-    # disc across its axis at z: (xyz, pipe pixels, model)
+    # pixels of a capless pipe along z (radius RADIUS, z 3-4 m), seen from the origin: (points, model)
     rng = np.random.default_rng(seed)
     z = rng.uniform(3.0, 4.0, 2000)
     angle = rng.uniform(np.pi, 2 * np.pi, z.size)  # the half facing the sensor (below y = 0.5)
@@ -93,10 +92,11 @@ def _closes(side, model, cap_points):
     return closes_the_pipe(xyz, sigma, pipe, cap, model, fit_plane(cap_points))
 
 
-def test_a_disc_at_the_pipe_end_closes_it():
+def test_a_disc_at_the_pipe_end_facing_the_sensor_closes_it():
     side, model = _pipe_points()
     assert _closes(side, model, _disc(3.0))
-    assert _closes(side, model, _disc(4.0))
+    # the far end's disc faces away: the sensor (at the origin) would see its inner face
+    assert not _closes(side, model, _disc(4.0))
 
 
 def test_a_disc_across_the_middle_of_the_pipe_does_not_close_it():
@@ -136,3 +136,18 @@ def test_a_tunnel_around_the_sensor_is_not_searched_for_a_cap():
     assert len(split) == 2 and (scan.truth_ids.ravel()[split[1][0]] == CAP).mean() > 0.9  # the premise
     out, fits, _ = _split(scan.cloud, labels, model, sigma)
     assert out is labels and list(fits) == [1]
+
+
+def test_a_pipe_seen_broadside_is_not_searched_for_a_cap():
+    # a pipe across the view, its span along the axis holding the sensor's coordinate: a cap at
+    # either end is seen from inside the pipe's end, and the split is not run
+    from rangeseg_o3d.end_caps import _beyond_the_sensor_both_ways
+    from rangeseg_o3d.fitting.primitives import Cylinder
+
+    y = np.linspace(-1.0, 1.0, 200)
+    points = np.stack([np.zeros_like(y), y, np.full_like(y, 3.0)], axis=1)
+    pipe = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.0, 0.0, 3.15]), radius=RADIUS, rms=0.0,
+                    inliers=200)
+    sigma = np.full(200, 0.01)
+    assert _beyond_the_sensor_both_ways(points, sigma, np.arange(200), pipe)
+    assert not _beyond_the_sensor_both_ways(points, sigma, np.arange(100, 200), pipe)  # one side only
