@@ -93,10 +93,10 @@ def closes_the_pipe(xyz: np.ndarray, sigma: np.ndarray, pipe: np.ndarray, cap: n
     """Whether the plane of the flat pixels ``cap`` is the end cap of ``cylinder`` over the flat
     pixels ``pipe`` (``xyz`` (N, 3) points, ``sigma`` their range noise): it faces along the
     axis within :data:`~rangeseg_o3d.fullres.CAP_COS`, the cap's centroid lies inside the
-    cylinder, the sensor (at the origin) lies beyond the cap's plane (a disc closing a pipe
-    is seen from outside the pipe's end), and no pixel of the pipe lies beyond the cap's plane (on the side away from
-    the pipe's middle) by more than ``CHI_SQUARE_SIGMAS`` times the noise of its axial
-    coordinate (its range noise times the cosine between its ray and the axis)."""
+    cylinder, the sensor (at the origin) lies beyond the cap's plane (a disc closing a pipe is
+    seen from outside the pipe's end), and no pixel of the pipe lies beyond that plane (on the
+    side away from the pipe's middle) by more than ``CHI_SQUARE_SIGMAS`` times the noise of
+    its axial coordinate (its range noise times the cosine between its ray and the axis)."""
     from .fullres import CAP_COS
 
     axis = np.asarray(cylinder.axis, dtype=np.float64)
@@ -128,9 +128,10 @@ def _beyond_the_sensor_both_ways(xyz: np.ndarray, sigma: np.ndarray, idx: np.nda
 
 
 def _sees_the_inside(cylinder) -> bool:
-    """Whether the sensor (at the origin) is inside the cylinder: a tunnel's, not a pipe's. A
-    wall closing a tunnel fills the view and is the tile grid's plane; a 185000-px tunnel wall
-    (cape_tunnel) cost the cap search 34 ms a frame, for no cap."""
+    """Whether the sensor (at the origin) is inside the cylinder: a tunnel's, not a pipe's.
+    From there the side is seen from within, and a cap along with it only from within the
+    pipe's end, its inner face (:func:`closes_the_pipe` refuses it); the search is skipped (a
+    185000-px tunnel wall, cape_tunnel, cost it 34 ms a frame, for no cap)."""
     point = np.asarray(cylinder.point, dtype=np.float64)
     axis = np.asarray(cylinder.axis, dtype=np.float64)
     return float(np.linalg.norm(point - np.dot(point, axis) * axis)) < cylinder.radius
