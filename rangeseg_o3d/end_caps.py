@@ -65,7 +65,7 @@ def split_end_caps(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.nd
     caps = []
     for k, idx in region_indices(labels, only=cylinders).items():
         model = fits[k]
-        if _sees_the_inside(model) or _beyond_the_sensor_both_ways(ctx.xyz, flat_noise, idx, model):
+        if idx.size < 2 * min_size or _sees_the_inside(model) or _beyond_the_sensor_both_ways(ctx.xyz, flat_noise, idx, model):
             continue
         split = cap_split(ctx, model, idx, None, accept=closes, at_end=True)
         if len(split) != 2:
