@@ -239,3 +239,14 @@ def test_an_end_cap_seen_near_grazing_is_split_off(seed):
     assert (flat[piece] == near_cap).mean() > 0.8 and piece.size > 0.6 * (flat == near_cap).sum()
     assert abs(float(cap.normal @ axis)) > np.cos(np.radians(5.0))
     assert float(np.median(np.abs(ctx.viewing_rays(piece) @ cap.normal))) < GRAZING_COSINE  # the premise
+
+
+def test_a_band_with_pixels_beyond_it_on_both_sides_is_at_no_end():
+    from rangeseg_o3d.refinement.facets import _pixels_beyond_both_sides
+
+    along = np.linspace(0.0, 1.0, 101)  # axial coordinates of a pipe's pixels, 1 cm apart
+    noise = np.full(along.size, 0.002)  # CHI_SQUARE_SIGMAS of it: 8 mm
+    for offset, both in ((0.5, True), (0.0, False), (1.0, False), (0.02, True)):
+        assert _pixels_beyond_both_sides(along, noise, offset, np.abs(along - offset)) == both
+    # an empty band holds no cap either
+    assert _pixels_beyond_both_sides(along, noise, 2.0, np.abs(along - 2.0))
