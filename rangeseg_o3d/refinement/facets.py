@@ -40,7 +40,7 @@ from .context import SCREEN_SLACK, Context, without
 from .grid_lines import on_one_grid_line
 from .grow import SETTLE_MARGIN
 
-__all__ = ["planes_for_curved", "cap_split"]
+__all__ = ["planes_for_curved", "cap_split", "axial_noise"]
 
 #: Share of the region's pixels the planes must take (the crease band between them is left).
 PLANES_COVER = 0.9
@@ -508,8 +508,7 @@ def _mean_squared_sigmas(model, points: np.ndarray, sigma: np.ndarray) -> float:
     return float(np.mean((model.distances(points) / noise) ** 2))
 
 
-def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None, *, accept=None,
-              at_end: bool = False) -> list:
+def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None, *, closes=None) -> list:
     """A cylinder's region split into the cylinder and its end cap (``[(pixels, model)]``,
     empty when it holds no cap).
 
@@ -528,21 +527,20 @@ def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None
     against the cylinder's none on those pixels) and it lies on more than one row and column
     of the grid (:func:`_off_one_grid_line`); the cylinder is refitted to the rest.
     ``distances``: the cylinder's distances to the region's pixels (None: computed here when
-    needed). ``accept`` (optional): ``accept(rest, piece, model, plane)`` of the first piece
-    found and its plane, with the region's own ``model``, must be true for the split to go on
-    (a test of the caller's, asked before the refit and the second cut, the split's costliest
-    steps). With ``at_end`` only a cap at one end of the region is looked for: the fullest
-    bin's band must have none of the region's pixels beyond it on both sides
-    (:func:`_pixels_beyond_both_sides`), asked in place of the band's size screen.
+    needed). ``closes`` (optional): the caller's test that a cap closes the pipe,
+    ``closes(rest, piece, model, plane)``; then only a cap at one end of the region is looked
+    for (the fullest bin's band must have none of the region's pixels beyond it on both
+    sides, :func:`_pixels_beyond_both_sides`, asked in place of the band's size screen), and
+    the first piece found, with its plane and the region's own ``model``, must pass the test
+    before the refit and the second cut, the split's costliest steps.
     """
     if not isinstance(model, Cylinder) or idx.size < 2 * ctx.min_size:
         return []
-    if not at_end and _no_cap_band(ctx, model, idx):
+    if closes is None and _no_cap_band(ctx, model, idx):
         return []
     points = rows_at(ctx.xyz, idx)
     along = (points - model.point) @ model.axis
-    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
-    noise = ctx.sigma[idx] * np.abs(rays @ model.axis)  # range noise along the axis
+    noise = axial_noise(points, ctx.sigma[idx], model.axis)
     width = 2.0 * median(noise)
     if not width > 0:
         return []
@@ -551,7 +549,7 @@ def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None
     fullest = int(np.argmax(counts))
     offset = median(along[bins == fullest])
     off_plane = np.abs(along - offset)
-    if at_end and _pixels_beyond_both_sides(along, noise, offset, off_plane):
+    if closes is not None and _pixels_beyond_both_sides(along, noise, offset, off_plane):
         return []
     if distances is None:
         distances = model.distances(points)
@@ -568,7 +566,7 @@ def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None
     # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
     if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):
         return []
-    if accept is not None and not accept(without(idx, piece), piece, model, plane):
+    if closes is not None and not closes(without(idx, piece), piece, model, plane):
         return []
     cylinder = ctx.fitter.refit(ctx.fitter.points(ctx.xyz, without(idx, piece)), model)
     if not cylinder or cylinder.kind != model.kind:
@@ -587,6 +585,13 @@ def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None
             if _squared_sigmas(ctx, other) < _squared_sigmas(ctx, split):
                 split = other
     return split
+
+
+def axial_noise(points: np.ndarray, sigma: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The noise of the coordinates of ``points`` (N, 3) along ``axis``: their range noise
+    ``sigma`` times the cosine between each one's ray (from the origin) and the axis."""
+    rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
+    return sigma * np.abs(rays @ axis)
 
 
 def _pixels_beyond_both_sides(along: np.ndarray, noise: np.ndarray, offset: float, off_plane: np.ndarray) -> bool:

@@ -518,18 +518,21 @@ class _Unions:
     def _points(self, k: int) -> np.ndarray:
         # the fitter's points of label k's pixels, gathered once
         if k not in self.points:
-            if self.regions is None:
-                self.regions = region_indices(self.labels, only=self.paired)
-            self.points[k] = self.ctx.fitter.points(self.ctx.xyz, self.regions[k])
+            self.points[k] = self.ctx.fitter.points(self.ctx.xyz, self._regions()[k])
         return self.points[k]
+
+    def _regions(self) -> dict:
+        # the flat pixels of every label a pair may join, gathered when a union first needs them
+        if self.regions is None:
+            self.regions = region_indices(self.labels, only=self.paired)
+        return self.regions
 
     def model(self, ra: int, rb: int):
         """The union's model: the cached one, else a refit of the union's points."""
         union = self.cache.get((ra, rb))
         if union is None:
-            if self.regions is None:  # the pixels of every label a pair may join
-                self.regions = region_indices(self.labels, only=self.paired)
-            union_idx = np.concatenate([self.regions[ra], self.regions[rb]])
+            regions = self._regions()
+            union_idx = np.concatenate([regions[ra], regions[rb]])
             union = self.ctx.fitter.refit(self.ctx.fitter.points(self.ctx.xyz, union_idx), self.fits[ra])
         return union
 
@@ -595,10 +598,9 @@ class _Unions:
         the wall's, while the pipe's pixels lay 64 mm rms off it, five of their range sigmas."""
         if isinstance(union, Plane) or isinstance(self.fits[ra], Plane) or isinstance(self.fits[rb], Plane):
             return True
-        if self.regions is None:
-            self.regions = region_indices(self.labels, only=self.paired)
-        small = min((ra, rb), key=lambda k: (self.regions[k].size, k))
-        idx = self.regions[small]
+        regions = self._regions()
+        small = min((ra, rb), key=lambda k: (regions[k].size, k))
+        idx = regions[small]
         if not idx.size:
             return True
         rms = float(np.sqrt(np.mean(union.distances(self._points(small)) ** 2)))
