@@ -56,7 +56,7 @@ def test_pipeline_on_tiles_reports_full_resolution_labels_and_pixel_rms():
     assert "full_resolution" in result.timings
     # its steps, each timed under full.<step>, in run order, together within the stage's time
     steps = [k for k in result.timings if k.startswith("full.")]
-    assert steps[:4] == ["full.noise", "full.label_pixels", "full.recover", "full.off_model"]
+    assert steps[:5] == ["full.noise", "full.label_pixels", "full.detached", "full.recover", "full.off_model"]
     assert all(result.timings[k] >= 0 for k in steps)
     assert sum(result.timings[k] for k in steps) <= result.timings["full_resolution"]
     (plane,) = result.features
