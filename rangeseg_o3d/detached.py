@@ -1,4 +1,4 @@
-"""A region's small pieces apart from its body, given to the region around them.
+"""A curved region's small pieces apart from its body, given to the region around them.
 
 A model is unbounded where its region is not: a pipe's cylinder runs on past the pipe's end,
 a box face fitted as a wide cylinder bends on past its edges, and where that continuation
@@ -6,9 +6,9 @@ crosses another surface within the range noise, the labelling by the tile models
 crossing's pixels that happen to lie nearer the model to that region, as specks inside the
 other surface's region. On kinect_real_640x480 study seed 1317 scan 4 a pipe's region of
 1532 px held 323 px of a wall 2 m behind it along the arc where its cylinder met the wall,
-which left the pipe under the 80 % share a correct detection needs; on seed 1318 scan 0 a
-box corner's cylinder region held 354 px of the wall and floor around it, and with them the
-two faces' planes fitted the region worse than the cylinder.
+which left the pipe under the 80 % share a correct detection needs; on seed 1317 scan 0 a
+box face at 5.2-5.6 m fitted as a cylinder of r 0.83 m held 659 px of the wall 1.5 m behind
+it, and without them the face is a plane region.
 
 Over the regions of 24 scans of two study seeds (1317, 1318: kinect_640x480 and
 kinect_real_640x480), the pieces of a region apart from its largest piece under 50 px held
@@ -33,8 +33,9 @@ def give_detached_pieces(cloud, labels: np.ndarray, fits: dict, stats, *, sigma:
                          k_sigma: float, jump_ratio: float, jump_min: float, max_size: int, inlier_factor: float,
                          wrap_columns: bool = False):
     """Each piece of a cylinder or sphere region apart from the region's largest (4-connected,
-    under ``max_size`` pixels) goes to the region it touches most across no range jump (:func:`rangeseg_o3d.kernels.
-    detached_pieces`) when that region's model explains every pixel of it within ``k_sigma``
+    under ``max_size`` pixels) goes to the region it touches most across no range jump
+    (:func:`rangeseg_o3d.kernels.detached_pieces`) when that region's model explains every
+    pixel of it within ``k_sigma``
     times the larger of its range noise (``sigma``) and the model's rms, as the labelling asks
     of a model (:func:`rangeseg_o3d.fullres.label_pixels`). ``ranges`` (H, W), NaN where
     invalid, for the jump test of ``jump_ratio`` (per grid step) and ``jump_min``. Returns

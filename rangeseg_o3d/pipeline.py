@@ -311,7 +311,7 @@ class Pipeline:
         if refine.enabled:
             # (tile regions no model was fitted to: their pixels go to the recovery below)
             labels, fits, stats = free_untold_regions(tile_labels, labels, fits, stats)
-            # specks where a model's continuation crosses another surface go to that surface's region
+            # specks where a curved model's continuation crosses another surface go to that surface's region
             labels, stats = give_detached_pieces(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
                                                  k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
                                                  jump_min=refine.jump_min,

@@ -1,8 +1,9 @@
 """The pieces of a region apart from its body, and the region each touches most, in one pass.
 
-:func:`rangeseg_o3d.detached.give_detached_pieces` hands a region's small pieces that lie
-apart from the rest of it (a model's far extension crossing another surface) to the region
-around them; this lists those pieces and, for each, the label it shares most links with.
+:func:`rangeseg_o3d.detached.give_detached_pieces` hands a curved region's small pieces that
+lie apart from the rest of it (its model's continuation crossing another surface) to the
+region around them; this lists those pieces, each with the label it shares most links with
+when that label's model explains it.
 """
 
 from __future__ import annotations
@@ -22,12 +23,11 @@ __all__ = ["detached_pieces"]
 @njit(cache=True, nogil=True)
 def detached_pieces(labels, donors, xyz, ranges, sigma, kinds, params, rms, k_sigma, jump_ratio, jump_min, max_size,
                     wrap):
-    """The 4-connected pieces of each labelled region of ``donors`` (a flag per label; ``labels``
-    (H, W) int32, C-contiguous; pixels joined where they share a label) but its largest (the
-    first found of equals), of
-    fewer than ``max_size`` pixels, that the label they touch most explains: ``(pixels, starts,
-    hosts)``, piece ``s``'s flat pixels (increasing) ``pixels[starts[s]:starts[s + 1]]`` and the
-    label ``hosts[s]`` they go to.
+    """The 4-connected pieces of each region of ``donors`` (a flag per label; ``labels`` (H, W)
+    int32, C-contiguous; pixels joined where they share a label) but its largest (the first
+    found of equals), of fewer than ``max_size`` pixels, that the label they touch most
+    explains: ``(pixels, starts, hosts)``, piece ``s``'s flat pixels (increasing)
+    ``pixels[starts[s]:starts[s + 1]]`` and the label ``hosts[s]`` they go to.
 
     A piece's host is the other label with the most 4-neighbour links to it across no range
     jump (``|a - b| <= max(jump_min, jump_ratio * min(a, b))`` on ``ranges``, NaN where
