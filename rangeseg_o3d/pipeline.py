@@ -24,7 +24,7 @@ from .fullres import (ExpandedStages, PixelStats, drop_small_regions, drop_unres
 from .off_model import recover_off_model
 from .bent_planes import cylinders_for_bent_planes
 from .curved_pairs import curved_from_plane_pairs
-from .detached import give_detached_pieces
+from .detached import give_detached_pieces, specks_apart
 from .occluded_planes import join_across_occluders
 from .plane_faces import claim_along_rays, join_pieces_along_rays, split_plane_faces
 from .ray_claims import claim_outliers_along_rays
@@ -311,6 +311,7 @@ class Pipeline:
         if refine.enabled:
             # (tile regions no model was fitted to: their pixels go to the recovery below)
             labels, fits, stats = free_untold_regions(tile_labels, labels, fits, stats)
+        if refine.enabled and specks_apart(noise):
             # specks where a curved model's continuation crosses another surface go to that surface's region
             labels, stats = give_detached_pieces(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
                                                  k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from rangeseg_o3d.detached import give_detached_pieces
+from rangeseg_o3d.detached import give_detached_pieces, specks_apart
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane
 from rangeseg_o3d.fullres import region_stats
 from rangeseg_o3d.kernels import detached_pieces
@@ -195,3 +195,12 @@ def test_a_pipe_gives_back_the_arc_of_wall_its_cylinder_crossed():
     assert count >= 0.95 * pipe.sum()
     assert count >= 0.82 * (result.labels == label).sum()
     assert {f.label: f.kind for f in result.features}[label] == "cylinder"
+
+
+def test_specks_are_taken_apart_except_under_a_stereo_matchers_noise():
+    from rangeseg_o3d.sensor import NoiseModel
+
+    assert specks_apart(NoiseModel(0.001, 0.001425))  # a Kinect's, pixel by pixel
+    assert specks_apart(NoiseModel(0.001, 0.001425, 9, 0.0029))  # over a window, in disparity steps
+    assert specks_apart(NoiseModel(0.005, 0.0))  # a laser's or ABW's, constant
+    assert not specks_apart(NoiseModel(0.001, 0.003125, 3))  # a stereo matcher's
