@@ -51,8 +51,8 @@ def give_detached_pieces(cloud, labels: np.ndarray, fits: dict, stats, *, sigma:
     times the larger of its range noise (``sigma``) and the model's rms, as the labelling asks
     of a model (:func:`rangeseg_o3d.fullres.label_pixels`). ``ranges`` (H, W), NaN where
     invalid, for the jump test of ``jump_ratio`` (per grid step) and ``jump_min``. Returns
-    ``(labels, stats)``; the inputs when no piece moves. Models are not refitted: the pieces
-    are specks of the regions' own noise share.
+    ``(labels, stats)``; the inputs when no piece moves. Models are not refitted: a few pixels
+    within the noise of both models move neither.
     """
     from .fullres import stats_after_moves
     from .kernels import detached_pieces
