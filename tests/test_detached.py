@@ -1,4 +1,4 @@
-"""A region's small pieces apart from its body go to the region around them (detached)."""
+"""A curved region's small pieces apart from its body go to the region around them (detached)."""
 
 import numpy as np
 import pytest
@@ -16,11 +16,10 @@ H, W = 40, 60
 
 
 class _Cloud:
-    """The two attributes give_detached_pieces reads of an OrganizedCloud."""
+    """What give_detached_pieces reads of an OrganizedCloud: its (H, W, 3) points."""
 
     def __init__(self, xyz):
         self.xyz = xyz
-        self.shape = xyz.shape[:2]
 
 
 def _wall_and_pipe(seed: int, speck_offset: float = 0.0):
