@@ -288,6 +288,7 @@ class Pipeline:
                                          float(noise.sigma_quadratic))
         lap("noise")
         refine = settings.refine
+        min_size = smallest_region(refine, self.sensor, cloud)  # the fewest pixels of a region here
         # how much more a tile's mean errs than one of independent returns (correlated
         # returns, the tile means' measured excess scatter)
         spread = excess * float(noise.mean_scale(settings.tile * settings.tile)) * settings.tile
@@ -316,7 +317,7 @@ class Pipeline:
             labels, stats = give_detached_pieces(cloud, labels, fits, stats, sigma=sigma, ranges=ranges,
                                                  k_sigma=refine.k_sigma, jump_ratio=refine.jump_ratio,
                                                  jump_min=refine.jump_min,
-                                                 max_size=smallest_region(refine, self.sensor, cloud),
+                                                 max_size=min_size,
                                                  inlier_factor=INLIER_SIGMAS, wrap_columns=self.sensor.wrap_columns)
             lap("detached")
         recovered_from = int(labels.max(initial=0)) + 1  # the regions found from here on are fitted to pixels
@@ -364,7 +365,7 @@ class Pipeline:
             # its real frames 25-286 ms each in one --frames run
             labels, fits, stats = split_plane_faces(
                 cloud, labels, fits, stats, fitter=self.fitter, sigma=sigma,
-                min_size=smallest_region(refine, self.sensor, cloud), inlier_factor=INLIER_SIGMAS,
+                min_size=min_size, inlier_factor=INLIER_SIGMAS,
                 min_angle_deg=refine.merge_angle_deg, correlation_px=noise.correlation_px,
                 wrap_columns=self.sensor.wrap_columns)
             lap("plane_faces")
@@ -379,7 +380,7 @@ class Pipeline:
             # a cylinder bent over a crease gives way to its two faces before the regions grow
             labels, fits, stats = planes_for_creases(cloud, labels, fits, stats, sigma=sigma,
                                                      k_sigma=refine.k_sigma, inlier_factor=INLIER_SIGMAS,
-                                                     min_size=smallest_region(refine, self.sensor, cloud),
+                                                     min_size=min_size,
                                                      tile_labels=tile_labels, tile=settings.tile,
                                                      fitter=self.fitter, depth_step=self.sensor.depth_step)
             lap("creases")
@@ -407,8 +408,7 @@ class Pipeline:
                 # a far pipe's end cap within the range noise of its cylinder, on too few tile
                 # means for the tile grid's cap split: split off where it closes the pipe
                 # (a cap is a region found at full resolution: held to the recovered regions' floor)
-                cap_floor = recovered_region_floor(refine, smallest_region(refine, self.sensor, cloud),
-                                                   noise.correlation_px)
+                cap_floor = recovered_region_floor(refine, min_size, noise.correlation_px)
                 labels, fits, stats = split_end_caps(cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter,
                                                      min_size=cap_floor, inlier_factor=INLIER_SIGMAS,
                                                      wrap_columns=self.sensor.wrap_columns)
@@ -418,7 +418,7 @@ class Pipeline:
                 # them their rays meet nearer, in range noise, than their own regions' planes,
                 # and a band of a wall under a model bent along its rays goes back to the wall
                 labels, fits, stats = claim_along_rays(cloud, labels, fits, stats, sigma=sigma,
-                                                       min_size=smallest_region(refine, self.sensor, cloud),
+                                                       min_size=min_size,
                                                        inlier_factor=INLIER_SIGMAS,
                                                        correlation_px=noise.correlation_px)
                 lap("claim_along_rays")
@@ -431,7 +431,6 @@ class Pipeline:
                 lap("claim_outliers")
             # a curved model within a few depth steps is the quantisation's, not a surface
             labels, fits = drop_unresolvable_curves(labels, fits, depth_step=self.sensor.depth_step)
-            min_size = smallest_region(refine, self.sensor, cloud)
             labels, fits = drop_small_regions(labels, fits, stats, min_size=min_size,
                                               recovered_from=recovered_from,
                                               recovered_min_size=recovered_region_floor(refine, min_size,

@@ -12,7 +12,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import _find, _union
-from .inline import _distance, _grid_neighbour
+from .inline import _distance, _grid_neighbour, _jump_limit
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py")
@@ -144,7 +144,7 @@ def detached_pieces(labels, donors, xyz, ranges, sigma, kinds, params, rms, k_si
                 if other <= 0 or other == k:
                     continue
                 a, b = rng[i], rng[j]
-                if not abs(a - b) <= max(jump_min, jump_ratio * min(a, b)):
+                if not abs(a - b) <= _jump_limit(a, b, jump_ratio, jump_min):
                     continue  # a jump, or a NaN range
                 if links[other] == 0:
                     touched[n_touched] = other

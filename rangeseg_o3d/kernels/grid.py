@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
-from .inline import _distance, _grid_neighbour, _nearest_neighbour_model, _neighbour
+from .inline import _distance, _grid_neighbour, _jump_limit, _nearest_neighbour_model, _neighbour
 from .kinds import PLANE
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
@@ -208,7 +208,7 @@ def _small(ranges, r0, c0, r1, c1, jump_ratio, jump_min):
     if r0 < 0 or c0 < 0 or r1 < 0 or c1 < 0 or r0 >= h or c0 >= w or r1 >= h or c1 >= w:
         return True
     a, b = ranges[r0, c0], ranges[r1, c1]
-    if not (abs(a - b) > max(jump_min, jump_ratio * min(a, b))):
+    if not (abs(a - b) > _jump_limit(a, b, jump_ratio, jump_min)):
         return True
     return False
 
@@ -234,7 +234,7 @@ def jump_mask(ranges, jump_ratio, jump_min, continuation, noise):
                 if r + dr >= h or c + dc >= w:
                     continue
                 b = ranges[r + dr, c + dc]
-                if abs(a - b) > max(jump_min, jump_ratio * min(a, b)):
+                if abs(a - b) > _jump_limit(a, b, jump_ratio, jump_min):
                     if continuation > 0 and _continues(ranges, r, c, dr, dc, b - a, continuation, noise, jump_ratio, jump_min):
                         continue
                     if a > b:
@@ -572,7 +572,7 @@ def _settled_label(xyz, flat, i, r, c, h, w, n, kinds, params, rms, sigma, range
         k = flat[j]
         if k == own or k <= 0 or k >= n or kinds[k] == 0:
             continue
-        if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
+        if not (abs(ranges[i] - ranges[j]) <= _jump_limit(ranges[i], ranges[j], jump_ratio, jump_min)):
             continue
         if own_score < 0.0:
             own_score = _distance(kinds[own], params[own], x, y, z) / max(sigma[i], rms[own])

@@ -152,6 +152,14 @@ def _plane_step_agrees(prm, xyz, i, j, ri, rj, limit):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _jump_limit(a, b, jump_ratio, jump_min):
+    # the largest step between neighbours' ranges ``a`` and ``b`` that is no jump: a share of
+    # the nearer range, at least ``jump_min``. Callers compare ``abs(a - b)`` with it: ``>`` counts
+    # a NaN range as no jump, ``<=`` as one (each states which)
+    return max(jump_min, jump_ratio * min(a, b))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, ranges, k_sigma, jump_ratio,
                              jump_min, plane_steps=False):
     # Growth's test for free pixel i: among its 4-neighbours' regions with a model and no
@@ -169,7 +177,7 @@ def _nearest_neighbour_model(i, flat, h, w, xyz, kinds, params, rms, sigma, rang
         if k <= 0 or k >= n or kinds[k] == 0:
             continue
         ri, rj = ranges[i], ranges[j]
-        limit = max(jump_min, jump_ratio * min(ri, rj))
+        limit = _jump_limit(ri, rj, jump_ratio, jump_min)
         if not (abs(ri - rj) <= limit):
             if not (plane_steps and kinds[k] == PLANE and _plane_step_agrees(params[k], xyz, i, j, ri, rj, limit)):
                 continue

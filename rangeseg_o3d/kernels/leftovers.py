@@ -15,7 +15,7 @@ import numpy as np
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
 from .grid import piece_ids
-from .inline import _grid_neighbour
+from .inline import _grid_neighbour, _jump_limit
 
 #: Files whose kernels or constants compile into this module's (kernels.cache: an edit there recompiles it).
 CACHE_DEPENDS = ("grid.py", "inline.py", "kinds.py")
@@ -135,7 +135,7 @@ def pieces_apart(labels, valid, taken, ranges, jump_ratio, jump_min, min_size, w
                 if j < 0 or not ok[j]:
                     continue
                 a, b = rng[i], rng[j]
-                no_jump = not (abs(a - b) > max(jump_min, jump_ratio * min(a, b)))
+                no_jump = not (abs(a - b) > _jump_limit(a, b, jump_ratio, jump_min))
                 if flat[j] > 0:
                     if no_jump:
                         contact += 1

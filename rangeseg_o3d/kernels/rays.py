@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from .growth import _ray_term
-from .inline import _add_ray_terms
+from .inline import _add_ray_terms, _jump_limit
 from .linalg import solve_in_place
 from .jit import njit  # numba.njit, with this package's cache locator installed
 
@@ -229,7 +229,7 @@ def settle_moves_along_rays(xyz, labels, normals, offsets, sigma, ranges, origin
                 if k == own or k <= 0 or k >= n or not planar[k]:
                     continue
                 j = rr * w + cc
-                if not (abs(ranges[i] - ranges[j]) <= max(jump_min, jump_ratio * min(ranges[i], ranges[j]))):
+                if not (abs(ranges[i] - ranges[j]) <= _jump_limit(ranges[i], ranges[j], jump_ratio, jump_min)):
                     continue
                 if mine < 0.0:
                     mine = _range_sigmas(xyz, i, normals, offsets, own, sigma, ox, oy, oz, cos_floor)
