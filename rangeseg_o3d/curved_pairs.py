@@ -27,6 +27,15 @@ at :data:`~rangeseg_o3d.kernels.linalg.CHI_SQUARE_SIGMAS` (:data:`PATTERN_BOUND`
 :func:`~rangeseg_o3d.plane_faces.faces_of_curved` asks the other way, at three deviations),
 and it holds :data:`~rangeseg_o3d.plane_faces.PLANES_COVER` of the union's pixels within
 :data:`~rangeseg_o3d.refinement.context.TRIM_SIGMAS` noise sigmas.
+
+The fitter places its model by the points' distances. Where the noise lies along the rays
+and is several times a pipe's width there (a stereo camera's, 6-8 cm at 4-5 m), that model
+may miss the pipe, or be no model at all: the union's plane in ``xyz`` turns towards the rays
+and explains it within the noise. So a cylinder that holds the pixels but leaves a pattern is
+placed again by the residuals along the rays
+(:func:`~rangeseg_o3d.bent_planes.cylinder_along_rays`), and a union the fitter calls a plane
+is asked the bend test a single plane region is asked
+(:func:`~rangeseg_o3d.bent_planes.bent_pipe`); either model then meets the same pattern test.
 """
 
 from __future__ import annotations
@@ -34,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtri, ndtr
 
+from .bent_planes import TEST_POINTS, bent_pipe, cylinder_along_rays
 from .fitting.primitives import Cylinder, Plane, Sphere
 from .fitting.region_fitter import region_indices
 from .fullres import region_stats
@@ -54,7 +64,7 @@ JOIN_RATIO = float(fdtri(PATTERN_BINS, PATTERN_BINS, ndtr(3.0)))
 
 def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sigma: np.ndarray, fitter,
                             min_size: int, inlier_factor: float, correlation_px: int = 1,
-                            wrap_columns: bool = False):
+                            wrap_columns: bool = False, share: float = 1.0, stepped: bool = False):
     """Touching plane regions of ``min_size`` pixels or more each whose union the fitter
     gives a cylinder or sphere that leaves no misfit pattern across its best crease line
     (see the module's docstring) become one region of that model, under the larger one's
@@ -62,7 +72,12 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
     ``(labels, fits, stats)``, the regions changed measured again; the inputs when none joins.
 
     ``sigma``: each pixel's range noise (the grid's shape); ``correlation_px``: the side
-    (px) of the box over which the returns err together (``NoiseModel.correlation_px``)."""
+    (px) of the box over which the returns err together (``NoiseModel.correlation_px``);
+    ``share``: the independent returns each pixel carries (``NoiseModel.independent_share(1)``)
+    and ``stepped``: the depth comes in steps (``NoiseModel.step_quadratic > 0``), for the
+    bend test of a union the fitter gives a plane (:func:`rangeseg_o3d.bent_planes.bent_pipe`)."""
+    if not 0.0 < share <= 1.0:
+        raise ValueError(f"share: expected a number in (0, 1], got {share!r}")
     sigma = np.asarray(sigma, dtype=np.float64)
     if sigma.shape != labels.shape:
         raise ValueError(f"sigma: expected shape {labels.shape}, got {sigma.shape}")
@@ -79,7 +94,8 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
         for b in sorted(touching(labels, members[a], 1) & asked):
             if b <= a:
                 continue
-            pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px)
+            pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px,
+                                                 bend=dict(shape=labels.shape, share=share, stepped=stepped))
             if model is not None:
                 found.append((pattern, a, b, model))
     if not found:
@@ -99,22 +115,49 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
     return out, fits, stats
 
 
-def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px: int):
+def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px: int, bend: dict):
     """``(pattern, model)``: the fitter's cylinder or sphere of the flat pixels of two
     regions ``one`` and ``other`` (each increasing) and its misfit pattern across their best
     crease line, when that pattern is the noise's, within JOIN_RATIO times the two planes'
     across the line, and the model holds PLANES_COVER of them within TRIM_SIGMAS; ``(inf,
-    None)`` otherwise."""
+    None)`` otherwise. Where the fitter gives the union a plane, the cylinder the bend of its
+    pixels along the rays gives it is asked instead (``bend``: ``shape``, ``share`` and
+    ``stepped`` of :func:`rangeseg_o3d.bent_planes.bent_pipe`): a pipe's two strips, each flat
+    within the noise, may together be flat in ``xyz`` too, their plane turned towards the rays
+    (stereo study seed 1341 scan 2: a pipe of r 0.115 m at 3.7-5.8 m in two strips of 2360 and
+    2136 px, a plane to the fitter; the bend test's cylinder r 0.114 m)."""
     # the fitter's subsample gathered from the two regions without building their union (a
     # wall's union with each region it touches cost a stereo scan 1.5-4 s in numpy's union1d)
     model = ctx.fitter.fit(ctx.fitter.points_of(ctx.xyz, (one, other)))
+    if isinstance(model, Plane):
+        # (the test pixels drawn from each region: no sort of the union of a wall and a floor)
+        count = one.size + other.size
+        step = max(1, count // TEST_POINTS)
+        params = ctx.fitter.params
+        model = bent_pipe(ctx.xyz, ctx.sigma, np.sort(np.concatenate((one[::step], other[::step]))), count,
+                          max_radius=float(params["max_radius"]), window=ctx.correlation_px,
+                          min_arc_deg=float(params["min_arc_deg"]), **bend)
     if not isinstance(model, (Cylinder, Sphere)):
         return np.inf, None
     union = np.sort(np.concatenate((one, other)))
     patterns = misfit_patterns(ctx, model, union, correlation_px)
     if patterns is None:
         return np.inf, None
-    curved, planes, inliers, _, _ = patterns
-    if curved > PATTERN_BOUND or curved > JOIN_RATIO * planes or inliers[0] < PLANES_COVER:
+    if isinstance(model, Cylinder) and patterns[2][0] >= PLANES_COVER and not _joins(patterns):
+        # the pixels lie on the fitter's cylinder, placed by their distances: the one placed by
+        # their residuals along the rays, where the noise lies, is asked instead (its pattern
+        # is the pipe's where the fitter's misses it by a band: cylinder_along_rays)
+        along = cylinder_along_rays(model, ctx.xyz[union], ctx.sigma[union],
+                                    max_radius=float(ctx.fitter.params["max_radius"]))
+        if along is not None:
+            model, patterns = along, misfit_patterns(ctx, along, union, correlation_px)
+    if patterns is None or not _joins(patterns):
         return np.inf, None
-    return curved, model
+    return patterns[0], model
+
+
+def _joins(patterns: tuple) -> bool:
+    # the curved model's misfit pattern the noise's, within JOIN_RATIO times the two planes',
+    # the model holding PLANES_COVER of the pixels within TRIM_SIGMAS
+    curved, planes, inliers, _, _ = patterns
+    return curved <= PATTERN_BOUND and curved <= JOIN_RATIO * planes and inliers[0] >= PLANES_COVER

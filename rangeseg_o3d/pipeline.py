@@ -498,7 +498,8 @@ class Pipeline:
                 labels, fits, stats = curved_from_plane_pairs(
                     cloud, labels, fits, stats, sigma=sigma, fitter=self.fitter, min_size=min_size,
                     inlier_factor=INLIER_SIGMAS, correlation_px=noise.correlation_px,
-                    wrap_columns=self.sensor.wrap_columns)
+                    wrap_columns=self.sensor.wrap_columns, share=noise.independent_share(1),
+                    stepped=noise.step_quadratic > 0.0)
                 lap("curved_pairs")
         return labels, fits, sigma, stats
 

@@ -128,3 +128,35 @@ def test_the_bounds_are_the_chi_square_and_f_quantiles_of_the_bins():
     assert PATTERN_BOUND == pytest.approx(16 + 4 * np.sqrt(32))
     # F(16, 16) at the upper tail of three normal deviations (0.00135)
     assert JOIN_RATIO == pytest.approx(4.94, abs=0.01)
+
+
+@pytest.mark.parametrize("seed, scan_index, truth_id, radius", [
+    # a pipe of r 0.115 m at 3.7-5.8 m (receding), left as two strips of 2360 and 2136 px whose
+    # union the fitter calls a plane (its plane in xyz turned to the rays): the bend along the
+    # rays gives the cylinder (bent_planes.bent_pipe)
+    (1341, 2, 12, 0.1146),
+    # a pipe of r 0.136 m at 4.2-4.7 m, two strips of 5078 and 2294 px whose union the fitter
+    # gives r 0.10 m, its misfit pattern across the strips 12.7 times the planes': placed along
+    # the rays (bent_planes.cylinder_along_rays), r 0.14 m, 2.9 times
+    (1343, 3, 19, 0.1361),
+])
+def test_a_stereo_pipe_left_as_two_strips_is_one_cylinder(seed, scan_index, truth_id, radius):
+    from matrix_helpers import matrix_result, region_holding
+
+    scan, result = matrix_result("stereo_1280x720", seed, scan_index)
+    pipe = scan.truth_ids == truth_id
+    label, count = region_holding(result.labels, pipe)
+    assert count >= 0.95 * pipe.sum()  # one region holds the pipe (before: 51 % and 69 %)
+    assert count >= 0.9 * (result.labels == label).sum()
+    feature = {f.label: f for f in result.features}[label]
+    assert feature.kind == "cylinder"
+    assert abs(feature.radius - radius) < 0.25 * radius
+
+
+def test_a_share_of_independent_returns_out_of_range_is_refused():
+    scan = _scan(0)
+    labels, fits, stats, sigma, _ = _regions(scan)
+    for share in (0.0, 1.5):
+        with pytest.raises(ValueError, match="share: expected a number in"):
+            curved_from_plane_pairs(scan.cloud, labels, fits, stats, sigma=sigma, fitter=rs.Pipeline("rgbd_vga").fitter,
+                                    min_size=MIN_SIZE, inlier_factor=INLIER_SIGMAS, share=share)
