@@ -478,11 +478,12 @@ class Context:
             return None, None
         return piece, model
 
-    def within_distance_noise(self, pool: np.ndarray, model, floor: int | None = None):
+    def within_distance_noise(self, pool: np.ndarray, model, floor: int | None = None, *, refit: bool = True):
         # the largest connected piece of ``pool`` within TRIM_SIGMAS distance noises of the
         # plane ``model`` (range noise x incidence cosine), refitted, when it keeps the size
         # floor (``floor``, else min_size) and its refit plane explains it within that noise;
-        # else (None, None)
+        # else (None, None). ``refit`` False: ``model`` kept (a plane fitted along the rays,
+        # which the fitter's refit by distances would turn off a stereo camera's face)
         near = self._near_plane(pool, model) if model.kind == "plane" else None
         if near is None:  # (the test as numpy words it; the compiled pass could not tell)
             points = rows_at(self.xyz, pool)
@@ -490,7 +491,8 @@ class Context:
         piece = self.largest_piece(pool[near])
         if piece.size < (self.min_size if floor is None else floor):
             return None, None
-        model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
+        if refit:
+            model = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
         if not model or self.plane_along_rays(model, piece):
             return None, None
         return piece, model
