@@ -129,7 +129,9 @@ def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px:
     # the fitter's subsample gathered from the two regions without building their union (a
     # wall's union with each region it touches cost a stereo scan 1.5-4 s in numpy's union1d)
     model = ctx.fitter.fit(ctx.fitter.points_of(ctx.xyz, (one, other)))
+    by_distances = True  # (the fitter's; the bend test's cylinder is placed along the rays already)
     if isinstance(model, Plane):
+        by_distances = False
         # (the test pixels drawn from each region: no sort of the union of a wall and a floor)
         count = one.size + other.size
         step = max(1, count // TEST_POINTS)
@@ -143,7 +145,7 @@ def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px:
     patterns = misfit_patterns(ctx, model, union, correlation_px)
     if patterns is None:
         return np.inf, None
-    if isinstance(model, Cylinder) and patterns[2][0] >= PLANES_COVER and not _joins(patterns):
+    if by_distances and isinstance(model, Cylinder) and patterns[2][0] >= PLANES_COVER and not _joins(patterns):
         # the pixels lie on the fitter's cylinder, placed by their distances: the one placed by
         # their residuals along the rays, where the noise lies, is asked instead (its pattern
         # is the pipe's where the fitter's misses it by a band: cylinder_along_rays)

@@ -1107,7 +1107,7 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
     :func:`rangeseg_o3d.plane_faces.faces_of_plane` (faces at least ``min_angle_deg`` apart):
     each face it finds keeps its piece within its own distance noise, the first the plane's
     label, the others new ones. At 3.3 m a stereo camera's range noise (36 mm) holds a box's
-    face seen head-on and its side seen at 81 degrees within one plane through their corner
+    front seen 18 degrees from head-on and its side seen at 81 degrees within one plane through their corner
     (stereo study seed 1344 scan 2: 5129 px, 33 mm rms, 12 mm of distance noise), which no
     piece of either face lies within; freed, both faces were missed, while the crease line
     cuts them apart (2538 of 2629 and 2369 of 2500 px each face's).
