@@ -150,7 +150,7 @@ def test_a_stereo_pipe_left_as_two_strips_is_one_cylinder(seed, scan_index, trut
     assert count >= 0.9 * (result.labels == label).sum()
     feature = {f.label: f for f in result.features}[label]
     assert feature.kind == "cylinder"
-    assert abs(feature.radius - radius) < 0.25 * radius
+    assert abs(feature.radius - radius) < 0.1 * radius  # measured: within 1.1 %
 
 
 def test_a_share_of_independent_returns_out_of_range_is_refused():
