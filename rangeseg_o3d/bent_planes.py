@@ -227,9 +227,7 @@ def _pipe_of(points: np.ndarray, noise: np.ndarray, samples: float, max_radius: 
     drop = (flat - curved) * unit / (curved / len(points))  # in independent returns' variance units
     if drop <= CHI_SQUARE_SIGMAS * np.sqrt(2.0 * n):
         return None
-    return Cylinder(axis=cylinder.axis, point=cylinder.point, radius=cylinder.radius,
-                    rms=float(np.sqrt(np.mean((residuals * noise) ** 2))),
-                    inliers=len(points))
+    return _measured(cylinder, residuals, noise)
 
 
 def _solution(design: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -333,8 +331,7 @@ def _explaining_bend(start: Cylinder, region: _Region, max_radius: float, flat: 
     unit = n / len(points)
     if not squares < flat or (squares - bent) * unit / (bent / len(points)) > np.sqrt(2.0 * n):
         return None  # the cylinder does not explain the bend
-    return Cylinder(axis=cylinder.axis, point=cylinder.point, radius=cylinder.radius,
-                    rms=float(np.sqrt(np.mean((residuals * noise) ** 2))), inliers=len(points))
+    return _measured(cylinder, residuals, noise)
 
 
 def _bend_over_blocks(residuals: np.ndarray, across_share: np.ndarray, pixels: np.ndarray,
@@ -437,8 +434,14 @@ def cylinder_along_rays(start: Cylinder, points: np.ndarray, noise: np.ndarray, 
     if cylinder is None or not 0.0 < cylinder.radius <= max_radius:
         return None
     residuals = _residuals_along_rays(cylinder, points, noise)
+    return _measured(cylinder, residuals, noise)
+
+
+def _measured(cylinder: Cylinder, residuals: np.ndarray, noise: np.ndarray) -> Cylinder:
+    # ``cylinder`` with the rms of its ``residuals`` along the rays (in range noise ``noise``),
+    # in metres, and as many inliers as residuals
     return Cylinder(axis=cylinder.axis, point=cylinder.point, radius=cylinder.radius,
-                    rms=float(np.sqrt(np.mean((residuals * noise) ** 2))), inliers=len(points))
+                    rms=float(np.sqrt(np.mean((residuals * noise) ** 2))), inliers=len(residuals))
 
 
 def _refit_along_rays(start: Cylinder, points: np.ndarray, noise: np.ndarray):

@@ -90,12 +90,12 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
     ctx = Context(cloud, fitter, sigma, min_size, wrap_columns=wrap_columns,
                   correlation_px=max(int(correlation_px), 1))
     found, asked = [], set(planes)
+    bend = dict(shape=labels.shape, share=share, stepped=stepped)  # (the bend test of a union called a plane)
     for a in planes:
         for b in sorted(touching(labels, members[a], 1) & asked):
             if b <= a:
                 continue
-            pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px,
-                                                 bend=dict(shape=labels.shape, share=share, stepped=stepped))
+            pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px, bend=bend)
             if model is not None:
                 found.append((pattern, a, b, model))
     if not found:
