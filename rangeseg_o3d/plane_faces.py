@@ -34,7 +34,7 @@ from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_ter
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_RETURNS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "misfit_patterns", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_faces", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "misfit_patterns", "plane_beside",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -42,7 +42,7 @@ __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_
 #: the split's searches over every pixel).
 FACE_TEST_PIXELS = 1024
 #: Fewest independent returns each face must hold where a split's piece is split again
-#: (:func:`_faces_of_faces`): a plane over fewer is placed by the noise (a 288-px sliver
+#: (:func:`faces_of_faces`): a plane over fewer is placed by the noise (a 288-px sliver
 #: under a Kinect's noise, which errs together over 9 x 9 pixels, holds 3.6 of them).
 FACE_RETURNS = 30
 #: Directions on the sensor grid (over half a turn) of the straight lines tried as the
@@ -109,7 +109,7 @@ def _own_plane_beyond_noise(xyz: np.ndarray, noise: np.ndarray, idx: np.ndarray,
     return _beyond_distance_noise(xyz[sample], noise[sample], min(sample.size, idx.size / window))
 
 
-def _faces_of_faces(ctx, surfaces: list, window: float, correlation_px: int, min_angle_deg: float) -> list:
+def faces_of_faces(ctx, surfaces: list, window: float, correlation_px: int, min_angle_deg: float) -> list:
     """``surfaces`` (``[(pixels, plane)]``, the faces a region was split into) with each
     piece of two faces' pixels whose plane is beyond the noise of its distances split again
     into the faces it holds (:func:`faces_of_plane`, each face at least FACE_RETURNS of the
@@ -142,7 +142,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
     many pixels no model fitted whose crease lines cut it into planes (:func:`faces_of_unfitted`),
     is split into the planes of the faces it holds (:func:`faces_of_plane`, at least
     ``min_angle_deg`` apart; a curved region's pieces that hold two faces are split again,
-    :func:`_faces_of_faces`); a face that continues the plane of a region it touches (of a
+    :func:`faces_of_faces`); a face that continues the plane of a region it touches (of a
     region split into three faces or more: that the region touched) joins that region
     (:func:`_continued_plane`), of the others the largest keeps the label. Returns ``(labels, fits, stats)``, the statistics of
     the regions changed measured again; the inputs when no region is split.
@@ -186,7 +186,7 @@ def split_plane_faces(cloud, labels: np.ndarray, fits: dict, stats, *, fitter, s
         if not surfaces:
             continue
         if faces is faces_of_curved:
-            surfaces = _faces_of_faces(ctx, surfaces, window, correlation_px, min_angle_deg)
+            surfaces = faces_of_faces(ctx, surfaces, window, correlation_px, min_angle_deg)
         if out is None:
             out = np.array(labels, dtype=np.int32, order="C")
         # three faces or more: a face may continue a plane the region touched that none of

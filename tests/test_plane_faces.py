@@ -12,7 +12,7 @@ from rangeseg_o3d.fitting.cylinder import fit_cylinder
 from rangeseg_o3d.fitting.primitives import Cylinder, FitFailure, Sphere
 from rangeseg_o3d.fitting.sphere import fit_sphere
 from rangeseg_o3d.plane_faces import (FACE_RETURNS, LINE_SEARCH_PIXELS, PATTERN_RATIO, PLANES_COVER, _continued_plane,
-                                      _faces_of_faces, _faces_of_leaves,
+                                      faces_of_faces, _faces_of_leaves,
                                       misfit_patterns, _curved_residuals, crease_line, faces_of_curved, faces_of_plane, faces_of_unfitted)
 from rangeseg_o3d.ray_planes import ray_fits, ray_moments, ray_plane, ray_terms
 from rangeseg_o3d.refinement.context import Context
@@ -556,16 +556,16 @@ def test_a_split_piece_that_holds_two_faces_is_split_again_and_a_face_is_left_wh
     ctx = _context(xyz, sigma)
     flat = truth.ravel()
     two, one = np.flatnonzero(flat <= 1), np.flatnonzero(flat == 2)
-    surfaces = _faces_of_faces(ctx, [(two, _ray_fitted(xyz, sigma, two)), (one, _ray_fitted(xyz, sigma, one))],
+    surfaces = faces_of_faces(ctx, [(two, _ray_fitted(xyz, sigma, two)), (one, _ray_fitted(xyz, sigma, one))],
                                9.0, 3, 3.0)
     _assert_the_three_faces(surfaces, truth, normals, 0.95, 5.0)
     assert any(piece is one for piece, _ in surfaces)  # the single face untouched
     # nor where a face would hold fewer than FACE_RETURNS independent returns
-    few = _faces_of_faces(ctx, [(two, _ray_fitted(xyz, sigma, two))], two.size / (2.0 * FACE_RETURNS) + 1.0, 3, 3.0)
+    few = faces_of_faces(ctx, [(two, _ray_fitted(xyz, sigma, two))], two.size / (2.0 * FACE_RETURNS) + 1.0, 3, 3.0)
     assert len(few) == 1 and few[0][0] is two
     # a piece under two faces' floor of pixels is not asked
     small = _context(xyz, sigma, min_size=two.size // 2 + 1)
-    kept = _faces_of_faces(small, [(two, _ray_fitted(xyz, sigma, two))], 9.0, 3, 3.0)
+    kept = faces_of_faces(small, [(two, _ray_fitted(xyz, sigma, two))], 9.0, 3, 3.0)
     assert len(kept) == 1 and kept[0][0] is two
 
 
