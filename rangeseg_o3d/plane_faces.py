@@ -34,7 +34,7 @@ from .ray_planes import pixel_moments, ray_fits, ray_moments, ray_plane, ray_ter
 from .refinement.context import TRIM_SIGMAS, touching
 
 __all__ = ["BLOCK_SAMPLES", "BLOCK_SIGMAS", "CLAIM_REACH", "FACE_BLOCKS", "FINE_DIRECTIONS", "HIDDEN_SHARE", "SEARCH_STRIDE", "CUT_DIRECTIONS", "CUT_SHARE", "CUTS", "CYLINDER_TEST_PIXELS", "FACE_RETURNS", "FACE_TEST_PIXELS", "LINE_SEARCH_PIXELS", "PATTERN_BINS",
-           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_faces", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "misfit_patterns", "plane_beside",
+           "PATTERN_RATIO", "PLANES_COVER", "claim_along_rays", "crease_line", "faces_of_curved", "faces_of_faces", "faces_of_plane", "faces_of_unfitted", "hidden_faces", "join_pieces_along_rays", "misfit_patterns", "plane_beside", "share_near_curved",
            "split_plane_faces"]
 
 #: Pixels of a plane region (an even subsample) on which :func:`split_plane_faces` first
@@ -816,6 +816,14 @@ def _curved_residuals(model, points: np.ndarray, sigma: np.ndarray) -> np.ndarra
     (:func:`~rangeseg_o3d.ray_planes.ray_terms`)."""
     _, ranges, front, _ = front_along_rays(model, points)
     return (ranges - front) / np.maximum(sigma, 1e-12)
+
+
+def share_near_curved(ctx, model, idx: np.ndarray) -> float:
+    """The share of the flat pixels ``idx`` whose residuals along the rays to the cylinder or
+    sphere ``model`` lie within TRIM_SIGMAS of their range noise: the curved model's share of
+    :func:`misfit_patterns`' inliers, without its crease-line search (a cheap first test)."""
+    residuals = _curved_residuals(model, ctx.xyz[idx], ctx.sigma[idx])
+    return float(np.count_nonzero(np.abs(residuals) <= TRIM_SIGMAS)) / max(idx.size, 1)
 
 
 def misfit_patterns(ctx, model, idx: np.ndarray, correlation_px: int) -> tuple:

@@ -4,6 +4,8 @@ under its cylinder; a box's two faces 0.3 m wide at 5.5 m, two plane regions as 
 union the fitter also gives a cylinder within the noise's pattern, stay apart (their planes'
 pattern is ten times smaller still), and so does the wall behind them."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ import rangeseg_o3d as rs
 from rangeseg_o3d.curved_pairs import JOIN_RATIO, PATTERN_BOUND, curved_from_plane_pairs
 from rangeseg_o3d.fitting.primitives import Cylinder, Plane
 from rangeseg_o3d.fullres import region_stats
-from rangeseg_o3d.plane_faces import _within_noise_along_rays
+from rangeseg_o3d.plane_faces import _within_noise_along_rays, misfit_patterns, share_near_curved
 from rangeseg_o3d.ray_planes import pixel_moments, ray_fits, ray_plane
 from rangeseg_o3d.refinement.context import Context
 from rangeseg_o3d.result import INLIER_SIGMAS
@@ -160,3 +162,100 @@ def test_a_share_of_independent_returns_out_of_range_is_refused():
         with pytest.raises(ValueError, match="share: expected a number in"):
             curved_from_plane_pairs(scan.cloud, labels, fits, stats, sigma=sigma, fitter=rs.Pipeline("rgbd_vga").fitter,
                                     min_size=MIN_SIZE, inlier_factor=INLIER_SIGMAS, share=share)
+
+
+def _pipe_as_cylinder_and_strip(scan, cylinder_share):
+    """:func:`_regions` with the pipe's columns up to its ``cylinder_share`` quantile a cylinder
+    region (label 2; its model the pipe's with a radius a fifth too large, as a tile grid's may
+    be: the fitter refuses a cylinder on so short an arc under this noise) and the rest a plane
+    strip (3)."""
+    labels, fits, _, sigma, faces = _regions(scan)
+    truth = scan.truth_ids
+    cols = np.arange(truth.shape[1])[None, :].repeat(truth.shape[0], 0)
+    pipe = truth == PIPE
+    cut = np.quantile(cols[pipe], cylinder_share)
+    labels[pipe & (cols <= cut)] = 2
+    labels[pipe & (cols > cut)] = 3
+    xyz = scan.cloud.xyz.reshape(-1, 3)
+    fits[2] = replace(scan.truth[PIPE], radius=1.2 * RADIUS)
+    strip = np.flatnonzero(labels.ravel() == 3)
+    _, a = ray_fits(pixel_moments(xyz, sigma.ravel(), strip))
+    fits[3] = ray_plane(a[0], xyz[strip])
+    stats = region_stats(scan.cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    return labels, fits, stats, sigma, faces
+
+
+def _join_regions(scan, regions):
+    labels, fits, stats, sigma, _ = regions
+    return curved_from_plane_pairs(scan.cloud, labels, fits, stats, sigma=sigma, fitter=rs.Pipeline("rgbd_vga").fitter,
+                                   min_size=MIN_SIZE, inlier_factor=INLIER_SIGMAS,
+                                   correlation_px=KINECT_CORRELATION_PX)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(3))
+def test_a_plane_strip_beside_a_pipes_cylinder_region_joins_it(seed):
+    scan = _scan(seed)
+    regions = _pipe_as_cylinder_and_strip(scan, 0.7)
+    labels, fits, _, _, faces = regions
+    assert isinstance(fits[2], Cylinder) and isinstance(fits[3], Plane)
+    out, out_fits, out_stats = _join_regions(scan, regions)
+    pipe = scan.truth_ids == PIPE
+    assert np.array_equal(np.unique(out[pipe]), [2])  # under the cylinder region's label
+    model = out_fits[2]
+    assert isinstance(model, Cylinder)
+    assert abs(model.radius - RADIUS) < 0.35 * RADIUS
+    assert abs(abs(model.axis[1]) - 1.0) < 0.03
+    assert 3 not in out_fits and out_stats.counts[2] == np.count_nonzero(pipe)
+    # the wall beside the pipe (a larger plane: not asked) and the box's faces are untouched
+    for k in [1] + list(range(4, 4 + faces)):
+        assert out_fits[k] is fits[k] and np.array_equal(out == k, labels == k)
+
+
+def test_a_plane_region_larger_than_the_curved_one_is_not_joined_to_it():
+    # the strip a step cut off a curved region is the smaller part; a wall or a floor beside
+    # a pipe is larger, and asking each of them costs a crease search over both. The price,
+    # shown here: a pipe whose plane part is the larger stays two regions (asked, this pair
+    # would join)
+    scan = _scan(0)
+    regions = _pipe_as_cylinder_and_strip(scan, 0.3)
+    labels, fits, stats, _, _ = regions
+    assert stats.counts[3] > stats.counts[2]
+    out, out_fits, _ = _join_regions(scan, regions)
+    assert np.array_equal(out, labels) and out_fits.keys() == fits.keys()
+
+
+@pytest.mark.parametrize("row, seed, scan_index, truth_id, kind, radius", [
+    # a pipe of r 0.21 m at 6.2-6.8 m: the recovery's two planes, the larger turned a cylinder by
+    # the bend test (2590 px), the other a strip beside it (1006 px)
+    ("kinect_real_640x480", 1353, 0, 17, "cylinder", 0.2137),
+    # a ball of r 0.35 m at 4.4-5.1 m the fitter called a cylinder, an end cap cut off its side
+    # (3236 and 359 px): joined under the sphere, which fits as closely with one parameter fewer
+    ("stereo_1280x720", 1370, 3, 8, "sphere", 0.3461),
+])
+def test_a_strip_beside_a_curved_region_joins_it_on_the_matrix(row, seed, scan_index, truth_id, kind, radius):
+    from matrix_helpers import matrix_result, region_holding
+
+    scan, result = matrix_result(row, seed, scan_index)
+    surface = scan.truth_ids == truth_id
+    label, count = region_holding(result.labels, surface)
+    assert count >= 0.9 * surface.sum()  # one region holds it (before: 69 % and 83 %)
+    assert count >= 0.9 * (result.labels == label).sum()
+    feature = {f.label: f for f in result.features}[label]
+    assert feature.kind == kind
+    assert abs(feature.radius - radius) < 0.2 * radius
+
+
+def test_the_cheap_share_near_a_curved_model_is_the_patterns_own():
+    # (curved_pairs asks it before the crease search: it must say what the patterns would)
+    scan = _scan(0)
+    sigma = NOISE.sigma(np.linalg.norm(scan.cloud.xyz, axis=2))
+    ctx = Context(scan.cloud, rs.Pipeline("rgbd_vga").fitter, sigma, MIN_SIZE, correlation_px=KINECT_CORRELATION_PX)
+    pipe = np.flatnonzero(scan.truth_ids.ravel() == PIPE)
+    pipe_and_wall = np.flatnonzero(np.isin(scan.truth_ids.ravel(), (PIPE, WALL)))
+    for model in (scan.truth[PIPE], replace(scan.truth[PIPE], radius=2.0 * RADIUS)):
+        for idx in (pipe, pipe_and_wall):
+            share = share_near_curved(ctx, model, idx)
+            assert share == misfit_patterns(ctx, model, idx, KINECT_CORRELATION_PX)[2][0]
+    assert share_near_curved(ctx, scan.truth[PIPE], pipe) > 0.95  # the noise's 3 sigmas
+    assert share_near_curved(ctx, scan.truth[PIPE], pipe_and_wall) < 0.5  # the wall is far off it
