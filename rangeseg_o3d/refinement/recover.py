@@ -29,7 +29,7 @@ from .curved_refused import curved_for_refused, full_resolution_samples
 from .sight import seen_past_plane
 from .merge import curved_pairs_apart, merge_into_curved, merge_regions
 
-__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "fits_refused_along_rays",
+__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "faces_of_unexplained", "fits_refused_along_rays",
            "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
            "recover_leftovers", "recover_pixels"]
 
@@ -108,7 +108,12 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     a small far box's top and side lie within three sigmas of the plane bent over both, and
     no pixel stands out, yet over the blob's independent returns the crease shows. Its plane
     is then offered to :func:`rangeseg_o3d.plane_faces.faces_of_plane` (the faces at least
-    ``min_angle_deg`` apart), as the tile grid's plane regions are on such a sensor.
+    ``min_angle_deg`` apart), as the tile grid's plane regions are on such a sensor. And a
+    blob of two faces' floor of pixels or more that the split explains nothing of is given
+    the faces its crease lines cut (:func:`faces_of_unexplained`) before it is freed: stereo
+    study seed 1365 scan 1, a box seen corner-on at 3.6-4.9 m, its top and two sides one blob
+    of 16478 px in which the trimmed search found no surface; its faces now hold 3407 of the
+    top's 3418 px, 7538 of 7971 and 6968 of 7443.
     """
     from .split import split_regions
 
@@ -147,6 +152,12 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
     for k in [k for k in mixed if not fits.get(k)]:  # a blob nothing explains keeps its pixels
         del fits[k]
         flat[regions[k]] = 0
+        if correlation_px > 1 and regions[k].size >= 2 * ctx.min_size:
+            # (or its crease lines' faces, where the noise errs together: see above)
+            for i, (face, plane) in enumerate(faces_of_unexplained(ctx, regions[k], min_angle_deg)):
+                label = k if i == 0 else fresh_label(labels, fits)
+                flat[face] = label
+                fits[label] = plane
     if correlation_px > 1:
         _faces_of_blob_planes(ctx, labels, fits, pool, [k for k in regions if thin_from is None or k < thin_from],
                               first_split, correlation_px, min_angle_deg)
@@ -1148,33 +1159,46 @@ def _faces_within_distance_noise(ctx: Context, idx: np.ndarray, model, min_angle
     the plane region ``idx`` (flat pixels, increasing) of ``model``, each cut to its piece within
     the distance noise of its plane along the rays (:meth:`Context.within_distance_noise`, not
     refitted: the fitter's plane by distances turned a head-on face's beyond that noise), largest
-    first; empty when fewer than two such faces keep the size floor.
+    first; when fewer than two such faces keep the size floor, those of
+    :func:`faces_of_unexplained`.
 
-    When fewer than two do, the region is taken as one no plane explains
-    (:func:`rangeseg_o3d.plane_faces.faces_of_unfitted`, each of its pieces that holds two faces
-    split again: :func:`rangeseg_o3d.plane_faces.faces_of_faces`). One crease line leaves two of
-    a far box's three faces on one side, which no plane fits within the noise: stereo study
-    seed 1354 scan 3, a box's top (at 79 degrees), side and front at 3.7-4.5 m in one recovered
-    plane of 3204 px, was freed whole; its crease line cuts off the side (749 of its 983 px), and
-    the second cut parts the top (1019 of 1247) from the front (1401 of 2093). The top is found
-    now; the side and the front stay short of four fifths: a plane region over both that the tile
-    grid recovered keeps 842 of their pixels."""
-    from ..plane_faces import faces_of_faces, faces_of_plane, faces_of_unfitted  # (they import the context)
+    One crease line leaves two of a far box's three faces on one side, which no plane fits
+    within the noise: stereo study seed 1354 scan 3, a box's top (at 79 degrees), side and front
+    at 3.7-4.5 m in one recovered plane of 3204 px, was freed whole; its crease line cuts off
+    the side (749 of its 983 px), and the second cut parts the top (1019 of 1247) from the front
+    (1401 of 2093). The top is found now; the side and the front stay short of four fifths: a
+    plane region over both that the tile grid recovered keeps 842 of their pixels."""
+    from ..plane_faces import faces_of_plane  # (plane_faces imports the refinement's context)
 
     kept = _pieces_within_distance_noise(ctx, faces_of_plane(ctx, model, idx, correlation_px=ctx.correlation_px,
                                                              min_angle_deg=min_angle_deg))
     if len(kept) < 2:
-        found = faces_of_unfitted(ctx, _REFUSED_PLANE, idx, correlation_px=ctx.correlation_px,
-                                  min_angle_deg=min_angle_deg)
-        window = float(ctx.correlation_px) ** 2
-        kept = _pieces_within_distance_noise(
-            ctx, faces_of_faces(ctx, found, window, ctx.correlation_px, min_angle_deg) if found else [])
+        return faces_of_unexplained(ctx, idx, min_angle_deg)
+    return sorted(kept, key=lambda item: -item[0].size)
+
+
+def faces_of_unexplained(ctx: Context, idx: np.ndarray, min_angle_deg: float) -> list:
+    """``[(pixels, plane)]``: the faces the flat pixels ``idx`` (increasing), which no plane
+    explains within their noise, hold as a region no model fits
+    (:func:`rangeseg_o3d.plane_faces.faces_of_unfitted`, each of its pieces that holds two faces
+    split again: :func:`rangeseg_o3d.plane_faces.faces_of_faces`; faces at least
+    ``min_angle_deg`` apart), each cut to its piece within the distance noise of its plane along
+    the rays, largest first; empty when fewer than two such faces keep the size floor. For a
+    sensor whose noise errs together over ``ctx.correlation_px`` > 1 pixels (the splits count
+    its independent returns)."""
+    from ..plane_faces import faces_of_faces, faces_of_unfitted  # (plane_faces imports the refinement's context)
+
+    found = faces_of_unfitted(ctx, _REFUSED_PLANE, idx, correlation_px=ctx.correlation_px,
+                              min_angle_deg=min_angle_deg)
+    window = float(ctx.correlation_px) ** 2
+    kept = _pieces_within_distance_noise(
+        ctx, faces_of_faces(ctx, found, window, ctx.correlation_px, min_angle_deg) if found else [])
     return sorted(kept, key=lambda item: -item[0].size) if len(kept) >= 2 else []
 
 
-#: What :func:`_faces_within_distance_noise` tells the faces of a region no model fits (the
-#: recovery's plane, refused).
-_REFUSED_PLANE = FitFailure("plane", "beyond the noise of its distances, no piece within it")
+#: What :func:`faces_of_unexplained` tells the faces of a region no model fits (the recovery's
+#: plane refused, or a blob the split explained nothing of).
+_REFUSED_PLANE = FitFailure("plane", "no plane within the noise of its pixels")
 
 
 def _pieces_within_distance_noise(ctx: Context, faces: list) -> list:
