@@ -1188,7 +1188,7 @@ def faces_of_unexplained(ctx: Context, idx: np.ndarray, min_angle_deg: float) ->
     its independent returns)."""
     from ..plane_faces import faces_of_faces, faces_of_unfitted  # (plane_faces imports the refinement's context)
 
-    found = faces_of_unfitted(ctx, _REFUSED_PLANE, idx, correlation_px=ctx.correlation_px,
+    found = faces_of_unfitted(ctx, _NO_PLANE, idx, correlation_px=ctx.correlation_px,
                               min_angle_deg=min_angle_deg)
     window = float(ctx.correlation_px) ** 2
     kept = _pieces_within_distance_noise(
@@ -1198,7 +1198,7 @@ def faces_of_unexplained(ctx: Context, idx: np.ndarray, min_angle_deg: float) ->
 
 #: What :func:`faces_of_unexplained` tells the faces of a region no model fits (the recovery's
 #: plane refused, or a blob the split explained nothing of).
-_REFUSED_PLANE = FitFailure("plane", "no plane within the noise of its pixels")
+_NO_PLANE = FitFailure("plane", "no plane within the noise of its pixels")
 
 
 def _pieces_within_distance_noise(ctx: Context, faces: list) -> list:
