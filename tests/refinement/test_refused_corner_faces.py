@@ -17,7 +17,7 @@ from rangeseg_o3d.synthetic.depth_camera import _unit_noise
 from rangeseg_o3d.synthetic.matrix import get_sensor
 
 COEFF = 0.1 / (640 * 0.05)  # the sensor matrix's stereo row: range sigma per squared metre
-FRONT, SIDE, WALL = 1, 2, 3
+FRONT, SIDE, WALL, TOP = 1, 2, 3, 4
 MIN_SIZE = 288
 
 
@@ -97,12 +97,9 @@ def test_on_a_sensor_of_independent_returns_the_refused_plane_is_freed():
     assert 1 not in out_fits and not np.any(out == 1)
 
 
-TOP = 4
-
-
 def _box(seed, rows=130, cols=200, f=640.0, near=3.3, far=4.2, x0=1.2, x1=1.6, y0=0.3, y1=0.7):
     """A box's front (z = near), its side towards the camera (x = x0) and its top (y = y0, seen
-    79-82 degrees from head-on) below the optical axis, before a wall at 6 m; stereo noise as
+    85-86 degrees from head-on) below the optical axis, before a wall at 6 m; stereo noise as
     :func:`_corner`'s. Returns ``(cloud, sigma, truth)``."""
     v, u = np.mgrid[0:rows, 0:cols].astype(float)
     rays = np.dstack([(u + 50.0) / f, (v + 10.0) / f, np.ones((rows, cols))])
