@@ -76,10 +76,10 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
     label; so does a plane region beside a cylinder or sphere region at least as large whose
     model, refitted to both, leaves none (the strip an end cap or the recovery cut off a
     pipe or ball), unless the plane lies across the cylinder's axis as its cap does and the
-    union stays a cylinder (:func:`_cap_of`). A union's cylinder gives way to its sphere when the sphere joins the pixels
-    as well and fits them as closely (:func:`_sphere_when_simpler`). Each region joins at most
-    one other, the pairs of least pattern first. Returns ``(labels, fits, stats)``, the regions
-    changed measured again; the inputs when none joins.
+    union stays a cylinder (:func:`_cap_of`). A union's cylinder gives way to its sphere when
+    the sphere joins the pixels as well and fits them as closely (:func:`_sphere_when_simpler`).
+    Each region joins at most one other, the pairs of least pattern first. Returns ``(labels,
+    fits, stats)``, the regions changed measured again; the inputs when none joins.
 
     ``sigma``: each pixel's range noise (the grid's shape); ``correlation_px``: the side
     (px) of the box over which the returns err together (``NoiseModel.correlation_px``);
@@ -110,8 +110,9 @@ def curved_from_plane_pairs(cloud, labels: np.ndarray, fits: dict, stats, *, sig
                 continue  # (a wall beside a pipe: no model of the pipe's is the union's)
             pattern, model = _one_curved_surface(ctx, members[a], members[b], correlation_px, bend=bend,
                                                  curved=fits[b] if b in curved else None)
-            if model is not None and not (b in curved and _cap_of(fits[a], fits[b]) and isinstance(model, Cylinder)):
-                found.append((pattern, a, b, model))
+            if model is None or (b in curved and isinstance(model, Cylinder) and _cap_of(fits[a], fits[b])):
+                continue
+            found.append((pattern, a, b, model))
     if not found:
         return labels, fits, stats
     out = np.array(labels, dtype=np.int32, order="C")
@@ -137,8 +138,8 @@ def _one_curved_surface(ctx, one: np.ndarray, other: np.ndarray, correlation_px:
     None)`` otherwise. With ``curved`` (``other``'s cylinder or sphere), that model refitted
     to both is asked instead of the fitter's choice (kinect_real study seed 1353 scan 0: a
     pipe of r 0.21 m at 6.2-6.8 m as a cylinder region of 2590 px and a plane strip of 1006
-    beside it; joined, 3596 of its 3766 px). Where the fitter gives the union a plane, the cylinder the bend of its
-    pixels along the rays gives it is asked instead (``bend``: ``shape``, ``share`` and
+    beside it; joined, 3596 of its 3766 px). Where the fitter gives the union a plane, the
+    cylinder the bend of its pixels along the rays gives it is asked instead (``bend``: ``shape``, ``share`` and
     ``stepped`` of :func:`rangeseg_o3d.bent_planes.bent_pipe`): a pipe's two strips, each flat
     within the noise, may together be flat in ``xyz`` too, their plane turned towards the rays
     (stereo study seed 1341 scan 2: a pipe of r 0.115 m at 3.7-5.8 m in two strips of 2360 and
@@ -184,8 +185,8 @@ def _cap_of(plane, curved) -> bool:
     """Whether ``plane`` lies across the cylinder ``curved``'s axis, as its end cap does (its
     normal within 45 degrees of the axis), where a strip of the pipe's own surface holds the
     axis. A cap is a surface of its own beside a pipe, a few per cent of the union's pixels,
-    whose misfit the pattern's equal-count bins dilute (held-out stereo seed 1889 scan 0: a cap
-    of 540 px at the end of a pipe's 17079 joined it); the side an end cap cut off a ball the
+    whose misfit the pattern's equal-count bins dilute (stereo seed 1889 scan 0, held out until
+    this was traced: a cap of 540 px at the end of a pipe's 17079 joined it); the side an end cap cut off a ball the
     fitter called a cylinder joins only under the union's sphere (:func:`_sphere_when_simpler`)."""
     if not isinstance(curved, Cylinder):
         return False
@@ -210,11 +211,10 @@ def _sphere_when_simpler(ctx, union: np.ndarray, cylinder, patterns: tuple, corr
     their least-squares sphere) with its misfit patterns when it joins them too (:func:`_joins`)
     and leaves a mean squared residual along the rays (over the pixels within TRIM_SIGMAS of
     it) no larger than the ``cylinder``'s: one parameter fewer, the same fit. Else the cylinder
-    with its ``patterns``. Under a stereo
-    camera's noise the fitter may call a ball's pixels a cylinder, and a cylinder's end cap
-    cut off the ball's side (stereo study seed 1370 scan 3: a ball of r 0.35 m at 4.4-5.1 m;
-    over its 3590 px the sphere's pattern 12.9 and mean square 0.97, the cylinder's 36.4
-    and 1.31)."""
+    with its ``patterns``. Under a stereo camera's noise the fitter may call a ball's pixels a
+    cylinder, and a cylinder's end cap cut off the ball's side (stereo study seed 1370 scan 3:
+    a ball of r 0.35 m at 4.4-5.1 m; over its 3590 px the sphere's pattern 12.9 and mean
+    square 0.97, the cylinder's 36.4 and 1.31)."""
     from .fitting.sphere import fit_sphere
 
     start = fit_sphere(ctx.xyz[union[:: max(1, union.size // TEST_POINTS)]])

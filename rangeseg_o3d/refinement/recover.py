@@ -29,9 +29,9 @@ from .curved_refused import curved_for_refused, full_resolution_samples
 from .sight import seen_past_plane
 from .merge import curved_pairs_apart, merge_into_curved, merge_regions
 
-__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "faces_of_unexplained", "fits_refused_along_rays",
-           "leftover_candidates", "planes_fitted_along_rays", "split_blobs", "claim_occluded_strips", "claim_thin_strips",
-           "recover_leftovers", "recover_pixels"]
+__all__ = ["along_rays_max_cosine", "claim_grazing_limbs", "differing_pixels", "faces_of_unexplained",
+           "fits_refused_along_rays", "leftover_candidates", "planes_fitted_along_rays", "split_blobs",
+           "claim_occluded_strips", "claim_thin_strips", "recover_leftovers", "recover_pixels"]
 
 
 def leftover_candidates(labels: np.ndarray, valid: np.ndarray, jumps: np.ndarray, *,
@@ -154,10 +154,7 @@ def split_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidates: np.nda
         flat[regions[k]] = 0
         if correlation_px > 1 and regions[k].size >= 2 * ctx.min_size:
             # (or its crease lines' faces, where the noise errs together: see above)
-            for i, (face, plane) in enumerate(faces_of_unexplained(ctx, regions[k], min_angle_deg)):
-                label = k if i == 0 else fresh_label(labels, fits)
-                flat[face] = label
-                fits[label] = plane
+            _give_faces(labels, fits, k, faces_of_unexplained(ctx, regions[k], min_angle_deg))
     if correlation_px > 1:
         _faces_of_blob_planes(ctx, labels, fits, pool, [k for k in regions if thin_from is None or k < thin_from],
                               first_split, correlation_px, min_angle_deg)
@@ -184,10 +181,17 @@ def _faces_of_blob_planes(ctx: Context, labels: np.ndarray, fits: dict, pool: np
         if not faces:
             continue
         flat[idx] = 0
-        for i, (piece, surface) in enumerate(faces):
-            label = k if i == 0 else fresh_label(labels, fits)
-            flat[piece] = label
-            fits[label] = surface
+        _give_faces(labels, fits, k, faces)
+
+
+def _give_faces(labels: np.ndarray, fits: dict, k: int, faces: list) -> None:
+    # the faces ``[(pixels, plane)]`` (flat pixels) labelled in ``labels`` (C-ordered) and
+    # ``fits``, in place: the first keeps ``k``, the others take new labels
+    flat = labels.reshape(-1)
+    for i, (face, plane) in enumerate(faces):
+        label = k if i == 0 else fresh_label(labels, fits)
+        flat[face] = label
+        fits[label] = plane
 
 
 def _one_thin_plane(ctx: Context, flat: np.ndarray, fits: dict, k: int, idx: np.ndarray) -> None:
@@ -1119,8 +1123,8 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
     :func:`rangeseg_o3d.plane_faces.faces_of_plane` (faces at least ``min_angle_deg`` apart):
     each face it finds keeps its piece within its own distance noise, the first the plane's
     label, the others new ones. At 3.3 m a stereo camera's range noise (36 mm) holds a box's
-    front seen 18 degrees from head-on and its side seen at 81 degrees within one plane through their corner
-    (stereo study seed 1344 scan 2: 5129 px, 33 mm rms, 12 mm of distance noise), which no
+    front seen 18 degrees from head-on and its side seen at 81 degrees within one plane through
+    their corner (stereo study seed 1344 scan 2: 5129 px, 33 mm rms, 12 mm of distance noise), which no
     piece of either face lies within; freed, both faces were missed, while the crease line
     cuts them apart (2538 of 2629 and 2369 of 2500 px each face's).
     """
@@ -1145,10 +1149,7 @@ def _within_distance_noise_or_back(ctx: Context, before: np.ndarray, labels: np.
             flat[piece] = k
             fits[k] = model
         elif faces:
-            for i, (face, plane) in enumerate(faces):
-                label = k if i == 0 else fresh_label(labels, fits)
-                flat[face] = label
-                fits[label] = plane
+            _give_faces(labels, fits, k, faces)
         else:
             del fits[k]
     return labels, fits
