@@ -171,6 +171,36 @@ def test_touching_pieces_of_one_plane_merge_and_parallel_planes_do_not():
             assert set(out_fits) == {1, 2}
 
 
+def test_four_pieces_of_one_plane_merge_in_a_chain():
+    # one wall in four pieces (columns 0-14, 15-29, 30-44, 45-59) that meet pairwise: a piece
+    # merged already stands for its union, so all four end as one region (the first version
+    # merged each region at most once per call and left two); a fifth piece 1 cm behind the
+    # wall, touching the last, stays apart
+    xyz, _, _, sigma = _two_pieces(0.0)
+    xyz[20:, 45:, 2] += 0.01
+    labels = np.repeat(np.arange(1, 5, dtype=np.int32)[None, :].repeat(15, axis=1), xyz.shape[0], axis=0)
+    labels[20:, 45:] = 5
+    fits = {k: Plane([0, 0, 1], 2.0, NOISE, 1) for k in range(1, 5)}
+    fits[5] = Plane([0, 0, 1], 2.01, NOISE, 1)
+    stats = _stats(xyz, labels, fits, sigma)
+    touch = np.zeros((6, 6), bool)
+    for a, b in ((1, 2), (2, 3), (3, 4), (4, 5)):
+        touch[a, b] = touch[b, a] = True
+    out, out_fits, out_stats = merge_touching_planes(rs.OrganizedCloud(xyz), labels.copy(), fits, stats, touch,
+                                                     sigma=sigma, max_angle_deg=3.0, rms_factor=1.3,
+                                                     inlier_factor=INLIER_SIGMAS)
+    wall = labels < 5
+    kept = np.unique(out[wall])
+    assert kept.size == 1 and (out[~wall] == 5).all()
+    assert set(out_fits) == {int(kept[0]), 5}
+    merged = out_fits[int(kept[0])]
+    assert abs(merged.d - 2.0) < 1e-3 and abs(merged.normal[2]) > np.cos(np.radians(0.5))
+    assert merged.inliers == wall.sum()
+    assert out_stats.counts[int(kept[0])] == wall.sum()
+    assert sum(out_stats.counts[k] for k in range(1, 5)) == wall.sum()
+    assert np.sqrt(out_stats.squares[int(kept[0])] / wall.sum()) == pytest.approx(NOISE, rel=0.15)
+
+
 def _turned_about_y(degrees, through_z):
     # the plane through (0, 0, through_z) whose normal is z turned by ``degrees`` about y
     a = np.radians(degrees)
