@@ -879,7 +879,8 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     2), merges when the least-squares plane of both pieces' pixels (an even sample of about
     ``UNRESOLVED_TEST_PIXELS`` in the pieces' box) has an rms at most ``rms_factor`` times
     the larger of the pieces' own planes' on the same sample: the tile merge's rule, on
-    pixels. A region merges at most once per call. Returns ``(labels, fits, stats)``;
+    pixels. A region merged already stands for its union in the pairs after (pieces that
+    meet pairwise join in a chain). Returns ``(labels, fits, stats)``;
     ``labels`` is changed in place.
     """
     from .fitting.batch_planes import planes_from_moments, region_moments
