@@ -232,14 +232,18 @@ def test_a_plane_region_larger_than_the_curved_one_is_not_joined_to_it():
     # a ball of r 0.35 m at 4.4-5.1 m the fitter called a cylinder, an end cap cut off its side
     # (3236 and 359 px): joined under the sphere, which fits as closely with one parameter fewer
     ("stereo_1280x720", 1370, 3, 8, "sphere", 0.3461),
+    # a pipe of r 0.20 m at 2.7-3.3 m the crease search cut in two plane faces, each turned a
+    # cylinder by the bend test (r 0.117 and 0.177 m; 4656 and 3210 px): over their union the
+    # fitter's cylinder does not beat the plane by its curvature gain, and is asked without it
+    ("kinect_real_640x480", 1376, 2, 9, "cylinder", 0.1997),
 ])
-def test_a_strip_beside_a_curved_region_joins_it_on_the_matrix(row, seed, scan_index, truth_id, kind, radius):
+def test_pieces_of_one_curved_surface_join_on_the_matrix(row, seed, scan_index, truth_id, kind, radius):
     from matrix_helpers import matrix_result, region_holding
 
     scan, result = matrix_result(row, seed, scan_index)
     surface = scan.truth_ids == truth_id
     label, count = region_holding(result.labels, surface)
-    assert count >= 0.9 * surface.sum()  # one region holds it (before: 69 % and 83 %)
+    assert count >= 0.9 * surface.sum()  # one region holds it (before: 69 %, 83 % and 59 %)
     assert count >= 0.9 * (result.labels == label).sum()
     feature = {f.label: f for f in result.features}[label]
     assert feature.kind == kind
@@ -290,3 +294,58 @@ def test_a_plane_across_a_cylinders_axis_is_its_cap():
         assert _cap_of(Plane(normal=normal, d=1.0, rms=0.0, inliers=0), pipe) is cap
     ball = Sphere(center=np.zeros(3), radius=0.1, rms=0.0, inliers=0)
     assert _cap_of(Plane(normal=axis, d=1.0, rms=0.0, inliers=0), ball) is False
+
+
+def _pipe_as_two_cylinders(scan, box_as_cylinders=False):
+    """:func:`_regions` with each half of the pipe a cylinder region (labels 2 and 3), their
+    models the pipe's with radii 0.7 and 1.2 times its own, as the bend test may place each
+    half's under this noise; with ``box_as_cylinders`` the box's two faces too carry
+    cylinders (of 1 m radius along the box's vertical edges, touching each face at its
+    centroid, as a bend test fooled by the noise might leave them)."""
+    labels, fits, _, sigma, faces = _regions(scan)
+    fits[2] = replace(scan.truth[PIPE], radius=0.7 * RADIUS)
+    fits[3] = replace(scan.truth[PIPE], radius=1.2 * RADIUS)
+    if box_as_cylinders:
+        xyz = scan.cloud.xyz.reshape(-1, 3)
+        vertical = np.asarray(scan.truth[PIPE].axis, dtype=float)  # the pipe stands as the box's edges do
+        for k in range(4, 4 + faces):
+            face = fits[k]
+            centroid = xyz[labels.ravel() == k].mean(axis=0)
+            fits[k] = Cylinder(axis=vertical, point=centroid + 1.0 * np.asarray(face.normal), radius=1.0,
+                               rms=0.0, inliers=0)
+    stats = region_stats(scan.cloud.xyz, labels, fits, sigma, INLIER_SIGMAS)
+    return labels, fits, stats, sigma, faces
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(3))
+def test_a_pipe_left_as_two_cylinder_regions_becomes_one(seed):
+    # each half a cylinder of its own radius: no model of either is the other's, and the
+    # union's cylinder (the larger half's refitted to both) leaves the noise's pattern
+    scan = _scan(seed)
+    regions = _pipe_as_two_cylinders(scan)
+    labels, fits, stats, _, faces = regions
+    out, out_fits, out_stats = _join_regions(scan, regions)
+    pipe = scan.truth_ids == PIPE
+    larger = 2 if stats.counts[2] >= stats.counts[3] else 3
+    assert np.array_equal(np.unique(out[pipe]), [larger])
+    model = out_fits[larger]
+    assert isinstance(model, Cylinder)
+    assert abs(model.radius - RADIUS) < 0.35 * RADIUS
+    assert abs(abs(model.axis[1]) - 1.0) < 0.03
+    assert (5 - larger) not in out_fits and out_stats.counts[larger] == np.count_nonzero(pipe)
+    for k in [1] + list(range(4, 4 + faces)):
+        assert out_fits[k] is fits[k] and np.array_equal(out == k, labels == k)
+
+
+def test_a_boxs_two_faces_under_cylinders_stay_apart():
+    # the box's two faces 0.3 m wide at 5.5 m, each under a cylinder: their union's cylinder
+    # misses the crease along whole bands, and the pair is refused as two planes' is
+    scan = _scan(0)
+    regions = _pipe_as_two_cylinders(scan, box_as_cylinders=True)
+    labels, fits, _, _, faces = regions
+    assert faces == 2 and all(isinstance(fits[k], Cylinder) for k in (4, 5))
+    out, out_fits, _ = _join_regions(scan, regions)
+    for k in (4, 5):
+        assert out_fits[k] is fits[k] and np.array_equal(out == k, labels == k)
+
