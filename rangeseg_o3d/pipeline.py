@@ -564,8 +564,8 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     touching plane explains clearly better go to it, up to ``rings`` pixels deep
     (:func:`rangeseg_o3d.fullres.settle_plane_borders`; ``wrap_columns``: a 360-degree grid's
     first and last columns are neighbours), and the pixels beside a crease go to
-    the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`);
-    ``(labels, fits, stats)``. A plane whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
+    the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`), and the pieces
+    that settling made neighbours merge as above; ``(labels, fits, stats)``. A plane whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
     (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
 
     Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
@@ -598,6 +598,15 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     # the pixels beside a crease: the planes' rays decide where the noise cannot
     labels, stats = settle_creases(cloud, labels, fits, stats, sigma=sigma, k_sigma=refine.k_sigma,
                                    min_angle_deg=refine.merge_angle_deg, inlier_factor=INLIER_SIGMAS)
+    if refine.merge:
+        # pieces of one face that the settling made neighbours (a band of another region's or
+        # free pixels lay between them at the merge above)
+        labels = np.ascontiguousarray(labels, dtype=np.int32)
+        n = int(labels.max(initial=0)) + 1
+        labels, fits, stats = merge_touching_planes(cloud, labels, fits, stats, adjacency_matrix(labels, n, 1),
+                                                    sigma=sigma, max_angle_deg=refine.merge_angle_deg,
+                                                    rms_factor=refine.merge_rms_factor,
+                                                    inlier_factor=INLIER_SIGMAS)
     return labels, fits, stats
 
 

@@ -537,3 +537,25 @@ def test_plane_border_settling_leaves_pixels_within_both_noises_and_curved_regio
     curved[2] = Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 7.0]), 5.0, 0.001, 100)
     out, _ = _settle_borders(xyz, labels, curved, sigma)
     np.testing.assert_array_equal(out, labels)
+
+
+@pytest.mark.parametrize("seed, scan_index, truth_id", [
+    # a box top of 14390 px left as four tile pieces that meet pairwise: two regions after the
+    # merge took each piece once (9221 and 4889 px, 0.07 degrees apart; 64 % in one)
+    (1386, 0, 3),
+    # faces whose two pieces became neighbours only once the settling moved the band between
+    # them (1257 + 762 px, 0.24 degrees apart, 60 % in one; 2127 + 820 px, 2.2 degrees, the
+    # smaller a strip, 70 %)
+    (1374, 5, 20),
+    (1384, 1, 9),
+])
+def test_pieces_of_one_face_are_one_region_on_the_tabletop(seed, scan_index, truth_id):
+    # tabletop_abw study seeds
+    from matrix_helpers import matrix_result, region_holding
+
+    scan, result = matrix_result("tabletop_abw", seed, scan_index)
+    face = scan.truth_ids == truth_id
+    label, count = region_holding(result.labels, face)
+    assert count >= 0.9 * face.sum()
+    assert count >= 0.95 * (result.labels == label).sum()
+    assert {f.label: f.kind for f in result.features}[label] == "plane"
