@@ -565,7 +565,8 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     (:func:`rangeseg_o3d.fullres.settle_plane_borders`; ``wrap_columns``: a 360-degree grid's
     first and last columns are neighbours), and the pixels beside a crease go to
     the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`), and the pieces
-    that settling made neighbours merge as above; ``(labels, fits, stats)``. A plane whose tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
+    that settling made neighbours merge as above; ``(labels, fits, stats)``. A plane whose
+    tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
     (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
 
     Pieces meet where the growth made them 4-neighbours, or where their tiles lie within
