@@ -877,7 +877,7 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     smaller piece's pixels lie on the larger's plane of pixels within ``rms_factor`` times
     the pieces' rms (a strip of 67 px whose own normal is 10 degrees off, seed 1163 scan
     2), merges when the least-squares plane of both pieces' pixels (an even sample of about
-    ``UNRESOLVED_TEST_PIXELS`` in the pieces' box) has an rms at most ``rms_factor`` times
+    half ``UNRESOLVED_TEST_PIXELS`` of each) has an rms at most ``rms_factor`` times
     the larger of the pieces' own planes' on the same sample: the tile merge's rule, on
     pixels. A region merged already stands for its union in the pairs after (pieces that
     meet pairwise join in a chain). Returns ``(labels, fits, stats)``;
@@ -925,9 +925,8 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
                                                             box[1].start, box[1].stop):
             continue
         window = labels[box]
-        step = max(int(np.ceil(np.sqrt(window.size / UNRESOLVED_TEST_PIXELS))), 1)
-        sparse, points = window[::step, ::step], cloud.xyz[box][::step, ::step]
-        sample_a, sample_b = points[sparse == a], points[sparse == b]
+        sample_a, sample_b = (_even_sample(window, cloud.xyz[box], k, count.get(k, int(stats.counts[k])))
+                              for k in (a, b))
         if min(len(sample_a), len(sample_b)) < 6:
             continue
         part_a, part_b = fit_plane(sample_a), fit_plane(sample_b)
@@ -950,6 +949,14 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         inside = region_stats(cloud.xyz[box], labels[box], {a: fits[a]}, sigma[box], inlier_factor)
         stats.inliers[a], stats.squares[a], stats.counts[a] = inside.inliers[a], inside.squares[a], inside.counts[a]
     return labels, fits, stats
+
+
+def _even_sample(window: np.ndarray, xyz: np.ndarray, label: int, pixels: int) -> np.ndarray:
+    # the points of about UNRESOLVED_TEST_PIXELS / 2 of ``label``'s ``pixels`` in ``window``
+    # (labels; ``xyz`` its points), on an even grid of its own: a piece a hundredth the size
+    # of its partner (a strip of the table beside the table) is sampled as densely as that
+    step = max(int(np.sqrt(pixels / (UNRESOLVED_TEST_PIXELS // 2))), 1)
+    return xyz[::step, ::step][window[::step, ::step] == label]
 
 
 def _root(root: dict, k: int) -> int:

@@ -559,3 +559,25 @@ def test_pieces_of_one_face_are_one_region_on_the_tabletop(seed, scan_index, tru
     assert count >= 0.9 * face.sum()
     assert count >= 0.95 * (result.labels == label).sum()
     assert {f.label: f.kind for f in result.features}[label] == "plane"
+
+
+@pytest.mark.parametrize("offset, merges", [(0.0, True), (0.01, False)])
+def test_a_small_piece_beside_a_large_one_is_sampled_as_densely(offset, merges):
+    # a wall of 200 x 300 px and a piece of 12 x 6 px at its corner (a strip of the table
+    # beside the table): an even grid over the pair's box at the large one's spacing holds one
+    # or two of the piece's pixels, too few for its plane; each piece is sampled on its own
+    # (one plane: merged; 1 cm in front of the wall: kept apart)
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:200, 0:300].astype(float)
+    z = 2.0 + rng.normal(0.0, NOISE, u.shape)
+    z[:12, 294:] += offset
+    xyz = np.dstack([(u - 150) * 0.01, (v - 100) * 0.01, z])
+    labels = np.ones(u.shape, np.int32)
+    labels[:12, 294:] = 2
+    fits = {1: Plane([0, 0, 1], 2.0, NOISE, 1), 2: Plane([0, 0, 1], 2.0 + offset, NOISE, 1)}
+    out, out_fits = _merged(xyz, labels, fits, np.full(u.shape, NOISE))
+    if merges:
+        assert (out == 1).all() and set(out_fits) == {1}
+    else:
+        np.testing.assert_array_equal(out, labels)
+        assert set(out_fits) == {1, 2}
