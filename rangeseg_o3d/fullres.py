@@ -924,15 +924,15 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         if not touch[first_a, first_b] and not labels_touch(labels, a, b, box[0].start, box[0].stop,
                                                             box[1].start, box[1].stop):
             continue
-        window = labels[box]
-        sample_a, sample_b = (_even_sample(window, cloud.xyz[box], k, count.get(k, int(stats.counts[k])))
-                              for k in (a, b))
+        sample_a, sample_b = (_even_sample(labels, cloud.xyz, k, count.get(k, int(stats.counts[k])), own)
+                              for k, own in ((a, box_a), (b, box_b)))
         if min(len(sample_a), len(sample_b)) < 6:
             continue
         part_a, part_b = fit_plane(sample_a), fit_plane(sample_b)
         union = fit_plane(np.vstack([sample_a, sample_b]))
         if not (part_a and part_b and union) or union.rms > rms_factor * max(part_a.rms, part_b.rms):
             continue
+        window = labels[box]
         window[window == b] = a
         count[a] = count.get(a, int(stats.counts[a])) + count.pop(b, int(stats.counts[b]))
         fits[a] = replace(union, inliers=count[a])
@@ -951,12 +951,14 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     return labels, fits, stats
 
 
-def _even_sample(window: np.ndarray, xyz: np.ndarray, label: int, pixels: int) -> np.ndarray:
-    # the points of about UNRESOLVED_TEST_PIXELS / 2 of ``label``'s ``pixels`` in ``window``
-    # (labels; ``xyz`` its points), on an even grid of its own: a piece a hundredth the size
-    # of its partner (a strip of the table beside the table) is sampled as densely as that
+def _even_sample(labels: np.ndarray, xyz: np.ndarray, label: int, pixels: int, box: tuple) -> np.ndarray:
+    # the points (``xyz``) of about UNRESOLVED_TEST_PIXELS / 2 of ``label``'s ``pixels``, on
+    # an even grid of its own over its ``box`` (row and column slices holding all of them): a
+    # piece a hundredth the size of its partner (a strip of the table beside the table) is
+    # sampled as densely as that, and only its own box is read
     step = max(int(np.sqrt(pixels / (UNRESOLVED_TEST_PIXELS // 2))), 1)
-    return xyz[::step, ::step][window[::step, ::step] == label]
+    rows, cols = slice(box[0].start, box[0].stop, step), slice(box[1].start, box[1].stop, step)
+    return xyz[rows, cols][labels[rows, cols] == label]
 
 
 def _root(root: dict, k: int) -> int:
