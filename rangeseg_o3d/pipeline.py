@@ -564,8 +564,9 @@ def _close_gaps(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: Pi
     touching plane explains clearly better go to it, up to ``rings`` pixels deep
     (:func:`rangeseg_o3d.fullres.settle_plane_borders`; ``wrap_columns``: a 360-degree grid's
     first and last columns are neighbours), and the pixels beside a crease go to
-    the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`), and the pieces
-    that settling made neighbours merge as above; ``(labels, fits, stats)``. A plane whose
+    the face their rays meet (:func:`rangeseg_o3d.fullres.settle_creases`), and every pair of
+    planes that touches then is asked the merge again (pieces the settling made neighbours, or
+    whose pixels it moved); ``(labels, fits, stats)``. A plane whose
     tile model its pixels' own plane beats by ``merge_rms_factor`` grows with that one
     (:func:`rangeseg_o3d.fullres.refit_planes_to_pixels`).
 
