@@ -250,3 +250,41 @@ def test_a_band_with_pixels_beyond_it_on_both_sides_is_at_no_end():
         assert _pixels_beyond_both_sides(along, noise, offset, np.abs(along - offset)) == both
     # an empty band holds no cap either
     assert _pixels_beyond_both_sides(along, noise, 2.0, np.abs(along - 2.0))
+
+
+def test_a_pipe_trimmed_by_a_split_still_gives_its_end_cap_back():
+    # what the fitter's split keeps of a pipe-and-cap region when it only trims it: a cylinder
+    # over the pipe and the cap (here the whole region, as the split's band takes most of it)
+    from rangeseg_o3d.refinement.facets import _cap_of_trimmed
+
+    ctx, labels, model, truth = _pipe_in_one_region(0)
+    idx = np.flatnonzero(labels.ravel())
+    surfaces = _cap_of_trimmed(ctx, idx[::-1], model)  # (any order: the split's pieces are sorted)
+    assert [m.kind for _, m in surfaces] == ["cylinder", "plane"]
+    (rest, pipe), (piece, cap) = surfaces
+    flat = truth.ravel()
+    assert (flat[piece] == CAP).mean() > 0.95 and piece.size > 0.9 * (flat == CAP).sum()
+    assert np.array_equal(np.sort(np.concatenate([rest, piece])), idx)
+    assert abs(pipe.radius - 0.15) < abs(model.radius - 0.15)
+    ctx, labels, model, truth = _pipe_in_one_region(0, caps=False)
+    assert _cap_of_trimmed(ctx, np.flatnonzero(labels.ravel()), model) == []
+
+
+@pytest.mark.parametrize("seed, scan_index, pipe_id, cap_id", [
+    # a 0.125 m pipe at 2.6-3.9 m and its cap seen at 31 degrees (165 and 78 px), one region
+    # beyond the noise that the fitter's split only trimmed to a cylinder (221 px, 59 of the cap)
+    (1394, 1, 17, 19),
+    # a 0.117 m pipe at 3.1-4.2 m (130 px) whose region held 34 px of its cap
+    (1388, 3, 10, 11),
+])
+def test_a_spinning_lidars_pipe_and_its_cap_come_apart_on_the_matrix(seed, scan_index, pipe_id, cap_id):
+    from matrix_helpers import matrix_result, region_holding
+
+    scan, result = matrix_result("spinning_64x1024", seed, scan_index)
+    pipe = scan.truth_ids == pipe_id
+    label, count = region_holding(result.labels, pipe)
+    # the pipe's region is the pipe's (before: 79 % and 73 % of the region, both seeds' pipe missed)
+    assert count >= 0.9 * pipe.sum() and count >= 0.9 * (result.labels == label).sum()
+    assert {f.label: f for f in result.features}[label].kind == "cylinder"
+    cap_label, _ = region_holding(result.labels, scan.truth_ids == cap_id)
+    assert cap_label != label
