@@ -910,7 +910,7 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     pairs = sorted(((planes[i], planes[j]) for i, j in zip(first.tolist(), second.tolist())),
                    key=lambda ab: (stats.rms(ab[0]) + stats.rms(ab[1]), ab))
     boxes = label_boxes(labels, touch.shape[0])
-    fits, merged, box_of, root, count = dict(fits), set(), {}, {}, {}
+    fits, box_of, root, count = dict(fits), {}, {}, {}  # (root: the labels merged into another)
     for first_a, first_b in pairs:
         # a piece merged already stands for its union: three or four tile pieces of one face
         # that meet pairwise join in a chain (tabletop_abw study seed 1386 scan 0: a box top
@@ -937,13 +937,12 @@ def merge_touching_planes(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         count[a] = count.get(a, int(stats.counts[a])) + count.pop(b, int(stats.counts[b]))
         fits[a] = replace(union, inliers=count[a])
         del fits[b]
-        merged.update((a, b))
         root[b] = a
         box_of[a] = box
         box_of.pop(b, None)
-    if merged:
+    if root:
         stats = PixelStats(*(a.copy() for a in (stats.inliers, stats.squares, stats.counts)))
-        for k in merged - set(box_of):  # merged into another: no pixels left
+        for k in root:  # merged into another: no pixels left
             stats.inliers[k], stats.squares[k], stats.counts[k] = 0, 0.0, 0
     for a, box in box_of.items():  # every pixel of a merged region lies in its pair's box
         inside = region_stats(cloud.xyz[box], labels[box], {a: fits[a]}, sigma[box], inlier_factor)

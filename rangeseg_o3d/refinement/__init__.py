@@ -75,6 +75,12 @@ __all__ = ["refine_regions", "recover_pixels", "bend_samples", "single_returns"]
 
 
 
+def _turned_by_polish(fits: dict, before: dict) -> set:
+    """The labels of ``fits`` whose kind differs from their model in ``before`` (the models
+    before polish)."""
+    return {k for k, m in fits.items() if m and before.get(k) and before[k].kind != m.kind}
+
+
 def _merge_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, before: dict, config,
                             wrap_columns: bool):
     """``(labels, fits)`` with the regions whose kind polish changed (a plane made curved, a
@@ -102,7 +108,7 @@ def _merge_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, before
     171 of its 188 px left the wall's plane free. Held so everywhere, touching pieces cost
     the ABW images over-segmentation (a big face's one-level terraces of its 1.3 mm depth
     steps kept apart: 90.6 -> 88.5 % correct), so the merge before polish does not ask it."""
-    turned = {k for k, m in fits.items() if m and before.get(k) and before[k].kind != m.kind}
+    turned = _turned_by_polish(fits, before)
     if not turned:
         return labels, fits
     adjacency = region_adjacency(labels, wrap_columns=wrap_columns)
@@ -124,7 +130,7 @@ def _settle_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, befor
     polish then made it the cylinder it is (spinning_64x1024 study seed 1389 scan 0: a cap of
     133 px, 31 of them in the pipe's region, 77 % in its own). With the cylinder the rim lies
     nearer the cap's plane, and the settle gives it back (128 of 133)."""
-    if not any(m and before.get(k) and before[k].kind != m.kind for k, m in fits.items()):
+    if not _turned_by_polish(fits, before):
         return labels, fits
     return settle_regions(ctx, labels, fits, **settle)
 

@@ -319,11 +319,9 @@ def _cap_of_trimmed(ctx: Context, idx: np.ndarray, model) -> list:
     pipe at 2.6-3.9 m, 162 px of it, and its cap seen at 31 degrees, 78 px, one region at 22.6 mm
     rms over 15 mm of noise; the search kept a cylinder of 221 px holding 59 of the cap's)."""
     idx = np.sort(idx)
-    split = cap_split(ctx, model, idx, None)
-    if not split:
-        return []
-    distances = model.distances(rows_at(ctx.xyz, idx))
-    return split if _explains(ctx, idx, distances, split, _EACH_SURFACE, model.kind, model=model) else []
+    distances = model.distances(rows_at(ctx.xyz, idx))  # (once: the cap split and the rules read them)
+    split = cap_split(ctx, model, idx, distances)
+    return split if split and _explains(ctx, idx, distances, split, _EACH_SURFACE, model.kind, model=model) else []
 
 
 def _may_split(ctx: Context, labels: np.ndarray, fits: dict, curved: list) -> bool:

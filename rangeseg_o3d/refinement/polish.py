@@ -192,9 +192,11 @@ def _unbent(ctx: Context, labels: np.ndarray, curved: list, samples: float = 1.0
 
 def _near_plane_within_noise(ctx: Context, idx: np.ndarray, points: np.ndarray, plane: Plane) -> bool:
     """Whether the least-squares plane of the ``points`` of the pixels ``idx`` (the fitter's
-    sample of them) within ``BEND_TRIM`` times ``plane``'s rms of it (those :func:`_unbent`'s
-    bend test keeps) leaves them within the noise (:func:`beyond_noise` at the pixels' median
-    range noise)."""
+    sample of them) within ``BEND_TRIM`` times ``plane``'s rms of it leaves them within the
+    noise (:func:`beyond_noise` at the pixels' median range noise). The trim of
+    :func:`_unbent`'s bend test, measured from ``plane`` itself (the bend test measures from the
+    plane of that normal through the points' centroid, which a plane fitted to its inliers
+    need not pass through)."""
     from ..fitting._decide import BEND_TRIM
 
     near = np.abs(plane.distances(points)) <= BEND_TRIM * plane.rms
