@@ -300,3 +300,43 @@ def test_a_region_on_jumps_all_over_stays(context):
     ctx = context(rs.OrganizedCloud(xyz), sigma=np.full((20, 60), FRAGMENT_NOISE))
     out, kept = dissolve_fragments(ctx, labels, fits, k_sigma=3.0, jumps=jumps)
     assert out is labels and kept is fits
+
+
+def test_a_face_stands_apart_from_the_cylinder_taking_it_whatever_is_nearest_to_the_rest():
+    # a 5 x 5 face (1 mm noise) whose pixels a cylinder explains within 2.5 cm (within a far
+    # camera's noise) but for one, nearest to a plane beside it: the plane takes none of them,
+    # so the face is weighed against the cylinder alone (the F-test: its own plane is far closer)
+    from rangeseg_o3d.refinement.dissolve import _stands_apart
+
+    points = plane_grid(5, 5, noise=0.001, seed=3, step=0.05).reshape(-1, 3)
+    own = fit_plane(points)
+    bent = Cylinder(axis=np.array([0.0, 1.0, 0.0]), point=np.array([0.1, 0.0, 3.2]), radius=0.2,
+                    rms=0.02, inliers=100)
+    beside = fit_plane(plane_grid(5, 5, z=3.3, slope=1.0, seed=4).reshape(-1, 3))
+    best = np.ones(len(points), np.int64)
+    explained = np.ones(len(points), bool)
+    best[0], explained[0] = 0, False
+    off = np.abs(bent.distances(points[explained]))
+    assert off.max() < 0.025 and np.sqrt(np.mean(off ** 2)) > 5 * own.rms  # the premise
+    assert _stands_apart(points, own, [beside, bent], best, explained)
+    # where the plane beside takes a pixel, the merge weighed it already: no test
+    explained[0] = True
+    assert not _stands_apart(points, own, [beside, bent], best, explained)
+
+
+def test_a_box_side_a_cylinder_over_its_top_and_front_explains_stays_a_face():
+    # kinect_real_640x480 study seed 1412 scan 5: a box at 4.3-5.1 m whose top, side and
+    # front one cylinder region held; the facets step cut the side off as a plane (25 tile
+    # means), dissolve_small gave it back to the cylinder (it explains 22 of them within its
+    # noise) because a plane beside the box was nearest to the other three: the three faces
+    # missed or under-segmented
+    from matrix_helpers import matrix_result, region_holding
+
+    scan, result = matrix_result("kinect_real_640x480", 1412, 5)
+    features = {f.label: f for f in result.features}
+    for face in (21, 23, 25):
+        pixels = scan.truth_ids == face
+        label, count = region_holding(result.labels, pixels)
+        assert count >= 0.8 * pixels.sum() and count >= 0.9 * (result.labels == label).sum()
+        assert features[label].kind == "plane"
+        assert abs(features[label].normal @ scan.truth[face].normal) > np.cos(np.radians(10.0))
