@@ -20,3 +20,14 @@ def region_holding(labels: np.ndarray, mask: np.ndarray) -> tuple[int, int]:
     """``(label, pixels)``: the label holding most of ``mask``'s pixels (0: in no region) and how many."""
     found, counts = np.unique(labels[mask], return_counts=True)
     return int(found[counts.argmax()]), int(counts.max())
+
+
+def surface_feature(scan, result, truth_id: int, *, of_surface: float, of_region: float = 0.9):
+    """The feature of the region holding most of truth surface ``truth_id`` of ``scan`` in
+    ``result``, once that region holds at least ``of_surface`` of the surface's pixels and the
+    surface at least ``of_region`` of the region's (AssertionError otherwise)."""
+    surface = scan.truth_ids == truth_id
+    label, count = region_holding(result.labels, surface)
+    assert label > 0 and count >= of_surface * surface.sum(), (truth_id, label, count, int(surface.sum()))
+    assert count >= of_region * (result.labels == label).sum(), (truth_id, label, count)
+    return {f.label: f for f in result.features}[label]

@@ -135,11 +135,12 @@ def _settle_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, befor
     return settle_regions(ctx, labels, fits, **settle)
 
 
-def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float, min_cosine: float):
-    # curved patches a neighbouring plane explains within its rms (dissolve.absorb_ripples);
-    # the planes that took them refitted from moments
+def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float, min_cosine: float,
+                    jump: tuple[float, float]):
+    # curved patches a neighbouring plane explains within its rms and meets without a range
+    # jump (dissolve.absorb_ripples); the planes that took them refitted from moments
     labels, fits, changed = absorb_ripples(ctx.xyz, labels, fits, ctx.sigma, {}, k_sigma=k_sigma,
-                                           min_cosine=min_cosine)
+                                           min_cosine=min_cosine, jump=jump)
     hosts = [k for k in changed if k in fits]
     for k, refit in ctx.fitter.refit_regions(ctx.xyz, labels, fits, hosts, from_points=False).items():
         if refit and refit.kind == fits[k].kind:
@@ -317,7 +318,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # noise x incidence cosine): a tile's mean lies on its face but for the noise along its
     # ray, while a laser's single return near grazing spreads across the face (3DTK scans
     # and the laser rows keep the range noise)
-    labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0)
+    labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0,
+                                   (growth["jump_ratio"], growth["jump_min"]))
     timer.lap("dissolve")
     if single_returns(sensor, tile):  # a row of another face keeps a laser's pipe a plane
         labels, fits = release_bands(ctx, labels, fits, k_sigma=config.k_sigma,
