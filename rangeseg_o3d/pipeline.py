@@ -370,8 +370,8 @@ class Pipeline:
                 wrap_columns=self.sensor.wrap_columns)
             lap("plane_faces")
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
-            labels, fits, stats, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma,
-                                                               (refine.jump_ratio, refine.jump_min))
+            jump = None if self.sensor.laser_returns else (refine.jump_ratio, refine.jump_min)  # (as on tiles)
+            labels, fits, stats, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma, jump)
             if refine.recover_leftovers and freed.size:
                 # what a ripple's host did not explain is surfaces of its own, not nothing
                 labels, fits, stats = recover_freed_pixels(
@@ -533,11 +533,11 @@ def _kind_changed(before: dict, after: dict) -> set:
 
 
 def _absorb_pixel_ripples(cloud: OrganizedCloud, labels: np.ndarray, fits: dict, stats: PixelStats,
-                          sigma: np.ndarray, k_sigma: float, jump: tuple[float, float]):
+                          sigma: np.ndarray, k_sigma: float, jump: tuple[float, float] | None):
     """:func:`rangeseg_o3d.refinement.dissolve.absorb_ripples` at full resolution, each
     plane's scatter the rms of its pixels about it, the range noise scaled by the incidence
     cosine (at least ``scales.GRAZING_COSINE``; a depth camera's pixel moves along its ray),
-    ``jump`` the grid's range-jump test ``(jump_ratio, jump_min)``;
+    ``jump`` the grid's range-jump test ``(jump_ratio, jump_min)`` or None;
     ``(labels, fits, stats, freed)`` after it, ``freed`` the flat indices (increasing) of the
     pixels it left in no region."""
     from .refinement.dissolve import absorb_ripples

@@ -31,3 +31,19 @@ def surface_feature(scan, result, truth_id: int, *, of_surface: float, of_region
     assert label > 0 and count >= of_surface * surface.sum(), (truth_id, label, count, int(surface.sum()))
     assert count >= of_region * (result.labels == label).sum(), (truth_id, label, count)
     return {f.label: f for f in result.features}[label]
+
+
+def matrix_result_region_growing(name: str, seed: int, k: int, growing: str = "lms200_region_growing"):
+    """As :func:`matrix_result`, with the row's preset's segmenter swapped for region growing
+    (the ``growing`` preset's parameters and tile; the refinement's region size and jump test
+    its own defaults), as scripts/benchmark.py runs the baseline."""
+    spec = get_sensor(name)
+    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
+    config = rs.load_config(spec.preset, overrides=facts).model_dump()
+    own = rs.load_config(growing)
+    config["segmenter"] = {"name": "region_growing", "params": dict(own.segmenter.params)}
+    config["tile"] = own.tile
+    for key in ("min_region_size", "jump_ratio", "jump_min"):
+        config["refine"][key] = None
+    scan = spec.simulate(matrix_rng(seed, spec.draws, k), False)
+    return scan, rs.Pipeline(rs.load_config(config)).run(scan.cloud)

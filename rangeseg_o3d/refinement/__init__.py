@@ -136,7 +136,7 @@ def _settle_turned_by_polish(ctx: Context, labels: np.ndarray, fits: dict, befor
 
 
 def _absorb_ripples(ctx: Context, labels: np.ndarray, fits: dict, k_sigma: float, min_cosine: float,
-                    jump: tuple[float, float]):
+                    jump: tuple[float, float] | None):
     # curved patches a neighbouring plane explains within its rms and meets without a range
     # jump (dissolve.absorb_ripples); the planes that took them refitted from moments
     labels, fits, changed = absorb_ripples(ctx.xyz, labels, fits, ctx.sigma, {}, k_sigma=k_sigma,
@@ -318,8 +318,10 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # noise x incidence cosine): a tile's mean lies on its face but for the noise along its
     # ray, while a laser's single return near grazing spreads across the face (3DTK scans
     # and the laser rows keep the range noise)
+    # (a camera's ripples meet their plane without a jump; a laser's rings on a floor seen
+    # near grazing step by more than the jump test between them)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0,
-                                   (growth["jump_ratio"], growth["jump_min"]))
+                                   None if single_returns(sensor, tile) else (growth["jump_ratio"], growth["jump_min"]))
     timer.lap("dissolve")
     if single_returns(sensor, tile):  # a row of another face keeps a laser's pipe a plane
         labels, fits = release_bands(ctx, labels, fits, k_sigma=config.k_sigma,
