@@ -982,6 +982,10 @@ def test_the_recovery_changes_labels_only_in_its_blobs_boxes_and_where_it_claims
         recover_pixels(cloud, labels, dict(fits), free=np.array([labels.size]), **arguments)
 
 
+#: A camera's range-jump test at full resolution (jump_ratio, jump_min: the kinect rows' derived values)
+CAMERA_JUMP = (0.0113, 0.01)
+
+
 def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
     # a noisy plane with a swell and a patch on its crest fitted as a small cylinder, a second
     # plane beside it: the patch joins the swollen plane; the statistics that follow its pixels
@@ -1003,7 +1007,7 @@ def test_pixel_ripples_absorbed_leave_the_statistics_a_full_measure_gives():
             2: Cylinder(np.array([0.0, 1.0, 0.0]), np.array([0.02, 0.0, 2.9]), 0.1, 0.0005, 64)}
     sigma = np.full(u.shape, 0.0005)
     stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
-    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0, CAMERA_JUMP)
     assert 2 not in kept and (out[16:24, 34:42] == 1).any() and (labels[16:24, 34:42] == 2).all()  # the premise
     full = region_stats(xyz, out, kept, sigma, INLIER_SIGMAS)
     np.testing.assert_array_equal(after.counts, full.counts)
@@ -1091,7 +1095,7 @@ def test_what_a_ripples_host_leaves_is_recovered_as_its_surfaces():
     cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board()
     cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
     pipe = rs.Pipeline(cfg)
-    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0, CAMERA_JUMP)
     # the premise (a wall pixel in the noise's tail beyond three sigmas is freed too)
     assert 2 not in kept and (out[~board] == 1).mean() > 0.99 and (out[board] == 0).all()
     assert np.array_equal(freed, np.flatnonzero(((out == 0) & (labels > 0)).ravel()))
@@ -1116,7 +1120,7 @@ def test_freed_pixels_under_the_smallest_region_are_left_free():
     cloud, labels, fits, stats, sigma, board = _curved_region_over_wall_and_board(slice(10, 16))
     cfg = rs.load_config({"tile": 6, "sensor": {"sigma0": 0.002}, "refine": {"min_region_size": 300}})
     pipe = rs.Pipeline(cfg)
-    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0)
+    out, kept, after, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, 3.0, CAMERA_JUMP)
     assert 2 not in kept and (out[board] == 0).all()
     got = recover_freed_pixels(cloud, out, kept, after, freed, fitter=pipe.fitter, config=cfg.refine,
                                sensor=pipe.sensor, ranges=cloud.range_image(), sigma=sigma, inlier_factor=INLIER_SIGMAS)

@@ -161,6 +161,23 @@ def test_a_ripple_of_the_grazing_plane_still_joins_it_with_the_jump_test():
     assert changed == {1, 2} and (out == 1).all()
 
 
+def test_steps_within_the_noise_are_no_jump():
+    # the grazing plane with 0.2 m of range noise: its neighbours step by more than the jump
+    # test (3 % of 3-9 m) as often as not, by no more than three of their sigmas combined
+    from rangeseg_o3d.refinement.dissolve import _meets_without_jump
+
+    xyz, labels, fits = _patch_behind_a_grazing_plane(push=0.0)
+    rng = np.random.default_rng(11)
+    xyz = xyz * (1.0 + rng.normal(0.0, 0.2, labels.shape) / np.linalg.norm(xyz, axis=2))[..., None]
+    idx = np.flatnonzero(labels.ravel() == 2)
+    assert not _meets_without_jump(xyz.reshape(-1, 3), labels, idx, 1, *JUMP)  # the premise
+    noise = (np.full(labels.size, 0.2), 3.0)
+    assert _meets_without_jump(xyz.reshape(-1, 3), labels, idx, 1, *JUMP, noise=noise)
+    pushed = xyz.copy()
+    pushed[16:24, 34:42] *= 1.3  # 0.9-2.7 m behind: beyond the noise too
+    assert not _meets_without_jump(pushed.reshape(-1, 3), labels, idx, 1, *JUMP, noise=noise)
+
+
 def test_the_planes_strays_on_the_patch_do_not_make_the_contact():
     # the patch behind the grazing plane, with its outer ring in the plane's region (its
     # strays on the ball, kinect_640x480 study seed 1414 scan 0: 184 of the 359 pixels of the
