@@ -32,7 +32,7 @@ from .strips import recover_strips
 from .edge_planes import edge_planes_to_curved
 from .end_caps import split_end_caps
 from .memory import keep_freed_memory, large_frame
-from .refinement import refine_regions
+from .refinement import refine_regions, ripple_jump
 from .timing import StepTimer
 from .patches import PatchSource
 from .result import INLIER_SIGMAS, Feature, Regions, Result, Segmentation, Unfitted
@@ -370,7 +370,7 @@ class Pipeline:
                 wrap_columns=self.sensor.wrap_columns)
             lap("plane_faces")
         if refine.enabled:  # ripples the pixels show, measured by their planes' pixel rms
-            jump = None if self.sensor.laser_returns else (refine.jump_ratio, refine.jump_min)  # (as on tiles)
+            jump = ripple_jump(self.sensor, 1, refine.jump_ratio, refine.jump_min)  # (full resolution: tile 1)
             labels, fits, stats, freed = _absorb_pixel_ripples(cloud, labels, fits, stats, sigma, refine.k_sigma, jump)
             if refine.recover_leftovers and freed.size:
                 # what a ripple's host did not explain is surfaces of its own, not nothing

@@ -71,7 +71,7 @@ from .split import split_regions
 from .trimmed_pieces import join_trimmed_pieces
 from ..timing import StepTimer
 
-__all__ = ["refine_regions", "recover_pixels", "bend_samples", "single_returns"]
+__all__ = ["refine_regions", "recover_pixels", "bend_samples", "ripple_jump", "single_returns"]
 
 
 
@@ -190,6 +190,16 @@ def single_returns(sensor: Sensor, tile: int) -> bool:
     and its lateral noise (its derived tile is 2 at 0.75-1.15 m, :mod:`rangeseg_o3d.scales`;
     the tile alone kept it out before, and without ``depth_step`` it would have counted)."""
     return tile == 1 and sensor.laser_returns
+
+
+def ripple_jump(sensor: Sensor, tile: int, jump_ratio: float, jump_min: float) -> tuple[float, float] | None:
+    """The range-jump test ``(jump_ratio, jump_min)`` that :func:`.dissolve.absorb_ripples`
+    asks of a ripple's contact with its plane on a grid of ``tile`` x ``tile`` means, None
+    on a laser's single returns (:func:`single_returns`): a camera's ripples meet their plane
+    without a jump, while a spinning lidar's rings on a floor seen near grazing step by more
+    than the test between them (region growing on spinning_32x1024 study seed 1411 scan 3
+    kept curved patches of the floor apart from it and lost a ball)."""
+    return None if single_returns(sensor, tile) else (jump_ratio, jump_min)
 
 
 def grow_recovered_curves(ctx: Context, labels: np.ndarray, fits: dict, before, **growth):
@@ -326,10 +336,8 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
     # noise x incidence cosine): a tile's mean lies on its face but for the noise along its
     # ray, while a laser's single return near grazing spreads across the face (3DTK scans
     # and the laser rows keep the range noise)
-    # (a camera's ripples meet their plane without a jump; a laser's rings on a floor seen
-    # near grazing step by more than the jump test between them)
     labels, fits = _absorb_ripples(ctx, labels, fits, config.k_sigma, GRAZING_COSINE if tile > 1 else 1.0,
-                                   None if single_returns(sensor, tile) else (growth["jump_ratio"], growth["jump_min"]))
+                                   ripple_jump(sensor, tile, growth["jump_ratio"], growth["jump_min"]))
     timer.lap("dissolve")
     if single_returns(sensor, tile):  # a row of another face keeps a laser's pipe a plane
         labels, fits = release_bands(ctx, labels, fits, k_sigma=config.k_sigma,

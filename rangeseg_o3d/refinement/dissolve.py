@@ -498,6 +498,10 @@ def _meets_without_jump(xyz, labels, idx, host: int, jump_ratio: float, jump_min
     patch[rows - top, cols - left] = True
     plane = labels[box] == host
     if on_plane is not None:
+        from scipy import ndimage
+
+        # only the host's pixels within two pixels of the patch can pair with it: those alone are scored
+        plane &= ndimage.binary_dilation(patch, structure=np.ones((5, 5), bool))
         inside = np.flatnonzero(plane)
         box_rows, box_cols = np.divmod(inside, plane.shape[1])
         plane.ravel()[inside] = on_plane((box_rows + top) * width + box_cols + left)

@@ -468,19 +468,11 @@ def test_planes_into_curved_skips_a_pair_whose_second_plane_was_joined_already()
     # touching planes on a ball: a pair's first plane becomes the sphere and keeps its
     # label, and a later pair names that label second. It must be skipped, not read as a
     # plane (it raised AttributeError: 'Sphere' object has no attribute 'normal').
-    from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
-    from rangeseg_o3d.synthetic.matrix import get_sensor, matrix_rng
+    from matrix_helpers import matrix_result_region_growing
 
-    spec = get_sensor("spinning_32x1024")
-    scan = spec.simulate(matrix_rng(0, spec.name, 3), False)
-    facts = {f"sensor.{key}": value for key, value in spec.sensor_facts(False).items()}
-    config = rs.load_config(spec.preset, overrides=facts).model_dump()
-    growing = rs.load_config("lms200_region_growing")
-    config["segmenter"] = {"name": "region_growing", "params": dict(growing.segmenter.params)}
-    config["tile"] = growing.tile
-    for key in ("min_region_size", "jump_ratio", "jump_min"):
-        config["refine"][key] = None
-    result = rs.Pipeline(rs.load_config(config)).run(scan.cloud)
+    from rangeseg_o3d.fitting.primitives import Cylinder, Plane, Sphere
+
+    _, result = matrix_result_region_growing("spinning_32x1024", 0, 3)
     curved = [f for f in result.features if isinstance(f.model, (Cylinder, Sphere))]
     assert len(result.features) >= 10 and curved
     assert all(isinstance(f.model, (Plane, Cylinder, Sphere)) for f in result.features)

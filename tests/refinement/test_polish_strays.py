@@ -81,11 +81,8 @@ def test_a_spinning_lidars_column_with_a_stray_ceiling_return_stays_a_cylinder()
     # spinning_64x1024 study seed 1392 scan 1: a column of r 0.23 m at 6 m, its region of 404 px
     # holding two ceiling returns 0.08 and 0.82 m off its cylinder: polish made it a plane, and
     # the column ended in three plane regions (353, 115 and 39 px)
-    from matrix_helpers import matrix_result, region_holding
+    from matrix_helpers import matrix_result, surface_feature
 
     scan, result = matrix_result("spinning_64x1024", 1392, 1)
-    column = scan.truth_ids == 10
-    label, count = region_holding(result.labels, column)
-    assert count >= 0.9 * column.sum() and count >= 0.9 * (result.labels == label).sum()
-    feature = {f.label: f for f in result.features}[label]
+    feature = surface_feature(scan, result, 10, of_surface=0.9)
     assert feature.kind == "cylinder" and abs(feature.radius - 0.2297) < 0.05
