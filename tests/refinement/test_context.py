@@ -3,6 +3,7 @@
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 import rangeseg_o3d as rs
 from rangeseg_o3d.refinement.context import Context
@@ -448,3 +449,68 @@ def test_a_face_under_a_third_of_the_curved_answer_does_not_replace_it(monkeypat
     monkeypatch.setattr(ctx, "_face_at_distance_noise", lambda pool, band: (at_share, plane))
     piece, model, _ = ctx.dominant_search(pool, face_band=True)
     assert model.kind == "plane" and piece.size == at_share.size
+
+
+def _ball_and_its_ring():
+    # A room of the sensor matrix at 2 mm range noise (noise_2mm, study seed 1424, scan 7):
+    # a ball of r 0.35 m at 3.0-3.2 m (106 returns, six columns) and the returns within two
+    # pixels around it (96, of four other surfaces and of none). Returns the Context, the
+    # pool, the truth ids (flat) and the scan.
+    scan, _, ctx = _unrefined_matrix_scan("noise_2mm", 1424, 7)
+    ball = scan.truth_ids == 13
+    ring = ndimage.binary_dilation(ball, iterations=2) & ~ball & scan.cloud.valid
+    return ctx, np.flatnonzero(ball | ring), scan.truth_ids.ravel(), scan
+
+
+def test_a_minority_answer_gives_way_to_the_ball_a_local_start_finds():
+    # The global proposals answer a plane of 31 returns of a surface beside the ball (under
+    # DOMINANT_SHARE of the 202); a local start on the ball fits it at the noise, holding
+    # more of the pool: that is the dominant surface
+    from rangeseg_o3d.refinement.context import DOMINANT_SHARE
+
+    ctx, pool, truth, scan = _ball_and_its_ring()
+    sigma = float(np.median(ctx.sigma[pool]))
+    plane, near = ctx.fitter.trimmed(ctx.xyz, pool, sigma=sigma, min_points=ctx.min_size)
+    assert plane.kind == "plane" and np.count_nonzero(near) < DOMINANT_SHARE * pool.size
+    assert (truth[pool[near]] == 13).sum() < 0.1 * np.count_nonzero(near)  # not the ball's
+    piece, model = ctx.dominant_piece(pool)
+    ball = scan.truth[13]
+    assert model.kind == "sphere"
+    assert (truth[piece] == 13).sum() > 0.95 * (truth == 13).sum() and (truth[piece] == 13).mean() > 0.9
+    assert abs(model.radius - ball.radius) < 0.02 * ball.radius
+    assert np.linalg.norm(model.center - ball.center) < 0.01  # 1 cm: five noise sigmas
+
+
+def test_a_start_answer_holding_fewer_than_the_minority_answer_leaves_it(monkeypatch):
+    # the starts are asked, but their answer holding fewer returns than the global one does
+    # not replace it: the global answer (its largest piece) stands
+    ctx, pool, truth, _ = _ball_and_its_ring()
+    sigma = float(np.median(ctx.sigma[pool]))
+    plane, near = ctx.fitter.trimmed(ctx.xyz, pool, sigma=sigma, min_points=ctx.min_size)
+    fitter, trimmed = ctx.fitter, ctx.fitter.trimmed
+    asked = []
+
+    def fewer(xyz, pool, *, sigma, min_points, starts=False):
+        model, inliers = trimmed(xyz, pool, sigma=sigma, min_points=min_points, starts=starts)
+        if starts:
+            asked.append(True)
+            kept = np.flatnonzero(inliers)[: np.count_nonzero(near) - 1]
+            inliers = np.zeros_like(inliers)
+            inliers[kept] = True
+        return model, inliers
+
+    monkeypatch.setattr(fitter, "trimmed", fewer)
+    piece, model = ctx.dominant_piece(pool)
+    assert asked and model.kind == "plane"
+    assert np.array_equal(piece, ctx.largest_piece(pool[near]))
+
+
+def test_a_ball_beside_small_faces_is_recovered_whole():
+    # the pipeline on the scan: the ball in a region of its own, a sphere
+    # (was: three one-column planes, then no region)
+    from matrix_helpers import matrix_result, surface_feature
+
+    scan, result = matrix_result("noise_2mm", 1424, 7)
+    feature = surface_feature(scan, result, 13, of_surface=0.95)
+    assert feature.model.kind == "sphere"
+    assert abs(feature.model.radius - scan.truth[13].radius) < 0.02 * scan.truth[13].radius
