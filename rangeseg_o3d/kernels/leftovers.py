@@ -99,8 +99,10 @@ def pieces_apart(labels, valid, taken, ranges, jump_ratio, jump_min, min_size, w
     where two neighbours' ranges differ by no jump (``<= max(jump_min, jump_ratio * r)``, r
     the nearer), of at least ``min_size`` pixels: ``(pixels, starts, contact, jumped)``, the
     flat pixels of piece ``s`` (increasing) ``pixels[starts[s]:starts[s + 1]]``, and how many
-    of its links to labelled pixels are no jump and a jump. With ``wrap`` (a 360-degree grid)
-    the first and last columns are neighbours.
+    of its links out of it are no jump to a labelled pixel and a jump to any valid pixel
+    (labelled or not: the returns beside a far column's border returns, across the jump, are
+    often a wall's edge band in no region). With ``wrap`` (a 360-degree grid) the first and
+    last columns are neighbours.
 
     A piece is grown by its links, not by the pixels a jump test marks: the border return of
     a column standing before a wall is a jump pixel, yet on the column's surface."""
@@ -111,6 +113,7 @@ def pieces_apart(labels, valid, taken, ranges, jump_ratio, jump_min, min_size, w
     taken_flat = taken.reshape(size)
     rng = ranges.reshape(size)
     seen = np.zeros(size, np.bool_)
+    piece_of = np.zeros(size, np.int64)  # the piece number + 1 of each member pixel
     stack = np.empty(size, np.int64)
     members = np.empty(size, np.int64)
     out = np.empty(size, np.int64)
@@ -132,25 +135,31 @@ def pieces_apart(labels, valid, taken, ranges, jump_ratio, jump_min, min_size, w
             r = i // w
             for step in range(4):
                 j = _grid_neighbour(i, r, i - r * w, step, h, w, wrap)
-                if j < 0 or not ok[j]:
+                if j < 0 or not ok[j] or seen[j] or taken_flat[j] != 0 or flat[j] != 0:
                     continue
-                a, b = rng[i], rng[j]
-                no_jump = not (abs(a - b) > _jump_limit(a, b, jump_ratio, jump_min))
-                if flat[j] > 0:
-                    if no_jump:
-                        contact += 1
-                    else:
-                        jumped += 1
-                elif not seen[j] and taken_flat[j] == 0 and flat[j] == 0 and no_jump:
+                if not abs(rng[i] - rng[j]) > _jump_limit(rng[i], rng[j], jump_ratio, jump_min):
                     seen[j] = True
                     stack[top] = j
                     top += 1
-        if count >= min_size:
-            piece = np.sort(members[:count])
-            out[n_out:n_out + count] = piece
-            n_out += count
-            starts.append(n_out)
-            contacts.append(contact)
-            jumps.append(jumped)
+        if count < min_size:
+            continue
+        piece_of[members[:count]] = seed + 1
+        # (its links out of it, once it is whole: a jump to a free pixel is one too)
+        for m in range(count):
+            i = members[m]
+            r = i // w
+            for step in range(4):
+                j = _grid_neighbour(i, r, i - r * w, step, h, w, wrap)
+                if j < 0 or not ok[j] or piece_of[j] == seed + 1:
+                    continue
+                if abs(rng[i] - rng[j]) > _jump_limit(rng[i], rng[j], jump_ratio, jump_min):
+                    jumped += 1
+                elif flat[j] > 0:
+                    contact += 1
+        out[n_out:n_out + count] = np.sort(members[:count])
+        n_out += count
+        starts.append(n_out)
+        contacts.append(contact)
+        jumps.append(jumped)
     return (out[:n_out].copy(), np.array(starts, np.int64), np.array(contacts, np.int64),
             np.array(jumps, np.int64))

@@ -127,3 +127,39 @@ def test_a_far_column_seen_between_nearer_ones_is_its_cylinder(k, surface):
     truth = scan.truth[surface]
     assert feature.kind == "cylinder" == truth.kind
     assert abs(feature.model.radius - truth.radius) <= 0.5 * truth.radius
+
+
+def test_jumps_to_free_returns_count_and_a_foot_without_one_does_not_outweigh_them():
+    # a column at 3 m (columns 5-7, free) before a wall at 5 m whose returns beside it
+    # (columns 4 and 8) are an edge band in no region, standing on a floor row (labelled 3)
+    # it meets without a jump: its links out are 2 x 11 jumps to the free band and 3 links to
+    # the floor without one (the jumps to the band were not counted: 0 against 3)
+    depths = [5.0] * 5 + [3.0] * 3 + [5.0] * 6
+    _, ranges = _grid(depths)
+    labels = np.zeros((ROWS, 14), np.int32)
+    labels[:, :4], labels[:, 9:] = 1, 2
+    labels[-1, :] = 3
+    valid = np.ones(labels.shape, bool)
+    pixels, starts, contact, jumped = pieces_apart(labels, valid, np.zeros_like(labels), ranges, JUMP_RATIO,
+                                                   JUMP_MIN, 5, False)
+    pieces = [pixels[a:b] for a, b in zip(starts[:-1], starts[1:])]
+    column = np.sort((np.arange(ROWS - 1)[:, None] * 14 + np.arange(5, 8)).ravel())
+    found = [i for i, piece in enumerate(pieces) if np.array_equal(piece, column)]
+    assert len(found) == 1 and len(pieces) == 3  # the column and the two bands
+    assert contact[found[0]] == 3 and jumped[found[0]] == 2 * (ROWS - 1)
+    for i in set(range(3)) - set(found):  # a band: its wall and the floor without a jump, the column across one
+        assert contact[i] == (ROWS - 1) + 1 and jumped[i] == ROWS - 1
+
+
+def test_a_far_column_on_the_floor_between_edge_bands_is_its_cylinder():
+    # nodding_1deg study seed 1436 scan 1: a column of r 0.18 m at 5.1-5.6 m, four returns
+    # wide, whose sides meet the wall's edge band and whose foot meets the floor, was in no
+    # region (152 px)
+    from matrix_helpers import matrix_result, surface_feature
+
+    scan, result = matrix_result("nodding_1deg", 1436, 1)
+    feature = surface_feature(scan, result, 13, of_surface=0.9)
+    truth = scan.truth[13]
+    assert feature.kind == "cylinder"
+    assert abs(feature.model.radius - truth.radius) <= 0.25 * truth.radius
+    assert abs(feature.model.axis @ truth.axis) > np.cos(np.radians(5.0))
