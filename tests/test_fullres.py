@@ -576,6 +576,47 @@ def test_planes_for_unresolved_refits_a_column_whose_tile_cylinder_is_off():
         resolved_refit(fitter, points, fits[2], plane_rms, samples=0.0)
 
 
+def test_planes_for_unresolved_counts_the_independent_samples_of_correlated_returns():
+    # the wall's edge column holds returns of the surface behind it, 6 cm off, which bend the
+    # least-squares cylinder of the wall's pixels (axis along y): counted one sample a pixel
+    # its drop in squared distances resolves a curvature; over the independent samples of
+    # returns that err together over 9 x 9 pixels (1/81 each) it is noise and the wall is a
+    # plane. The column's cylinder is resolved either way.
+    rng = np.random.default_rng(7)
+    xyz, labels = _column_and_wall(rng)
+    xyz[:, 0, 2] += 0.06
+    cloud = rs.OrganizedCloud(xyz)
+    sigma = np.full(labels.shape, 0.004)
+    wall = xyz[labels == 1]
+    c, b, a = np.polyfit(wall[:, 0], wall[:, 2], 2)  # the bend's osculating circle
+    radius = 1.0 / (2.0 * c)
+    bent = Cylinder(axis=[0, 1, 0], point=[-b / (2 * c), 0.0, a - b * b / (4 * c) + radius], radius=radius,
+                    rms=0.004, inliers=0)
+    column = Cylinder(axis=[0, 1, 0], point=[1.0, 0.0, 2.3], radius=0.3, rms=0.004, inliers=0)
+    fits = {1: bent, 2: column}
+    # premise: the bend lowers the wall's squared distances by a few per cent only
+    plane = rs.fit_plane(wall)
+    drop = 1.0 - np.sum(bent.distances(wall) ** 2) / (len(wall) * plane.rms ** 2)
+    assert 0.02 < drop < 0.2
+    stats = region_stats(xyz, labels, fits, sigma, INLIER_SIGMAS)
+    single, _ = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma, inlier_factor=INLIER_SIGMAS)
+    assert single[1] is bent and single[2] is column
+    fitter = rs.Pipeline("rgbd_vga").fitter
+    for with_fitter in (None, fitter):
+        out, out_stats = planes_for_unresolved(cloud, labels, fits, stats, sigma=sigma,
+                                               inlier_factor=INLIER_SIGMAS, fitter=with_fitter, samples=1 / 81)
+        assert isinstance(out[1], Plane)
+        assert abs(abs(out[1].normal[2]) - 1.0) < 1e-2 and abs(abs(out[1].d) - 2.0) < 0.01
+        # measured again under the plane
+        assert out_stats.squares[1] == pytest.approx(np.sum(out[1].distances(wall) ** 2), rel=1e-6)
+        assert isinstance(out[2], Cylinder) and out[2].radius == pytest.approx(0.3, abs=0.01)
+    # a region whose sample carries no degree of freedom resolves nothing: its tile model is
+    # not kept for want of a test (without the fitter's refit, its plane)
+    few, _ = planes_for_unresolved(cloud, labels, {1: bent, 2: column}, stats, sigma=sigma,
+                                   inlier_factor=INLIER_SIGMAS, samples=1e-3)
+    assert isinstance(few[1], Plane) and isinstance(few[2], Plane)
+
+
 def test_a_short_column_under_a_tile_sphere_takes_the_cylinder_its_pixels_give():
     # a column seen over 0.2 m of its height (under its 0.6 m diameter: a piece the frame's
     # edge cuts) whose tile model is a sphere through its axis: the sphere resolves a
