@@ -482,9 +482,8 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
     pipe bend a cylinder whose radius or axis the pixels do not share, so its own residuals
     resolve nothing, while the pipe's pixels resolve the cylinder refitted to them; that
     one replaces it, and only a region whose refit resolves no curvature either becomes
-    its plane. A region whose curvature its pixels resolve takes
-    the other curved kind where the fitter's decision on the sample gives it
-    (:func:`other_curved_kind`).
+    its plane. A region whose curvature its pixels resolve takes the other curved kind
+    where the fitter's decision on the sample gives it (:func:`other_curved_kind`).
     """
     from .fitting.plane import fit_plane
     from .fitting.primitives import Plane
@@ -507,7 +506,8 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         # independent samples, at most one (a step as wide as a stereo camera's window: one each)
         share = min(1.0, samples * sample_step(labels[box].size) ** 2)
         independent = int(len(points) * share)
-        # (too few independent samples to test a curvature against: the refit below decides)
+        # (no more independent samples than a plane's 3 parameters and the test's 2 more: no
+        # noise left to test a curvature against, and the refit below decides)
         if independent > 3 + 2 and curvature_resolved(independent * plane.rms ** 2,
                                                       independent / len(points) * squares, independent):
             other = None if fitter is None else other_curved_kind(fitter, points, fits[k], squares)
