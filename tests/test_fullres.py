@@ -1175,9 +1175,9 @@ def test_a_box_side_of_a_correlated_camera_stays_a_plane():
     # false fitting). Over the independent samples the region is the side's plane (its normal
     # 1.1 degrees off: 40 of the region's 1425 px are still its neighbours')
     from matrix_helpers import matrix_result, surface_feature
+    from rangeseg_o3d.evaluation.metrics import parameter_errors
 
     scan, result = matrix_result("kinect_real_640x480", 1442, 4)
     feature = surface_feature(scan, result, 13, of_surface=0.95, of_region=0.95)
     assert feature.model.kind == "plane"
-    truth = scan.truth[13]
-    assert np.degrees(np.arccos(min(1.0, abs(float(feature.model.normal @ truth.normal))))) < 2.0
+    assert parameter_errors(scan.truth[13], feature.model)["normal_error_deg"] < 2.0

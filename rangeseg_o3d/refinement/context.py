@@ -277,11 +277,11 @@ class Context:
                      if hasattr(self.fitter, "trimmed") else None)
             local, near = found if found is not None else trimmed_fit(
                 self.xyz, self.fitter.fit, pool=pool, sigma=sigma, min_points=self.min_size, starts=True)
+            near_count = 0 if local is None else int(np.count_nonzero(near))
             # (a minority answer gives way only to a start's answer holding more of the pool)
-            if local is not None and (lost or int(np.count_nonzero(near)) > count):
-                model, inliers = local, near
+            if local is not None and (lost or near_count > count):
+                model, inliers, count = local, near, near_count
                 piece = self.largest_piece(pool[inliers])
-                count = int(np.count_nonzero(inliers))
         if self.grazing_search and (model is None or piece.size < self.min_size
                                     or self.seen_along_rays(model, piece)):
             grazing = self.grazing_piece(pool, sigma, model)

@@ -557,9 +557,10 @@ def strips_apart_as_blobs(ctx: Context, labels: np.ndarray, fits: dict, candidat
     region, while its foot meets the floor without a jump: nodding_1deg study seed 1436
     scan 1, a column of r 0.18 m at 5.1-5.6 m, 152 px in no region, its links to regions 5
     without a jump and 2 jumps) and it spans at least two returns across (a line of mixed
-    returns along a limb spans one). Its pixels within the noise of a plane region's surface join that region
-    first (:func:`claim_on_distance_noise`; ``apart``: also a region it does not touch, as
-    ``config.merge_disjoint`` allows): a wall's strip seen between two columns is the wall's.
+    returns along a limb spans one). Its pixels within the noise of a plane region's surface
+    join that region first (:func:`claim_on_distance_noise`; ``apart``: also a region it
+    does not touch, as ``config.merge_disjoint`` allows): a wall's strip seen between two
+    columns is the wall's.
     """
     pixels, starts, contact, jumped = pieces_apart(
         np.ascontiguousarray(labels, dtype=np.int32), np.ascontiguousarray(valid, dtype=np.bool_),
