@@ -23,8 +23,8 @@ from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
 from .grid_lines import lines_across
 from .sight import seen_past_plane
 
-__all__ = ["curved_pairs_apart", "merge_regions", "merge_into_curved", "merge_candidates", "region_adjacency",
-           "region_adjacency_matrix", "similar_models", "beyond_median_noise"]
+__all__ = ["curved_pairs_apart", "merge_regions", "merge_into_curved", "merge_candidates", "pieces_near",
+           "region_adjacency", "region_adjacency_matrix", "similar_models", "beyond_median_noise"]
 
 #: The smaller part of a union of planes, turned from it, lies on the union's plane within
 #: this many times the merge's rms limit (rms of its points): a piece of a rippled face a
@@ -832,6 +832,21 @@ def _pretest_sigmas(pairs: list, near_sigmas: float | None, apart: set, apart_si
     adjacent = np.inf if near_sigmas is None else float(near_sigmas)
     far = adjacent if apart_sigmas is None else float(apart_sigmas)
     return np.array([far if (min(big, small), max(big, small)) in apart else adjacent for _, big, small in pairs])
+
+
+def pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas: float) -> list[bool]:
+    """Per ``(size, big, small)`` of ``pairs``: whether the model of ``big`` lies within
+    ``near_sigmas`` noise sigmas of the pixels of ``small`` at the median (``regions``: flat
+    pixels per label), :func:`merge_into_curved`'s pretest, numpy deciding where the compiled
+    pass leaves it to rounding."""
+    near = _pieces_near(ctx, fits, regions, pairs, near_sigmas).tolist()
+    return [verdict > 0 or (verdict < 0 and _median_near(ctx, fits[big], regions[small], near_sigmas))
+            for verdict, (_, big, small) in zip(near, pairs)]
+
+
+def _median_near(ctx: Context, model, piece: np.ndarray, near_sigmas: float) -> bool:
+    # the pretest in numpy (where the compiled pass leaves it to rounding)
+    return not median(np.abs(model.distances(rows_at(ctx.xyz, piece)))) > near_sigmas * median(ctx.sigma[piece])
 
 
 def _pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas) -> np.ndarray:

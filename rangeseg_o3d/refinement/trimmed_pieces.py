@@ -22,6 +22,13 @@ columns of returns along a limb lie on one within the noise, whatever they are (
 of 20 and 45 such returns at 2 mm rms). A freed return that a region beside it explains
 within the noise of its distances is claimed later
 (:func:`rangeseg_o3d.refinement.recover.claim_grazing_limbs`); the others stay in no region.
+
+With ``merge_disjoint`` the pieces apart from a curved region are asked too, each only when
+the curved model lies within the noise of the piece's returns at the median: a column cut
+by a nearer surface crossing before it comes in pieces, and the piece beside the crossing
+holds mixed returns along its limbs (nodding_1deg study seed 1456: columns of r 0.13-0.17 m
+at 3.9-4.6 m, three returns wide, pieces of 24 and 28 px holding 2-3 such returns 28-41 mm
+off the union's surface, which the merge refused: both columns counted split).
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from .._numeric import rows_at
 from ..fitting.primitives import Plane
 from ..fitting.region_fitter import region_indices
 from .context import TRIM_SIGMAS, Context, without
-from .merge import beyond_median_noise
+from .merge import beyond_median_noise, pieces_near
 
 __all__ = ["join_trimmed_pieces"]
 
@@ -41,13 +48,18 @@ REFITS = 2
 
 
 def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, *,
-                        rms_factor: float) -> tuple[np.ndarray, dict, set]:
+                        rms_factor: float, apart: set = frozenset(),
+                        apart_sigmas: float = 3.0) -> tuple[np.ndarray, dict, set]:
     """Each touching pair of a curved region and a smaller piece (of any kind, at least the
     size floor ``ctx.min_size``), smallest piece first: the returns of the piece that the
     curved model refitted with them explains join the curved region (see the module's
-    docstring for the tests). Returns new ``(labels, fits, adjacency)``; ``labels`` itself
-    when no piece was joined."""
-    pairs, regions = _pairs(labels, fits, adjacency, ctx.min_size)
+    docstring for the tests). ``apart``: pairs ``(min, max)`` that do not touch, tried too,
+    each only when the curved model lies within ``apart_sigmas`` noise sigmas of the piece's
+    returns at the median (a column seen above and below a pipe crossing before it: the
+    piece below, mixed returns along its limbs, lies off the union's surface by more than
+    :func:`rangeseg_o3d.refinement.merge.merge_regions` allows, while its own returns lie on
+    it). Returns new ``(labels, fits, adjacency)``; ``labels`` itself when no piece was joined."""
+    pairs, regions = _pairs(ctx, labels, fits, adjacency, apart, apart_sigmas)
     fits, flat, changed = dict(fits), None, set()  # (changed: the pairs' labels joined this pass)
     for _, big, small in pairs:
         if big in changed or small in changed:
@@ -72,21 +84,26 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
     return flat.reshape(labels.shape), fits, adjacency
 
 
-def _pairs(labels: np.ndarray, fits: dict, adjacency: set, min_size: int) -> tuple[list, dict]:
+def _pairs(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, apart: set,
+           apart_sigmas: float) -> tuple[list, dict]:
     """``(pairs, regions)``: the ``(size of piece, curved, piece)`` to try, smallest piece
-    first, and the flat pixels of their labels."""
-    touching = [(a, b) for a, b in adjacency if fits.get(a) and fits.get(b)
-                and not (isinstance(fits[a], Plane) and isinstance(fits[b], Plane))]
-    if not touching:
+    first (those of ``apart`` past the pretest of
+    :func:`rangeseg_o3d.refinement.merge.pieces_near`), and the flat pixels of
+    their labels."""
+    candidates = [(a, b) for a, b in [*adjacency, *sorted(apart)] if fits.get(a) and fits.get(b)
+                  and not (isinstance(fits[a], Plane) and isinstance(fits[b], Plane))]
+    if not candidates:
         return [], {}
-    regions = region_indices(labels, only={k for pair in touching for k in pair})
-    pairs = []
-    for a, b in touching:
+    regions = region_indices(labels, only={k for pair in candidates for k in pair})
+    pairs, far = [], []
+    for a, b in candidates:
         if a not in regions or b not in regions:
             continue
         big, small = (a, b) if regions[a].size >= regions[b].size else (b, a)
-        if not isinstance(fits[big], Plane) and regions[small].size >= min_size:
-            pairs.append((regions[small].size, big, small))
+        if not isinstance(fits[big], Plane) and regions[small].size >= ctx.min_size:
+            (far if (a, b) in apart else pairs).append((regions[small].size, big, small))
+    if far:
+        pairs += [pair for pair, near in zip(far, pieces_near(ctx, fits, regions, far, apart_sigmas)) if near]
     pairs.sort()
     return pairs, regions
 
