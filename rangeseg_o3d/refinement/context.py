@@ -252,9 +252,16 @@ class Context:
         whose inliers are not one connected piece: the plane tangent to two columns
         standing on a floor takes a strip of each), the search starts again from local
         starts (:func:`rangeseg_o3d.fitting.robust.trimmed_fit` with ``starts``), whose
-        answer at the noise replaces it. When the answer holds less than
-        :data:`DOMINANT_SHARE` of the pool, the local starts are searched too and their answer
-        replaces it when it holds more of the pool: the global proposals can lock onto a
+        answer at the noise replaces it; when none does and what is left of it is no surface
+        (its largest piece under the size floor, or a plane the fitter refuses on that piece),
+        the pool is searched on as one without an answer (:meth:`_after_no_answer`: with
+        ``face_band`` the one-sigma band, then the starts' pieces). A column against a box's
+        face, their planes tangent, and the floor at their feet (nodding_0.5deg study seed
+        1461 scan 2, 5218 px) gave a plane over the face and a strip of the column, 7.9 mm rms
+        under 5 mm of noise, which the fitter refused on its piece: the region was left
+        unfitted, though the band holds the face and a start the column. When the answer holds
+        less than :data:`DOMINANT_SHARE` of the pool, the local starts are searched too and
+        their answer replaces it when it holds more of the pool: the global proposals can lock onto a
         small surface beside a ball when their quadric band straddles both (noise_2mm study
         seed 1424 scan 7: a ball of r 0.35 m at 3 m, 106 returns in a blob with strips of the
         surfaces beside it, became three planes of about 20 returns that the release of
@@ -288,20 +295,16 @@ class Context:
             if grazing is not None:
                 return (*grazing, False)
         if model is None:
-            if not face_band:
-                return None, None, False
-            piece, model = self._face_in_noise(pool, sigma)
-            if piece is not None:
-                return piece, model, True
-            if self.band_faces_only:
-                return None, None, False
-            return (*self._start_pieces(pool, sigma), False)
+            return self._after_no_answer(pool, sigma, face_band)
+        # (a lost answer no start replaced that leaves no surface is no answer)
         if piece.size < self.min_size:
-            return None, None, False
+            return self._after_no_answer(pool, sigma, face_band) if lost else (None, None, False)
         if piece.size < _ONE_PIECE * count:  # a piece was cut off: fit the piece itself
             refit = self.fitter.refit(self.fitter.points(self.xyz, piece), model)
             if not refit and model.kind != "plane":
                 return self._plane_after_curved(pool, sigma, face_band)
+            if not refit and lost:
+                return self._after_no_answer(pool, sigma, face_band)
             model = refit
         if after_band and self.band_faces_only and self.curved_beyond_distance_noise(model, piece):
             piece, model = self._face_in_noise(pool, sigma)
@@ -363,6 +366,19 @@ class Context:
         # a crease lies within the band's median noise and tilts the plane)
         piece, model = self.within_distance_noise(piece, model)
         return None if piece is None else (piece, model)
+
+    def _after_no_answer(self, pool: np.ndarray, sigma: float, face_band: bool):
+        # ``(piece, model, by_face_band)`` of :meth:`dominant_search` when neither trimmed search
+        # answered with a surface: with ``face_band`` the one-sigma face band's, else (unless
+        # faces only) the first local start's piece fitted at the noise (:meth:`_start_pieces`)
+        if not face_band:
+            return None, None, False
+        piece, model = self._face_in_noise(pool, sigma)
+        if piece is not None:
+            return piece, model, True
+        if self.band_faces_only:
+            return None, None, False
+        return (*self._start_pieces(pool, sigma), False)
 
     def _plane_after_curved(self, pool: np.ndarray, sigma: float, face_band: bool):
         # ``(piece, model, by_face_band)`` when a curved model took pieces apart and fits none
