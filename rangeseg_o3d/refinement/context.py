@@ -252,20 +252,21 @@ class Context:
         whose inliers are not one connected piece: the plane tangent to two columns
         standing on a floor takes a strip of each), the search starts again from local
         starts (:func:`rangeseg_o3d.fitting.robust.trimmed_fit` with ``starts``), whose
-        answer at the noise replaces it; when none does and what is left of it is no surface
-        (its largest piece under the size floor, or a plane the fitter refuses on that piece),
-        the pool is searched on as one without an answer (:meth:`_after_no_answer`: with
-        ``face_band`` the one-sigma band, then the starts' pieces). A column against a box's
-        face, their planes tangent, and the floor at their feet (nodding_0.5deg study seed
-        1461 scan 2, 5218 px) gave a plane over the face and a strip of the column, 7.9 mm rms
-        under 5 mm of noise, which the fitter refused on its piece: the region was left
-        unfitted, though the band holds the face and a start the column. When the answer holds
-        less than :data:`DOMINANT_SHARE` of the pool, the local starts are searched too and
-        their answer replaces it when it holds more of the pool: the global proposals can lock onto a
-        small surface beside a ball when their quadric band straddles both (noise_2mm study
-        seed 1424 scan 7: a ball of r 0.35 m at 3 m, 106 returns in a blob with strips of the
-        surfaces beside it, became three planes of about 20 returns that the release of
-        grid lines then freed; a start on the ball finds it whole)."""
+        answer at the noise replaces it; when what is left of the answer (the lost one, or the
+        start's that replaced it) is no surface (its largest piece under the size floor, or a
+        plane the fitter refuses on that piece), the pool is searched on as one without an
+        answer (:meth:`_after_no_answer`: with ``face_band`` the one-sigma band, then the
+        starts' pieces). A column against a box's face, their planes tangent, and the floor at
+        their feet (nodding_0.5deg study seed 1461 scan 2, 5218 px) gave a plane over the face
+        and a strip of the column, 7.9 mm rms under 5 mm of noise, which the fitter refused on
+        its piece: the region was left unfitted, though the band holds the face and a start
+        the column. When the answer holds less than :data:`DOMINANT_SHARE` of the pool, the
+        local starts are searched too and their answer replaces it when it holds more of the
+        pool: the global proposals can lock onto a small surface beside a ball when their
+        quadric band straddles both (noise_2mm study seed 1424 scan 7: a ball of r 0.35 m at
+        3 m, 106 returns in a blob with strips of the surfaces beside it, became three planes
+        of about 20 returns that the release of grid lines then freed; a start on the ball
+        finds it whole)."""
         if pool.size < self.min_size:
             return None, None, False
         noise = self.sigma[pool]
@@ -296,7 +297,7 @@ class Context:
                 return (*grazing, False)
         if model is None:
             return self._after_no_answer(pool, sigma, face_band)
-        # (a lost answer no start replaced that leaves no surface is no answer)
+        # (after a lost answer, one that leaves no surface is no answer: see the docstring)
         if piece.size < self.min_size:
             return self._after_no_answer(pool, sigma, face_band) if lost else (None, None, False)
         if piece.size < _ONE_PIECE * count:  # a piece was cut off: fit the piece itself

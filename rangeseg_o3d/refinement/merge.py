@@ -749,8 +749,7 @@ def merge_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: s
             piece = regions[small]
             verdict = int(near[turn]) if fits[big] is as_tested[big] else -1
             if verdict < 0:  # (numpy's rounding decides: the compiled pass could not tell)
-                verdict = int(not median(np.abs(fits[big].distances(rows_at(ctx.xyz, piece))))
-                              > sigmas[turn] * median(ctx.sigma[piece]))
+                verdict = int(_median_near(ctx, fits[big], piece, sigmas[turn]))
             if not verdict:
                 continue
         parts = (regions[big], regions[small])  # the union's pixels, not concatenated unless it is taken
@@ -837,8 +836,8 @@ def _pretest_sigmas(pairs: list, near_sigmas: float | None, apart: set, apart_si
 def pieces_near(ctx: Context, fits: dict, regions: dict, pairs: list, near_sigmas: float) -> list[bool]:
     """Per ``(size, big, small)`` of ``pairs``: whether the model of ``big`` lies within
     ``near_sigmas`` noise sigmas of the pixels of ``small`` at the median (``regions``: flat
-    pixels per label), :func:`merge_into_curved`'s pretest, numpy deciding where the compiled
-    pass leaves it to rounding."""
+    pixels per label): the pretest :func:`merge_into_curved` makes, numpy deciding where the
+    compiled pass leaves it to rounding."""
     near = _pieces_near(ctx, fits, regions, pairs, near_sigmas).tolist()
     return [verdict > 0 or (verdict < 0 and _median_near(ctx, fits[big], regions[small], near_sigmas))
             for verdict, (_, big, small) in zip(near, pairs)]

@@ -87,9 +87,8 @@ def join_trimmed_pieces(ctx: Context, labels: np.ndarray, fits: dict, adjacency:
 def _pairs(ctx: Context, labels: np.ndarray, fits: dict, adjacency: set, apart: set,
            apart_sigmas: float) -> tuple[list, dict]:
     """``(pairs, regions)``: the ``(size of piece, curved, piece)`` to try, smallest piece
-    first (those of ``apart`` past the pretest of
-    :func:`rangeseg_o3d.refinement.merge.pieces_near`), and the flat pixels of
-    their labels."""
+    first (those of ``apart`` past :func:`rangeseg_o3d.refinement.merge.pieces_near`), and
+    the flat pixels of their labels."""
     candidates = [(a, b) for a, b in [*adjacency, *sorted(apart)] if fits.get(a) and fits.get(b)
                   and not (isinstance(fits[a], Plane) and isinstance(fits[b], Plane))]
     if not candidates:
