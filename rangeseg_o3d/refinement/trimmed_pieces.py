@@ -27,8 +27,8 @@ With ``merge_disjoint`` the pieces apart from a curved region are asked too, eac
 the curved model lies within the noise of the piece's returns at the median: a column cut
 by a nearer surface crossing before it comes in pieces, and the piece beside the crossing
 holds mixed returns along its limbs (nodding_1deg study seed 1456: columns of r 0.13-0.17 m
-at 3.9-4.6 m, three returns wide, pieces of 24 and 28 px holding 2-3 such returns 28-41 mm
-off the union's surface, which the merge refused: both columns counted split).
+at 3.9-5.0 m, three and four returns wide, smaller pieces of 26 and 32 px holding 2-3 such
+returns 14-41 mm off the union's surface, which the merge refused: both columns counted split).
 """
 
 from __future__ import annotations

@@ -140,10 +140,10 @@ def test_a_column_apart_beside_it_is_not_joined(context, seed):
 
 @pytest.mark.parametrize("k, surface", [(0, 7), (1, 10)])
 def test_a_column_seen_above_and_below_what_crosses_before_it_is_one_cylinder(k, surface):
-    # nodding_1deg study seed 1456: columns of r 0.17 m at 4.6 m (scan 0) and r 0.13 m at
-    # 3.9-4.5 m (scan 1), three returns wide, cut by a nearer surface into pieces of 96 and
-    # 24 px, and of 82 and 28 px, each piece a cylinder; the smaller held 2-3 mixed returns
-    # along a limb, 28-41 mm off the union's surface, and the merge refused them (split)
+    # nodding_1deg study seed 1456: columns of r 0.17 m at 4.6-5.0 m (scan 0) and r 0.13 m at
+    # 3.9-4.3 m (scan 1), three and four returns wide, cut by a nearer surface into pieces of
+    # 96 and 24 px of them, and of 82 and 28, each piece a cylinder; the smaller held 2-3
+    # mixed returns along a limb, 14-41 mm off the union's surface, and the merge refused them
     from matrix_helpers import matrix_result, surface_feature
     from rangeseg_o3d.evaluation.metrics import parameter_errors
 
