@@ -176,12 +176,6 @@ def bend_samples(sensor: Sensor, tile: int) -> float:
     return 1.0 if single_returns(sensor, tile) else 0.0
 
 
-def _curved_and_any_apart(fits: dict, adjacency: set) -> set:
-    # pairs (min, max) of a cylinder or sphere and any other fitted region that do not touch
-    curved = [k for k, m in fits.items() if m and m.kind in ("cylinder", "sphere")]
-    return {(min(k, c), max(k, c)) for c in curved for k, m in fits.items() if m and k != c} - set(adjacency)
-
-
 def single_returns(sensor: Sensor, tile: int) -> bool:
     """Whether the points of a grid of ``tile`` x ``tile`` means are a laser's single
     returns: no tile, and a sensor whose model states a laser's returns along its rays
@@ -331,7 +325,7 @@ def refine_regions(cloud, regions: Regions, *, fitter: RegionFitter, config, sen
         if single_returns(sensor, tile):  # (a laser's mixed returns at a column's limb)
             labels, fits, adjacency = join_trimmed_pieces(ctx, labels, fits, adjacency,
                                                           rms_factor=config.merge_rms_factor,
-                                                          apart=_curved_and_any_apart(fits, adjacency)
+                                                          apart=curved_pairs_apart(fits, adjacency, any_kind=True)
                                                           if config.merge_disjoint else frozenset(),
                                                           apart_sigmas=config.k_sigma)
     timer.lap("merge")

@@ -813,14 +813,16 @@ def _curved_pairs(labels: np.ndarray, fits: dict, mixed: list):
     return {k: order[bounds[k]:bounds[k + 1]] for k in np.flatnonzero(wanted).tolist()}, pairs, n
 
 
-def curved_pairs_apart(fits: dict, adjacency: set, among=None) -> set:
+def curved_pairs_apart(fits: dict, adjacency: set, among=None, *, any_kind: bool = False) -> set:
     """Pairs ``(min, max)`` of a cylinder or sphere of ``fits`` and a region of another kind
-    (one of ``among`` when given) that are not in ``adjacency``: the pairs
-    :func:`merge_into_curved` may try as ``apart`` (with ``merge_disjoint``)."""
+    (of any kind with ``any_kind``; one of ``among`` when given) that are not in
+    ``adjacency``: the pairs :func:`merge_into_curved` may try as ``apart`` (with
+    ``merge_disjoint``), and with ``any_kind`` those
+    :func:`rangeseg_o3d.refinement.trimmed_pieces.join_trimmed_pieces` may."""
     curved = [k for k, m in fits.items() if m and m.kind in ("cylinder", "sphere")]
     others = fits if among is None else among
     return {(min(k, c), max(k, c)) for k in others if fits.get(k) for c in curved
-            if c != k and fits[c].kind != fits[k].kind} - set(adjacency)
+            if c != k and (any_kind or fits[c].kind != fits[k].kind)} - set(adjacency)
 
 
 def _pretest_sigmas(pairs: list, near_sigmas: float | None, apart: set, apart_sigmas: float | None):

@@ -7,7 +7,8 @@ import pytest
 import rangeseg_o3d as rs
 from rangeseg_o3d.fitting import fit_cylinder, fit_plane
 from rangeseg_o3d.refinement.context import TRIM_SIGMAS
-from rangeseg_o3d.refinement.trimmed_pieces import join_trimmed_pieces
+from rangeseg_o3d.refinement.merge import pieces_near
+from rangeseg_o3d.refinement.trimmed_pieces import _trimmed_union, join_trimmed_pieces
 
 RADIUS, AXIS_Z = 0.3, 3.0
 
@@ -134,6 +135,11 @@ def test_a_column_apart_beside_it_is_not_joined(context, seed):
     # the same piece 5 cm along x: another column of the same radius, 25 noise sigmas off
     xyz, labels, fits, noise = _column_behind_an_occluder(seed, beside=0.05)
     ctx = context(rs.OrganizedCloud(xyz), sigma=np.full(labels.shape, noise))
+    # the premise: the trimmed union alone would take the piece's returns where the two arcs
+    # cross; the pretest at the median refuses the pair
+    regions = {k: np.flatnonzero(labels.ravel() == k) for k in (1, 2)}
+    assert _trimmed_union(ctx, fits[1], regions[1], regions[2], 1.3) is not None
+    assert pieces_near(ctx, fits, regions, [(regions[2].size, 1, 2)], 3.0) == [False]
     out, out_fits, _ = join_trimmed_pieces(ctx, labels, fits, set(), rms_factor=1.3, apart={(1, 2)})
     assert out is labels and out_fits == fits
 
