@@ -437,7 +437,7 @@ class Pipeline:
                                               recovered_min_size=recovered_region_floor(refine, min_size,
                                                                                  self.sensor.noise.correlation_px))
             lap("drop")
-            if by_rays:
+            if by_rays or noise.matched_window:
                 # as close_gaps does on the abw preset (a stereo camera's creases go by their rays
                 # below): regions grow into the free pixels beside them that their models explain
                 # (a face recovered from the blobs reaches no farther than its rim and claims), then
@@ -446,22 +446,17 @@ class Pipeline:
                 # tile model took within the noise at labelling takes it back. Kinect study seed 1190
                 # scan 3: a box top at 3.5 m recovered from the blobs kept 575 of its 722 px, 141 in
                 # the plane beside it; 621 after the settling. Seed 1181 scan 5: a box top at 5 m seen
-                # at 82 degrees, 272 of its 405 px; 319 after the settling, 328 with the growth
+                # at 82 degrees, 272 of its 405 px; 319 after the settling, 328 with the growth.
+                # Where the noise errs together over a matching window (stereo, kinect_real) too,
+                # before the steps below grow faces from free pieces and settle creases by their
+                # rays: a face whose tile model left a band of free pixels kept it (kinect_real
+                # study seed 1464 scan 4, a face at 3.4 m seen 63 degrees from head-on: 1979 of its
+                # 2513 px, 381 free; 2354 now)
                 labels, stats, _ = _grow_free(cloud, labels, fits, stats, sigma, ranges, refine)
                 labels, stats = _settle_planes(cloud, labels, fits, stats, sigma, ranges, refine,
                                                rings=refine.grow_iterations * settings.tile,
                                                wrap_columns=self.sensor.wrap_columns)
                 lap("settle_planes")
-            elif noise.matched_window:
-                # where the noise errs together over a matching window (stereo, kinect_real) the
-                # steps below grow faces from the free pieces and settle creases by their rays, but
-                # the regions did not grow into the free pixels beside them that their models
-                # explain: a face whose tile model left a band of them kept it (kinect_real study
-                # seed 1464 scan 4, a face at 3.4 m seen 63 degrees from head-on: 1979 of its
-                # 2513 px, 381 free; 2353 with the growth). The growth only: the settling between
-                # planes is settle_creases' below, along the rays
-                labels, stats, _ = _grow_free(cloud, labels, fits, stats, sigma, ranges, refine)
-                lap("grow_free")
             if noise.matched_window:
                 # (as split_plane_faces) a stereo camera's faces seen near grazing that kept no
                 # region, grown from the free pieces they left; after the drop, as each is held

@@ -228,7 +228,7 @@ def test_a_plane_region_larger_than_the_curved_one_is_not_joined_to_it():
 @pytest.mark.parametrize("row, seed, scan_index, truth_id, kind, radius, tolerance", [
     # a pipe of r 0.21 m at 6.2-6.8 m: the recovery's two planes, the larger turned a cylinder by
     # the bend test (2590 px), the other a strip beside it (1006 px). Under 61 mm of noise that
-    # errs together over 9 x 9 px the fitted radius is 0.17 m (0.1719 with 3596 px, 0.1697 with
+    # errs together over 9 x 9 px the fitted radius is 0.17 m (0.1719 with 3596 px, 0.1702 with
     # 3711 since free pixels grow at full resolution), its block-jackknife standard error over
     # 9 x 9 blocks 11 mm: 25 %
     ("kinect_real_640x480", 1353, 0, 17, "cylinder", 0.2137, 0.25),
