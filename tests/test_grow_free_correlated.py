@@ -46,9 +46,9 @@ def test_a_face_takes_the_free_band_its_plane_explains_on_stereo():
     assert free < 0.1 * n, free
 
 
-def test_the_growth_runs_on_depth_cameras_only():
+def test_the_growth_runs_where_the_noise_grows_with_the_range():
     # kinect_real (9 px correlation: a matching window) and kinect (pixel by pixel) grow and
-    # settle; the abw preset's structured light (constant noise, close_gaps) does neither here
+    # settle; the abw preset (constant noise: its growth is close_gaps') does not run this step
     from matrix_helpers import matrix_result
 
     steps = {name: matrix_result(name, seed, k)[1].timings
