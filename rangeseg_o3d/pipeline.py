@@ -437,9 +437,9 @@ class Pipeline:
                                               recovered_min_size=recovered_region_floor(refine, min_size,
                                                                                  self.sensor.noise.correlation_px))
             lap("drop")
-            if by_rays or noise.matched_window:
-                # as close_gaps does on the abw preset (a stereo camera's creases go by their rays
-                # below): regions grow into the free pixels beside them that their models explain
+            if float(noise.sigma_quadratic) > 0:  # (by_rays, or a matching window's noise)
+                # where the noise grows with the range, as close_gaps does on the abw preset:
+                # regions grow into the free pixels beside them that their models explain
                 # (a face recovered from the blobs reaches no farther than its rim and claims), then
                 # a plane's border pixels that a touching plane explains clearly better go to it, as
                 # deep as the tile grid settles: a face whose band along its crease the neighbour's
@@ -447,9 +447,9 @@ class Pipeline:
                 # scan 3: a box top at 3.5 m recovered from the blobs kept 575 of its 722 px, 141 in
                 # the plane beside it; 621 after the settling. Seed 1181 scan 5: a box top at 5 m seen
                 # at 82 degrees, 272 of its 405 px; 319 after the settling, 328 with the growth.
-                # Where the noise errs together over a matching window (stereo, kinect_real) too,
-                # before the steps below grow faces from free pieces and settle creases by their
-                # rays: a face whose tile model left a band of free pixels kept it (kinect_real
+                # Where it errs together over a matching window (stereo, kinect_real) too, before
+                # the steps below grow faces from free pieces and settle creases by their rays: a
+                # face whose tile model left a band of free pixels kept it (kinect_real
                 # study seed 1464 scan 4, a face at 3.4 m seen 63 degrees from head-on: 1979 of its
                 # 2513 px, 381 free; 2354 now)
                 labels, stats, _ = _grow_free(cloud, labels, fits, stats, sigma, ranges, refine)
