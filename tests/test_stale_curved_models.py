@@ -65,7 +65,7 @@ def test_the_other_kind_replaces_a_model_only_where_it_beats_its_own_kinds_refit
     assert other_curved_kind(exact, flat, stale, flat_stale) is closer
 
 
-def test_a_split_that_only_turns_the_kind_is_refused_where_the_decision_gives_the_kind():
+def test_a_split_that_only_turns_the_kind_is_refused_where_a_fit_of_the_own_kind_is_as_close():
     from rangeseg_o3d.refinement.context import Context
     from rangeseg_o3d.refinement.facets import _only_turns_the_kind
 
