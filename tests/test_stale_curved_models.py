@@ -37,73 +37,71 @@ def _ball_band(rng):
     return np.column_stack([u.ravel(), v.ravel(), z.ravel()])
 
 
+#: the ball's sphere as fitted before its region grew: 1 cm off along the band
+STALE = Sphere(center=[0.0, 0.01, 3.0], radius=RADIUS, rms=NOISE, inliers=100)
+#: the cylinder about the x axis through the ball's centre, of the ball's radius
+ACROSS = Cylinder(axis=np.array([1.0, 0.0, 0.0]), point=np.array([0.0, 0.0, 3.0]), radius=RADIUS, rms=NOISE,
+                  inliers=0)
+
+
+def _pressed(points, rows=slice(None)):
+    # the band's points ``rows`` pressed onto ACROSS (which then fits them exactly)
+    out = points.copy()
+    out[rows, 2] = 3.0 - np.sqrt(RADIUS ** 2 - out[rows, 1] ** 2)
+    return out
+
+
+def _squares(model, points) -> float:
+    return float(np.sum(model.distances(points) ** 2))
+
+
+def _context(points, fitter):
+    from rangeseg_o3d.refinement.context import Context
+
+    return Context(rs.OrganizedCloud(points.reshape(61, 9, 3)), fitter, np.full((61, 9), NOISE), 10)
+
+
 def test_the_other_kind_replaces_a_model_only_where_it_beats_its_own_kinds_refit():
     from rangeseg_o3d.fullres import other_curved_kind
 
     points = _ball_band(np.random.default_rng(3))
     fitter = rs.Pipeline("rgbd_vga").fitter
-    # the sphere as fitted before the region grew: 1 cm off along the band
-    stale = Sphere(center=[0.0, 0.01, 3.0], radius=RADIUS, rms=NOISE, inliers=100)
-    across = Cylinder(axis=np.array([1.0, 0.0, 0.0]), point=np.array([0.0, 0.0, 3.0]), radius=RADIUS, rms=NOISE,
-                      inliers=points.shape[0])
-    stale_squares = float(np.sum(stale.distances(points) ** 2))
-    cylinder_squares = float(np.sum(across.distances(points) ** 2))
-    refit = fitter.refit(points, stale)
+    refit = fitter.refit(points, STALE)
     assert isinstance(refit, Sphere) and refit.radius == pytest.approx(RADIUS, rel=0.1)
-    refit_squares = float(np.sum(refit.distances(points) ** 2))
     # premise: the cylinder beats the stale sphere, the sphere refitted to the points beats it
-    assert refit_squares < cylinder_squares < stale_squares
-    assert other_curved_kind(_Decides(fitter, across), points, stale, stale_squares) is None
-    # a cylinder that beats the refit as well replaces the sphere
-    closer = Cylinder(axis=across.axis, point=across.point, radius=RADIUS, rms=NOISE, inliers=points.shape[0])
-    exact = _Decides(fitter, closer)
-    flat = points.copy()
-    # on points the cylinder fits exactly (the ball's band pressed onto the cylinder) the
-    # sphere's refit leaves more
-    flat[:, 2] = 3.0 - np.sqrt(RADIUS ** 2 - flat[:, 1] ** 2)
-    flat_stale = float(np.sum(stale.distances(flat) ** 2))
-    assert other_curved_kind(exact, flat, stale, flat_stale) is closer
+    assert _squares(refit, points) < _squares(ACROSS, points) < _squares(STALE, points)
+    assert other_curved_kind(_Decides(fitter, ACROSS), points, STALE, _squares(STALE, points)) is None
+    # a cylinder that beats the refit as well replaces the sphere: on points it fits exactly
+    # (the ball's band pressed onto it) the sphere's refit leaves more
+    flat = _pressed(points)
+    assert other_curved_kind(_Decides(fitter, ACROSS), flat, STALE, _squares(STALE, flat)) is ACROSS
 
 
 def test_a_split_that_only_turns_the_kind_is_refused_where_a_fit_of_the_own_kind_is_as_close():
-    from rangeseg_o3d.refinement.context import Context
+    from rangeseg_o3d.fitting import fit_plane
     from rangeseg_o3d.refinement.facets import _only_turns_the_kind
 
     points = _ball_band(np.random.default_rng(3))
-    cloud = rs.OrganizedCloud(points.reshape(61, 9, 3))
-    ctx = Context(cloud, rs.Pipeline("rgbd_vga").fitter, np.full((61, 9), NOISE), 10)
+    ctx = _context(points, rs.Pipeline("rgbd_vga").fitter)
     idx = np.arange(points.shape[0])
-    stale = Sphere(center=[0.0, 0.01, 3.0], radius=RADIUS, rms=NOISE, inliers=100)
-    across = Cylinder(axis=np.array([1.0, 0.0, 0.0]), point=np.array([0.0, 0.0, 3.0]), radius=RADIUS, rms=NOISE,
-                      inliers=points.shape[0])
     # the decision on the ball's band gives a sphere, closer to the band than the cylinder:
     # the cylinder only turns the kind
     decided = ctx.fitter.fit(points)
     assert decided.kind == "sphere"
-    assert np.sum(decided.distances(points) ** 2) < np.sum(across.distances(points) ** 2)
-    assert _only_turns_the_kind(ctx, idx, stale, [(idx, across)])
+    assert _squares(decided, points) < _squares(ACROSS, points)
+    assert _only_turns_the_kind(ctx, idx, STALE, [(idx, ACROSS)])
     # a surface of the other kind closer to its pixels than the decision's fit stands (the
-    # band's middle column, which a cylinder along it fits exactly)
+    # band's middle column, pressed onto the cylinder)
     middle = idx.reshape(61, 9)[:, 4]
-    along = Cylinder(axis=np.array([1.0, 0.0, 0.0]), point=np.array([0.0, 0.0, 3.0]), radius=RADIUS, rms=NOISE,
-                     inliers=middle.size)
-    exact_middle = points.copy()
-    exact_middle[middle, 2] = 3.0 - np.sqrt(RADIUS ** 2 - exact_middle[middle, 1] ** 2)
-    on_middle = Context(rs.OrganizedCloud(exact_middle.reshape(61, 9, 3)), ctx.fitter, np.full((61, 9), NOISE), 10)
-    assert on_middle.fitter.fit(exact_middle).kind == "sphere"  # premise
-    assert not _only_turns_the_kind(on_middle, idx, stale, [(middle, along)])
+    exact_middle = _pressed(points, middle)
+    assert ctx.fitter.fit(exact_middle).kind == "sphere"  # premise
+    assert not _only_turns_the_kind(_context(exact_middle, ctx.fitter), idx, STALE, [(middle, ACROSS)])
     # a split into a plane, into the region's own kind or into two surfaces is another matter
-    from rangeseg_o3d.fitting import fit_plane
-
-    plane = fit_plane(points)
-    assert not _only_turns_the_kind(ctx, idx, stale, [(idx, plane)])
-    assert not _only_turns_the_kind(ctx, idx, stale, [(idx, stale)])
-    assert not _only_turns_the_kind(ctx, idx, stale, [(idx[:300], across), (idx[300:], stale)])
+    assert not _only_turns_the_kind(ctx, idx, STALE, [(idx, fit_plane(points))])
+    assert not _only_turns_the_kind(ctx, idx, STALE, [(idx, STALE)])
+    assert not _only_turns_the_kind(ctx, idx, STALE, [(idx[:300], ACROSS), (idx[300:], STALE)])
     # where the decision gives the other kind too (the band pressed onto the cylinder), the split stands
-    flat = points.copy()
-    flat[:, 2] = 3.0 - np.sqrt(RADIUS ** 2 - flat[:, 1] ** 2)
-    pressed = Context(rs.OrganizedCloud(flat.reshape(61, 9, 3)), ctx.fitter, np.full((61, 9), NOISE), 10)
-    assert not _only_turns_the_kind(pressed, idx, stale, [(idx, across)])
+    assert not _only_turns_the_kind(_context(_pressed(points), ctx.fitter), idx, STALE, [(idx, ACROSS)])
 
 
 @pytest.mark.slow

@@ -317,7 +317,7 @@ def _only_turns_the_kind(ctx: Context, idx: np.ndarray, model, surfaces: list) -
     again and leaves the pixels the split's surface takes no more squared distances than that
     surface does. A model fitted before its region grew misfits the grown region by the growth
     alone, and such a split replaced a model that was right (kinect study seed 1478 scan 0: a
-    ball's sphere from 19 tile means held on 51, 5.2 mm rms against 3.3 mm of noise, cut into
+    ball's sphere from 21 tile means held on 51, 5.2 mm rms against 3.3 mm of noise, cut into
     one cylinder at 2.0 mm that kept the region, where the sphere fitted to the 51 leaves 1.6).
     A split whose surface fits its pixels better stands (nodding_0.5deg study seed 1480 scan
     0, region growing: a ball's stale cylinder on 88 px, the fitter's cylinder there 7.6 mm
