@@ -47,3 +47,15 @@ def matrix_result_region_growing(name: str, seed: int, k: int, growing: str = "l
         config["refine"][key] = None
     scan = spec.simulate(matrix_rng(seed, spec.draws, k), False)
     return scan, rs.Pipeline(rs.load_config(config)).run(scan.cloud)
+
+
+def feature_of_kind(name: str, seed: int, k: int, truth_id: int, kind: type, *, of_region: float):
+    """``(scan, truth, feature)``: truth surface ``truth_id`` of scan ``k`` of matrix row ``name`` drawn
+    from ``seed``, asserted a ``kind`` (the case's premise), and the feature of the region holding
+    at least 90 % of it (:func:`surface_feature`, ``of_region``), asserted of the same kind."""
+    scan, result = matrix_result(name, seed, k)
+    truth = scan.truth[truth_id]
+    assert isinstance(truth, kind), truth
+    feature = surface_feature(scan, result, truth_id, of_surface=0.9, of_region=of_region)
+    assert isinstance(feature.model, kind), feature.model
+    return scan, truth, feature
