@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kernels
+from .fitting.primitives import squared_distances
 
 __all__ = ["edge_planes_to_curved"]
 
@@ -215,7 +216,7 @@ def stays_curved(model, points: np.ndarray, noise: np.ndarray) -> bool:
     plane = fit_plane(points)
     if not plane:
         return True
-    squares = float(np.sum(model.distances(points) ** 2))
+    squares = squared_distances(model, points)
     if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
         return True
     return curved_alone_within_noise(model, points, noise, plane)
@@ -236,7 +237,7 @@ def _union_stays_curved(cloud, labels: np.ndarray, host: int, model, sigma: np.n
     plane = fit_plane(points) if len(points) >= 6 else None
     if not plane:
         return True  # (planes_for_unresolved leaves it)
-    squares = float(np.sum(model.distances(points) ** 2))
+    squares = squared_distances(model, points)
     if curvature_resolved(len(points) * plane.rms ** 2, squares, len(points)):
         return True
     return only_curved_within_noise(model, cloud.xyz, sigma, labels, host, box)

@@ -26,8 +26,8 @@ import numpy as np
 
 from ._numeric import unique_ints
 from . import kernels  # the package: its names load on first use (no compiler at import)
-from .fitting.primitives import with_statistics
-from .fitting.region_fitter import fresh_label, model_table
+from .fitting.primitives import squared_distances, with_statistics
+from .fitting.region_fitter import fresh_label, model_table, other_curved_decision
 from .scales import GRAZING_TAN, MIN_PIXELS, RELIEF_STEPS, with_derived_refinement
 
 __all__ = ["ExpandedStages", "PixelStats", "expand", "label_pixels", "recover_thin_surfaces",
@@ -501,7 +501,7 @@ def planes_for_unresolved(cloud, labels: np.ndarray, fits: dict, stats: PixelSta
         plane = fit_plane(points) if len(points) >= 6 else None
         if not plane:
             continue
-        squares = float(np.sum(fits[k].distances(points) ** 2))
+        squares = squared_distances(fits[k], points)
         # the sample's points lie sample_step pixels apart: each carries step^2 pixels' share of
         # independent samples, at most one (a step as wide as a stereo camera's window: one each)
         share = min(1.0, samples * sample_step(labels[box].size) ** 2)
@@ -541,10 +541,10 @@ def other_curved_kind(fitter, points: np.ndarray, model, squares: float):
 
     if isinstance(model, Plane) or not model:
         return None
-    decided = fitter.fit(points)
-    if not decided or isinstance(decided, Plane) or decided.kind == model.kind:
+    decided = other_curved_decision(fitter, points, model.kind)
+    if decided is None:
         return None
-    other = float(np.sum(decided.distances(points) ** 2))
+    other = squared_distances(decided, points)
     if other >= squares:
         return None
     # against the model's kind refitted to the same points: the decision fitted the other
@@ -552,7 +552,7 @@ def other_curved_kind(fitter, points: np.ndarray, model, squares: float):
     # 1478 scan 0: a ball cut by the frame's edge, a sample of 509 of its pixels; the
     # decision's cylinder 9.14 mm rms, the tile sphere 9.15, the sphere refitted there 9.12)
     own = fitter.refit(points, model)
-    if own and own.kind == model.kind and float(np.sum(own.distances(points) ** 2)) <= other:
+    if own and own.kind == model.kind and squared_distances(own, points) <= other:
         return None
     return decided
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import rangeseg_o3d as rs
-from rangeseg_o3d.fitting.primitives import Cylinder, Sphere
+from rangeseg_o3d.fitting.primitives import Cylinder, Sphere, squared_distances
 
 RADIUS, NOISE = 0.34, 0.003
 
@@ -51,10 +51,6 @@ def _pressed(points, rows=slice(None)):
     return out
 
 
-def _squares(model, points) -> float:
-    return float(np.sum(model.distances(points) ** 2))
-
-
 def _context(points, fitter):
     from rangeseg_o3d.refinement.context import Context
 
@@ -69,12 +65,12 @@ def test_the_other_kind_replaces_a_model_only_where_it_beats_its_own_kinds_refit
     refit = fitter.refit(points, STALE)
     assert isinstance(refit, Sphere) and refit.radius == pytest.approx(RADIUS, rel=0.1)
     # premise: the cylinder beats the stale sphere, the sphere refitted to the points beats it
-    assert _squares(refit, points) < _squares(ACROSS, points) < _squares(STALE, points)
-    assert other_curved_kind(_Decides(fitter, ACROSS), points, STALE, _squares(STALE, points)) is None
+    assert squared_distances(refit, points) < squared_distances(ACROSS, points) < squared_distances(STALE, points)
+    assert other_curved_kind(_Decides(fitter, ACROSS), points, STALE, squared_distances(STALE, points)) is None
     # a cylinder that beats the refit as well replaces the sphere: on points it fits exactly
     # (the ball's band pressed onto it) the sphere's refit leaves more
     flat = _pressed(points)
-    assert other_curved_kind(_Decides(fitter, ACROSS), flat, STALE, _squares(STALE, flat)) is ACROSS
+    assert other_curved_kind(_Decides(fitter, ACROSS), flat, STALE, squared_distances(STALE, flat)) is ACROSS
 
 
 def test_a_split_that_only_turns_the_kind_is_refused_where_a_fit_of_the_own_kind_is_as_close():
@@ -88,7 +84,7 @@ def test_a_split_that_only_turns_the_kind_is_refused_where_a_fit_of_the_own_kind
     # the cylinder only turns the kind
     decided = ctx.fitter.fit(points)
     assert decided.kind == "sphere"
-    assert _squares(decided, points) < _squares(ACROSS, points)
+    assert squared_distances(decided, points) < squared_distances(ACROSS, points)
     assert _only_turns_the_kind(ctx, idx, STALE, [(idx, ACROSS)])
     # a surface of the other kind closer to its pixels than the decision's fit stands (the
     # band's middle column, pressed onto the cylinder)

@@ -7,7 +7,8 @@ from typing import ClassVar, Union
 
 import numpy as np
 
-__all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model", "front_along_rays", "with_statistics"]
+__all__ = ["Plane", "Sphere", "Cylinder", "FitFailure", "Model", "front_along_rays", "squared_distances",
+           "with_statistics"]
 
 
 def _vec(value, name: str) -> np.ndarray:
@@ -129,6 +130,12 @@ class FitFailure:
 
 
 Model = Union[Plane, Sphere, Cylinder]
+
+
+def squared_distances(model, points: np.ndarray) -> float:
+    """The sum of the squared distances of ``points`` (N, 3) from ``model``'s surface (any
+    model with ``distances``): what the steps that weigh two models on the same points compare."""
+    return float(np.sum(model.distances(points) ** 2))
 
 
 #: The fields :func:`with_statistics` sets without the dataclass machinery: scalars no check reads.

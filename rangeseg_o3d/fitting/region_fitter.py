@@ -11,7 +11,8 @@ from .batch_planes import region_moments
 from .primitives import Cylinder, FitFailure, Plane, Sphere, with_statistics
 from ..kernels.kinds import CYLINDER, NONE, PARAM_SLOTS, PLANE, SPHERE
 
-__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "extended_table", "pixel_rms", "fresh_label"]
+__all__ = ["RegionFitter", "region_indices", "label_sizes", "model_table", "model_row", "extended_table", "pixel_rms",
+           "fresh_label", "other_curved_decision"]
 
 
 def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -31,6 +32,16 @@ def model_table(fits: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         if kinds[k] != NONE:
             rms[k] = model.rms
     return kinds, params, rms
+
+
+def other_curved_decision(fitter, points: np.ndarray, kind: str):
+    """The fitter's decision on ``points`` when it is the curved kind other than ``kind`` (a
+    sphere where ``kind`` is a cylinder, a cylinder where it is a sphere), else None: the
+    answer the steps that may turn a curved region's kind weigh against its own kind."""
+    decided = fitter.fit(points)
+    if not decided or isinstance(decided, Plane) or decided.kind == kind:
+        return None
+    return decided
 
 
 def fresh_label(labels: np.ndarray, fits: dict) -> int:

@@ -16,7 +16,7 @@ import numpy as np
 from .._numeric import rows_at, unique_ints
 
 from .. import kernels  # the package: its names load on first use (no compiler at import)
-from ..fitting.primitives import Plane
+from ..fitting.primitives import Plane, squared_distances
 from ..fitting.region_fitter import label_sizes, model_table, region_indices
 from ..fitting.robust import beyond_noise, curvature_resolved
 from .context import SCREEN_SLACK, Context, touching
@@ -233,8 +233,8 @@ def _stands_apart(points: np.ndarray, own, hosts: list, best: np.ndarray, explai
     was nearest to those three (kinect_real_640x480 study seed 1412 scan 5)."""
     if not own or any(hosts[i].kind == own.kind for i in unique_ints(best[explained]).tolist()):
         return False
-    host_squares = sum(float(np.sum(host.distances(points[best == i]) ** 2)) for i, host in enumerate(hosts))
-    own_squares = float(np.sum(own.distances(points) ** 2))
+    host_squares = sum(squared_distances(host, points[best == i]) for i, host in enumerate(hosts))
+    own_squares = squared_distances(own, points)
     return curvature_resolved(host_squares, own_squares, len(points), MODEL_PARAMETERS[own.kind])
 
 

@@ -33,7 +33,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from .._numeric import median, rows_at
 from ..fitting.classify import INLIER_FACTOR, trimmed_plane
 from ..fitting.plane import fit_plane
-from ..fitting.primitives import Cylinder, Plane, Sphere
+from ..fitting.primitives import Cylinder, Plane, Sphere, squared_distances
 from ..fitting.region_fitter import fresh_label, model_row, model_table, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, distance_noise
 from ..kernels.linalg import noise_rms_bound
@@ -329,7 +329,7 @@ def _only_turns_the_kind(ctx: Context, idx: np.ndarray, model, surfaces: list) -
         return False
     piece, surface = surfaces[0]
     points = rows_at(ctx.xyz, piece)
-    return float(np.sum(decided.distances(points) ** 2)) <= float(np.sum(surface.distances(points) ** 2))
+    return squared_distances(decided, points) <= squared_distances(surface, points)
 
 
 def _cap_of_trimmed(ctx: Context, idx: np.ndarray, model) -> list:
@@ -513,7 +513,7 @@ def _explains(ctx: Context, idx: np.ndarray, distances: np.ndarray, surfaces: li
     if not _covers(surfaces, idx):
         return False
     taken = sum(piece.size for piece, _ in surfaces)
-    squares = sum(float(np.sum(surface.distances(rows_at(ctx.xyz, piece)) ** 2)) for piece, surface in surfaces)
+    squares = sum(squared_distances(surface, rows_at(ctx.xyz, piece)) for piece, surface in surfaces)
     covered = np.concatenate([piece for piece, _ in surfaces])
     model_squares = float(np.sum(distances[np.searchsorted(idx, covered)] ** 2))  # the curved model's
     if len(surfaces) == 1 and isinstance(surfaces[0][1], Plane):
@@ -611,7 +611,7 @@ def cap_split(ctx: Context, model, idx: np.ndarray, distances: np.ndarray | None
     if not plane or not _off_one_grid_line(ctx, piece):
         return []
     on_piece = np.searchsorted(idx, piece)
-    plane_squares = float(np.sum(plane.distances(rows_at(ctx.xyz, piece)) ** 2))
+    plane_squares = squared_distances(plane, rows_at(ctx.xyz, piece))
     cylinder_squares = float(np.sum(distances[on_piece] ** 2))
     # the cap plane must resolve what the cylinder leaves over its pixels (3 parameters more)
     if not curvature_resolved(cylinder_squares, plane_squares, piece.size, 3):

@@ -14,7 +14,7 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from .._numeric import median, rows_at, unique_ints
 from ..fitting.batch_planes import plane_rms_from_moments, planes_from_moments
 from ..fitting.classify import refit_planes_from_moments
-from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere
+from ..fitting.primitives import Cylinder, FitFailure, Plane, Sphere, squared_distances
 from ..fitting.region_fitter import model_row, region_indices
 from ..fitting.robust import CHI_SQUARE_SIGMAS, beyond_noise, curvature_resolved, union_out_of_reach
 from ..kernels.linalg import NOISE_CHI2_SIGMAS, noise_rms_bound
@@ -695,8 +695,8 @@ def _own_model_resolves(ctx: Context, piece: np.ndarray, own, union) -> bool:
     on a far stereo camera both fit within the range noise (the cap faces the sensor, its
     noise is the whole range noise; the pipe's flanks graze it)."""
     points = rows_at(ctx.xyz, piece)
-    own_squares = float(np.sum(own.distances(points) ** 2))
-    union_squares = float(np.sum(union.distances(points) ** 2))
+    own_squares = squared_distances(own, points)
+    union_squares = squared_distances(union, points)
     return curvature_resolved(union_squares, own_squares, piece.size, MODEL_PARAMETERS[own.kind])
 
 
@@ -963,7 +963,7 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
             continue  # one of them was joined already (it may have kept its label: a pair's first)
         for k in (a, b):
             if k not in squares:
-                squares[k] = float(np.sum(fits[k].distances(rows_at(ctx.xyz, regions[k])) ** 2))
+                squares[k] = squared_distances(fits[k], rows_at(ctx.xyz, regions[k]))
         planes = squares[a] + squares[b]
         parts = (regions[a], regions[b])
         points = ctx.fitter.points_of(ctx.xyz, parts)
@@ -973,7 +973,7 @@ def planes_into_curved(ctx: Context, labels: np.ndarray, fits: dict, adjacency: 
         union = ctx.fitter.fit(points)
         if not union or isinstance(union, Plane):
             continue
-        union_squares = sum(float(np.sum(union.distances(rows_at(ctx.xyz, part)) ** 2)) for part in parts)
+        union_squares = sum(squared_distances(union, rows_at(ctx.xyz, part)) for part in parts)
         if union_squares >= planes or beyond_median_noise(float(np.sqrt(union_squares / n)),
                                                            ctx.sigma.reshape(-1), parts):
             continue

@@ -28,8 +28,8 @@ from .. import kernels  # the package: its names load on first use (no compiler 
 from ..kernels.linalg import CHI_SQUARE_SIGMAS, NOISE_CHI2_SIGMAS, noise_rms_bound
 from ..fitting._compiled import arc_around_axis
 from ..fitting.classify import MIN_ARC_DEG
-from ..fitting.primitives import Cylinder, Plane, Sphere, front_along_rays
-from ..fitting.region_fitter import label_sizes, model_table, region_indices
+from ..fitting.primitives import Cylinder, Plane, Sphere, front_along_rays, squared_distances
+from ..fitting.region_fitter import label_sizes, model_table, other_curved_decision, region_indices
 from ..fitting.plane import fit_plane
 from ..fitting.robust import beyond_noise, curvature_resolved, distance_noise
 from .context import SCREEN_SLACK, TRIM_SIGMAS, Context
@@ -137,10 +137,8 @@ def _other_kind_decided(ctx: Context, idx: np.ndarray, refit):
     the decision on those gives a sphere of r 0.251 m at 3.5 mm. As at the other steps that
     turn one curved kind into the other (``refinement.facets``, ``fullres.other_curved_kind``),
     the other kind stands only where it fits closer than the model's own kind fitted anew."""
-    decided = ctx.fitter.fit(ctx.fitter.points(ctx.xyz, idx))
-    if decided and not isinstance(decided, Plane) and decided.kind != refit.kind and decided.rms < refit.rms:
-        return decided
-    return None
+    decided = other_curved_decision(ctx.fitter, ctx.fitter.points(ctx.xyz, idx), refit.kind)
+    return decided if decided is not None and decided.rms < refit.rms else None
 
 
 class _Pixels:
@@ -312,7 +310,7 @@ def _bent_by_border(ctx: Context, labels: np.ndarray, fits: dict, curved: list, 
         plane = fit_plane(points[inner], inlier_distance=INLIER_FACTOR * tolerance)
         if not plane or plane.rms > tolerance:
             continue
-        if curvature_resolved(float(np.sum(plane.distances(points[inner]) ** 2)), float(np.sum(squares[inner])), n,
+        if curvature_resolved(squared_distances(plane, points[inner]), float(np.sum(squares[inner])), n,
                               EXTRA_PARAMETERS[model.kind]):
             continue
         claimed, through = _seen_through(ctx, labels, k, idx, model)
@@ -816,7 +814,7 @@ def _bent_but_for_strays(ctx: Context, idx: np.ndarray, model) -> bool:
     plane = fit_plane(points[near])
     if not plane:
         return False
-    plane_squares = float(np.sum(plane.distances(points[near]) ** 2))
+    plane_squares = squared_distances(plane, points[near])
     return curvature_resolved(plane_squares, float(np.sum(distances[near] ** 2)), kept, EXTRA_PARAMETERS[model.kind])
 
 
